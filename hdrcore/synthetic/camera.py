@@ -56,7 +56,7 @@ def _srgb(x: np.ndarray) -> np.ndarray:
 
 
 def _s_curve(x: np.ndarray) -> np.ndarray:
-    # Film-like S-shape: a gamma lift followed by a smooth-step contrast curve; monotone, 0->0, 1->1.
+    # Film-like S-shape: gamma lift, then a smooth-step contrast curve; monotone, 0->0, 1->1.
     g = np.power(x, 1.0 / 2.0)
     return g * g * (3.0 - 2.0 * g)
 
@@ -243,7 +243,9 @@ def simulate_bracket(
     if len(times) < 1 or any(not np.isfinite(t) or t <= 0 for t in times):
         raise ParameterError("exposure times must be positive", found=str(times))
     if bits not in (8, 10, 12, 14, 16):
-        raise ParameterError("unsupported bit depth", expected="8, 10, 12, 14 or 16", found=str(bits))
+        raise ParameterError(
+            "unsupported bit depth", expected="8, 10, 12, 14 or 16", found=str(bits)
+        )
     if noise_sigma < 0:
         raise ParameterError("noise sigma must be >= 0", found=str(noise_sigma))
     validate_method(response, RESPONSES, "response")

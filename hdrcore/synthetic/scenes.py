@@ -43,7 +43,9 @@ def _grid(shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
     return x / max(w - 1, 1), y / max(h - 1, 1)
 
 
-def _blob(x: np.ndarray, y: np.ndarray, cx: float, cy: float, r: float, aspect: float) -> np.ndarray:
+def _blob(
+    x: np.ndarray, y: np.ndarray, cx: float, cy: float, r: float, aspect: float
+) -> np.ndarray:
     d2 = ((x - cx) * aspect) ** 2 + (y - cy) ** 2
     return np.exp(-d2 / (2 * r * r)).astype(np.float32)
 
@@ -151,7 +153,9 @@ SCENES: dict[str, Callable[[tuple[int, int], np.random.Generator], np.ndarray]] 
 }
 
 
-def make_scene(name: str = "window", shape: tuple[int, int] = (256, 384), seed: int = 0) -> np.ndarray:
+def make_scene(
+    name: str = "window", shape: tuple[int, int] = (256, 384), seed: int = 0
+) -> np.ndarray:
     """Radiance map of the named procedural scene, float32 ``(H, W, 3)``, median 1.
 
     ``name`` is one of :data:`SCENES`; the same ``seed`` gives the same scene.

@@ -1,0 +1,218 @@
+"""The frame: integer levels at native bit depth plus everything known about how they were made."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from datetime import datetime
+from fractions import Fraction
+
+import numpy as np
+
+from ..errors import ParameterError
+
+__all__ = ["FrameMetadata", "RawCFA", "Frame", "apply_orientation"]
+
+
+@dataclass(frozen=True)
+class FrameMetadata:
+    """What is known about a frame. ``None`` means unknown, never a guess.
+
+    ``exposure_time_source`` says where the time came from: ``"exif"`` (an exact rational),
+    ``"libraw"`` (LibRaw's shutter value, APEX-derived, when the file has no TIFF EXIF),
+    ``"times-file"`` (a ``name seconds`` list) or ``None``.
+    ``black_level`` is per colour channel in raw units (zeros for JPEG/PNG/TIFF); ``max_level`` is
+    the largest level a pixel can take after black subtraction (``white_level - black``).
+    """
+
+    path: str
+    format: str
+    bit_depth: int
+    max_level: int
+    is_linear: bool
+    exposure_time: Fraction | None = None
+    exposure_time_source: str | None = None
+    f_number: Fraction | None = None
+    iso: int | None = None
+    exposure_bias: Fraction | None = None
+    make: str | None = None
+    model: str | None = None
+    capture_time: datetime | None = None
+    orientation: int | None = None
+    black_level: tuple[float, ...] = (0.0, 0.0, 0.0)
+    white_level: int | None = None
+    channel_max_levels: tuple[int, ...] | None = None
+    camera_whitebalance: tuple[float, ...] | None = None
+    rgb_xyz_matrix: tuple[tuple[float, ...], ...] | None = None
+    cfa_pattern: tuple[tuple[int, ...], ...] | None = None
+    cfa_colors: str | None = None
+
+    @property
+    def camera(self) -> str | None:
+        parts = [p for p in (self.make, self.model) if p]
+        return " ".join(parts) if parts else None
+
+    def to_json(self) -> dict:
+        """JSON-ready dictionary (fractions as strings and floats)."""
+        def frac(v: Fraction | None) -> str | None:
+            return None if v is None else str(v)
+
+        return {
+            "path": self.path,
+            "format": self.format,
+            "bit_depth": self.bit_depth,
+            "max_level": self.max_level,
+            "is_linear": self.is_linear,
+            "exposure_time": None if self.exposure_time is None else float(self.exposure_time),
+            "exposure_time_exact": frac(self.exposure_time),
+            "exposure_time_source": self.exposure_time_source,
+            "f_number": None if self.f_number is None else float(self.f_number),
+            "iso": self.iso,
+            "exposure_bias": None if self.exposure_bias is None else float(self.exposure_bias),
+            "make": self.make,
+            "model": self.model,
+            "capture_time": None if self.capture_time is None else self.capture_time.isoformat(),
+            "orientation": self.orientation,
+            "black_level": list(self.black_level),
+            "white_level": self.white_level,
+        }
+
+
+@dataclass(frozen=True, eq=False)
+class RawCFA:
+    """The sensor's colour-filter-array data, untouched: sensor orientation, black not subtracted.
+
+    ``pattern[r][c]`` is the colour index (into ``colors``, e.g. ``"RGBG"``) of the pixel at
+    ``(r % 2, c % 2)``; ``black_level[i]`` belongs to colour index ``i``.
+    """
+
+    data: np.ndarray
+    pattern: np.ndarray
+    colors: str
+    black_level: tuple[float, ...]
+    white_level: int
+
+    def plane(self, colour: str = "G") -> np.ndarray:
+        """Half-resolution plane of one colour, black-subtracted, float32 in raw units.
+
+        For green (two sites per 2x2 cell) the two sites are averaged.
+        """
+        h, w = self.data.shape
+        h2, w2 = h // 2 * 2, w // 2 * 2
+        sites = []
+        for r in range(2):
+            for c in range(2):
+                idx = int(self.pattern[r, c])
+                if self.colors[idx] == colour:
+                    block = self.data[r:h2:2, c:w2:2].astype(np.float32)
+                    sites.append(block - np.float32(self.black_level[idx]))
+        if not sites:
+            raise ParameterError(f"colour {colour!r} not in CFA", found=self.colors)
+        return np.clip(sum(sites) / len(sites), 0, None).astype(np.float32)
+
+
+_ORIENT_OPS = {
+    1: (),
+    2: ("fliplr",),
+    3: ("rot180",),
+    4: ("flipud",),
+    5: ("transpose",),
+    6: ("rot270",),
+    7: ("transverse",),
+    8: ("rot90",),
+}
+
+
+def apply_orientation(image: np.ndarray, orientation: int | None) -> np.ndarray:
+    """Rotate/flip ``image`` (H, W[, C]) so it displays upright per the EXIF orientation tag.
+
+    Tag values: 1 normal, 2 mirrored, 3 rotated 180, 4 flipped, 5 transposed, 6 rotate 90 CW to
+    view, 7 transverse, 8 rotate 90 CCW to view. Unknown values leave the image as it is.
+    """
+    if orientation is None or orientation == 1 or orientation not in _ORIENT_OPS:
+        return image
+    if orientation == 2:
+        out = image[:, ::-1]
+    elif orientation == 3:
+        out = image[::-1, ::-1]
+    elif orientation == 4:
+        out = image[::-1]
+    elif orientation == 5:
+        out = np.swapaxes(image, 0, 1)
+    elif orientation == 6:
+        out = np.swapaxes(image, 0, 1)[:, ::-1]
+    elif orientation == 7:
+        out = np.swapaxes(image, 0, 1)[::-1, ::-1]
+    else:  # 8
+        out = np.swapaxes(image, 0, 1)[::-1]
+    return np.ascontiguousarray(out)
+
+
+@dataclass(frozen=True, eq=False)
+class Frame:
+    """One exposure: integer ``levels`` ``(H, W, 3)`` uint16 at native bit depth, upright.
+
+    For RAW the levels are demosaiced camera RGB with the black level subtracted per channel (no
+    white balance, no gamma, no scaling), so ``levels / max_level`` is linear sensor exposure with
+    1.0 at the white level. For JPEG/PNG/TIFF they are the file's code values (non-linear until a
+    response is applied).
+    """
+
+    levels: np.ndarray
+    meta: FrameMetadata
+    cfa: RawCFA | None = field(default=None, repr=False)
+
+    def __post_init__(self) -> None:
+        if self.levels.ndim != 3 or self.levels.shape[2] != 3:
+            raise ParameterError("frame levels must be (H, W, 3)", found=str(self.levels.shape))
+        self.levels.setflags(write=False)
+
+    @property
+    def path(self) -> str:
+        return self.meta.path
+
+    @property
+    def name(self) -> str:
+        from pathlib import Path
+
+        return Path(self.meta.path).name
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return (int(self.levels.shape[0]), int(self.levels.shape[1]))
+
+    @property
+    def max_level(self) -> int:
+        return self.meta.max_level
+
+    @property
+    def bit_depth(self) -> int:
+        return self.meta.bit_depth
+
+    @property
+    def is_linear(self) -> bool:
+        return self.meta.is_linear
+
+    @property
+    def exposure_time(self) -> float | None:
+        t = self.meta.exposure_time
+        return None if t is None else float(t)
+
+    def linear(self, dtype: type = np.float32) -> np.ndarray:
+        """Linear exposure ``levels / max_level`` (RAW frames only; others need a response)."""
+        if not self.is_linear:
+            raise ParameterError(
+                "frame is not linear; apply a camera response first",
+                expected="a RAW frame",
+                found=f"{self.meta.format} ({self.meta.path})",
+            )
+        return self.levels.astype(dtype) * dtype(1.0 / self.max_level)
+
+    def mean_level(self) -> float:
+        """Mean level relative to ``max_level`` (used to order frames without EXIF)."""
+        step = max(1, int(np.sqrt(self.levels.size / 3 / 65536)))
+        return float(self.levels[::step, ::step].mean()) / self.max_level
+
+    def with_exposure_time(self, seconds: Fraction | float, source: str) -> Frame:
+        t = seconds if isinstance(seconds, Fraction) else Fraction(str(seconds))
+        meta = replace(self.meta, exposure_time=t, exposure_time_source=source)
+        return Frame(levels=self.levels, meta=meta, cfa=self.cfa)
