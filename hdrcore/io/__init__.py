@@ -1,0 +1,40 @@
+"""Reading brackets and writing results; every file format lives behind this package.
+
+Numerical code elsewhere in ``hdrcore`` takes arrays, never paths.
+"""
+
+from .atomic import atomic_write, check_output_path
+from .bracket import Bracket, BracketWarning, expand_paths, load_bracket, load_frame
+from .exif import ExifData, read_exif
+from .exr import read_exr, write_exr
+from .frame import Frame, FrameMetadata, RawCFA, apply_orientation
+from .ldr import read_ldr
+from .preview import encode_png, write_png
+from .raw import RAW_EXTENSIONS, is_raw_path, read_raw
+from .times import parse_seconds, read_exposure_times
+
+__all__ = [
+    "RAW_EXTENSIONS",
+    "Bracket",
+    "BracketWarning",
+    "ExifData",
+    "Frame",
+    "FrameMetadata",
+    "RawCFA",
+    "apply_orientation",
+    "atomic_write",
+    "check_output_path",
+    "encode_png",
+    "expand_paths",
+    "is_raw_path",
+    "load_bracket",
+    "load_frame",
+    "parse_seconds",
+    "read_exif",
+    "read_exposure_times",
+    "read_exr",
+    "read_ldr",
+    "read_raw",
+    "write_exr",
+    "write_png",
+]

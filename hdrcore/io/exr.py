@@ -1,0 +1,133 @@
+"""OpenEXR output and input: RGB half (default) or float, with provenance as attributes.
+
+Attributes written (when known): ``exposureTimes`` (seconds, darkest first), ``exposureRatios``
+(consecutive, estimated), ``hdrviewTransforms`` (JSON: per-frame 2x3 matrices to the reference),
+``hdrviewSources`` (JSON: input file names), and ``hdrview`` (JSON with everything passed in
+``metadata``). Half floats saturate at 65504; larger finite values are clipped there and the count
+is recorded in ``hdrviewClippedHalf``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Iterable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import ImageReadError, InputError, ParameterError
+from .atomic import atomic_write
+
+__all__ = ["write_exr", "read_exr", "HALF_MAX"]
+
+HALF_MAX = 65504.0
+
+
+def _validate_rgb(rgb: np.ndarray) -> np.ndarray:
+    arr = np.asarray(rgb)
+    if arr.ndim != 3 or arr.shape[2] != 3 or arr.shape[0] == 0 or arr.shape[1] == 0:
+        raise ParameterError("EXR image must be (H, W, 3)", found=str(arr.shape))
+    if not np.issubdtype(arr.dtype, np.floating):
+        raise ParameterError("EXR image must be floating point", found=str(arr.dtype))
+    return arr
+
+
+def write_exr(
+    path: str | os.PathLike,
+    rgb: np.ndarray,
+    *,
+    half: bool = True,
+    exposure_times: Sequence[float] | None = None,
+    exposure_ratios: Sequence[float] | None = None,
+    transforms: Sequence[Any] | None = None,
+    sources: Sequence[str] | None = None,
+    metadata: Mapping[str, Any] | None = None,
+    force: bool = False,
+    inputs: Iterable[str | os.PathLike] = (),
+) -> Path:
+    """Write ``rgb`` (float, ``(H, W, 3)``, linear) to an OpenEXR file atomically.
+
+    NaNs and negative values are written as 0 (radiance is non-negative).
+    """
+    import OpenEXR
+
+    arr = _validate_rgb(rgb)
+    dtype = np.float16 if half else np.float32
+    data = np.nan_to_num(arr.astype(np.float32, copy=False), nan=0.0, posinf=HALF_MAX)
+    clipped = 0
+    if half:
+        over = data > HALF_MAX
+        clipped = int(over.sum())
+        if clipped:
+            data = np.minimum(data, HALF_MAX)
+    data = np.ascontiguousarray(np.maximum(data, 0.0).astype(dtype))
+
+    header: dict[str, Any] = {
+        "compression": OpenEXR.ZIP_COMPRESSION,
+        "type": OpenEXR.scanlineimage,
+    }
+    if exposure_times is not None:
+        header["exposureTimes"] = [float(t) for t in exposure_times]
+    if exposure_ratios is not None:
+        header["exposureRatios"] = [float(r) for r in exposure_ratios]
+    if transforms is not None:
+        header["hdrviewTransforms"] = json.dumps([np.asarray(m).tolist() for m in transforms])
+    if sources is not None:
+        header["hdrviewSources"] = json.dumps([Path(s).name for s in sources])
+    if metadata:
+        header["hdrview"] = json.dumps(metadata, default=_json_default)
+    header["hdrviewClippedHalf"] = clipped
+
+    def writer(tmp: Path) -> None:
+        with OpenEXR.File(header, {"RGB": data}) as exr:
+            exr.write(str(tmp))
+
+    return atomic_write(path, writer, force=force, inputs=inputs)
+
+
+def _json_default(obj: Any) -> Any:
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, (np.floating, np.integer)):
+        return obj.item()
+    return str(obj)
+
+
+def read_exr(path: str | os.PathLike) -> tuple[np.ndarray, dict[str, Any]]:
+    """Read an RGB OpenEXR file: ``(rgb float32 (H, W, 3), attributes)``.
+
+    JSON attributes written by :func:`write_exr` are decoded.
+    """
+    import OpenEXR
+
+    p = Path(path)
+    if not p.is_file():
+        raise InputError("file not found", path=p)
+    try:
+        with OpenEXR.File(str(p)) as exr:
+            header = dict(exr.header())
+            channels = exr.channels()
+            if "RGB" in channels:
+                rgb = np.asarray(channels["RGB"].pixels)
+            elif all(c in channels for c in "RGB"):
+                rgb = np.stack([np.asarray(channels[c].pixels) for c in "RGB"], axis=-1)
+            else:
+                raise ImageReadError(
+                    "EXR has no RGB channels", path=p, found=", ".join(channels.keys())
+                )
+    except ImageReadError:
+        raise
+    except Exception as exc:  # OpenEXR raises RuntimeError/ValueError on damaged files
+        raise ImageReadError(f"not a readable OpenEXR file ({exc})", path=p) from exc
+    attrs: dict[str, Any] = {}
+    for key, value in header.items():
+        if key in ("hdrview", "hdrviewTransforms", "hdrviewSources") and isinstance(value, str):
+            try:
+                attrs[key] = json.loads(value)
+            except json.JSONDecodeError:
+                attrs[key] = value
+        else:
+            attrs[key] = value
+    return rgb.astype(np.float32), attrs
