@@ -1,0 +1,80 @@
+"""The ``hdrcore`` command: thin subcommands that print JSON built from the result objects.
+
+Each subcommand lives in its own module ``hdrcore/cli/<name>.py`` with ``add_parser(subparsers)``
+and ``run(args) -> int``. Errors of the project's own types print one line and exit with 2; no
+traceback unless ``--debug``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import importlib.util
+import logging
+import sys
+from collections.abc import Sequence
+
+from .. import __version__
+from ..errors import HdrError
+
+__all__ = ["main", "build_parser"]
+
+SUBCOMMANDS = ("info", "simulate", "ratios", "response", "align", "merge")
+
+
+def _modules() -> list:
+    mods = []
+    for name in SUBCOMMANDS:
+        full = f"{__name__}.{name}"
+        if importlib.util.find_spec(full) is not None:
+            mods.append(importlib.import_module(full))
+    return mods
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="hdrcore",
+        description="Exposure brackets to HDR (Cerman & Hlavac 2006): ratios from histograms, "
+        "response recovery, hand-held registration, merge.",
+    )
+    parser.add_argument("--version", action="version", version=f"hdrcore {__version__}")
+    parser.add_argument("--debug", action="store_true", help="show tracebacks and debug logs")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+    for mod in _modules():
+        mod.add_parser(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(
+        level=logging.DEBUG if args.debug else logging.WARNING,
+        format="hdrcore: %(levelname)s: %(message)s",
+    )
+    try:
+        return int(args.run(args) or 0)
+    except HdrError as exc:
+        if args.debug:
+            raise
+        print(f"hdrcore: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("hdrcore: interrupted", file=sys.stderr)
+        return 130
+    except MemoryError:
+        print("hdrcore: error: out of memory (try smaller frames)", file=sys.stderr)
+        return 3
+    except Exception as exc:  # last resort: one line, never a bare traceback
+        if args.debug:
+            raise
+        print(
+            f"hdrcore: internal error: {type(exc).__name__}: {exc} (run with --debug for details)",
+            file=sys.stderr,
+        )
+        return 3
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,63 @@
+"""Shared pieces of the subcommands: bracket arguments, JSON printing, warnings to stderr."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from typing import Any
+
+import numpy as np
+
+from ..io import Bracket, load_bracket
+
+__all__ = [
+    "add_bracket_arguments",
+    "load_bracket_from_args",
+    "print_json",
+    "print_warnings",
+    "to_jsonable",
+]
+
+
+def add_bracket_arguments(parser: argparse.ArgumentParser) -> None:
+    """``FILE...`` (files or directories) and ``--times FILE``."""
+    parser.add_argument(
+        "files", nargs="+", metavar="FILE",
+        help="frames of one bracket (JPEG, PNG, TIFF, RAW) or a directory holding them",
+    )
+    parser.add_argument(
+        "--times", metavar="FILE",
+        help="exposure times as 'name seconds' lines (replace EXIF)",
+    )
+
+
+def load_bracket_from_args(args: argparse.Namespace, **kwargs: Any) -> Bracket:
+    return load_bracket(args.files, exposure_times=getattr(args, "times", None), **kwargs)
+
+
+def to_jsonable(obj: Any) -> Any:
+    """Convert numpy scalars/arrays, tuples and fractions into JSON-ready values."""
+    if isinstance(obj, dict):
+        return {str(k): to_jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [to_jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return to_jsonable(obj.tolist())
+    if isinstance(obj, np.generic):
+        return to_jsonable(obj.item())
+    if isinstance(obj, float):
+        return obj if np.isfinite(obj) else None
+    if obj is None or isinstance(obj, (str, int, bool)):
+        return obj
+    return str(obj)
+
+
+def print_json(obj: Any) -> None:
+    sys.stdout.write(json.dumps(to_jsonable(obj), indent=2) + "\n")
+    sys.stdout.flush()
+
+
+def print_warnings(bracket: Bracket) -> None:
+    for w in bracket.warnings:
+        print(f"hdrcore: warning: {w.message}", file=sys.stderr)
