@@ -47,7 +47,9 @@ def read_raw(path: str | Path, *, half_size: bool = False, keep_cfa: bool = True
     try:
         raw = rawpy.imread(str(p))
     except (rawpy.LibRawFileUnsupportedError, rawpy.LibRawIOError) as exc:
-        raise ImageReadError(f"not a RAW file LibRaw can read ({exc})", path=p) from exc
+        raise ImageReadError(
+            f"LibRaw cannot read it: not a camera RAW file, or truncated ({exc})", path=p
+        ) from exc
     except rawpy.LibRawError as exc:
         raise ImageReadError(f"RAW file is damaged or truncated ({exc})", path=p) from exc
     try:
