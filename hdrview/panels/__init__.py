@@ -1,0 +1,1 @@
+"""Panels of the inspector: each one draws result objects of ``hdrcore``; none computes them."""

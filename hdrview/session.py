@@ -1,0 +1,135 @@
+"""The inspector's link to ``hdrcore``: load a bracket, run the pipeline, keep the latest result.
+
+This module is the only place in ``hdrview`` that calls the processing library; panels only draw
+the objects it returns. ``Controls`` holds what the page's widgets say; ``Session.run`` turns it
+into the pipeline's parameters and asks the pipeline to re-run what changed.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib.util
+import logging
+import os
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from hdrcore.io import Bracket, load_bracket
+
+__all__ = ["Controls", "Session", "TIMES_FILES", "pipeline_available"]
+
+log = logging.getLogger(__name__)
+
+#: Exposure-time lists picked up automatically from a bracket's folder.
+TIMES_FILES = ("exposure_times.txt", "times.txt")
+
+
+def pipeline_available() -> bool:
+    return importlib.util.find_spec("hdrcore.pipeline") is not None
+
+
+@dataclass(frozen=True)
+class Controls:
+    """The values of the page's parameter widgets (``None``: the pipeline's default)."""
+
+    saturation: float | None = None
+    noise_floor: float | None = None
+    threshold: float | None = None
+    alignment: str | None = None
+    reference: int | None = None
+    response: str | None = None
+    tonemap: str | None = None
+    exposure: float | None = None
+
+    def replace(self, **changes: Any) -> Controls:
+        return dataclasses.replace(self, **changes)
+
+
+# Names the pipeline's parameter object may use for each control, first match wins.
+_PARAM_NAMES: dict[str, tuple[str, ...]] = {
+    "saturation": ("saturation_level", "saturation"),
+    "noise_floor": ("noise_floor",),
+    "threshold": ("threshold", "normalisation_threshold", "threshold_t"),
+    "alignment": ("alignment", "align", "alignment_model", "model"),
+    "reference": ("reference", "reference_frame"),
+    "response": ("response", "response_method"),
+    "tonemap": ("tonemap", "tonemap_operator", "operator"),
+    "exposure": ("exposure", "tonemap_exposure", "exposure_ev"),
+}
+
+
+@dataclass
+class Session:
+    """One loaded bracket, its pipeline and the latest result."""
+
+    bracket: Bracket | None = None
+    source: str = ""
+    pipeline: Any = None
+    result: Any = None
+    params: Any = None
+    timings: dict[str, float] = field(default_factory=dict)
+
+    def load(self, paths: Sequence[str | os.PathLike], *, source: str = "") -> Bracket:
+        """Load frames (files or one folder); a folder's ``exposure_times.txt`` is used."""
+        times = None
+        if len(paths) == 1 and Path(paths[0]).is_dir():
+            for name in TIMES_FILES:
+                cand = Path(paths[0]) / name
+                if cand.is_file():
+                    times = cand
+                    break
+        bracket = load_bracket(list(paths), exposure_times=times)
+        self.bracket = bracket
+        self.source = source or ", ".join(str(p) for p in paths)
+        self.pipeline = None
+        self.result = None
+        self.params = None
+        return bracket
+
+    # -- pipeline ---------------------------------------------------------------------------
+
+    def default_params(self) -> Any:
+        from hdrcore.pipeline import PipelineParams
+
+        return PipelineParams()
+
+    def params_for(self, controls: Controls) -> Any:
+        """The pipeline's parameter object with every control that is set."""
+        base = self.params if self.params is not None else self.default_params()
+        names = {f.name for f in dataclasses.fields(base)}
+        changes = {}
+        for key, candidates in _PARAM_NAMES.items():
+            value = getattr(controls, key)
+            if value is None:
+                continue
+            for cand in candidates:
+                if cand in names:
+                    changes[cand] = value
+                    break
+        return dataclasses.replace(base, **changes)
+
+    def param_value(self, control: str) -> Any:
+        """Current pipeline value behind a control (for the widgets' initial values)."""
+        params = self.params if self.params is not None else self.default_params()
+        for cand in _PARAM_NAMES[control]:
+            if hasattr(params, cand):
+                return getattr(params, cand)
+        return None
+
+    def run(self, controls: Controls, progress: Callable[..., None] | None = None) -> Any:
+        """Run (or re-run what changed in) the pipeline; return its result object."""
+        if self.bracket is None:
+            return None
+        from hdrcore.pipeline import Pipeline
+
+        params = self.params_for(controls)
+        if self.pipeline is None:
+            self.pipeline = Pipeline(self.bracket, params, progress=progress)
+        elif progress is not None and hasattr(self.pipeline, "progress"):
+            self.pipeline.progress = progress
+        result = self.pipeline.run(params)
+        self.params = params
+        self.result = result
+        return result

@@ -1,0 +1,150 @@
+"""The inspector's logic without a browser: loading, refusals, uploads, controls, exports."""
+
+from __future__ import annotations
+
+import io
+import zipfile
+from pathlib import Path
+
+import pytest
+
+from hdrview.app import InspectorApp, build_parser, create_app
+
+from ._brackets import write_png_bracket
+
+
+def _errors(app: InspectorApp) -> list[str]:
+    return [f"{t}: {b}" for level, t, b in app.notifications if level == "error"]
+
+
+def test_load_folder_draws_frames_and_status(app: InspectorApp) -> None:
+    assert app.request_path("bracket")
+    assert app.wait_idle(60)
+    b = app.session.bracket
+    assert b is not None and len(b) == 3
+    assert b.exposure_times == (1.0, 4.0, 16.0)  # from the folder's exposure_times.txt
+    assert "frame0.png" in app.frames_panel.table.content
+    assert "3 frames" in app.status.content
+    assert len(app.frames_panel._thumbs) == 3
+    assert app.pair_dropdown.options == ("pair 0: frames 0-1", "pair 1: frames 1-2")
+    assert app.saturation_slider.max == 255
+    assert not _errors(app)
+
+
+def test_path_outside_root_is_refused(app: InspectorApp, tmp_path: Path) -> None:
+    outside = tmp_path / "outside"
+    write_png_bracket(outside)
+    assert not app.request_path(str(outside))
+    assert not app.request_path("../outside")
+    assert app.wait_idle(10)
+    assert app.session.bracket is None
+    errs = _errors(app)
+    assert len(errs) == 2 and all("outside the folder" in e for e in errs)
+
+
+def test_missing_and_unreadable_paths_notify_and_server_survives(
+    app: InspectorApp, bracket_root: Path
+) -> None:
+    assert not app.request_path("nope")
+    assert "not found" in _errors(app)[-1]
+    (bracket_root / "junk").mkdir()
+    (bracket_root / "junk" / "a.png").write_text("not a png")
+    (bracket_root / "junk" / "b.png").write_text("not a png either")
+    assert app.request_path("junk")  # exists: the failure comes from the loader, in the worker
+    assert app.wait_idle(30)
+    assert "not a recognised image" in _errors(app)[-1]
+    assert app.session.bracket is None
+    # A later change does not retry the failed load; a good load still works.
+    app.set_control("saturation", 200.0)
+    assert app.wait_idle(30)
+    assert len([e for e in _errors(app) if "recognised" in e]) == 1
+    assert app.request_path("bracket")
+    assert app.wait_idle(60)
+    assert app.session.bracket is not None
+
+
+def test_upload_of_a_non_image_is_refused(app: InspectorApp) -> None:
+    assert not app.handle_upload("notes.txt", b"these are not pixels")
+    assert not app.handle_upload("fake.png", b"\x00\x01 also not pixels")
+    errs = _errors(app)
+    assert len(errs) == 2 and all("not an image" in e for e in errs)
+    assert app.session.bracket is None
+
+
+def test_upload_frames_one_by_one_then_zip(app: InspectorApp, bracket_root: Path) -> None:
+    frames = sorted((bracket_root / "bracket").glob("*.png"))
+    assert app.handle_upload(frames[0].name, frames[0].read_bytes())
+    assert app.session.bracket is None  # one frame is not a bracket yet
+    assert app.handle_upload(frames[1].name, frames[1].read_bytes())
+    assert app.wait_idle(60)
+    assert app.session.bracket is not None and len(app.session.bracket) == 2
+
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w") as zf:
+        for p in sorted((bracket_root / "bracket").iterdir()):
+            zf.write(p, f"nested/{p.name}")
+    assert app.handle_upload("bracket.zip", buf.getvalue())
+    assert app.wait_idle(60)
+    assert len(app.session.bracket) == 3
+    assert app.session.bracket.exposure_times == (1.0, 4.0, 16.0)
+    assert not _errors(app)
+
+
+def test_zip_with_one_image_is_refused(app: InspectorApp, bracket_root: Path) -> None:
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w") as zf:
+        zf.write(bracket_root / "bracket" / "frame0.png", "frame0.png")
+    assert not app.handle_upload("one.zip", buf.getvalue())
+    assert "fewer than two images" in _errors(app)[-1]
+
+
+def test_controls_update_state_and_page(app: InspectorApp) -> None:
+    app.request_path("bracket")
+    assert app.wait_idle(60)
+    draws = app.draw_count
+    app.set_control("saturation", 201.0)
+    app.set_control("noise_floor", 5.0)
+    app.set_control("threshold", 0.25)
+    assert app.wait_idle(60)
+    assert (app.controls.saturation, app.controls.noise_floor, app.controls.threshold) == (
+        201.0, 5.0, 0.25)
+    assert "Z = 201" in app.status.content
+    assert "noise floor = 5" in app.status.content
+    assert "t = 0.25" in app.status.content
+    assert app.draw_count > draws
+
+
+def test_export_without_result_notifies(app: InspectorApp) -> None:
+    app._guarded(app.export_png, None)
+    assert "nothing to export" in _errors(app)[-1] or "not available" in _errors(app)[-1]
+
+
+def test_missing_demo_notifies(app: InspectorApp) -> None:
+    assert not app.request_demo()
+    assert app.notifications[-1][1] == "No demo bracket"
+
+
+def test_defaults_bind_localhost() -> None:
+    args = build_parser().parse_args([])
+    assert args.host == "127.0.0.1"
+    assert args.root == "."
+
+
+def test_create_app_binds_localhost_on_a_free_port(tmp_path: Path) -> None:
+    write_png_bracket(tmp_path / "b")
+    app = create_app([str(tmp_path / "b")], port=0, root=str(tmp_path), verbose=False)
+    try:
+        assert app.server.get_host() == "127.0.0.1"
+        assert app.server.get_port() > 0
+        assert app.wait_idle(60)
+        assert app.session.bracket is not None
+    finally:
+        app.stop()
+        app.server.stop()
+
+
+def test_main_refuses_missing_root(capsys: pytest.CaptureFixture[str]) -> None:
+    from hdrview.app import main
+
+    assert main(["--root", "/nonexistent/dir"]) == 2
+    assert "not a folder" in capsys.readouterr().err
