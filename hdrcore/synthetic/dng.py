@@ -1,0 +1,447 @@
+"""Bayer-CFA DNG files from simulated linear sensor values, so the RAW path is tested end to end.
+
+The sensor model follows the seed's simulation protocol (Cerman & Hlavac 2006, sections 4.2 and
+5.3) with a linear response: a linear RGB frame ``x`` (1.0 = saturation) is mosaicked through a
+colour filter array, scaled by one gain for every site and offset by the (per-site) black level,
+``raw = black + s(x) * (white - max(black))``, with optional photon shot noise (before the
+saturation ``s``) and Gaussian read noise (in raw units), then rounded and clipped to
+``[0, white]``. So black-subtracted raw values are ``x * max_level`` with ``max_level = white -
+max(black)`` (the loader's ``max_level``) at every site; values below black occur, as on sensors.
+
+The file is a single-IFD DNG (IFD0 holds the uncompressed 16-bit CFA strip and the DNG tags) with an
+EXIF sub-IFD for the exposure (ExposureTime as an exact rational, FNumber, ISO, DateTimeOriginal).
+It is written by the small TIFF encoder below rather than a library, so every tag is under control
+and ExifRead finds the EXIF fields where cameras put them. LibRaw (rawpy) reads these files back
+with the written pattern, black and white levels; ExifRead returns the exposure time exactly.
+
+Tag layout (TIFF type in brackets):
+
+IFD0: NewSubFileType 254 [LONG] 0; ImageWidth 256, ImageLength 257 [LONG]; BitsPerSample 258
+[SHORT] 16; Compression 259 [SHORT] 1; PhotometricInterpretation 262 [SHORT] 32803 (CFA);
+Make 271, Model 272 [ASCII]; StripOffsets 273 [LONG]; Orientation 274 [SHORT]; SamplesPerPixel 277
+[SHORT] 1; RowsPerStrip 278 [LONG]; StripByteCounts 279 [LONG]; PlanarConfiguration 284 [SHORT] 1;
+Software 305, DateTime 306 [ASCII]; CFARepeatPatternDim 33421 [SHORT] 2,2;
+CFAPattern 33422 [BYTE] x4;
+ExifIFD 34665 [LONG]; DNGVersion 50706 [BYTE] 1.4.0.0; DNGBackwardVersion 50707 [BYTE] 1.1.0.0;
+UniqueCameraModel 50708 [ASCII]; CFAPlaneColor 50710 [BYTE] 0,1,2; CFALayout 50711 [SHORT] 1;
+BlackLevelRepeatDim 50713 [SHORT] 1,1 or 2,2; BlackLevel 50714 [LONG] x1 or x4;
+WhiteLevel 50717 [LONG]; ColorMatrix1 50721 [SRATIONAL] x9; AsShotNeutral 50728 [RATIONAL] x3;
+CalibrationIlluminant1 50778 [SHORT] 21 (D65).
+
+EXIF IFD: ExposureTime 33434 [RATIONAL]; FNumber 33437 [RATIONAL]; ISOSpeedRatings 34855 [SHORT];
+ExifVersion 36864 [UNDEFINED] "0230"; DateTimeOriginal 36867 [ASCII].
+
+References: Adobe, "Digital Negative (DNG) Specification", version 1.4.0.0, 2012; TIFF 6.0;
+EXIF 2.3. J. Cerman, V. Hlavac, "Exposure time estimation for high dynamic range imaging with
+hand held camera", Computer Vision Winter Workshop, 2006.
+"""
+
+from __future__ import annotations
+
+import os
+import struct
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from datetime import datetime
+from fractions import Fraction
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import ParameterError
+
+__all__ = [
+    "CFA_PATTERNS",
+    "SRGB_XYZ_TO_CAMERA",
+    "TiffTag",
+    "as_rational",
+    "cfa_channel_map",
+    "default_black_level",
+    "encode_dng",
+    "encode_tiff",
+    "exif_payload",
+    "exif_tags",
+    "linear_to_raw",
+    "mosaic",
+    "write_dng",
+]
+
+# Colour of each site of the 2x2 repeat cell, row-major (0 red, 1 green, 2 blue: DNG CFAPattern).
+CFA_PATTERNS: dict[str, tuple[int, int, int, int]] = {
+    "RGGB": (0, 1, 1, 2),
+    "BGGR": (2, 1, 1, 0),
+    "GRBG": (1, 0, 2, 1),
+    "GBRG": (1, 2, 0, 1),
+}
+
+# XYZ (D65) -> linear sRGB (IEC 61966-2-1): the simulated camera's native space is linear sRGB, so
+# ColorMatrix1 with AsShotNeutral (1, 1, 1) makes colour maths come out as the identity.
+SRGB_XYZ_TO_CAMERA = (
+    (3.2404542, -1.5371385, -0.4985314),
+    (-0.9692660, 1.8760108, 0.0415560),
+    (0.0556434, -0.2040259, 1.0572252),
+)
+
+_DEFAULT_TIME = datetime(2006, 2, 6, 12, 0, 0)
+
+
+def _pattern(name: str) -> tuple[int, int, int, int]:
+    key = str(name).upper()
+    if key not in CFA_PATTERNS:
+        raise ParameterError(
+            f"unknown CFA pattern {name!r}", expected=f"one of {', '.join(CFA_PATTERNS)}",
+            found=repr(name),
+        )
+    return CFA_PATTERNS[key]
+
+
+def cfa_channel_map(pattern: str, shape: tuple[int, int]) -> np.ndarray:
+    """``(H, W)`` int array: the colour channel (0 R, 1 G, 2 B) sampled at each pixel."""
+    cell = np.array(_pattern(pattern), np.int64).reshape(2, 2)
+    h, w = int(shape[0]), int(shape[1])
+    return np.tile(cell, ((h + 1) // 2, (w + 1) // 2))[:h, :w]
+
+
+def mosaic(rgb: np.ndarray, pattern: str = "RGGB") -> np.ndarray:
+    """Sample an ``(H, W, 3)`` frame through a Bayer CFA: ``(H, W)`` of the same dtype."""
+    arr = np.asarray(rgb)
+    if arr.ndim != 3 or arr.shape[2] != 3:
+        raise ParameterError(
+            "mosaic needs an RGB frame", expected="(H, W, 3)", found=str(arr.shape)
+        )
+    idx = cfa_channel_map(pattern, arr.shape[:2])
+    return np.take_along_axis(arr, idx[..., None], axis=2)[..., 0]
+
+
+def default_black_level(bits: int) -> int:
+    """A camera-like black level for a ``bits`` ADC: 1/16 of full scale (256 at 12, 1024 at 14)."""
+    if not 8 <= int(bits) <= 16:
+        raise ParameterError("unsupported raw bit depth", expected="8..16", found=str(bits))
+    return 1 << (int(bits) - 4)
+
+
+def _black_per_site(black_level: int | Sequence[int]) -> tuple[int, int, int, int]:
+    if np.ndim(black_level) == 0:
+        b = int(black_level)  # type: ignore[arg-type]
+        return (b, b, b, b)
+    vals = tuple(int(v) for v in black_level)  # type: ignore[union-attr]
+    if len(vals) != 4:
+        raise ParameterError(
+            "per-site black level needs one value per 2x2 CFA site",
+            expected="4 values (row-major)", found=str(len(vals)),
+        )
+    return vals  # type: ignore[return-value]
+
+
+def _check_levels(black: tuple[int, ...], white: int) -> None:
+    if not 0 < white <= 65535:
+        raise ParameterError("white level out of range", expected="1..65535", found=str(white))
+    if min(black) < 0 or max(black) >= white:
+        raise ParameterError(
+            "black level must be >= 0 and below the white level",
+            found=f"black {black}, white {white}",
+        )
+
+
+def linear_to_raw(
+    linear_cfa: np.ndarray,
+    *,
+    black_level: int | Sequence[int],
+    white_level: int,
+    noise_sigma: float = 0.0,
+    shot_noise_full_well: float | None = None,
+    rng: np.random.Generator | None = None,
+) -> np.ndarray:
+    """Raw sensor numbers ``(H, W)`` uint16 from mosaicked linear values (1.0 = saturation).
+
+    ``raw = round(black + s(x + shot) * (white - max(black)) + read)``, clipped to
+    ``[0, white]``, so ``(raw - black) / (white - max(black))`` recovers ``x`` within quantisation.
+    ``black_level`` is one value or four (one per 2x2 CFA site, row-major); ``noise_sigma`` is the
+    read noise in raw units; ``shot_noise_full_well`` (electrons at saturation) adds photon noise.
+    """
+    x = np.asarray(linear_cfa, np.float64)
+    if x.ndim != 2:
+        raise ParameterError("linear CFA data must be (H, W)", found=str(x.shape))
+    if not np.all(np.isfinite(x)):
+        raise ParameterError("linear values must be finite")
+    black = _black_per_site(black_level)
+    white = int(white_level)
+    _check_levels(black, white)
+    if noise_sigma < 0:
+        raise ParameterError("noise sigma must be >= 0", found=str(noise_sigma))
+    if shot_noise_full_well is not None and shot_noise_full_well <= 0:
+        raise ParameterError("full-well capacity must be > 0", found=str(shot_noise_full_well))
+    rng = rng if rng is not None else np.random.default_rng(0)
+    h, w = x.shape
+    b = np.tile(np.array(black, np.float64).reshape(2, 2), ((h + 1) // 2, (w + 1) // 2))[:h, :w]
+    x = np.clip(x, 0.0, 1.0)
+    if shot_noise_full_well is not None:
+        x = x + rng.standard_normal(x.shape) * np.sqrt(x / shot_noise_full_well)
+    raw = b + np.clip(x, 0.0, 1.0) * float(white - max(black))
+    if noise_sigma > 0:
+        raw = raw + rng.standard_normal(raw.shape) * noise_sigma
+    return np.clip(np.rint(raw), 0, white).astype(np.uint16)
+
+
+# --- a small TIFF encoder (little-endian, classic TIFF) ----------------------------------------
+
+_TYPES = {  # TIFF type code -> (struct format of one value, size in bytes)
+    1: ("B", 1),  # BYTE
+    2: ("c", 1),  # ASCII
+    3: ("H", 2),  # SHORT
+    4: ("I", 4),  # LONG
+    5: ("II", 8),  # RATIONAL
+    7: ("B", 1),  # UNDEFINED
+    10: ("ii", 8),  # SRATIONAL
+}
+
+
+@dataclass(frozen=True)
+class TiffTag:
+    """One TIFF directory entry: numeric ``tag``, TIFF ``type`` code and its ``values``.
+
+    ASCII values are a ``str`` (NUL-terminated on encoding); rationals are ``Fraction``s.
+    """
+
+    tag: int
+    type: int
+    values: tuple | str | bytes
+
+    def payload(self) -> tuple[int, bytes]:
+        """(count, little-endian bytes) of the value."""
+        if self.type == 2:
+            data = str(self.values).encode("ascii") + b"\x00"
+            return len(data), data
+        if self.type in (1, 7) and isinstance(self.values, bytes):
+            return len(self.values), self.values
+        vals = tuple(self.values)  # type: ignore[arg-type]
+        fmt, _ = _TYPES[self.type]
+        if self.type in (5, 10):
+            flat: list[int] = []
+            for v in vals:
+                f = Fraction(v)
+                flat += [f.numerator, f.denominator]
+            return len(vals), struct.pack("<" + fmt[0] * len(flat), *flat)
+        return len(vals), struct.pack("<" + fmt * len(vals), *(int(v) for v in vals))
+
+
+def _encode_ifd(tags: Sequence[TiffTag], offset: int, next_ifd: int = 0) -> bytes:
+    """Bytes of one IFD placed at ``offset``, followed by its out-of-line values."""
+    tags = sorted(tags, key=lambda t: t.tag)
+    n = len(tags)
+    data_at = offset + 2 + 12 * n + 4
+    entries = [struct.pack("<H", n)]
+    extra = bytearray()
+    for t in tags:
+        count, payload = t.payload()
+        if len(payload) <= 4:
+            entries.append(struct.pack("<HHI", t.tag, t.type, count) + payload.ljust(4, b"\x00"))
+        else:
+            if len(extra) % 2:
+                extra += b"\x00"
+            entries.append(struct.pack("<HHII", t.tag, t.type, count, data_at + len(extra)))
+            extra += payload
+    if len(extra) % 2:
+        extra += b"\x00"
+    entries.append(struct.pack("<I", next_ifd))
+    return b"".join(entries) + bytes(extra)
+
+
+def encode_tiff(
+    ifd0: Sequence[TiffTag],
+    *,
+    exif: Sequence[TiffTag] = (),
+    image: bytes = b"",
+) -> bytes:
+    """A little-endian TIFF: header, IFD0, optional EXIF IFD, then ``image`` as one strip.
+
+    When ``image`` is given, StripOffsets (273) and StripByteCounts (279) are filled in; when
+    ``exif`` is given, the ExifIFD pointer (34665) is. Other tags are written as they are.
+    """
+    auto = {273, 279, 34665}
+    base = [t for t in ifd0 if t.tag not in auto]
+
+    def build(strip_at: int, exif_at: int) -> list[TiffTag]:
+        tags = list(base)
+        if image:
+            tags += [TiffTag(273, 4, (strip_at,)), TiffTag(279, 4, (len(image),))]
+        if exif:
+            tags.append(TiffTag(34665, 4, (exif_at,)))
+        return tags
+
+    # Sizes do not depend on the pointer values (all inline LONGs): lay out, then fill in.
+    ifd0_len = len(_encode_ifd(build(0, 0), 8))
+    exif_at = 8 + ifd0_len
+    exif_bytes = _encode_ifd(exif, exif_at) if exif else b""
+    strip_at = exif_at + len(exif_bytes)
+    strip_at += strip_at % 2
+    ifd0_bytes = _encode_ifd(build(strip_at, exif_at), 8)
+    out = bytearray(b"II*\x00" + struct.pack("<I", 8))
+    out += ifd0_bytes + exif_bytes
+    out += b"\x00" * (strip_at - len(out))
+    out += image
+    return bytes(out)
+
+
+def as_rational(value: Fraction | float | int, *, what: str = "value") -> Fraction:
+    """An exact fraction that fits a TIFF RATIONAL (32-bit numerator and denominator).
+
+    Fractions stay as they are; floats become the simplest fraction within 1e-6 relative (so
+    ``1/3049`` as a float is written as 1/3049).
+    """
+    if isinstance(value, Fraction):
+        f = value
+    else:
+        v = float(value)
+        if not np.isfinite(v):
+            raise ParameterError(f"{what} must be finite", found=str(value))
+        f = Fraction(v).limit_denominator(1_000_000)
+    if f < 0 or f.numerator > 0xFFFFFFFF or f.denominator > 0xFFFFFFFF:
+        f2 = f.limit_denominator(0xFFFF)
+        if f2 < 0 or f2.numerator > 0xFFFFFFFF:
+            raise ParameterError(f"{what} does not fit a TIFF rational", found=str(value))
+        f = f2
+    return f
+
+
+def _exif_time(t: datetime) -> str:
+    return t.strftime("%Y:%m:%d %H:%M:%S")
+
+
+def exif_tags(
+    exposure_time: Fraction | float | None,
+    f_number: Fraction | float | None,
+    iso: int | None,
+    capture_time: datetime | None,
+) -> list[TiffTag]:
+    """EXIF-IFD entries: ExifVersion, ExposureTime (exact), FNumber, ISO, DateTimeOriginal."""
+    tags = [TiffTag(36864, 7, b"0230")]
+    if exposure_time is not None:
+        t = as_rational(exposure_time, what="exposure time")
+        if t <= 0:
+            raise ParameterError("exposure time must be positive", found=str(exposure_time))
+        tags.append(TiffTag(33434, 5, (t,)))
+    if f_number is not None:
+        tags.append(TiffTag(33437, 5, (as_rational(f_number, what="f-number"),)))
+    if iso is not None:
+        tags.append(TiffTag(34855, 3, (int(iso),)))
+    if capture_time is not None:
+        tags.append(TiffTag(36867, 2, _exif_time(capture_time)))
+    return tags
+
+
+def exif_payload(
+    *,
+    exposure_time: Fraction | float | None,
+    f_number: Fraction | float | None = 8,
+    iso: int | None = 100,
+    capture_time: datetime | None = None,
+    make: str = "hdrview",
+    model: str = "simulator",
+    orientation: int = 1,
+) -> bytes:
+    """EXIF block (a TIFF structure without image) for JPEG APP1 / PNG eXIf chunks."""
+    ifd0 = [
+        TiffTag(271, 2, make),
+        TiffTag(272, 2, model),
+        TiffTag(274, 3, (int(orientation),)),
+        TiffTag(305, 2, "hdrcore simulator"),
+    ]
+    return encode_tiff(
+        ifd0, exif=exif_tags(exposure_time, f_number, iso, capture_time or _DEFAULT_TIME)
+    )
+
+
+def encode_dng(
+    cfa: np.ndarray,
+    *,
+    exposure_time: Fraction | float,
+    pattern: str = "RGGB",
+    black_level: int | Sequence[int] = 256,
+    white_level: int = 4095,
+    f_number: Fraction | float = 8,
+    iso: int = 100,
+    capture_time: datetime | None = None,
+    orientation: int = 1,
+    make: str = "hdrview",
+    model: str = "simulator",
+    as_shot_neutral: Sequence[float] = (1.0, 1.0, 1.0),
+    color_matrix: Sequence[Sequence[float]] = SRGB_XYZ_TO_CAMERA,
+) -> bytes:
+    """Bytes of a DNG holding the raw CFA numbers ``cfa`` ``(H, W)`` (see the module docstring).
+
+    ``black_level`` is one value or four (per 2x2 site, row-major, written with
+    BlackLevelRepeatDim 2x2). ``exposure_time`` is written as an exact rational.
+    """
+    data = np.asarray(cfa)
+    if data.ndim != 2 or data.shape[0] < 2 or data.shape[1] < 2:
+        raise ParameterError("CFA data must be (H, W) with H, W >= 2", found=str(data.shape))
+    if data.dtype.kind not in "ui":
+        raise ParameterError("CFA data must be integers", found=str(data.dtype))
+    cells = _pattern(pattern)
+    black = _black_per_site(black_level)
+    white = int(white_level)
+    _check_levels(black, white)
+    if data.size and (int(data.min()) < 0 or int(data.max()) > white):
+        raise ParameterError(
+            "CFA values outside [0, white level]", found=f"{int(data.min())}..{int(data.max())}"
+        )
+    if int(orientation) not in range(1, 9):
+        raise ParameterError("orientation must be an EXIF value", expected="1..8",
+                             found=str(orientation))
+    h, w = data.shape
+    when = capture_time or _DEFAULT_TIME
+    uniform = len(set(black)) == 1
+    ifd0 = [
+        TiffTag(254, 4, (0,)),
+        TiffTag(256, 4, (w,)),
+        TiffTag(257, 4, (h,)),
+        TiffTag(258, 3, (16,)),
+        TiffTag(259, 3, (1,)),
+        TiffTag(262, 3, (32803,)),
+        TiffTag(271, 2, make),
+        TiffTag(272, 2, model),
+        TiffTag(274, 3, (int(orientation),)),
+        TiffTag(277, 3, (1,)),
+        TiffTag(278, 4, (h,)),
+        TiffTag(284, 3, (1,)),
+        TiffTag(305, 2, "hdrcore simulator"),
+        TiffTag(306, 2, _exif_time(when)),
+        TiffTag(33421, 3, (2, 2)),
+        TiffTag(33422, 1, bytes(cells)),
+        TiffTag(50706, 1, bytes((1, 4, 0, 0))),
+        TiffTag(50707, 1, bytes((1, 1, 0, 0))),
+        TiffTag(50708, 2, f"{make} {model}"),
+        TiffTag(50710, 1, bytes((0, 1, 2))),
+        TiffTag(50711, 3, (1,)),
+        TiffTag(50713, 3, (1, 1) if uniform else (2, 2)),
+        TiffTag(50714, 4, black[:1] if uniform else black),
+        TiffTag(50717, 4, (white,)),
+        TiffTag(
+            50721, 10,
+            tuple(Fraction(round(float(v) * 10000), 10000) for row in color_matrix for v in row),
+        ),
+        TiffTag(50728, 5, tuple(as_rational(v, what="AsShotNeutral") for v in as_shot_neutral)),
+        TiffTag(50778, 3, (21,)),
+    ]
+    exif = exif_tags(exposure_time, f_number, iso, when)
+    image = np.ascontiguousarray(data, dtype="<u2").tobytes()
+    return encode_tiff(ifd0, exif=exif, image=image)
+
+
+def write_dng(
+    path: str | os.PathLike,
+    cfa: np.ndarray,
+    *,
+    force: bool = False,
+    inputs: Iterable[str | os.PathLike] = (),
+    **kwargs,
+) -> Path:
+    """Write :func:`encode_dng` ``(cfa, **kwargs)`` to ``path`` atomically.
+
+    Refuses an existing file unless ``force`` (:class:`~hdrcore.errors.OutputError`).
+    """
+    from ..io.atomic import atomic_write
+
+    data = encode_dng(cfa, **kwargs)
+    return atomic_write(path, lambda tmp: tmp.write_bytes(data), force=force, inputs=inputs)
