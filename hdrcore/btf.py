@@ -1,0 +1,151 @@
+"""Brightness transfer functions by cumulative histogram matching (Grossberg & Nayar 2002).
+
+Two frames of a static scene taken with exposures ``t_dark < t_bright`` see the same radiance
+distribution, so a level ``M`` of the darker frame and ``T(M)`` of the brighter frame have equal
+cumulative frequencies: ``T(M) = H_bright^-1(H_dark(M))``. No pixel correspondence is needed,
+which is why Cerman & Hlavac (2006, section 5) can estimate exposure ratios of a hand-held bracket
+before registration.
+
+Level model: level ``m`` collects the continuous values in ``[m - 1/2, m + 1/2)``. The cumulative
+histogram is therefore exact at the bin *edges* ``m + 1/2`` (``F(m + 1/2) = C(m)``, ``F(-1/2) = 0``)
+and interpolated linearly inside a bin. ``T`` maps any continuous dark value ``x`` to a continuous
+bright value; ``forward[m] = T(m)`` samples it at the level centres. Where the bright cumulative
+histogram is flat (empty bins) the inverse takes the middle of the flat run.
+
+References
+----------
+.. [1] M. D. Grossberg, S. K. Nayar, "What can be known about the radiometric response from
+   images?", ECCV 2002 (section 4: the brightness transfer function from histograms).
+.. [2] J. Cerman, V. Hlavac, "Exposure time estimation for high dynamic range imaging with hand
+   held camera", Computer Vision Winter Workshop 2006, section 5.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import EstimationError, ParameterError
+from .histogram import cumulative
+
+__all__ = ["BrightnessTransferFunction", "brightness_transfer_function", "quantile_levels"]
+
+
+def _edges(n_levels: int) -> np.ndarray:
+    """Positions ``-1/2, 1/2, ..., max_level + 1/2`` of the bin edges (``n_levels + 1`` values)."""
+    return np.arange(n_levels + 1, dtype=np.float64) - 0.5
+
+
+def _knots(cdf: np.ndarray) -> np.ndarray:
+    """Cumulative fraction at every bin edge, starting with 0 at ``-1/2``."""
+    return np.concatenate([[0.0], cdf])
+
+
+def quantile_levels(cdf: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Continuous level where the piecewise-linear cumulative histogram ``cdf`` reaches ``q``.
+
+    ``cdf[m]`` is the fraction of pixels with level ``<= m``. Flat runs (empty bins) resolve to
+    their middle; ``q`` outside ``[0, 1]`` clips to the ends of the occupied range.
+    """
+    knots = _knots(np.asarray(cdf, np.float64))
+    x = _edges(knots.size - 1)
+    n = knots.size
+    q = np.clip(np.asarray(q, np.float64), 0.0, knots[-1])
+    # lo: first edge where F >= q; hi: last edge where F <= q (equal inside a rising segment).
+    j = np.clip(np.searchsorted(knots, q, side="left"), 1, n - 1)
+    k0, k1 = knots[j - 1], knots[j]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        frac = np.where(k1 > k0, (q - k0) / (k1 - k0), 1.0)
+    lo = np.where(knots[j] == q, x[j], x[j - 1] + frac)
+    lo = np.where(q <= knots[0], x[0], lo)
+    i = np.clip(np.searchsorted(knots, q, side="right") - 1, 0, n - 2)
+    k0, k1 = knots[i], knots[i + 1]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        frac = np.where(k1 > k0, (q - k0) / (k1 - k0), 0.0)
+    hi = np.where(knots[i] == q, x[i], x[i] + frac)
+    hi = np.where(q >= knots[-1], x[-1], hi)
+    return 0.5 * (lo + hi)
+
+
+def _cdf_at(cdf: np.ndarray, x: np.ndarray) -> np.ndarray:
+    knots = _knots(np.asarray(cdf, np.float64))
+    return np.interp(np.asarray(x, np.float64), _edges(knots.size - 1), knots)
+
+
+@dataclass(frozen=True, eq=False)
+class BrightnessTransferFunction:
+    """The brightness transfer function of one channel of a (dark, bright) pair.
+
+    Attributes
+    ----------
+    forward : float64 ``(max_level_dark + 1,)``, ``T(m)`` in bright levels at each dark level.
+    inverse : float64 ``(max_level_bright + 1,)``, ``T^-1(m)`` in dark levels at each bright level.
+    hist_dark, hist_bright : the int64 histograms it was made from.
+    cdf_dark, cdf_bright : normalised cumulative histograms (fraction with level ``<= m``).
+    """
+
+    forward: np.ndarray
+    inverse: np.ndarray
+    hist_dark: np.ndarray
+    hist_bright: np.ndarray
+    cdf_dark: np.ndarray
+    cdf_bright: np.ndarray
+
+    @property
+    def max_level_dark(self) -> int:
+        return int(self.hist_dark.size - 1)
+
+    @property
+    def max_level_bright(self) -> int:
+        return int(self.hist_bright.size - 1)
+
+    def transfer(self, x: np.ndarray | float) -> np.ndarray:
+        """``T(x)`` at continuous dark values ``x`` (level ``m`` spans ``[m - 1/2, m + 1/2)``)."""
+        return quantile_levels(self.cdf_bright, _cdf_at(self.cdf_dark, x))
+
+    def inverse_transfer(self, y: np.ndarray | float) -> np.ndarray:
+        """``T^-1(y)`` at continuous bright values ``y``."""
+        return quantile_levels(self.cdf_dark, _cdf_at(self.cdf_bright, y))
+
+    def forward_at_edges(self) -> np.ndarray:
+        """``T(m + 1/2)`` for every dark level ``m``: exact dark quantiles, no interpolation."""
+        return quantile_levels(self.cdf_bright, self.cdf_dark)
+
+    def inverse_at_edges(self) -> np.ndarray:
+        """``T^-1(m + 1/2)`` for every bright level ``m``."""
+        return quantile_levels(self.cdf_dark, self.cdf_bright)
+
+
+def brightness_transfer_function(
+    hist_dark: np.ndarray, hist_bright: np.ndarray
+) -> BrightnessTransferFunction:
+    """The BTF of two one-channel histograms by cumulative histogram matching.
+
+    The histograms may have different lengths (bit depths) and totals (masks); they are
+    normalised. Raises :class:`EstimationError` when either is empty.
+    """
+    hd = np.asarray(hist_dark)
+    hb = np.asarray(hist_bright)
+    if hd.ndim != 1 or hb.ndim != 1 or hd.size < 2 or hb.size < 2:
+        raise ParameterError("histograms must be one-dimensional with at least 2 bins",
+                             found=f"{hd.shape} and {hb.shape}")
+    if np.any(hd < 0) or np.any(hb < 0):
+        raise ParameterError("histogram counts must be non-negative")
+    if hd.sum() <= 0 or hb.sum() <= 0:
+        which = "dark" if hd.sum() <= 0 else "bright"
+        raise EstimationError(f"the {which} histogram is empty: no pixels to match",
+                              expected="at least one counted pixel", found="0")
+    hd = np.array(hd, np.int64)
+    hb = np.array(hb, np.int64)
+    cd = cumulative(hd)
+    cb = cumulative(hb)
+    centres_d = np.arange(hd.size, dtype=np.float64)
+    centres_b = np.arange(hb.size, dtype=np.float64)
+    forward = quantile_levels(cb, _cdf_at(cd, centres_d))
+    inverse = quantile_levels(cd, _cdf_at(cb, centres_b))
+    for a in (forward, inverse, hd, hb, cd, cb):
+        a.setflags(write=False)
+    return BrightnessTransferFunction(
+        forward=forward, inverse=inverse, hist_dark=hd, hist_bright=hb, cdf_dark=cd, cdf_bright=cb
+    )
