@@ -460,7 +460,8 @@ class InspectorApp:
             f"**{self.session.source}**: {len(b)} frames, {b.shape[1]}×{b.shape[0]}, "
             f"{b.bit_depth}-bit, max level {b.max_level}",
             f"Z = {_num(c.saturation)}, noise floor = {_num(c.noise_floor)}, "
-            f"t = {_num(c.threshold)}, alignment = {c.alignment}",
+            f"t = {_num(c.threshold)}, alignment = {c.alignment}, "
+            f"exposure = {_num(c.exposure)} EV",
         ]
         if result is None and not pipeline_available():
             lines.append("_The processing pipeline (hdrcore.pipeline) is not installed yet._")
