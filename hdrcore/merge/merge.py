@@ -1,0 +1,815 @@
+"""The HDR merge: a weighted average of linearised frames divided by their exposure times.
+
+``E = sum_k(w_k * g(M_k) / dt_k) / sum_k(w_k)`` (Debevec & Malik 1997, eq. 6, in the linear
+domain), where ``g`` linearises output levels to the saturation scale, ``dt_k`` are the (relative)
+exposure times estimated after Cerman & Hlavac (2006, eqs. 3-4) and ``w_k`` a weighting function of
+:mod:`hdrcore.merge.weights`.
+
+Rules that keep the result free of colour casts and honest about what it could not see:
+
+* A frame is dropped for *all* channels of a pixel when *any* channel of that pixel is at or above
+  its saturation level (per-channel white levels allowed) or the warp marked the pixel invalid.
+  Merging the unclipped channels of a frame with the clipped ones taken from a darker frame is
+  what turns highlights magenta or green when one channel clips first.
+* A sample at or below the noise floor gets zero weight in its own channel only.
+* A pixel clipped in every valid frame takes the darkest valid frame's value and is flagged
+  ``clipped``; a channel below the noise floor in every usable frame takes the brightest usable
+  frame's value and the pixel is flagged ``underexposed``.
+
+Units: for integer frames ``saturation_level`` and ``noise_floor`` are output levels (the frames'
+own units, 0..``max_level``); for float frames (already linear, 1.0 = saturation) they are linear
+values. The radiance is in the units of ``g(M) / dt``: with times relative to the darkest frame,
+``E`` of the darkest frame's unclipped pixels is its linear value.
+
+The work runs over chunks of rows so that every temporary stays in cache (float32 throughout); the
+peak memory beyond inputs and outputs is a few megabytes per worker.
+
+References
+----------
+J. Cerman, V. Hlavac, "Exposure time estimation for high dynamic range imaging with hand held
+camera", Computer Vision Winter Workshop, 2006.
+P. E. Debevec, J. Malik, "Recovering high dynamic range radiance maps from photographs",
+SIGGRAPH 1997, eq. 6. doi:10.1145/258734.258884
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import time
+from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import ParameterError, validate_method
+from .maps import (
+    DEFAULT_GHOST_THRESHOLD,
+    DEFAULT_MODEL_ERROR,
+    dominant_frame,
+    provenance_summary,
+    to_float16_nonnegative,
+)
+from .weights import WEIGHTS, NoiseModel
+
+__all__ = ["MergeResult", "merge", "DEFAULT_SATURATION", "DEFAULT_CHUNK_PIXELS"]
+
+logger = logging.getLogger(__name__)
+
+DEFAULT_SATURATION = 0.98
+"""Default saturation level as a fraction of ``max_level`` (integer frames) or of 1.0 (floats)."""
+
+DEFAULT_CHUNK_PIXELS = 1 << 16
+"""Pixels per chunk: keeps a chunk's temporaries (about 40 bytes per sample) in L2 cache."""
+
+
+@dataclass(frozen=True, eq=False)
+class MergeResult:
+    """The merged radiance map and the per-pixel diagnostics of how it was made.
+
+    radiance
+        float32 ``(H, W, C)``, ``g(M) / dt`` in the units of the exposure times given.
+    weight_sum
+        float32 ``(H, W)``: the total weight (all frames, all channels) behind each pixel; 0 where
+        a fallback value was used.
+    shares
+        float16 ``(N, H, W)``: frame ``k``'s share of the weight at each pixel, in the order the
+        frames were given; sums to 1 over ``k`` at every pixel.
+    clip_count
+        uint8 ``(H, W)``: number of valid frames in which the pixel is clipped (any channel).
+    clipped
+        bool ``(H, W)``: clipped in every valid frame; the value is the darkest frame's (a lower
+        bound).
+    underexposed
+        bool ``(H, W)``: some channel is at or below the noise floor in every usable frame.
+    ghost_score, ghost
+        float16 ``(H, W)`` score of :func:`hdrcore.merge.maps.ghost_score_from_moments` and the
+        mask ``ghost_score > ghost_threshold``.
+    """
+
+    radiance: np.ndarray
+    weight_sum: np.ndarray
+    shares: np.ndarray
+    clip_count: np.ndarray
+    clipped: np.ndarray
+    underexposed: np.ndarray
+    ghost_score: np.ndarray
+    ghost: np.ndarray
+    exposure_times: tuple[float, ...]
+    weighting: str
+    units: str
+    max_level: int | None
+    saturation_level: tuple[float, ...]
+    noise_floor: float
+    noise: NoiseModel
+    ghost_threshold: float
+    model_error: float
+    status: str
+    message: str
+    timings: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def n_frames(self) -> int:
+        return int(self.shares.shape[0])
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return (int(self.radiance.shape[0]), int(self.radiance.shape[1]))
+
+    @property
+    def dominant_frame(self) -> np.ndarray:
+        """Index of the frame with the largest share at each pixel, uint8 ``(H, W)``."""
+        return dominant_frame(self.shares)
+
+    @property
+    def success(self) -> bool:
+        return self.status in ("ok", "warning")
+
+    def summary(self) -> dict:
+        """JSON-ready diagnostics (no arrays)."""
+        n_pix = max(self.clipped.size, 1)
+        return {
+            "status": self.status,
+            "message": self.message,
+            "shape": list(self.shape),
+            "n_frames": self.n_frames,
+            "exposure_times": list(self.exposure_times),
+            "weighting": self.weighting,
+            "units": self.units,
+            "max_level": self.max_level,
+            "saturation_level": list(self.saturation_level),
+            "noise_floor": self.noise_floor,
+            "noise": self.noise.to_json(),
+            "ghost_threshold": self.ghost_threshold,
+            "model_error": self.model_error,
+            "clipped_fraction": float(np.count_nonzero(self.clipped)) / n_pix,
+            "underexposed_fraction": float(np.count_nonzero(self.underexposed)) / n_pix,
+            "ghost_fraction": float(np.count_nonzero(self.ghost)) / n_pix,
+            "provenance": provenance_summary(self.shares),
+            "timings": dict(self.timings),
+        }
+
+
+# --------------------------------------------------------------------------------------------
+# Input validation: everything is checked once, here, and turned into a plan for the kernel.
+
+
+@dataclass(frozen=True, eq=False)
+class _Plan:
+    frames: tuple[np.ndarray, ...]
+    masks: tuple[np.ndarray | None, ...]
+    times: np.ndarray  # float64 (N,)
+    order: np.ndarray  # frame indices, shortest exposure first
+    shape: tuple[int, int, int]
+    integer: bool
+    max_level: int | None
+    lut: np.ndarray | None  # float32 (C, L) linear value per channel and level
+    lut_var: np.ndarray | None  # float32 (C, L) level-noise variance through g' per level
+    lut_len: int
+    saturation: np.ndarray  # (C,) in frame units
+    floor: float  # in frame units
+    weighting: str
+    noise: NoiseModel
+
+
+def _as_frames(frames: Sequence[np.ndarray]) -> tuple[tuple[np.ndarray, ...], bool]:
+    if frames is None or len(frames) == 0:
+        raise ParameterError("no frames to merge", expected="at least one frame", found="0")
+    arrs = []
+    kinds = set()
+    for k, f in enumerate(frames):
+        a = np.asarray(f)
+        if a.ndim == 2:
+            a = a[..., None]
+        if a.ndim != 3 or a.shape[2] < 1:
+            raise ParameterError(
+                f"frame {k} must be an image", expected="(H, W, C) or (H, W)", found=str(a.shape)
+            )
+        if a.dtype.kind == "f":
+            kinds.add("float")
+            if a.dtype != np.float32:
+                a = a.astype(np.float32)
+        elif a.dtype.kind == "u":
+            kinds.add("integer")
+        else:
+            raise ParameterError(
+                f"frame {k} has an unsupported dtype",
+                expected="unsigned integer levels or float linear values",
+                found=str(a.dtype),
+            )
+        arrs.append(np.ascontiguousarray(a))
+    if len(kinds) > 1:
+        raise ParameterError(
+            "frames mix integer levels and float values",
+            expected="all integer or all float",
+            found=", ".join(str(a.dtype) for a in arrs),
+        )
+    shape = arrs[0].shape
+    for k, a in enumerate(arrs[1:], start=1):
+        if a.shape != shape:
+            raise ParameterError(
+                f"frame {k} has a different shape from frame 0",
+                expected=str(shape),
+                found=str(a.shape),
+            )
+    return tuple(arrs), kinds == {"integer"}
+
+
+def _plan(
+    frames: Sequence[np.ndarray],
+    exposure_times: Sequence[float],
+    response: np.ndarray | None,
+    max_level: int | None,
+    masks: Sequence[np.ndarray | None] | None,
+    saturation_level: float | Sequence[float] | None,
+    noise_floor: float | None,
+    weighting: str | None,
+    noise: NoiseModel | None,
+) -> _Plan:
+    arrs, integer = _as_frames(frames)
+    n = len(arrs)
+    h, w, c = arrs[0].shape
+    times = np.asarray(exposure_times, dtype=np.float64).ravel()
+    if times.size != n:
+        raise ParameterError(
+            "one exposure time per frame", expected=str(n), found=str(times.size)
+        )
+    if not np.all(np.isfinite(times)) or np.any(times <= 0):
+        raise ParameterError(
+            "exposure times must be finite and positive",
+            found=str([float(t) for t in times]),
+        )
+    order = np.argsort(times, kind="stable")
+
+    lut = lut_var = None
+    lut_len = 0
+    if integer:
+        if response is not None:
+            g = np.asarray(response, dtype=np.float64)
+            if g.ndim == 1:
+                g = np.broadcast_to(g, (c, g.size))
+            if g.ndim != 2 or g.shape[0] != c or g.shape[1] < 2:
+                raise ParameterError(
+                    "response LUT must be (C, L) with one row per channel",
+                    expected=f"({c}, max_level + 1)",
+                    found=str(np.shape(response)),
+                )
+            if not np.all(np.isfinite(g)):
+                raise ParameterError("response LUT must be finite")
+            lut_len = g.shape[1]
+            if max_level is None:
+                max_level = lut_len - 1
+            elif int(max_level) != lut_len - 1:
+                raise ParameterError(
+                    "response LUT length must be max_level + 1",
+                    expected=str(int(max_level) + 1),
+                    found=str(lut_len),
+                )
+        elif max_level is None:
+            if arrs[0].dtype == np.uint8:
+                max_level = 255
+            else:
+                raise ParameterError(
+                    "max_level is needed for integer frames without a response LUT",
+                    expected="the largest level, e.g. 4095 for 12-bit",
+                    found="None",
+                )
+        max_level = int(max_level)
+        if max_level < 1 or max_level > np.iinfo(arrs[0].dtype).max:
+            raise ParameterError(
+                "max_level out of range for the frames' dtype",
+                expected=f"1..{np.iinfo(arrs[0].dtype).max}",
+                found=str(max_level),
+            )
+        if response is None:
+            lut_len = max_level + 1
+        else:
+            nl = noise or NoiseModel()
+            slope = np.gradient(g, axis=1)  # g'(M) per level
+            lut = np.ascontiguousarray(g, dtype=np.float32)
+            lut_var = np.ascontiguousarray(slope**2 * nl.level_variance(), dtype=np.float32)
+        unit_max = float(max_level)
+    else:
+        if response is not None:
+            raise ParameterError(
+                "a response LUT applies to integer levels only; float frames must be linear",
+                expected="response=None for float frames",
+                found=f"LUT of shape {np.shape(response)}",
+            )
+        if max_level is not None:
+            max_level = int(max_level)
+        unit_max = 1.0
+
+    units = "levels" if integer else "linear values"
+    if saturation_level is None:
+        sat = np.full(c, DEFAULT_SATURATION * unit_max)
+    else:
+        sat = np.asarray(saturation_level, dtype=np.float64).ravel()
+        if sat.size == 1:
+            sat = np.full(c, float(sat[0]))
+        if sat.size != c:
+            raise ParameterError(
+                "saturation level must be a number or one per channel",
+                expected=f"1 or {c} values",
+                found=str(sat.size),
+            )
+    floor = 0.0 if noise_floor is None else float(noise_floor)
+    if not np.all(np.isfinite(sat)) or np.any(sat <= 0) or np.any(sat > unit_max):
+        raise ParameterError(
+            f"saturation level out of range ({units})",
+            expected=f"0 < saturation <= {unit_max:g}",
+            found=str([float(s) for s in sat]),
+        )
+    if not np.isfinite(floor) or floor < 0 or floor >= float(sat.min()):
+        raise ParameterError(
+            f"noise floor out of range ({units})",
+            expected=f"0 <= noise floor < saturation level {float(sat.min()):g}",
+            found=str(floor),
+        )
+
+    if weighting is None:
+        weighting = "hat" if lut is not None else "noise-aware"
+    weighting = validate_method(weighting, WEIGHTS, "weighting")
+    noise = noise or NoiseModel()
+    if not isinstance(noise, NoiseModel):
+        raise ParameterError("noise must be a NoiseModel", found=type(noise).__name__)
+
+    mask_list: list[np.ndarray | None] = [None] * n
+    if masks is not None:
+        if len(masks) != n:
+            raise ParameterError(
+                "one validity mask (or None) per frame", expected=str(n), found=str(len(masks))
+            )
+        for k, m in enumerate(masks):
+            if m is None:
+                continue
+            m = np.asarray(m)
+            if m.ndim == 3 and m.shape[2] == 1:
+                m = m[..., 0]
+            if m.shape != (h, w):
+                raise ParameterError(
+                    f"validity mask {k} does not match the frames",
+                    expected=str((h, w)),
+                    found=str(m.shape),
+                )
+            mask_list[k] = np.ascontiguousarray(m, dtype=bool)
+
+    return _Plan(
+        frames=arrs,
+        masks=tuple(mask_list),
+        times=times,
+        order=order,
+        shape=(h, w, c),
+        integer=integer,
+        max_level=max_level,
+        lut=lut,
+        lut_var=lut_var,
+        lut_len=lut_len,
+        saturation=sat,
+        floor=floor,
+        weighting=weighting,
+        noise=noise,
+    )
+
+
+# --------------------------------------------------------------------------------------------
+# The kernel.
+
+
+@dataclass
+class _Outputs:
+    radiance: np.ndarray
+    weight_sum: np.ndarray
+    shares: np.ndarray
+    clip_count: np.ndarray
+    clipped: np.ndarray
+    underexposed: np.ndarray
+    ghost_score: np.ndarray
+    ghost: np.ndarray
+
+
+class _Scratch:
+    """Per-worker buffers for one chunk, channel-planar so every operation is contiguous."""
+
+    def __init__(self, n_frames: int, size: int, channels: int) -> None:
+        planes = (channels, size)
+        self.den = np.empty(planes, np.float32)  # sum w
+        self.num = np.empty(planes, np.float32)  # sum w E_k
+        self.s2 = np.empty(planes, np.float32)  # sum w E_k^2
+        self.sv = np.empty(planes, np.float32)  # sum w var(E_k)
+        self.dark = np.empty(planes, np.float32)  # E of the darkest frame (fallback)
+        self.x = np.empty(size, np.float32)
+        self.level = np.empty(size, np.float32)
+        self.var = np.empty(size, np.float32)
+        self.e = np.empty(size, np.float32)
+        self.a = np.empty(size, np.float32)
+        self.b = np.empty(size, np.float32)
+        self.keep = np.empty(size, bool)
+        self.ok = np.empty(size, bool)
+        self.flag = np.empty(size, bool)
+        self.idx = np.empty(size, np.intp)
+        self.i32 = np.empty(size, np.int32)
+        self.nbad = np.empty(size, np.uint8)
+        self.bad = np.empty((n_frames, size), bool)
+        self.clip = np.empty((n_frames, size), bool)
+        self.share = np.empty((n_frames, size), np.float32)
+
+
+_TINY = np.float32(1e-30)
+
+
+def _accumulate(op, dst: np.ndarray, src: np.ndarray) -> None:
+    if op is np.copyto:
+        np.copyto(dst, src)
+    else:
+        np.add(dst, src, out=dst)
+
+
+class _Kernel:
+    def __init__(self, plan: _Plan, out: _Outputs, ghost_threshold: float, model_error: float):
+        self.p = plan
+        self.out = out
+        self.ghost_threshold = np.float32(ghost_threshold)
+        self.model_error2 = np.float32(model_error**2)
+        self.inv_max = np.float32(1.0 / plan.max_level) if plan.integer else np.float32(1.0)
+        self.floor_norm = np.float32(plan.floor * float(self.inv_max))
+        self.weight_fn = WEIGHTS[plan.weighting]
+        nm = plan.noise
+        self.shot = np.float32(nm.shot_gain)
+        const = nm.read_noise**2
+        if plan.integer and plan.lut is None:
+            # linear levels: level noise and quantisation scale by 1 / max_level
+            const += nm.level_variance() * float(self.inv_max) ** 2
+        self.const_var = np.float32(max(const, 1e-12))
+
+    # ---- linearisation of one channel of one frame's chunk ---------------------------------
+    def _linearise(
+        self, col: np.ndarray, ch: int, s: _Scratch, m: int
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(x, level, var)`` of a column of levels or linear values, each float32 ``(m,)``."""
+        p = self.p
+        level, var = s.level[:m], s.var[:m]
+        if not p.integer:
+            np.copyto(level, col)
+            x = level
+        else:
+            np.multiply(col, self.inv_max, out=level, dtype=np.float32)
+            if p.lut is None:
+                x = level
+            else:
+                x, idx = s.x[:m], s.idx[:m]
+                np.copyto(idx, col, casting="unsafe")
+                np.take(p.lut[ch], idx, out=x)
+                np.take(p.lut_var[ch], idx, out=var)
+                if self.shot:
+                    np.multiply(x, self.shot, out=s.a[:m])
+                    var += s.a[:m]
+                var += self.const_var
+                return x, level, var
+        np.multiply(x, self.shot, out=var)
+        var += self.const_var
+        return x, level, var
+
+    def _linearise_points(self, k: int, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """Linear values ``(q, C)`` of frame ``k`` at the given pixels (float64)."""
+        p = self.p
+        src = p.frames[k][rows, cols]
+        if not p.integer:
+            return src.astype(np.float64)
+        if p.lut is None:
+            return src.astype(np.float64) / p.max_level
+        return np.stack(
+            [p.lut[ch][src[:, ch].astype(np.intp)] for ch in range(src.shape[1])], axis=1
+        ).astype(np.float64)
+
+    # ---- one chunk of rows -------------------------------------------------------------------
+    def run(self, r0: int, r1: int, s: _Scratch) -> None:
+        p = self.p
+        _, w, c = p.shape
+        m = (r1 - r0) * w
+        den, num, s2, sv = s.den[:, :m], s.num[:, :m], s.s2[:, :m], s.sv[:, :m]
+        e, keep, ok, flag = s.e[:m], s.keep[:m], s.ok[:m], s.flag[:m]
+        nbad = s.nbad[:m]
+        nbad.fill(0)
+        clip_count = self.out.clip_count[r0:r1].reshape(m)
+        clip_count.fill(0)
+        for j, k in enumerate(p.order):
+            src = p.frames[k][r0:r1].reshape(m, c)
+            bad, clip = s.bad[k, :m], s.clip[k, :m]
+            # A pixel is clipped in this frame when any channel reaches its saturation level.
+            np.greater_equal(src[:, 0], p.saturation[0], out=clip)
+            for ch in range(1, c):
+                np.greater_equal(src[:, ch], p.saturation[ch], out=flag)
+                clip |= flag
+            mask = p.masks[k]
+            if mask is not None:
+                valid = mask[r0:r1].reshape(m)
+                clip &= valid
+                np.logical_not(valid, out=bad)
+                bad |= clip
+            else:
+                np.copyto(bad, clip)
+            clip_count += clip
+            nbad += bad
+            np.logical_not(bad, out=ok)
+            t = float(p.times[k])
+            inv_t = np.float32(1.0 / t)
+            inv_t2 = np.float32(1.0 / (t * t))
+            share = s.share[k, :m]
+            for ch in range(c):
+                x, level, var = self._linearise(src[:, ch], ch, s, m)
+                np.multiply(x, inv_t, out=e)  # E_k = g(M) / dt
+                if j == 0:
+                    np.copyto(s.dark[ch, :m], e)
+                wk = self.weight_fn(level, x, t, var)
+                # zero weight at or below the noise floor (this channel) and for dropped pixels
+                # (all channels: any channel clipped, or invalid after the warp)
+                np.greater(level, self.floor_norm, out=keep)
+                keep &= ok
+                wk *= keep
+                # the first frame initialises the sums (saves clearing them)
+                acc = np.copyto if j == 0 else np.add
+                _accumulate(acc, den[ch], wk)
+                _accumulate(np.copyto if ch == 0 else np.add, share, wk)
+                var *= wk  # w var(E_k) = w var(x) / dt^2
+                var *= inv_t2
+                _accumulate(acc, sv[ch], var)
+                wk *= e  # w E_k
+                _accumulate(acc, num[ch], wk)
+                wk *= e  # w E_k^2
+                _accumulate(acc, s2[ch], wk)
+        self._finish(r0, r1, s, m)
+
+    def _finish(self, r0: int, r1: int, s: _Scratch, m: int) -> None:
+        p, out = self.p, self.out
+        n = len(p.frames)
+        c = p.shape[2]
+        den, num = s.den[:, :m], s.num[:, :m]
+        a, b, inv = s.a[:m], s.b[:m], s.x[:m]
+        rad = out.radiance[r0:r1].reshape(m, c)
+        spread, noise = s.level[:m], s.var[:m]
+        wsum = out.weight_sum[r0:r1].reshape(m)
+        anyzero = s.keep[:m]
+        for ch in range(c):
+            np.maximum(den[ch], _TINY, out=inv)
+            np.divide(np.float32(1.0), inv, out=inv)
+            np.multiply(num[ch], inv, out=a)  # E (0 where no weight)
+            rad[:, ch] = a
+            # ghost moments (maps.ghost_score_from_moments, channel-planar)
+            np.multiply(s.s2[ch, :m], inv, out=b)
+            np.square(a, out=a)
+            b -= a
+            np.maximum(b, 0.0, out=b)
+            if ch == 0:
+                np.copyto(spread, b)
+            else:
+                spread += b
+            a *= self.model_error2
+            np.multiply(s.sv[ch, :m], inv, out=b)
+            b += a
+            if ch == 0:
+                np.copyto(noise, b)
+                np.copyto(wsum, den[ch])
+                np.less_equal(den[ch], 0.0, out=anyzero)
+            else:
+                noise += b
+                wsum += den[ch]
+                np.less_equal(den[ch], 0.0, out=s.flag[:m])
+                anyzero |= s.flag[:m]
+        np.maximum(noise, _TINY, out=noise)
+        spread /= noise
+        np.greater(spread, self.ghost_threshold, out=out.ghost[r0:r1].reshape(m))
+        to_float16_nonnegative(spread, out.ghost_score[r0:r1].reshape(m), s.i32[:m])
+        np.maximum(wsum, _TINY, out=inv)
+        np.divide(np.float32(1.0), inv, out=inv)
+        shares = s.share[:, :m]
+        shares *= inv
+        clipped = out.clipped[r0:r1].reshape(m)
+        under = out.underexposed[r0:r1].reshape(m)
+        under.fill(False)
+        # Every frame dropped (clipped, or invalid): the darkest valid frame's value.
+        np.equal(s.nbad[:m], n, out=clipped)
+        need = np.flatnonzero(anyzero)
+        if need.size:
+            self._fallback(r0, m, need, s, rad, shares, clipped, under)
+        for k in range(n):
+            to_float16_nonnegative(shares[k], out.shares[k, r0:r1].reshape(m), s.i32[:m])
+
+    def _fallback(
+        self,
+        r0: int,
+        m: int,
+        need: np.ndarray,
+        s: _Scratch,
+        rad: np.ndarray,
+        shares: np.ndarray,
+        clipped: np.ndarray,
+        under: np.ndarray,
+    ) -> None:
+        """Values for pixels the weighted average could not estimate (see the module doc)."""
+        p = self.p
+        w = p.shape[1]
+        order = p.order
+        dark_k = int(order[0])
+        # 1) every frame dropped: the darkest valid frame (fast path: the darkest frame is valid)
+        alldrop = need[clipped[need]]
+        if alldrop.size:
+            dark_ok = ~(s.bad[dark_k, alldrop] & ~s.clip[dark_k, alldrop])
+            fast = alldrop[dark_ok]
+            rad[fast] = s.dark[:, fast].T
+            shares[:, fast] = 0.0
+            shares[dark_k, fast] = 1.0
+            slow = alldrop[~dark_ok]
+            if slow.size:
+                invalid = s.bad[np.ix_(order, slow)] & ~s.clip[np.ix_(order, slow)]
+                has_valid = ~invalid.all(axis=0)
+                first_valid = np.where(has_valid, np.argmax(~invalid, axis=0), 0)
+                for j, k in enumerate(order):
+                    pick = slow[first_valid == j]
+                    if pick.size == 0:
+                        continue
+                    vals = self._linearise_points(int(k), pick // w + r0, pick % w)
+                    rad[pick] = (vals / p.times[k]).astype(np.float32)
+                    shares[:, pick] = 0.0
+                    shares[k, pick] = 1.0
+                # no valid frame at all: not clipped, just unknown (darkest frame's value)
+                clipped[slow[~has_valid]] = False
+        # 2) some channel at or below the noise floor in every usable frame: the brightest
+        #    usable frame's value for that channel.
+        rest = need[~clipped[need]]
+        rest = rest[(s.nbad[rest] < len(order))]
+        if rest.size:
+            zero = (s.den[:, rest] <= 0).T  # (q, C)
+            whole = zero.all(axis=1)
+            usable = ~s.bad[np.ix_(order, rest)]
+            last = usable.shape[0] - 1 - np.argmax(usable[::-1], axis=0)
+            for j, k in enumerate(order):
+                sel = np.flatnonzero(last == j)
+                if sel.size == 0:
+                    continue
+                pick = rest[sel]
+                vals = self._linearise_points(int(k), pick // w + r0, pick % w) / p.times[k]
+                target = rad[pick]
+                zc = zero[sel]
+                target[zc] = vals[zc].astype(np.float32)
+                rad[pick] = target
+                wholes = pick[whole[sel]]
+                if wholes.size:
+                    shares[:, wholes] = 0.0
+                    shares[k, wholes] = 1.0
+            under[rest] = True
+
+
+def merge(
+    frames: Sequence[np.ndarray],
+    exposure_times: Sequence[float],
+    *,
+    response: np.ndarray | None = None,
+    max_level: int | None = None,
+    masks: Sequence[np.ndarray | None] | None = None,
+    saturation_level: float | Sequence[float] | None = None,
+    noise_floor: float | None = None,
+    weighting: str | None = None,
+    noise: NoiseModel | None = None,
+    ghost_threshold: float = DEFAULT_GHOST_THRESHOLD,
+    model_error: float = DEFAULT_MODEL_ERROR,
+    chunk_pixels: int = DEFAULT_CHUNK_PIXELS,
+    workers: int | None = None,
+) -> MergeResult:
+    """Merge aligned frames into one radiance map ``E = sum(w g(M) / dt) / sum(w)``.
+
+    Parameters
+    ----------
+    frames
+        ``N`` aligned frames ``(H, W, C)``, any exposure order: either unsigned integer output
+        levels (with ``response`` and/or ``max_level``) or float32 linear values at the saturation
+        scale (1.0 = saturation; float64 is converted).
+    exposure_times
+        ``N`` positive (relative) exposure times.
+    response
+        float ``(C, L)`` (or ``(L,)`` for all channels) LUT ``g``: level -> linear value at the
+        saturation scale, ``L = max_level + 1``. ``None`` means the levels are linear
+        (``g(M) = M / max_level``, e.g. RAW after black subtraction).
+    max_level
+        Largest level of integer frames (255, 4095, ``white - black``...). Defaults to ``L - 1`` of
+        the LUT, or 255 for uint8.
+    masks
+        Optional ``N`` boolean ``(H, W)`` validity masks (``False`` = no data, e.g. the border of a
+        warped frame) or ``None`` entries.
+    saturation_level
+        A sample at or above it is clipped; a number or one per channel (per-channel white
+        levels). Integer frames: output levels; float frames: linear values. Default
+        ``0.98 * max_level`` (or 0.98).
+    noise_floor
+        A sample at or below it gets zero weight in its channel; same units as
+        ``saturation_level``. Default 0.
+    weighting
+        A name in :data:`hdrcore.merge.weights.WEIGHTS`; default ``"hat"`` with a response LUT
+        (non-linear data), else ``"noise-aware"`` (linear data).
+    noise
+        :class:`NoiseModel` for the noise-aware weight and the ghost test.
+    ghost_threshold, model_error
+        See :mod:`hdrcore.merge.maps`.
+    chunk_pixels, workers
+        Pixels per chunk of rows and worker threads (numpy releases the GIL in its loops);
+        ``workers=None`` uses up to two threads.
+
+    Raises
+    ------
+    ParameterError
+        For an empty list, mismatched shapes, non-positive times, out-of-range levels, unknown
+        weighting names and a LUT or mask that does not fit the frames.
+    """
+    t0 = time.perf_counter()
+    plan = _plan(
+        frames, exposure_times, response, max_level, masks, saturation_level, noise_floor,
+        weighting, noise,
+    )
+    if not np.isfinite(ghost_threshold) or ghost_threshold <= 0:
+        raise ParameterError("ghost threshold must be positive", found=str(ghost_threshold))
+    if not np.isfinite(model_error) or model_error < 0:
+        raise ParameterError("model error must be >= 0", found=str(model_error))
+    if workers is None:
+        workers = min(2, os.cpu_count() or 1)
+    if int(chunk_pixels) < 1 or int(workers) < 1:
+        raise ParameterError(
+            "chunk_pixels and workers must be >= 1", found=f"{chunk_pixels}, {workers}"
+        )
+    h, w, c = plan.shape
+    n = len(plan.frames)
+    t1 = time.perf_counter()
+    out = _Outputs(
+        radiance=np.empty((h, w, c), np.float32),
+        weight_sum=np.empty((h, w), np.float32),
+        shares=np.empty((n, h, w), np.float16),
+        clip_count=np.empty((h, w), np.uint8),
+        clipped=np.empty((h, w), bool),
+        underexposed=np.empty((h, w), bool),
+        ghost_score=np.empty((h, w), np.float16),
+        ghost=np.empty((h, w), bool),
+    )
+    kernel = _Kernel(plan, out, float(ghost_threshold), float(model_error))
+    rows = max(1, int(chunk_pixels) // w)
+    spans = [(r, min(h, r + rows)) for r in range(0, h, rows)]
+    workers = min(int(workers), len(spans))
+    if workers == 1:
+        scratch = _Scratch(n, rows * w, c)
+        for r0, r1 in spans:
+            kernel.run(r0, r1, scratch)
+    else:
+        scratches = [_Scratch(n, rows * w, c) for _ in range(workers)]
+        groups = [spans[i::workers] for i in range(workers)]
+
+        def work(i: int) -> None:
+            for r0, r1 in groups[i]:
+                kernel.run(r0, r1, scratches[i])
+
+        with ThreadPoolExecutor(max_workers=workers) as pool:
+            list(pool.map(work, range(workers)))
+    t2 = time.perf_counter()
+    ghost_score, ghost = out.ghost_score, out.ghost
+    t3 = time.perf_counter()
+
+    n_pix = h * w
+    n_clipped = int(np.count_nonzero(out.clipped))
+    n_under = int(np.count_nonzero(out.underexposed))
+    notes = []
+    if n_clipped:
+        notes.append(
+            f"{100.0 * n_clipped / n_pix:.2f}% of pixels clipped in every frame "
+            "(darkest frame's value, a lower bound)"
+        )
+    if n_under:
+        notes.append(
+            f"{100.0 * n_under / n_pix:.2f}% of pixels below the noise floor in every frame "
+            "in some channel (brightest frame's value)"
+        )
+    n_ghost = int(np.count_nonzero(ghost))
+    if n_ghost:
+        notes.append(f"{100.0 * n_ghost / n_pix:.2f}% of pixels disagree between frames (ghosts)")
+    status = "warning" if notes else "ok"
+    message = "; ".join(notes) if notes else f"merged {n} frames"
+    logger.debug("merge: %s", message)
+    return MergeResult(
+        radiance=out.radiance,
+        weight_sum=out.weight_sum,
+        shares=out.shares,
+        clip_count=out.clip_count,
+        clipped=out.clipped,
+        underexposed=out.underexposed,
+        ghost_score=ghost_score,
+        ghost=ghost,
+        exposure_times=tuple(float(t) for t in plan.times),
+        weighting=plan.weighting,
+        units="levels" if plan.integer else "linear",
+        max_level=plan.max_level,
+        saturation_level=tuple(float(v) for v in plan.saturation),
+        noise_floor=float(plan.floor),
+        noise=plan.noise,
+        ghost_threshold=float(ghost_threshold),
+        model_error=float(model_error),
+        status=status,
+        message=message,
+        timings={"validate": t1 - t0, "merge": t2 - t1, "maps": t3 - t2, "total": t3 - t0},
+    )
