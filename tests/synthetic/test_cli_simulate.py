@@ -52,6 +52,18 @@ def test_simulate_png_times_and_response(
     assert truth["response"] == "gamma" and truth["bits"] == 8
 
 
+def test_simulate_key_sets_the_exposure_scale(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    code, out, err = _run(
+        capsys, "simulate", str(tmp_path), "--times", "1,2", "--key", "0.01", "--size", "32x48",
+        "--json",
+    )
+    assert code == 0, err
+    assert json.loads(out)["key"] == 0.01
+    assert json.loads((tmp_path / "truth.json").read_text())["key"] == 0.01
+
+
 @pytest.mark.parametrize(
     ("args", "message"),
     [
@@ -63,6 +75,7 @@ def test_simulate_png_times_and_response(
         (["--times", "1,-2"], r"exposure times must be positive"),
         (["--stops", "0"], r"--stops must be positive"),
         (["--shift", "-1"], r"--shift and --rotation are maxima"),
+        (["--key", "0"], r"--key must be positive"),
     ],
 )
 def test_simulate_bad_arguments(
