@@ -81,7 +81,7 @@ class BrightnessTransferFunction:
     ----------
     forward : float64 ``(max_level_dark + 1,)``, ``T(m)`` in bright levels at each dark level.
     inverse : float64 ``(max_level_bright + 1,)``, ``T^-1(m)`` in dark levels at each bright level.
-    hist_dark, hist_bright : the int64 histograms it was made from.
+    hist_dark, hist_bright : the histograms it was made from (int64, or float64 if given so).
     cdf_dark, cdf_bright : normalised cumulative histograms (fraction with level ``<= m``).
     """
 
@@ -136,8 +136,9 @@ def brightness_transfer_function(
         which = "dark" if hd.sum() <= 0 else "bright"
         raise EstimationError(f"the {which} histogram is empty: no pixels to match",
                               expected="at least one counted pixel", found="0")
-    hd = np.array(hd, np.int64)
-    hb = np.array(hb, np.int64)
+    # Integer counts stay int64; blurred (float) histograms are accepted as float64.
+    hd = np.array(hd, np.int64 if np.issubdtype(hd.dtype, np.integer) else np.float64)
+    hb = np.array(hb, np.int64 if np.issubdtype(hb.dtype, np.integer) else np.float64)
     cd = cumulative(hd)
     cb = cumulative(hb)
     centres_d = np.arange(hd.size, dtype=np.float64)

@@ -1,0 +1,98 @@
+"""Exposure ratios from histograms (Cerman & Hlavac 2006, section 5), with diagnostics.
+
+Methods (registry :data:`EXPOSURE_METHODS`, chosen by name, case-insensitive):
+
+* ``"Cerman 2006 refined"`` (default, :mod:`.refined`): eq. 4 + 3V on the BTF sampled at bin
+  edges, optional noise matching, per-channel fits.
+* ``"Cerman 2006"`` (:mod:`.cerman2006`): the published estimator, eq. 4 + 3V at level centres.
+
+Entry points: :func:`exposure_ratio` (a pair, from histograms), :func:`exposure_ratio_frames`
+(a pair, from frames), :func:`bracket_exposures` (a bracket, from frames) and
+:func:`bracket_exposures_from_histograms` (re-fit from cached histograms, e.g. after a change of
+saturation level or noise floor).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+
+import numpy as np
+
+from ..errors import validate_method
+from ..histogram import histograms
+from ._core import default_noise_floor, default_saturation
+from .cerman2006 import exposure_ratio_cerman2006
+from .chain import BracketHistograms, bracket_histograms, chain_bracket, solve_chain
+from .linearisation import linear_lut, srgb_lut
+from .refined import exposure_ratio_refined
+from .result import BracketExposureResult, ExposureEquations, ExposureRatioResult
+
+__all__ = [
+    "EXPOSURE_METHODS",
+    "DEFAULT_METHOD",
+    "exposure_ratio",
+    "exposure_ratio_frames",
+    "bracket_exposures",
+    "bracket_exposures_from_histograms",
+    "bracket_histograms",
+    "BracketHistograms",
+    "BracketExposureResult",
+    "ExposureEquations",
+    "ExposureRatioResult",
+    "solve_chain",
+    "default_saturation",
+    "default_noise_floor",
+    "linear_lut",
+    "srgb_lut",
+]
+
+EXPOSURE_METHODS: dict[str, Callable[..., ExposureRatioResult]] = {
+    "Cerman 2006 refined": exposure_ratio_refined,
+    "Cerman 2006": exposure_ratio_cerman2006,
+}
+DEFAULT_METHOD = "Cerman 2006 refined"
+
+
+def exposure_ratio(
+    hist_dark: np.ndarray, hist_bright: np.ndarray, *, method: str = DEFAULT_METHOD,
+    **kwargs: object,
+) -> ExposureRatioResult:
+    """Exposure ratio ``t_bright / t_dark`` of a pair from ``(C, L)`` (or ``(L,)``) histograms.
+
+    Keyword arguments: ``saturation`` (Z, levels), ``noise_floor`` (levels), ``lut``
+    (linearisation ``(L,)`` or ``(C, L)``), ``noise_sigma`` (refined method only), ``precision``,
+    ``max_iterations``, ``max_relative_error``, ``min_overlap``, ``dark``, ``bright``.
+    """
+    key = validate_method(method, EXPOSURE_METHODS, "exposure")
+    return EXPOSURE_METHODS[key](hist_dark, hist_bright, **kwargs)
+
+
+def exposure_ratio_frames(
+    dark: np.ndarray, bright: np.ndarray, max_level: int, *, mask: np.ndarray | None = None,
+    method: str = DEFAULT_METHOD, **kwargs: object,
+) -> ExposureRatioResult:
+    """As :func:`exposure_ratio` from two ``(H, W, C)`` integer frames."""
+    return exposure_ratio(histograms(dark, max_level, mask), histograms(bright, max_level, mask),
+                          method=method, **kwargs)
+
+
+def bracket_exposures_from_histograms(
+    hists: BracketHistograms, *, method: str = DEFAULT_METHOD,
+    exposure_times: Sequence[float | None] | None = None, non_consecutive: bool = True,
+    **kwargs: object,
+) -> BracketExposureResult:
+    """Relative exposures of a bracket from cached histograms (fast re-fit)."""
+    key = validate_method(method, EXPOSURE_METHODS, "exposure")
+    return chain_bracket(hists, EXPOSURE_METHODS[key], method=key, exposure_times=exposure_times,
+                         non_consecutive=non_consecutive, **kwargs)
+
+
+def bracket_exposures(
+    frames: Sequence[np.ndarray], max_level: int, *, method: str = DEFAULT_METHOD,
+    exposure_times: Sequence[float | None] | None = None, mask: np.ndarray | None = None,
+    stride: int | None = None, non_consecutive: bool = True, **kwargs: object,
+) -> BracketExposureResult:
+    """Relative exposures (darkest = 1) of ``frames`` (darkest first, integer ``(H, W, C)``)."""
+    hists = bracket_histograms(frames, max_level, mask=mask, stride=stride)
+    return bracket_exposures_from_histograms(hists, method=method, exposure_times=exposure_times,
+                                             non_consecutive=non_consecutive, **kwargs)

@@ -1,0 +1,318 @@
+"""Shared numerical pieces of the histogram exposure estimators (private).
+
+Equations of system S0 (Cerman & Hlavac 2006, eq. 4) from brightness transfer functions, the
+weighted least-squares solution of ``k x = y`` with the seed's 3V outlier iteration (section 5.1),
+and the status logic of section 5.2 (not enough overlap, poor confidence).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..btf import BrightnessTransferFunction, brightness_transfer_function
+from ..errors import EstimationError, ParameterError
+from .result import FORWARD, INVERSE, ExposureEquations, ExposureRatioResult
+
+__all__ = [
+    "FitOptions",
+    "as_lut",
+    "check_histograms",
+    "default_saturation",
+    "default_noise_floor",
+    "solve_3v",
+    "estimate_pair",
+]
+
+
+@dataclass(frozen=True)
+class FitOptions:
+    """How a method builds and solves its equations.
+
+    ``at_edges``: sample the BTF at bin edges ``m + 1/2`` (exact quantiles of the frame the
+    equation comes from) instead of at level centres ``m`` (the paper's choice).
+    ``weight_power``: equations are multiplied by ``h ** weight_power`` (the paper: 1/2).
+    ``relative_error``: also divide each equation by ``x`` so that every equation measures ``k``
+    on the same relative scale (``k - y/x``) weighted by its information.
+    """
+
+    name: str
+    at_edges: bool
+    weight_power: float = 0.5
+    relative_error: bool = False
+    min_level_fraction: float = 0.0
+
+
+def default_saturation(max_level: int) -> float:
+    """Default saturation level ``Z``: 97 % of the largest level (keeps clipped noise out)."""
+    return 0.97 * max_level
+
+
+def default_noise_floor(max_level: int) -> float:
+    """Default noise floor: 2 % of the largest level, at least 3 levels."""
+    return max(3.0, 0.02 * max_level)
+
+
+def as_lut(lut: np.ndarray | None, n_channels: int, max_level: int) -> np.ndarray:
+    """A ``(C, max_level + 1)`` float64 linearisation table; ``None`` means linear levels."""
+    n = max_level + 1
+    if lut is None:
+        return np.broadcast_to(np.arange(n, dtype=np.float64) / max_level, (n_channels, n))
+    g = np.asarray(lut, np.float64)
+    if g.ndim == 1:
+        g = np.broadcast_to(g, (n_channels, g.size))
+    if g.ndim != 2 or g.shape[1] != n or g.shape[0] not in (1, n_channels):
+        raise ParameterError(
+            "linearisation table has the wrong shape",
+            expected=f"({n},) or ({n_channels}, {n})", found=str(np.asarray(lut).shape),
+        )
+    if g.shape[0] == 1:
+        g = np.broadcast_to(g, (n_channels, n))
+    if not np.all(np.isfinite(g)) or np.any(np.diff(g, axis=1) < 0):
+        raise ParameterError("linearisation table must be finite and non-decreasing")
+    return g
+
+
+def check_histograms(hist_dark: np.ndarray, hist_bright: np.ndarray) -> tuple[np.ndarray, ...]:
+    hd = np.asarray(hist_dark)
+    hb = np.asarray(hist_bright)
+    if hd.ndim == 1:
+        hd = hd[None]
+    if hb.ndim == 1:
+        hb = hb[None]
+    if hd.ndim != 2 or hd.shape != hb.shape or hd.shape[1] < 2:
+        raise ParameterError("histograms of a pair must have the same shape (C, max_level + 1)",
+                             found=f"{np.asarray(hist_dark).shape} and "
+                                   f"{np.asarray(hist_bright).shape}")
+    if np.any(hd < 0) or np.any(hb < 0):
+        raise ParameterError("histogram counts must be non-negative")
+    return hd, hb
+
+
+def _check_usable(hist: np.ndarray, which: str, saturation: float, noise_floor: float) -> None:
+    """Raise when a whole frame is black or saturated: no ratio can be estimated from it."""
+    total = hist.sum()
+    if total <= 0:
+        raise EstimationError(f"the {which} frame has no pixels to count")
+    levels = np.arange(hist.shape[-1])
+    mid = hist[..., (levels > noise_floor) & (levels < saturation)].sum()
+    if mid == 0:
+        low = hist[..., levels <= noise_floor].sum()
+        kind = "black (at or below the noise floor)" if low >= total / 2 else "saturated"
+        raise EstimationError(
+            f"the {which} frame is entirely {kind}; no exposure ratio can be estimated from it",
+            expected=f"pixels between noise floor {noise_floor:g} and saturation {saturation:g}",
+            found="none",
+        )
+
+
+def solve_3v(
+    x: np.ndarray, y: np.ndarray, w: np.ndarray, *, precision: float = 1e-7,
+    max_iterations: int = 100,
+) -> tuple[float, tuple[float, ...], np.ndarray, np.ndarray, int, float]:
+    """Solve ``w k x = w y`` by least squares, then the seed's 3V iteration (section 5.1).
+
+    Repeat: ``V`` = mean squared weighted residual of the current inliers, keep equations whose
+    squared residual is below ``3 V``, re-solve, until ``k`` changes by less than ``precision``
+    (relative). Returns ``(k, iterates, inlier_mask, residuals, iterations, std_error)``.
+    """
+    wx = w * x
+    wy = w * y
+
+    def fit(mask: np.ndarray) -> float:
+        den = float(np.dot(wx[mask], wx[mask]))
+        return float(np.dot(wx[mask], wy[mask]) / den) if den > 0 else float("nan")
+
+    mask = np.ones(x.size, bool)
+    k = fit(mask)
+    iterates = [k]
+    it = 0
+    for it in range(1, max_iterations + 1):  # noqa: B007
+        r = wy - k * wx
+        v = float(np.mean(r[mask] ** 2))
+        if v <= 0:
+            break
+        new_mask = r**2 < 3.0 * v
+        if np.count_nonzero(new_mask) < 2:
+            break
+        mask = new_mask
+        k_new = fit(mask)
+        iterates.append(k_new)
+        if abs(k_new - k) <= precision * abs(k):
+            k = k_new
+            break
+        k = k_new
+    residuals = wy - k * wx
+    n = int(np.count_nonzero(mask))
+    den = float(np.dot(wx[mask], wx[mask]))
+    if n > 1 and den > 0:
+        s2 = float(np.dot(residuals[mask], residuals[mask])) / (n - 1)
+        se = float(np.sqrt(s2 / den))
+    else:
+        se = float("inf")
+    return k, tuple(iterates), mask, residuals, len(iterates) - 1, se
+
+
+def _equations_for_channel(
+    btf: BrightnessTransferFunction, g: np.ndarray, saturation: float, noise_floor: float,
+    options: FitOptions, channel: int,
+) -> tuple[np.ndarray, ...]:
+    n = g.size
+    levels = np.arange(n, dtype=np.float64)
+
+    def lin(pos: np.ndarray) -> np.ndarray:
+        return np.interp(pos, levels, g)
+
+    hd, hb = btf.hist_dark, btf.hist_bright
+    if options.at_edges:
+        pos_d, t_fwd = levels + 0.5, btf.forward_at_edges()
+        pos_b, t_inv = levels + 0.5, btf.inverse_at_edges()
+        inner_d = (btf.cdf_dark > 0) & (btf.cdf_dark < 1)
+        inner_b = (btf.cdf_bright > 0) & (btf.cdf_bright < 1)
+    else:
+        pos_d, t_fwd = levels, btf.forward
+        pos_b, t_inv = levels, btf.inverse
+        inner_d = np.ones(n, bool)
+        inner_b = np.ones(n, bool)
+    fwd = (hd > 0) & inner_d & (pos_d > noise_floor) & (pos_d < saturation) & (t_fwd < saturation)
+    inv = (hb > 0) & inner_b & (pos_b < saturation) & (t_inv > noise_floor) & (pos_b > noise_floor)
+    x = np.concatenate([lin(pos_d[fwd]), lin(t_inv[inv])])
+    y = np.concatenate([lin(t_fwd[fwd]), lin(pos_b[inv])])
+    counts = np.concatenate([hd[fwd], hb[inv]]).astype(np.float64)
+    w = counts**options.weight_power
+    direction = np.concatenate([np.full(fwd.sum(), FORWARD, np.int8),
+                                np.full(inv.sum(), INVERSE, np.int8)])
+    level = np.concatenate([pos_d[fwd], pos_b[inv]])
+    ch = np.full(x.size, channel, np.int8)
+    return x, y, w, direction, ch, level
+
+
+def _overlap(hd: np.ndarray, btfs: tuple[BrightnessTransferFunction, ...], saturation: float,
+             noise_floor: float) -> float:
+    """Fraction of the darker frame's pixels above the floor whose transfer stays below ``Z``."""
+    fractions = []
+    for c, btf in enumerate(btfs):
+        total = hd[c].sum()
+        if total <= 0:
+            continue
+        levels = np.arange(hd.shape[1])
+        usable = (levels > noise_floor) & (levels < saturation) & (btf.forward < saturation)
+        fractions.append(hd[c][usable].sum() / total)
+    return float(np.mean(fractions)) if fractions else 0.0
+
+
+def estimate_pair(
+    hist_dark: np.ndarray,
+    hist_bright: np.ndarray,
+    options: FitOptions,
+    *,
+    saturation: float | None = None,
+    noise_floor: float | None = None,
+    lut: np.ndarray | None = None,
+    precision: float = 1e-7,
+    max_iterations: int = 100,
+    max_relative_error: float = 0.004,
+    min_overlap: float = 0.02,
+    min_equations: int = 6,
+    disagreement_tolerance: float = 0.01,
+    dark: int = 0,
+    bright: int = 1,
+    refine: Callable[..., float] | None = None,
+) -> ExposureRatioResult:
+    """Estimate ``k = t_bright / t_dark`` from the histograms of a pair (all channels).
+
+    ``hist_dark``/``hist_bright``: ``(C, max_level + 1)`` or ``(max_level + 1,)``.
+    """
+    hd, hb = check_histograms(hist_dark, hist_bright)
+    n_ch, n = hd.shape
+    max_level = n - 1
+    z = default_saturation(max_level) if saturation is None else float(saturation)
+    floor = default_noise_floor(max_level) if noise_floor is None else float(noise_floor)
+    if not 0 <= floor < z <= max_level + 1:
+        raise ParameterError("need 0 <= noise floor < saturation <= max_level + 1",
+                             found=f"noise floor {floor:g}, saturation {z:g}")
+    _check_usable(hd, "darker", z, floor)
+    _check_usable(hb, "brighter", z, floor)
+    g = as_lut(lut, n_ch, max_level)
+
+    btfs = tuple(brightness_transfer_function(hd[c], hb[c]) for c in range(n_ch))
+    parts = [_equations_for_channel(btfs[c], g[c], z, floor, options, c) for c in range(n_ch)]
+    x, y, w, direction, ch, level = (np.concatenate(p) for p in zip(*parts, strict=True))
+    if options.relative_error:
+        keep = x > 0
+        x, y, w, direction, ch, level = (a[keep] for a in (x, y, w, direction, ch, level))
+        w = w / x
+    eqs = ExposureEquations(x=x, y=y, weights=w, direction=direction, channel=ch, level=level)
+    overlap = _overlap(hd, btfs, z, floor)
+
+    common = dict(method=options.name, equations=eqs, overlap=overlap, btfs=btfs, saturation=z,
+                  noise_floor=floor, max_level=max_level, dark=dark, bright=bright)
+    if x.size < min_equations or overlap < min_overlap:
+        return ExposureRatioResult(
+            ratio=float("nan"), initial_ratio=float("nan"), iterates=(), iterations=0,
+            inlier_mask=np.zeros(x.size, bool), residuals=np.zeros(x.size), std_error=float("inf"),
+            status="no-overlap",
+            message=(
+                f"frames {dark} and {bright} do not overlap enough in brightness: "
+                f"{overlap:.1%} of the darker frame's pixels lie above the noise floor "
+                f"({floor:g}) and stay below saturation ({z:g}) in the brighter frame, "
+                f"{x.size} equations; use frames closer in exposure or lower the noise floor"
+            ),
+            channel_ratios=(float("nan"),) * n_ch, channel_std_errors=(float("inf"),) * n_ch,
+            channels_disagree=False, **common,
+        )
+
+    k, iterates, mask, residuals, iterations, se = solve_3v(
+        x, y, w, precision=precision, max_iterations=max_iterations)
+    if refine is not None:
+        k = refine(eqs, mask, k)
+    channel_ratios, channel_se = [], []
+    for c in range(n_ch):
+        sel = ch == c
+        if np.count_nonzero(sel) >= min_equations:
+            kc, _, _, _, _, sec = solve_3v(x[sel], y[sel], w[sel], precision=precision,
+                                           max_iterations=max_iterations)
+        else:
+            kc, sec = float("nan"), float("inf")
+        channel_ratios.append(kc)
+        channel_se.append(sec)
+    cr = np.array(channel_ratios)
+    cse = np.array(channel_se)
+    finite = np.isfinite(cr)
+    disagree = False
+    if n_ch > 1 and np.count_nonzero(finite) > 1:
+        dev = np.abs(cr[finite] / k - 1)
+        allowed = np.maximum(disagreement_tolerance, 4 * cse[finite] / k)
+        disagree = bool(np.any(dev > allowed))
+
+    rel = se / k if k > 0 else float("inf")
+    if not np.isfinite(k) or k <= 0:
+        status, message = "failed", f"the fit of frames {dark} and {bright} gave no positive ratio"
+    elif np.count_nonzero(mask) < min_equations:
+        status = "few-equations"
+        message = (f"only {np.count_nonzero(mask)} of {x.size} equations survived the 3V outlier "
+                   f"removal for frames {dark} and {bright}")
+    elif rel > max_relative_error:
+        status = "uncertain"
+        message = (f"ratio {k:.4f} of frames {dark} and {bright} has a standard error of "
+                   f"{rel:.2%} (over {max_relative_error:.2%}); the histograms do not match well "
+                   f"(scene change, strong motion or a wrong response)")
+    elif disagree:
+        status = "channels-disagree"
+        message = ("the colour channels give different ratios ("
+                   + ", ".join(f"{v:.4f}" for v in cr)
+                   + f") for frames {dark} and {bright}: a wrong white level, a colour cast or "
+                   "a wrong response")
+    elif overlap < 5 * min_overlap:
+        status, message = "ok", (f"ratio {k:.4f} from a small overlap ({overlap:.1%} of the "
+                                 "darker frame's pixels)")
+    else:
+        status, message = "ok", f"ratio {k:.4f} ± {rel:.2%} from {np.count_nonzero(mask)} equations"
+    return ExposureRatioResult(
+        ratio=float(k), initial_ratio=float(iterates[0]), iterates=iterates, iterations=iterations,
+        inlier_mask=mask, residuals=residuals, std_error=float(se), status=status,
+        message=message, channel_ratios=tuple(float(v) for v in cr),
+        channel_std_errors=tuple(float(v) for v in cse), channels_disagree=disagree, **common,
+    )

@@ -1,0 +1,207 @@
+"""Relative exposure times of a bracket from pairwise ratios (Cerman & Hlavac 2006, section 5).
+
+The seed chains the consecutive ratios: ``e_0 = 1``, ``e_{j+1} = e_j k_{j,j+1}``. Going beyond
+it, pairs of non-consecutive frames that still overlap in brightness are estimated too, and the
+relative exposures are the weighted least-squares solution in log exposure of all usable pairs,
+``log e_j - log e_i = log k_ij``. With consecutive pairs only this is exactly the chain; with more
+pairs an error in one pair shows up as a residual (``chain_residuals_stops``), and a consecutive
+pair that disagrees with the others is marked ``"inconsistent"``.
+
+The bracket estimate works on cached histograms (:class:`BracketHistograms`): changing only the
+saturation level or the noise floor re-fits without touching the images.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from ..errors import BracketError, ParameterError
+from ..histogram import auto_stride, histograms
+from .result import BracketExposureResult, ExposureRatioResult
+
+__all__ = ["BracketHistograms", "bracket_histograms", "solve_chain", "chain_bracket"]
+
+
+@dataclass(frozen=True, eq=False)
+class BracketHistograms:
+    """Per-frame, per-channel histograms ``(N, C, max_level + 1)`` of a bracket, darkest first."""
+
+    counts: np.ndarray
+    max_level: int
+    stride: int = 1
+
+    @property
+    def n_frames(self) -> int:
+        return int(self.counts.shape[0])
+
+
+def bracket_histograms(
+    frames: Sequence[np.ndarray], max_level: int, *, mask: np.ndarray | None = None,
+    stride: int | None = None,
+) -> BracketHistograms:
+    """Histograms of every frame (``(H, W, C)`` integer levels). ``stride=None`` picks one that
+    keeps about six million pixels per frame (:func:`hdrcore.histogram.auto_stride`)."""
+    if len(frames) < 2:
+        raise BracketError("a bracket needs at least two frames", found=f"{len(frames)} frame(s)")
+    shapes = {np.asarray(f).shape for f in frames}
+    if len(shapes) != 1:
+        raise BracketError("frames of a bracket must have the same shape", found=str(shapes))
+    f0 = np.asarray(frames[0])
+    if f0.ndim == 2:
+        frames = [np.asarray(f)[..., None] for f in frames]
+        f0 = frames[0]
+    s = auto_stride(f0.shape[0] * f0.shape[1]) if stride is None else max(int(stride), 1)
+    counts = np.stack([histograms(f, max_level, mask, stride=s) for f in frames])
+    counts.setflags(write=False)
+    return BracketHistograms(counts=counts, max_level=int(max_level), stride=s)
+
+
+def solve_chain(
+    n: int, pairs: Sequence[ExposureRatioResult], *, min_relative_error: float = 2e-4,
+    non_consecutive_weight: float = 0.01,
+) -> tuple[np.ndarray, dict[tuple[int, int], float]]:
+    """Relative exposures (frame 0 = 1) from pair ratios by weighted least squares in log2.
+
+    Pairs with a non-finite ratio are skipped; ok pairs weigh ``1 / max(rel. error, floor)``,
+    others ten times less, non-consecutive pairs ``non_consecutive_weight`` times less again.
+    Frames not connected to frame 0 get ``nan``.
+    Returns the exposures and, per pair used, ``log2(k_ij / (e_j / e_i))``.
+    """
+    rows, rhs, wts, used = [], [], [], []
+    for p in pairs:
+        if not (np.isfinite(p.ratio) and p.ratio > 0):
+            continue
+        rel = max(p.relative_std_error if np.isfinite(p.std_error) else 1.0, min_relative_error)
+        w = 1.0 / rel if p.ok else 0.1 / rel
+        if p.bright - p.dark > 1:
+            # Non-consecutive pairs overlap less and their errors are correlated with the
+            # consecutive ones: they bridge gaps and reveal loops, they do not pull the chain.
+            w *= non_consecutive_weight
+        row = np.zeros(n)
+        row[p.bright] += 1.0
+        row[p.dark] -= 1.0
+        rows.append(row)
+        rhs.append(np.log2(p.ratio))
+        wts.append(w)
+        used.append((p.dark, p.bright))
+    log_e = np.full(n, np.nan)
+    log_e[0] = 0.0
+    if not rows:
+        return np.where(np.arange(n) == 0, 1.0, np.nan), {}
+    a = np.array(rows)
+    b = np.array(rhs)
+    w = np.array(wts)
+    # Connectivity to frame 0 (union-find over the used pairs).
+    parent = list(range(n))
+
+    def find(i: int) -> int:
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    for i, j in used:
+        parent[find(i)] = find(j)
+    connected = np.array([find(i) == find(0) for i in range(n)])
+    cols = np.flatnonzero(connected)[1:]
+    keep_rows = np.array([connected[i] and connected[j] for i, j in used])
+    if cols.size:
+        sol, *_ = np.linalg.lstsq(a[keep_rows][:, cols] * w[keep_rows, None],
+                                  b[keep_rows] * w[keep_rows], rcond=None)
+        log_e[cols] = sol
+    residuals = {}
+    for (i, j), bi in zip(used, b, strict=True):
+        if connected[i] and connected[j]:
+            residuals[(i, j)] = float(bi - (log_e[j] - log_e[i]))
+    return np.exp2(log_e), residuals
+
+
+def chain_bracket(
+    hists: BracketHistograms,
+    estimate: Callable[..., ExposureRatioResult],
+    *,
+    method: str,
+    exposure_times: Sequence[float | None] | None = None,
+    non_consecutive: bool = True,
+    max_span: int = 3,
+    consistency_stops: float = 0.02,
+    **kwargs: object,
+) -> BracketExposureResult:
+    """Estimate every consecutive pair (and overlapping non-consecutive ones), then chain."""
+    n = hists.n_frames
+    counts = hists.counts
+    pairs = []
+    for i in range(n - 1):
+        pairs.append(estimate(counts[i], counts[i + 1], dark=i, bright=i + 1, **kwargs))
+    extra = []
+    if non_consecutive:
+        for span in range(2, min(max_span, n - 1) + 1):
+            for i in range(n - span):
+                r = estimate(counts[i], counts[i + span], dark=i, bright=i + span, **kwargs)
+                if r.status != "no-overlap":
+                    extra.append(r)
+    exposures, residuals = solve_chain(n, pairs + extra)
+    chained = [1.0]
+    for p in pairs:
+        chained.append(chained[-1] * p.ratio if np.isfinite(p.ratio) else float("nan"))
+
+    # Mark consecutive pairs that a closed loop contradicts: a non-consecutive pair (i, j) whose
+    # ratio differs from the chain over i..j by more than ``consistency_stops``.
+    broken_loops = [e for e in extra if e.ok and abs(residuals.get((e.dark, e.bright), 0.0))
+                    > consistency_stops]
+    checked = []
+    for p in pairs:
+        loops = [e for e in broken_loops if e.dark <= p.dark and e.bright >= p.bright]
+        if p.ok and loops:
+            worst = max(loops, key=lambda e: abs(residuals[(e.dark, e.bright)]))
+            res = residuals[(worst.dark, worst.bright)]
+            p = replace(p, status="inconsistent", message=(
+                f"ratio {p.ratio:.4f} of frames {p.dark} and {p.bright}: the direct estimate of "
+                f"frames {worst.dark} and {worst.bright} differs from the chain by {res:+.3f} "
+                "stops; a histogram is disturbed (motion at the borders, a moving object, a "
+                "wrong response)"))
+        checked.append(p)
+    pairs = checked
+
+    if exposure_times is None:
+        times: tuple[float | None, ...] = (None,) * n
+    else:
+        if len(exposure_times) != n:
+            raise ParameterError("one exposure time per frame", expected=str(n),
+                                 found=str(len(exposure_times)))
+        times = tuple(None if t is None else float(t) for t in exposure_times)
+    exif_ratios, mismatch = [], []
+    for p in pairs:
+        ti, tj = times[p.dark], times[p.bright]
+        if ti and tj and ti > 0 and tj > 0:
+            er = tj / ti
+            exif_ratios.append(er)
+            mismatch.append(float(np.log2(p.ratio / er)) if np.isfinite(p.ratio) else None)
+        else:
+            exif_ratios.append(None)
+            mismatch.append(None)
+
+    bad = [p for p in pairs if not p.ok]
+    if np.any(~np.isfinite(exposures)):
+        status = "broken-chain"
+        message = ("the chain of exposures is broken: "
+                   + "; ".join(p.message for p in bad if p.status == "no-overlap"))
+    elif bad:
+        status = "not-ok"
+        message = f"{len(bad)} of {len(pairs)} pairs are not ok: " + "; ".join(
+            f"{p.dark}-{p.bright} {p.status}" for p in bad)
+    else:
+        status = "ok"
+        message = f"{n} frames, {len(pairs)} consecutive and {len(extra)} further pairs, all ok"
+    first = pairs[0]
+    return BracketExposureResult(
+        relative_exposures=tuple(float(v) for v in exposures),
+        chained_exposures=tuple(float(v) for v in chained),
+        pairs=tuple(pairs), extra_pairs=tuple(extra), exif_times=times,
+        exif_ratios=tuple(exif_ratios), mismatch_stops=tuple(mismatch),
+        chain_residuals_stops=residuals, status=status, message=message, method=method,
+        saturation=first.saturation, noise_floor=first.noise_floor, max_level=hists.max_level,
+    )

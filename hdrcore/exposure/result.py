@@ -1,0 +1,154 @@
+"""Result objects of the exposure stage: one pair, and a whole bracket.
+
+They carry the estimate and everything the browser inspector draws (the equations of eq. 4 with
+their weights and directions, the 3V inlier mask, every iterate) so nothing is recomputed.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ..btf import BrightnessTransferFunction
+
+__all__ = ["ExposureEquations", "ExposureRatioResult", "BracketExposureResult", "PairKey"]
+
+PairKey = tuple[int, int]
+
+FORWARD = 0
+"""Direction code of an equation made from a dark level ``M_A`` and ``T(M_A)``."""
+INVERSE = 1
+"""Direction code of an equation made from a bright level ``M_B`` and ``T^-1(M_B)``."""
+
+
+@dataclass(frozen=True, eq=False)
+class ExposureEquations:
+    """The equations ``k * x = y`` of system S0 (Cerman & Hlavac 2006, eq. 4), one per row.
+
+    ``x`` is the linearised dark value, ``y`` the linearised bright value, ``weights`` the
+    square-root weights multiplying each equation, ``direction`` :data:`FORWARD` (from a dark level
+    through ``T``) or :data:`INVERSE` (from a bright level through ``T^-1``), ``channel`` the colour
+    channel, ``level`` the (continuous) level in the frame the equation came from.
+    """
+
+    x: np.ndarray
+    y: np.ndarray
+    weights: np.ndarray
+    direction: np.ndarray
+    channel: np.ndarray
+    level: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.x.size)
+
+
+@dataclass(frozen=True, eq=False)
+class ExposureRatioResult:
+    """Exposure ratio ``k = t_bright / t_dark`` of one pair with its diagnostics.
+
+    ``ratio`` is the final estimate from all channels together; ``initial_ratio`` the solution of
+    S0 before outlier removal (``k0``); ``iterates`` every value of the 3V iteration starting with
+    ``k0``. ``inlier_mask`` and ``residuals`` (weighted, ``w * (y - k x)``) run over
+    ``equations``. ``std_error`` is the standard error of ``ratio`` from the weighted fit,
+    ``overlap`` the fraction of the darker frame's pixels whose levels enter the equations.
+    ``status`` is ``"ok"`` or a short word (``"no-overlap"``, ``"uncertain"``,
+    ``"channels-disagree"``, ``"few-equations"``); ``message`` says what it means.
+    ``channel_ratios`` are the same fit per colour channel; ``channels_disagree`` flags a
+    spread larger than their errors allow (a white-level or colour-cast problem).
+    """
+
+    method: str
+    ratio: float
+    initial_ratio: float
+    iterates: tuple[float, ...]
+    iterations: int
+    equations: ExposureEquations
+    inlier_mask: np.ndarray
+    residuals: np.ndarray
+    std_error: float
+    overlap: float
+    status: str
+    message: str
+    channel_ratios: tuple[float, ...]
+    channel_std_errors: tuple[float, ...]
+    channels_disagree: bool
+    saturation: float
+    noise_floor: float
+    max_level: int
+    btfs: tuple[BrightnessTransferFunction, ...] = field(default=(), repr=False)
+    dark: int = 0
+    bright: int = 1
+
+    @property
+    def ok(self) -> bool:
+        return self.status == "ok"
+
+    @property
+    def n_equations(self) -> int:
+        return len(self.equations)
+
+    @property
+    def n_inliers(self) -> int:
+        return int(np.count_nonzero(self.inlier_mask))
+
+    @property
+    def relative_std_error(self) -> float:
+        return float(self.std_error / self.ratio) if self.ratio > 0 else float("inf")
+
+    def to_json(self) -> dict[str, Any]:
+        """The fields of ``hdrcore ratios --json`` for one pair (without the EXIF comparison)."""
+        return {
+            "dark": int(self.dark),
+            "bright": int(self.bright),
+            "ratio": float(self.ratio),
+            "initial_ratio": float(self.initial_ratio),
+            "iterations": int(self.iterations),
+            "equations": self.n_equations,
+            "inliers": self.n_inliers,
+            "std_error": float(self.std_error),
+            "status": self.status,
+            "message": self.message,
+        }
+
+
+@dataclass(frozen=True, eq=False)
+class BracketExposureResult:
+    """Relative exposures of a bracket (darkest first, darkest = 1) and every pair behind them.
+
+    ``relative_exposures`` come from the consistent chain: a weighted least-squares fit in log
+    exposure over all estimated pairs (consecutive and, where they overlap, non-consecutive), which
+    reduces to plain chaining of the consecutive ratios when only those are usable.
+    ``chained_exposures`` are the products of the consecutive ratios alone (the seed's chaining).
+    ``pairs`` holds the consecutive pairs, ``extra_pairs`` the non-consecutive ones that were
+    estimated. ``exif_times`` (seconds or ``None``), ``exif_ratios`` and ``mismatch_stops``
+    (``log2(estimate / exif)`` per consecutive pair) put the metadata beside the estimates.
+    ``chain_residuals_stops`` is, per pair used in the chain, ``log2`` of the pair's estimate over
+    the ratio implied by ``relative_exposures``: large values mean inconsistent pairs.
+    """
+
+    relative_exposures: tuple[float, ...]
+    chained_exposures: tuple[float, ...]
+    pairs: tuple[ExposureRatioResult, ...]
+    extra_pairs: tuple[ExposureRatioResult, ...]
+    exif_times: tuple[float | None, ...]
+    exif_ratios: tuple[float | None, ...]
+    mismatch_stops: tuple[float | None, ...]
+    chain_residuals_stops: dict[PairKey, float]
+    status: str
+    message: str
+    method: str
+    saturation: float
+    noise_floor: float
+    max_level: int
+
+    @property
+    def ok(self) -> bool:
+        return self.status == "ok"
+
+    @property
+    def ratios(self) -> tuple[float, ...]:
+        """Consecutive ratios implied by ``relative_exposures``."""
+        e = self.relative_exposures
+        return tuple(e[k + 1] / e[k] for k in range(len(e) - 1))
