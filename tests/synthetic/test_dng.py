@@ -243,3 +243,13 @@ def test_bad_linear_to_raw_input() -> None:
         linear_to_raw(np.zeros((4, 4)), black_level=0, white_level=255, shot_noise_full_well=0)
     with pytest.raises(ParameterError, match=r"mosaic needs an RGB frame"):
         mosaic(np.zeros((4, 4)))
+
+
+@pytest.mark.parametrize(("orientation", "flip"), [(1, 0), (3, 3), (6, 6), (8, 5)])
+def test_orientation_reaches_libraw(tmp_path: Path, orientation: int, flip: int) -> None:
+    # LibRaw's flip codes: 0 none, 3 rotate 180, 6 rotate 90 CW, 5 rotate 90 CCW.
+    raw_in = linear_to_raw(mosaic(_linear()), black_level=256, white_level=4095)
+    p = write_dng(tmp_path / "f.dng", raw_in, exposure_time=1.0, orientation=orientation)
+    with rawpy.imread(str(p)) as raw:
+        assert raw.sizes.flip == flip
+        np.testing.assert_array_equal(raw.raw_image_visible, raw_in)  # the mosaic is untouched
