@@ -14,6 +14,7 @@ __all__ = [
     "DISPLAY_WIDTH",
     "display_step",
     "shrink",
+    "enlarge",
     "levels_to_display",
     "unit_to_display",
     "labels_to_rgb",
@@ -41,6 +42,15 @@ def shrink(image: np.ndarray, width: int = DISPLAY_WIDTH) -> np.ndarray:
     """Every n-th pixel so the image is at most ``width`` wide (display only)."""
     step = display_step(image.shape, width)
     return np.ascontiguousarray(image[::step, ::step])
+
+
+def enlarge(image: np.ndarray, min_width: int = 480) -> np.ndarray:
+    """Repeat pixels so a small image is at least ``min_width`` wide (display only)."""
+    w = int(image.shape[1])
+    factor = int(np.ceil(min_width / w)) if 0 < w < min_width else 1
+    if factor == 1:
+        return image
+    return np.ascontiguousarray(np.repeat(np.repeat(image, factor, axis=0), factor, axis=1))
 
 
 def _as_rgb(arr: np.ndarray) -> np.ndarray:

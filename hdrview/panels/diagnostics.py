@@ -1,4 +1,6 @@
-"""Diagnostics panel: per-pair table for the whole bracket and the plain-language verdicts."""
+"""Diagnostics panel: one row per consecutive pair for the whole bracket (estimated and EXIF ratio,
+mismatch in stops, inliers, standard error, registration cost, statuses), the pipeline's
+plain-language verdicts and the capture warnings of the loader."""
 
 from __future__ import annotations
 
@@ -6,9 +8,49 @@ from typing import Any
 
 import viser
 
+from ._access import exposure_of, registration_of, verdicts_of
+from ._draw import fmt, md_table
 from .frames import warnings_markdown
 
-__all__ = ["DiagnosticsPanel", "bundle_files"]
+__all__ = ["DiagnosticsPanel", "bundle_files", "pairs_table", "verdicts_markdown"]
+
+
+def pairs_table(exposure: Any, registration: Any) -> str:
+    header = ["pair", "ratio", "± std err", "EXIF ratio", "mismatch (stops)", "inliers",
+              "ratio status", "cost before → after", "dx, dy, angle", "registration status"]
+    rows = []
+    for k, p in enumerate(exposure.pairs):
+        exif = exposure.exif_ratios[k] if k < len(exposure.exif_ratios) else None
+        mism = exposure.mismatch_stops[k] if k < len(exposure.mismatch_stops) else None
+        r = registration.pairs[k] if registration is not None and k < len(registration.pairs) \
+            else None
+        cost = "—" if r is None else f"{fmt(r.cost_before, 3)} → {fmt(r.cost_after, 3)}"
+        motion = "—" if r is None else (
+            f"{fmt(r.dx, 3)}, {fmt(r.dy, 3)}, {fmt(r.angle_deg, 3)}°")
+        rows.append([
+            f"{p.dark}→{p.bright}", fmt(p.ratio, 6), fmt(p.std_error, 2), fmt(exif, 6),
+            fmt(mism, 3), f"{p.n_inliers}/{p.n_equations}", p.status, cost, motion,
+            "off" if r is None else r.status,
+        ])
+    rel = ", ".join(fmt(v, 6) for v in exposure.relative_exposures)
+    return (md_table(header, rows)
+            + f"\n\nRelative exposures (darkest = 1): {rel}; exposure stage "
+            f"**{exposure.status}**: {fmt(exposure.message)}")
+
+
+def _verdict_text(v: Any) -> str:
+    if isinstance(v, str):
+        return v
+    code = getattr(v, "code", None)
+    msg = getattr(v, "message", None) or str(v)
+    return f"`{code}`: {msg}" if code else msg
+
+
+def verdicts_markdown(result: Any) -> str:
+    verdicts = verdicts_of(result)
+    if not verdicts:
+        return "**Verdict:** no problems found."
+    return "**Verdict**\n\n" + "\n".join(f"- {fmt(_verdict_text(v))}" for v in verdicts)
 
 
 class DiagnosticsPanel:
@@ -28,9 +70,15 @@ class DiagnosticsPanel:
         if result is None:
             self.verdicts.content = "_Waiting for the pipeline's verdicts (hdrcore.pipeline)._"
             self.table.content = ""
+            return
+        self.verdicts.content = verdicts_markdown(result)
+        exposure = exposure_of(result)
+        self.table.content = ("" if exposure is None else
+                              pairs_table(exposure, registration_of(result)))
 
 
 def bundle_files(bracket: Any, result: Any, *panels: Any) -> list[tuple[str, bytes]]:
+    """The panels' current plots and images for the diagnostics bundle."""
     files: list[tuple[str, bytes]] = []
     for p in panels:
         files.extend(p.bundle_files())

@@ -31,7 +31,7 @@ def write_png_bracket(
     lines = []
     for k, (frame, t) in enumerate(zip(sim.frames, sim.exposure_times, strict=True)):
         p = folder / f"frame{k}.png"
-        write_png(p, frame.astype(np.uint8))
+        write_png(p, frame.astype(np.uint8), force=True)
         paths.append(p)
         lines.append(f"{p.name} {t:g}")
     (folder / "exposure_times.txt").write_text("\n".join(lines) + "\n")
