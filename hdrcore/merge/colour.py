@@ -43,6 +43,8 @@ WORKING_SPACES: dict[str, str] = {
 }
 """Working spaces by name -> colour-science's ``RGB_COLOURSPACES`` key (all linear here)."""
 
+_SRGB_PRIMARIES = ("sRGB", "ITU-R BT.709")
+
 
 def _white_balance(camera_whitebalance: Sequence[float] | np.ndarray | None) -> np.ndarray:
     if camera_whitebalance is None:
@@ -101,10 +103,15 @@ def camera_to_working_matrix(
                 raise ParameterError(
                     "camera matrix is singular", found=str(cam_xyz.tolist())
                 ) from exc
-    to_space = np.asarray(
-        colour.matrix_RGB_to_RGB(srgb, target, chromatic_adaptation_transform="Bradford"),
-        dtype=np.float64,
-    )
+    if WORKING_SPACES[key] in _SRGB_PRIMARIES:
+        # Same primaries and white: exactly the identity (colour's rounded IEC matrices are not
+        # exact inverses of each other).
+        to_space = np.eye(3)
+    else:
+        to_space = np.asarray(
+            colour.matrix_RGB_to_RGB(srgb, target, chromatic_adaptation_transform="Bradford"),
+            dtype=np.float64,
+        )
     return to_space @ rgb_cam @ np.diag(wb)
 
 

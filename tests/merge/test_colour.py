@@ -1,0 +1,65 @@
+"""Camera RGB -> working space: neutrals stay neutral, identity without a camera matrix."""
+
+from __future__ import annotations
+
+import colour
+import numpy as np
+import pytest
+
+from hdrcore.errors import ParameterError
+from hdrcore.merge import camera_to_working, camera_to_working_matrix
+
+# Adobe DNG ColorMatrix of a Canon EOS 5D Mark II (XYZ D65 -> camera), as dcraw's adobe_coeff
+# lists it (/10000) and rawpy reports it in ``rgb_xyz_matrix``.
+CAM_XYZ = np.array(
+    [[4716, 603, -830], [-7798, 15474, 2480], [-1496, 1937, 6651], [0, 0, 0]], float
+) / 10000.0
+WB = (2.1, 1.0, 1.5, 0.0)
+
+
+def test_identity_without_camera_data():
+    np.testing.assert_allclose(camera_to_working_matrix(), np.eye(3), atol=1e-12)
+
+
+def test_camera_neutral_becomes_working_space_neutral():
+    m = camera_to_working_matrix(CAM_XYZ, WB, "sRGB")
+    grey_camera = np.array([1 / 2.1, 1.0, 1 / 1.5])  # a grey under the as-shot illuminant
+    out = m @ grey_camera
+    np.testing.assert_allclose(out, out[1], rtol=1e-9)
+
+
+def test_other_working_spaces_keep_neutrals_and_match_colour_science():
+    m_srgb = camera_to_working_matrix(CAM_XYZ, WB, "sRGB")
+    m_aces = camera_to_working_matrix(CAM_XYZ, WB, "ACEScg")
+    v = np.array([0.2, 0.5, 0.1])
+    expected = colour.RGB_to_RGB(
+        m_srgb @ v, colour.RGB_COLOURSPACES["sRGB"], colour.RGB_COLOURSPACES["ACEScg"],
+        chromatic_adaptation_transform="Bradford",
+    )
+    np.testing.assert_allclose(m_aces @ v, expected, rtol=1e-6)
+    grey = m_aces @ np.array([1 / 2.1, 1.0, 1 / 1.5])
+    np.testing.assert_allclose(grey, grey[1], rtol=1e-3)
+
+
+def test_image_conversion_and_clipped_pixels_become_neutral():
+    rad = np.zeros((4, 5, 3), np.float32)
+    rad[...] = (0.3, 0.6, 0.2)
+    rad[0, 0] = (1.0, 0.4, 0.9)  # a clipped highlight: green clipped first -> would be magenta
+    clipped = np.zeros((4, 5), bool)
+    clipped[0, 0] = True
+    out = camera_to_working(rad, CAM_XYZ, WB, clipped=clipped)
+    m = camera_to_working_matrix(CAM_XYZ, WB)
+    np.testing.assert_allclose(out[1, 1], m @ rad[1, 1], rtol=1e-5)
+    np.testing.assert_allclose(out[0, 0], out[0, 0, 1], rtol=1e-5)
+    assert out.dtype == np.float32
+
+
+def test_bad_camera_data_is_refused():
+    with pytest.raises(ParameterError, match="rgb_xyz_matrix"):
+        camera_to_working_matrix(np.zeros((2, 3)) + 1)
+    with pytest.raises(ParameterError, match="multipliers must be positive"):
+        camera_to_working_matrix(CAM_XYZ, (1.0, -1.0, 1.0))
+    with pytest.raises(ParameterError, match="unknown working space method 'XYZ'"):
+        camera_to_working_matrix(working_space="XYZ")
+    with pytest.raises(ParameterError, match=r"radiance must be \(H, W, 3\)"):
+        camera_to_working(np.zeros((4, 4)))
