@@ -1,0 +1,78 @@
+"""``hdrcore ratios FILE...``: exposure ratios from histograms (Cerman & Hlavac 2006, section 5)."""
+
+from __future__ import annotations
+
+import argparse
+
+from ..exposure import DEFAULT_METHOD, EXPOSURE_METHODS, bracket_exposures, srgb_lut
+from ._common import add_bracket_arguments, load_bracket_from_args, print_json, print_warnings
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "ratios", help="estimate exposure ratios of consecutive frames from their histograms"
+    )
+    add_bracket_arguments(p)
+    p.add_argument("--saturation", type=float, metavar="Z",
+                   help="saturation level Z in levels (default 97%% of the largest level)")
+    p.add_argument("--noise-floor", type=float, metavar="N",
+                   help="ignore levels at or below N (default 2%% of the largest level, >= 3)")
+    p.add_argument("--response", metavar="FILE|srgb|linear",
+                   help="linearisation of non-linear frames: a response JSON from "
+                        "'hdrcore response', 'srgb' (default for JPEG/PNG) or 'linear'")
+    p.add_argument("--method", default=DEFAULT_METHOD, choices=list(EXPOSURE_METHODS),
+                   help="estimator (default: %(default)s)")
+    p.add_argument("--noise-sigma", type=float, default=None, metavar="S",
+                   help="additive noise in levels for noise matching (refined method)")
+    p.add_argument("--json", action="store_true", help="print JSON on stdout")
+    p.set_defaults(run=run)
+
+
+def _lut(args: argparse.Namespace, linear: bool, max_level: int):
+    choice = args.response
+    if choice is None:
+        return None if linear else srgb_lut(max_level)
+    if choice.lower() == "linear":
+        return None
+    if choice.lower() == "srgb":
+        return srgb_lut(max_level)
+    from ..response.curve import ResponseCurve
+
+    return ResponseCurve.load(choice).to_lut(max_level)
+
+
+def run(args: argparse.Namespace) -> int:
+    bracket = load_bracket_from_args(args)
+    print_warnings(bracket)
+    frames = bracket.frames
+    max_level = frames[0].max_level
+    lut = _lut(args, all(f.is_linear for f in frames), max_level)
+    times = [None if f.meta.exposure_time is None else float(f.meta.exposure_time) for f in frames]
+    res = bracket_exposures(
+        [f.levels for f in frames], max_level, method=args.method, exposure_times=times,
+        saturation=args.saturation, noise_floor=args.noise_floor, lut=lut,
+        noise_sigma=args.noise_sigma,
+    )
+    out = {
+        "frames": [
+            {"path": f.meta.path,
+             "exif_exposure_time": times[k],
+             "relative_exposure": res.relative_exposures[k]}
+            for k, f in enumerate(frames)
+        ],
+        "pairs": [
+            {"dark": p.dark, "bright": p.bright, "ratio": p.ratio,
+             "initial_ratio": p.initial_ratio, "iterations": p.iterations,
+             "equations": p.n_equations, "inliers": p.n_inliers,
+             "exif_ratio": res.exif_ratios[k], "mismatch_stops": res.mismatch_stops[k],
+             "std_error": p.std_error, "status": p.status, "message": p.message}
+            for k, p in enumerate(res.pairs)
+        ],
+    }
+    if args.json:
+        print_json(out)
+    else:
+        for d in out["pairs"]:
+            print(f"{d['dark']}-{d['bright']}: ratio {d['ratio']:.4f} "
+                  f"(exif {d['exif_ratio']}) {d['status']}: {d['message']}")
+    return 0 if res.status == "ok" else 1
