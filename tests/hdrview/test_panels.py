@@ -1,0 +1,145 @@
+"""Panels draw real stage result objects (synthetic bracket with known truth) without errors.
+
+The stage results come from ``hdrcore``'s public functions; the pipeline result is stood in for by
+a plain namespace holding them, so the panels are checked before and independently of
+``hdrcore.pipeline``.
+"""
+
+from __future__ import annotations
+
+import io
+import types
+import zipfile
+
+import numpy as np
+import pytest
+
+from hdrcore.exposure import bracket_exposures
+from hdrcore.merge import merge
+from hdrcore.synthetic import simulate_bracket
+from hdrview.app import InspectorApp
+from hdrview.panels.masks import (
+    INLIER,
+    OUTLIER,
+    SATURATED,
+    UNDER,
+    level_classes,
+    pixel_classes,
+)
+from hdrview.panels.result import exr_bytes, preview_png_bytes
+
+
+@pytest.fixture(scope="module")
+def sim():
+    return simulate_bracket(scene="window", shape=(128, 192), exposure_times=(1.0, 4.0, 16.0),
+                            bits=12, response="linear", noise_sigma=1.0, seed=2)
+
+
+@pytest.fixture(scope="module")
+def stage_result(sim):
+    exposure = bracket_exposures(list(sim.frames), sim.max_level,
+                                 exposure_times=list(sim.exposure_times))
+    registration = None
+    try:
+        from hdrcore.registration.fast import register_pair_fast
+        from hdrcore.registration.result import BracketRegistration
+    except ImportError:
+        pass
+    else:
+        pairs = []
+        for p in exposure.pairs:
+            d = sim.frames[p.dark][..., 1].astype(np.float32) / sim.max_level
+            b = sim.frames[p.bright][..., 1].astype(np.float32) / sim.max_level
+            pairs.append(register_pair_fast(d, b, p.ratio, previews=True))
+        registration = BracketRegistration(reference=1, pairs=tuple(pairs), to_reference=(),
+                                           model="euclidean", method="fast")
+    merged = merge(list(sim.frames), sim.exposure_times, max_level=sim.max_level)
+    preview = np.clip(merged.radiance / np.percentile(merged.radiance, 99), 0, 1) ** (1 / 2.2)
+    return types.SimpleNamespace(exposure=exposure, registration=registration, merge=merged,
+                                 preview=preview, verdicts=("frames 0 and 1: fine",),
+                                 timings={"ratios": 0.01}, to_report=lambda: {"ok": True})
+
+
+@pytest.fixture
+def sim_bracket(sim):
+    frames = [types.SimpleNamespace(levels=f, name=f"f{k}.dng") for k, f in enumerate(sim.frames)]
+    return types.SimpleNamespace(frames=frames, warnings=())
+
+
+@pytest.fixture
+def viewer(app: InspectorApp) -> InspectorApp:
+    return app
+
+
+def test_level_classes_follow_the_equations(stage_result) -> None:
+    pair = stage_result.exposure.pairs[0]
+    for which in ("dark", "bright"):
+        table = level_classes(pair, which)
+        assert table.shape == (3, pair.max_level + 1)
+        assert (table[:, int(np.ceil(pair.saturation)):] == SATURATED).all()
+        assert (table[:, : int(pair.noise_floor) + 1] == UNDER).all()
+        assert (table == INLIER).any()
+    # Every inlier equation from the dark frame marks its level as an inlier.
+    eq = pair.equations
+    sel = (eq.direction == 0) & pair.inlier_mask
+    table = level_classes(pair, "dark")
+    assert (table[eq.channel[sel], np.floor(eq.level[sel]).astype(int)] == INLIER).all()
+    sel = (eq.direction == 0) & ~pair.inlier_mask
+    assert (table[eq.channel[sel], np.floor(eq.level[sel]).astype(int)] == OUTLIER).all()
+
+
+def test_pixel_classes_take_the_most_severe_channel() -> None:
+    table = np.array([[INLIER, OUTLIER, SATURATED]] * 3, np.int8)
+    levels = np.array([[[0, 0, 0], [0, 1, 0], [0, 1, 2]]], np.uint16)
+    assert pixel_classes(levels, table).tolist() == [[INLIER, OUTLIER, SATURATED]]
+
+
+@pytest.mark.parametrize("layer", ["tonemapped", "provenance", "clipping", "ghosts"])
+@pytest.mark.parametrize("overlay", ["red/cyan", "difference (eq. 7)"])
+def test_every_panel_draws(viewer, stage_result, sim_bracket, layer, overlay) -> None:
+    view = {"pair": 1, "layer": layer, "overlay": overlay}
+    for panel in (viewer.btf_panel, viewer.masks_panel, viewer.registration_panel,
+                  viewer.result_panel, viewer.diagnostics_panel):
+        panel.show(sim_bracket, stage_result, view)
+    assert "Pair 1→2" in viewer.btf_panel.summary.content
+    assert viewer.btf_panel.scatter.visible and viewer.btf_panel.transfer.visible
+    names = [t.get("name", "") for t in viewer.btf_panel.scatter.figure.to_dict()["data"]]
+    assert any(n.startswith("inliers") for n in names)
+    assert any(n.startswith("converged k") for n in names)
+    assert any(n.startswith("initial k0") for n in names)
+    assert any(n.startswith("EXIF") for n in names)
+    assert viewer.masks_panel.dark.visible and viewer.masks_panel.bright.visible
+    assert viewer.masks_panel.dark.image.dtype == np.uint8
+    assert viewer.result_panel.image.visible
+    assert viewer.result_panel.image.image.ndim == 3
+    table = viewer.diagnostics_panel.table.content
+    assert "1→2" in table and "EXIF ratio" in table
+    assert "fine" in viewer.diagnostics_panel.verdicts.content
+    if stage_result.registration is not None:
+        assert viewer.registration_panel.before.visible
+        assert "dx =" in viewer.registration_panel.summary.content
+
+
+def test_exports_and_bundle(viewer, stage_result, sim_bracket) -> None:
+    view = {"pair": 0, "layer": "provenance", "overlay": "red/cyan"}
+    for panel in (viewer.btf_panel, viewer.masks_panel, viewer.registration_panel,
+                  viewer.result_panel, viewer.diagnostics_panel):
+        panel.show(sim_bracket, stage_result, view)
+    assert exr_bytes(stage_result)[:4] == b"\x76\x2f\x31\x01"  # OpenEXR magic
+    assert preview_png_bytes(stage_result)[:8] == b"\x89PNG\r\n\x1a\n"
+    viewer.session.result = stage_result
+    names = zipfile.ZipFile(io.BytesIO(viewer.bundle_bytes())).namelist()
+    assert "report.json" in names
+    assert "btf-equations.plotly.json" in names
+    assert any(n.startswith("mask-dark") for n in names)
+    assert "result-provenance.png" in names
+
+
+def test_waiting_notes_without_a_result(viewer, sim_bracket) -> None:
+    view = {"pair": 0, "layer": "tonemapped", "overlay": "red/cyan"}
+    viewer.btf_panel.show(sim_bracket, None, view)
+    viewer.masks_panel.show(sim_bracket, None, view)
+    assert "Waiting" in viewer.btf_panel.summary.content
+    assert not viewer.masks_panel.dark.visible
+
+
