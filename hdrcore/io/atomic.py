@@ -66,6 +66,10 @@ def atomic_write(
     tmp = Path(tmp_name)
     try:
         writer(tmp)
+        # mkstemp creates 0600 files; give the output the permissions a plain open() would.
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)
         if not force and out.exists():
             raise OutputError("output appeared while writing; use --force to replace it", path=out)
         os.replace(tmp, out)

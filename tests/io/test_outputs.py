@@ -105,3 +105,12 @@ def test_png_8_and_16_bit(tmp_path: Path) -> None:
     np.testing.assert_array_equal(f16.levels, img16)
     with pytest.raises(ParameterError, match="uint8 or uint16"):
         write_png(tmp_path / "c.png", img8.astype(np.float32))
+
+
+def test_output_permissions_follow_umask(tmp_path: Path) -> None:
+    old = os.umask(0o022)
+    try:
+        p = write_png(tmp_path / "perm.png", np.zeros((2, 2), np.uint8))
+    finally:
+        os.umask(old)
+    assert (p.stat().st_mode & 0o777) == 0o644
