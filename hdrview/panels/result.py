@@ -14,7 +14,6 @@ import viser
 
 from hdrcore.errors import InputError
 from hdrcore.io import encode_png, write_exr
-from hdrcore.merge import dominant_frame
 
 from ._access import merge_of, preview_of
 from ._draw import DISPLAY_WIDTH, display_step, enlarge, labels_to_rgb, unit_to_display
@@ -80,6 +79,8 @@ class ResultPanel:
             step = display_step(merged.shape, DISPLAY_WIDTH)
             backdrop = _dim(shown) if shown is not None else None
             if layer == "provenance":
+                from hdrcore.merge import dominant_frame  # lazy: colour is slow to import
+
                 dom = dominant_frame(merged.shares[:, ::step, ::step])
                 layer_img = labels_to_rgb(dom, FRAME_COLOURS, width=10**9)
                 legend = " · ".join(

@@ -1,0 +1,212 @@
+"""Benchmark of the hdrview inspector (issue 7); prints a table, asserts nothing.
+
+* first page ready: from starting ``hdrview`` (a subprocess on the demo bracket) to the page in
+  chromium showing the loaded bracket;
+* a saturation or noise-floor change on a large bracket: new ratios and BTF plot drawn;
+* a threshold-t change: registration re-run (preview resolution inside the pipeline) and drawn.
+
+With ``hdrcore.pipeline`` installed the changes go through the app exactly as a slider does
+(``set_control`` then wait for the worker); without it the stage functions the pipeline would call
+are timed directly (re-fit from cached histograms + drawing), and the table says so.
+
+Usage: ``python bench/bench_hdrview.py [--megapixels 24] [--repeat 3]``. Numbers measured while
+other work runs on the machine are pessimistic.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import os
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def first_page_ready() -> float | None:
+    """Seconds from ``hdrview`` start to the demo's frame table visible in chromium."""
+    if not Path("/usr/bin/chromium").exists():
+        return None
+    from playwright.sync_api import sync_playwright
+
+    port = _free_port()
+    with sync_playwright() as p:
+        b = p.chromium.launch(executable_path="/usr/bin/chromium", args=[
+            "--no-sandbox", "--disable-gpu", "--enable-unsafe-swiftshader",
+            "--disable-dev-shm-usage"])
+        page = b.new_page(viewport={"width": 1600, "height": 1000})
+        t0 = time.perf_counter()  # the browser is already running: time the app only
+        proc = subprocess.Popen(
+            [sys.executable, "-c", "from hdrview.app import main; main()", "--port", str(port)],
+            cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+        )
+        try:
+            while True:
+                try:
+                    page.goto(f"http://127.0.0.1:{port}", timeout=2000)
+                    break
+                except Exception:
+                    if time.perf_counter() - t0 > 60:
+                        raise
+                    time.sleep(0.05)
+            page.get_by_text("frame00.dng").first.wait_for(state="visible", timeout=60_000)
+            elapsed = time.perf_counter() - t0
+        finally:
+            proc.terminate()
+            proc.wait(10)
+            b.close()
+    return elapsed
+
+
+def large_bracket(megapixels: float):
+    from hdrcore.synthetic import simulate_bracket
+
+    w = int(round(np.sqrt(megapixels * 1e6 * 1.5)))
+    h = int(round(w / 1.5))
+    return simulate_bracket(scene="window", shape=(h, w), exposure_times=(1.0, 4.0, 16.0),
+                            bits=14, response="linear", noise_sigma=2.0, seed=5)
+
+
+def bench_components(sim, repeat: int) -> list[tuple[str, float, str]]:
+    """Without the pipeline: the re-fit the pipeline runs on a Z change, plus the BTF drawing."""
+    import viser
+
+    from hdrcore.exposure import bracket_exposures_from_histograms, bracket_histograms
+    from hdrview.panels.btf import BtfPanel
+    from hdrview.panels.masks import MasksPanel
+
+    server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+    try:
+        btf, masks = BtfPanel(server.gui), MasksPanel(server.gui)
+        t = time.perf_counter()
+        hists = bracket_histograms(list(sim.frames), sim.max_level)
+        t_hist = time.perf_counter() - t
+        rows = [("histograms of the bracket (once per load)", t_hist, "hdrcore")]
+
+        class _B:
+            frames = [type("F", (), {"levels": f, "name": f"f{k}"})() for k, f in
+                      enumerate(sim.frames)]
+            warnings = ()
+
+        for what, kw in (("saturation", "saturation"), ("noise floor", "noise_floor")):
+            times_fit, times_draw = [], []
+            for r in range(repeat):
+                value = (0.95 - 0.01 * r) * sim.max_level if kw == "saturation" else 40.0 + 5 * r
+                t = time.perf_counter()
+                exposure = bracket_exposures_from_histograms(
+                    hists, exposure_times=list(sim.exposure_times), **{kw: value})
+                times_fit.append(time.perf_counter() - t)
+                result = type("R", (), {"exposure": exposure})()
+                t = time.perf_counter()
+                btf.show(_B, result, {"pair": 0})
+                masks.show(_B, result, {"pair": 0})
+                times_draw.append(time.perf_counter() - t)
+            rows.append((f"{what} change: ratios re-fit from cached histograms",
+                         float(np.median(times_fit)), "hdrcore"))
+            rows.append((f"{what} change: BTF plot + masks drawn", float(np.median(times_draw)),
+                         "hdrview"))
+            rows.append((f"{what} change: total (target < 0.3 s)",
+                         float(np.median(times_fit) + np.median(times_draw)), "both"))
+        return rows
+    finally:
+        server.stop()
+
+
+def bench_pipeline(sim, repeat: int) -> list[tuple[str, float, str]]:
+    """With the pipeline: the app's own path, set_control -> worker -> pipeline -> panels."""
+    import viser
+
+    from hdrcore.io import write_png  # noqa: F401  (frames go through the loader below)
+    from hdrview.app import InspectorApp
+
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        import tifffile
+
+        folder = Path(tmp) / "big"
+        folder.mkdir()
+        names = []
+        for k, f in enumerate(sim.frames):
+            p = folder / f"frame{k}.tif"
+            tifffile.imwrite(p, f.astype(np.uint16))
+            names.append(p.name)
+        (folder / "exposure_times.txt").write_text(
+            "".join(f"{n} {t:g}\n" for n, t in zip(names, sim.exposure_times, strict=True)))
+        server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+        app = InspectorApp(server, root=tmp, demo_dir=None)
+        try:
+            t = time.perf_counter()
+            app.request_path("big")
+            app.wait_idle(600)
+            rows.append(("load + full pipeline + draw (once)", time.perf_counter() - t, "app"))
+            top = app.saturation_slider.max
+            for label, control, values in (
+                ("saturation change (target < 0.3 s)", "saturation",
+                 [0.95 * top - r for r in range(repeat)]),
+                ("noise-floor change (target < 0.3 s)", "noise_floor",
+                 [40.0 + r for r in range(repeat)]),
+                ("threshold-t change (target < 1.5 s)", "threshold",
+                 [0.05 + 0.01 * r for r in range(repeat)]),
+            ):
+                times = []
+                for v in values:
+                    t = time.perf_counter()
+                    app.set_control(control, float(v))
+                    app.wait_idle(600)
+                    times.append(time.perf_counter() - t)
+                rows.append((label, float(np.median(times)), "app"))
+            errors = [n for n in app.notifications if n[0] == "error"]
+            if errors:
+                rows.append((f"errors during the bench: {errors[-1][2][:80]}", float("nan"), "app"))
+        finally:
+            app.stop()
+            server.stop()
+    return rows
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--megapixels", type=float, default=24.0)
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--skip-browser", action="store_true")
+    args = ap.parse_args()
+    os.environ.setdefault("PYTHONPATH", str(ROOT))
+    rows: list[tuple[str, float, str]] = []
+    if not args.skip_browser:
+        t = first_page_ready()
+        rows.append(("first page ready after start (target < 5 s)",
+                     float("nan") if t is None else t, "demo, chromium"))
+    t = time.perf_counter()
+    sim = large_bracket(args.megapixels)
+    h, w = sim.frames[0].shape[:2]
+    print(f"simulated 3-frame {w}x{h} ({w * h / 1e6:.1f} MP) 14-bit bracket in "
+          f"{time.perf_counter() - t:.1f} s")
+    if importlib.util.find_spec("hdrcore.pipeline") is not None:
+        rows += bench_pipeline(sim, args.repeat)
+        mode = "through the app and hdrcore.pipeline"
+    else:
+        rows += bench_components(sim, args.repeat)
+        mode = "hdrcore.pipeline absent: stage functions timed directly"
+    print(f"\nhdrview bench ({mode}); median of {args.repeat}")
+    print(f"{'what':<62} {'seconds':>9}  by")
+    for what, sec, by in rows:
+        print(f"{what:<62} {sec:>9.3f}  {by}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
