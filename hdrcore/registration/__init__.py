@@ -1,0 +1,154 @@
+"""Hand-held registration of differently exposed frames (Cerman & Hlavac 2006, section 6).
+
+Consecutive frames are registered pairwise, exposure-invariantly: both frames linear, the darker
+one multiplied by the exposure ratio ``k``, pixels above saturation or below the noise floor
+discarded in both. An integer shift from cross-correlation in Fourier space (eq. 5) starts a
+sub-pixel search for shift and rotation minimising eq. 6 with the normalisation of eq. 7.
+Pair transforms are chained to a reference frame (the middle one by default).
+
+Methods (``REGISTRATION_METHODS``):
+
+* ``"fast"`` (default): coarse-to-fine Gauss-Newton on the same cost
+  (:mod:`hdrcore.registration.fast`);
+* ``"Cerman 2006"``: the seed's Nelder-Mead simplex search (:mod:`hdrcore.registration.cerman2006`).
+
+Reference: J. Cerman, V. Hlavac, "Exposure time estimation for high dynamic range imaging with
+hand held camera", Computer Vision Winter Workshop, 2006.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+
+import numpy as np
+
+from ..errors import ParameterError, validate_method
+from ._problem import MODELS
+from .cerman2006 import register_pair_cerman2006
+from .fast import register_pair_fast
+from .fourier import FourierShift, cross_correlation_shift
+from .result import FAILED_STATUSES, BracketRegistration, PairPreview, PairRegistration
+from .transform import (
+    compose,
+    corner_error,
+    identity,
+    invert,
+    rigid_matrix,
+    rigid_parameters,
+    to_reference,
+)
+from .warp import WarpResult, valid_mask, warp, warp_to_reference
+
+__all__ = [
+    "REGISTRATION_METHODS",
+    "MODELS",
+    "FAILED_STATUSES",
+    "BracketRegistration",
+    "FourierShift",
+    "PairPreview",
+    "PairRegistration",
+    "WarpResult",
+    "compose",
+    "corner_error",
+    "cross_correlation_shift",
+    "identity",
+    "invert",
+    "register_bracket",
+    "register_pair",
+    "rigid_matrix",
+    "rigid_parameters",
+    "to_reference",
+    "valid_mask",
+    "warp",
+    "warp_to_reference",
+]
+
+REGISTRATION_METHODS: dict[str, Callable[..., PairRegistration]] = {
+    "fast": register_pair_fast,
+    "Cerman 2006": register_pair_cerman2006,
+}
+
+
+def register_pair(
+    dark: np.ndarray,
+    bright: np.ndarray,
+    ratio: float,
+    *,
+    method: str = "fast",
+    saturation: float = 1.0,
+    noise_floor: float = 0.0,
+    threshold: float = 0.1,
+    model: str = "euclidean",
+    **options,
+) -> PairRegistration:
+    """Register the bright frame of a consecutive pair to the dark frame.
+
+    Parameters
+    ----------
+    dark, bright : single-channel linear images ``(H, W)`` of the same size (e.g. the green
+        channel or the luminance after the response LUT).
+    ratio : exposure ratio ``k = t_bright / t_dark`` (from :mod:`hdrcore.exposure`).
+    saturation, noise_floor : linear levels; pixels at or above ``saturation`` or at or below
+        ``noise_floor`` are discarded (in either frame).
+    threshold : ``t`` of eq. 7, as a fraction of ``saturation``: the normalising denominator
+        ``a + k b`` never goes below it.
+    model : ``"euclidean"`` (shift and rotation) or ``"shift"``.
+    method : a key of :data:`REGISTRATION_METHODS`.
+    options : ``initial`` (2x3 start instead of eq. 5), ``previews`` (bool), ``fft_size``,
+        ``min_ncc``, and the search's own options.
+
+    Returns a :class:`PairRegistration` whose ``matrix`` maps bright-frame pixel coordinates to the
+    dark frame; on failure its ``status`` says why and the matrix is the identity.
+    """
+    key = validate_method(method, REGISTRATION_METHODS, "registration")
+    return REGISTRATION_METHODS[key](
+        dark, bright, ratio, saturation=saturation, noise_floor=noise_floor,
+        threshold=threshold, model=model, **options,
+    )
+
+
+def register_bracket(
+    frames: Sequence[np.ndarray],
+    ratios: Sequence[float],
+    *,
+    reference: int | None = None,
+    method: str = "fast",
+    saturation: float = 1.0,
+    noise_floor: float = 0.0,
+    threshold: float = 0.1,
+    model: str = "euclidean",
+    progress: Callable[[int, int], None] | None = None,
+    **options,
+) -> BracketRegistration:
+    """Register consecutive pairs of a bracket (darkest first) and chain them to ``reference``.
+
+    ``frames``: single-channel linear images; ``ratios[i] = t[i + 1] / t[i]``; ``reference``
+    defaults to the middle frame. ``progress(done, total)`` is called after each pair. Other
+    arguments as :func:`register_pair`.
+    """
+    n = len(frames)
+    if n < 2:
+        raise ParameterError("registration needs at least two frames", found=str(n))
+    if len(ratios) != n - 1:
+        raise ParameterError(
+            "one exposure ratio per consecutive pair", expected=str(n - 1), found=str(len(ratios))
+        )
+    ref = n // 2 if reference is None else int(reference)
+    if not 0 <= ref < n:
+        raise ParameterError("reference frame out of range", expected=f"0..{n - 1}",
+                             found=str(reference))
+    key = validate_method(method, REGISTRATION_METHODS, "registration")
+    model = validate_method(model, MODELS, "motion model")
+    pairs = []
+    for i in range(n - 1):
+        pairs.append(
+            REGISTRATION_METHODS[key](
+                frames[i], frames[i + 1], ratios[i], saturation=saturation,
+                noise_floor=noise_floor, threshold=threshold, model=model,
+                dark_index=i, bright_index=i + 1, **options,
+            )
+        )
+        if progress is not None:
+            progress(i + 1, n - 1)
+    chain = to_reference([p.matrix for p in pairs], ref)
+    return BracketRegistration(ref, tuple(pairs), chain, model, key)

@@ -1,0 +1,480 @@
+"""One registration problem (a consecutive pair): preparation, the eq. 6/7 cost, the common driver.
+
+Private: the public entry points are :func:`hdrcore.registration.register_pair` and the method
+modules. Every method shares this driver, so the status checks, the eq. 5 start, the reported
+costs and the previews are computed the same way whatever the search.
+
+The cost (Cerman & Hlavac 2006, section 6). With ``a`` the bright frame and ``b = k * dark``
+the dark frame times the exposure ratio ``k``, both linear, the normalised difference of a
+pixel (eq. 7) and the cost of a transform ``A`` (eq. 6) are::
+
+    n(x) = (a(x) - b(A x)) / max(a(x) + b(A x), t)                      (eq. 7)
+    C(A) = mean over x in V(A) of n(x)^2                                   (eq. 6)
+
+where ``V(A)`` are the pixels that are neither saturated nor below the noise floor in either frame
+(the dark frame's test is applied to the raw values of all 16 taps that the cubic interpolation at
+``A x`` touches) and fall inside the dark frame. ``t`` (the threshold, a fraction of the saturation
+level) keeps the normalisation from blowing up noise in the darkest pixels. We take the mean rather
+than the sum so that costs of different overlaps compare; this is our reading of eqs. 6-7 (the
+seed normalises the difference by the pair's brightness so that bright pixels do not dominate).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import ParameterError, validate_method
+from ._sampling import reduce2, sample
+from .fourier import FourierShift, cross_correlation_shift
+from .result import PairPreview, PairRegistration
+from .transform import (
+    apply,
+    identity,
+    invert,
+    rigid_matrix,
+    rigid_parameters,
+    scale_matrix,
+)
+
+__all__ = ["MODELS", "PairData", "prepare", "register_with", "Samples", "RefineResult"]
+
+log = logging.getLogger(__name__)
+
+MODELS = {"shift": 2, "euclidean": 3}
+
+_SMALL = 1 << 20  # frames up to this many pixels keep their clipped full-resolution copy
+
+#: Samples whose 4x4 interpolation support spans more than this contrast are left out of eq. 6:
+#: across such an edge (a window frame against the sky) the cubic kernel's overshoot, and the
+#: difference between interpolating linear and log values, exceed any sensor noise.
+MAX_CONTRAST = 4.0
+
+
+@dataclass
+class PairData:
+    """A prepared pair: raw frames, the exposure range they share, clipped pyramids."""
+
+    dark: np.ndarray
+    bright: np.ndarray
+    ratio: float
+    saturation: float
+    noise_floor: float
+    threshold: float  # absolute (linear units)
+    lo: float  # common range in bright-frame units: [noise * max(1, k), saturation * min(1, k)]
+    hi: float
+    # levels[l] = (bright_l, k*dark_l) clipped to [lo, hi]; levels[0] is None for large frames
+    levels: list = field(default_factory=list)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.bright.shape
+
+    def level_shape(self, level: int) -> tuple[int, int]:
+        h, w = self.shape
+        for _ in range(level):
+            h, w = h // 2, w // 2
+        return h, w
+
+    def clipped(self, level: int) -> tuple[np.ndarray, np.ndarray]:
+        if self.levels[level] is None:  # full resolution of a large frame: clip on demand
+            k = self.ratio
+            a = np.clip(self.bright, self.lo, self.hi).astype(np.float32)
+            b = np.clip(self.dark * np.float32(k), self.lo, self.hi).astype(np.float32)
+            return a, b
+        return self.levels[level]
+
+
+def _as_image(x: np.ndarray, name: str) -> np.ndarray:
+    arr = np.asarray(x)
+    if arr.ndim != 2:
+        raise ParameterError(
+            f"the {name} frame must be a single-channel 2-D image",
+            expected="(H, W) linear values", found=f"shape {arr.shape}",
+        )
+    if arr.dtype not in (np.float32, np.float64):
+        arr = arr.astype(np.float32)
+    return arr
+
+
+def prepare(
+    dark: np.ndarray,
+    bright: np.ndarray,
+    ratio: float,
+    *,
+    saturation: float,
+    noise_floor: float,
+    threshold: float,
+    min_level_size: int = 12,
+) -> PairData:
+    """Validate a pair and build the clipped, exposure-equalised pyramids."""
+    dark = _as_image(dark, "dark")
+    bright = _as_image(bright, "bright")
+    if dark.shape != bright.shape:
+        raise ParameterError(
+            "dark and bright frames differ in size", expected=str(bright.shape),
+            found=str(dark.shape),
+        )
+    if min(dark.shape) < 16:
+        raise ParameterError("frames too small to register", expected=">= 16x16",
+                             found=str(dark.shape))
+    k = float(ratio)
+    if not np.isfinite(k) or k <= 0:
+        raise ParameterError("exposure ratio must be finite and positive", found=str(ratio))
+    sat = float(saturation)
+    nf = float(noise_floor)
+    if not (np.isfinite(sat) and sat > 0):
+        raise ParameterError("saturation level must be positive", found=str(saturation))
+    if not (np.isfinite(nf) and 0 <= nf < sat):
+        raise ParameterError(
+            "noise floor must be >= 0 and below the saturation level",
+            expected=f"0 <= noise_floor < {sat}", found=str(noise_floor),
+        )
+    if not (np.isfinite(threshold) and threshold >= 0):
+        raise ParameterError("normalisation threshold t must be >= 0", found=str(threshold))
+    lo = max(nf * max(1.0, k), np.finfo(np.float32).tiny)
+    hi = sat * min(1.0, k)
+    data = PairData(dark, bright, k, sat, nf, float(threshold) * sat, lo, hi)
+    if lo >= hi:
+        data.levels = [None]
+        return data
+    a0 = np.clip(bright, lo, hi).astype(np.float32, copy=False)
+    b0 = np.multiply(dark, np.float32(k), dtype=np.float32)
+    np.clip(b0, lo, hi, out=b0)
+    levels: list = [(a0, b0) if a0.size <= _SMALL else None]
+    a, b = a0, b0
+    while min(a.shape) // 2 >= min_level_size:
+        a, b = reduce2(a), reduce2(b)
+        levels.append((a, b))
+    data.levels = levels
+    return data
+
+
+@dataclass
+class Samples:
+    """Sample points on the dark frame's grid of one pyramid level, with ``b = k * dark`` there."""
+
+    x: np.ndarray
+    y: np.ndarray
+    b: np.ndarray
+    well_exposed: float = 1.0  # fraction of the candidate pixels that were well exposed
+
+
+def select_samples(
+    data: PairData, level: int, max_samples: int, *, by_gradient: bool = True, seed: int = 0
+) -> Samples:
+    """Up to ``max_samples`` well-exposed pixels of the dark frame on ``level``.
+
+    The dark frame stays on its pixel grid and the bright frame is interpolated: after the
+    multiplication by ``k`` the dark frame is the noisier one, and interpolating noise lowers its
+    variance by an amount that depends on the sub-pixel phase, which would pull the eq. 6 minimum
+    towards half-pixel shifts. Candidates are all interior pixels (or, on large levels, a seeded
+    random subset of ``4 * max_samples``); with ``by_gradient`` the ones with the largest relative
+    gradient are kept (the informative ones), otherwise a random subset.
+    """
+    if level == 0:
+        img, lo, hi, k = data.dark, data.noise_floor, data.saturation, data.ratio
+    else:
+        img, lo, hi, k = data.levels[level][1], data.lo, data.hi, 1.0
+    h, w = img.shape
+    flat = img.reshape(-1) if img.flags.c_contiguous else np.ascontiguousarray(img).ravel()
+    m = 2
+    n_inner = (h - 2 * m) * (w - 2 * m)
+    rng = np.random.default_rng(seed)
+    n_cand = 4 * max_samples if by_gradient else max_samples
+    if n_inner <= n_cand:
+        yy, xx = np.mgrid[m : h - m, m : w - m]
+        idx = (yy * w + xx).ravel()
+    else:
+        yy = rng.integers(m, h - m, n_cand)
+        xx = rng.integers(m, w - m, n_cand)
+        idx = yy * w + xx  # duplicates are harmless
+    v = flat[idx].astype(np.float64)
+    ok = (v > lo) & (v < hi)
+    well_exposed = float(ok.mean()) if ok.size else 0.0
+    idx, v = idx[ok], v[ok]
+    if by_gradient and idx.size > max_samples:
+        gx = flat[idx + 1].astype(np.float64) - flat[idx - 1]
+        gy = flat[idx + w].astype(np.float64) - flat[idx - w]
+        score = (gx * gx + gy * gy) / (v * v + (data.threshold / k) ** 2)
+        keep = np.argpartition(score, -max_samples)[-max_samples:]
+        idx, v = idx[keep], v[keep]
+    elif idx.size > max_samples:
+        keep = rng.choice(idx.size, max_samples, replace=False)
+        idx, v = idx[keep], v[keep]
+    return Samples(
+        (idx % w).astype(np.float64), (idx // w).astype(np.float64), k * v, well_exposed
+    )
+
+
+def residuals(
+    data: PairData, level: int, inverse: np.ndarray, s: Samples, *, gradient: bool = True,
+    max_contrast: float = MAX_CONTRAST,
+) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None, np.ndarray]:
+    """Eq. 7 normalised differences at the samples.
+
+    ``inverse`` (level coordinates) maps dark-frame coordinates to the bright frame, i.e. it is
+    the inverse of the pair matrix. Returns ``(n, dn_dqx, dn_dqy, valid)``: the residuals
+    ``(a - b) / max(a + b, t)``, their derivatives with respect to the sampling position in the
+    bright frame, and the eq. 6 validity of each sample (well exposed in both frames, inside the
+    bright frame, no edge steeper than ``max_contrast`` within the interpolation support).
+    """
+    qx, qy = apply(inverse, s.x, s.y)
+    if level == 0:
+        sm = sample(data.bright, qx, qy, gradient=gradient, tap_range=True)
+        valid = sm.inside & (sm.tap_min > data.noise_floor) & (sm.tap_max < data.saturation)
+    else:
+        sm = sample(data.levels[level][0], qx, qy, gradient=gradient, tap_range=True)
+        valid = sm.inside
+    if max_contrast:  # cubic overshoot across a steep edge is larger than any noise: skip those
+        valid &= sm.tap_max <= max_contrast * np.maximum(sm.tap_min, 1e-30)
+    a = sm.value
+    b = s.b
+    total = a + b
+    t = data.threshold
+    above = total > t
+    denom = np.where(above, total, t) if t > 0 else total
+    denom = np.where(valid & (denom > 0), denom, 1.0)
+    n = np.where(valid, (a - b) / denom, 0.0)
+    if not gradient:
+        return n, None, None, valid
+    dn_da = np.where(above, 2.0 * b / (denom * denom), 1.0 / max(t, 1e-300))
+    dn_da = np.where(valid, dn_da, 0.0)
+    return n, dn_da * sm.gx, dn_da * sm.gy, valid
+
+
+def cost(data: PairData, level: int, inverse: np.ndarray, s: Samples) -> tuple[float, int]:
+    """Eq. 6 cost (mean squared eq. 7 difference) and the number of valid samples.
+
+    ``inverse`` maps dark-frame coordinates to the bright frame (see :func:`residuals`).
+    """
+    n, _, _, valid = residuals(data, level, inverse, s, gradient=False)
+    count = int(valid.sum())
+    if count == 0:
+        return float("inf"), 0
+    return float(np.sum(n * n) / count), count
+
+
+def overlap_fraction(matrix: np.ndarray, shape: tuple[int, int], grid: int = 64) -> float:
+    """Fraction of the bright frame mapped inside the dark frame by ``matrix``."""
+    h, w = shape
+    yy, xx = np.meshgrid(np.linspace(0, h - 1, grid), np.linspace(0, w - 1, grid), indexing="ij")
+    qx, qy = apply(matrix, xx, yy)
+    return float(np.mean((qx >= 0) & (qx <= w - 1) & (qy >= 0) & (qy <= h - 1)))
+
+
+def level_matrix(matrix: np.ndarray, level: int) -> np.ndarray:
+    """Full-resolution matrix expressed on pyramid ``level`` (and back with negative levels)."""
+    return scale_matrix(matrix, 2.0 ** (-level)) if level else np.asarray(matrix, float)
+
+
+@dataclass
+class RefineResult:
+    matrix: np.ndarray
+    iterations: int
+    cost_history: list[float]
+    level_history: list[int]
+    message: str = ""
+
+
+Refiner = Callable[..., RefineResult]
+
+
+def _tone(v: np.ndarray, lo: float, hi: float) -> np.ndarray:
+    t = (np.log(np.clip(v, lo, hi)) - np.log(lo)) / max(np.log(hi) - np.log(lo), 1e-12)
+    return np.clip(t, 0.0, 1.0)
+
+
+def make_preview(data: PairData, matrix: np.ndarray, size: int = 320) -> PairPreview | None:
+    """Red/cyan overlays and eq. 7 difference maps before/after, at <= ``size`` pixels."""
+    if data.levels[0] is None and len(data.levels) == 1:
+        return None
+    level = 0
+    while (
+        level + 1 < len(data.levels) and max(data.level_shape(level)) > size
+    ):
+        level += 1
+    a, b = data.clipped(level)
+    h, w = a.shape
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    x, y = xx.ravel(), yy.ravel()
+    t = data.threshold
+    out = []
+    for m in (identity(), matrix):
+        ml = level_matrix(m, level)
+        qx, qy = apply(ml, x, y)
+        sm = sample(b, qx, qy, gradient=False)
+        bw = np.where(sm.inside, sm.value, data.lo).reshape(h, w)
+        inside = sm.inside.reshape(h, w)
+        valid = inside & (a > data.lo) & (a < data.hi) & (bw > data.lo) & (bw < data.hi)
+        diff = np.where(valid, (a - bw) / np.maximum(a + bw, max(t, 1e-30)), np.nan)
+        ta, tb = _tone(a, data.lo, data.hi), _tone(bw, data.lo, data.hi)
+        tb = np.where(inside, tb, 0.0)
+        rgb = np.stack([ta, tb, tb], axis=-1)
+        out.append(((rgb * 255 + 0.5).astype(np.uint8), diff.astype(np.float32)))
+    scale = 2.0 ** (-level)
+    return PairPreview(scale, out[0][0], out[1][0], out[0][1], out[1][1])
+
+
+def _fft_level(data: PairData, fft_size: int) -> int:
+    level = 0
+    while level + 1 < len(data.levels) and max(data.level_shape(level)) > fft_size:
+        level += 1
+    return level
+
+
+def _failed(
+    data: PairData, status: str, message: str, *, method: str, model: str, dark_index: int,
+    bright_index: int, t0: float, shift: FourierShift | None = None, cost_before: float = np.nan,
+    valid_fraction: float = 0.0, previews: bool = False,
+) -> PairRegistration:
+    log.info("pair %d-%d: %s: %s", dark_index, bright_index, status, message)
+    preview = make_preview(data, identity()) if previews and data.lo < data.hi else None
+    return PairRegistration(
+        dark=dark_index, bright=bright_index, matrix=identity(), dx=0.0, dy=0.0, angle_deg=0.0,
+        ratio=data.ratio, model=model, method=method, cost_before=cost_before,
+        cost_after=cost_before, overlap=1.0, valid_fraction=valid_fraction, iterations=0,
+        cost_history=(), level_history=(),
+        initial_shift=(float(shift.dx), float(shift.dy)) if shift else (0.0, 0.0),
+        peak_ncc=shift.ncc if shift else float("nan"),
+        peak_psr=shift.psr if shift else float("nan"),
+        status=status, message=message, shape=data.shape,
+        seconds=time.perf_counter() - t0, preview=preview,
+    )
+
+
+def register_with(
+    refine: Refiner,
+    method: str,
+    dark: np.ndarray,
+    bright: np.ndarray,
+    ratio: float,
+    *,
+    saturation: float = 1.0,
+    noise_floor: float = 0.0,
+    threshold: float = 0.1,
+    model: str = "euclidean",
+    initial: np.ndarray | None = None,
+    fft_size: int = 512,
+    min_ncc: float = 0.2,
+    min_valid_fraction: float = 0.005,
+    min_overlap: float = 0.2,
+    evaluation_samples: int = 100_000,
+    previews: bool = True,
+    dark_index: int = 0,
+    bright_index: int = 1,
+    **refine_options,
+) -> PairRegistration:
+    """The common driver: checks, eq. 5 integer shift, ``refine``, costs, status, previews."""
+    t0 = time.perf_counter()
+    model = validate_method(model, MODELS, "motion model")
+    data = prepare(
+        dark, bright, ratio, saturation=saturation, noise_floor=noise_floor, threshold=threshold
+    )
+    common = dict(method=method, model=model, dark_index=dark_index,
+                  bright_index=bright_index, t0=t0)
+    if data.lo >= data.hi:
+        return _failed(
+            data, "saturated",
+            f"no exposure range shared by the frames: noise floor x ratio {data.lo:.4g} >= "
+            f"saturation {data.hi:.4g}", **common,
+        )
+    # Well-exposed pixels in both frames (eq. 6's V): enough to register?
+    ev = select_samples(data, 0, evaluation_samples, by_gradient=False, seed=1)
+    rng = np.random.default_rng(2)
+    h, w = data.shape
+    probe = data.bright.reshape(-1)[rng.integers(0, h * w, 20_000)]
+    bright_ok = float(np.mean((probe > data.noise_floor) & (probe < data.saturation)))
+    dark_ok = ev.well_exposed
+    if ev.b.size < 64 or dark_ok * bright_ok < min_valid_fraction:
+        return _failed(
+            data, "saturated",
+            f"too few well-exposed pixels: {100 * bright_ok:.2f}% of the bright frame and "
+            f"{100 * dark_ok:.2f}% of the dark frame lie between the noise floor and saturation",
+            valid_fraction=dark_ok * bright_ok, **common,
+        )
+    cost_before, n_before = cost(data, 0, identity(), ev)
+
+    shift = None
+    if initial is None:
+        lf = _fft_level(data, fft_size)
+        a, b = data.clipped(lf)
+        shift = cross_correlation_shift(np.log(a), np.log(b))  # eq. 5
+        rel_contrast = shift.contrast  # log units: relative contrast of the bright frame
+        if shift.ncc < min_ncc:
+            if rel_contrast < 0.02:
+                return _failed(
+                    data, "flat",
+                    f"no texture: relative contrast {rel_contrast:.4f} at 1/{2**lf} resolution "
+                    f"(flat or featureless frame)", shift=shift, cost_before=cost_before,
+                    previews=previews, **common,
+                )
+            return _failed(
+                data, "weak-peak",
+                f"eq. 5 correlation peak too weak: NCC {shift.ncc:.3f} < {min_ncc} "
+                f"(PSR {shift.psr:.1f}); frames unrelated, repetitive or too noisy",
+                shift=shift, cost_before=cost_before, previews=previews, **common,
+            )
+        scale = 2.0**lf
+        init = identity()
+        init[0, 2], init[1, 2] = shift.dx * scale, shift.dy * scale
+    else:
+        init = np.asarray(initial, float)
+        if init.shape != (2, 3):
+            raise ParameterError("initial matrix must be 2x3", found=str(init.shape))
+    if overlap_fraction(init, data.shape) < min_overlap:
+        return _failed(
+            data, "no-overlap",
+            f"the initial shift leaves less than {min_overlap:.0%} overlap",
+            shift=shift, cost_before=cost_before, previews=previews, **common,
+        )
+
+    # The searches work on the inverse (dark -> bright) matrix: see select_samples.
+    res = refine(data, invert(init), model, **refine_options)
+    matrix = invert(res.matrix)
+    cost_after, n_after = cost(data, 0, res.matrix, ev)
+    overlap = overlap_fraction(matrix, data.shape)
+    dx, dy, angle = rigid_parameters(matrix, data.shape)
+    status, message = "ok", res.message or "converged"
+    if not np.all(np.isfinite(matrix)) or not np.isfinite(cost_after):
+        status, message = "diverged", "the search left the frames (no valid pixels)"
+    elif overlap < min_overlap:
+        status, message = "no-overlap", f"only {overlap:.0%} of the frames overlap after the search"
+    elif cost_after > 1.05 * cost_before + 1e-12:
+        status, message = (
+            "diverged",
+            f"the search ended with a higher eq. 6 cost than the identity "
+            f"({cost_after:.4g} > {cost_before:.4g})",
+        )
+    if status != "ok":
+        return _failed(data, status, message, shift=shift, cost_before=cost_before,
+                       previews=previews, **common)
+    return PairRegistration(
+        dark=dark_index, bright=bright_index, matrix=matrix, dx=dx, dy=dy, angle_deg=angle,
+        ratio=data.ratio, model=model, method=method, cost_before=cost_before,
+        cost_after=cost_after, overlap=overlap,
+        valid_fraction=n_after / max(1, ev.b.size) * dark_ok,
+        iterations=res.iterations, cost_history=tuple(res.cost_history),
+        level_history=tuple(res.level_history),
+        initial_shift=(float(init[0, 2]), float(init[1, 2])),
+        peak_ncc=shift.ncc if shift else float("nan"),
+        peak_psr=shift.psr if shift else float("nan"),
+        status=status, message=message, shape=data.shape,
+        seconds=time.perf_counter() - t0,
+        preview=make_preview(data, matrix) if previews else None,
+    )
+
+
+def rigid_to_level(matrix: np.ndarray, level: int, shape_l: tuple[int, int]) -> np.ndarray:
+    """Rigid parameters ``(dx, dy, angle_rad)`` of a full-resolution matrix on ``level``."""
+    dx, dy, ang = rigid_parameters(level_matrix(matrix, level), shape_l)
+    return np.array([dx, dy, np.deg2rad(ang)])
+
+
+def level_to_full(p: np.ndarray, level: int, shape_l: tuple[int, int]) -> np.ndarray:
+    m = rigid_matrix(p[0], p[1], np.rad2deg(p[2]), shape_l)
+    return scale_matrix(m, 2.0**level) if level else m

@@ -1,0 +1,106 @@
+"""Cubic-convolution sampling at scattered points, and 2x2 image pyramids (private helpers).
+
+Keys' cubic convolution kernel (a = -1/2; R. Keys, "Cubic convolution interpolation for digital
+image processing", IEEE TASSP 29(6), 1981) is interpolating, third-order accurate and has a
+closed-form derivative, so the registration cost and its gradient are evaluated only at the
+sample points, never on the whole 24-megapixel frame.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["keys_weights", "sample", "reduce2", "Sampled"]
+
+_OFFSETS = np.arange(4)
+
+
+def keys_weights(f: np.ndarray, derivative: bool = False) -> np.ndarray:
+    """Weights ``(4, N)`` of taps at offsets -1, 0, 1, 2 for fractional positions ``f`` in [0, 1).
+
+    With ``derivative`` the weights of d/df (the kernel's derivative).
+    """
+    g = 1.0 - f
+    if not derivative:
+        return np.stack(
+            [
+                -0.5 * f * g * g,
+                (1.5 * f - 2.5) * f * f + 1.0,
+                (1.5 * g - 2.5) * g * g + 1.0,
+                -0.5 * f * f * g,
+            ]
+        )
+    return np.stack(
+        [
+            -0.5 * g * (1.0 - 3.0 * f),
+            (4.5 * f - 5.0) * f,
+            -(4.5 * g - 5.0) * g,
+            (1.5 * f - 1.0) * f,
+        ]
+    )
+
+
+class Sampled:
+    """Values, gradients and tap ranges of an image at scattered points (see :func:`sample`)."""
+
+    __slots__ = ("value", "gx", "gy", "inside", "tap_min", "tap_max")
+
+    def __init__(self, value, gx, gy, inside, tap_min, tap_max) -> None:
+        self.value = value
+        self.gx = gx
+        self.gy = gy
+        self.inside = inside
+        self.tap_min = tap_min
+        self.tap_max = tap_max
+
+
+def sample(
+    image: np.ndarray, x: np.ndarray, y: np.ndarray, *, gradient: bool = True,
+    tap_range: bool = False,
+) -> Sampled:
+    """Cubic-convolution value (and d/dx, d/dy) of a 2-D ``image`` at points ``(x, y)``.
+
+    ``inside`` is False where the 4x4 support leaves the image (value 0 there).
+    ``tap_range`` also returns the minimum and maximum of the 16 raw taps (to discard points
+    whose support touches a saturated or under-exposed pixel).
+    """
+    h, w = image.shape
+    ix = np.floor(x).astype(np.int64)
+    iy = np.floor(y).astype(np.int64)
+    inside = (ix >= 1) & (ix <= w - 3) & (iy >= 1) & (iy <= h - 3)
+    fx = np.where(inside, x - ix, 0.0)
+    fy = np.where(inside, y - iy, 0.0)
+    base = np.where(inside, (iy - 1) * w + (ix - 1), 0)
+    flat = image.reshape(-1) if image.flags.c_contiguous else np.ascontiguousarray(image).ravel()
+    offsets = (_OFFSETS[:, None] * w + _OFFSETS[None, :]).ravel()
+    taps = flat.take(base[:, None] + offsets[None, :]).reshape(-1, 4, 4).astype(np.float64)
+    wx = keys_weights(fx).T
+    wy = keys_weights(fy).T
+    rows = np.einsum("nji,ni->nj", taps, wx)
+    value = np.einsum("nj,nj->n", rows, wy)
+    gx = gy = None
+    if gradient:
+        dwx = keys_weights(fx, True).T
+        dwy = keys_weights(fy, True).T
+        gx = np.einsum("nj,nj->n", np.einsum("nji,ni->nj", taps, dwx), wy)
+        gy = np.einsum("nj,nj->n", rows, dwy)
+    tmin = tmax = None
+    if tap_range:
+        tmin = taps.min(axis=(1, 2))
+        tmax = taps.max(axis=(1, 2))
+    value = np.where(inside, value, 0.0)
+    return Sampled(value, gx, gy, inside, tmin, tmax)
+
+
+def reduce2(image: np.ndarray) -> np.ndarray:
+    """Mean of 2x2 blocks (odd last row/column dropped), float32.
+
+    A pixel centre ``x`` of the result sits at ``2 x + 0.5`` in the input.
+    """
+    h2, w2 = image.shape[0] // 2, image.shape[1] // 2
+    a = image[0 : 2 * h2 : 2, 0 : 2 * w2 : 2].astype(np.float32)
+    a += image[1 : 2 * h2 : 2, 0 : 2 * w2 : 2]
+    a += image[0 : 2 * h2 : 2, 1 : 2 * w2 : 2]
+    a += image[1 : 2 * h2 : 2, 1 : 2 * w2 : 2]
+    a *= 0.25
+    return a

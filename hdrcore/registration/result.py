@@ -1,0 +1,130 @@
+"""Result objects of registration: the estimate with the diagnostics the inspector draws."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+__all__ = ["PairPreview", "PairRegistration", "BracketRegistration", "FAILED_STATUSES"]
+
+#: Status words of a pair that did not produce a transform (its matrix is the identity then).
+FAILED_STATUSES = ("saturated", "flat", "weak-peak", "no-overlap", "diverged")
+
+
+@dataclass(frozen=True, eq=False)
+class PairPreview:
+    """Small arrays for drawing one pair (at ``scale`` preview pixels per frame pixel).
+
+    ``overlay_*``: red = bright frame, cyan = dark frame times the exposure ratio (both clipped to
+    the range they share, log-scaled), before (identity) and after alignment; uint8 ``(h, w, 3)``;
+    grey where the two agree. ``difference_*``: the eq. 7 normalised difference
+    ``(a - k b) / max(a + k b, t)`` per pixel, float32 in [-1, 1], NaN where eq. 6 discards the
+    pixel (outside the common exposure range or outside the dark frame).
+    """
+
+    scale: float
+    overlay_before: np.ndarray = field(repr=False)
+    overlay_after: np.ndarray = field(repr=False)
+    difference_before: np.ndarray = field(repr=False)
+    difference_after: np.ndarray = field(repr=False)
+
+
+@dataclass(frozen=True, eq=False)
+class PairRegistration:
+    """Registration of one consecutive pair (dark ``i``, bright ``j = i + 1``).
+
+    ``matrix`` (2x3) maps pixel coordinates of the bright frame to the dark frame (x right, y down,
+    origin at the centre of the top-left pixel); ``dx, dy, angle_deg`` are its rigid parameters
+    (rotation about the image centre, then shift). ``cost_before`` / ``cost_after`` are the eq. 6
+    cost (mean squared eq. 7 normalised difference over pixels well exposed in both frames) at the
+    identity and at ``matrix``. ``overlap`` is the fraction of the bright frame that lands inside
+    the dark frame; ``valid_fraction`` the fraction of overlapping sample pixels that are well
+    exposed in both. ``cost_history`` / ``level_history``: the cost at each iteration and the
+    pyramid level it was computed on (0 = full resolution). ``initial_shift`` and ``peak_ncc`` /
+    ``peak_psr`` come from the eq. 5 step. When ``status`` is not ``"ok"`` the matrix is the
+    identity and ``message`` says why.
+    """
+
+    dark: int
+    bright: int
+    matrix: np.ndarray
+    dx: float
+    dy: float
+    angle_deg: float
+    ratio: float
+    model: str
+    method: str
+    cost_before: float
+    cost_after: float
+    overlap: float
+    valid_fraction: float
+    iterations: int
+    cost_history: tuple[float, ...]
+    level_history: tuple[int, ...]
+    initial_shift: tuple[float, float]
+    peak_ncc: float
+    peak_psr: float
+    status: str
+    message: str
+    shape: tuple[int, int]
+    seconds: float = 0.0
+    preview: PairPreview | None = field(default=None, repr=False)
+
+    @property
+    def ok(self) -> bool:
+        return self.status == "ok"
+
+    def to_json(self) -> dict:
+        return {
+            "dark": self.dark,
+            "bright": self.bright,
+            "matrix": np.asarray(self.matrix).tolist(),
+            "dx": self.dx,
+            "dy": self.dy,
+            "angle_deg": self.angle_deg,
+            "ratio": self.ratio,
+            "model": self.model,
+            "method": self.method,
+            "cost_before": self.cost_before,
+            "cost_after": self.cost_after,
+            "overlap": self.overlap,
+            "valid_fraction": self.valid_fraction,
+            "iterations": self.iterations,
+            "cost_history": list(self.cost_history),
+            "level_history": list(self.level_history),
+            "initial_shift": list(self.initial_shift),
+            "peak_ncc": self.peak_ncc,
+            "peak_psr": self.peak_psr,
+            "status": self.status,
+            "message": self.message,
+            "seconds": self.seconds,
+        }
+
+
+@dataclass(frozen=True, eq=False)
+class BracketRegistration:
+    """Registration of a whole bracket: consecutive pairs chained to the ``reference`` frame.
+
+    ``to_reference[k]`` maps pixel coordinates of frame ``k`` to the reference frame. A failed
+    pair contributes the identity to the chain (and ``ok`` is False).
+    """
+
+    reference: int
+    pairs: tuple[PairRegistration, ...]
+    to_reference: tuple[np.ndarray, ...]
+    model: str
+    method: str
+
+    @property
+    def ok(self) -> bool:
+        return all(p.ok for p in self.pairs)
+
+    def to_json(self) -> dict:
+        return {
+            "reference": self.reference,
+            "model": self.model,
+            "method": self.method,
+            "pairs": [p.to_json() for p in self.pairs],
+            "to_reference": [np.asarray(m).tolist() for m in self.to_reference],
+        }
