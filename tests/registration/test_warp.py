@@ -1,0 +1,77 @@
+"""Warping: accuracy against analytic images, the validity mask, bad input."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from hdrcore.errors import ParameterError
+from hdrcore.registration import rigid_matrix, valid_mask, warp, warp_to_reference
+from hdrcore.registration.transform import apply, invert
+
+H, W = 96, 144
+
+
+def _smooth(x, y):
+    return np.sin(0.13 * x + 0.05 * y) + np.cos(0.07 * x - 0.11 * y) + 3.0
+
+
+@pytest.mark.parametrize(
+    "matrix, method",
+    [
+        (rigid_matrix(3.3, -2.7, 0.0, (H, W)), "shear"),
+        (rigid_matrix(1.25, 4.5, 1.7, (H, W)), "shear"),
+        (rigid_matrix(-10.2, 5.1, -2.0, (H, W)), "shear"),
+        (np.array([[1.01, 0.02, 1.0], [0.0, 0.99, 2.0]]), "spline"),
+    ],
+)
+def test_warp_matches_analytic_image(matrix, method):
+    yy, xx = np.mgrid[0:H, 0:W].astype(float)
+    res = warp(_smooth(xx, yy), matrix)
+    sx, sy = apply(matrix, xx, yy)
+    inner = res.mask & (sx > 3) & (sx < W - 4) & (sy > 3) & (sy < H - 4)
+    assert res.method == method
+    assert np.abs(res.image - _smooth(sx, sy))[inner].max() < 1e-3
+
+
+def test_integer_shift_is_exact_and_mask_marks_borders():
+    img = np.random.default_rng(0).random((H, W)).astype(np.float32)
+    res = warp(img, rigid_matrix(5.0, -3.0, 0.0, (H, W)))
+    assert res.method == "integer"
+    assert np.allclose(res.image[3:, : W - 5], img[: H - 3, 5:], atol=1e-6)
+    assert res.mask[3:, : W - 5].all()
+    assert not res.mask[:3].any() and not res.mask[:, W - 5 :].any()
+    assert np.isnan(res.image[~res.mask]).all()
+
+
+def test_mask_is_analytic_and_respects_margin():
+    m = rigid_matrix(2.5, 1.5, 1.0, (H, W))
+    mask = valid_mask(m, (H, W), (H, W), margin=2.0)
+    yy, xx = np.mgrid[0:H, 0:W].astype(float)
+    sx, sy = apply(m, xx, yy)
+    expected = (sx >= 2) & (sx <= W - 3) & (sy >= 2) & (sy <= H - 3)
+    assert np.array_equal(mask, expected)
+
+
+def test_colour_frames_and_warp_to_reference():
+    yy, xx = np.mgrid[0:H, 0:W].astype(float)
+    img = np.stack([_smooth(xx, yy), 2 * _smooth(xx, yy), 0.5 * _smooth(xx, yy)], axis=-1)
+    to_ref = rigid_matrix(2.0, -1.0, 0.5, (H, W))
+    res = warp_to_reference(img, to_ref, fill=0.0)
+    single = warp(img[..., 1], invert(to_ref), fill=0.0)
+    assert res.image.shape == (H, W, 3)
+    assert np.allclose(res.image[..., 1], single.image, atol=1e-5)
+    assert (res.image[~res.mask] == 0).all()
+
+
+def test_identity_warp_returns_the_image():
+    img = np.random.default_rng(1).random((H, W)).astype(np.float32)
+    res = warp(img, np.eye(2, 3))
+    assert res.mask.all() and np.allclose(res.image, img)
+
+
+def test_warp_rejects_bad_input():
+    with pytest.raises(ParameterError, match="2x3"):
+        warp(np.zeros((8, 8)), np.eye(3))
+    with pytest.raises(ParameterError, match=r"\(H, W\)"):
+        warp(np.zeros(8), np.eye(2, 3))
