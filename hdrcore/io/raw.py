@@ -123,6 +123,10 @@ def read_raw(path: str | Path, *, half_size: bool = False, keep_cfa: bool = True
         capture = other.timestamp
 
     levels = np.ascontiguousarray(rgb, dtype=np.uint16)
+    # Demosaicing can overshoot the white level near clipped areas; such values are clipped
+    # (saturated) samples, so they are held at each channel's largest level.
+    for c in range(3):
+        np.minimum(levels[..., c], channel_max[c], out=levels[..., c])
     meta = FrameMetadata(
         path=str(p),
         format="raw",

@@ -1,0 +1,165 @@
+"""Plain-language verdicts: why a bracket merged badly, from the stages' own result objects.
+
+Each :class:`Verdict` has a stable ``code``, a ``severity`` (``"error"``: the merge is wrong or
+impossible; ``"warning"``: it is probably degraded; ``"info"``), the frames it concerns and a
+sentence a photographer can act on. The rules read diagnostics that the stages already computed
+(capture warnings, pair statuses, EXIF mismatches, per-channel ratios, registration costs and
+the merge's clipping and ghost maps); nothing is recomputed here.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .pipeline import PipelineResult
+
+__all__ = ["Verdict", "diagnose", "MISMATCH_STOPS", "CLIPPED_FRACTION", "GHOST_FRACTION"]
+
+#: EXIF and estimated ratios further apart than this (in stops) give a verdict.
+MISMATCH_STOPS = 0.15
+#: Pixels clipped in every frame above this fraction: the darkest frame is too bright.
+CLIPPED_FRACTION = 0.002
+#: Pixels under the noise floor in every frame above this fraction: the brightest is too dark.
+UNDEREXPOSED_FRACTION = 0.02
+#: Pixels flagged as ghosts above this fraction: something moved.
+GHOST_FRACTION = 0.01
+
+
+@dataclass(frozen=True)
+class Verdict:
+    code: str
+    severity: str
+    message: str
+    frames: tuple[int, ...] = ()
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "code": self.code,
+            "severity": self.severity,
+            "message": self.message,
+            "frames": list(self.frames),
+        }
+
+
+_CAPTURE = {
+    "iso-changed": ("warning", "ISO changed between frames: noise differs between exposures and "
+                    "the EXIF times alone give wrong ratios (the histogram estimate is used)."),
+    "aperture-changed": ("warning", "The aperture changed between frames: depth of field and "
+                         "vignetting differ, which can show as ghosts and wrong ratios."),
+    "duplicate-exposure": ("warning", "Two frames have the same exposure: they add no dynamic "
+                           "range (check the bracketing setting)."),
+    "out-of-order": ("error", "A frame is darker than a shorter exposure: its EXIF time is wrong "
+                     "or the file belongs to another bracket."),
+    "mixed-cameras": ("error", "The frames come from different cameras: they cannot be one "
+                      "bracket."),
+    "no-exposure-times": ("info", "No exposure times in the files: the ratios come from the "
+                          "histograms alone (the paper's method)."),
+    "frame-saturated": ("warning", "A frame is almost entirely saturated and contributes "
+                        "little."),
+    "frame-black": ("warning", "A frame is almost entirely black and contributes little."),
+}
+
+
+def _names(result: PipelineResult, frames: tuple[int, ...]) -> str:
+    fr = result.bracket.frames
+    return ", ".join(fr[k].name for k in frames if 0 <= k < len(fr))
+
+
+def diagnose(result: PipelineResult) -> list[Verdict]:
+    """Verdicts for one pipeline run, most severe first."""
+    out: list[Verdict] = []
+    b = result.bracket
+    names = [f.name for f in b.frames]
+
+    for w in b.warnings:
+        if w.code in _CAPTURE:
+            sev, text = _CAPTURE[w.code]
+            detail = f" ({w.message})" if w.message else ""
+            out.append(Verdict(w.code, sev, text + detail, tuple(w.frames)))
+
+    ex = result.exposures
+    for k, p in enumerate(ex.pairs):
+        pair = (p.dark, p.bright)
+        label = f"frames {p.dark} and {p.bright} ({names[p.dark]}, {names[p.bright]})"
+        if p.status == "no-overlap":
+            exif = ex.exif_ratios[k] if k < len(ex.exif_ratios) else None
+            gap = f" ({math.log2(exif):.1f} stops apart)" if exif and exif > 0 else ""
+            out.append(Verdict(
+                "no-overlap", "error",
+                f"No brightness overlap between {label}{gap}: no level is well exposed in both, "
+                "so their exposure ratio cannot be measured. Shoot with smaller steps.", pair,
+            ))
+        elif p.status == "channels-disagree" or p.channels_disagree:
+            chans = ", ".join(
+                f"{c} {r:.3f}" for c, r in zip("RGB", p.channel_ratios, strict=False)
+            )
+            out.append(Verdict(
+                "channels-disagree", "warning",
+                f"The colour channels disagree on the ratio of {label} ({chans}): a wrong white "
+                "level, clipping in one channel or a wrong response (a colour cast in the "
+                "merge).", pair,
+            ))
+        elif p.status != "ok":
+            out.append(Verdict(
+                f"ratio-{p.status}", "warning",
+                f"The exposure ratio of {label} is unreliable ({p.status}): {p.message}", pair,
+            ))
+        mism = ex.mismatch_stops[k] if k < len(ex.mismatch_stops) else None
+        if mism is not None and math.isfinite(mism) and abs(mism) > MISMATCH_STOPS and p.ok:
+            out.append(Verdict(
+                "exif-mismatch", "warning",
+                f"EXIF says {label} are {ex.exif_ratios[k]:.3g}x apart but the images say "
+                f"{p.ratio:.3g}x ({mism:+.2f} stops): the EXIF time is wrong or the shutter is "
+                "inaccurate; the measured ratio is used.", pair,
+            ))
+    if result.times_source.startswith("exif (estimation failed)"):
+        out.append(Verdict(
+            "times-fallback", "warning",
+            "The exposure ratios could not all be measured from the histograms; the EXIF times "
+            "were used for the merge.",
+        ))
+
+    reg = result.registration
+    if reg is not None:
+        for p in reg.pairs:
+            if not p.ok:
+                out.append(Verdict(
+                    "registration-failed", "error",
+                    f"Registration failed for frames {p.dark} and {p.bright} ({p.status}): "
+                    f"{p.message}. They were merged without alignment and may be blurred or "
+                    "ghosted.", (p.dark, p.bright),
+                ))
+
+    m = result.merge
+    summary_clipped = float(m.clipped.mean()) if m.clipped.size else 0.0
+    if summary_clipped > CLIPPED_FRACTION:
+        out.append(Verdict(
+            "darkest-clipped", "warning",
+            f"{100 * summary_clipped:.2f} % of the pixels are saturated even in the darkest "
+            f"frame ({names[0]}): highlights there are clipped in the HDR. Add a shorter "
+            "exposure.", (0,),
+        ))
+    under = float(m.underexposed.mean()) if m.underexposed.size else 0.0
+    if under > UNDEREXPOSED_FRACTION:
+        out.append(Verdict(
+            "brightest-underexposed", "info",
+            f"{100 * under:.1f} % of the pixels are under the noise floor even in the brightest "
+            f"frame ({names[-1]}): shadows there are noisy. Add a longer exposure.",
+            (len(names) - 1,),
+        ))
+    ghost = float(m.ghost.mean()) if m.ghost.size else 0.0
+    if ghost > GHOST_FRACTION:
+        out.append(Verdict(
+            "ghosts", "warning",
+            f"{100 * ghost:.1f} % of the pixels disagree between aligned frames beyond their "
+            "noise: something moved (or the alignment is off). See the ghost layer.",
+        ))
+    if not any(v.severity in ("error", "warning") for v in out):
+        out.append(Verdict("ok", "info", "The bracket merged cleanly: ratios measured, frames "
+                           "aligned, no clipping or ghosts beyond the thresholds."))
+    order = {"error": 0, "warning": 1, "info": 2}
+    out.sort(key=lambda v: order.get(v.severity, 3))
+    return out

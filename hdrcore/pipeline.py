@@ -1,0 +1,620 @@
+"""The whole method as one cached pipeline: histograms -> response -> ratios -> registration ->
+warp -> merge -> colour -> preview.
+
+:class:`Pipeline` holds a loaded :class:`~hdrcore.io.Bracket` and runs the stages with
+:class:`PipelineParams`. Each stage's result is cached with the parameters (and upstream results)
+it depends on, so a new run re-computes only what a parameter change touches: moving the
+saturation level re-fits the ratios from the cached histograms, then re-registers and re-merges;
+changing the tonemap exposure only re-renders the preview. Every run returns one
+:class:`PipelineResult` holding every stage's own result object (with its diagnostics), the
+timings, the warnings and plain-language verdicts; :meth:`PipelineResult.to_report` gives the
+JSON report of ``hdrcore merge --report`` with the field names of ``ratios --json`` and
+``align --json``.
+
+Units: the saturation level ``Z`` and the noise floor are in the frames' integer levels, as in the
+paper (``None`` picks :func:`hdrcore.exposure.default_saturation` /
+:func:`~hdrcore.exposure.default_noise_floor`); the registration threshold ``t`` is a fraction
+of the saturation level (eq. 7).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from .diagnose import Verdict, diagnose
+from .errors import EstimationError, ParameterError, validate_method
+from .exposure import (
+    DEFAULT_METHOD as DEFAULT_EXPOSURE_METHOD,
+)
+from .exposure import (
+    EXPOSURE_METHODS,
+    BracketExposureResult,
+    BracketHistograms,
+    bracket_exposures_from_histograms,
+    bracket_histograms,
+    default_noise_floor,
+    default_saturation,
+)
+from .io import Bracket
+from .merge import MergeResult, NoiseModel, camera_to_working, merge
+from .registration import (
+    MODELS,
+    REGISTRATION_METHODS,
+    BracketRegistration,
+    register_bracket,
+    warp_to_reference,
+)
+from .resample import downsample_area, downsample_factor
+from .response import RESPONSE_METHODS, ResponseCurve, resolve_response
+from .tonemap import TONEMAP_OPERATORS, TonemapResult, tonemap
+
+__all__ = [
+    "ALIGN_CHOICES",
+    "STAGES",
+    "Pipeline",
+    "PipelineParams",
+    "PipelineResult",
+    "run_pipeline",
+]
+
+log = logging.getLogger(__name__)
+
+STAGES = ("histograms", "response", "ratios", "registration", "merge", "preview")
+ALIGN_CHOICES = ("none", "shift", "euclidean")
+
+ProgressCallback = Callable[[str, float, str], None]
+
+
+@dataclass(frozen=True)
+class PipelineParams:
+    """Parameters of a run. ``None`` means "the default for this bracket".
+
+    saturation, noise_floor : ``Z`` and the noise floor in integer levels (eq. 4 and eq. 6).
+    threshold : ``t`` of eq. 7 as a fraction of the saturation level.
+    align : ``"none"``, ``"shift"`` or ``"euclidean"`` (shift + rotation).
+    reference : frame the others are warped onto (default: the middle one).
+    response : ``"auto"`` (linear for RAW, the histogram Debevec-Malik variant otherwise),
+        ``"linear"``, ``"srgb"``, a method of :data:`hdrcore.response.RESPONSE_METHODS`, a saved
+        curve (``.json`` path) or a :class:`~hdrcore.response.ResponseCurve`.
+    times : ``"estimated"`` (the histogram ratios, the paper's method) or ``"exif"``.
+    exposure_method, registration_method : names in the stages' registries.
+    tonemap, tonemap_exposure : preview operator and exposure in stops.
+    preview_max_side : longest side of the preview (``None`` = full resolution).
+    working_space : colour space of the radiance map (RAW input).
+    """
+
+    saturation: float | None = None
+    noise_floor: float | None = None
+    threshold: float = 0.1
+    align: str = "euclidean"
+    reference: int | None = None
+    response: Any = "auto"
+    times: str = "estimated"
+    exposure_method: str = DEFAULT_EXPOSURE_METHOD
+    registration_method: str = "fast"
+    tonemap: str = "reinhard"
+    tonemap_exposure: float = 0.0
+    preview_max_side: int | None = 1600
+    working_space: str = "sRGB"
+
+    def replace(self, **changes: Any) -> PipelineParams:
+        return replace(self, **changes)
+
+    def to_json(self) -> dict[str, Any]:
+        d = asdict(self)
+        if isinstance(self.response, ResponseCurve):
+            d["response"] = f"<curve: {self.response.method}>"
+        return d
+
+
+@dataclass(frozen=True, eq=False)
+class PipelineResult:
+    """Everything one run produced; the inspector draws these objects, never recomputes them.
+
+    ``saturation`` / ``noise_floor`` are the values used (levels); ``lut`` the ``(C, L)``
+    linearisation (``None`` for RAW: levels are linear); ``exposure_times`` the times the merge
+    used (seconds when EXIF anchors them, else relative to the darkest frame) and
+    ``times_source`` where they came from; ``radiance`` the merged map in ``working_space``.
+    ``stages_run`` lists the stages computed in this run (the others came from the cache).
+    """
+
+    bracket: Bracket
+    params: PipelineParams
+    saturation: float
+    noise_floor: float
+    histograms: BracketHistograms
+    response: ResponseCurve | None
+    lut: np.ndarray | None
+    exposures: BracketExposureResult
+    exposure_times: tuple[float, ...]
+    times_source: str
+    registration: BracketRegistration | None
+    merge: MergeResult
+    radiance: np.ndarray = field(repr=False)
+    colour: dict[str, Any] = field(default_factory=dict)
+    preview: TonemapResult | None = None
+    preview_factor: int = 1
+    timings: dict[str, float] = field(default_factory=dict)
+    stages_run: tuple[str, ...] = ()
+    verdicts: tuple[Verdict, ...] = ()
+
+    @property
+    def ok(self) -> bool:
+        return not any(v.severity == "error" for v in self.verdicts)
+
+    @property
+    def to_reference(self) -> tuple[np.ndarray, ...]:
+        n = len(self.bracket)
+        if self.registration is None:
+            return tuple(np.eye(2, 3) for _ in range(n))
+        return self.registration.to_reference
+
+    def ratios_json(self) -> dict[str, Any]:
+        """The document of ``hdrcore ratios --json``."""
+        return ratios_json(self.bracket, self.exposures)
+
+    def registration_json(self) -> dict[str, Any] | None:
+        """The document of ``hdrcore align --json`` (``None`` when alignment was off)."""
+        if self.registration is None:
+            return None
+        return registration_json(self.registration)
+
+    def to_report(self) -> dict[str, Any]:
+        """JSON-ready report of the run (no arrays)."""
+        b = self.bracket
+        return {
+            "frames": [
+                {
+                    **f.meta.to_json(),
+                    "index": k,
+                    "relative_exposure": self.exposures.relative_exposures[k],
+                    "merge_exposure_time": self.exposure_times[k],
+                }
+                for k, f in enumerate(b.frames)
+            ],
+            "parameters": {
+                **self.params.to_json(),
+                "saturation_used": self.saturation,
+                "noise_floor_used": self.noise_floor,
+            },
+            "warnings": [w.to_json() for w in b.warnings],
+            "ratios": self.ratios_json(),
+            "times_source": self.times_source,
+            "response": None if self.response is None else {
+                "method": self.response.method,
+                "message": getattr(self.response, "message", ""),
+            },
+            "registration": self.registration_json(),
+            "merge": self.merge.summary(),
+            "colour": self.colour,
+            "preview": None if self.preview is None else {
+                **self.preview.to_json(), "downsample_factor": self.preview_factor,
+            },
+            "timings": dict(self.timings),
+            "stages_run": list(self.stages_run),
+            "verdicts": [v.to_json() for v in self.verdicts],
+            "status": "ok" if self.ok else "failed",
+        }
+
+
+def ratios_json(bracket: Bracket, res: BracketExposureResult) -> dict[str, Any]:
+    """``{"frames": [...], "pairs": [...]}`` as printed by ``hdrcore ratios --json``."""
+    times = bracket.exposure_times
+    return {
+        "frames": [
+            {
+                "path": f.meta.path,
+                "exif_exposure_time": times[k],
+                "relative_exposure": res.relative_exposures[k],
+            }
+            for k, f in enumerate(bracket.frames)
+        ],
+        "pairs": [
+            {
+                "dark": p.dark,
+                "bright": p.bright,
+                "ratio": p.ratio,
+                "initial_ratio": p.initial_ratio,
+                "iterations": p.iterations,
+                "equations": p.n_equations,
+                "inliers": p.n_inliers,
+                "exif_ratio": res.exif_ratios[k],
+                "mismatch_stops": res.mismatch_stops[k],
+                "std_error": p.std_error,
+                "status": p.status,
+                "message": p.message,
+            }
+            for k, p in enumerate(res.pairs)
+        ],
+    }
+
+
+def registration_json(reg: BracketRegistration) -> dict[str, Any]:
+    """``{"reference", "pairs", "to_reference"}`` as printed by ``hdrcore align --json``."""
+    return {
+        "reference": reg.reference,
+        "pairs": [
+            {
+                "dark": p.dark,
+                "bright": p.bright,
+                "matrix": np.asarray(p.matrix).tolist(),
+                "dx": p.dx,
+                "dy": p.dy,
+                "angle_deg": p.angle_deg,
+                "cost_before": p.cost_before,
+                "cost_after": p.cost_after,
+                "status": p.status,
+                "message": p.message,
+            }
+            for p in reg.pairs
+        ],
+        "to_reference": [np.asarray(m).tolist() for m in reg.to_reference],
+    }
+
+
+@dataclass
+class _Entry:
+    key: Any
+    value: Any
+    seconds: float
+
+
+class Pipeline:
+    """Runs the stages on one bracket, caching each stage by the inputs it depends on.
+
+    Thread-safe: runs are serialised by a lock (the inspector keeps only the latest request).
+    ``progress(stage, fraction, message)`` is called as stages start and finish.
+    """
+
+    def __init__(
+        self,
+        bracket: Bracket,
+        params: PipelineParams | None = None,
+        *,
+        progress: ProgressCallback | None = None,
+    ) -> None:
+        if len(bracket) < 2:
+            raise ParameterError("a bracket needs at least two frames", found=str(len(bracket)))
+        self.bracket = bracket
+        self.params = params or PipelineParams()
+        self.progress = progress
+        self._cache: dict[str, _Entry] = {}
+        self._lock = threading.Lock()
+        self.last_result: PipelineResult | None = None
+
+    # -- parameter checks ------------------------------------------------------------------
+
+    def _check(self, p: PipelineParams) -> PipelineParams:
+        b = self.bracket
+        m = b.max_level
+        sat = default_saturation(m) if p.saturation is None else float(p.saturation)
+        nf = default_noise_floor(m) if p.noise_floor is None else float(p.noise_floor)
+        if not (np.isfinite(sat) and 0 < sat <= m):
+            raise ParameterError("saturation level out of range", expected=f"0 < Z <= {m}",
+                                 found=str(p.saturation))
+        if not (np.isfinite(nf) and 0 <= nf < sat):
+            raise ParameterError("noise floor out of range", expected=f"0 <= N < Z = {sat:g}",
+                                 found=str(p.noise_floor))
+        if not (np.isfinite(p.threshold) and p.threshold >= 0):
+            raise ParameterError("threshold t must be >= 0", found=str(p.threshold))
+        align = str(p.align).lower()
+        if align not in ALIGN_CHOICES:
+            raise ParameterError(f"unknown alignment {p.align!r}",
+                                 expected=f"one of {', '.join(ALIGN_CHOICES)}")
+        ref = len(b) // 2 if p.reference is None else int(p.reference)
+        if not 0 <= ref < len(b):
+            raise ParameterError("reference frame out of range",
+                                 expected=f"0..{len(b) - 1}", found=str(p.reference))
+        if p.times not in ("estimated", "exif"):
+            raise ParameterError(f"unknown times source {p.times!r}",
+                                 expected="'estimated' or 'exif'")
+        validate_method(p.exposure_method, EXPOSURE_METHODS, "exposure")
+        validate_method(p.registration_method, REGISTRATION_METHODS, "registration")
+        validate_method(p.tonemap, TONEMAP_OPERATORS, "tonemap")
+        if align != "none":
+            validate_method(align, MODELS, "motion model")
+        return replace(p, saturation=sat, noise_floor=nf, align=align, reference=ref)
+
+    # -- cache ------------------------------------------------------------------------------
+
+    def _stage(self, name: str, key: Any, fn: Callable[[], Any], ran: list[str],
+               timings: dict[str, float]) -> Any:
+        entry = self._cache.get(name)
+        if entry is not None and _same_key(entry.key, key):
+            timings[name] = 0.0
+            return entry.value
+        self._report(name, 0.0, f"{name}...")
+        t0 = time.perf_counter()
+        value = fn()
+        dt = time.perf_counter() - t0
+        self._cache[name] = _Entry(key, value, dt)
+        timings[name] = dt
+        ran.append(name)
+        self._report(name, 1.0, f"{name} done in {dt:.2f} s")
+        return value
+
+    def _report(self, stage: str, fraction: float, message: str) -> None:
+        if self.progress is not None:
+            try:
+                self.progress(stage, fraction, message)
+            except Exception:  # a UI callback must never break a run
+                log.exception("progress callback failed")
+
+    def clear_cache(self) -> None:
+        with self._lock:
+            self._cache.clear()
+
+    # -- the run ----------------------------------------------------------------------------
+
+    def run(
+        self, params: PipelineParams | None = None, *, until: str = "preview"
+    ) -> PipelineResult:
+        """Run (or re-use) every stage up to ``until`` and return the result.
+
+        ``until="ratios"`` stops after the exposure ratios (a fast re-fit for sliders); the
+        result then holds the previous run's later stages, if any, with ``stages_run`` showing
+        what was refreshed.
+        """
+        if until not in STAGES:
+            raise ParameterError(f"unknown stage {until!r}", expected=", ".join(STAGES))
+        with self._lock:
+            p = self._check(params or self.params)
+            self.params = p
+            return self._run(p, STAGES.index(until))
+
+    def _run(self, p: PipelineParams, last: int) -> PipelineResult:
+        b = self.bracket
+        ran: list[str] = []
+        timings: dict[str, float] = {}
+        t_start = time.perf_counter()
+        levels = [f.levels for f in b.frames]
+        m = b.max_level
+
+        hists = self._stage(
+            "histograms", (), lambda: bracket_histograms(levels, m), ran, timings
+        )
+
+        resp_key = _response_key(p.response, b.is_linear)
+        response = self._stage(
+            "response", resp_key, lambda: self._response(p), ran, timings
+        )
+        lut = None if response is None else response.to_lut(m)
+
+        ratio_key = (resp_key, p.saturation, p.noise_floor, p.exposure_method)
+        exposures = self._stage(
+            "ratios", ratio_key,
+            lambda: bracket_exposures_from_histograms(
+                hists, method=p.exposure_method,
+                exposure_times=b.exposure_times,
+                saturation=p.saturation, noise_floor=p.noise_floor, lut=lut,
+            ),
+            ran, timings,
+        )
+        times, times_source = self._merge_times(exposures, p)
+        if last < STAGES.index("registration") and self.last_result is not None:
+            res = replace(
+                self.last_result, params=p, saturation=float(p.saturation),
+                noise_floor=float(p.noise_floor), exposures=exposures, stages_run=tuple(ran),
+                timings={**timings, "total": time.perf_counter() - t_start},
+            )
+            res = replace(res, verdicts=tuple(diagnose(res)))
+            return res
+
+        lin_key = (resp_key,)
+        ratios = tuple(times[k + 1] / times[k] for k in range(len(times) - 1))
+        reg_key = (lin_key, ratios, p.saturation, p.noise_floor, p.threshold, p.align,
+                   p.reference, p.registration_method)
+        registration = self._stage(
+            "registration", reg_key, lambda: self._register(p, lut, ratios), ran, timings
+        )
+
+        merge_key = (reg_key, tuple(times), p.working_space)
+        merged = self._stage(
+            "merge", merge_key, lambda: self._merge(p, lut, times, registration), ran, timings
+        )
+        merge_result, radiance, colour_info = merged
+
+        preview_key = (merge_key, p.tonemap, p.tonemap_exposure, p.preview_max_side)
+        preview, factor = (None, 1)
+        if last >= STAGES.index("preview"):
+            preview, factor = self._stage(
+                "preview", preview_key, lambda: self._preview(p, radiance), ran, timings
+            )
+        timings["total"] = time.perf_counter() - t_start
+        res = PipelineResult(
+            bracket=b, params=p, saturation=float(p.saturation),
+            noise_floor=float(p.noise_floor), histograms=hists, response=response, lut=lut,
+            exposures=exposures, exposure_times=times, times_source=times_source,
+            registration=registration, merge=merge_result, radiance=radiance,
+            colour=colour_info, preview=preview, preview_factor=factor, timings=timings,
+            stages_run=tuple(ran),
+        )
+        res = replace(res, verdicts=tuple(diagnose(res)))
+        self.last_result = res
+        return res
+
+    # -- stages -----------------------------------------------------------------------------
+
+    def _response(self, p: PipelineParams) -> ResponseCurve | None:
+        b = self.bracket
+        spec = p.response
+        if isinstance(spec, str) and spec.lower() == "auto":
+            if b.is_linear:
+                return None
+            spec = "debevec-histogram"
+        if isinstance(spec, str) and spec.lower() == "linear" and b.is_linear:
+            return None
+        levels = [f.levels for f in b.frames]
+        times = b.exposure_times if b.has_exposure_times else None
+        method_names = {k.lower() for k in RESPONSE_METHODS}
+        if isinstance(spec, str) and spec.lower() in method_names and times is None:
+            raise EstimationError(
+                f"response method {spec!r} needs exposure times (EXIF or --times) to recover "
+                "the curve; use --response srgb or give the times",
+            )
+        curve = resolve_response(spec, levels, times, max_level=b.max_level, n_channels=3)
+        return curve
+
+    def _merge_times(self, exposures: BracketExposureResult,
+                     p: PipelineParams) -> tuple[tuple[float, ...], str]:
+        b = self.bracket
+        exif = b.exif_exposures()
+        exif_known = all(e is not None for e in exif)
+        if p.times == "exif":
+            if not exif_known:
+                raise EstimationError(
+                    "times='exif' needs an exposure time for every frame (EXIF or --times)"
+                )
+            return tuple(float(e) for e in exif), "exif"
+        rel = np.asarray(exposures.relative_exposures, float)
+        source = "estimated"
+        if not np.all(np.isfinite(rel) & (rel > 0)):
+            if not exif_known:
+                raise EstimationError(
+                    "the exposure ratios could not be estimated for every frame and the frames "
+                    "carry no exposure times to fall back on: "
+                    + exposures.message
+                )
+            rel = np.asarray([float(e) / float(exif[0]) for e in exif])
+            source = "exif (estimation failed)"
+        known = [(k, float(e)) for k, e in enumerate(exif) if e is not None]
+        if known:
+            # Anchor the relative exposures to seconds with the geometric mean of the metadata.
+            scale = math.exp(float(np.mean([math.log(e / rel[k]) for k, e in known])))
+        else:
+            scale = 1.0
+        return tuple(float(v * scale) for v in rel), source
+
+    def _channel_linear(self, k: int, lut: np.ndarray | None, channel: int | None):
+        f = self.bracket.frames[k]
+        m = f.max_level
+        if channel is None:
+            if lut is None:
+                return np.multiply(f.levels, np.float32(1.0 / m), dtype=np.float32)
+            out = np.empty(f.levels.shape, np.float32)
+            for c in range(3):
+                out[..., c] = lut[c].astype(np.float32)[f.levels[..., c]]
+            return out
+        if lut is None:
+            return np.multiply(f.levels[..., channel], np.float32(1.0 / m), dtype=np.float32)
+        return lut[channel].astype(np.float32)[f.levels[..., channel]]
+
+    def _linear_level(self, lut: np.ndarray | None, level: float, channel: int = 1) -> float:
+        m = self.bracket.max_level
+        if lut is None:
+            return float(level) / m
+        return float(np.interp(level, np.arange(m + 1), lut[channel]))
+
+    def _register(self, p: PipelineParams, lut: np.ndarray | None,
+                  ratios: tuple[float, ...]) -> BracketRegistration | None:
+        if p.align == "none":
+            return None
+        n = len(self.bracket)
+        images = [self._channel_linear(k, lut, 1) for k in range(n)]
+
+        def progress(done: int, total: int) -> None:
+            self._report("registration", done / total, f"registered pair {done} of {total}")
+
+        return register_bracket(
+            images, ratios, reference=p.reference, method=p.registration_method,
+            saturation=self._linear_level(lut, p.saturation),
+            noise_floor=self._linear_level(lut, p.noise_floor),
+            threshold=p.threshold, model=p.align, progress=progress,
+        )
+
+    def _merge(self, p: PipelineParams, lut: np.ndarray | None, times: tuple[float, ...],
+               registration: BracketRegistration | None):
+        b = self.bracket
+        n = len(b)
+        sat_lin = [self._linear_level(lut, p.saturation, c) for c in range(3)]
+        nf_lin = self._linear_level(lut, p.noise_floor, 1)
+        frames: list[np.ndarray] = []
+        masks: list[np.ndarray | None] = []
+        for k in range(n):
+            lin = self._channel_linear(k, lut, None)
+            if registration is None or k == registration.reference or np.allclose(
+                registration.to_reference[k], np.eye(2, 3), atol=1e-9
+            ):
+                frames.append(lin)
+                masks.append(None)
+                continue
+            # Clipped samples become NaN before the warp so that any output pixel whose
+            # interpolation touched one is treated as clipped, never as a darker mixture.
+            clipped = b.frames[k].levels >= p.saturation
+            lin[clipped] = np.nan
+            w = warp_to_reference(lin, registration.to_reference[k], fill=0.0)
+            img = w.image
+            np.nan_to_num(img, copy=False, nan=1.0)
+            frames.append(img)
+            masks.append(w.mask)
+            self._report("merge", (k + 1) / (n + 1), f"warped frame {k + 1} of {n}")
+        noise = _noise_model(b)
+        result = merge(
+            frames, times, masks=masks, saturation_level=sat_lin, noise_floor=nf_lin,
+            weighting="noise-aware" if lut is None else "hat", noise=noise,
+        )
+        del frames
+        radiance = result.radiance
+        colour_info: dict[str, Any] = {"working_space": p.working_space}
+        f0 = b.frames[0].meta
+        if b.is_linear and f0.rgb_xyz_matrix is not None and np.any(
+            np.asarray(f0.rgb_xyz_matrix) != 0
+        ):
+            radiance = camera_to_working(
+                radiance, np.asarray(f0.rgb_xyz_matrix), f0.camera_whitebalance,
+                p.working_space, clipped=result.clipped,
+            )
+            colour_info["conversion"] = "camera matrix (rawpy rgb_xyz_matrix) and as-shot WB"
+        elif b.is_linear:
+            wb = f0.camera_whitebalance
+            radiance = camera_to_working(radiance, None, wb, p.working_space,
+                                         clipped=result.clipped)
+            colour_info["conversion"] = (
+                "no camera matrix in the file: camera RGB taken as linear sRGB primaries, "
+                "as-shot white balance applied"
+            )
+        else:
+            if p.working_space.lower() != "srgb":
+                radiance = camera_to_working(radiance, None, None, p.working_space)
+            colour_info["conversion"] = "linearised sRGB-primaries data"
+        return result, radiance, colour_info
+
+    def _preview(self, p: PipelineParams, radiance: np.ndarray):
+        factor = downsample_factor(radiance.shape[:2], p.preview_max_side)
+        small = downsample_area(radiance, factor) if factor > 1 else radiance
+        return tonemap(small, p.tonemap, exposure=p.tonemap_exposure), factor
+
+
+def _noise_model(bracket: Bracket) -> NoiseModel:
+    """A noise model for the merge weights: read noise of ~2 levels for RAW, quantisation else."""
+    m = bracket.max_level
+    if bracket.is_linear:
+        return NoiseModel(read_noise=2.0 / m, full_well=None, level_noise=0.0)
+    return NoiseModel(read_noise=0.0, full_well=None, level_noise=1.0)
+
+
+def _response_key(spec: Any, linear: bool) -> Any:
+    if isinstance(spec, ResponseCurve):
+        return ("curve", id(spec))
+    return (str(spec).lower(), linear)
+
+
+def _same_key(a: Any, b: Any) -> bool:
+    try:
+        return bool(a == b)
+    except Exception:  # numpy arrays in keys compare elementwise
+        return False
+
+
+def run_pipeline(bracket: Bracket, params: PipelineParams | None = None,
+                 progress: ProgressCallback | None = None) -> PipelineResult:
+    """One-shot convenience: ``Pipeline(bracket, params, progress=progress).run()``."""
+    return Pipeline(bracket, params, progress=progress).run()

@@ -1,0 +1,115 @@
+"""The cached pipeline: stages, re-use, parameters, report, verdicts."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hdrcore.errors import ParameterError
+from hdrcore.io import load_bracket
+from hdrcore.pipeline import Pipeline, PipelineParams
+from hdrcore.synthetic import simulate_bracket, write_bracket
+
+ROOT = Path(__file__).resolve().parents[2]
+DEMO = ROOT / "assets" / "demo"
+
+
+@pytest.fixture(scope="module")
+def handheld_png(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    sim = simulate_bracket(
+        scene="window", shape=(160, 240), exposure_times=(1 / 64, 1 / 16, 1 / 4), bits=8,
+        response="gamma", noise_sigma=1.0, max_shift=4, max_rotation_deg=0.5, seed=3,
+    )
+    out = tmp_path_factory.mktemp("hh")
+    write_bracket(out, sim, fmt="png")
+    return out
+
+
+@pytest.fixture(scope="module")
+def demo_result():
+    b = load_bracket([DEMO])
+    pipe = Pipeline(b)
+    return pipe, pipe.run()
+
+
+def test_demo_runs_every_stage(demo_result) -> None:
+    pipe, r = demo_result
+    assert r.stages_run == ("histograms", "response", "ratios", "registration", "merge", "preview")
+    assert r.response is None and r.lut is None  # RAW: linear
+    assert r.radiance.shape == (432, 648, 3) and r.radiance.dtype == np.float32
+    assert r.preview is not None and r.preview.image.dtype == np.uint8
+    assert r.registration is not None and r.registration.reference == 2
+    truth = json.loads((DEMO / "truth.json").read_text())
+    from hdrcore.registration import corner_error
+
+    for k, p in enumerate(r.registration.pairs):
+        err = corner_error(p.matrix, np.array(truth["pairs"][k]["matrix"]), r.bracket.shape)
+        assert float(np.max(err)) < 0.2, (k, err)
+    # Merge times are anchored to the EXIF seconds.
+    assert r.exposure_times[0] == pytest.approx(1 / 256, rel=0.05)
+
+
+def test_rerun_reuses_cached_stages(demo_result) -> None:
+    pipe, first = demo_result
+    r = pipe.run(first.params.replace(tonemap_exposure=1.5))
+    assert r.stages_run == ("preview",)
+    assert r.timings["histograms"] == 0.0
+    r2 = pipe.run(r.params.replace(noise_floor=first.noise_floor + 10))
+    assert r2.stages_run[0] == "ratios" and "histograms" not in r2.stages_run
+    fast = pipe.run(r2.params.replace(saturation=first.saturation - 50), until="ratios")
+    assert fast.stages_run == ("ratios",)
+    assert fast.exposures is not r2.exposures
+    assert fast.saturation == pytest.approx(first.saturation - 50)
+
+
+def test_report_is_json_with_command_field_names(demo_result) -> None:
+    _, r = demo_result
+    rep = json.loads(json.dumps(r.to_report()))
+    pair = rep["ratios"]["pairs"][0]
+    for key in ("dark", "bright", "ratio", "initial_ratio", "iterations", "equations",
+                "inliers", "exif_ratio", "mismatch_stops", "std_error", "status", "message"):
+        assert key in pair
+    reg = rep["registration"]
+    assert set(reg) == {"reference", "pairs", "to_reference"}
+    for key in ("dark", "bright", "matrix", "dx", "dy", "angle_deg", "cost_before",
+                "cost_after", "status", "message"):
+        assert key in reg["pairs"][0]
+    assert rep["timings"]["total"] > 0
+    assert rep["verdicts"] and all("message" in v for v in rep["verdicts"])
+
+
+def test_align_none_and_bad_parameters(demo_result) -> None:
+    pipe, r = demo_result
+    r0 = pipe.run(r.params.replace(align="none"))
+    assert r0.registration is None and r0.registration_json() is None
+    with pytest.raises(ParameterError, match="saturation level out of range"):
+        pipe.run(r.params.replace(saturation=10**6))
+    with pytest.raises(ParameterError, match="noise floor out of range"):
+        pipe.run(r.params.replace(noise_floor=r.saturation + 1))
+    with pytest.raises(ParameterError, match="unknown alignment"):
+        pipe.run(r.params.replace(align="affine-ish"))
+    with pytest.raises(ParameterError, match="reference frame out of range"):
+        pipe.run(r.params.replace(reference=9))
+    with pytest.raises(ParameterError, match="unknown tonemap method"):
+        pipe.run(r.params.replace(tonemap="nope"))
+
+
+def test_handheld_8bit_png_with_recovered_response(handheld_png: Path) -> None:
+    b = load_bracket([handheld_png])
+    r = Pipeline(b, PipelineParams(preview_max_side=100)).run()
+    assert r.response is not None and r.response.is_monotone
+    assert r.lut is not None and r.lut.shape == (3, 256)
+    assert r.registration is not None and r.registration.ok
+    assert r.preview.image.shape[1] <= 100
+    assert np.all(np.isfinite(r.radiance))
+
+
+def test_progress_is_reported(demo_result) -> None:
+    seen = []
+    b = demo_result[0].bracket
+    Pipeline(b, progress=lambda s, f, m: seen.append((s, f))).run(PipelineParams(align="shift"))
+    stages = {s for s, _ in seen}
+    assert {"histograms", "ratios", "registration", "merge", "preview"} <= stages
