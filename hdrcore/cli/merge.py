@@ -1,0 +1,155 @@
+"""``hdrcore merge FILE... -o OUT.exr``: the whole method, end to end, with a JSON report.
+
+Runs :class:`hdrcore.pipeline.Pipeline`: histograms -> exposure ratios (Cerman & Hlavac 2006,
+section 5) -> response (non-linear input) -> registration (section 6) -> warp -> merge ->
+preview. Every output path is checked before any work starts, outputs are written atomically,
+inputs are never overwritten. Exit status: 0 merged; 1 merged, but a stage failed (e.g. a pair
+could not be registered; the reason is printed and kept in the report); 2 bad input or refused
+output; 3 internal error.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+
+from ..io import atomic_write, check_output_path, write_exr, write_png
+from ..pipeline import ALIGN_CHOICES, Pipeline, PipelineParams
+from ..tonemap import TONEMAP_OPERATORS
+from ._common import add_bracket_arguments, load_bracket_from_args, print_json, to_jsonable
+
+__all__ = ["add_parser", "run"]
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "merge", help="merge a bracket into an OpenEXR radiance map (ratios, alignment, merge)",
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    add_bracket_arguments(p)
+    p.add_argument("-o", "--output", required=True, metavar="OUT.exr", help="OpenEXR output")
+    p.add_argument("--preview", metavar="OUT.png", help="also write a tonemapped 8-bit preview")
+    p.add_argument("--report", metavar="OUT.json", help="write the JSON report of every stage")
+    p.add_argument("--align", default="euclidean", choices=ALIGN_CHOICES,
+                   help="motion model for hand-held frames (default: euclidean)")
+    p.add_argument("--reference", type=int, metavar="N",
+                   help="frame the others are aligned to (default: the middle one)")
+    p.add_argument("--response", default="auto", metavar="NAME|FILE",
+                   help="'auto' (linear for RAW, recovered from the histograms otherwise), "
+                        "'linear', 'srgb', a method (debevec1997, debevec-histogram, "
+                        "mitsunaga1999, grossberg2003) or a saved curve .json")
+    p.add_argument("--saturation", type=float, metavar="Z",
+                   help="saturation level Z in levels (default 97%% of the largest level)")
+    p.add_argument("--noise-floor", type=float, metavar="N",
+                   help="noise floor in levels (default 2%% of the largest level, >= 3)")
+    p.add_argument("--threshold", type=float, default=0.1, metavar="t",
+                   help="normalisation threshold t of eq. 7, fraction of Z (default 0.1)")
+    p.add_argument("--times-source", dest="times_source", default="estimated",
+                   choices=("estimated", "exif"),
+                   help="exposure times for the merge: estimated from the histograms "
+                        "(default) or the EXIF/--times values")
+    p.add_argument("--tonemap", default="reinhard", choices=sorted(TONEMAP_OPERATORS),
+                   help="preview operator (default: reinhard)")
+    p.add_argument("--exposure", type=float, default=0.0, metavar="EV",
+                   help="preview exposure in stops (default 0, auto key)")
+    p.add_argument("--float32", action="store_true", help="write float32 instead of half")
+    p.add_argument("--force", action="store_true", help="replace existing output files")
+    p.add_argument("--json", action="store_true", help="print the report on stdout")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(run=run)
+
+
+class _Progress:
+    """A one-line progress bar on a terminal (stderr); silent otherwise."""
+
+    def __init__(self, enabled: bool) -> None:
+        self.enabled = enabled and sys.stderr.isatty()
+        self.t0 = time.perf_counter()
+
+    def __call__(self, stage: str, fraction: float, message: str) -> None:
+        if not self.enabled:
+            return
+        width = 24
+        done = int(round(width * max(0.0, min(1.0, fraction))))
+        bar = "#" * done + "-" * (width - done)
+        dt = time.perf_counter() - self.t0
+        sys.stderr.write(f"\r[{bar}] {stage:<12} {message[:40]:<40} {dt:6.1f}s")
+        sys.stderr.flush()
+
+    def close(self) -> None:
+        if self.enabled:
+            sys.stderr.write("\n")
+            sys.stderr.flush()
+
+
+def run(args: argparse.Namespace) -> int:
+    outputs = [args.output] + [p for p in (args.preview, args.report) if p]
+    if len(set(outputs)) != len(outputs):
+        from ..errors import OutputError
+
+        raise OutputError("the same path is given for two outputs", found=", ".join(outputs))
+    if not str(args.output).lower().endswith(".exr"):
+        from ..errors import OutputError
+
+        raise OutputError("the HDR output must be an OpenEXR file", path=args.output,
+                          expected="a name ending in .exr")
+    t_load = time.perf_counter()
+    bracket = load_bracket_from_args(args)
+    decode_seconds = time.perf_counter() - t_load
+    inputs = list(bracket.paths)
+    for out in outputs:
+        check_output_path(out, force=args.force, inputs=inputs)
+    for w in bracket.warnings:
+        print(f"hdrcore: warning: {w.message}", file=sys.stderr)
+
+    params = PipelineParams(
+        saturation=args.saturation, noise_floor=args.noise_floor, threshold=args.threshold,
+        align=args.align, reference=args.reference, response=args.response,
+        times=args.times_source, tonemap=args.tonemap, tonemap_exposure=args.exposure,
+        preview_max_side=None,
+    )
+    progress = _Progress(not args.quiet)
+    try:
+        result = Pipeline(bracket, params, progress=progress).run(
+            until="preview" if args.preview else "merge"
+        )
+    finally:
+        progress.close()
+
+    t_write = time.perf_counter()
+    write_exr(
+        args.output, result.radiance, half=not args.float32,
+        exposure_times=result.exposure_times,
+        exposure_ratios=result.exposures.ratios,
+        transforms=result.to_reference,
+        sources=inputs,
+        metadata={
+            "reference": None if result.registration is None else result.registration.reference,
+            "times_source": result.times_source,
+            "working_space": params.working_space,
+            "response": None if result.response is None else result.response.method,
+        },
+        force=args.force, inputs=inputs,
+    )
+    if args.preview and result.preview is not None:
+        write_png(args.preview, result.preview.image, force=args.force, inputs=inputs)
+    report = result.to_report()
+    report["timings"]["decode"] = decode_seconds
+    report["timings"]["write"] = time.perf_counter() - t_write
+    report["outputs"] = {"exr": args.output, "preview": args.preview, "report": args.report}
+    if args.report:
+        text = json.dumps(to_jsonable(report), indent=2)
+        atomic_write(args.report, lambda tmp: tmp.write_text(text), force=args.force,
+                     inputs=inputs)
+    for v in result.verdicts:
+        if v.severity in ("error", "warning"):
+            print(f"hdrcore: {v.severity}: {v.message}", file=sys.stderr)
+    if args.json:
+        print_json(report)
+    errors = [v for v in result.verdicts if v.severity == "error"]
+    if errors:
+        print(f"hdrcore: merge finished with errors: {errors[0].message}", file=sys.stderr)
+        return 1
+    return 0

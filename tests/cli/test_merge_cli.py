@@ -1,0 +1,92 @@
+"""``hdrcore merge``: outputs, report fields, refusals, bad input, exit codes."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hdrcore.cli import main
+from hdrcore.io import read_exr
+from hdrcore.synthetic import simulate_bracket, write_bracket
+
+ROOT = Path(__file__).resolve().parents[2]
+DEMO = ROOT / "assets" / "demo"
+
+
+@pytest.fixture(scope="module")
+def png_bracket(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    sim = simulate_bracket(scene="patches", shape=(96, 144), exposure_times=(1 / 64, 1 / 16, 1 / 4),
+                           bits=8, response="gamma", noise_sigma=1.0, seed=5)
+    out = tmp_path_factory.mktemp("png")
+    write_bracket(out, sim, fmt="png")
+    return out
+
+
+def test_merge_demo_writes_exr_preview_and_report(tmp_path: Path, capsys) -> None:
+    exr, png, rep = tmp_path / "o.exr", tmp_path / "o.png", tmp_path / "r.json"
+    rc = main(["merge", str(DEMO), "-o", str(exr), "--preview", str(png), "--report", str(rep),
+               "--quiet"])
+    assert rc in (0, 1)
+    rgb, attrs = read_exr(exr)
+    assert rgb.shape == (432, 648, 3) and np.all(np.isfinite(rgb)) and rgb.max() > 0
+    assert len(attrs["exposureTimes"]) == 5
+    assert len(attrs["hdrviewTransforms"]) == 5
+    assert attrs["hdrviewSources"][0] == "frame00.dng"
+    report = json.loads(rep.read_text())
+    assert set(report["ratios"]) == {"frames", "pairs"}
+    assert report["registration"]["reference"] == 2
+    assert len(report["registration"]["to_reference"]) == 5
+    for stage in ("histograms", "ratios", "registration", "merge", "preview", "decode", "write"):
+        assert stage in report["timings"]
+    assert report["merge"]["status"] in ("ok", "warning")
+    assert png.stat().st_size > 1000
+
+
+def test_existing_output_refused_and_kept(tmp_path: Path, capsys) -> None:
+    exr = tmp_path / "o.exr"
+    exr.write_bytes(b"keep me")
+    rc = main(["merge", str(DEMO), "-o", str(exr), "--quiet"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "output exists; use --force" in err and "o.exr" in err
+    assert exr.read_bytes() == b"keep me"
+
+
+def test_refuses_overwriting_an_input(png_bracket: Path, capsys) -> None:
+    frame = sorted(png_bracket.glob("*.png"))[0]
+    before = frame.read_bytes()
+    rc = main(["merge", str(png_bracket), "-o", str(png_bracket / "x.exr"),
+               "--preview", str(frame), "--force", "--quiet"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "refusing to overwrite an input file" in err
+    assert frame.read_bytes() == before
+    assert not (png_bracket / "x.exr").exists()
+
+
+def test_unreadable_frame_is_a_one_line_error(tmp_path: Path, png_bracket: Path, capsys) -> None:
+    frames = sorted(png_bracket.glob("*.png"))
+    bad = tmp_path / "broken.png"
+    bad.write_bytes(frames[0].read_bytes()[:300])
+    rc = main(["merge", str(frames[1]), str(bad), "-o", str(tmp_path / "o.exr"), "--quiet"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2
+    assert len(err) == 1 and "broken.png" in err[0] and "Traceback" not in err[0]
+    assert not (tmp_path / "o.exr").exists()
+
+
+def test_non_exr_output_name(tmp_path: Path, png_bracket: Path, capsys) -> None:
+    rc = main(["merge", str(png_bracket), "-o", str(tmp_path / "o.tif"), "--quiet"])
+    assert rc == 2 and "must be an OpenEXR file" in capsys.readouterr().err
+
+
+def test_png_bracket_merges_with_json_report(tmp_path: Path, png_bracket: Path, capsys) -> None:
+    rc = main(["merge", str(png_bracket), "-o", str(tmp_path / "o.exr"), "--align", "none",
+               "--json", "--quiet"])
+    out = capsys.readouterr().out
+    report = json.loads(out)
+    assert rc in (0, 1)
+    assert report["registration"] is None
+    assert report["response"]["method"]
+    assert len(report["ratios"]["pairs"]) == 2
