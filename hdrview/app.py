@@ -378,7 +378,8 @@ class InspectorApp:
         result = None
         if self.session.bracket is not None and pipeline_available():
             def progress(*args: Any, **kwargs: Any) -> None:
-                ctx.check()
+                # The pipeline swallows exceptions from this callback, so a superseded job is
+                # not interrupted here; its result is dropped by the worker instead.
                 frac, text = _progress_args(args, kwargs)
                 ctx.progress(0.05 + 0.9 * frac, text)
 
@@ -411,13 +412,17 @@ class InspectorApp:
         finally:
             self._syncing = False
         with self._lock:
-            self.controls = Controls(
-                saturation=float(self.saturation_slider.value),
-                noise_floor=float(self.noise_slider.value),
-                threshold=float(self.threshold_slider.value),
-                alignment=self.alignment_dropdown.value,
-                exposure=float(self.exposure_slider.value),
-            )
+            if pipeline_available():
+                # Start from the pipeline's defaults; a control is set once its widget moves.
+                self.controls = Controls()
+            else:
+                self.controls = Controls(
+                    saturation=float(self.saturation_slider.value),
+                    noise_floor=float(self.noise_slider.value),
+                    threshold=float(self.threshold_slider.value),
+                    alignment=self.alignment_dropdown.value,
+                    exposure=float(self.exposure_slider.value),
+                )
 
     def _sync_widgets_to_params(self) -> None:
         s = self.session

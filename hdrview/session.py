@@ -8,6 +8,7 @@ into the pipeline's parameters and asks the pipeline to re-run what changed.
 from __future__ import annotations
 
 import dataclasses
+import importlib
 import importlib.util
 import logging
 import os
@@ -26,8 +27,23 @@ log = logging.getLogger(__name__)
 TIMES_FILES = ("exposure_times.txt", "times.txt")
 
 
+_PIPELINE_OK = False
+
+
 def pipeline_available() -> bool:
-    return importlib.util.find_spec("hdrcore.pipeline") is not None
+    """True once ``hdrcore.pipeline`` imports and offers ``Pipeline`` and ``PipelineParams``."""
+    global _PIPELINE_OK
+    if _PIPELINE_OK:
+        return True
+    if importlib.util.find_spec("hdrcore.pipeline") is None:
+        return False
+    try:
+        mod = importlib.import_module("hdrcore.pipeline")
+    except ImportError:
+        log.debug("hdrcore.pipeline is present but does not import yet", exc_info=True)
+        return False
+    _PIPELINE_OK = hasattr(mod, "Pipeline") and hasattr(mod, "PipelineParams")
+    return _PIPELINE_OK
 
 
 @dataclass(frozen=True)

@@ -24,7 +24,7 @@ def pick(obj: Any, names: tuple[str, ...]) -> Any:
 
 def exposure_of(result: Any) -> Any:
     """The :class:`hdrcore.exposure.BracketExposureResult`."""
-    return pick(result, ("exposure", "ratios"))
+    return pick(result, ("exposures", "exposure", "ratios"))
 
 
 def registration_of(result: Any) -> Any:

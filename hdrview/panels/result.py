@@ -119,11 +119,15 @@ class ResultPanel:
 def exr_bytes(result: Any) -> bytes:
     """The merged radiance as OpenEXR (half float) bytes."""
     merged = merge_of(result)
-    if merged is None:
+    radiance = getattr(result, "radiance", None)  # the pipeline's colour-converted radiance
+    if radiance is None and merged is not None:
+        radiance = merged.radiance
+    if radiance is None:
         raise InputError("the merged HDR is not available yet")
+    times = getattr(result, "exposure_times", None) or getattr(merged, "exposure_times", None)
     with tempfile.TemporaryDirectory(prefix="hdrview-exr-") as tmp:
         path = Path(tmp) / "merged.exr"
-        write_exr(path, merged.radiance, exposure_times=merged.exposure_times)
+        write_exr(path, radiance, exposure_times=times)
         return path.read_bytes()
 
 
