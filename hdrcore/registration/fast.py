@@ -12,7 +12,10 @@ see :mod:`hdrcore.registration._problem`), same eq. 5 start, a different search:
   its analytic gradient, so a 24-megapixel pair costs a few hundred thousand interpolations
   per iteration, not a full warp;
 * a step that raises the cost is halved (a simple line search); a level ends when the update
-  moves the image corners by less than ``tolerance`` pixels of that level.
+  moves the image corners by less than ``tolerance`` pixels of that level;
+* on each finer level the estimate carried from the coarser one competes with the eq. 5 start,
+  so a coarse level misled by a photometric mismatch or too little detail cannot drag the
+  search away.
 
 Reference: J. Cerman, V. Hlavac, "Exposure time estimation for high dynamic range imaging with
 hand held camera", Computer Vision Winter Workshop, 2006. Gauss-Newton image alignment: B. Lucas,
@@ -39,6 +42,13 @@ from .transform import rigid_matrix
 __all__ = ["register_pair_fast", "refine_gauss_newton"]
 
 
+def _level_cost(data, level, p, shape_l, s) -> float:
+    m = rigid_matrix(p[0], p[1], np.rad2deg(p[2]), shape_l)
+    n, _, _, valid = residuals(data, level, m, s, gradient=False)
+    count = int(valid.sum())
+    return float(np.sum(n * n) / count) if count else np.inf
+
+
 def refine_gauss_newton(
     data: PairData,
     initial: np.ndarray,
@@ -47,10 +57,12 @@ def refine_gauss_newton(
     max_samples: int = 60_000,
     coarse_samples: int = 20_000,
     max_iterations: int = 30,
+    coarse_iterations: int = 12,
     tolerance: float = 2e-3,
     coarsest_size: int = 40,
 ) -> RefineResult:
-    """Coarse-to-fine Gauss-Newton from ``initial``.
+    """Coarse-to-fine Gauss-Newton from ``initial`` (``coarse_iterations`` per coarse level,
+    ``max_iterations`` at full resolution).
 
     ``initial`` and the returned matrix map dark-frame coordinates to the bright frame (the
     inverse of the pair matrix; see :func:`hdrcore.registration._problem.select_samples`), at
@@ -74,11 +86,15 @@ def refine_gauss_newton(
             continue
         xc, yc = s.x - cx, s.y - cy
         p = rigid_to_level(matrix, level, shape_l)
+        if level < top:  # a coarse level can mislead (photometric mismatch, little detail):
+            p0 = rigid_to_level(initial, level, shape_l)  # restart if the start is better here
+            if _level_cost(data, level, p0, shape_l, s) < _level_cost(data, level, p, shape_l, s):
+                p = p0
         prev_p = None
         prev_cost = np.inf
         step = None
         best_c, best_p = np.inf, p
-        for _ in range(max_iterations):
+        for _ in range(max_iterations if level == 0 else coarse_iterations):
             m = rigid_matrix(p[0], p[1], np.rad2deg(p[2]), shape_l)
             n, gx, gy, valid = residuals(data, level, m, s)
             count = int(valid.sum())
