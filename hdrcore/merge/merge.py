@@ -44,6 +44,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import ParameterError, validate_method
+from . import _fused
 from .maps import (
     DEFAULT_GHOST_THRESHOLD,
     DEFAULT_MODEL_ERROR,
@@ -53,7 +54,14 @@ from .maps import (
 )
 from .weights import WEIGHTS, NoiseModel
 
-__all__ = ["MergeResult", "merge", "DEFAULT_SATURATION", "DEFAULT_CHUNK_PIXELS"]
+__all__ = [
+    "MergeResult",
+    "merge",
+    "MERGE_ENGINES",
+    "DEFAULT_SATURATION",
+    "DEFAULT_CHUNK_PIXELS",
+    "default_engine",
+]
 
 logger = logging.getLogger(__name__)
 
@@ -86,6 +94,8 @@ class MergeResult:
     ghost_score, ghost
         float16 ``(H, W)`` score of :func:`hdrcore.merge.maps.ghost_score_from_moments` and the
         mask ``ghost_score > ghost_threshold``.
+    engine
+        which implementation ran (a key of :data:`MERGE_ENGINES`).
     """
 
     radiance: np.ndarray
@@ -108,6 +118,7 @@ class MergeResult:
     status: str
     message: str
     timings: dict[str, float] = field(default_factory=dict)
+    engine: str = "numpy"
 
     @property
     def n_frames(self) -> int:
@@ -148,6 +159,7 @@ class MergeResult:
             "ghost_fraction": float(np.count_nonzero(self.ghost)) / n_pix,
             "provenance": provenance_summary(self.shares),
             "timings": dict(self.timings),
+            "engine": self.engine,
         }
 
 
@@ -660,6 +672,146 @@ class _Kernel:
                     shares[k, wholes] = 1.0
             under[rest] = True
 
+# --------------------------------------------------------------------------------------------
+# Engines: the numpy reference above (one vectorised operation at a time over chunks of rows)
+# and the fused numba kernel of :mod:`hdrcore.merge._fused` (one pass per pixel). Both give the
+# same result; the reference is the specification the fused kernel is tested against.
+
+
+def _run_numpy(kernel: _Kernel, spans: list[tuple[int, int]], workers: int, rows: int) -> None:
+    p = kernel.p
+    _, w, c = p.shape
+    n = len(p.frames)
+    if workers == 1:
+        scratch = _Scratch(n, rows * w, c)
+        for r0, r1 in spans:
+            kernel.run(r0, r1, scratch)
+        return
+    scratches = [_Scratch(n, rows * w, c) for _ in range(workers)]
+    groups = [spans[i::workers] for i in range(workers)]
+
+    def work(i: int) -> None:
+        for r0, r1 in groups[i]:
+            kernel.run(r0, r1, scratches[i])
+
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        list(pool.map(work, range(workers)))
+
+
+def _level_tables(kernel: _Kernel) -> np.ndarray:
+    """float32 ``(N, C, L, 5)``: ``E_k, w, w var(E_k), w E_k, w E_k**2`` of every level.
+
+    Built with the reference's own linearisation and weight function, in its operation order,
+    so a table entry is bit for bit what the reference computes for a sample of that level
+    (the noise floor is applied; clipping and masks, which depend on the pixel, are not).
+    ``L`` is ``max_level + 1`` with a LUT, else every level of the dtype.
+    """
+    p = kernel.p
+    n, c = len(p.frames), p.shape[2]
+    dtype = p.frames[0].dtype
+    length = p.lut_len if p.lut is not None else int(np.iinfo(dtype).max) + 1
+    levels = np.arange(length, dtype=dtype)
+    s = _Scratch(n, length, c)
+    tab = np.empty((n, c, length, 5), np.float32)
+    for k in range(n):
+        t = float(p.times[k])
+        inv_t = np.float32(1.0 / t)
+        inv_t2 = np.float32(1.0 / (t * t))
+        for ch in range(c):
+            x, level, var = kernel._linearise(levels, ch, s, length)
+            e = np.multiply(x, inv_t)
+            wk = kernel.weight_fn(level, x, t, var)
+            wk *= level > kernel.floor_norm
+            tab[k, ch, :, 0] = e
+            tab[k, ch, :, 1] = wk
+            var *= wk
+            var *= inv_t2
+            tab[k, ch, :, 2] = var
+            wk *= e
+            tab[k, ch, :, 3] = wk
+            wk *= e
+            tab[k, ch, :, 4] = wk
+    return tab
+
+
+def _fused_supported(plan: _Plan) -> str | None:
+    """Why the fused kernel cannot run this plan, or ``None`` when it can."""
+    if not _fused.AVAILABLE:
+        return "numba is not installed"
+    if plan.integer and plan.frames[0].dtype not in (np.uint8, np.uint16):
+        return f"integer frames of dtype {plan.frames[0].dtype} (uint8 and uint16 only)"
+    return None
+
+
+def _run_numba(
+    kernel: _Kernel, out: _Outputs, spans: list[tuple[int, int]], workers: int
+) -> None:
+    p = kernel.p
+    frames = p.frames
+    if p.integer and len({f.dtype for f in frames}) > 1:
+        frames = tuple(f.astype(np.uint16) for f in frames)
+    frames_t = tuple(frames)
+    dummy = np.ones((1, 1), bool)
+    masks_t = tuple(m if m is not None else dummy for m in p.masks)
+    has_mask = np.array([m is not None for m in p.masks], np.bool_)
+    order = np.ascontiguousarray(p.order, np.int64)
+    times = np.ascontiguousarray(p.times, np.float64)
+    sat = np.ascontiguousarray(p.saturation, np.float64)
+    me2 = kernel.model_error2
+    thr = kernel.ghost_threshold
+    outs = (
+        out.radiance, out.weight_sum, out.shares.view(np.uint16), out.clip_count, out.clipped,
+        out.underexposed, out.ghost_score.view(np.uint16), out.ghost,
+    )
+    if p.integer:
+        tab = _level_tables(kernel)
+        lut = p.lut if p.lut is not None else np.zeros((1, 1), np.float32)
+        max_level = float(p.max_level)
+
+        def work(span: tuple[int, int]) -> int:
+            return _fused.merge_rows_integer(
+                frames_t, masks_t, has_mask, order, times, tab, lut, p.lut is not None,
+                max_level, sat, me2, thr, span[0], span[1], *outs,
+            )
+    else:
+        inv_t = np.array([1.0 / t for t in p.times], np.float32)
+        inv_t2 = np.array([1.0 / (t * t) for t in p.times], np.float32)
+        t2 = np.array([float(t) ** 2 for t in p.times], np.float32)
+        wcode = _fused.WEIGHT_CODES[p.weighting]
+
+        def work(span: tuple[int, int]) -> int:
+            _fused.merge_rows_float(
+                frames_t, masks_t, has_mask, order, times, inv_t, inv_t2, t2, wcode,
+                kernel.shot, kernel.const_var, kernel.floor_norm, sat, me2, thr,
+                span[0], span[1], *outs,
+            )
+            return 0
+
+    if workers == 1:
+        bad_levels = sum(work(sp) for sp in spans)
+    else:
+        with ThreadPoolExecutor(max_workers=workers) as pool:
+            bad_levels = sum(pool.map(work, spans))
+    if bad_levels:
+        raise ParameterError(
+            "levels above max_level have no response LUT entry",
+            expected=f"levels 0..{p.max_level}",
+            found=f"{bad_levels} samples above {p.max_level}",
+        )
+
+
+MERGE_ENGINES: dict[str, str] = {
+    "numba": "fused one-pass kernel compiled by numba (hdrcore.merge._fused)",
+    "numpy": "vectorised numpy over chunks of rows: the reference implementation",
+}
+"""Implementations of :func:`merge` by name; both give the same result."""
+
+
+def default_engine() -> str:
+    """``"numba"`` when numba is importable, else ``"numpy"``."""
+    return "numba" if _fused.AVAILABLE else "numpy"
+
+
 
 def merge(
     frames: Sequence[np.ndarray],
@@ -676,6 +828,7 @@ def merge(
     model_error: float = DEFAULT_MODEL_ERROR,
     chunk_pixels: int = DEFAULT_CHUNK_PIXELS,
     workers: int | None = None,
+    engine: str | None = None,
 ) -> MergeResult:
     """Merge aligned frames into one radiance map ``E = sum(w g(M) / dt) / sum(w)``.
 
@@ -714,6 +867,10 @@ def merge(
     chunk_pixels, workers
         Pixels per chunk of rows and worker threads (numpy releases the GIL in its loops);
         ``workers=None`` uses up to two threads.
+    engine
+        A name in :data:`MERGE_ENGINES`; ``None`` picks the fused numba kernel when it can run
+        the input (numba installed, uint8/uint16 or float frames) and the numpy reference
+        otherwise. Both give the same result.
 
     Raises
     ------
@@ -736,6 +893,16 @@ def merge(
         raise ParameterError(
             "chunk_pixels and workers must be >= 1", found=f"{chunk_pixels}, {workers}"
         )
+    if engine is None:
+        engine = "numba" if _fused_supported(plan) is None else "numpy"
+    else:
+        engine = validate_method(engine, MERGE_ENGINES, "merge engine")
+        why = _fused_supported(plan) if engine == "numba" else None
+        if why is not None:
+            raise ParameterError(
+                "the numba merge engine cannot run this input", expected="engine='numpy'",
+                found=why,
+            )
     h, w, c = plan.shape
     n = len(plan.frames)
     t1 = time.perf_counter()
@@ -751,22 +918,15 @@ def merge(
     )
     kernel = _Kernel(plan, out, float(ghost_threshold), float(model_error))
     rows = max(1, int(chunk_pixels) // w)
+    if engine == "numba":
+        # no per-chunk scratch: chunks only balance the threads' work
+        rows = max(rows, -(-h // (16 * int(workers))))
     spans = [(r, min(h, r + rows)) for r in range(0, h, rows)]
     workers = min(int(workers), len(spans))
-    if workers == 1:
-        scratch = _Scratch(n, rows * w, c)
-        for r0, r1 in spans:
-            kernel.run(r0, r1, scratch)
+    if engine == "numba":
+        _run_numba(kernel, out, spans, workers)
     else:
-        scratches = [_Scratch(n, rows * w, c) for _ in range(workers)]
-        groups = [spans[i::workers] for i in range(workers)]
-
-        def work(i: int) -> None:
-            for r0, r1 in groups[i]:
-                kernel.run(r0, r1, scratches[i])
-
-        with ThreadPoolExecutor(max_workers=workers) as pool:
-            list(pool.map(work, range(workers)))
+        _run_numpy(kernel, spans, workers, rows)
     t2 = time.perf_counter()
     ghost_score, ghost = out.ghost_score, out.ghost
     t3 = time.perf_counter()
@@ -812,4 +972,5 @@ def merge(
         status=status,
         message=message,
         timings={"validate": t1 - t0, "merge": t2 - t1, "maps": t3 - t2, "total": t3 - t0},
+        engine=engine,
     )
