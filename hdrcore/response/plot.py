@@ -34,7 +34,7 @@ def _font(size: int) -> ImageFont.ImageFont:
 
 def _panel(draw: ImageDraw.ImageDraw, box: tuple[int, int, int, int], title: str,
            series: list[tuple[np.ndarray, np.ndarray, tuple[int, int, int], int]],
-           max_level: int, font, small) -> None:
+           max_level: int, font, small, y_max: float = 1.0) -> None:
     x0, y0, x1, y1 = box
     left, bottom, top, right = x0 + 48, y1 - 34, y0 + 26, x1 - 22
     draw.text(((x0 + x1) // 2, y0 + 4), title, fill=(0, 0, 0), font=font, anchor="ma")
@@ -46,12 +46,13 @@ def _panel(draw: ImageDraw.ImageDraw, box: tuple[int, int, int, int], title: str
         draw.line([(left, gy), (right, gy)], fill=(225, 225, 225))
         draw.text((gx, bottom + 4), f"{round(f * max_level)}", fill=(60, 60, 60), font=small,
                   anchor="ma")
-        draw.text((left - 4, gy), f"{f:.1f}", fill=(60, 60, 60), font=small, anchor="rm")
+        draw.text((left - 4, gy), f"{f * y_max:.2g}", fill=(60, 60, 60), font=small,
+                  anchor="rm")
     draw.rectangle([left, top, right, bottom], outline=(0, 0, 0))
     draw.text(((left + right) // 2, y1 - 14), "level", fill=(0, 0, 0), font=small, anchor="ma")
     for lv, g, colour, width in series:
         px = left + (lv / max(lv[-1], 1)) * (right - left)
-        py = bottom - np.clip(g, 0, 1) * (bottom - top)
+        py = bottom - np.clip(g / y_max, 0, 1) * (bottom - top)
         draw.line(list(zip(px.tolist(), py.tolist(), strict=True)), fill=colour, width=width)
 
 
@@ -61,7 +62,12 @@ def render_curves(
     title: str = "camera response",
     panel_size: tuple[int, int] = (420, 380),
 ) -> Image.Image:
-    """An RGB image of the curves (see module docstring)."""
+    """An RGB image of the curves (see module docstring).
+
+    A curve may be any object with ``g`` ``(C, L)``, ``levels``, ``max_level``, ``n_channels``
+    and ``channel_names`` (e.g. a peer's unnormalised curve in a benchmark); the y axis extends
+    up to 2 to show values above 1.
+    """
     if not curves:
         raise ParameterError("nothing to plot", expected="at least one response curve")
     font, small = _font(15), _font(12)
@@ -73,6 +79,8 @@ def render_curves(
     draw = ImageDraw.Draw(img)
     draw.text((img.width // 2, 6), title, fill=(0, 0, 0), font=font, anchor="ma")
     legend: list[tuple[str, tuple[int, int, int]]] = []
+    top = max(float(np.nanmax(c.g)) for c, _ in curves)
+    y_max = 1.0 if top <= 1.0 + 1e-9 else min(2.0, float(np.ceil(top * 5) / 5))
     if single:
         curve, label = curves[0]
         series = []
@@ -80,7 +88,8 @@ def render_curves(
             colour = _CHANNEL_COLOURS[c] if curve.n_channels == 3 else _PALETTE[c % 10]
             series.append((curve.levels.astype(float), curve.g[c], colour, 2))
             legend.append((f"{label} {curve.channel_names[c]}", colour))
-        _panel(draw, (0, 30, pw, 30 + ph), "g(level)", series, curve.max_level, font, small)
+        _panel(draw, (0, 30, pw, 30 + ph), "g(level)", series, curve.max_level, font, small,
+               y_max)
     else:
         for p in range(n_panels):
             series = []
@@ -93,7 +102,7 @@ def render_curves(
                 max_level = max(max_level, curve.max_level)
             series = [(lv * max_level, g, col, w) for lv, g, col, w in series]
             _panel(draw, (p * pw, 30, (p + 1) * pw, 30 + ph), f"channel {name}", series,
-                   max_level, font, small)
+                   max_level, font, small, y_max)
         legend = [(label, _PALETTE[i % 10]) for i, (_c, label) in enumerate(curves)]
     y = 30 + ph + 6
     for label, colour in legend:
