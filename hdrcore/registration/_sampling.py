@@ -40,6 +40,11 @@ def keys_weights(f: np.ndarray, derivative: bool = False) -> np.ndarray:
     )
 
 
+def _dot4(t: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """``sum_k t[k] * w[k]`` over the first axis (length 4), ``w`` of shape ``(4, N)``."""
+    return t[0] * w[0] + t[1] * w[1] + t[2] * w[2] + t[3] * w[3]
+
+
 class Sampled:
     """Values, gradients and tap ranges of an image at scattered points (see :func:`sample`)."""
 
@@ -72,22 +77,25 @@ def sample(
     fy = np.where(inside, y - iy, 0.0)
     base = np.where(inside, (iy - 1) * w + (ix - 1), 0)
     flat = image.reshape(-1) if image.flags.c_contiguous else np.ascontiguousarray(image).ravel()
-    offsets = (_OFFSETS[:, None] * w + _OFFSETS[None, :]).ravel()
-    taps = flat.take(base[:, None] + offsets[None, :]).reshape(-1, 4, 4).astype(np.float64)
-    wx = keys_weights(fx).T
-    wy = keys_weights(fy).T
-    rows = np.einsum("nji,ni->nj", taps, wx)
-    value = np.einsum("nj,nj->n", rows, wy)
+    # taps[j, i, n] = image[iy - 1 + j, ix - 1 + i] of point n: the point axis last, so every
+    # sum below runs over long contiguous rows.
+    offsets = _OFFSETS[:, None] * w + _OFFSETS[None, :]
+    taps = flat.take(base[None, None, :] + offsets[:, :, None]).astype(np.float64)
+    wx = keys_weights(fx)
+    wy = keys_weights(fy)
+    rows = _dot4(taps.transpose(1, 0, 2), wx)  # (4, N): each row of taps interpolated in x
+    value = _dot4(rows, wy)
     gx = gy = None
     if gradient:
-        dwx = keys_weights(fx, True).T
-        dwy = keys_weights(fy, True).T
-        gx = np.einsum("nj,nj->n", np.einsum("nji,ni->nj", taps, dwx), wy)
-        gy = np.einsum("nj,nj->n", rows, dwy)
+        dwx = keys_weights(fx, True)
+        dwy = keys_weights(fy, True)
+        gx = _dot4(_dot4(taps.transpose(1, 0, 2), dwx), wy)
+        gy = _dot4(rows, dwy)
     tmin = tmax = None
     if tap_range:
-        tmin = taps.min(axis=(1, 2))
-        tmax = taps.max(axis=(1, 2))
+        flat_taps = taps.reshape(16, -1)
+        tmin = flat_taps.min(axis=0)
+        tmax = flat_taps.max(axis=0)
     value = np.where(inside, value, 0.0)
     return Sampled(value, gx, gy, inside, tmin, tmax)
 
