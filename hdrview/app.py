@@ -68,6 +68,7 @@ class InspectorApp:
         self.notifications: list[tuple[str, str, str]] = []  # (level, title, body), newest last
         self.draw_count = 0
         self.last_job_seconds: float | None = None
+        self.last_ratios_seconds: float | None = None  # job start -> BTF plot and masks drawn
         self._lock = threading.RLock()
         self._syncing = False
         self._wanted: tuple[tuple[str, ...], str] | None = None  # (paths, label)
@@ -383,6 +384,13 @@ class InspectorApp:
                 frac, text = _progress_args(args, kwargs)
                 ctx.progress(0.05 + 0.9 * frac, text)
 
+            # Ratios first (a re-fit from cached histograms), drawn at once so the BTF plot and
+            # the masks follow a slider quickly; then the later stages unless superseded.
+            quick = self.session.run(self.controls, progress=progress, until="ratios")
+            ctx.check()
+            self._draw(quick, stages=("btf", "masks"))
+            self.last_ratios_seconds = time.perf_counter() - t0
+            ctx.check()
             result = self.session.run(self.controls, progress=progress)
         ctx.check()
         self._draw(result)
@@ -438,7 +446,7 @@ class InspectorApp:
 
     # -- drawing -----------------------------------------------------------------------------
 
-    def _draw(self, result: Any) -> None:
+    def _draw(self, result: Any, stages: tuple[str, ...] | None = None) -> None:
         bracket = self.session.bracket
         if bracket is not self._drawn_bracket:
             self.frames_panel.show(bracket)
@@ -449,12 +457,14 @@ class InspectorApp:
             "overlay": self.overlay_dropdown.value,
         }
         self.status.content = self._status_markdown(result)
-        self.btf_panel.show(bracket, result, view)
-        self.masks_panel.show(bracket, result, view)
-        self.registration_panel.show(bracket, result, view)
-        self.result_panel.show(bracket, result, view)
-        self.diagnostics_panel.show(bracket, result, view)
-        self.draw_count += 1
+        panels = {"btf": self.btf_panel, "masks": self.masks_panel,
+                  "registration": self.registration_panel, "result": self.result_panel,
+                  "diagnostics": self.diagnostics_panel}
+        for name, panel in panels.items():
+            if stages is None or name in stages:
+                panel.show(bracket, result, view)
+        if stages is None:
+            self.draw_count += 1
 
     def _status_markdown(self, result: Any) -> str:
         b = self.session.bracket

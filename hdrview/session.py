@@ -134,7 +134,8 @@ class Session:
                 return getattr(params, cand)
         return None
 
-    def run(self, controls: Controls, progress: Callable[..., None] | None = None) -> Any:
+    def run(self, controls: Controls, progress: Callable[..., None] | None = None,
+            until: str | None = None) -> Any:
         """Run (or re-run what changed in) the pipeline; return its result object."""
         if self.bracket is None:
             return None
@@ -145,7 +146,8 @@ class Session:
             self.pipeline = Pipeline(self.bracket, params, progress=progress)
         elif progress is not None and hasattr(self.pipeline, "progress"):
             self.pipeline.progress = progress
-        result = self.pipeline.run(params)
+        result = self.pipeline.run(params) if until is None else self.pipeline.run(
+            params, until=until)
         self.params = params
         self.result = result
         return result
