@@ -20,6 +20,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.linalg
 from scipy.optimize import nnls
 from scipy.special import comb
 
@@ -60,7 +61,7 @@ def fit_increments(
     m_smooth[j - 1, j - 1] = -smooth_weight[j]
     a = np.vstack([m_data, m_smooth])
     rhs = np.concatenate([target, np.zeros(k - 2)])
-    d = np.linalg.lstsq(a, rhs, rcond=None)[0]
+    d = _least_squares(a, rhs)
     active = 0
     if monotone and np.any(d < 0):
         # the unconstrained optimum is not monotone: non-negative least squares (all the
@@ -71,6 +72,21 @@ def fit_increments(
     r = m_data @ d - target
     rms = float(np.sqrt(np.mean(r**2))) if rows else float("nan")
     return u, active, rms
+
+
+def _least_squares(a: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    """Unconstrained least squares through the normal equations (Cholesky; the smoothness rows
+    keep them well posed), falling back to an SVD solve when they are singular."""
+    ata = a.T @ a
+    atb = a.T @ rhs
+    try:
+        c = scipy.linalg.cho_factor(ata, check_finite=False)
+        d = scipy.linalg.cho_solve(c, atb, check_finite=False)
+        if np.all(np.isfinite(d)):
+            return d
+    except np.linalg.LinAlgError:
+        pass
+    return np.linalg.lstsq(a, rhs, rcond=None)[0]
 
 
 def bernstein_cumulative(x: np.ndarray, order: int) -> np.ndarray:

@@ -173,6 +173,7 @@ def pixel_samples(
     mask: np.ndarray | None = None,
     n_bins: int = 16,
     seed: int = 0,
+    max_candidates: int = 60_000,
 ) -> np.ndarray:
     """Choose pixels whose levels cover the whole range; return their levels ``(N, P)``.
 
@@ -196,6 +197,9 @@ def pixel_samples(
     grad = np.hypot(gx, gy).ravel()
     flat_idx = np.flatnonzero(usable.ravel())
     rng = np.random.default_rng(seed + 1009 * channel)
+    if flat_idx.size > max_candidates:
+        # stratify a random subset: plenty for ~1000 samples, and fast on large frames
+        flat_idx = np.sort(rng.choice(flat_idx, size=max_candidates, replace=False))
     per_bin = max(1, int(np.ceil(n_samples / (p * n_bins))))
     chosen: list[np.ndarray] = []
     edges = np.linspace(0, max_level + 1, n_bins + 1)
