@@ -21,6 +21,7 @@ seed normalises the difference by the pair's brightness so that bright pixels do
 
 from __future__ import annotations
 
+import inspect
 import logging
 import time
 from collections.abc import Callable
@@ -371,6 +372,14 @@ def register_with(
 ) -> PairRegistration:
     """The common driver: checks, eq. 5 integer shift, ``refine``, costs, status, previews."""
     t0 = time.perf_counter()
+    accepted = [n for n, prm in inspect.signature(refine).parameters.items()
+                if prm.kind is inspect.Parameter.KEYWORD_ONLY]
+    unknown = sorted(set(refine_options) - set(accepted))
+    if unknown:
+        raise ParameterError(
+            f"unknown option(s) {', '.join(unknown)} for registration method {method!r}",
+            expected=f"some of {', '.join(accepted)} or the common options",
+        )
     model = validate_method(model, MODELS, "motion model")
     data = prepare(
         dark, bright, ratio, saturation=saturation, noise_floor=noise_floor, threshold=threshold

@@ -150,3 +150,22 @@ def test_bad_input_is_rejected():
     with pytest.raises(ParameterError, match="one exposure ratio per consecutive pair"):
         register_bracket([img, img, img], [2.0])
     assert set(REGISTRATION_METHODS) == {"fast", "Cerman 2006"}
+
+
+def test_unknown_option_is_rejected_with_the_accepted_names():
+    img = np.ones(SHAPE, np.float32)
+    with pytest.raises(ParameterError, match="unknown option.*max_samples"):
+        register_pair(img, img, 2.0, max_smaples=10)
+
+
+def test_warping_with_the_result_aligns_the_frames():
+    from hdrcore.registration import warp_to_reference
+
+    dark, bright, _, ml = simulated_pair(motion=(6.5, -3.5, 1.2), shape=SHAPE)
+    res = _register(dark, bright, ml)
+    warped = warp_to_reference(bright, res.matrix, margin=2.0)  # bright -> dark frame
+    k = 4.0
+    ok = warped.mask & (dark > 20 / ml) & (warped.image < 0.9) & (dark * k < 0.9)
+    rel = np.abs(warped.image[ok] - k * dark[ok]) / (warped.image[ok] + k * dark[ok])
+    assert ok.mean() > 0.3
+    assert np.median(rel) < 0.02
