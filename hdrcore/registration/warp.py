@@ -40,23 +40,42 @@ class WarpResult:
     method: str = "shear"
 
 
+def _row_intervals(
+    m: np.ndarray, output_shape: tuple[int, int], source_shape: tuple[int, int], margin: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per output row, the first and last column whose source lies inside (empty: lo > hi).
+
+    For an affine map the valid pixels of a row form one interval, found from the four linear
+    constraints on the source coordinates.
+    """
+    h, w = output_shape
+    hs, ws = source_shape
+    y = np.arange(h, dtype=np.float64)
+    lo = np.zeros(h)
+    hi = np.full(h, w - 1.0)
+    eps = 1e-6
+    for row, limit in ((0, ws - 1 - margin), (1, hs - 1 - margin)):
+        a = m[row, 0]
+        rest = m[row, 1] * y + m[row, 2]  # source coordinate = a x + rest
+        if abs(a) < 1e-12:
+            inside = (rest >= margin - eps) & (rest <= limit + eps)
+            hi = np.where(inside, hi, -1.0)
+            continue
+        x1 = (margin - rest) / a
+        x2 = (limit - rest) / a
+        lo = np.maximum(lo, np.minimum(x1, x2))
+        hi = np.minimum(hi, np.maximum(x1, x2))
+    return np.ceil(lo - eps).astype(np.int64), np.floor(hi + eps).astype(np.int64)
+
+
 def valid_mask(
     matrix: np.ndarray, output_shape: tuple[int, int], source_shape: tuple[int, int],
     margin: float = 0.0,
 ) -> np.ndarray:
     """True where ``matrix`` (output -> source coordinates) lands inside the source frame."""
-    h, w = output_shape
-    hs, ws = source_shape
-    m = np.asarray(matrix, float)
-    x = np.arange(w, dtype=np.float64)[None, :]
-    y = np.arange(h, dtype=np.float64)[:, None]
-    sx = m[0, 0] * x + m[0, 1] * y + m[0, 2]
-    sy = m[1, 0] * x + m[1, 1] * y + m[1, 2]
-    eps = 1e-6
-    return (
-        (sx >= margin - eps) & (sx <= ws - 1 - margin + eps)
-        & (sy >= margin - eps) & (sy <= hs - 1 - margin + eps)
-    )
+    lo, hi = _row_intervals(np.asarray(matrix, float), output_shape, source_shape, margin)
+    x = np.arange(output_shape[1])[None, :]
+    return (x >= lo[:, None]) & (x <= hi[:, None])
 
 
 def _bands(offsets: np.ndarray):
@@ -187,9 +206,15 @@ def warp(
         res = [ndimage.map_coordinates(c, coords, order=3, mode="nearest").astype(np.float32)
                for c in chans]
         out = res[0] if src.ndim == 2 else np.stack(res, axis=-1)
-    mask = valid_mask(m, (h, w), (h0, w0), margin)
-    if not np.all(mask):
-        out[~mask] = fill
+    lo, hi = _row_intervals(m, (h, w), (h0, w0), margin)
+    for y in np.flatnonzero((lo > 0) | (hi < w - 1)):  # fill outside the valid interval
+        if lo[y] > hi[y]:
+            out[y] = fill
+        else:
+            out[y, : max(lo[y], 0)] = fill
+            out[y, hi[y] + 1 :] = fill
+    x = np.arange(w)[None, :]
+    mask = (x >= lo[:, None]) & (x <= hi[:, None])
     return WarpResult(out, mask, method)
 
 
