@@ -37,7 +37,8 @@ class ChannelFit:
     ``residual_rms`` is the RMS of the weighted data residuals of the method's own objective;
     ``order`` the polynomial order (``None`` for non-parametric curves); ``active_constraints``
     how many monotonicity constraints were binding; ``exposure_ratios`` the consecutive ratios
-    ``t[k+1] / t[k]`` this channel used (given) or estimated.
+    ``t[k+1] / t[k]`` this channel used (given) or estimated; ``non_monotone_steps`` how many
+    level steps of an unconstrained fit went down (then repaired by a running maximum).
     """
 
     residual_rms: float
@@ -47,6 +48,7 @@ class ChannelFit:
     active_constraints: int = 0
     iterations: int = 0
     order_scores: tuple[tuple[int, float], ...] = ()
+    non_monotone_steps: int = 0
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -57,6 +59,7 @@ class ChannelFit:
             "active_constraints": int(self.active_constraints),
             "iterations": int(self.iterations),
             "order_scores": [[int(o), float(s)] for o, s in self.order_scores],
+            "non_monotone_steps": int(self.non_monotone_steps),
         }
 
     @classmethod
@@ -69,6 +72,7 @@ class ChannelFit:
             active_constraints=int(d.get("active_constraints", 0)),
             iterations=int(d.get("iterations", 0)),
             order_scores=tuple((int(o), float(s)) for o, s in d.get("order_scores", ())),
+            non_monotone_steps=int(d.get("non_monotone_steps", 0)),
         )
 
 

@@ -98,6 +98,11 @@ def _status(fits: Sequence[ChannelFit], n_nodes: int, coverage: Sequence[float])
                 f"channel {c}: monotonicity binding at {f.active_constraints} nodes "
                 "(noisy or inconsistent data)"
             )
+        if f.non_monotone_steps:
+            msgs.append(
+                f"channel {c}: unconstrained fit decreases at {f.non_monotone_steps} level "
+                "steps; repaired with a running maximum"
+            )
         if cov < 0.5:
             msgs.append(f"channel {c}: samples cover only {100 * cov:.0f}% of the levels")
     return ("warning", "; ".join(msgs)) if msgs else ("ok", "")
@@ -174,6 +179,7 @@ def debevec1997(
             ChannelFit(
                 residual_rms=rms, n_constraints=int(rows.sum()), exposure_ratios=ratios,
                 active_constraints=active, iterations=1,
+                non_monotone_steps=int(np.sum(np.diff(u) < 0)),
             )
         )
     status, message = _status(fits, grid.size, coverage)

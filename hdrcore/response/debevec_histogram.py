@@ -89,6 +89,7 @@ def debevec_histogram(
                 residual_rms=rms / max(float(np.sqrt(np.mean(w**2))), 1e-300),
                 n_constraints=int(keep.sum()), exposure_ratios=ratios,
                 active_constraints=active, iterations=1,
+                non_monotone_steps=int(np.sum(np.diff(u) < 0)),
             )
         )
     status, message = _status(fits, grid.size, coverage)

@@ -148,10 +148,11 @@ def fit_polynomial_channel(
         g[above] = 1.0 + max(slope, 0.0) * (levels[above] - top)
     g = g / g[-1]
     g[0] = 0.0
+    steps = int(np.sum(np.diff(g) < 0))
     diag = ChannelFit(
         residual_rms=fit.residual_rms, n_constraints=len(norm), exposure_ratios=fit.ratios,
         order=chosen, active_constraints=fit.active_constraints, iterations=fit.iterations,
-        order_scores=tuple(scores),
+        order_scores=tuple(scores), non_monotone_steps=steps,
     )
     return g, diag
 
@@ -167,7 +168,7 @@ def finish_polynomial(
     g = np.stack(curves)
     msgs = []
     status = "ok"
-    bad = [c for c in range(len(g)) if np.any(np.diff(g[c]) < 0)]
+    bad = [c for c, f in enumerate(fits) if f.non_monotone_steps]
     if bad:
         status = "warning"
         msgs.append(
