@@ -5,18 +5,29 @@ modules. Every method shares this driver, so the status checks, the eq. 5 start,
 costs and the previews are computed the same way whatever the search.
 
 The cost (Cerman & Hlavac 2006, section 6). With ``a`` the bright frame and ``b = k * dark``
-the dark frame times the exposure ratio ``k``, both linear, the normalised difference of a
-pixel (eq. 7) and the cost of a transform ``A`` (eq. 6) are::
+the dark frame times the exposure ratio ``k``, both linear, and ``A`` the pair matrix (bright ->
+dark coordinates, ``B = A^-1``), the normalised difference of a pixel (eq. 7) and the cost of a
+transform (eq. 6) are::
 
-    n(x) = (a(x) - b(A x)) / max(a(x) + b(A x), t)                      (eq. 7)
+    n(x) = (a(B x) - b(x)) / max(a(B x) + b(x), t)                      (eq. 7)
     C(A) = mean over x in V(A) of n(x)^2                                   (eq. 6)
 
-where ``V(A)`` are the pixels that are neither saturated nor below the noise floor in either frame
-(the dark frame's test is applied to the raw values of all 16 taps that the cubic interpolation at
-``A x`` touches) and fall inside the dark frame. ``t`` (the threshold, a fraction of the saturation
-level) keeps the normalisation from blowing up noise in the darkest pixels. We take the mean rather
-than the sum so that costs of different overlaps compare; this is our reading of eqs. 6-7 (the
-seed normalises the difference by the pair's brightness so that bright pixels do not dominate).
+summed over pixels ``x`` of the dark frame's grid. ``V(A)``: pixels neither saturated nor below
+the noise floor in either frame (for the interpolated bright frame, all 16 raw taps of the cubic
+kernel at ``B x`` are tested), inside the bright frame, and without an edge steeper than
+``MAX_CONTRAST`` within the kernel's support. ``t`` (the threshold, given as a fraction of the
+saturation level) keeps the normalisation from amplifying noise in the darkest pixels. We take
+the mean rather than the sum so that costs of different overlaps compare. This is our reading of
+eqs. 6-7: the seed normalises the difference by the pair's brightness so that bright pixels do
+not dominate and discards badly exposed pixels in both frames.
+
+Why the dark frame stays on its grid (and the bright frame is interpolated): after the
+multiplication by ``k`` the dark frame is the noisier one, and interpolation lowers the variance
+of noise by an amount that depends on the sub-pixel phase; interpolating the noisy frame pulls
+the minimum of eq. 6 towards half-pixel shifts (measured on simulated 8-bit pairs 384x256, noise
+floor 3 levels, t = 0.02: mean corner error 0.116 px with the bright frame on its grid, 0.025 px
+with the dark frame on its grid). The searches therefore estimate ``B`` and the driver returns
+``A = B^-1``.
 """
 
 from __future__ import annotations

@@ -30,6 +30,7 @@ from ._problem import (
     MODELS,
     PairData,
     RefineResult,
+    Samples,
     level_to_full,
     register_with,
     residuals,
@@ -42,7 +43,9 @@ from .transform import rigid_matrix
 __all__ = ["register_pair_fast", "refine_gauss_newton"]
 
 
-def _level_cost(data, level, p, shape_l, s) -> float:
+def _level_cost(
+    data: PairData, level: int, p: np.ndarray, shape_l: tuple[int, int], s: Samples
+) -> float:
     m = rigid_matrix(p[0], p[1], np.rad2deg(p[2]), shape_l)
     n, _, _, valid = residuals(data, level, m, s, gradient=False)
     count = int(valid.sum())
