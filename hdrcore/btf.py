@@ -22,7 +22,7 @@ References
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -91,6 +91,7 @@ class BrightnessTransferFunction:
     hist_bright: np.ndarray
     cdf_dark: np.ndarray
     cdf_bright: np.ndarray
+    _memo: dict = field(default_factory=dict, repr=False, compare=False)
 
     @property
     def max_level_dark(self) -> int:
@@ -109,12 +110,24 @@ class BrightnessTransferFunction:
         return quantile_levels(self.cdf_dark, _cdf_at(self.cdf_bright, y))
 
     def forward_at_edges(self) -> np.ndarray:
-        """``T(m + 1/2)`` for every dark level ``m``: exact dark quantiles, no interpolation."""
-        return quantile_levels(self.cdf_bright, self.cdf_dark)
+        """``T(m + 1/2)`` for every dark level ``m``: exact dark quantiles, no interpolation.
+
+        Computed once per object (read-only array): re-fits with another saturation level or
+        noise floor reuse it.
+        """
+        return self._memoised("forward_at_edges", self.cdf_bright, self.cdf_dark)
 
     def inverse_at_edges(self) -> np.ndarray:
-        """``T^-1(m + 1/2)`` for every bright level ``m``."""
-        return quantile_levels(self.cdf_dark, self.cdf_bright)
+        """``T^-1(m + 1/2)`` for every bright level ``m`` (computed once, read-only)."""
+        return self._memoised("inverse_at_edges", self.cdf_dark, self.cdf_bright)
+
+    def _memoised(self, name: str, cdf_to: np.ndarray, cdf_from: np.ndarray) -> np.ndarray:
+        out = self._memo.get(name)
+        if out is None:
+            out = quantile_levels(cdf_to, cdf_from)
+            out.setflags(write=False)
+            self._memo[name] = out
+        return out
 
 
 def brightness_transfer_function(

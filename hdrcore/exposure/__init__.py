@@ -6,8 +6,14 @@ Methods (registry :data:`EXPOSURE_METHODS`, chosen by name, case-insensitive):
   edges, optional noise matching, per-channel fits.
 * ``"Cerman 2006"`` (:mod:`.cerman2006`): the published estimator, eq. 4 + 3V at level centres.
 
+Every bracket estimate also runs the region jack-knife (:mod:`.stability`): an honest standard
+error, and status ``"unstable"`` for pairs that hand-held motion disturbs. Such brackets are
+estimated again after registration from the histograms of each pair's common field of view
+(:func:`bracket_exposures_registered`, :func:`pair_histograms_in_overlap`).
+
 Entry points: :func:`exposure_ratio` (a pair, from histograms), :func:`exposure_ratio_frames`
-(a pair, from frames), :func:`bracket_exposures` (a bracket, from frames) and
+(a pair, from frames), :func:`bracket_exposures` (a bracket, from frames),
+:func:`bracket_exposures_registered` (a bracket, histograms of each pair's common field of view) and
 :func:`bracket_exposures_from_histograms` (re-fit from cached histograms, e.g. after a change of
 saturation level or noise floor).
 """
@@ -22,8 +28,18 @@ from ..errors import validate_method
 from ..histogram import histograms
 from ._core import default_noise_floor, default_saturation
 from .cerman2006 import exposure_ratio_cerman2006
-from .chain import BracketHistograms, bracket_histograms, chain_bracket, solve_chain
+from .chain import chain_bracket, solve_chain
 from .linearisation import linear_lut, srgb_lut
+from .pair_histograms import (
+    DEFAULT_REGIONS,
+    BracketHistograms,
+    PairHistograms,
+    bracket_histograms,
+    chain_pair_matrix,
+    common_field_masks,
+    pair_histograms_in_overlap,
+    region_histograms,
+)
 from .refined import exposure_ratio_refined
 from .result import BracketExposureResult, ExposureEquations, ExposureRatioResult
 
@@ -34,8 +50,14 @@ __all__ = [
     "exposure_ratio_frames",
     "bracket_exposures",
     "bracket_exposures_from_histograms",
+    "bracket_exposures_registered",
     "bracket_histograms",
     "BracketHistograms",
+    "PairHistograms",
+    "pair_histograms_in_overlap",
+    "common_field_masks",
+    "chain_pair_matrix",
+    "region_histograms",
     "BracketExposureResult",
     "ExposureEquations",
     "ExposureRatioResult",
@@ -90,9 +112,36 @@ def bracket_exposures_from_histograms(
 def bracket_exposures(
     frames: Sequence[np.ndarray], max_level: int, *, method: str = DEFAULT_METHOD,
     exposure_times: Sequence[float | None] | None = None, mask: np.ndarray | None = None,
-    stride: int | None = None, non_consecutive: bool = True, **kwargs: object,
+    stride: int | None = None, non_consecutive: bool = True,
+    regions: tuple[int, int] | None = DEFAULT_REGIONS,
+    pair_matrices: Sequence[np.ndarray] | None = None, margin: float = 2.0,
+    **kwargs: object,
 ) -> BracketExposureResult:
-    """Relative exposures (darkest = 1) of ``frames`` (darkest first, integer ``(H, W, C)``)."""
-    hists = bracket_histograms(frames, max_level, mask=mask, stride=stride)
+    """Relative exposures (darkest = 1) of ``frames`` (darkest first, integer ``(H, W, C)``).
+
+    ``regions`` is the image grid of the region jack-knife (``None`` switches it off);
+    ``pair_matrices`` restricts every pair's histograms to its common field of view (see
+    :func:`bracket_exposures_registered`).
+    """
+    hists = bracket_histograms(frames, max_level, mask=mask, stride=stride, regions=regions,
+                               pair_matrices=pair_matrices, margin=margin)
     return bracket_exposures_from_histograms(hists, method=method, exposure_times=exposure_times,
                                              non_consecutive=non_consecutive, **kwargs)
+
+
+def bracket_exposures_registered(
+    frames: Sequence[np.ndarray], max_level: int, pair_matrices: Sequence[np.ndarray], *,
+    margin: float = 2.0, **kwargs: object,
+) -> BracketExposureResult:
+    """Relative exposures of a hand-held bracket from histograms of each pair's common field of
+    view.
+
+    ``pair_matrices[i]`` (2x3) maps pixel coordinates of frame ``i + 1`` to frame ``i`` (e.g.
+    ``[p.matrix for p in hdrcore.registration.register_bracket(...).pairs]``, or an integer
+    shift from eq. 5 as a translation). Each pair's histograms count only the pixels the other
+    frame also sees (:func:`pair_histograms_in_overlap`), so content entering or leaving at the
+    borders no longer biases the ratio; no pixel value is warped. Other arguments as
+    :func:`bracket_exposures`.
+    """
+    return bracket_exposures(frames, max_level, pair_matrices=pair_matrices, margin=margin,
+                             **kwargs)

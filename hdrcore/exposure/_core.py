@@ -23,6 +23,11 @@ __all__ = [
     "default_saturation",
     "default_noise_floor",
     "solve_3v",
+    "solve_3v_groups",
+    "solve_3v_batch",
+    "group_statistics",
+    "level_group_size",
+    "pair_btfs",
     "estimate_pair",
 ]
 
@@ -108,51 +113,133 @@ def _check_usable(hist: np.ndarray, which: str, saturation: float, noise_floor: 
         )
 
 
+def group_statistics(
+    wx: np.ndarray, wy: np.ndarray, groups: np.ndarray, n_groups: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Sufficient statistics ``(Sxx, Sxy, Syy, n)`` of the weighted equations in each group.
+
+    The least-squares solution of ``w k x = w y`` over any union of whole groups is exactly
+    ``k = sum Sxy / sum Sxx``, so merging neighbouring levels into groups loses nothing in the
+    fit; only the 3V outlier test then acts on whole groups.
+    """
+    sxx = np.bincount(groups, wx * wx, minlength=n_groups)
+    sxy = np.bincount(groups, wx * wy, minlength=n_groups)
+    syy = np.bincount(groups, wy * wy, minlength=n_groups)
+    n = np.bincount(groups, minlength=n_groups).astype(np.float64)
+    return sxx, sxy, syy, n
+
+
+def solve_3v_groups(
+    sxx: np.ndarray, sxy: np.ndarray, syy: np.ndarray, n: np.ndarray, *,
+    precision: float = 1e-7, max_iterations: int = 100,
+) -> tuple[float, tuple[float, ...], np.ndarray, int, float]:
+    """The seed's least squares + 3V iteration (section 5.1) on grouped equations.
+
+    ``k = sum(w^2 x y) / sum(w^2 x^2)`` in closed form over the inlier groups; ``V`` is the mean
+    squared weighted residual per equation of the inliers; a group stays an inlier while its mean
+    squared residual is below ``3 V``. Stops when ``k`` changes by less than ``precision``
+    (relative), when the inlier set stops changing, or after ``max_iterations``.
+    Returns ``(k, iterates, inlier_groups, iterations, std_error)``.
+    """
+    occupied = n > 0
+
+    def fit(mask: np.ndarray) -> float:
+        den = float(sxx[mask].sum())
+        return float(sxy[mask].sum() / den) if den > 0 else float("nan")
+
+    def ssr(k: float) -> np.ndarray:
+        return np.maximum(syy - 2.0 * k * sxy + k * k * sxx, 0.0)
+
+    mask = occupied.copy()
+    k = fit(mask)
+    iterates = [k]
+    if np.isfinite(k):
+        for _ in range(max_iterations):
+            r2 = ssr(k)
+            v = float(r2[mask].sum() / n[mask].sum())
+            if v <= 0:
+                break
+            with np.errstate(invalid="ignore", divide="ignore"):
+                new_mask = occupied & (r2 < 3.0 * v * n)
+            if np.count_nonzero(new_mask) < 2 or np.array_equal(new_mask, mask):
+                break  # too few left, or the inlier set no longer changes: k is final
+            mask = new_mask
+            k_new = fit(mask)
+            iterates.append(k_new)
+            done = abs(k_new - k) <= precision * abs(k)
+            k = k_new
+            if done:
+                break
+    n_in = float(n[mask].sum())
+    den = float(sxx[mask].sum())
+    if n_in > 1 and den > 0 and np.isfinite(k):
+        se = float(np.sqrt(float(ssr(k)[mask].sum()) / (n_in - 1) / den))
+    else:
+        se = float("inf")
+    return k, tuple(iterates), mask, len(iterates) - 1, se
+
+
+def solve_3v_batch(
+    sxx: np.ndarray, sxy: np.ndarray, syy: np.ndarray, n: np.ndarray, *,
+    precision: float = 1e-7, max_iterations: int = 50,
+) -> np.ndarray:
+    """:func:`solve_3v_groups` for a batch ``(B, G)`` of independent problems at once: ``k (B,)``.
+
+    Used by the region jack-knife, where the same equations are fitted once per left-out region.
+    """
+    occupied = n > 0
+    mask = occupied.copy()
+
+    def fit(m: np.ndarray) -> np.ndarray:
+        den = np.where(m, sxx, 0.0).sum(axis=1)
+        num = np.where(m, sxy, 0.0).sum(axis=1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(den > 0, num / np.where(den > 0, den, 1.0), np.nan)
+
+    k = fit(mask)
+    active = np.isfinite(k)
+    for _ in range(max_iterations):
+        if not active.any():
+            break
+        r2 = np.maximum(syy - 2.0 * k[:, None] * sxy + (k * k)[:, None] * sxx, 0.0)
+        cnt = np.where(mask, n, 0.0).sum(axis=1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            v = np.where(mask, r2, 0.0).sum(axis=1) / cnt
+            new_mask = occupied & (r2 < 3.0 * v[:, None] * n)
+        stop = (v <= 0) | (new_mask.sum(axis=1) < 2) | np.all(new_mask == mask, axis=1)
+        active &= ~stop
+        mask = np.where(active[:, None], new_mask, mask)
+        k_new = fit(mask)
+        done = np.abs(k_new - k) <= precision * np.abs(k)
+        k = np.where(active, k_new, k)
+        active &= ~done
+    return k
+
+
 def solve_3v(
     x: np.ndarray, y: np.ndarray, w: np.ndarray, *, precision: float = 1e-7,
-    max_iterations: int = 100,
+    max_iterations: int = 100, groups: np.ndarray | None = None,
 ) -> tuple[float, tuple[float, ...], np.ndarray, np.ndarray, int, float]:
     """Solve ``w k x = w y`` by least squares, then the seed's 3V iteration (section 5.1).
 
     Repeat: ``V`` = mean squared weighted residual of the current inliers, keep equations whose
     squared residual is below ``3 V``, re-solve, until ``k`` changes by less than ``precision``
-    (relative). Returns ``(k, iterates, inlier_mask, residuals, iterations, std_error)``.
+    (relative) or the inlier set stops changing. ``groups`` (non-negative integers, one per
+    equation) lets neighbouring equations be tested together (:func:`solve_3v_groups`);
+    ``None`` tests every equation on its own. Returns
+    ``(k, iterates, inlier_mask, residuals, iterations, std_error)`` over the equations.
     """
+    x = np.asarray(x, np.float64)
     wx = w * x
-    wy = w * y
-
-    def fit(mask: np.ndarray) -> float:
-        den = float(np.dot(wx[mask], wx[mask]))
-        return float(np.dot(wx[mask], wy[mask]) / den) if den > 0 else float("nan")
-
-    mask = np.ones(x.size, bool)
-    k = fit(mask)
-    iterates = [k]
-    it = 0
-    for it in range(1, max_iterations + 1):  # noqa: B007
-        r = wy - k * wx
-        v = float(np.mean(r[mask] ** 2))
-        if v <= 0:
-            break
-        new_mask = r**2 < 3.0 * v
-        if np.count_nonzero(new_mask) < 2:
-            break
-        mask = new_mask
-        k_new = fit(mask)
-        iterates.append(k_new)
-        if abs(k_new - k) <= precision * abs(k):
-            k = k_new
-            break
-        k = k_new
-    residuals = wy - k * wx
-    n = int(np.count_nonzero(mask))
-    den = float(np.dot(wx[mask], wx[mask]))
-    if n > 1 and den > 0:
-        s2 = float(np.dot(residuals[mask], residuals[mask])) / (n - 1)
-        se = float(np.sqrt(s2 / den))
-    else:
-        se = float("inf")
-    return k, tuple(iterates), mask, residuals, len(iterates) - 1, se
+    wy = w * np.asarray(y, np.float64)
+    if groups is None:
+        groups = np.arange(x.size)
+    n_groups = int(groups.max()) + 1 if groups.size else 0
+    stats = group_statistics(wx, wy, groups, n_groups)
+    k, iterates, gmask, iterations, se = solve_3v_groups(
+        *stats, precision=precision, max_iterations=max_iterations)
+    mask = gmask[groups] if groups.size else np.zeros(0, bool)
+    return k, iterates, mask, wy - k * wx, iterations, se
 
 
 def _equations_for_channel(
@@ -203,6 +290,16 @@ def _overlap(hd: np.ndarray, btfs: tuple[BrightnessTransferFunction, ...], satur
     return float(np.mean(fractions)) if fractions else 0.0
 
 
+def level_group_size(n_levels: int, max_groups: int) -> int:
+    """Levels merged into one group so that at most ``max_groups`` groups remain (>= 1)."""
+    return max(1, -(-int(n_levels) // max(int(max_groups), 1)))
+
+
+def pair_btfs(hd: np.ndarray, hb: np.ndarray) -> tuple[BrightnessTransferFunction, ...]:
+    """One brightness transfer function per channel of ``(C, L)`` histograms."""
+    return tuple(brightness_transfer_function(hd[c], hb[c]) for c in range(hd.shape[0]))
+
+
 def estimate_pair(
     hist_dark: np.ndarray,
     hist_bright: np.ndarray,
@@ -217,6 +314,8 @@ def estimate_pair(
     min_overlap: float = 0.02,
     min_equations: int = 6,
     disagreement_tolerance: float = 0.01,
+    max_groups: int = 1024,
+    btfs: tuple[BrightnessTransferFunction, ...] | None = None,
     dark: int = 0,
     bright: int = 1,
     refine: Callable[..., float] | None = None,
@@ -224,6 +323,10 @@ def estimate_pair(
     """Estimate ``k = t_bright / t_dark`` from the histograms of a pair (all channels).
 
     ``hist_dark``/``hist_bright``: ``(C, max_level + 1)`` or ``(max_level + 1,)``.
+    ``max_groups``: at most this many groups of neighbouring levels per channel and direction
+    enter the 3V iteration (their sufficient statistics are summed, so the least-squares fit is
+    unchanged; 8-bit frames keep one level per group). ``btfs``: the pair's brightness transfer
+    functions when already known (they depend on the histograms only; a re-fit reuses them).
     """
     hd, hb = check_histograms(hist_dark, hist_bright)
     n_ch, n = hd.shape
@@ -237,7 +340,8 @@ def estimate_pair(
     _check_usable(hb, "brighter", z, floor)
     g = as_lut(lut, n_ch, max_level)
 
-    btfs = tuple(brightness_transfer_function(hd[c], hb[c]) for c in range(n_ch))
+    if btfs is None or len(btfs) != n_ch:
+        btfs = pair_btfs(hd, hb)
     parts = [_equations_for_channel(btfs[c], g[c], z, floor, options, c) for c in range(n_ch)]
     x, y, w, direction, ch, level = (np.concatenate(p) for p in zip(*parts, strict=True))
     if options.relative_error:
@@ -264,16 +368,27 @@ def estimate_pair(
             channels_disagree=False, **common,
         )
 
-    k, iterates, mask, residuals, iterations, se = solve_3v(
-        x, y, w, precision=precision, max_iterations=max_iterations)
+    # Neighbouring levels of one channel and direction form a group (eq. 4 rows merged).
+    f = level_group_size(n, max_groups)
+    n_g = -(-n // f)
+    lvl = np.clip(np.floor(level).astype(np.int64), 0, n - 1)
+    groups = ((ch.astype(np.int64) * 2 + direction) * n_g + lvl // f)
+    n_groups = n_ch * 2 * n_g
+    wx, wy = w * x, w * y
+    stats = group_statistics(wx, wy, groups, n_groups)
+    k, iterates, gmask, iterations, se = solve_3v_groups(
+        *stats, precision=precision, max_iterations=max_iterations)
+    mask = gmask[groups]
     if refine is not None:
         k = refine(eqs, mask, k)
+    residuals = wy - k * wx
+    group_channel = np.arange(n_groups) // (2 * n_g)
     channel_ratios, channel_se = [], []
     for c in range(n_ch):
-        sel = ch == c
-        if np.count_nonzero(sel) >= min_equations:
-            kc, _, _, _, _, sec = solve_3v(x[sel], y[sel], w[sel], precision=precision,
-                                           max_iterations=max_iterations)
+        sel = group_channel == c
+        if np.count_nonzero(ch == c) >= min_equations:
+            kc, _, _, _, sec = solve_3v_groups(*(a[sel] for a in stats), precision=precision,
+                                               max_iterations=max_iterations)
         else:
             kc, sec = float("nan"), float("inf")
         channel_ratios.append(kc)
@@ -288,11 +403,12 @@ def estimate_pair(
         disagree = bool(np.any(dev > allowed))
 
     rel = se / k if k > 0 else float("inf")
+    n_inliers = int(np.count_nonzero(mask))
     if not np.isfinite(k) or k <= 0:
         status, message = "failed", f"the fit of frames {dark} and {bright} gave no positive ratio"
-    elif np.count_nonzero(mask) < min_equations:
+    elif n_inliers < min_equations:
         status = "few-equations"
-        message = (f"only {np.count_nonzero(mask)} of {x.size} equations survived the 3V outlier "
+        message = (f"only {n_inliers} of {x.size} equations survived the 3V outlier "
                    f"removal for frames {dark} and {bright}")
     elif rel > max_relative_error:
         status = "uncertain"
@@ -309,10 +425,11 @@ def estimate_pair(
         status, message = "ok", (f"ratio {k:.4f} from a small overlap ({overlap:.1%} of the "
                                  "darker frame's pixels)")
     else:
-        status, message = "ok", f"ratio {k:.4f} ± {rel:.2%} from {np.count_nonzero(mask)} equations"
+        status, message = "ok", f"ratio {k:.4f} ± {rel:.2%} from {n_inliers} equations"
     return ExposureRatioResult(
         ratio=float(k), initial_ratio=float(iterates[0]), iterates=iterates, iterations=iterations,
         inlier_mask=mask, residuals=residuals, std_error=float(se), status=status,
         message=message, channel_ratios=tuple(float(v) for v in cr),
-        channel_std_errors=tuple(float(v) for v in cse), channels_disagree=disagree, **common,
+        channel_std_errors=tuple(float(v) for v in cse), channels_disagree=disagree,
+        level_group_size=f, **common,
     )

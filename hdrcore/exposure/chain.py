@@ -8,55 +8,24 @@ pairs an error in one pair shows up as a residual (``chain_residuals_stops``), a
 pair that disagrees with the others is marked ``"inconsistent"``.
 
 The bracket estimate works on cached histograms (:class:`BracketHistograms`): changing only the
-saturation level or the noise floor re-fits without touching the images.
+saturation level or the noise floor re-fits without touching the images, and without recomputing
+the brightness transfer functions (cached per pair). Every pair also gets the region jack-knife of
+:mod:`.stability`; a pair whose regions disagree is marked ``"unstable"``.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
 import numpy as np
 
-from ..errors import BracketError, ParameterError
-from ..histogram import auto_stride, histograms
+from ..errors import ParameterError
+from .pair_histograms import BracketHistograms, PairHistograms, bracket_histograms
 from .result import BracketExposureResult, ExposureRatioResult
+from .stability import region_jackknife
 
 __all__ = ["BracketHistograms", "bracket_histograms", "solve_chain", "chain_bracket"]
-
-
-@dataclass(frozen=True, eq=False)
-class BracketHistograms:
-    """Per-frame, per-channel histograms ``(N, C, max_level + 1)`` of a bracket, darkest first."""
-
-    counts: np.ndarray
-    max_level: int
-    stride: int = 1
-
-    @property
-    def n_frames(self) -> int:
-        return int(self.counts.shape[0])
-
-
-def bracket_histograms(
-    frames: Sequence[np.ndarray], max_level: int, *, mask: np.ndarray | None = None,
-    stride: int | None = None,
-) -> BracketHistograms:
-    """Histograms of every frame (``(H, W, C)`` integer levels). ``stride=None`` picks one that
-    keeps about six million pixels per frame (:func:`hdrcore.histogram.auto_stride`)."""
-    if len(frames) < 2:
-        raise BracketError("a bracket needs at least two frames", found=f"{len(frames)} frame(s)")
-    shapes = {np.asarray(f).shape for f in frames}
-    if len(shapes) != 1:
-        raise BracketError("frames of a bracket must have the same shape", found=str(shapes))
-    f0 = np.asarray(frames[0])
-    if f0.ndim == 2:
-        frames = [np.asarray(f)[..., None] for f in frames]
-        f0 = frames[0]
-    s = auto_stride(f0.shape[0] * f0.shape[1]) if stride is None else max(int(stride), 1)
-    counts = np.stack([histograms(f, max_level, mask, stride=s) for f in frames])
-    counts.setflags(write=False)
-    return BracketHistograms(counts=counts, max_level=int(max_level), stride=s)
 
 
 def solve_chain(
@@ -74,7 +43,8 @@ def solve_chain(
     for p in pairs:
         if not (np.isfinite(p.ratio) and p.ratio > 0):
             continue
-        rel = max(p.relative_std_error if np.isfinite(p.std_error) else 1.0, min_relative_error)
+        se = p.honest_std_error
+        rel = max(se / p.ratio if np.isfinite(se) else 1.0, min_relative_error)
         w = 1.0 / rel if p.ok else 0.1 / rel
         if p.bright - p.dark > 1:
             # Non-consecutive pairs overlap less and their errors are correlated with the
@@ -119,6 +89,38 @@ def solve_chain(
     return np.exp2(log_e), residuals
 
 
+def _with_diagnostics(
+    r: ExposureRatioResult, ph: PairHistograms, *, lut: np.ndarray | None, jackknife: bool,
+    max_region_error: float, jackknife_groups: int,
+) -> ExposureRatioResult:
+    """Add the overlap restriction and the region jack-knife to a pair's result."""
+    changes: dict = {}
+    if ph.overlap_restricted:
+        changes.update(overlap_restricted=True, common_fraction=ph.common_fraction)
+        if np.isfinite(r.ratio):
+            changes["message"] = (f"{r.message}; histograms restricted to the common field of "
+                                  f"view ({ph.common_fraction:.1%} of the bright frame)")
+    sk = ph.jackknife_skeleton(jackknife_groups) if jackknife and np.isfinite(r.ratio) else None
+    if sk is not None:
+        ks, se = region_jackknife(sk, saturation=r.saturation, noise_floor=r.noise_floor, lut=lut)
+        changes.update(region_ratios=tuple(float(v) for v in ks), region_std_error=se)
+        rel = se / r.ratio if r.ratio > 0 else float("inf")
+        if r.ok and np.isfinite(rel) and rel > max_region_error:
+            changes["status"] = "unstable"
+            if ph.overlap_restricted:
+                hint = ("even within the common field of view: a moving object, a poor "
+                        "registration or a scene change")
+            else:
+                hint = ("content entering or leaving at the borders (hand-held motion) or a "
+                        "moving object disturbs the histograms; register the frames first and "
+                        "estimate from their common field of view (bracket_exposures_registered)")
+            changes["message"] = (
+                f"ratio {r.ratio:.4f} of frames {r.dark} and {r.bright} is unstable: leaving out "
+                f"one of {sk.n_regions} image regions moves it by {rel:.2%} (jack-knife standard "
+                f"error, over {max_region_error:.2%}); {hint}")
+    return replace(r, **changes) if changes else r
+
+
 def chain_bracket(
     hists: BracketHistograms,
     estimate: Callable[..., ExposureRatioResult],
@@ -128,19 +130,34 @@ def chain_bracket(
     non_consecutive: bool = True,
     max_span: int = 3,
     consistency_stops: float = 0.02,
+    jackknife: bool = True,
+    max_region_error: float = 0.004,
+    jackknife_groups: int = 256,
     **kwargs: object,
 ) -> BracketExposureResult:
-    """Estimate every consecutive pair (and overlapping non-consecutive ones), then chain."""
+    """Estimate every consecutive pair (and overlapping non-consecutive ones), then chain.
+
+    ``jackknife`` runs the region jack-knife on every pair (when region histograms were
+    counted); a pair whose jack-knife standard error exceeds ``max_region_error`` (relative) is
+    marked ``"unstable"``.
+    """
     n = hists.n_frames
-    counts = hists.counts
-    pairs = []
-    for i in range(n - 1):
-        pairs.append(estimate(counts[i], counts[i + 1], dark=i, bright=i + 1, **kwargs))
+    lut = kwargs.get("lut")
+    diag = dict(lut=lut, jackknife=jackknife, max_region_error=max_region_error,  # type: ignore[arg-type]
+                jackknife_groups=jackknife_groups)
+
+    def one(i: int, j: int) -> ExposureRatioResult:
+        ph = hists.pair(i, j)
+        r = estimate(ph.counts_dark, ph.counts_bright, dark=i, bright=j, btfs=ph.btfs(),
+                     **kwargs)
+        return _with_diagnostics(r, ph, **diag)  # type: ignore[arg-type]
+
+    pairs = [one(i, i + 1) for i in range(n - 1)]
     extra = []
     if non_consecutive:
         for span in range(2, min(max_span, n - 1) + 1):
             for i in range(n - span):
-                r = estimate(counts[i], counts[i + span], dark=i, bright=i + span, **kwargs)
+                r = one(i, i + span)
                 if r.status != "no-overlap":
                     extra.append(r)
     exposures, residuals = solve_chain(n, pairs + extra)

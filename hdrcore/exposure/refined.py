@@ -67,6 +67,7 @@ def exposure_ratio_refined(
     if not noise_sigma or noise_sigma <= 0 or not np.isfinite(result.ratio):
         return result
     hd, hb = check_histograms(hist_dark, hist_bright)
+    kwargs.pop("btfs", None)  # the blurred histograms have their own transfer functions
     k = result.ratio
     for _ in range(2):
         s = float(noise_sigma) * np.sqrt(max(k * k - 1.0, 0.0))

@@ -23,6 +23,10 @@ INVERSE = 1
 """Direction code of an equation made from a bright level ``M_B`` and ``T^-1(M_B)``."""
 
 
+def _finite_or_none(v: float) -> float | None:
+    return float(v) if np.isfinite(v) else None
+
+
 @dataclass(frozen=True, eq=False)
 class ExposureEquations:
     """The equations ``k * x = y`` of system S0 (Cerman & Hlavac 2006, eq. 4), one per row.
@@ -57,6 +61,15 @@ class ExposureRatioResult:
     ``"channels-disagree"``, ``"few-equations"``); ``message`` says what it means.
     ``channel_ratios`` are the same fit per colour channel; ``channels_disagree`` flags a
     spread larger than their errors allow (a white-level or colour-cast problem).
+
+    Beyond the paper: ``level_group_size`` neighbouring levels form one group in the 3V test
+    (1 at 8 bits). ``region_ratios`` are the jack-knife estimates with one image region left out
+    each and ``region_std_error`` their jack-knife standard error: an honest error (the fit's
+    ``std_error`` ignores that neighbouring equations are correlated) that also grows when
+    content entering or leaving at the borders (hand-held motion) disturbs the histograms;
+    status ``"unstable"`` marks a pair whose regions disagree. ``overlap_restricted`` says the
+    histograms were counted over the common field of view of the pair only (after
+    registration), ``common_fraction`` the fraction of the bright frame's pixels kept.
     """
 
     method: str
@@ -80,10 +93,22 @@ class ExposureRatioResult:
     btfs: tuple[BrightnessTransferFunction, ...] = field(default=(), repr=False)
     dark: int = 0
     bright: int = 1
+    level_group_size: int = 1
+    region_ratios: tuple[float, ...] = ()
+    region_std_error: float = float("nan")
+    overlap_restricted: bool = False
+    common_fraction: float = 1.0
 
     @property
     def ok(self) -> bool:
         return self.status == "ok"
+
+    @property
+    def honest_std_error(self) -> float:
+        """The larger of the fit's and the region jack-knife's standard error."""
+        if np.isfinite(self.region_std_error):
+            return float(max(self.std_error, self.region_std_error))
+        return float(self.std_error)
 
     @property
     def n_equations(self) -> int:
@@ -108,6 +133,9 @@ class ExposureRatioResult:
             "equations": self.n_equations,
             "inliers": self.n_inliers,
             "std_error": float(self.std_error),
+            "region_std_error": _finite_or_none(self.region_std_error),
+            "overlap_restricted": bool(self.overlap_restricted),
+            "common_fraction": float(self.common_fraction),
             "status": self.status,
             "message": self.message,
         }
