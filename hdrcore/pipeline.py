@@ -42,6 +42,7 @@ from .exposure import (
     bracket_histograms,
     default_noise_floor,
     default_saturation,
+    srgb_lut,
 )
 from .io import Bracket
 from .merge import MergeResult, NoiseModel, camera_to_working, merge
@@ -58,6 +59,7 @@ from .tonemap import TONEMAP_OPERATORS, TonemapResult, tonemap
 
 __all__ = [
     "ALIGN_CHOICES",
+    "Cancelled",
     "STAGES",
     "Pipeline",
     "PipelineParams",
@@ -71,6 +73,13 @@ STAGES = ("histograms", "response", "ratios", "registration", "merge", "preview"
 ALIGN_CHOICES = ("none", "shift", "euclidean")
 
 ProgressCallback = Callable[[str, float, str], None]
+
+
+class Cancelled(Exception):  # noqa: N818 - reads as "raise Cancelled" at the call site
+    """Raised by a progress callback to stop a run early (e.g. a newer request superseded it).
+
+    The stages finished before it stay cached; the interrupted stage is not stored.
+    """
 
 
 @dataclass(frozen=True)
@@ -345,6 +354,8 @@ class Pipeline:
         if self.progress is not None:
             try:
                 self.progress(stage, fraction, message)
+            except Cancelled:
+                raise
             except Exception:  # a UI callback must never break a run
                 log.exception("progress callback failed")
 
@@ -456,10 +467,21 @@ class Pipeline:
         times = b.exposure_times if b.has_exposure_times else None
         method_names = {k.lower() for k in RESPONSE_METHODS}
         if isinstance(spec, str) and spec.lower() in method_names and times is None:
-            raise EstimationError(
-                f"response method {spec!r} needs exposure times (EXIF or --times) to recover "
-                "the curve; use --response srgb or give the times",
+            # No exposure times: the ratios measured on sRGB-linearised histograms stand in for
+            # them (the response is then fixed up to the usual exponent ambiguity, which the
+            # ratios re-measured with the recovered curve absorb).
+            hists = self._cache["histograms"].value
+            rough = bracket_exposures_from_histograms(
+                hists, method=p.exposure_method, lut=srgb_lut(b.max_level),
             )
+            rel = np.asarray(rough.relative_exposures, float)
+            if not np.all(np.isfinite(rel) & (rel > 0)):
+                raise EstimationError(
+                    f"response method {spec!r} needs exposure times: the frames carry none "
+                    "and the histograms could not measure them (" + rough.message + "); give "
+                    "--times or use --response srgb",
+                )
+            times = tuple(float(v) for v in rel)
         curve = resolve_response(spec, levels, times, max_level=b.max_level, n_channels=3)
         return curve
 

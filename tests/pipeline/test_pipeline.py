@@ -113,3 +113,43 @@ def test_progress_is_reported(demo_result) -> None:
     Pipeline(b, progress=lambda s, f, m: seen.append((s, f))).run(PipelineParams(align="shift"))
     stages = {s for s, _ in seen}
     assert {"histograms", "ratios", "registration", "merge", "preview"} <= stages
+
+
+def test_no_exposure_times_recovers_response_from_measured_ratios(tmp_path: Path) -> None:
+    sim = simulate_bracket(scene="patches", shape=(96, 144), exposure_times=(1.0, 4.0, 16.0),
+                           bits=8, response="gamma", noise_sigma=1.0, seed=2)
+    write_bracket(tmp_path, sim, fmt="png")
+    (tmp_path / "exposure_times.txt").unlink()
+    from hdrcore.io import load_frame
+
+    frames = sorted(tmp_path.glob("*.png"))
+    # Strip EXIF by re-encoding the pixels only.
+    from hdrcore.io import write_png
+
+    for f in frames:
+        lv = load_frame(f).levels.astype(np.uint8)
+        f.unlink()
+        write_png(f, lv)
+    b = load_bracket(frames)
+    assert not b.has_exposure_times
+    r = Pipeline(b, PipelineParams(align="none", preview_max_side=64)).run()
+    assert r.response is not None and r.response.is_monotone
+    assert r.exposures.ratios == pytest.approx((4.0, 4.0), rel=0.1)
+
+
+def test_progress_callback_can_cancel(demo_result) -> None:
+    from hdrcore.pipeline import Cancelled
+
+    b = demo_result[0].bracket
+
+    def cancel_at_registration(stage: str, fraction: float, message: str) -> None:
+        if stage == "registration":
+            raise Cancelled()
+
+    pipe = Pipeline(b, progress=cancel_at_registration)
+    with pytest.raises(Cancelled):
+        pipe.run()
+    # The stages before it are cached: a new run starts at the registration.
+    pipe.progress = None
+    r = pipe.run()
+    assert r.stages_run[0] == "registration"
