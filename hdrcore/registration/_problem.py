@@ -342,14 +342,14 @@ def _fft_level(data: PairData, fft_size: int) -> int:
 def _failed(
     data: PairData, status: str, message: str, *, method: str, model: str, dark_index: int,
     bright_index: int, t0: float, shift: FourierShift | None = None, cost_before: float = np.nan,
-    valid_fraction: float = 0.0, previews: bool = False,
+    valid_fraction: float = 0.0, previews: bool = False, overlap: float = float("nan"),
 ) -> PairRegistration:
     log.info("pair %d-%d: %s: %s", dark_index, bright_index, status, message)
     preview = make_preview(data, identity()) if previews and data.lo < data.hi else None
     return PairRegistration(
         dark=dark_index, bright=bright_index, matrix=identity(), dx=0.0, dy=0.0, angle_deg=0.0,
         ratio=data.ratio, model=model, method=method, cost_before=cost_before,
-        cost_after=cost_before, overlap=1.0, valid_fraction=valid_fraction, iterations=0,
+        cost_after=cost_before, overlap=overlap, valid_fraction=valid_fraction, iterations=0,
         cost_history=(), level_history=(),
         initial_shift=(float(shift.dx), float(shift.dy)) if shift else (0.0, 0.0),
         peak_ncc=shift.ncc if shift else float("nan"),
@@ -446,11 +446,12 @@ def register_with(
         init = np.asarray(initial, float)
         if init.shape != (2, 3):
             raise ParameterError("initial matrix must be 2x3", found=str(init.shape))
-    if overlap_fraction(init, data.shape) < min_overlap:
+    overlap0 = overlap_fraction(init, data.shape)
+    if overlap0 < min_overlap:
         return _failed(
             data, "no-overlap",
-            f"the initial shift leaves less than {min_overlap:.0%} overlap",
-            shift=shift, cost_before=cost_before, previews=previews, **common,
+            f"the initial shift leaves {overlap0:.0%} overlap (< {min_overlap:.0%})",
+            shift=shift, cost_before=cost_before, previews=previews, overlap=overlap0, **common,
         )
 
     # The searches work on the inverse (dark -> bright) matrix: see select_samples.
@@ -472,7 +473,7 @@ def register_with(
         )
     if status != "ok":
         return _failed(data, status, message, shift=shift, cost_before=cost_before,
-                       previews=previews, **common)
+                       previews=previews, overlap=overlap, **common)
     return PairRegistration(
         dark=dark_index, bright=bright_index, matrix=matrix, dx=dx, dy=dy, angle_deg=angle,
         ratio=data.ratio, model=model, method=method, cost_before=cost_before,

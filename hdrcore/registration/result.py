@@ -39,10 +39,11 @@ class PairRegistration:
     (rotation about the image centre, then shift). ``cost_before`` / ``cost_after`` are the eq. 6
     cost (mean squared eq. 7 normalised difference over pixels well exposed in both frames) at the
     identity and at ``matrix``. ``overlap`` is the fraction of the bright frame that lands inside
-    the dark frame; ``valid_fraction`` the fraction of overlapping sample pixels that are well
-    exposed in both. ``cost_history`` / ``level_history``: the cost at each iteration and the
-    pyramid level it was computed on (0 = full resolution). ``initial_shift`` and ``peak_ncc`` /
-    ``peak_psr`` come from the eq. 5 step. When ``status`` is not ``"ok"`` the matrix is the
+    the dark frame (NaN when the pair failed before a start was found); ``valid_fraction`` the
+    fraction of the dark frame's pixels that are well exposed in both frames after alignment.
+    ``cost_history`` / ``level_history``: the cost at each iteration and the pyramid level it was
+    computed on (0 = full resolution). ``initial_shift`` and ``peak_ncc`` / ``peak_psr`` come from
+    the eq. 5 step. When ``status`` is not ``"ok"`` the matrix is the
     identity and ``message`` says why.
     """
 

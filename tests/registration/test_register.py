@@ -169,3 +169,11 @@ def test_warping_with_the_result_aligns_the_frames():
     rel = np.abs(warped.image[ok] - k * dark[ok]) / (warped.image[ok] + k * dark[ok])
     assert ok.mean() > 0.3
     assert np.median(rel) < 0.02
+
+
+def test_initial_matrix_without_overlap_fails_as_no_overlap():
+    dark, bright, _, ml = simulated_pair(shape=SHAPE)
+    far = np.array([[1.0, 0.0, 180.0], [0.0, 1.0, 120.0]])
+    res = _register(dark, bright, ml, initial=far)
+    assert res.status == "no-overlap" and res.overlap < 0.2
+    assert np.allclose(res.matrix, np.eye(2, 3))
