@@ -5,6 +5,7 @@ Public surface::
     from hdrcore.merge import merge, MergeResult, NoiseModel, WEIGHTS, camera_to_working
 """
 
+from ._fused import warm_up
 from .colour import WORKING_SPACES, camera_to_working, camera_to_working_matrix
 from .maps import (
     DEFAULT_GHOST_THRESHOLD,
@@ -14,7 +15,14 @@ from .maps import (
     mean_shares,
     provenance_summary,
 )
-from .merge import DEFAULT_CHUNK_PIXELS, DEFAULT_SATURATION, MergeResult, merge
+from .merge import (
+    DEFAULT_CHUNK_PIXELS,
+    DEFAULT_SATURATION,
+    MERGE_ENGINES,
+    MergeResult,
+    default_engine,
+    merge,
+)
 from .weights import WEIGHTS, NoiseModel, WeightFunction, weights
 
 __all__ = [
@@ -22,6 +30,7 @@ __all__ = [
     "DEFAULT_GHOST_THRESHOLD",
     "DEFAULT_MODEL_ERROR",
     "DEFAULT_SATURATION",
+    "MERGE_ENGINES",
     "WEIGHTS",
     "WORKING_SPACES",
     "MergeResult",
@@ -29,10 +38,12 @@ __all__ = [
     "WeightFunction",
     "camera_to_working",
     "camera_to_working_matrix",
+    "default_engine",
     "dominant_frame",
     "ghost_score_from_moments",
     "mean_shares",
     "merge",
     "provenance_summary",
+    "warm_up",
     "weights",
 ]

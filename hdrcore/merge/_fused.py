@@ -50,12 +50,11 @@ _ONE_F16 = np.uint16(0x3C00)  # 1.0 as float16 bits
 
 
 @_njit
-def _f16_bits(v, fbuf, ibuf):
+def _f16_bits(v):
     """float16 bits of a non-negative float32, as :func:`maps.to_float16_nonnegative`."""
     if v > _F16_MAX:
         v = _F16_MAX
-    fbuf[0] = v
-    s = (ibuf[0] + np.int32(0x1000)) >> np.int32(13)
+    s = (np.float32(v).view(np.int32) + np.int32(0x1000)) >> np.int32(13)
     s -= np.int32(112 << 10)
     if s < 0:
         s = np.int32(0)
@@ -63,246 +62,264 @@ def _f16_bits(v, fbuf, ibuf):
 
 
 @_njit
-def _finish_pixel(
-    y, x, n, c, order, den, num, s2, sv, share, dark, bad, clip, nbad,
-    me2, thr, rad, wsum_out, shares, clipped_out, under_out, gscore, ghost, fbuf, ibuf,
+def _finish_row(
+    y, n, c, order, den, num, s2, sv, share, bad, clip, nbad, me2, thr,
+    rad, wsum_out, shares, clipped_out, under_out, gscore, ghost, mode, pick,
 ):
-    """Radiance, ghost score, shares and fallbacks of one pixel (reference ``_finish``).
+    """Radiance, ghost score, shares and fallbacks of row ``y`` (the reference's ``_finish``).
 
-    Returns ``(mode, frame)``: mode 0 nothing more to do; 1 every channel takes ``frame``'s
-    linear value over its time (float64, then float32); 2 the channels with no weight do.
+    Row buffers are channel- or frame-planar ``(C, W)`` / ``(N, W)``. Sets ``mode[x]``: 0 done;
+    1 every channel takes frame ``pick[x]``'s linear value over its time (float64, then
+    float32); 2 the channels with no weight do; 3 every channel takes the darkest frame's float32
+    ``E_k``. The caller fills those in (it knows the dtype).
     """
-    spread = np.float32(0.0)
-    noise = np.float32(0.0)
-    wsum = np.float32(0.0)
-    anyzero = False
-    for ch in range(c):
-        d = den[ch]
-        inv = d if d >= _TINY else _TINY
-        inv = np.float32(1.0) / inv
-        a = num[ch] * inv
-        rad[y, x, ch] = a
-        b = s2[ch] * inv
-        a2 = a * a
-        b = b - a2
-        if b < np.float32(0.0):
-            b = np.float32(0.0)
-        spread = b if ch == 0 else spread + b
-        a2 = a2 * me2
-        b = sv[ch] * inv
-        b = b + a2
-        noise = b if ch == 0 else noise + b
-        wsum = d if ch == 0 else wsum + d
-        if d <= np.float32(0.0):
-            anyzero = True
-    if noise < _TINY:
-        noise = _TINY
-    spread = spread / noise
-    ghost[y, x] = spread > thr
-    gscore[y, x] = _f16_bits(spread, fbuf, ibuf)
-    wsum_out[y, x] = wsum
-    invw = wsum if wsum >= _TINY else _TINY
-    invw = np.float32(1.0) / invw
-    for k in range(n):
-        shares[k, y, x] = _f16_bits(share[k] * invw, fbuf, ibuf)
-    is_clipped = nbad == n
-    under = False
-    mode = 0
-    pick = 0
-    if anyzero:
-        if is_clipped:
-            dk = order[0]
-            if not (bad[dk] and not clip[dk]):
-                for ch in range(c):
-                    rad[y, x, ch] = dark[ch]
-                pick = dk
-            else:
-                pick = -1
+    w = den.shape[1]
+    zero = np.float32(0.0)
+    one = np.float32(1.0)
+    for x in range(w):
+        spread = zero
+        noise = zero
+        wsum = zero
+        anyzero = False
+        for ch in range(c):
+            d = den[ch, x]
+            inv = d if d >= _TINY else _TINY
+            inv = one / inv
+            a = num[ch, x] * inv
+            rad[y, x, ch] = a
+            b = s2[ch, x] * inv
+            a2 = a * a
+            b = b - a2
+            if b < zero:
+                b = zero
+            spread = b if ch == 0 else spread + b
+            a2 = a2 * me2
+            b = sv[ch, x] * inv
+            b = b + a2
+            noise = b if ch == 0 else noise + b
+            wsum = d if ch == 0 else wsum + d
+            if d <= zero:
+                anyzero = True
+        if noise < _TINY:
+            noise = _TINY
+        spread = spread / noise
+        ghost[y, x] = spread > thr
+        gscore[y, x] = _f16_bits(spread)
+        wsum_out[y, x] = wsum
+        invw = wsum if wsum >= _TINY else _TINY
+        invw = one / invw
+        for k in range(n):
+            shares[k, y, x] = _f16_bits(share[k, x] * invw)
+        is_clipped = nbad[x] == n
+        under = False
+        mode[x] = 0
+        if anyzero:
+            if is_clipped:
+                dk = order[0]
+                if not (bad[dk, x] and not clip[dk, x]):
+                    p = dk
+                    mode[x] = 3
+                else:
+                    p = -1
+                    for j in range(n):
+                        k = order[j]
+                        if not (bad[k, x] and not clip[k, x]):
+                            p = k
+                            break
+                    if p < 0:  # no valid frame at all: unknown, not clipped
+                        p = dk
+                        is_clipped = False
+                    mode[x] = 1
+                for k in range(n):
+                    shares[k, y, x] = np.uint16(0)
+                shares[p, y, x] = _ONE_F16
+                pick[x] = p
+            elif nbad[x] < n:
+                last = 0
                 for j in range(n):
-                    k = order[j]
-                    if not (bad[k] and not clip[k]):
-                        pick = k
-                        break
-                if pick < 0:  # no valid frame at all: unknown, not clipped
-                    pick = dk
-                    is_clipped = False
-                mode = 1
-            for k in range(n):
-                shares[k, y, x] = np.uint16(0)
-            shares[pick, y, x] = _ONE_F16
-        elif nbad < n:
-            last = 0
-            for j in range(n):
-                if not bad[order[j]]:
-                    last = j
-            pick = order[last]
-            mode = 2
-            whole = True
-            for ch in range(c):
-                if den[ch] > np.float32(0.0):
-                    whole = False
-            if whole:
-                for kk in range(n):
-                    shares[kk, y, x] = np.uint16(0)
-                shares[pick, y, x] = _ONE_F16
-            under = True
-    clipped_out[y, x] = is_clipped
-    under_out[y, x] = under
-    return mode, pick
+                    if not bad[order[j], x]:
+                        last = j
+                p = order[last]
+                mode[x] = 2
+                pick[x] = p
+                whole = True
+                for ch in range(c):
+                    if den[ch, x] > zero:
+                        whole = False
+                if whole:
+                    for k in range(n):
+                        shares[k, y, x] = np.uint16(0)
+                    shares[p, y, x] = _ONE_F16
+                under = True
+        clipped_out[y, x] = is_clipped
+        under_out[y, x] = under
+
+
+@_njit
+def _row_buffers(n, c, w):
+    return (
+        np.empty((c, w), np.float32),  # den = sum w
+        np.empty((c, w), np.float32),  # num = sum w E_k
+        np.empty((c, w), np.float32),  # s2 = sum w E_k^2
+        np.empty((c, w), np.float32),  # sv = sum w var(E_k)
+        np.empty((n, w), np.float32),  # share = sum over channels of w, per frame
+        np.empty((n, w), np.bool_),  # bad = dropped (clipped or invalid)
+        np.empty((n, w), np.bool_),  # clip
+        np.empty(w, np.int64),  # nbad
+        np.empty(w, np.int8),  # mode
+        np.empty(w, np.int64),  # pick
+    )
+
+
+@_njit
+def _clip_flags(f, x, c, sat, hm, mrow):
+    cl = False
+    for ch in range(3):
+        if np.float64(f[x, ch]) >= sat[ch]:
+            cl = True
+    if hm:
+        valid = mrow[x]
+        cl = cl and valid
+        return cl, (not valid) or cl
+    return cl, cl
 
 
 @_njit
 def merge_rows_integer(
-    frames, masks, has_mask, order, times, tab, lut, has_lut, max_level, sat, me2, thr, r0, r1,
-    rad, wsum_out, shares, clip_count, clipped_out, under_out, gscore, ghost,
+    frames, masks, has_mask, order, times, tab, lut, has_lut, max_level, inv_max, inv_t, sat,
+    me2, thr, r0, r1, rad, wsum_out, shares, clip_count, clipped_out, under_out, gscore, ghost,
 ):
-    """Rows ``r0:r1`` of integer frames through the per-level tables ``tab (N, C, L, 5)``.
+    """Rows ``r0:r1`` of integer frames through the per-level tables ``tab (N, C, L, 8)``
+    (``L = max_level + 1``; entries 5..7 pad a level to 32 bytes).
 
-    Returns the number of samples whose level has no table entry (only possible with a LUT,
-    levels above ``max_level``); such samples are clamped to the last entry.
+    Levels above ``max_level`` are clipped (the saturation level is at most ``max_level``), so
+    they need no weight; without a LUT their ``E_k`` is computed as the reference does
+    (``float32(M) * float32(1 / max_level) / dt``). With a LUT they have no value: the count
+    of such samples is returned (the caller refuses the input); they are read as ``max_level``.
     """
     n = len(frames)
     c = frames[0].shape[2]
     w = frames[0].shape[1]
     lmax = tab.shape[2] - 1
-    den = np.empty(c, np.float32)
-    num = np.empty(c, np.float32)
-    s2 = np.empty(c, np.float32)
-    sv = np.empty(c, np.float32)
-    dark = np.empty(c, np.float32)
-    share = np.empty(n, np.float32)
-    bad = np.empty(n, np.bool_)
-    clip = np.empty(n, np.bool_)
-    fbuf = np.empty(1, np.float32)
-    ibuf = fbuf.view(np.int32)
+    den, num, s2, sv, share, bad, clip, nbad, mode, pick = _row_buffers(n, c, w)
     out_of_range = 0
-
+    zero = np.float32(0.0)
     for y in range(r0, r1):
-        for x in range(w):
-            den[:] = 0.0
-            num[:] = 0.0
-            s2[:] = 0.0
-            sv[:] = 0.0
-            nbad = 0
-            ncl = 0
-            for j in range(n):
-                k = order[j]
-                f = frames[k]
-                cl = False
-                for ch in range(c):
-                    if np.float64(f[y, x, ch]) >= sat[ch]:
-                        cl = True
-                if has_mask[k]:
-                    valid = masks[k][y, x]
-                    cl = cl and valid
-                    b = (not valid) or cl
-                else:
-                    b = cl
-                clip[k] = cl
-                bad[k] = b
+        den[:] = zero
+        num[:] = zero
+        s2[:] = zero
+        sv[:] = zero
+        nbad[:] = 0
+        clip_count[y, :] = 0
+        for j in range(n):
+            k = order[j]
+            f = frames[k][y]
+            mrow = masks[k][y if has_mask[k] else 0]
+            hm = has_mask[k]
+            tk = tab[k]
+            for x in range(w):
+                cl, b = _clip_flags(f, x, c, sat, hm, mrow)
+                clip[k, x] = cl
+                bad[k, x] = b
                 if cl:
-                    ncl += 1
+                    clip_count[y, x] += 1
                 if b:
-                    nbad += 1
-                sh = np.float32(0.0)
-                for ch in range(c):
-                    v = int(f[y, x, ch])
-                    if v > lmax:
-                        out_of_range += 1
+                    nbad[x] += 1
+                sh = zero
+                if has_lut:
+                    for ch in range(3):
+                        if int(f[x, ch]) > lmax:
+                            out_of_range += 1
+                if b:
+                    share[k, x] = zero
+                    continue
+                for ch in range(3):
+                    v = int(f[x, ch])
+                    if v > lmax:  # clipped (saturation <= max_level): its weight is not used
                         v = lmax
-                    if j == 0:
-                        dark[ch] = tab[k, ch, v, 0]
-                    if not b:
-                        wk = tab[k, ch, v, 1]
-                        den[ch] += wk
-                        sh = wk if ch == 0 else sh + wk
-                        sv[ch] += tab[k, ch, v, 2]
-                        num[ch] += tab[k, ch, v, 3]
-                        s2[ch] += tab[k, ch, v, 4]
-                share[k] = sh
-            clip_count[y, x] = ncl
-            mode, pick = _finish_pixel(
-                y, x, n, c, order, den, num, s2, sv, share, dark, bad, clip, nbad,
-                me2, thr, rad, wsum_out, shares, clipped_out, under_out, gscore, ghost, fbuf,
-                ibuf,
-            )
-            if mode != 0:
-                fp = frames[pick]
+                    wk = tk[ch, v, 1]
+                    den[ch, x] += wk
+                    sh = wk if ch == 0 else sh + wk
+                    sv[ch, x] += tk[ch, v, 2]
+                    num[ch, x] += tk[ch, v, 3]
+                    s2[ch, x] += tk[ch, v, 4]
+                share[k, x] = sh
+        _finish_row(
+            y, n, c, order, den, num, s2, sv, share, bad, clip, nbad, me2, thr,
+            rad, wsum_out, shares, clipped_out, under_out, gscore, ghost, mode, pick,
+        )
+        for x in range(w):
+            if mode[x] == 3:
+                p = pick[x]
+                fp = frames[p][y]
                 for ch in range(c):
-                    if mode == 1 or den[ch] <= np.float32(0.0):
+                    v = int(fp[x, ch])
+                    if v <= lmax:
+                        rad[y, x, ch] = tab[p, ch, v, 0]
+                    elif not has_lut:
+                        rad[y, x, ch] = (np.float32(fp[x, ch]) * inv_max) * inv_t[p]
+            elif mode[x] != 0:
+                p = pick[x]
+                fp = frames[p][y]
+                for ch in range(c):
+                    if mode[x] == 1 or den[ch, x] <= zero:
                         if has_lut:
-                            vi = min(int(fp[y, x, ch]), lut.shape[1] - 1)
+                            vi = min(int(fp[x, ch]), lut.shape[1] - 1)
                             val = np.float64(lut[ch, vi])
                         else:
-                            val = np.float64(fp[y, x, ch]) / max_level
-                        rad[y, x, ch] = np.float32(val / times[pick])
+                            val = np.float64(fp[x, ch]) / max_level
+                        rad[y, x, ch] = np.float32(val / times[p])
     return out_of_range
 
 
 @_njit
-def merge_rows_float(
+def merge_rows_linear(
     frames, masks, has_mask, order, times, inv_t, inv_t2, t2, wcode, shot, const_var,
-    floor_norm, sat, me2, thr, r0, r1,
+    floor_norm, inv_max, max_level, sat, me2, thr, r0, r1,
     rad, wsum_out, shares, clip_count, clipped_out, under_out, gscore, ghost,
 ):
-    """Rows ``r0:r1`` of float32 linear frames (the reference's float path, inline)."""
+    """Rows ``r0:r1`` of linear frames: float32 values (``inv_max = max_level = 1``) or integer
+    levels without a LUT (``level = float32(M) * inv_max``), the reference's arithmetic inline.
+    """
     n = len(frames)
     c = frames[0].shape[2]
     w = frames[0].shape[1]
-    den = np.empty(c, np.float32)
-    num = np.empty(c, np.float32)
-    s2 = np.empty(c, np.float32)
-    sv = np.empty(c, np.float32)
-    dark = np.empty(c, np.float32)
-    share = np.empty(n, np.float32)
-    bad = np.empty(n, np.bool_)
-    clip = np.empty(n, np.bool_)
-    fbuf = np.empty(1, np.float32)
-    ibuf = fbuf.view(np.int32)
+    den, num, s2, sv, share, bad, clip, nbad, mode, pick = _row_buffers(n, c, w)
     one = np.float32(1.0)
     two = np.float32(2.0)
     half = np.float32(0.5)
     m16 = np.float32(-16.0)
     zero = np.float32(0.0)
-
     for y in range(r0, r1):
-        for x in range(w):
-            den[:] = 0.0
-            num[:] = 0.0
-            s2[:] = 0.0
-            sv[:] = 0.0
-            nbad = 0
-            ncl = 0
-            for j in range(n):
-                k = order[j]
-                f = frames[k]
-                cl = False
-                for ch in range(c):
-                    if np.float64(f[y, x, ch]) >= sat[ch]:
-                        cl = True
-                if has_mask[k]:
-                    valid = masks[k][y, x]
-                    cl = cl and valid
-                    b = (not valid) or cl
-                else:
-                    b = cl
-                clip[k] = cl
-                bad[k] = b
+        den[:] = zero
+        num[:] = zero
+        s2[:] = zero
+        sv[:] = zero
+        nbad[:] = 0
+        clip_count[y, :] = 0
+        for j in range(n):
+            k = order[j]
+            f = frames[k][y]
+            mrow = masks[k][y if has_mask[k] else 0]
+            hm = has_mask[k]
+            itk = inv_t[k]
+            it2 = inv_t2[k]
+            t2k = t2[k]
+            for x in range(w):
+                cl, b = _clip_flags(f, x, c, sat, hm, mrow)
+                clip[k, x] = cl
+                bad[k, x] = b
                 if cl:
-                    ncl += 1
+                    clip_count[y, x] += 1
                 if b:
-                    nbad += 1
+                    nbad[x] += 1
                 ok = zero if b else one
-                itk = inv_t[k]
-                it2 = inv_t2[k]
                 sh = zero
-                for ch in range(c):
-                    level = f[y, x, ch]
+                for ch in range(3):
+                    level = np.float32(f[x, ch]) * inv_max
                     var = level * shot
                     var = var + const_var
                     e = level * itk
-                    if j == 0:
-                        dark[ch] = e
                     if wcode == 0:
                         wk = level * two
                         wk = wk - one
@@ -314,32 +331,38 @@ def merge_rows_float(
                         wk = wk * m16
                         wk = np.exp(wk)
                     elif wcode == 2:
-                        wk = t2[k] / var
+                        wk = t2k / var
                     else:
                         wk = one
                     keep = ok if level > floor_norm else zero
                     wk = wk * keep
-                    den[ch] += wk
+                    den[ch, x] += wk
                     sh = wk if ch == 0 else sh + wk
                     var = var * wk
                     var = var * it2
-                    sv[ch] += var
+                    sv[ch, x] += var
                     wk = wk * e
-                    num[ch] += wk
+                    num[ch, x] += wk
                     wk = wk * e
-                    s2[ch] += wk
-                share[k] = sh
-            clip_count[y, x] = ncl
-            mode, pick = _finish_pixel(
-                y, x, n, c, order, den, num, s2, sv, share, dark, bad, clip, nbad,
-                me2, thr, rad, wsum_out, shares, clipped_out, under_out, gscore, ghost, fbuf,
-                ibuf,
-            )
-            if mode != 0:
-                fp = frames[pick]
+                    s2[ch, x] += wk
+                share[k, x] = sh
+        _finish_row(
+            y, n, c, order, den, num, s2, sv, share, bad, clip, nbad, me2, thr,
+            rad, wsum_out, shares, clipped_out, under_out, gscore, ghost, mode, pick,
+        )
+        for x in range(w):
+            if mode[x] == 3:
+                p = pick[x]
+                fp = frames[p][y]
                 for ch in range(c):
-                    if mode == 1 or den[ch] <= np.float32(0.0):
-                        rad[y, x, ch] = np.float32(np.float64(fp[y, x, ch]) / times[pick])
+                    rad[y, x, ch] = (np.float32(fp[x, ch]) * inv_max) * inv_t[p]
+            elif mode[x] != 0:
+                p = pick[x]
+                fp = frames[p][y]
+                for ch in range(c):
+                    if mode[x] == 1 or den[ch, x] <= zero:
+                        val = np.float64(fp[x, ch]) / max_level
+                        rad[y, x, ch] = np.float32(val / times[p])
 
 
 def warm_up() -> float:

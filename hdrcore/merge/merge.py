@@ -699,20 +699,20 @@ def _run_numpy(kernel: _Kernel, spans: list[tuple[int, int]], workers: int, rows
 
 
 def _level_tables(kernel: _Kernel) -> np.ndarray:
-    """float32 ``(N, C, L, 5)``: ``E_k, w, w var(E_k), w E_k, w E_k**2`` of every level.
+    """float32 ``(N, C, L, 8)``: ``E_k, w, w var(E_k), w E_k, w E_k**2`` of every level
+    ``0..max_level`` (and three zeros, so a level's entry is one aligned 32-byte line).
 
     Built with the reference's own linearisation and weight function, in its operation order,
     so a table entry is bit for bit what the reference computes for a sample of that level
     (the noise floor is applied; clipping and masks, which depend on the pixel, are not).
-    ``L`` is ``max_level + 1`` with a LUT, else every level of the dtype.
     """
     p = kernel.p
     n, c = len(p.frames), p.shape[2]
     dtype = p.frames[0].dtype
-    length = p.lut_len if p.lut is not None else int(np.iinfo(dtype).max) + 1
+    length = int(p.max_level) + 1
     levels = np.arange(length, dtype=dtype)
     s = _Scratch(n, length, c)
-    tab = np.empty((n, c, length, 5), np.float32)
+    tab = np.zeros((n, c, length, 8), np.float32)
     for k in range(n):
         t = float(p.times[k])
         inv_t = np.float32(1.0 / t)
@@ -738,14 +738,19 @@ def _fused_supported(plan: _Plan) -> str | None:
     """Why the fused kernel cannot run this plan, or ``None`` when it can."""
     if not _fused.AVAILABLE:
         return "numba is not installed"
+    if plan.shape[2] != 3:
+        return f"{plan.shape[2]} channels (the fused kernel is unrolled for 3)"
     if plan.integer and plan.frames[0].dtype not in (np.uint8, np.uint16):
         return f"integer frames of dtype {plan.frames[0].dtype} (uint8 and uint16 only)"
     return None
 
 
 def _run_numba(
-    kernel: _Kernel, out: _Outputs, spans: list[tuple[int, int]], workers: int
+    kernel: _Kernel, out: _Outputs, spans: list[tuple[int, int]], workers: int,
+    force_tables: bool = False,
 ) -> None:
+    """The fused kernel over ``spans`` of rows: per-level tables for integer frames with a LUT,
+    inline arithmetic for linear frames (float, or integer levels without a LUT)."""
     p = kernel.p
     frames = p.frames
     if p.integer and len({f.dtype for f in frames}) > 1:
@@ -763,7 +768,8 @@ def _run_numba(
         out.radiance, out.weight_sum, out.shares.view(np.uint16), out.clip_count, out.clipped,
         out.underexposed, out.ghost_score.view(np.uint16), out.ghost,
     )
-    if p.integer:
+    inv_t = np.array([1.0 / t for t in p.times], np.float32)
+    if p.lut is not None or force_tables:
         tab = _level_tables(kernel)
         lut = p.lut if p.lut is not None else np.zeros((1, 1), np.float32)
         max_level = float(p.max_level)
@@ -771,19 +777,20 @@ def _run_numba(
         def work(span: tuple[int, int]) -> int:
             return _fused.merge_rows_integer(
                 frames_t, masks_t, has_mask, order, times, tab, lut, p.lut is not None,
-                max_level, sat, me2, thr, span[0], span[1], *outs,
+                max_level, kernel.inv_max, inv_t, sat, me2, thr, span[0], span[1], *outs,
             )
     else:
-        inv_t = np.array([1.0 / t for t in p.times], np.float32)
         inv_t2 = np.array([1.0 / (t * t) for t in p.times], np.float32)
         t2 = np.array([float(t) ** 2 for t in p.times], np.float32)
         wcode = _fused.WEIGHT_CODES[p.weighting]
 
+        max_level = float(p.max_level) if p.integer else 1.0
+
         def work(span: tuple[int, int]) -> int:
-            _fused.merge_rows_float(
+            _fused.merge_rows_linear(
                 frames_t, masks_t, has_mask, order, times, inv_t, inv_t2, t2, wcode,
-                kernel.shot, kernel.const_var, kernel.floor_norm, sat, me2, thr,
-                span[0], span[1], *outs,
+                kernel.shot, kernel.const_var, kernel.floor_norm, kernel.inv_max, max_level,
+                sat, me2, thr, span[0], span[1], *outs,
             )
             return 0
 
@@ -924,9 +931,18 @@ def merge(
     spans = [(r, min(h, r + rows)) for r in range(0, h, rows)]
     workers = min(int(workers), len(spans))
     if engine == "numba":
-        _run_numba(kernel, out, spans, workers)
+        # exp() of the Gaussian weight is not numpy's to the last bit: integer levels take it
+        # from the per-level tables the reference computes, so they stay bit for bit the same
+        _run_numba(kernel, out, spans, workers, force_tables=plan.integer
+                   and plan.weighting == "gaussian")
     else:
-        _run_numpy(kernel, spans, workers, rows)
+        try:
+            _run_numpy(kernel, spans, workers, rows)
+        except IndexError as exc:  # np.take of a level past the end of the LUT
+            raise ParameterError(
+                "levels above max_level have no response LUT entry",
+                expected=f"levels 0..{plan.max_level}", found=str(exc),
+            ) from exc
     t2 = time.perf_counter()
     ghost_score, ghost = out.ghost_score, out.ghost
     t3 = time.perf_counter()

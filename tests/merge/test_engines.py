@@ -1,0 +1,158 @@
+"""The fused numba kernel against the numpy reference: same results on the test brackets.
+
+The reference (``engine="numpy"``) is the specification; the fused kernel does the same float32
+arithmetic in the same order, so every output must be identical (bit for bit, except ``exp`` of
+the Gaussian weight on float frames, which may differ in the last place).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from hdrcore.errors import ParameterError
+from hdrcore.merge import MERGE_ENGINES, NoiseModel, default_engine, merge
+from hdrcore.synthetic import simulate_bracket
+
+from ._brackets import SHAPE, TIMES, bracket, inverse_gamma_lut
+
+pytest.importorskip("numba")
+
+FIELDS = (
+    "radiance", "weight_sum", "shares", "clip_count", "clipped", "underexposed", "ghost_score",
+    "ghost",
+)
+
+
+def both(frames, times, rtol: float = 0.0, ghost_atol: float = 0.0, **kw):
+    ref = merge(frames, times, engine="numpy", **kw)
+    fused = merge(frames, times, engine="numba", **kw)
+    assert ref.engine == "numpy" and fused.engine == "numba"
+    for name in FIELDS:
+        a, b = getattr(ref, name), getattr(fused, name)
+        assert a.dtype == b.dtype and a.shape == b.shape, name
+        if name == "ghost_score" and ghost_atol:
+            # sum(p E^2) - E^2 cancels: a last-place change of w moves a tiny score a lot in
+            # relative terms, nothing next to the threshold (8)
+            np.testing.assert_allclose(a.astype(np.float64), b.astype(np.float64), rtol=2e-3,
+                                       atol=ghost_atol, err_msg=name)
+        elif rtol == 0.0 or a.dtype == bool or a.dtype == np.uint8:
+            np.testing.assert_array_equal(a, b, err_msg=name)
+        else:  # float16 maps: one step of float16 (2**-10) after a last-place float32 change
+            tol = max(rtol, 2.0**-10) if a.dtype == np.float16 else rtol
+            np.testing.assert_allclose(
+                a.astype(np.float64), b.astype(np.float64), rtol=tol, atol=1e-30, err_msg=name
+            )
+    assert ref.status == fused.status and ref.message == fused.message
+    return ref, fused
+
+
+def test_default_engine_is_the_fused_kernel():
+    assert set(MERGE_ENGINES) == {"numba", "numpy"}
+    assert default_engine() == "numba"
+    sb = bracket(bits=12, response="linear", seed=1)
+    res = merge(sb.frames, sb.exposure_times, max_level=sb.max_level)
+    assert res.engine == "numba" and res.summary()["engine"] == "numba"
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_12bit_linear_noise_aware(workers):
+    sb = bracket(bits=12, response="linear", noise_sigma=1.0, seed=1)
+    both(sb.frames, sb.exposure_times, max_level=sb.max_level, workers=workers)
+
+
+@pytest.mark.parametrize("bits", [8, 12])
+def test_levels_with_a_lut_hat(bits):
+    sb = bracket(bits=bits, response="gamma", noise_sigma=1.0, seed=2)
+    both(sb.frames, sb.exposure_times, response=inverse_gamma_lut(sb.max_level))
+
+
+@pytest.mark.parametrize("weighting", ["hat", "gaussian", "noise-aware", "uniform"])
+def test_float_frames_every_weighting(weighting):
+    sb = bracket(bits=12, response="linear", noise_sigma=1.0, seed=4)
+    frames = [np.asarray(f, np.float32) / np.float32(4095) for f in sb.frames]
+    if weighting == "gaussian":  # float32 exp: numba's libm vs numpy's SIMD, last place
+        both(frames, sb.exposure_times, weighting=weighting, rtol=1e-6, ghost_atol=1e-2)
+    else:
+        both(frames, sb.exposure_times, weighting=weighting)
+
+
+@pytest.mark.parametrize("weighting", ["hat", "gaussian", "uniform"])
+def test_integer_levels_every_weighting_with_shot_noise(weighting):
+    sb = bracket(bits=12, response="linear", seed=14, shot_noise_full_well=5000)
+    noise = NoiseModel(read_noise=2e-4, full_well=5000)
+    both(sb.frames, sb.exposure_times, max_level=4095, weighting=weighting, noise=noise)
+    lut = np.tile(np.linspace(0.0, 1.0, 4096), (3, 1))
+    both(sb.frames, sb.exposure_times, response=lut, weighting=weighting, noise=noise)
+
+
+def test_masks_per_channel_white_levels_and_noise_floor():
+    sb = bracket(bits=12, response="linear", noise_sigma=1.0, seed=13, scene="window")
+    frames = [f.copy() for f in sb.frames]
+    for f in frames:
+        f[..., 0] = np.minimum(f[..., 0], 3000)
+    mask = np.ones(SHAPE, bool)
+    mask[:, :20] = False
+    mask2 = np.ones(SHAPE, bool)
+    mask2[:10] = False
+    kw = dict(max_level=4095, saturation_level=(3000, 4095, 4095), noise_floor=12)
+    both(frames, sb.exposure_times, masks=[None, mask2, mask], **kw)
+    floats = [f.astype(np.float32) / np.float32(4095) for f in frames]
+    both(floats, sb.exposure_times, masks=[mask2, None, mask],
+         saturation_level=(3000 / 4095, 1.0, 1.0), noise_floor=12 / 4095)
+
+
+def test_clipped_everywhere_patch_and_moving_object():
+    rng = np.random.default_rng(0)
+    rad = np.exp(rng.normal(-1.0, 0.3, SHAPE + (3,))).astype(np.float32)
+    rad[40:80, 60:120] = 1e4
+    sb = simulate_bracket(rad, exposure_times=TIMES, bits=12, key=0.1, seed=7)
+    frames = [f.copy() for f in sb.frames]
+    frames[1][60:90, 20:60] = 1500
+    ref, _ = both(frames, sb.exposure_times, max_level=sb.max_level)
+    assert ref.clipped.any() and ref.ghost.any()
+    ref, _ = both(frames[::-1], sb.exposure_times[::-1], max_level=sb.max_level)
+    assert ref.clipped.any()
+
+
+def test_fallbacks_when_the_darkest_frame_is_invalid_or_no_frame_is_valid():
+    frames = [np.full((8, 8, 3), v, np.uint16) for v in (100, 4095, 4095)]
+    frames[0][:, 4:] = 4095  # clipped everywhere on the right
+    m0 = np.ones((8, 8), bool)
+    m0[:4] = False  # darkest frame invalid at the top: the next valid frame's value
+    m1 = np.ones((8, 8), bool)
+    m1[:2] = False
+    m2 = m1.copy()  # top two rows: no valid frame at all
+    for f in frames:
+        f[6:, :2, 2] = 5  # blue below the noise floor everywhere: underexposed
+    kw = dict(max_level=4095, noise_floor=10, masks=[m0, m1, m2])
+    ref, _ = both(frames, (1.0, 4.0, 16.0), **kw)
+    assert ref.clipped[4:, 4:].all() and not ref.clipped[:2].any()
+    assert ref.underexposed[6:, :2].all()
+    floats = [f.astype(np.float32) / np.float32(4095) for f in frames]
+    both(floats, (1.0, 4.0, 16.0), masks=[m0, m1, m2], noise_floor=10 / 4095)
+
+
+def test_levels_above_max_level_with_a_lut_are_refused():
+    frames = [np.full((4, 5, 3), 100 * (k + 1), np.uint16) for k in range(3)]
+    frames[1][0, 0, 0] = 300
+    for engine in MERGE_ENGINES:
+        with pytest.raises(ParameterError, match="levels above max_level"):
+            merge(frames, (1, 2, 4), response=np.linspace(0, 1, 256), engine=engine)
+
+
+def test_levels_above_max_level_without_a_lut_are_clipped_in_both_engines():
+    frames = [np.full((4, 5, 3), 100 * (k + 1), np.uint16) for k in range(3)]
+    for f in frames:
+        f[0, 0] = 5000
+    ref, _ = both(frames, (1, 2, 4), max_level=4095)
+    assert ref.clipped[0, 0] and ref.radiance[0, 0, 0] > 1.0
+
+
+def test_engine_names_and_unsupported_inputs():
+    frames = [np.full((4, 5), 100 * (k + 1), np.uint16) for k in range(3)]
+    with pytest.raises(ParameterError, match="unknown merge engine method 'cuda'.*'numba'"):
+        merge(frames, (1, 2, 4), max_level=4095, engine="cuda")
+    with pytest.raises(ParameterError, match="numba merge engine cannot run.*1 channels"):
+        merge(frames, (1, 2, 4), max_level=4095, engine="numba")
+    assert merge(frames, (1, 2, 4), max_level=4095).engine == "numpy"  # grey: the reference
