@@ -379,8 +379,12 @@ class InspectorApp:
         result = None
         if self.session.bracket is not None and pipeline_available():
             def progress(*args: Any, **kwargs: Any) -> None:
-                # The pipeline swallows exceptions from this callback, so a superseded job is
-                # not interrupted here; its result is dropped by the worker instead.
+                # A newer request stops this run at the next stage boundary: the pipeline lets
+                # Cancelled through (finished stages stay cached) and the worker drops the job.
+                if ctx.superseded:
+                    from hdrcore.pipeline import Cancelled
+
+                    raise Cancelled(ctx.label)
                 frac, text = _progress_args(args, kwargs)
                 ctx.progress(0.05 + 0.9 * frac, text)
 
