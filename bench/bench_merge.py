@@ -2,13 +2,15 @@
 
     python bench/bench_merge.py            # 3 frames x 24 MP (6000 x 4000) x 3 channels
     python bench/bench_merge.py --mp 6     # smaller
+    python bench/bench_merge.py --no-numpy # only the fused kernel
 
 Frames come from ``hdrcore.synthetic.simulate_bracket`` at 750 x 500 and are upsampled by
-pixel repetition (generation time excluded). OpenCV needs 8-bit frames, so the head-to-head rows
-use the same 8-bit gamma frames (ours with the inverse-gamma LUT and hat weights); the RAW-like
-rows merge 12-bit linear levels and float32 linear frames. Peak memory is the rise of the
-process's peak resident set during the call (``/proc/self/clear_refs`` resets the peak), which
-sees OpenCV's C++ allocations too; tracemalloc's peak of numpy allocations is shown for ours.
+pixel repetition (generation time excluded). OpenCV needs 8-bit frames, so MergeDebevec always
+merges the 8-bit gamma frames (ours: the same frames with the inverse-gamma LUT and hat weights);
+the RAW-like rows merge 12-bit linear levels (and float32 linear frames, the pipeline's input) of
+the same size. Every row of ours has both engines: the fused numba kernel and the numpy
+reference. Peak memory is the rise of the process's peak resident set during the call
+(``/proc/self/clear_refs`` resets the peak), which sees OpenCV's C++ allocations too.
 Timings on a shared machine are pessimistic; the ratio is what the target is about.
 """
 
@@ -16,13 +18,17 @@ from __future__ import annotations
 
 import argparse
 import gc
+import itertools
 import os
+import subprocess
+import sys
+import tempfile
 import time
 import tracemalloc
 
 import numpy as np
 
-from hdrcore.merge import merge
+from hdrcore.merge import merge, warm_up
 from hdrcore.synthetic import simulate_bracket
 
 TIMES = (1.0, 4.0, 16.0)
@@ -69,9 +75,12 @@ def upsample(frames, factor: int):
 
 
 def accuracy_table() -> list[tuple[str, float]]:
-    """Median relative radiance error where some frame was well exposed (small brackets)."""
+    """Median relative radiance error where some frame was well exposed (small brackets), both
+    engines."""
     rows = []
-    for bits, response in ((12, "linear"), (12, "gamma"), (8, "gamma")):
+    for (bits, response), engine in itertools.product(
+        ((12, "linear"), (12, "gamma"), (8, "gamma")), ("numba", "numpy")
+    ):
         sb = simulate_bracket(
             shape=(256, 384), exposure_times=TIMES, bits=bits, response=response,
             noise_sigma=1.0, keep_linear=True, seed=1,
@@ -79,22 +88,39 @@ def accuracy_table() -> list[tuple[str, float]]:
         kw = {"max_level": sb.max_level}
         if response == "gamma":
             kw = {"response": np.tile(np.linspace(0, 1, sb.max_level + 1) ** 2.2, (3, 1))}
-        res = merge(sb.frames, sb.exposure_times, **kw)
+        res = merge(sb.frames, sb.exposure_times, engine=engine, **kw)
         well = np.zeros(sb.radiance.shape[:2], bool)
         for lf in sb.linear_frames:
             well |= ((lf > 0.05) & (lf < 0.9)).all(axis=2)
         err = np.abs(res.radiance / sb.key - sb.radiance) / sb.radiance
-        rows.append((f"{bits}-bit {response} ({res.weighting})", float(np.median(err[well]))))
+        rows.append((f"{bits}-bit {response} ({res.weighting}, {engine})",
+                     float(np.median(err[well]))))
     return rows
+
+
+def compile_times() -> tuple[float, float]:
+    """(cold, cached) seconds of :func:`hdrcore.merge.warm_up` in fresh processes: cold with an
+    empty numba cache directory (everything compiled), cached with the default cache (loaded)."""
+    code = "import time; from hdrcore.merge import warm_up; print(warm_up())"
+    with tempfile.TemporaryDirectory() as tmp:
+        env = dict(os.environ, NUMBA_CACHE_DIR=tmp)
+        cold = float(subprocess.run([sys.executable, "-c", code], env=env, check=True,
+                                    capture_output=True, text=True).stdout.split()[-1])
+    cached = float(subprocess.run([sys.executable, "-c", code], check=True,
+                                  capture_output=True, text=True).stdout.split()[-1])
+    return cold, cached
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--mp", type=float, default=24.0, help="megapixels per frame (default 24)")
-    ap.add_argument("--no-mertens", action="store_true", help="skip MergeMertens")
+    ap.add_argument("--mertens", action="store_true", help="also time MergeMertens")
+    ap.add_argument("--no-numpy", action="store_true", help="skip the numpy reference rows")
     args = ap.parse_args()
     import cv2
 
+    t_compile = compile_times()
+    warm_up()  # compile/load outside the timed rows
     factor = max(1, int(round(np.sqrt(args.mp * 1e6 / (750 * 500)))))
     small = (500, 750)
     g8 = simulate_bracket(shape=small, exposure_times=TIMES, bits=8, response="gamma", seed=0)
@@ -104,43 +130,44 @@ def main() -> None:
     h, w = fr8[0].shape[:2]
     lut = np.tile(np.linspace(0.0, 1.0, 256) ** 2.2, (3, 1))
     times32 = np.asarray(TIMES, np.float32)
+    load0 = os.getloadavg()
     print(f"3 frames of {w} x {h} ({h * w / 1e6:.1f} MP) x 3 channels; cpu count "
-          f"{os.cpu_count()}, load average {os.getloadavg()[0]:.2f}")
+          f"{os.cpu_count()}, load average {load0[0]:.2f} {load0[1]:.2f} {load0[2]:.2f}")
 
-    rows = []
-    wall, cpu, peak, _ = measure(
-        lambda: cv2.createMergeDebevec().process(fr8, times32), trace=False
-    )
-    debevec = wall
-    rows.append(("OpenCV MergeDebevec (8-bit)", wall, cpu, peak, None))
-    if not args.no_mertens:
+    def debevec():
+        return measure(lambda: cv2.createMergeDebevec().process(fr8, times32), trace=False)
+
+    rows = [("OpenCV MergeDebevec (8-bit)", *debevec())]
+    if args.mertens:
         rows.append(("OpenCV MergeMertens (8-bit)",
                      *measure(lambda: cv2.createMergeMertens().process(fr8), trace=False)))
-    for workers in (1, 2):
-        rows.append((f"ours 8-bit + LUT, hat, {workers} thread(s)", *measure(
-            lambda workers=workers: merge(fr8, TIMES, response=lut, workers=workers),
-            trace=True)))
-    for workers in (1, 2):
-        rows.append((f"ours 12-bit linear, noise-aware, {workers} thread(s)", *measure(
-            lambda workers=workers: merge(fr12, TIMES, max_level=4095, workers=workers),
-            trace=True)))
+    engines = ("numba",) if args.no_numpy else ("numba", "numpy")
+    cases = [
+        ("12-bit linear, noise-aware", fr12, {"max_level": 4095}),
+        ("8-bit + LUT, hat", fr8, {"response": lut}),
+    ]
+    for label, frames, kw in cases:
+        for engine in engines:
+            rows.append((f"ours ({engine}) {label}", *measure(
+                lambda frames=frames, kw=kw, engine=engine: merge(frames, TIMES, engine=engine,
+                                                                  **kw), trace=False)))
     fr32 = [f.astype(np.float32) * np.float32(1 / 4095) for f in fr12]
-    rows.append(("ours float32 linear, noise-aware, 2 threads", *measure(
-        lambda: merge(fr32, TIMES, workers=2), trace=True)))
+    rows.append(("ours (numba) float32 linear, noise-aware", *measure(
+        lambda: merge(fr32, TIMES, engine="numba"), trace=False)))
+    fr32.clear()
     # Debevec again at the end: the machine is shared, so bracket our rows with two references.
-    wall2, cpu2, peak2, _ = measure(
-        lambda: cv2.createMergeDebevec().process(fr8, times32), trace=False
-    )
-    rows.append(("OpenCV MergeDebevec (8-bit), again", wall2, cpu2, peak2, None))
-    ref = min(debevec, wall2)
+    rows.append(("OpenCV MergeDebevec (8-bit), again", *debevec()))
+    ref = min(rows[0][1], rows[-1][1])
+    load1 = os.getloadavg()
 
     print()
-    print(f"{'method':52s} {'wall s':>8s} {'cpu s':>8s} {'/Debevec':>9s} "
-          f"{'peak RSS+ MB':>13s} {'tracemalloc MB':>15s}")
-    for name, wall, cpu, peak, traced in rows:
-        tr = f"{traced:15.0f}" if traced is not None else f"{'-':>15s}"
-        print(f"{name:52s} {wall:8.2f} {cpu:8.2f} {wall / ref:9.2f} {peak:13.0f} {tr}")
-    print(f"(ratio against the faster of the two MergeDebevec runs, {ref:.2f} s)")
+    print(f"{'method':50s} {'wall s':>7s} {'cpu s':>7s} {'/Debevec':>9s} {'peak RSS+ MB':>13s}")
+    for name, wall, cpu, peak, _ in rows:
+        print(f"{name:50s} {wall:7.2f} {cpu:7.2f} {wall / ref:9.2f} {peak:13.0f}")
+    print(f"(ratio against the faster of the two MergeDebevec runs, {ref:.2f} s; "
+          f"load average at the end {load1[0]:.2f})")
+    print(f"numba compilation of the kernels (warm_up): cold cache {t_compile[0]:.1f} s, "
+          f"cached {t_compile[1]:.2f} s")
 
     print()
     print(f"{'accuracy (median relative radiance error, well exposed)':60s}")
