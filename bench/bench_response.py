@@ -150,8 +150,9 @@ def synthetic_tables() -> None:
     table("RMS of g vs truth over all levels (% of range; g(0)=0, g(255)=1)", full)
     table("shape RMS below 95 % of the levels after the best scale (% of range)", shp)
     OUT.mkdir(parents=True, exist_ok=True)
-    keep = [x for x in plot_poly_noise if "naive" not in x[1]]
-    img = render_curves(keep[:10], title="seed protocol: polynomial3, noise sigma 1 (all methods)")
+    truth = PeerCurve(np.tile(truth_g("polynomial3"), (3, 1)))
+    keep = [(truth, "truth")] + [x for x in plot_poly_noise if "naive" not in x[1]]
+    img = render_curves(keep[:11], title="seed protocol: polynomial3, noise sigma 1 (all methods)")
     p = OUT / "synthetic_poly3_noise.png"
     img.save(p)
     print(f"\nplot: {p.relative_to(ROOT)}")
