@@ -65,3 +65,20 @@ def test_bad_input_is_refused():
         tonemap(np.ones((2, 2, 4)))
     with pytest.raises(ParameterError, match="key must be positive"):
         tonemap(np.ones((2, 2, 3)), key=0)
+
+
+@pytest.mark.parametrize("method", ["linear", "reinhard", "reinhard-rgb"])
+@pytest.mark.parametrize("white", [None, 4.0])
+def test_fused_tonemap_matches_the_numpy_reference(method, white):
+    pytest.importorskip("numba")
+    rng = np.random.default_rng(0)
+    rad = np.exp(rng.normal(0.0, 2.0, (64, 96, 3))).astype(np.float32)
+    rad[0, 0] = (np.nan, np.inf, -1.0)
+    ref = tonemap(rad, method, white=white, exposure=0.5, engine="numpy")
+    fused = tonemap(rad, method, white=white, exposure=0.5, engine="numba", workers=2)
+    np.testing.assert_array_equal(fused.image, ref.image)
+    grey = tonemap(rad[..., 1], method, white=white, engine="numba")
+    np.testing.assert_array_equal(grey.image, tonemap(rad[..., 1], method, white=white,
+                                                      engine="numpy").image)
+    with pytest.raises(ParameterError, match="tonemap engine"):
+        tonemap(rad, method, engine="gpu")

@@ -47,6 +47,7 @@ WEIGHT_CODES = {"hat": 0, "gaussian": 1, "noise-aware": 2, "uniform": 3}
 _F16_MAX = np.float32(65504.0)
 _TINY = np.float32(1e-30)
 _ONE_F16 = np.uint16(0x3C00)  # 1.0 as float16 bits
+_BLOCK = 512  # pixels of a row per block: the block's sums stay in L1 cache
 
 
 @_njit
@@ -63,38 +64,39 @@ def _f16_bits(v):
 
 @_njit
 def _finish_row(
-    y, n, c, order, den, num, s2, sv, share, bad, clip, nbad, me2, thr,
+    y, x0, x1, n, c, order, den, num, s2, sv, share, bad, clip, nbad, me2, thr,
     rad, wsum_out, shares, clipped_out, under_out, gscore, ghost, mode, pick,
 ):
     """Radiance, ghost score, shares and fallbacks of row ``y`` (the reference's ``_finish``).
 
-    Row buffers are channel- or frame-planar ``(C, W)`` / ``(N, W)``. Sets ``mode[x]``: 0 done;
-    1 every channel takes frame ``pick[x]``'s linear value over its time (float64, then
+    Columns ``x0:x1`` of the row; the buffers are channel- or frame-planar ``(C, B)`` /
+    ``(N, B)`` blocks indexed by ``x - x0`` (a block stays in L1 cache). Sets ``mode[i]``: 0 done;
+    1 every channel takes frame ``pick[i]``'s linear value over its time (float64, then
     float32); 2 the channels with no weight do; 3 every channel takes the darkest frame's float32
     ``E_k``. The caller fills those in (it knows the dtype).
     """
-    w = den.shape[1]
     zero = np.float32(0.0)
     one = np.float32(1.0)
-    for x in range(w):
+    for x in range(x0, x1):
+        i = x - x0
         spread = zero
         noise = zero
         wsum = zero
         anyzero = False
         for ch in range(c):
-            d = den[ch, x]
+            d = den[ch, i]
             inv = d if d >= _TINY else _TINY
             inv = one / inv
-            a = num[ch, x] * inv
+            a = num[ch, i] * inv
             rad[y, x, ch] = a
-            b = s2[ch, x] * inv
+            b = s2[ch, i] * inv
             a2 = a * a
             b = b - a2
             if b < zero:
                 b = zero
             spread = b if ch == 0 else spread + b
             a2 = a2 * me2
-            b = sv[ch, x] * inv
+            b = sv[ch, i] * inv
             b = b + a2
             noise = b if ch == 0 else noise + b
             wsum = d if ch == 0 else wsum + d
@@ -109,42 +111,42 @@ def _finish_row(
         invw = wsum if wsum >= _TINY else _TINY
         invw = one / invw
         for k in range(n):
-            shares[k, y, x] = _f16_bits(share[k, x] * invw)
-        is_clipped = nbad[x] == n
+            shares[k, y, x] = _f16_bits(share[k, i] * invw)
+        is_clipped = nbad[i] == n
         under = False
-        mode[x] = 0
+        mode[i] = 0
         if anyzero:
             if is_clipped:
                 dk = order[0]
-                if not (bad[dk, x] and not clip[dk, x]):
+                if not (bad[dk, i] and not clip[dk, i]):
                     p = dk
-                    mode[x] = 3
+                    mode[i] = 3
                 else:
                     p = -1
                     for j in range(n):
                         k = order[j]
-                        if not (bad[k, x] and not clip[k, x]):
+                        if not (bad[k, i] and not clip[k, i]):
                             p = k
                             break
                     if p < 0:  # no valid frame at all: unknown, not clipped
                         p = dk
                         is_clipped = False
-                    mode[x] = 1
+                    mode[i] = 1
                 for k in range(n):
                     shares[k, y, x] = np.uint16(0)
                 shares[p, y, x] = _ONE_F16
-                pick[x] = p
-            elif nbad[x] < n:
+                pick[i] = p
+            elif nbad[i] < n:
                 last = 0
                 for j in range(n):
-                    if not bad[order[j], x]:
+                    if not bad[order[j], i]:
                         last = j
                 p = order[last]
-                mode[x] = 2
-                pick[x] = p
+                mode[i] = 2
+                pick[i] = p
                 whole = True
                 for ch in range(c):
-                    if den[ch, x] > zero:
+                    if den[ch, i] > zero:
                         whole = False
                 if whole:
                     for k in range(n):
@@ -157,6 +159,7 @@ def _finish_row(
 
 @_njit
 def _row_buffers(n, c, w):
+    w = min(w, _BLOCK)
     return (
         np.empty((c, w), np.float32),  # den = sum w
         np.empty((c, w), np.float32),  # num = sum w E_k
@@ -204,53 +207,59 @@ def merge_rows_integer(
     den, num, s2, sv, share, bad, clip, nbad, mode, pick = _row_buffers(n, c, w)
     out_of_range = 0
     zero = np.float32(0.0)
-    for y in range(r0, r1):
+    nb = (w + _BLOCK - 1) // _BLOCK
+    for yb in range((r1 - r0) * nb):
+        y = r0 + yb // nb
+        x0 = (yb % nb) * _BLOCK
+        x1 = min(w, x0 + _BLOCK)
         den[:] = zero
         num[:] = zero
         s2[:] = zero
         sv[:] = zero
         nbad[:] = 0
-        clip_count[y, :] = 0
+        clip_count[y, x0:x1] = 0
         for j in range(n):
             k = order[j]
             f = frames[k][y]
             mrow = masks[k][y if has_mask[k] else 0]
             hm = has_mask[k]
             tk = tab[k]
-            for x in range(w):
+            for x in range(x0, x1):
+                i = x - x0
                 cl, b = _clip_flags(f, x, c, sat, hm, mrow)
-                clip[k, x] = cl
-                bad[k, x] = b
+                clip[k, i] = cl
+                bad[k, i] = b
                 if cl:
                     clip_count[y, x] += 1
                 if b:
-                    nbad[x] += 1
+                    nbad[i] += 1
                 sh = zero
                 if has_lut:
                     for ch in range(3):
                         if int(f[x, ch]) > lmax:
                             out_of_range += 1
                 if b:
-                    share[k, x] = zero
+                    share[k, i] = zero
                     continue
                 for ch in range(3):
                     v = int(f[x, ch])
                     if v > lmax:  # clipped (saturation <= max_level): its weight is not used
                         v = lmax
                     wk = tk[ch, v, 1]
-                    den[ch, x] += wk
+                    den[ch, i] += wk
                     sh = wk if ch == 0 else sh + wk
-                    sv[ch, x] += tk[ch, v, 2]
-                    num[ch, x] += tk[ch, v, 3]
-                    s2[ch, x] += tk[ch, v, 4]
-                share[k, x] = sh
+                    sv[ch, i] += tk[ch, v, 2]
+                    num[ch, i] += tk[ch, v, 3]
+                    s2[ch, i] += tk[ch, v, 4]
+                share[k, i] = sh
         _finish_row(
-            y, n, c, order, den, num, s2, sv, share, bad, clip, nbad, me2, thr,
+            y, x0, x1, n, c, order, den, num, s2, sv, share, bad, clip, nbad, me2, thr,
             rad, wsum_out, shares, clipped_out, under_out, gscore, ghost, mode, pick,
         )
-        for x in range(w):
-            if mode[x] == 3:
-                p = pick[x]
+        for x in range(x0, x1):
+            i = x - x0
+            if mode[i] == 3:
+                p = pick[i]
                 fp = frames[p][y]
                 for ch in range(c):
                     v = int(fp[x, ch])
@@ -258,11 +267,11 @@ def merge_rows_integer(
                         rad[y, x, ch] = tab[p, ch, v, 0]
                     elif not has_lut:
                         rad[y, x, ch] = (np.float32(fp[x, ch]) * inv_max) * inv_t[p]
-            elif mode[x] != 0:
-                p = pick[x]
+            elif mode[i] != 0:
+                p = pick[i]
                 fp = frames[p][y]
                 for ch in range(c):
-                    if mode[x] == 1 or den[ch, x] <= zero:
+                    if mode[i] == 1 or den[ch, i] <= zero:
                         if has_lut:
                             vi = min(int(fp[x, ch]), lut.shape[1] - 1)
                             val = np.float64(lut[ch, vi])
@@ -290,13 +299,17 @@ def merge_rows_linear(
     half = np.float32(0.5)
     m16 = np.float32(-16.0)
     zero = np.float32(0.0)
-    for y in range(r0, r1):
+    nb = (w + _BLOCK - 1) // _BLOCK
+    for yb in range((r1 - r0) * nb):
+        y = r0 + yb // nb
+        x0 = (yb % nb) * _BLOCK
+        x1 = min(w, x0 + _BLOCK)
         den[:] = zero
         num[:] = zero
         s2[:] = zero
         sv[:] = zero
         nbad[:] = 0
-        clip_count[y, :] = 0
+        clip_count[y, x0:x1] = 0
         for j in range(n):
             k = order[j]
             f = frames[k][y]
@@ -305,14 +318,15 @@ def merge_rows_linear(
             itk = inv_t[k]
             it2 = inv_t2[k]
             t2k = t2[k]
-            for x in range(w):
+            for x in range(x0, x1):
+                i = x - x0
                 cl, b = _clip_flags(f, x, c, sat, hm, mrow)
-                clip[k, x] = cl
-                bad[k, x] = b
+                clip[k, i] = cl
+                bad[k, i] = b
                 if cl:
                     clip_count[y, x] += 1
                 if b:
-                    nbad[x] += 1
+                    nbad[i] += 1
                 ok = zero if b else one
                 sh = zero
                 for ch in range(3):
@@ -336,31 +350,32 @@ def merge_rows_linear(
                         wk = one
                     keep = ok if level > floor_norm else zero
                     wk = wk * keep
-                    den[ch, x] += wk
+                    den[ch, i] += wk
                     sh = wk if ch == 0 else sh + wk
                     var = var * wk
                     var = var * it2
-                    sv[ch, x] += var
+                    sv[ch, i] += var
                     wk = wk * e
-                    num[ch, x] += wk
+                    num[ch, i] += wk
                     wk = wk * e
-                    s2[ch, x] += wk
-                share[k, x] = sh
+                    s2[ch, i] += wk
+                share[k, i] = sh
         _finish_row(
-            y, n, c, order, den, num, s2, sv, share, bad, clip, nbad, me2, thr,
+            y, x0, x1, n, c, order, den, num, s2, sv, share, bad, clip, nbad, me2, thr,
             rad, wsum_out, shares, clipped_out, under_out, gscore, ghost, mode, pick,
         )
-        for x in range(w):
-            if mode[x] == 3:
-                p = pick[x]
+        for x in range(x0, x1):
+            i = x - x0
+            if mode[i] == 3:
+                p = pick[i]
                 fp = frames[p][y]
                 for ch in range(c):
                     rad[y, x, ch] = (np.float32(fp[x, ch]) * inv_max) * inv_t[p]
-            elif mode[x] != 0:
-                p = pick[x]
+            elif mode[i] != 0:
+                p = pick[i]
                 fp = frames[p][y]
                 for ch in range(c):
-                    if mode[x] == 1 or den[ch, x] <= zero:
+                    if mode[i] == 1 or den[ch, i] <= zero:
                         val = np.float64(fp[x, ch]) / max_level
                         rad[y, x, ch] = np.float32(val / times[p])
 

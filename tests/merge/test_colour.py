@@ -63,3 +63,33 @@ def test_bad_camera_data_is_refused():
         camera_to_working_matrix(working_space="XYZ")
     with pytest.raises(ParameterError, match=r"radiance must be \(H, W, 3\)"):
         camera_to_working(np.zeros((4, 4)))
+
+
+def test_fused_conversion_matches_numpy_and_works_in_place():
+    rng = np.random.default_rng(0)
+    rad = rng.random((16, 24, 3)).astype(np.float32) * 4
+    clipped = rng.random((16, 24)) < 0.1
+    m = camera_to_working_matrix(CAM_XYZ, WB)
+    expected = np.einsum("ij,hwj->hwi", m, rad.astype(np.float64))
+    out = camera_to_working(rad, CAM_XYZ, WB, clipped=clipped)
+    np.testing.assert_allclose(out[~clipped], expected[~clipped], rtol=1e-5, atol=1e-6)
+    assert np.allclose(out[clipped], out[clipped][:, 1:2], rtol=1e-5)  # neutral
+    inplace = rad.copy()
+    res = camera_to_working(inplace, CAM_XYZ, WB, clipped=clipped, out=inplace, workers=2)
+    assert res is inplace
+    np.testing.assert_allclose(inplace, out, rtol=1e-6)
+    with pytest.raises(ParameterError, match="out must be a C-contiguous float32"):
+        camera_to_working(rad, CAM_XYZ, WB, out=np.empty((2, 2, 3), np.float32))
+
+
+def test_numpy_fallback_in_place(monkeypatch):
+    import hdrcore.merge.colour as colour_module
+
+    rng = np.random.default_rng(1)
+    rad = rng.random((8, 12, 3)).astype(np.float32)
+    clipped = rng.random((8, 12)) < 0.2
+    fused = camera_to_working(rad, CAM_XYZ, WB, clipped=clipped)
+    monkeypatch.setattr(colour_module, "numba", None)
+    inplace = rad.copy()
+    camera_to_working(inplace, CAM_XYZ, WB, clipped=clipped, out=inplace)
+    np.testing.assert_allclose(inplace, fused, rtol=1e-5, atol=1e-7)
