@@ -96,15 +96,22 @@ def check_histograms(hist_dark: np.ndarray, hist_bright: np.ndarray) -> tuple[np
     return hd, hb
 
 
+def _level_range(n: int, noise_floor: float, saturation: float) -> tuple[int, int]:
+    """Slice ``lo:hi`` of the levels ``m`` with ``noise_floor < m < saturation``."""
+    lo = int(np.floor(noise_floor)) + 1
+    hi = int(np.ceil(saturation))
+    return min(max(lo, 0), n), min(max(hi, 0), n)
+
+
 def _check_usable(hist: np.ndarray, which: str, saturation: float, noise_floor: float) -> None:
     """Raise when a whole frame is black or saturated: no ratio can be estimated from it."""
     total = hist.sum()
     if total <= 0:
         raise EstimationError(f"the {which} frame has no pixels to count")
-    levels = np.arange(hist.shape[-1])
-    mid = hist[..., (levels > noise_floor) & (levels < saturation)].sum()
+    lo, hi = _level_range(hist.shape[-1], noise_floor, saturation)
+    mid = hist[..., lo:hi].sum()
     if mid == 0:
-        low = hist[..., levels <= noise_floor].sum()
+        low = hist[..., :lo].sum()
         kind = "black (at or below the noise floor)" if low >= total / 2 else "saturated"
         raise EstimationError(
             f"the {which} frame is entirely {kind}; no exposure ratio can be estimated from it",
@@ -142,13 +149,17 @@ def solve_3v_groups(
     Returns ``(k, iterates, inlier_groups, iterations, std_error)``.
     """
     occupied = n > 0
+    stats = np.stack([sxx, sxy, syy, n])  # one matrix-vector product sums all four
 
-    def fit(mask: np.ndarray) -> float:
-        den = float(sxx[mask].sum())
-        return float(sxy[mask].sum() / den) if den > 0 else float("nan")
+    def sums(mask: np.ndarray) -> np.ndarray:
+        return stats @ mask.astype(np.float64)
 
     def ssr(k: float) -> np.ndarray:
         return np.maximum(syy - 2.0 * k * sxy + k * k * sxx, 0.0)
+
+    def fit(mask: np.ndarray) -> float:
+        s_xx, s_xy = sums(mask)[:2]
+        return float(s_xy / s_xx) if s_xx > 0 else float("nan")
 
     mask = occupied.copy()
     k = fit(mask)
@@ -156,11 +167,10 @@ def solve_3v_groups(
     if np.isfinite(k):
         for _ in range(max_iterations):
             r2 = ssr(k)
-            v = float(r2[mask].sum() / n[mask].sum())
+            v = float(np.dot(r2, mask) / np.dot(n, mask))
             if v <= 0:
                 break
-            with np.errstate(invalid="ignore", divide="ignore"):
-                new_mask = occupied & (r2 < 3.0 * v * n)
+            new_mask = occupied & (r2 < 3.0 * v * n)
             if np.count_nonzero(new_mask) < 2 or np.array_equal(new_mask, mask):
                 break  # too few left, or the inlier set no longer changes: k is final
             mask = new_mask
@@ -170,10 +180,9 @@ def solve_3v_groups(
             k = k_new
             if done:
                 break
-    n_in = float(n[mask].sum())
-    den = float(sxx[mask].sum())
-    if n_in > 1 and den > 0 and np.isfinite(k):
-        se = float(np.sqrt(float(ssr(k)[mask].sum()) / (n_in - 1) / den))
+    s_xx, _, _, n_in = sums(mask)
+    if n_in > 1 and s_xx > 0 and np.isfinite(k):
+        se = float(np.sqrt(float(np.dot(ssr(k), mask)) / (n_in - 1) / s_xx))
     else:
         se = float("inf")
     return k, tuple(iterates), mask, len(iterates) - 1, se
@@ -191,25 +200,25 @@ def solve_3v_batch(
     mask = occupied.copy()
 
     def fit(m: np.ndarray) -> np.ndarray:
-        den = np.where(m, sxx, 0.0).sum(axis=1)
-        num = np.where(m, sxy, 0.0).sum(axis=1)
+        den = np.einsum("bg,bg->b", m, sxx)
+        num = np.einsum("bg,bg->b", m, sxy)
         with np.errstate(invalid="ignore", divide="ignore"):
             return np.where(den > 0, num / np.where(den > 0, den, 1.0), np.nan)
 
-    k = fit(mask)
+    k = fit(mask.astype(np.float64))
     active = np.isfinite(k)
     for _ in range(max_iterations):
         if not active.any():
             break
+        mf = mask.astype(np.float64)
         r2 = np.maximum(syy - 2.0 * k[:, None] * sxy + (k * k)[:, None] * sxx, 0.0)
-        cnt = np.where(mask, n, 0.0).sum(axis=1)
         with np.errstate(invalid="ignore", divide="ignore"):
-            v = np.where(mask, r2, 0.0).sum(axis=1) / cnt
+            v = np.einsum("bg,bg->b", mf, r2) / np.einsum("bg,bg->b", mf, n)
             new_mask = occupied & (r2 < 3.0 * v[:, None] * n)
         stop = (v <= 0) | (new_mask.sum(axis=1) < 2) | np.all(new_mask == mask, axis=1)
         active &= ~stop
         mask = np.where(active[:, None], new_mask, mask)
-        k_new = fit(mask)
+        k_new = fit(mask.astype(np.float64))
         done = np.abs(k_new - k) <= precision * np.abs(k)
         k = np.where(active, k_new, k)
         active &= ~done
@@ -243,13 +252,15 @@ def solve_3v(
 
 
 def _equations_for_channel(
-    btf: BrightnessTransferFunction, g: np.ndarray, saturation: float, noise_floor: float,
+    btf: BrightnessTransferFunction, g: np.ndarray | None, saturation: float, noise_floor: float,
     options: FitOptions, channel: int,
 ) -> tuple[np.ndarray, ...]:
-    n = g.size
+    n = btf.hist_dark.size
     levels = np.arange(n, dtype=np.float64)
 
     def lin(pos: np.ndarray) -> np.ndarray:
+        if g is None:  # linear levels: g(m) = m / max_level (np.interp clamps the same way)
+            return np.clip(pos, 0.0, n - 1) / (n - 1)
         return np.interp(pos, levels, g)
 
     hd, hb = btf.hist_dark, btf.hist_bright
@@ -280,13 +291,13 @@ def _overlap(hd: np.ndarray, btfs: tuple[BrightnessTransferFunction, ...], satur
              noise_floor: float) -> float:
     """Fraction of the darker frame's pixels above the floor whose transfer stays below ``Z``."""
     fractions = []
+    lo, hi = _level_range(hd.shape[1], noise_floor, saturation)
     for c, btf in enumerate(btfs):
         total = hd[c].sum()
         if total <= 0:
             continue
-        levels = np.arange(hd.shape[1])
-        usable = (levels > noise_floor) & (levels < saturation) & (btf.forward < saturation)
-        fractions.append(hd[c][usable].sum() / total)
+        usable = btf.forward[lo:hi] < saturation
+        fractions.append(hd[c, lo:hi][usable].sum() / total)
     return float(np.mean(fractions)) if fractions else 0.0
 
 
@@ -338,11 +349,12 @@ def estimate_pair(
                              found=f"noise floor {floor:g}, saturation {z:g}")
     _check_usable(hd, "darker", z, floor)
     _check_usable(hb, "brighter", z, floor)
-    g = as_lut(lut, n_ch, max_level)
+    g = None if lut is None else as_lut(lut, n_ch, max_level)
 
     if btfs is None or len(btfs) != n_ch:
         btfs = pair_btfs(hd, hb)
-    parts = [_equations_for_channel(btfs[c], g[c], z, floor, options, c) for c in range(n_ch)]
+    parts = [_equations_for_channel(btfs[c], None if g is None else g[c], z, floor, options, c)
+             for c in range(n_ch)]
     x, y, w, direction, ch, level = (np.concatenate(p) for p in zip(*parts, strict=True))
     if options.relative_error:
         keep = x > 0

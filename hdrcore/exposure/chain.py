@@ -131,7 +131,7 @@ def chain_bracket(
     max_span: int = 3,
     consistency_stops: float = 0.02,
     jackknife: bool = True,
-    max_region_error: float = 0.004,
+    max_region_error: float = 0.005,
     jackknife_groups: int = 256,
     **kwargs: object,
 ) -> BracketExposureResult:
