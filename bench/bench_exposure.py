@@ -67,6 +67,23 @@ def bayer_mosaic(frame: np.ndarray) -> np.ndarray:
 
 
 def hdrutils_ratios(frames, times, max_level, method):
+    """Consecutive ratios from HDRutils.estimate_exposures on the whole stack; when it gives up
+    (``mst`` needs valid pixels of every frame in each of its 16x16 tiles, which the darkest
+    frames of a 6-frame, 10-stop stack never have), once per consecutive pair instead."""
+    ratios, note = _hdrutils_stack(frames, times, max_level, method)
+    if not note:
+        return ratios, ""
+    per_pair, notes = [], []
+    for k in range(len(frames) - 1):
+        r, n = _hdrutils_stack(frames[k:k + 2], times[k:k + 2], max_level, method)
+        per_pair.append(r[0])
+        if n:
+            notes.append(f"pair {k}: {n}")
+    why = f"whole stack: {note}; run per consecutive pair"
+    return per_pair, why + (" (" + "; ".join(notes)[:100] + ")" if notes else "")
+
+
+def _hdrutils_stack(frames, times, max_level, method):
     """Consecutive ratios from HDRutils.estimate_exposures; nan where it gave up (it then
     silently returns the EXIF times we passed, which would look perfect)."""
     import HDRutils.exposures as hx

@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import argparse
 
+import numpy as np
+
+from ..errors import ParameterError
 from ..exposure import DEFAULT_METHOD, EXPOSURE_METHODS, bracket_exposures, srgb_lut
 from ._common import add_bracket_arguments, load_bracket_from_args, print_json, print_warnings
 
@@ -24,8 +27,36 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    help="estimator (default: %(default)s)")
     p.add_argument("--noise-sigma", type=float, default=None, metavar="S",
                    help="additive noise in levels for noise matching (refined method)")
+    p.add_argument("--mask-colour", metavar="R,G,B", type=_colour,
+                   help="exclude pixels of exactly this colour in any frame (in levels), e.g. "
+                        "0,0,255 for the blue border of memorial-debevec")
     p.add_argument("--json", action="store_true", help="print JSON on stdout")
     p.set_defaults(run=run)
+
+
+def _colour(text: str) -> tuple[int, ...]:
+    try:
+        values = tuple(int(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected three integer levels R,G,B (e.g. 0,0,255), found {text!r}") from None
+    if len(values) != 3 or min(values) < 0:
+        raise argparse.ArgumentTypeError(
+            f"expected three non-negative integer levels R,G,B, found {text!r}")
+    return values
+
+
+def colour_mask(levels: list[np.ndarray], colour: tuple[int, ...]) -> np.ndarray:
+    """True where no frame has exactly ``colour``: the pixels to use."""
+    first = np.asarray(levels[0])
+    if first.ndim != 3 or first.shape[2] != len(colour):
+        raise ParameterError("--mask-colour needs colour frames with one level per channel",
+                             expected=f"{len(colour)} channels", found=str(first.shape))
+    hit = np.zeros(first.shape[:2], bool)
+    target = np.asarray(colour)
+    for f in levels:
+        hit |= np.all(np.asarray(f) == target, axis=-1)
+    return ~hit
 
 
 def _lut(args: argparse.Namespace, linear: bool, max_level: int):
@@ -48,12 +79,15 @@ def run(args: argparse.Namespace) -> int:
     max_level = frames[0].max_level
     lut = _lut(args, all(f.is_linear for f in frames), max_level)
     times = [None if f.meta.exposure_time is None else float(f.meta.exposure_time) for f in frames]
+    levels = [f.levels for f in frames]
+    mask = None if args.mask_colour is None else colour_mask(levels, args.mask_colour)
     res = bracket_exposures(
-        [f.levels for f in frames], max_level, method=args.method, exposure_times=times,
+        levels, max_level, method=args.method, exposure_times=times, mask=mask,
         saturation=args.saturation, noise_floor=args.noise_floor, lut=lut,
         noise_sigma=args.noise_sigma,
     )
     out = {
+        "masked_fraction": None if mask is None else float(1.0 - mask.mean()),
         "frames": [
             {"path": f.meta.path,
              "exif_exposure_time": times[k],
@@ -65,7 +99,9 @@ def run(args: argparse.Namespace) -> int:
              "initial_ratio": p.initial_ratio, "iterations": p.iterations,
              "equations": p.n_equations, "inliers": p.n_inliers,
              "exif_ratio": res.exif_ratios[k], "mismatch_stops": res.mismatch_stops[k],
-             "std_error": p.std_error, "status": p.status, "message": p.message}
+             "std_error": p.std_error,
+             "region_std_error": p.to_json()["region_std_error"],
+             "status": p.status, "message": p.message}
             for k, p in enumerate(res.pairs)
         ],
     }

@@ -89,6 +89,9 @@ def solve_chain(
     return np.exp2(log_e), residuals
 
 
+_REGION_OVERRIDES = ("ok", "channels-disagree", "uncertain")
+
+
 def _with_diagnostics(
     r: ExposureRatioResult, ph: PairHistograms, *, lut: np.ndarray | None, jackknife: bool,
     max_region_error: float, jackknife_groups: int,
@@ -105,7 +108,9 @@ def _with_diagnostics(
         ks, se = region_jackknife(sk, saturation=r.saturation, noise_floor=r.noise_floor, lut=lut)
         changes.update(region_ratios=tuple(float(v) for v in ks), region_std_error=se)
         rel = se / r.ratio if r.ratio > 0 else float("inf")
-        if r.ok and np.isfinite(rel) and rel > max_region_error:
+        # Motion explains disagreeing channels and a poor fit too, and the remedy differs:
+        # "unstable" takes precedence over those, not over a missing overlap or a failed fit.
+        if r.status in _REGION_OVERRIDES and np.isfinite(rel) and rel > max_region_error:
             changes["status"] = "unstable"
             if ph.overlap_restricted:
                 hint = ("even within the common field of view: a moving object, a poor "
@@ -117,7 +122,8 @@ def _with_diagnostics(
             changes["message"] = (
                 f"ratio {r.ratio:.4f} of frames {r.dark} and {r.bright} is unstable: leaving out "
                 f"one of {sk.n_regions} image regions moves it by {rel:.2%} (jack-knife standard "
-                f"error, over {max_region_error:.2%}); {hint}")
+                f"error, over {max_region_error:.2%}); {hint}"
+                + ("" if r.ok else f" (the fit alone reported: {r.status})"))
     return replace(r, **changes) if changes else r
 
 

@@ -59,15 +59,13 @@ def test_synthetic_truth_tripod(bits: int, tol: float) -> None:
     assert all(abs(m) < 0.01 for m in res.mismatch_stops)
 
 
-@pytest.mark.xfail(strict=False, reason="known limitation: border content changed by motion biases "
-                   "histograms by ~1-10 % and not every such pair is flagged yet (see bench)")
 def test_hand_held_pairs_are_accurate_or_flagged() -> None:
     b = simulate_bracket(scene="night", shape=(192, 288), exposure_times=(1.0, 4.0, 16.0, 64.0),
                          bits=12, noise_sigma=1.0, max_shift=4, max_rotation_deg=0.2, seed=3)
     res = bracket_exposures(b.frames, b.max_level)
     for p in res.pairs:
         assert np.isfinite(p.ratio)
-        assert p.ok or p.status in ("uncertain", "inconsistent", "channels-disagree")
+        assert p.ok or p.status in ("uncertain", "inconsistent", "channels-disagree", "unstable")
         if abs(p.ratio / 4 - 1) > 0.01:
             assert not p.ok
 
