@@ -134,6 +134,20 @@ def diagnose(result: PipelineResult) -> list[Verdict]:
                 ))
 
     m = result.merge
+    hist = getattr(result, "exposures_histogram", None)
+    if hist is not None and hist is not ex:
+        for k, (a, c) in enumerate(zip(hist.ratios, ex.ratios, strict=False)):
+            if math.isfinite(a) and math.isfinite(c) and c > 0 and abs(a / c - 1) > 0.01:
+                out.append(Verdict(
+                    "motion-biased-ratio", "info",
+                    f"Hand-held motion biased the whole-frame ratio of frames {k} and {k + 1} "
+                    f"by {100 * (a / c - 1):+.1f} %; it was re-measured over their common field "
+                    f"of view ({c:.4g}).", (k, k + 1),
+                ))
+    if m is None:
+        order = {"error": 0, "warning": 1, "info": 2}
+        out.sort(key=lambda v: order.get(v.severity, 3))
+        return out
     summary_clipped = float(m.clipped.mean()) if m.clipped.size else 0.0
     if summary_clipped > CLIPPED_FRACTION:
         out.append(Verdict(

@@ -69,7 +69,10 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-STAGES = ("histograms", "response", "ratios", "registration", "merge", "preview")
+STAGES = (
+    "histograms", "response", "ratios", "registration", "overlap_histograms", "overlap_ratios",
+    "merge", "preview",
+)
 ALIGN_CHOICES = ("none", "shift", "euclidean")
 
 ProgressCallback = Callable[[str, float, str], None]
@@ -133,6 +136,10 @@ class PipelineResult:
     used (seconds when EXIF anchors them, else relative to the darkest frame) and
     ``times_source`` where they came from; ``radiance`` the merged map in ``working_space``.
     ``stages_run`` lists the stages computed in this run (the others came from the cache).
+    ``exposures`` are the ratios the merge used: measured over each pair's common field of view
+    once the registration is known (``overlap_ratios``), else from the whole frames;
+    ``exposures_histogram`` always holds the whole-frame estimate (the paper's method, before
+    registration). Stages after ``until`` are ``None``.
     """
 
     bracket: Bracket
@@ -143,17 +150,19 @@ class PipelineResult:
     response: ResponseCurve | None
     lut: np.ndarray | None
     exposures: BracketExposureResult
+    exposures_histogram: BracketExposureResult
     exposure_times: tuple[float, ...]
     times_source: str
     registration: BracketRegistration | None
-    merge: MergeResult
-    radiance: np.ndarray = field(repr=False)
+    merge: MergeResult | None
+    radiance: np.ndarray | None = field(repr=False)
     colour: dict[str, Any] = field(default_factory=dict)
     preview: TonemapResult | None = None
     preview_factor: int = 1
     timings: dict[str, float] = field(default_factory=dict)
     stages_run: tuple[str, ...] = ()
     verdicts: tuple[Verdict, ...] = ()
+    until: str = "preview"
 
     @property
     def ok(self) -> bool:
@@ -196,13 +205,14 @@ class PipelineResult:
             },
             "warnings": [w.to_json() for w in b.warnings],
             "ratios": self.ratios_json(),
+            "ratios_before_registration": ratios_json(self.bracket, self.exposures_histogram),
             "times_source": self.times_source,
             "response": None if self.response is None else {
                 "method": self.response.method,
                 "message": getattr(self.response, "message", ""),
             },
             "registration": self.registration_json(),
-            "merge": self.merge.summary(),
+            "merge": None if self.merge is None else self.merge.summary(),
             "colour": self.colour,
             "preview": None if self.preview is None else {
                 **self.preview.to_json(), "downsample_factor": self.preview_factor,
@@ -370,9 +380,8 @@ class Pipeline:
     ) -> PipelineResult:
         """Run (or re-use) every stage up to ``until`` and return the result.
 
-        ``until="ratios"`` stops after the exposure ratios (a fast re-fit for sliders); the
-        result then holds the previous run's later stages, if any, with ``stages_run`` showing
-        what was refreshed.
+        ``until="ratios"`` stops after the whole-frame exposure ratios (a fast re-fit from the
+        cached histograms, for sliders); later stages are then ``None`` in the result.
         """
         if until not in STAGES:
             raise ParameterError(f"unknown stage {until!r}", expected=", ".join(STAGES))
@@ -388,11 +397,14 @@ class Pipeline:
         t_start = time.perf_counter()
         levels = [f.levels for f in b.frames]
         m = b.max_level
+        upto = STAGES[last]
+
+        def want(stage: str) -> bool:
+            return STAGES.index(stage) <= last
 
         hists = self._stage(
             "histograms", (), lambda: bracket_histograms(levels, m), ran, timings
         )
-
         resp_key = _response_key(p.response, b.is_linear)
         response = self._stage(
             "response", resp_key, lambda: self._response(p), ran, timings
@@ -400,56 +412,69 @@ class Pipeline:
         lut = None if response is None else response.to_lut(m)
 
         ratio_key = (resp_key, p.saturation, p.noise_floor, p.exposure_method)
-        exposures = self._stage(
-            "ratios", ratio_key,
-            lambda: bracket_exposures_from_histograms(
-                hists, method=p.exposure_method,
-                exposure_times=b.exposure_times,
-                saturation=p.saturation, noise_floor=p.noise_floor, lut=lut,
-            ),
+        fit = dict(method=p.exposure_method, exposure_times=b.exposure_times,
+                   saturation=p.saturation, noise_floor=p.noise_floor, lut=lut)
+        exposures_hist = self._stage(
+            "ratios", ratio_key, lambda: bracket_exposures_from_histograms(hists, **fit),
             ran, timings,
         )
-        times, times_source = self._merge_times(exposures, p)
-        if last < STAGES.index("registration") and self.last_result is not None:
-            res = replace(
-                self.last_result, params=p, saturation=float(p.saturation),
-                noise_floor=float(p.noise_floor), exposures=exposures, stages_run=tuple(ran),
-                timings={**timings, "total": time.perf_counter() - t_start},
+        exposures = exposures_hist
+        registration = None
+        merge_result = None
+        radiance = None
+        colour_info: dict[str, Any] = {}
+        preview, factor = None, 1
+        times, times_source = self._merge_times(exposures_hist, p)
+
+        if want("registration"):
+            ratios = tuple(times[k + 1] / times[k] for k in range(len(times) - 1))
+            reg_key = (resp_key, ratios, p.saturation, p.noise_floor, p.threshold, p.align,
+                       p.reference, p.registration_method)
+            registration = self._stage(
+                "registration", reg_key, lambda: self._register(p, lut, ratios), ran, timings
             )
-            res = replace(res, verdicts=tuple(diagnose(res)))
-            return res
-
-        lin_key = (resp_key,)
-        ratios = tuple(times[k + 1] / times[k] for k in range(len(times) - 1))
-        reg_key = (lin_key, ratios, p.saturation, p.noise_floor, p.threshold, p.align,
-                   p.reference, p.registration_method)
-        registration = self._stage(
-            "registration", reg_key, lambda: self._register(p, lut, ratios), ran, timings
-        )
-
-        merge_key = (reg_key, tuple(times), p.working_space)
-        merged = self._stage(
-            "merge", merge_key, lambda: self._merge(p, lut, times, registration), ran, timings
-        )
-        merge_result, radiance, colour_info = merged
-
-        preview_key = (merge_key, p.tonemap, p.tonemap_exposure, p.preview_max_side)
-        preview, factor = (None, 1)
-        if last >= STAGES.index("preview"):
-            preview, factor = self._stage(
-                "preview", preview_key, lambda: self._preview(p, radiance), ran, timings
+        if want("overlap_ratios") and registration is not None:
+            # Beyond the paper: with the geometry known, each pair's histograms are counted
+            # over its common field of view only, so content that the hand-held motion moved
+            # across the frame borders no longer biases the ratios.
+            matrices = tuple(np.asarray(q.matrix) for q in registration.pairs)
+            ov_key = (reg_key, tuple(mat.tobytes() for mat in matrices))
+            ov_hists = self._stage(
+                "overlap_histograms", ov_key,
+                lambda: bracket_histograms(levels, m, pair_matrices=matrices), ran, timings,
             )
+            exposures = self._stage(
+                "overlap_ratios", (ov_key, ratio_key),
+                lambda: bracket_exposures_from_histograms(ov_hists, **fit), ran, timings,
+            )
+            times, times_source = self._merge_times(exposures, p)
+            if times_source.startswith("exif (") and exposures_hist is not exposures:
+                times, times_source = self._merge_times(exposures_hist, p)
+                exposures = exposures_hist
+        if want("merge"):
+            merge_key = (ratio_key, None if registration is None else reg_key, tuple(times),
+                         p.working_space)
+            merge_result, radiance, colour_info = self._stage(
+                "merge", merge_key, lambda: self._merge(p, lut, times, registration), ran,
+                timings,
+            )
+            if want("preview"):
+                preview_key = (merge_key, p.tonemap, p.tonemap_exposure, p.preview_max_side)
+                preview, factor = self._stage(
+                    "preview", preview_key, lambda: self._preview(p, radiance), ran, timings
+                )
         timings["total"] = time.perf_counter() - t_start
         res = PipelineResult(
             bracket=b, params=p, saturation=float(p.saturation),
             noise_floor=float(p.noise_floor), histograms=hists, response=response, lut=lut,
-            exposures=exposures, exposure_times=times, times_source=times_source,
-            registration=registration, merge=merge_result, radiance=radiance,
-            colour=colour_info, preview=preview, preview_factor=factor, timings=timings,
-            stages_run=tuple(ran),
+            exposures=exposures, exposures_histogram=exposures_hist, exposure_times=times,
+            times_source=times_source, registration=registration, merge=merge_result,
+            radiance=radiance, colour=colour_info, preview=preview, preview_factor=factor,
+            timings=timings, stages_run=tuple(ran), until=upto,
         )
         res = replace(res, verdicts=tuple(diagnose(res)))
-        self.last_result = res
+        if upto == STAGES[-1] or self.last_result is None:
+            self.last_result = res
         return res
 
     # -- stages -----------------------------------------------------------------------------
@@ -592,13 +617,13 @@ class Pipeline:
         ):
             radiance = camera_to_working(
                 radiance, np.asarray(f0.rgb_xyz_matrix), f0.camera_whitebalance,
-                p.working_space, clipped=result.clipped,
+                p.working_space, clipped=result.clipped, out=radiance,
             )
             colour_info["conversion"] = "camera matrix (rawpy rgb_xyz_matrix) and as-shot WB"
         elif b.is_linear:
             wb = f0.camera_whitebalance
             radiance = camera_to_working(radiance, None, wb, p.working_space,
-                                         clipped=result.clipped)
+                                         clipped=result.clipped, out=radiance)
             colour_info["conversion"] = (
                 "no camera matrix in the file: camera RGB taken as linear sRGB primaries, "
                 "as-shot white balance applied"

@@ -37,7 +37,8 @@ def demo_result():
 
 def test_demo_runs_every_stage(demo_result) -> None:
     pipe, r = demo_result
-    assert r.stages_run == ("histograms", "response", "ratios", "registration", "merge", "preview")
+    assert r.stages_run == ("histograms", "response", "ratios", "registration",
+                            "overlap_histograms", "overlap_ratios", "merge", "preview")
     assert r.response is None and r.lut is None  # RAW: linear
     assert r.radiance.shape == (432, 648, 3) and r.radiance.dtype == np.float32
     assert r.preview is not None and r.preview.image.dtype == np.uint8
@@ -61,7 +62,8 @@ def test_rerun_reuses_cached_stages(demo_result) -> None:
     assert r2.stages_run[0] == "ratios" and "histograms" not in r2.stages_run
     fast = pipe.run(r2.params.replace(saturation=first.saturation - 50), until="ratios")
     assert fast.stages_run == ("ratios",)
-    assert fast.exposures is not r2.exposures
+    assert fast.exposures is fast.exposures_histogram
+    assert fast.registration is None and fast.merge is None and fast.preview is None
     assert fast.saturation == pytest.approx(first.saturation - 50)
 
 
@@ -153,3 +155,13 @@ def test_progress_callback_can_cancel(demo_result) -> None:
     pipe.progress = None
     r = pipe.run()
     assert r.stages_run[0] == "registration"
+
+
+def test_ratio_errors_over_one_percent_are_flagged(demo_result) -> None:
+    _, r = demo_result
+    truth = json.loads((DEMO / "truth.json").read_text())["ratios"]
+    assert r.exposures is not r.exposures_histogram  # re-measured after registration
+    for res in (r.exposures_histogram, r.exposures):
+        for p, t in zip(res.pairs, truth, strict=True):
+            if abs(p.ratio / t - 1) > 0.01:
+                assert p.status != "ok", (p.dark, p.ratio, t)
