@@ -27,7 +27,6 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from functools import lru_cache
 
-import colour
 import numpy as np
 
 from .errors import ParameterError, validate_method
@@ -52,8 +51,11 @@ _LUT_SIZE = 1 << 16
 _DELTA = 1e-6  # Reinhard's delta in eq. 1, avoids log(0) on black pixels
 
 
+@lru_cache(maxsize=1)
 def _luminance_weights() -> np.ndarray:
     """Rec.709 / sRGB luminance weights (the Y row of the RGB -> XYZ matrix)."""
+    import colour  # imported lazily: colour-science (with colour.plotting) takes seconds
+
     m = np.asarray(colour.RGB_COLOURSPACES["sRGB"].matrix_RGB_to_XYZ, dtype=np.float64)
     return m[1].astype(np.float32)
 
@@ -113,6 +115,8 @@ TONEMAP_OPERATORS: dict[str, Callable[..., np.ndarray]] = {
 
 @lru_cache(maxsize=1)
 def _srgb_lut() -> np.ndarray:
+    import colour  # imported lazily
+
     x = np.linspace(0.0, 1.0, _LUT_SIZE)
     v = np.asarray(colour.cctf_encoding(x, function="sRGB"), dtype=np.float64)
     return np.clip(np.rint(v * 255.0), 0, 255).astype(np.uint8)

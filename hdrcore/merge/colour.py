@@ -27,7 +27,6 @@ import os
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 
-import colour
 import numpy as np
 
 from ..errors import ParameterError, validate_method
@@ -82,6 +81,8 @@ def camera_to_working_matrix(
     by its response), so only the white balance and the sRGB -> working-space step apply.
     ``camera_whitebalance`` holds rawpy's as-shot multipliers (normalised to green here).
     """
+    import colour  # imported lazily: colour-science (with colour.plotting) takes seconds
+
     key = validate_method(working_space, WORKING_SPACES, "working space")
     srgb = colour.RGB_COLOURSPACES["sRGB"]
     target = colour.RGB_COLOURSPACES[WORKING_SPACES[key]]
