@@ -87,10 +87,13 @@ def diagnose(result: PipelineResult) -> list[Verdict]:
         if p.status == "no-overlap":
             exif = ex.exif_ratios[k] if k < len(ex.exif_ratios) else None
             gap = f" ({math.log2(exif):.1f} stops apart)" if exif and exif > 0 else ""
+            covered = f"{p.dark}-{p.bright}" in result.times_source.split("EXIF for pairs")[-1]
             out.append(Verdict(
-                "no-overlap", "error",
+                "no-overlap", "warning" if covered else "error",
                 f"No brightness overlap between {label}{gap}: no level is well exposed in both, "
-                "so their exposure ratio cannot be measured. Shoot with smaller steps.", pair,
+                "so their exposure ratio cannot be measured"
+                + ("; the EXIF ratio was used." if covered else
+                   ". Shoot with smaller steps or give the exposure times."), pair,
             ))
         elif p.status == "channels-disagree" or p.channels_disagree:
             chans = ", ".join(
@@ -115,11 +118,12 @@ def diagnose(result: PipelineResult) -> list[Verdict]:
                 f"{p.ratio:.3g}x ({mism:+.2f} stops): the EXIF time is wrong or the shutter is "
                 "inaccurate; the measured ratio is used.", pair,
             ))
-    if result.times_source.startswith("exif (estimation failed)"):
+    if "EXIF for pairs" in result.times_source:
         out.append(Verdict(
             "times-fallback", "warning",
-            "The exposure ratios could not all be measured from the histograms; the EXIF times "
-            "were used for the merge.",
+            "Some exposure ratios could not be measured reliably from the histograms and "
+            "disagree with the metadata; the EXIF ratios were used for them in the merge "
+            f"({result.times_source.split('; ', 1)[1]}).",
         ))
 
     reg = result.registration

@@ -45,7 +45,7 @@ from .exposure import (
     srgb_lut,
 )
 from .io import Bracket
-from .merge import MergeResult, NoiseModel, camera_to_working, merge
+from .merge import DEFAULT_MODEL_ERROR, MergeResult, NoiseModel, camera_to_working, merge
 from .registration import (
     MODELS,
     REGISTRATION_METHODS,
@@ -77,6 +77,9 @@ ALIGN_CHOICES = ("none", "shift", "euclidean")
 
 ProgressCallback = Callable[[str, float, str], None]
 
+#: Relative disagreement between frames tolerated by the ghost test for non-linear input.
+NONLINEAR_MODEL_ERROR = 0.10
+
 
 class Cancelled(Exception):  # noqa: N818 - reads as "raise Cancelled" at the call site
     """Raised by a progress callback to stop a run early (e.g. a newer request superseded it).
@@ -101,6 +104,12 @@ class PipelineParams:
     tonemap, tonemap_exposure : preview operator and exposure in stops.
     preview_max_side : longest side of the preview (``None`` = full resolution).
     working_space : colour space of the radiance map (RAW input).
+    exclude_colour : pixels of exactly this colour (levels ``(R, G, B)``) carry no data, e.g.
+        the pure blue ``(0, 0, 255)`` border marks of the Debevec-Malik memorial scans: they are
+        left out of the histograms and the response wherever any frame has them, and out of the
+        merge in the frames that have them.
+    ratio_fallback_stops : a pair whose ratio estimate is not ok and differs from the EXIF
+        ratio by more than this (stops) uses the EXIF ratio in the merge.
     """
 
     saturation: float | None = None
@@ -116,6 +125,8 @@ class PipelineParams:
     tonemap_exposure: float = 0.0
     preview_max_side: int | None = 1600
     working_space: str = "sRGB"
+    exclude_colour: tuple[int, int, int] | None = None
+    ratio_fallback_stops: float = 0.15
 
     def replace(self, **changes: Any) -> PipelineParams:
         return replace(self, **changes)
@@ -306,6 +317,10 @@ class Pipeline:
         self.params = params or PipelineParams()
         self.progress = progress
         self._cache: dict[str, _Entry] = {}
+        self._excluded: Any = None
+        self._pedestal = 0.0
+        self._pedestal_key: Any = None
+        self._excluded_key: Any = object()
         self._lock = threading.Lock()
         self.last_result: PipelineResult | None = None
 
@@ -341,6 +356,30 @@ class Pipeline:
         if align != "none":
             validate_method(align, MODELS, "motion model")
         return replace(p, saturation=sat, noise_floor=nf, align=align, reference=ref)
+
+    def auto_noise_floor(self, exclude_colour: tuple[int, int, int] | None = None) -> float:
+        """Default noise floor: 2 % of the largest level (>= 3 levels), raised above a pedestal.
+
+        A pedestal is a level the darkest frame never goes below (film base and scanner flare,
+        a black offset left in a JPEG): levels just above it carry no signal, yet a response
+        maps them to non-zero exposure that, divided by the shortest time, swamps the merge.
+        It is the highest over the channels of the darkest frame's 0.1th percentile (excluded
+        colour left out).
+        """
+        key = ("pedestal", exclude_colour)
+        if self._pedestal_key != key:
+            f = self.bracket.frames[0]
+            step = max(1, int(np.sqrt(f.levels.shape[0] * f.levels.shape[1] / 1_000_000)))
+            lv = f.levels[::step, ::step].reshape(-1, 3)
+            if exclude_colour is not None:
+                lv = lv[~np.all(lv == np.asarray(exclude_colour), axis=1)]
+            # Per channel (film fog and flare differ by colour), the highest one governs.
+            self._pedestal = float(np.max(np.percentile(lv, 0.1, axis=0))) if lv.size else 0.0
+            self._pedestal_key = key
+        base = default_noise_floor(self.bracket.max_level)
+        if self._pedestal > 0.5 * base:
+            return float(min(self._pedestal + base, 0.25 * self.bracket.max_level))
+        return float(base)
 
     # -- cache ------------------------------------------------------------------------------
 
@@ -386,7 +425,10 @@ class Pipeline:
         if until not in STAGES:
             raise ParameterError(f"unknown stage {until!r}", expected=", ".join(STAGES))
         with self._lock:
-            p = self._check(params or self.params)
+            p_in = params or self.params
+            if p_in.noise_floor is None:
+                p_in = replace(p_in, noise_floor=self.auto_noise_floor(p_in.exclude_colour))
+            p = self._check(p_in)
             self.params = p
             return self._run(p, STAGES.index(until))
 
@@ -402,10 +444,16 @@ class Pipeline:
         def want(stage: str) -> bool:
             return STAGES.index(stage) <= last
 
+        if self._excluded_key != (p.exclude_colour,):
+            self._excluded = self._exclusions(p)
+            self._excluded_key = (p.exclude_colour,)
+        excluded = self._excluded
+        use = None if excluded is None else ~excluded[1]
         hists = self._stage(
-            "histograms", (), lambda: bracket_histograms(levels, m), ran, timings
+            "histograms", p.exclude_colour, lambda: bracket_histograms(levels, m, mask=use),
+            ran, timings,
         )
-        resp_key = _response_key(p.response, b.is_linear)
+        resp_key = (_response_key(p.response, b.is_linear), p.exclude_colour)
         response = self._stage(
             "response", resp_key, lambda: self._response(p), ran, timings
         )
@@ -441,22 +489,20 @@ class Pipeline:
             ov_key = (reg_key, tuple(mat.tobytes() for mat in matrices))
             ov_hists = self._stage(
                 "overlap_histograms", ov_key,
-                lambda: bracket_histograms(levels, m, pair_matrices=matrices), ran, timings,
+                lambda: bracket_histograms(levels, m, pair_matrices=matrices, mask=use), ran,
+                timings,
             )
             exposures = self._stage(
                 "overlap_ratios", (ov_key, ratio_key),
                 lambda: bracket_exposures_from_histograms(ov_hists, **fit), ran, timings,
             )
             times, times_source = self._merge_times(exposures, p)
-            if times_source.startswith("exif (") and exposures_hist is not exposures:
-                times, times_source = self._merge_times(exposures_hist, p)
-                exposures = exposures_hist
         if want("merge"):
             merge_key = (ratio_key, None if registration is None else reg_key, tuple(times),
                          p.working_space)
             merge_result, radiance, colour_info = self._stage(
-                "merge", merge_key, lambda: self._merge(p, lut, times, registration), ran,
-                timings,
+                "merge", merge_key,
+                lambda: self._merge(p, lut, times, registration, excluded), ran, timings,
             )
             if want("preview"):
                 preview_key = (merge_key, p.tonemap, p.tonemap_exposure, p.preview_max_side)
@@ -507,8 +553,35 @@ class Pipeline:
                     "--times or use --response srgb",
                 )
             times = tuple(float(v) for v in rel)
-        curve = resolve_response(spec, levels, times, max_level=b.max_level, n_channels=3)
+        extra: dict[str, Any] = {}
+        excluded = self._excluded
+        if excluded is not None and isinstance(spec, str) and spec.lower() in method_names:
+            extra["mask"] = ~excluded[1]
+        curve = resolve_response(spec, levels, times, max_level=b.max_level, n_channels=3,
+                                 **extra)
         return curve
+
+    def _exclusions(self, p: PipelineParams):
+        """Per-frame masks of pixels of the excluded colour, and their union; or ``None``."""
+        if p.exclude_colour is None:
+            return None
+        colour = np.asarray(p.exclude_colour, dtype=np.int64)
+        if colour.shape != (3,) or np.any(colour < 0) or np.any(colour > self.bracket.max_level):
+            raise ParameterError(
+                "exclude_colour must be three levels", expected=f"0..{self.bracket.max_level}",
+                found=str(p.exclude_colour),
+            )
+        per_frame = []
+        for f in self.bracket.frames:
+            lv = f.levels
+            per_frame.append((lv[..., 0] == colour[0]) & (lv[..., 1] == colour[1])
+                             & (lv[..., 2] == colour[2]))
+        union = np.logical_or.reduce(per_frame)
+        if union.all():
+            raise EstimationError(
+                f"every pixel has the excluded colour {tuple(int(c) for c in colour)}"
+            )
+        return tuple(per_frame), union
 
     def _merge_times(self, exposures: BracketExposureResult,
                      p: PipelineParams) -> tuple[tuple[float, ...], str]:
@@ -523,15 +596,32 @@ class Pipeline:
             return tuple(float(e) for e in exif), "exif"
         rel = np.asarray(exposures.relative_exposures, float)
         source = "estimated"
-        if not np.all(np.isfinite(rel) & (rel > 0)):
-            if not exif_known:
+        n = len(rel)
+        ratios = []
+        for k in range(n - 1):
+            if np.isfinite(rel[k]) and np.isfinite(rel[k + 1]) and rel[k] > 0:
+                ratios.append(float(rel[k + 1] / rel[k]))
+            else:  # not connected to frame 0 through measured pairs: the pair's own estimate
+                ratios.append(float(exposures.pairs[k].ratio))
+        fallback = []
+        for k, pair in enumerate(exposures.pairs):
+            r = ratios[k]
+            exif_r = None if exif[k] is None or exif[k + 1] is None else exif[k + 1] / exif[k]
+            good = math.isfinite(r) and r > 0
+            if exif_r is not None and (not good or (not pair.ok and abs(
+                    math.log2(r / exif_r)) > p.ratio_fallback_stops)):
+                # An unreliable estimate far from the metadata: trust the metadata here.
+                ratios[k] = float(exif_r)
+                fallback.append(k)
+            elif not good:
                 raise EstimationError(
-                    "the exposure ratios could not be estimated for every frame and the frames "
-                    "carry no exposure times to fall back on: "
-                    + exposures.message
+                    f"the exposure ratio of frames {k} and {k + 1} could not be measured "
+                    f"({pair.message}) and the frames carry no exposure times to fall back on; "
+                    "give them with --times",
                 )
-            rel = np.asarray([float(e) / float(exif[0]) for e in exif])
-            source = "exif (estimation failed)"
+        rel = np.concatenate([[1.0], np.cumprod(ratios)])
+        if fallback:
+            source = "estimated; EXIF for pairs " + ", ".join(f"{k}-{k + 1}" for k in fallback)
         known = [(k, float(e)) for k, e in enumerate(exif) if e is not None]
         if known:
             # Anchor the relative exposures to seconds with the geometric mean of the metadata.
@@ -578,7 +668,7 @@ class Pipeline:
         )
 
     def _merge(self, p: PipelineParams, lut: np.ndarray | None, times: tuple[float, ...],
-               registration: BracketRegistration | None):
+               registration: BracketRegistration | None, excluded=None):
         b = self.bracket
         n = len(b)
         sat_lin = [self._linear_level(lut, p.saturation, c) for c in range(3)]
@@ -587,11 +677,14 @@ class Pipeline:
         masks: list[np.ndarray | None] = []
         for k in range(n):
             lin = self._channel_linear(k, lut, None)
+            if excluded is not None:
+                # Excluded pixels carry no data: NaN spreads through the warp like the border.
+                lin[excluded[0][k]] = np.nan
             if registration is None or k == registration.reference or np.allclose(
                 registration.to_reference[k], np.eye(2, 3), atol=1e-9
             ):
-                frames.append(lin)
-                masks.append(None)
+                frames.append(np.nan_to_num(lin, nan=0.0) if excluded is not None else lin)
+                masks.append(None if excluded is None else ~excluded[0][k])
                 continue
             # Clipped samples become NaN before the warp so that any output pixel whose
             # interpolation touched one is treated as clipped, never as a darker mixture.
@@ -599,14 +692,22 @@ class Pipeline:
             lin[clipped] = np.nan
             w = warp_to_reference(lin, registration.to_reference[k], fill=0.0)
             img = w.image
+            mask = w.mask
+            if excluded is not None:
+                gone = warp_to_reference(excluded[0][k].astype(np.float32),
+                                         registration.to_reference[k], fill=0.0).image
+                mask = mask & ~(gone > 0.01)
             np.nan_to_num(img, copy=False, nan=1.0)
             frames.append(img)
-            masks.append(w.mask)
+            masks.append(mask)
             self._report("merge", (k + 1) / (n + 1), f"warped frame {k + 1} of {n}")
         noise = _noise_model(b)
         result = merge(
             frames, times, masks=masks, saturation_level=sat_lin, noise_floor=nf_lin,
             weighting="noise-aware" if lut is None else "hat", noise=noise,
+            # A recovered response and 8-bit (often JPEG or scanned) data agree between frames
+            # only to a few per cent; RAW data to the noise.
+            model_error=DEFAULT_MODEL_ERROR if lut is None else NONLINEAR_MODEL_ERROR,
         )
         del frames
         radiance = result.radiance

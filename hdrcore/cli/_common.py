@@ -13,6 +13,8 @@ from ..io import Bracket, load_bracket
 
 __all__ = [
     "add_bracket_arguments",
+    "add_exclude_colour_argument",
+    "parse_colour",
     "load_bracket_from_args",
     "print_json",
     "print_warnings",
@@ -29,6 +31,30 @@ def add_bracket_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--times", metavar="FILE",
         help="exposure times as 'name seconds' lines (replace EXIF)",
+    )
+
+
+def parse_colour(text: str | None) -> tuple[int, int, int] | None:
+    """``"0,0,255"`` -> ``(0, 0, 255)``; ``None`` stays ``None``."""
+    if text is None:
+        return None
+    from ..errors import ParameterError
+
+    try:
+        parts = tuple(int(v) for v in str(text).split(","))
+    except ValueError as exc:
+        raise ParameterError("bad colour", expected="R,G,B levels such as 0,0,255",
+                             found=repr(text)) from exc
+    if len(parts) != 3 or min(parts) < 0:
+        raise ParameterError("bad colour", expected="three levels R,G,B >= 0", found=repr(text))
+    return parts  # type: ignore[return-value]
+
+
+def add_exclude_colour_argument(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--exclude-colour", metavar="R,G,B",
+        help="pixels of exactly this colour carry no data (e.g. 0,0,255: the blue border "
+             "marks of the Debevec-Malik memorial scans)",
     )
 
 

@@ -13,7 +13,14 @@ import argparse
 
 from ..pipeline import Pipeline, PipelineParams, registration_json
 from ..registration import MODELS, REGISTRATION_METHODS
-from ._common import add_bracket_arguments, load_bracket_from_args, print_json, print_warnings
+from ._common import (
+    add_bracket_arguments,
+    add_exclude_colour_argument,
+    load_bracket_from_args,
+    parse_colour,
+    print_json,
+    print_warnings,
+)
 
 __all__ = ["add_parser", "run"]
 
@@ -24,6 +31,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     add_bracket_arguments(p)
+    add_exclude_colour_argument(p)
     p.add_argument("--model", default="euclidean", choices=list(MODELS),
                    help="motion model (default: %(default)s)")
     p.add_argument("--method", default="fast", choices=list(REGISTRATION_METHODS),
@@ -54,7 +62,7 @@ def run(args: argparse.Namespace) -> int:
         saturation=args.saturation, noise_floor=args.noise_floor, threshold=args.threshold,
         align=args.model, reference=args.reference, response=args.response,
         times="exif" if args.ratios == "exif" else "estimated",
-        registration_method=args.method,
+        registration_method=args.method, exclude_colour=parse_colour(args.exclude_colour),
     )
     result = Pipeline(bracket, params).run(until="registration")
     reg = result.registration

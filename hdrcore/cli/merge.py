@@ -18,7 +18,14 @@ import time
 from ..io import atomic_write, check_output_path, write_exr, write_png
 from ..pipeline import ALIGN_CHOICES, Pipeline, PipelineParams
 from ..tonemap import TONEMAP_OPERATORS
-from ._common import add_bracket_arguments, load_bracket_from_args, print_json, to_jsonable
+from ._common import (
+    add_bracket_arguments,
+    add_exclude_colour_argument,
+    load_bracket_from_args,
+    parse_colour,
+    print_json,
+    to_jsonable,
+)
 
 __all__ = ["add_parser", "run"]
 
@@ -29,6 +36,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     add_bracket_arguments(p)
+    add_exclude_colour_argument(p)
     p.add_argument("-o", "--output", required=True, metavar="OUT.exr", help="OpenEXR output")
     p.add_argument("--preview", metavar="OUT.png", help="also write a tonemapped 8-bit preview")
     p.add_argument("--report", metavar="OUT.json", help="write the JSON report of every stage")
@@ -108,7 +116,7 @@ def run(args: argparse.Namespace) -> int:
         saturation=args.saturation, noise_floor=args.noise_floor, threshold=args.threshold,
         align=args.align, reference=args.reference, response=args.response,
         times=args.times_source, tonemap=args.tonemap, tonemap_exposure=args.exposure,
-        preview_max_side=None,
+        preview_max_side=None, exclude_colour=parse_colour(args.exclude_colour),
     )
     progress = _Progress(not args.quiet)
     try:
