@@ -400,3 +400,248 @@ def warm_up() -> float:
     mask = np.ones((2, 3), bool)
     merge(frames, (1.0, 2.0, 4.0), masks=[None, mask, mask], engine="numba", workers=1)
     return time.perf_counter() - t0
+
+
+# --------------------------------------------------------------------------------------------
+# Resampling inside the merge: frames with a transform are read at T_k (x, y, 1) with Keys'
+# cubic convolution (a = -1/2) straight from their levels (the reference is
+# hdrcore.merge.merge._Kernel._sample / _linearise_sampled).
+
+
+@_njit
+def _keys(f):
+    """Keys weights of taps -1, 0, 1, 2 at fraction ``f`` (float64, as
+    :func:`hdrcore.registration._sampling.keys_weights`), returned as float32."""
+    g = 1.0 - f
+    w0 = -0.5 * f * g * g
+    w1 = (1.5 * f - 2.5) * f * f + 1.0
+    w2 = (1.5 * g - 2.5) * g * g + 1.0
+    w3 = -0.5 * f * f * g
+    return np.float32(w0), np.float32(w1), np.float32(w2), np.float32(w3)
+
+
+@_njit
+def _row3(fr, yy, xb, wx0, wx1, wx2, wx3, s0, s1, s2):
+    """One row of 4 taps for 3 channels: the x-interpolated values, any tap clipped, max tap."""
+    cl = False
+    top = np.float64(0.0)
+    out0 = np.float32(0.0)
+    out1 = np.float32(0.0)
+    out2 = np.float32(0.0)
+    for jx in range(4):
+        wj = wx0 if jx == 0 else (wx1 if jx == 1 else (wx2 if jx == 2 else wx3))
+        t0 = fr[yy, xb + jx, 0]
+        t1 = fr[yy, xb + jx, 1]
+        t2 = fr[yy, xb + jx, 2]
+        d0 = np.float64(t0)
+        d1 = np.float64(t1)
+        d2 = np.float64(t2)
+        if d0 >= s0 or d1 >= s1 or d2 >= s2:
+            cl = True
+        top = max(top, d0, d1, d2)
+        if jx == 0:
+            out0 = np.float32(t0) * wj
+            out1 = np.float32(t1) * wj
+            out2 = np.float32(t2) * wj
+        else:
+            out0 = out0 + np.float32(t0) * wj
+            out1 = out1 + np.float32(t1) * wj
+            out2 = out2 + np.float32(t2) * wj
+    return out0, out1, out2, cl, top
+
+
+@_njit
+def merge_rows_warped(
+    frames, masks, has_mask, mats, has_mat, order, times, inv_t, inv_t2, t2, wcode, shot,
+    const_var, floor_norm, inv_max, max_level, hi, has_lut, lut, lut_var, sat, me2, thr, r0, r1,
+    rad, wsum_out, shares, clip_count, clipped_out, under_out, gscore, ghost,
+):
+    """Rows ``r0:r1`` of the output grid; frame ``k`` with ``has_mat[k]`` is read at
+    ``mats[k] @ (x, y, 1)`` (Keys cubic, 4 weights per axis shared by the 3 channels), the
+    others at ``(x, y)``. A resampled frame is clipped at a pixel when any of the 16 taps of any
+    channel is at or above its saturation level, and invalid when the 4x4 support leaves the
+    frame. Integer levels with a LUT are interpolated, then read linearly between table entries;
+    integer levels without one and float frames are linear (``level = value * inv_max``).
+    Returns the number of samples above the LUT's last level (the caller refuses the input).
+    """
+    n = len(frames)
+    c = frames[0].shape[2]
+    h = frames[0].shape[0]
+    w = frames[0].shape[1]
+    den, num, s2, sv, share, bad, clip, nbad, mode, pick = _row_buffers(n, c, w)
+    bw = min(w, _BLOCK)
+    xs = np.empty((n, c, bw), np.float32)  # linear values x of the resampled frames
+    dark = np.empty((c, bw), np.float32)  # E_k of the darkest frame
+    lmax = lut.shape[1] - 1
+    out_of_range = 0
+    one = np.float32(1.0)
+    two = np.float32(2.0)
+    half = np.float32(0.5)
+    m16 = np.float32(-16.0)
+    zero = np.float32(0.0)
+    hi_lut = np.float64(lmax)
+    nb = (w + _BLOCK - 1) // _BLOCK
+    vals = np.empty(3, np.float32)
+    for yb in range((r1 - r0) * nb):
+        y = r0 + yb // nb
+        yf = np.float64(y)
+        x0 = (yb % nb) * _BLOCK
+        x1 = min(w, x0 + _BLOCK)
+        den[:] = zero
+        num[:] = zero
+        s2[:] = zero
+        sv[:] = zero
+        nbad[:] = 0
+        clip_count[y, x0:x1] = 0
+        for j in range(n):
+            k = order[j]
+            fr = frames[k]
+            mrow = masks[k][y if has_mask[k] else 0]
+            hm = has_mask[k]
+            warped = has_mat[k]
+            m00 = mats[k, 0, 0]
+            m01 = mats[k, 0, 1]
+            m02 = mats[k, 0, 2]
+            m10 = mats[k, 1, 0]
+            m11 = mats[k, 1, 1]
+            m12 = mats[k, 1, 2]
+            itk = inv_t[k]
+            it2 = inv_t2[k]
+            t2k = t2[k]
+            for x in range(x0, x1):
+                i = x - x0
+                if warped:
+                    xf = np.float64(x)
+                    sx = m00 * xf + m01 * yf + m02
+                    sy = m10 * xf + m11 * yf + m12
+                    fx0 = np.floor(sx)
+                    fy0 = np.floor(sy)
+                    inside = fx0 >= 1.0 and fx0 <= w - 3.0 and fy0 >= 1.0 and fy0 <= h - 3.0
+                    tcl = False
+                    if inside:
+                        wx0, wx1, wx2, wx3 = _keys(sx - fx0)
+                        wy0, wy1, wy2, wy3 = _keys(sy - fy0)
+                        ix = int(fx0) - 1
+                        iy = int(fy0) - 1
+                        a0 = a1 = a2 = zero
+                        for jy in range(4):
+                            wj = wy0 if jy == 0 else (wy1 if jy == 1 else (wy2 if jy == 2
+                                                                         else wy3))
+                            q0, q1, q2, rc, top = _row3(fr, iy + jy, ix, wx0, wx1, wx2, wx3,
+                                                        sat[0], sat[1], sat[2])
+                            if rc:
+                                tcl = True
+                            if has_lut and top > hi_lut:
+                                out_of_range += 1
+                            if jy == 0:
+                                a0 = q0 * wj
+                                a1 = q1 * wj
+                                a2 = q2 * wj
+                            else:
+                                a0 = a0 + q0 * wj
+                                a1 = a1 + q1 * wj
+                                a2 = a2 + q2 * wj
+                        vals[0] = min(max(a0, zero), hi)
+                        vals[1] = min(max(a1, zero), hi)
+                        vals[2] = min(max(a2, zero), hi)
+                    else:
+                        vals[0] = zero
+                        vals[1] = zero
+                        vals[2] = zero
+                    valid = inside and (mrow[x] if hm else True)
+                    cl = tcl and valid
+                    b = (not valid) or cl
+                else:
+                    cl, b = _clip_flags(fr[y], x, c, sat, hm, mrow)
+                    for ch in range(3):
+                        vals[ch] = np.float32(fr[y, x, ch])
+                clip[k, i] = cl
+                bad[k, i] = b
+                if cl:
+                    clip_count[y, x] += 1
+                if b:
+                    nbad[i] += 1
+                ok = zero if b else one
+                sh = zero
+                for ch in range(3):
+                    v = vals[ch]
+                    level = v * inv_max
+                    if has_lut:
+                        if warped:
+                            lo = min(int(v), lmax - 1)
+                            frac = v - np.float32(lo)
+                            l0 = lut[ch, lo]
+                            xv = lut[ch, lo + 1] - l0
+                            xv = xv * frac
+                            xv = xv + l0
+                            q0 = lut_var[ch, lo]
+                            var = lut_var[ch, lo + 1] - q0
+                            var = var * frac
+                            var = var + q0
+                        else:
+                            li = int(v)
+                            if li > lmax:
+                                out_of_range += 1
+                                li = lmax
+                            xv = lut[ch, li]
+                            var = lut_var[ch, li]
+                        if shot != zero:
+                            var = var + xv * shot
+                        var = var + const_var
+                    else:
+                        xv = level
+                        var = xv * shot
+                        var = var + const_var
+                    if warped:
+                        xs[k, ch, i] = xv
+                    e = xv * itk
+                    if j == 0:
+                        dark[ch, i] = e
+                    if wcode == 0:
+                        wk = level * two
+                        wk = wk - one
+                        wk = abs(wk)
+                        wk = one - wk
+                    elif wcode == 1:
+                        wk = level - half
+                        wk = wk * wk
+                        wk = wk * m16
+                        wk = np.exp(wk)
+                    elif wcode == 2:
+                        wk = t2k / var
+                    else:
+                        wk = one
+                    keep = ok if level > floor_norm else zero
+                    wk = wk * keep
+                    den[ch, i] += wk
+                    sh = wk if ch == 0 else sh + wk
+                    var = var * wk
+                    var = var * it2
+                    sv[ch, i] += var
+                    wk = wk * e
+                    num[ch, i] += wk
+                    wk = wk * e
+                    s2[ch, i] += wk
+                share[k, i] = sh
+        _finish_row(
+            y, x0, x1, n, c, order, den, num, s2, sv, share, bad, clip, nbad, me2, thr,
+            rad, wsum_out, shares, clipped_out, under_out, gscore, ghost, mode, pick,
+        )
+        for x in range(x0, x1):
+            i = x - x0
+            if mode[i] == 3:
+                for ch in range(c):
+                    rad[y, x, ch] = dark[ch, i]
+            elif mode[i] != 0:
+                p = pick[i]
+                for ch in range(c):
+                    if mode[i] == 1 or den[ch, i] <= zero:
+                        if has_mat[p]:
+                            val = np.float64(xs[p, ch, i])
+                        elif has_lut:
+                            vi = min(int(frames[p][y, x, ch]), lmax)
+                            val = np.float64(lut[ch, vi])
+                        else:
+                            val = np.float64(frames[p][y, x, ch]) / max_level
+                        rad[y, x, ch] = np.float32(val / times[p])
+    return out_of_range

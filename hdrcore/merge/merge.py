@@ -44,6 +44,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import ParameterError, validate_method
+from ..registration._sampling import keys_weights
 from . import _fused
 from .maps import (
     DEFAULT_GHOST_THRESHOLD,
@@ -183,6 +184,11 @@ class _Plan:
     floor: float  # in frame units
     weighting: str
     noise: NoiseModel
+    transforms: tuple[np.ndarray | None, ...] = ()  # per frame: output -> frame coordinates
+
+    @property
+    def warped(self) -> bool:
+        return any(t is not None for t in self.transforms)
 
 
 def _as_frames(frames: Sequence[np.ndarray]) -> tuple[tuple[np.ndarray, ...], bool]:
@@ -238,6 +244,7 @@ def _plan(
     noise_floor: float | None,
     weighting: str | None,
     noise: NoiseModel | None,
+    transforms: Sequence[np.ndarray | None] | None = None,
 ) -> _Plan:
     arrs, integer = _as_frames(frames)
     n = len(arrs)
@@ -366,6 +373,7 @@ def _plan(
                     found=str(m.shape),
                 )
             mask_list[k] = np.ascontiguousarray(m, dtype=bool)
+    tf_list = _as_transforms(transforms, n)
 
     return _Plan(
         frames=arrs,
@@ -382,7 +390,48 @@ def _plan(
         floor=floor,
         weighting=weighting,
         noise=noise,
+        transforms=tf_list,
     )
+
+
+_IDENTITY = np.eye(2, 3)
+
+_LUT_MODE = "levels"
+"""How resampled frames with a response LUT are linearised: ``"levels"`` (the default and the
+fused kernel's) interpolates the levels and reads the LUT linearly between entries;
+``"samples"`` (numpy reference only, kept for the accuracy comparison in
+``bench/bench_merge.py``) linearises the 16 taps and interpolates linear values. On simulated
+gamma brackets with the true motion "levels" is as accurate or slightly better (the scene is
+smoother in the gamma domain than in linear values) and needs one table read, not 16."""
+
+
+def _as_transforms(
+    transforms: Sequence[np.ndarray | None] | None, n: int
+) -> tuple[np.ndarray | None, ...]:
+    """One float64 2x3 matrix (output -> frame pixel coordinates) or ``None`` per frame;
+    identities (within 1e-9) become ``None`` so they take the direct path."""
+    if transforms is None:
+        return (None,) * n
+    if len(transforms) != n:
+        raise ParameterError(
+            "one transform (2x3 matrix or None) per frame", expected=str(n),
+            found=str(len(transforms)),
+        )
+    out: list[np.ndarray | None] = []
+    for k, t in enumerate(transforms):
+        if t is None:
+            out.append(None)
+            continue
+        a = np.asarray(t, dtype=np.float64)
+        if a.shape == (3, 3) and np.allclose(a[2], (0.0, 0.0, 1.0)):
+            a = a[:2]
+        if a.shape != (2, 3) or not np.all(np.isfinite(a)):
+            raise ParameterError(
+                f"transform {k} must be a finite 2x3 affine matrix (output -> frame pixels)",
+                expected="(2, 3)", found=str(a.shape),
+            )
+        out.append(None if np.max(np.abs(a - _IDENTITY)) <= 1e-9 else np.ascontiguousarray(a))
+    return tuple(out)
 
 
 # --------------------------------------------------------------------------------------------
@@ -404,8 +453,10 @@ class _Outputs:
 class _Scratch:
     """Per-worker buffers for one chunk, channel-planar so every operation is contiguous."""
 
-    def __init__(self, n_frames: int, size: int, channels: int) -> None:
+    def __init__(self, n_frames: int, size: int, channels: int, warped: bool = False) -> None:
         planes = (channels, size)
+        # linear values of the resampled frames (fallback values come from them)
+        self.lin = np.empty((n_frames, channels, size) if warped else (0, 0, 0), np.float32)
         self.den = np.empty(planes, np.float32)  # sum w
         self.num = np.empty(planes, np.float32)  # sum w E_k
         self.s2 = np.empty(planes, np.float32)  # sum w E_k^2
@@ -483,10 +534,15 @@ class _Kernel:
         var += self.const_var
         return x, level, var
 
-    def _linearise_points(self, k: int, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
-        """Linear values ``(q, C)`` of frame ``k`` at the given pixels (float64)."""
+    def _linearise_points(
+        self, k: int, pick: np.ndarray, r0: int, s: _Scratch
+    ) -> np.ndarray:
+        """Linear values ``(q, C)`` of frame ``k`` at the chunk's pixels ``pick`` (float64)."""
         p = self.p
-        src = p.frames[k][rows, cols]
+        if p.transforms[k] is not None:
+            return s.lin[k][:, pick].T.astype(np.float64)
+        w = p.shape[1]
+        src = p.frames[k][pick // w + r0, pick % w]
         if not p.integer:
             return src.astype(np.float64)
         if p.lut is None:
@@ -494,6 +550,105 @@ class _Kernel:
         return np.stack(
             [p.lut[ch][src[:, ch].astype(np.intp)] for ch in range(src.shape[1])], axis=1
         ).astype(np.float64)
+
+    # ---- resampling of a frame with a transform (reference of _fused.merge_rows_warped) ---------
+    def _sample(
+        self, k: int, r0: int, r1: int
+    ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray, np.ndarray]:
+        """Frame ``k`` at ``T_k (x, y, 1)`` for the output pixels of rows ``r0:r1``.
+
+        Keys cubic convolution (a = -1/2) of the raw samples (levels or linear floats) with the
+        4 weights per axis shared by the channels, clamped to ``[0, max_level]`` (``[0, 1]``).
+        Returns ``(values (C, m) float32, LUT values (C, m) float32 or None, tap_clip (m,),
+        inside (m,))``: ``tap_clip`` where any of the 16 taps of any channel is at or above its
+        saturation level, ``inside`` where the whole 4x4 support lies in the frame. With a
+        response LUT the taps are linearised before the interpolation (``LUT values``).
+        """
+        p = self.p
+        h, w, c = p.shape
+        t = p.transforms[k]
+        pix = np.arange(r0 * w, r1 * w, dtype=np.int64)
+        yy = (pix // w).astype(np.float64)
+        xx = (pix % w).astype(np.float64)
+        sx = t[0, 0] * xx + t[0, 1] * yy + t[0, 2]
+        sy = t[1, 0] * xx + t[1, 1] * yy + t[1, 2]
+        fx0 = np.floor(sx)
+        fy0 = np.floor(sy)
+        inside = (fx0 >= 1.0) & (fx0 <= w - 3.0) & (fy0 >= 1.0) & (fy0 <= h - 3.0)
+        wx = keys_weights(np.where(inside, sx - fx0, 0.0)).astype(np.float32)
+        wy = keys_weights(np.where(inside, sy - fy0, 0.0)).astype(np.float32)
+        base = np.where(inside, (fy0 - 1.0) * w + (fx0 - 1.0), 0.0).astype(np.int64) * c
+        flat = p.frames[k].reshape(-1)
+        m = pix.size
+        tap_clip = np.zeros(m, bool)
+        vals = np.empty((c, m), np.float32)
+        lut_vals = None if p.lut is None or _LUT_MODE != "samples" else np.empty((c, m), np.float32)
+        hi = np.float32(p.max_level if p.integer else 1.0)
+        for ch in range(c):
+            acc = lacc = None
+            for jy in range(4):
+                row = lrow = None
+                for jx in range(4):
+                    taps = flat.take(base + ((jy * w + jx) * c + ch))
+                    tap_clip |= taps >= p.saturation[ch]
+                    if p.lut is not None and np.any((taps >= p.lut_len) & inside):
+                        raise IndexError(f"level {int(taps.max())} past the end of the LUT")
+                    term = taps.astype(np.float32) * wx[jx]
+                    row = term if row is None else row + term
+                    if lut_vals is not None:
+                        lv = p.lut[ch].take(np.minimum(taps, p.lut_len - 1)) * wx[jx]
+                        lrow = lv if lrow is None else lrow + lv
+                term = row * wy[jy]
+                acc = term if acc is None else acc + term
+                if lut_vals is not None:
+                    lv = lrow * wy[jy]
+                    lacc = lv if lacc is None else lacc + lv
+            np.clip(acc, np.float32(0.0), hi, out=vals[ch])
+            if lut_vals is not None:
+                np.clip(lacc, np.float32(0.0), p.lut[ch, -1], out=lut_vals[ch])
+        tap_clip &= inside
+        return vals, lut_vals, tap_clip, inside
+
+    def _linearise_sampled(
+        self, vals: np.ndarray, lut_vals: np.ndarray | None, ch: int, s: _Scratch, m: int
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(x, level, var)`` of interpolated values (see :meth:`_sample`), float32 ``(m,)``.
+
+        With a LUT, ``x`` is the interpolation of the linearised taps and the variance that of
+        the LUT's level noise at the interpolated level (linear between table entries).
+        """
+        p = self.p
+        level, var = s.level[:m], s.var[:m]
+        if not p.integer:
+            np.copyto(level, vals)
+            x = level
+        else:
+            np.multiply(vals, self.inv_max, out=level)
+            if p.lut is None:
+                x = level
+            else:
+                x = s.x[:m]
+                lo = np.minimum(vals.astype(np.intp), p.lut_len - 2)
+                frac = vals - lo.astype(np.float32)
+                if lut_vals is not None:
+                    np.copyto(x, lut_vals)
+                else:  # _LUT_MODE "levels": the LUT linearly interpolated at the level
+                    v0 = p.lut[ch].take(lo)
+                    np.subtract(p.lut[ch].take(lo + 1), v0, out=x)
+                    x *= frac
+                    x += v0
+                v0 = p.lut_var[ch].take(lo)
+                np.subtract(p.lut_var[ch].take(lo + 1), v0, out=var)
+                var *= frac
+                var += v0
+                if self.shot:
+                    np.multiply(x, self.shot, out=s.a[:m])
+                    var += s.a[:m]
+                var += self.const_var
+                return x, level, var
+        np.multiply(x, self.shot, out=var)
+        var += self.const_var
+        return x, level, var
 
     # ---- one chunk of rows -------------------------------------------------------------------
     def run(self, r0: int, r1: int, s: _Scratch) -> None:
@@ -507,16 +662,24 @@ class _Kernel:
         clip_count = self.out.clip_count[r0:r1].reshape(m)
         clip_count.fill(0)
         for j, k in enumerate(p.order):
-            src = p.frames[k][r0:r1].reshape(m, c)
             bad, clip = s.bad[k, :m], s.clip[k, :m]
-            # A pixel is clipped in this frame when any channel reaches its saturation level.
-            np.greater_equal(src[:, 0], p.saturation[0], out=clip)
-            for ch in range(1, c):
-                np.greater_equal(src[:, ch], p.saturation[ch], out=flag)
-                clip |= flag
             mask = p.masks[k]
-            if mask is not None:
-                valid = mask[r0:r1].reshape(m)
+            valid = None if mask is None else mask[r0:r1].reshape(m)
+            if p.transforms[k] is None:
+                src = p.frames[k][r0:r1].reshape(m, c)
+                sampled = None
+                # A pixel is clipped in this frame when any channel reaches its saturation level.
+                np.greater_equal(src[:, 0], p.saturation[0], out=clip)
+                for ch in range(1, c):
+                    np.greater_equal(src[:, ch], p.saturation[ch], out=flag)
+                    clip |= flag
+            else:
+                # Resampled at the mapped position: clipped when any tap of the 4x4 support in
+                # any channel is; no data where the support leaves the frame.
+                sampled, lut_vals, tap_clip, inside = self._sample(k, r0, r1)
+                np.copyto(clip, tap_clip)
+                valid = inside if valid is None else valid & inside
+            if valid is not None:
                 clip &= valid
                 np.logical_not(valid, out=bad)
                 bad |= clip
@@ -530,7 +693,13 @@ class _Kernel:
             inv_t2 = np.float32(1.0 / (t * t))
             share = s.share[k, :m]
             for ch in range(c):
-                x, level, var = self._linearise(src[:, ch], ch, s, m)
+                if sampled is None:
+                    x, level, var = self._linearise(src[:, ch], ch, s, m)
+                else:
+                    x, level, var = self._linearise_sampled(
+                        sampled[ch], None if lut_vals is None else lut_vals[ch], ch, s, m
+                    )
+                    np.copyto(s.lin[k, ch, :m], x)
                 np.multiply(x, inv_t, out=e)  # E_k = g(M) / dt
                 if j == 0:
                     np.copyto(s.dark[ch, :m], e)
@@ -621,7 +790,6 @@ class _Kernel:
     ) -> None:
         """Values for pixels the weighted average could not estimate (see the module doc)."""
         p = self.p
-        w = p.shape[1]
         order = p.order
         dark_k = int(order[0])
         # 1) every frame dropped: the darkest valid frame (fast path: the darkest frame is valid)
@@ -641,7 +809,7 @@ class _Kernel:
                     pick = slow[first_valid == j]
                     if pick.size == 0:
                         continue
-                    vals = self._linearise_points(int(k), pick // w + r0, pick % w)
+                    vals = self._linearise_points(int(k), pick, r0, s)
                     rad[pick] = (vals / p.times[k]).astype(np.float32)
                     shares[:, pick] = 0.0
                     shares[k, pick] = 1.0
@@ -661,7 +829,7 @@ class _Kernel:
                 if sel.size == 0:
                     continue
                 pick = rest[sel]
-                vals = self._linearise_points(int(k), pick // w + r0, pick % w) / p.times[k]
+                vals = self._linearise_points(int(k), pick, r0, s) / p.times[k]
                 target = rad[pick]
                 zc = zero[sel]
                 target[zc] = vals[zc].astype(np.float32)
@@ -683,11 +851,11 @@ def _run_numpy(kernel: _Kernel, spans: list[tuple[int, int]], workers: int, rows
     _, w, c = p.shape
     n = len(p.frames)
     if workers == 1:
-        scratch = _Scratch(n, rows * w, c)
+        scratch = _Scratch(n, rows * w, c, p.warped)
         for r0, r1 in spans:
             kernel.run(r0, r1, scratch)
         return
-    scratches = [_Scratch(n, rows * w, c) for _ in range(workers)]
+    scratches = [_Scratch(n, rows * w, c, p.warped) for _ in range(workers)]
     groups = [spans[i::workers] for i in range(workers)]
 
     def work(i: int) -> None:
@@ -769,7 +937,27 @@ def _run_numba(
         out.underexposed, out.ghost_score.view(np.uint16), out.ghost,
     )
     inv_t = np.array([1.0 / t for t in p.times], np.float32)
-    if p.lut is not None or force_tables:
+    if p.warped:
+        inv_t2 = np.array([1.0 / (t * t) for t in p.times], np.float32)
+        t2 = np.array([float(t) ** 2 for t in p.times], np.float32)
+        wcode = _fused.WEIGHT_CODES[p.weighting]
+        mats = np.zeros((len(frames), 2, 3))
+        for k, tf in enumerate(p.transforms):
+            mats[k] = _IDENTITY if tf is None else tf
+        has_mat = np.array([tf is not None for tf in p.transforms], np.bool_)
+        has_lut = p.lut is not None
+        lut = p.lut if has_lut else np.zeros((3, 2), np.float32)
+        lut_var = p.lut_var if has_lut else lut
+        max_level = float(p.max_level) if p.integer else 1.0
+        hi = np.float32(max_level)
+
+        def work(span: tuple[int, int]) -> int:
+            return _fused.merge_rows_warped(
+                frames_t, masks_t, has_mask, mats, has_mat, order, times, inv_t, inv_t2, t2,
+                wcode, kernel.shot, kernel.const_var, kernel.floor_norm, kernel.inv_max,
+                max_level, hi, has_lut, lut, lut_var, sat, me2, thr, span[0], span[1], *outs,
+            )
+    elif p.lut is not None or force_tables:
         tab = _level_tables(kernel)
         lut = p.lut if p.lut is not None else np.zeros((1, 1), np.float32)
         max_level = float(p.max_level)
@@ -836,6 +1024,7 @@ def merge(
     chunk_pixels: int = DEFAULT_CHUNK_PIXELS,
     workers: int | None = None,
     engine: str | None = None,
+    transforms: Sequence[np.ndarray | None] | None = None,
 ) -> MergeResult:
     """Merge aligned frames into one radiance map ``E = sum(w g(M) / dt) / sum(w)``.
 
@@ -888,7 +1077,7 @@ def merge(
     t0 = time.perf_counter()
     plan = _plan(
         frames, exposure_times, response, max_level, masks, saturation_level, noise_floor,
-        weighting, noise,
+        weighting, noise, transforms,
     )
     if not np.isfinite(ghost_threshold) or ghost_threshold <= 0:
         raise ParameterError("ghost threshold must be positive", found=str(ghost_threshold))
