@@ -215,38 +215,53 @@ def chain_pair_matrix(consecutive: Sequence[np.ndarray], dark: int, bright: int)
     return m[:2]
 
 
-def _inside(m: np.ndarray, xs: np.ndarray, ys: np.ndarray, shape: tuple[int, int],
-            margin: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Where ``m`` maps the grid ``xs x ys`` inside a frame of ``shape`` (by ``margin``)."""
-    h, w = shape
-    sx = m[0, 0] * xs[None, :] + m[0, 1] * ys[:, None] + m[0, 2]
-    sy = m[1, 0] * xs[None, :] + m[1, 1] * ys[:, None] + m[1, 2]
-    eps = 1e-6
-    ok = ((sx >= margin - eps) & (sx <= w - 1 - margin + eps)
-          & (sy >= margin - eps) & (sy <= h - 1 - margin + eps))
-    return ok, sx, sy
-
-
 def common_field_masks(
     matrix: np.ndarray, shape: tuple[int, int], margin: float = 2.0
 ) -> tuple[np.ndarray, np.ndarray]:
     """``(mask_dark, mask_bright)``: pixels of each frame that the other frame also sees.
 
     ``matrix`` maps bright-frame pixel coordinates to the dark frame; both frames have ``shape``
-    ``(H, W)``. A pixel counts when it lies inside its own frame by ``margin`` pixels and its
-    position in the other frame does too, so the two sets hold the same scene content: the
-    masks are ``valid_mask(inverse, shape, shape, margin)`` and
-    ``valid_mask(matrix, shape, shape, margin)`` of :mod:`hdrcore.registration`, each also
-    restricted to its own frame by ``margin`` (with ``margin=0`` exactly those).
+    ``(H, W)``. A bright pixel counts when it lies inside its own frame by ``margin`` pixels
+    and its position in the dark frame does too (``valid_mask(matrix, shape, shape, margin)`` of
+    :mod:`hdrcore.registration`, restricted to its own frame by ``margin``). A dark pixel counts
+    when the bright pixel nearest to its position in the bright frame counts, so the two sets
+    hold the same scene content (for a translation, pixel for pixel); up to the border rows and
+    columns this is ``valid_mask(inverse, shape, shape, margin)``.
     """
     m = _homogeneous(matrix)
     h, w = int(shape[0]), int(shape[1])
     xs = np.arange(w, dtype=np.float64)
     ys = np.arange(h, dtype=np.float64)
-    own, _, _ = _inside(np.eye(3), xs, ys, (h, w), margin)
-    mask_bright, _, _ = _inside(m, xs, ys, (h, w), margin)
-    mask_dark, _, _ = _inside(np.linalg.inv(m), xs, ys, (h, w), margin)
-    return mask_dark & own, mask_bright & own
+    mask_bright = _bright_set(m, xs[None, :], ys[:, None], (h, w), margin)
+    mask_dark, _, _ = _dark_set(m, xs, ys, (h, w), margin)
+    return mask_dark, mask_bright
+
+
+def _bright_set(a: np.ndarray, x: np.ndarray, y: np.ndarray, shape: tuple[int, int],
+                margin: float) -> np.ndarray:
+    """Bright pixels ``(x, y)`` (integers, broadcastable) inside their own frame and seen by
+    the dark frame, both by ``margin``."""
+    h, w = shape
+    eps = 1e-6
+    sx = a[0, 0] * x + a[0, 1] * y + a[0, 2]
+    sy = a[1, 0] * x + a[1, 1] * y + a[1, 2]
+    return ((x >= margin - eps) & (x <= w - 1 - margin + eps)
+            & (y >= margin - eps) & (y <= h - 1 - margin + eps)
+            & (sx >= margin - eps) & (sx <= w - 1 - margin + eps)
+            & (sy >= margin - eps) & (sy <= h - 1 - margin + eps))
+
+
+def _dark_set(a: np.ndarray, xs: np.ndarray, ys: np.ndarray, shape: tuple[int, int],
+              margin: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Dark pixels of the grid ``xs x ys`` whose owner, the bright pixel nearest to ``A^-1 q``,
+    is in the bright set; also the owners' coordinates. For a translation this is exactly the
+    image of the bright set, so both frames count the same content even when the shift is not
+    a whole number of pixels (independent tests of the two frames would disagree by a row or
+    column at the borders)."""
+    inv = np.linalg.inv(a)
+    ux = np.rint(inv[0, 0] * xs[None, :] + inv[0, 1] * ys[:, None] + inv[0, 2])
+    uy = np.rint(inv[1, 0] * xs[None, :] + inv[1, 1] * ys[:, None] + inv[1, 2])
+    return _bright_set(a, ux, uy, shape, margin), ux, uy
 
 
 def _labelled_histograms(a: np.ndarray, labels: np.ndarray, n_regions: int,
@@ -291,11 +306,12 @@ def pair_histograms_in_overlap(
 
     ``matrix`` (2x3) maps pixel coordinates of the bright frame to the dark frame (the project's
     pair convention, e.g. ``register_pair(...).matrix``). A bright pixel counts when its position
-    in the dark frame lies inside that frame by ``margin`` pixels, a dark pixel when its position
-    in the bright frame does (and each inside its own frame by ``margin``, so that both counted
-    sets hold the same content). ``mask`` (``(H, W)``, True = use) further excludes pixels in each
-    frame's own coordinates. ``regions`` also counts a grid of regions laid on the bright frame
-    (followed into the dark frame through the matrix) for the jack-knife.
+    in the dark frame lies inside that frame by ``margin`` pixels (and inside its own frame by
+    ``margin``), a dark pixel when the bright pixel nearest to its position in the bright frame
+    counts: both counted sets hold the same content (:func:`common_field_masks`). ``mask``
+    (``(H, W)``, True = use) further excludes pixels in each frame's own coordinates.
+    ``regions`` also counts a grid of regions laid on the bright frame (followed into the dark
+    frame through the matrix) for the jack-knife.
     """
     m = _check_max_level(max_level)
     d = _as_hwc(levels_dark)
@@ -313,13 +329,8 @@ def pair_histograms_in_overlap(
     xs = np.arange(0, w, s, dtype=np.float64)
     ys = np.arange(0, h, s, dtype=np.float64)
     gx_full, gy_full = np.meshgrid(xs, ys)
-    # A pixel counts when it lies inside its own frame by ``margin`` and its position in the
-    # other frame does too: the two counted sets are then images of each other under ``A``.
-    own, _, _ = _inside(np.eye(3), xs, ys, (h, w), margin)
-    in_dark, _, _ = _inside(a, xs, ys, (h, w), margin)           # bright pixels seen by dark
-    in_bright, ux, uy = _inside(np.linalg.inv(a), xs, ys, (h, w), margin)  # dark pixels
-    in_dark &= own
-    in_bright &= own
+    in_dark = _bright_set(a, gx_full, gy_full, (h, w), margin)  # bright pixels seen by dark
+    in_bright, ux, uy = _dark_set(a, xs, ys, (h, w), margin)  # dark pixels seen by bright
     if mask is not None:
         mk = np.asarray(mask, bool)
         if mk.shape != (h, w):

@@ -76,12 +76,26 @@ def test_common_field_masks_follow_the_registration_convention() -> None:
     m = rigid_matrix(3.5, -2.0, 0.7, shape)
     d0, b0 = common_field_masks(m, shape, margin=0)
     np.testing.assert_array_equal(b0, valid_mask(m, shape, shape))
-    np.testing.assert_array_equal(d0, valid_mask(invert(m), shape, shape))
+    # The dark set follows the bright set through the matrix: the registration's test of the
+    # inverse up to border pixels.
+    diff = d0 != valid_mask(invert(m), shape, shape)
+    assert diff.sum() <= 2 * sum(shape)  # at most about one ring of border pixels
     d2, b2 = common_field_masks(m, shape, margin=2)
     own = np.zeros(shape, bool)
     own[2:-2, 2:-2] = True
     np.testing.assert_array_equal(b2, valid_mask(m, shape, shape, 2) & own)
-    np.testing.assert_array_equal(d2, valid_mask(invert(m), shape, shape, 2) & own)
+
+
+@pytest.mark.parametrize("dx,dy", [(5.0, -3.0), (5.0014, -2.9993), (4.4996, 3.5004)])
+def test_sub_pixel_shift_counts_the_same_pixels(dx: float, dy: float) -> None:
+    # A registration is never exactly integer: the masks must still be images of each other.
+    shape = (30, 50)
+    m = np.array([[1.0, 0.0, dx], [0.0, 1.0, dy]])
+    d, b = common_field_masks(m, shape, margin=2)
+    assert d.sum() == b.sum()
+    ys, xs = np.nonzero(b)
+    np.testing.assert_array_equal(d[np.rint(ys + dy).astype(int), np.rint(xs + dx).astype(int)],
+                                  True)
 
 
 def test_pair_histograms_in_overlap_counts_the_same_content(integer_hand_held) -> None:
