@@ -421,39 +421,52 @@ def _keys(f):
 
 
 @_njit
+def _tap(row, xb, wj, s0, s1, s2):
+    t0 = row[xb, 0]
+    t1 = row[xb, 1]
+    t2 = row[xb, 2]
+    cl = (t0 >= s0) | (t1 >= s1) | (t2 >= s2)
+    return np.float32(t0) * wj, np.float32(t1) * wj, np.float32(t2) * wj, cl
+
+
+@_njit
 def _row3(fr, yy, xb, wx0, wx1, wx2, wx3, s0, s1, s2):
-    """One row of 4 taps for 3 channels: the x-interpolated values, any tap clipped, max tap."""
-    cl = False
-    top = np.float64(0.0)
-    out0 = np.float32(0.0)
-    out1 = np.float32(0.0)
-    out2 = np.float32(0.0)
-    for jx in range(4):
-        wj = wx0 if jx == 0 else (wx1 if jx == 1 else (wx2 if jx == 2 else wx3))
-        t0 = fr[yy, xb + jx, 0]
-        t1 = fr[yy, xb + jx, 1]
-        t2 = fr[yy, xb + jx, 2]
-        d0 = np.float64(t0)
-        d1 = np.float64(t1)
-        d2 = np.float64(t2)
-        if d0 >= s0 or d1 >= s1 or d2 >= s2:
-            cl = True
-        top = max(top, d0, d1, d2)
-        if jx == 0:
-            out0 = np.float32(t0) * wj
-            out1 = np.float32(t1) * wj
-            out2 = np.float32(t2) * wj
-        else:
-            out0 = out0 + np.float32(t0) * wj
-            out1 = out1 + np.float32(t1) * wj
-            out2 = out2 + np.float32(t2) * wj
-    return out0, out1, out2, cl, top
+    """One row of 4 taps for 3 channels: the x-interpolated values and whether any tap is
+    clipped (``s*``: saturation thresholds in the frame's dtype, see :func:`tap_thresholds`)."""
+    row = fr[yy]
+    a0, a1, a2, c0 = _tap(row, xb, wx0, s0, s1, s2)
+    b0, b1, b2, c1 = _tap(row, xb + 1, wx1, s0, s1, s2)
+    a0 = a0 + b0
+    a1 = a1 + b1
+    a2 = a2 + b2
+    b0, b1, b2, c2 = _tap(row, xb + 2, wx2, s0, s1, s2)
+    a0 = a0 + b0
+    a1 = a1 + b1
+    a2 = a2 + b2
+    b0, b1, b2, c3 = _tap(row, xb + 3, wx3, s0, s1, s2)
+    a0 = a0 + b0
+    a1 = a1 + b1
+    a2 = a2 + b2
+    return a0, a1, a2, c0 | c1 | c2 | c3
+
+
+def tap_thresholds(sat: np.ndarray, dtype: np.dtype) -> np.ndarray:
+    """Per-channel thresholds in ``dtype`` with ``v >= thr`` exactly when ``float64(v) >= sat``
+    (integer frames: ``ceil(sat)``; float32 frames: the smallest float32 not below ``sat``)."""
+    sat = np.asarray(sat, np.float64)
+    if np.dtype(dtype).kind == "u":
+        return np.ceil(sat).astype(dtype)
+    thr = sat.astype(np.float32)
+    low = thr.astype(np.float64) < sat
+    thr[low] = np.nextafter(thr[low], np.float32(np.inf))
+    return thr
 
 
 @_njit
 def merge_rows_warped(
     frames, masks, has_mask, mats, has_mat, order, times, inv_t, inv_t2, t2, wcode, shot,
-    const_var, floor_norm, inv_max, max_level, hi, has_lut, lut, lut_var, sat, me2, thr, r0, r1,
+    const_var, floor_norm, inv_max, max_level, hi, has_lut, lut, lut_var, sat, tap_thr, me2,
+    thr, r0, r1,
     rad, wsum_out, shares, clip_count, clipped_out, under_out, gscore, ghost,
 ):
     """Rows ``r0:r1`` of the output grid; frame ``k`` with ``has_mat[k]`` is read at
@@ -479,7 +492,9 @@ def merge_rows_warped(
     half = np.float32(0.5)
     m16 = np.float32(-16.0)
     zero = np.float32(0.0)
-    hi_lut = np.float64(lmax)
+    thr0 = tap_thr[0]
+    thr1 = tap_thr[1]
+    thr2 = tap_thr[2]
     nb = (w + _BLOCK - 1) // _BLOCK
     vals = np.empty(3, np.float32)
     for yb in range((r1 - r0) * nb):
@@ -527,12 +542,9 @@ def merge_rows_warped(
                         for jy in range(4):
                             wj = wy0 if jy == 0 else (wy1 if jy == 1 else (wy2 if jy == 2
                                                                          else wy3))
-                            q0, q1, q2, rc, top = _row3(fr, iy + jy, ix, wx0, wx1, wx2, wx3,
-                                                        sat[0], sat[1], sat[2])
-                            if rc:
-                                tcl = True
-                            if has_lut and top > hi_lut:
-                                out_of_range += 1
+                            q0, q1, q2, rc = _row3(fr, iy + jy, ix, wx0, wx1, wx2, wx3,
+                                                   thr0, thr1, thr2)
+                            tcl = tcl | rc
                             if jy == 0:
                                 a0 = q0 * wj
                                 a1 = q1 * wj
@@ -541,6 +553,12 @@ def merge_rows_warped(
                                 a0 = a0 + q0 * wj
                                 a1 = a1 + q1 * wj
                                 a2 = a2 + q2 * wj
+                        if has_lut and tcl:  # levels past the LUT are clipped: count them
+                            for jy in range(4):
+                                for jx in range(4):
+                                    for ch in range(3):
+                                        if int(fr[iy + jy, ix + jx, ch]) > lmax:
+                                            out_of_range += 1
                         vals[0] = min(max(a0, zero), hi)
                         vals[1] = min(max(a1, zero), hi)
                         vals[2] = min(max(a2, zero), hi)

@@ -950,12 +950,14 @@ def _run_numba(
         lut_var = p.lut_var if has_lut else lut
         max_level = float(p.max_level) if p.integer else 1.0
         hi = np.float32(max_level)
+        tap_thr = _fused.tap_thresholds(sat, frames_t[0].dtype)
 
         def work(span: tuple[int, int]) -> int:
             return _fused.merge_rows_warped(
                 frames_t, masks_t, has_mask, mats, has_mat, order, times, inv_t, inv_t2, t2,
                 wcode, kernel.shot, kernel.const_var, kernel.floor_norm, kernel.inv_max,
-                max_level, hi, has_lut, lut, lut_var, sat, me2, thr, span[0], span[1], *outs,
+                max_level, hi, has_lut, lut, lut_var, sat, tap_thr, me2, thr, span[0], span[1],
+                *outs,
             )
     elif p.lut is not None or force_tables:
         tab = _level_tables(kernel)
