@@ -497,10 +497,13 @@ def merge_rows_warped(
     thr2 = tap_thr[2]
     nb = (w + _BLOCK - 1) // _BLOCK
     vals = np.empty(3, np.float32)
-    for yb in range((r1 - r0) * nb):
-        y = r0 + yb // nb
+    nr = r1 - r0
+    # column blocks outermost: consecutive rows of a block read the same band of source rows
+    # (a rotated frame's rows drift across many source rows over the full width)
+    for yb in range(nr * nb):
+        y = r0 + yb % nr
         yf = np.float64(y)
-        x0 = (yb % nb) * _BLOCK
+        x0 = (yb // nr) * _BLOCK
         x1 = min(w, x0 + _BLOCK)
         den[:] = zero
         num[:] = zero

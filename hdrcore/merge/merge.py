@@ -607,6 +607,9 @@ class _Kernel:
             if lut_vals is not None:
                 np.clip(lacc, np.float32(0.0), p.lut[ch, -1], out=lut_vals[ch])
         tap_clip &= inside
+        vals[:, ~inside] = 0.0  # no data (a pixel with no valid frame at all reads 0 there)
+        if lut_vals is not None:
+            lut_vals[:, ~inside] = 0.0
         return vals, lut_vals, tap_clip, inside
 
     def _linearise_sampled(
