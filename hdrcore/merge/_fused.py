@@ -399,6 +399,13 @@ def warm_up() -> float:
     merge(frames, (1.0, 2.0, 4.0), engine="numba", workers=1)
     mask = np.ones((2, 3), bool)
     merge(frames, (1.0, 2.0, 4.0), masks=[None, mask, mask], engine="numba", workers=1)
+    tf = [np.array([[1.0, 0.0, 0.5], [0.0, 1.0, 0.25]]), None, None]  # resampling kernel
+    merge(frames, (1.0, 2.0, 4.0), transforms=tf, engine="numba", workers=1)
+    for dtype in (np.uint16, np.uint8):
+        frames = [np.full((2, 3, 3), 10 * (k + 1), dtype) for k in range(3)]
+        merge(frames, (1.0, 2.0, 4.0), max_level=255, transforms=tf, engine="numba", workers=1)
+        merge(frames, (1.0, 2.0, 4.0), response=np.linspace(0, 1, 256), transforms=tf,
+              engine="numba", workers=1)
     return time.perf_counter() - t0
 
 
