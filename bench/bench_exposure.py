@@ -126,7 +126,7 @@ def integer_shift_matrices(frames, max_level, ratios):
     lo = default_noise_floor(max_level) / max_level
     hi = default_saturation(max_level) / max_level
     mats = []
-    for i, k in enumerate(initial_ratios(ratios)):
+    for i, k in enumerate(ratios):
         a = np.log(np.clip(g[i + 1], lo, hi))
         b = np.log(np.clip(g[i] * k, lo, hi))
         s = cross_correlation_shift(a, b)
@@ -134,18 +134,8 @@ def integer_shift_matrices(frames, max_level, ratios):
     return mats
 
 
-def initial_ratios(ratios):
-    """Ratios to start the registration from: the histogram-only estimates, except that a
-    missing or wild one (off the bracket's median step by more than x1.5) is replaced by the
-    median step. Registration tolerates ratio errors of a few percent, not a factor of six."""
-    r = np.array([k if np.isfinite(k) and k > 0 else np.nan for k in ratios])
-    med = float(np.nanmedian(r)) if np.any(np.isfinite(r)) else 4.0
-    wild = ~np.isfinite(r) | (np.abs(np.log(r / med)) > np.log(1.5))
-    return [med if w else float(k) for k, w in zip(r, wild, strict=True)]
-
-
 def registered_matrices(frames, max_level, ratios):
-    ks = initial_ratios(ratios)
+    ks = ratios
     reg = register_bracket(green_linear(frames, max_level), ks,
                            saturation=default_saturation(max_level) / max_level,
                            noise_floor=default_noise_floor(max_level) / max_level)
@@ -186,7 +176,9 @@ def accuracy_table(bits, shape, seeds, *, shift=0.0, rotation=0.0, integer_motio
             runs["histograms only"] = ours(b.frames, m)
             runs["Cerman 2006 (paper)"] = ours(b.frames, m, "Cerman 2006")
             if moving:
-                first = runs["histograms only"][2].ratios
+                # Registration starts from the histogram-only ratios, a missing or wild one
+                # replaced by the median step (BracketExposureResult.starting_ratios; no EXIF).
+                first = runs["histograms only"][2].starting_ratios()
                 runs["overlap: eq.5 int shift"] = ours(
                     b.frames, m, matrices=integer_shift_matrices(b.frames, m, first))
                 t0 = time.perf_counter()

@@ -180,3 +180,27 @@ class BracketExposureResult:
         """Consecutive ratios implied by ``relative_exposures``."""
         e = self.relative_exposures
         return tuple(e[k + 1] / e[k] for k in range(len(e) - 1))
+
+    def starting_ratios(self, max_factor: float = 1.5) -> tuple[float, ...]:
+        """Consecutive ratios to start a registration from (hand-held brackets).
+
+        The estimated ratio of each consecutive pair, except where it is missing or off the
+        bracket's median step by more than ``max_factor``: there the EXIF ratio when known,
+        else the median step. (Registration tolerates ratio errors of a few percent, which is
+        what motion leaves in the histogram-only estimate, but not a wild one.)
+        """
+        est = np.array([p.ratio if np.isfinite(p.ratio) and p.ratio > 0 else np.nan
+                        for p in self.pairs])
+        finite = est[np.isfinite(est)]
+        exif = [r for r in self.exif_ratios if r]
+        med = float(np.median(finite)) if finite.size else (
+            float(np.median(exif)) if exif else 1.0)
+        out = []
+        for k, r in enumerate(est):
+            if np.isfinite(r) and abs(np.log(r / med)) <= np.log(max_factor):
+                out.append(float(r))
+            elif self.exif_ratios[k]:
+                out.append(float(self.exif_ratios[k]))  # type: ignore[arg-type]
+            else:
+                out.append(med)
+        return tuple(out)

@@ -3,6 +3,8 @@ and the region jack-knife that flags pairs disturbed by hand-held motion (simula
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -182,3 +184,14 @@ def test_bad_overlap_input() -> None:
         bracket_histograms([f, f, f], 255, pair_matrices=[np.eye(2, 3)])
     with pytest.raises(ParameterError, match="grid"):
         bracket_histograms([f, f], 255, regions=(0, 3))
+
+
+def test_starting_ratios_replace_wild_estimates() -> None:
+    b = simulate_bracket(scene="window", shape=(96, 144), exposure_times=TIMES, bits=12, seed=2)
+    res = bracket_exposures(b.frames, b.max_level)
+    np.testing.assert_allclose(res.starting_ratios(), [p.ratio for p in res.pairs])
+    wild = replace(res, pairs=(replace(res.pairs[0], ratio=0.6),) + res.pairs[1:])
+    assert wild.starting_ratios()[0] == pytest.approx(np.median([0.6] + [p.ratio for p in
+                                                                         res.pairs[1:]]))
+    with_exif = replace(wild, exif_ratios=(4.0, 4.0, 4.0))
+    assert with_exif.starting_ratios()[0] == 4.0
