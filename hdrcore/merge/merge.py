@@ -44,7 +44,6 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import ParameterError, validate_method
-from ..registration._sampling import keys_weights
 from . import _fused
 from .maps import (
     DEFAULT_GHOST_THRESHOLD,
@@ -564,6 +563,9 @@ class _Kernel:
         saturation level, ``inside`` where the whole 4x4 support lies in the frame. With a
         response LUT the taps are linearised before the interpolation (``LUT values``).
         """
+        # the project's Keys weights (imported here: hdrcore.registration pulls in scipy.optimize)
+        from ..registration._sampling import keys_weights
+
         p = self.p
         h, w, c = p.shape
         t = p.transforms[k]
