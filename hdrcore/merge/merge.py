@@ -21,6 +21,10 @@ own units, 0..``max_level``); for float frames (already linear, 1.0 = saturation
 values. The radiance is in the units of ``g(M) / dt``: with times relative to the darkest frame,
 ``E`` of the darkest frame's unclipped pixels is its linear value.
 
+Hand-held frames need not be warped beforehand: with ``transforms`` the merge resamples them
+itself (Keys cubic convolution from the integer levels, see :func:`merge`), so the pipeline passes
+the bracket's own levels and no warped float copies exist.
+
 The work runs over chunks of rows so that every temporary stays in cache (float32 throughout); the
 peak memory beyond inputs and outputs is a few megabytes per worker.
 
@@ -1074,12 +1078,25 @@ def merge(
         A name in :data:`MERGE_ENGINES`; ``None`` picks the fused numba kernel when it can run
         the input (numba installed, uint8/uint16 or float frames) and the numpy reference
         otherwise. Both give the same result.
+    transforms
+        Optional ``N`` entries, each ``None`` (identity) or a 2x3 affine matrix mapping OUTPUT
+        (reference-frame) pixel coordinates to that frame's pixel coordinates (x right, y down,
+        origin at the centre of the top-left pixel), i.e.
+        ``hdrcore.registration.invert(to_reference[k])``. Such a frame is resampled inside the
+        merge, straight from its levels (or floats): Keys cubic convolution (a = -1/2), the 4
+        weights per axis shared by the channels; integer levels are interpolated, clamped to
+        ``[0, max_level]`` and linearised through the LUT read linearly between entries. The
+        frame counts as clipped at a pixel when any of the 16 taps of any channel is at or
+        above its saturation level (interpolation never mixes clipped and valid data) and as
+        no data (like a ``False`` mask) where the 4x4 support leaves the frame. ``masks`` stay
+        in output coordinates. Identity matrices take the direct path (no interpolation).
 
     Raises
     ------
     ParameterError
         For an empty list, mismatched shapes, non-positive times, out-of-range levels, unknown
-        weighting names and a LUT or mask that does not fit the frames.
+        weighting names, a LUT or mask that does not fit the frames and a transform that is not
+        a finite 2x3 matrix.
     """
     t0 = time.perf_counter()
     plan = _plan(
