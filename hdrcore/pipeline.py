@@ -50,6 +50,7 @@ from .registration import (
     MODELS,
     REGISTRATION_METHODS,
     BracketRegistration,
+    invert,
     register_bracket,
     warp_to_reference,
 )
@@ -671,45 +672,39 @@ class Pipeline:
                registration: BracketRegistration | None, excluded=None):
         b = self.bracket
         n = len(b)
-        sat_lin = [self._linear_level(lut, p.saturation, c) for c in range(3)]
-        nf_lin = self._linear_level(lut, p.noise_floor, 1)
-        frames: list[np.ndarray] = []
-        masks: list[np.ndarray | None] = []
-        for k in range(n):
-            lin = self._channel_linear(k, lut, None)
-            if excluded is not None:
-                # Excluded pixels carry no data: NaN spreads through the warp like the border.
-                lin[excluded[0][k]] = np.nan
-            if registration is None or k == registration.reference or np.allclose(
-                registration.to_reference[k], np.eye(2, 3), atol=1e-9
-            ):
-                frames.append(np.nan_to_num(lin, nan=0.0) if excluded is not None else lin)
-                masks.append(None if excluded is None else ~excluded[0][k])
-                continue
-            # Clipped samples become NaN before the warp so that any output pixel whose
-            # interpolation touched one is treated as clipped, never as a darker mixture.
-            clipped = b.frames[k].levels >= p.saturation
-            lin[clipped] = np.nan
-            w = warp_to_reference(lin, registration.to_reference[k], fill=0.0)
-            img = w.image
-            mask = w.mask
-            if excluded is not None:
-                gone = warp_to_reference(excluded[0][k].astype(np.float32),
-                                         registration.to_reference[k], fill=0.0).image
-                mask = mask & ~(gone > 0.01)
-            np.nan_to_num(img, copy=False, nan=1.0)
-            frames.append(img)
-            masks.append(mask)
-            self._report("merge", (k + 1) / (n + 1), f"warped frame {k + 1} of {n}")
+        levels = [f.levels for f in b.frames]  # the bracket's own arrays: no copies
+        transforms: list[np.ndarray | None] | None = None
+        if registration is not None:
+            # The merge samples each frame at the reference pixel mapped into it (Keys cubic on
+            # the integer levels; a frame whose 4x4 support touches a clipped sample counts as
+            # clipped there): no warped copies of the frames.
+            transforms = [
+                None if k == registration.reference or np.allclose(
+                    registration.to_reference[k], np.eye(2, 3), atol=1e-9)
+                else invert(registration.to_reference[k])
+                for k in range(n)
+            ]
+        masks: list[np.ndarray | None] | None = None
+        if excluded is not None:
+            masks = []
+            for k in range(n):
+                gone = excluded[0][k]
+                if transforms is not None and transforms[k] is not None:
+                    moved = warp_to_reference(gone.astype(np.float32),
+                                              registration.to_reference[k], fill=0.0).image
+                    masks.append(~(moved > 0.01))
+                else:
+                    masks.append(~gone)
         noise = _noise_model(b)
         result = merge(
-            frames, times, masks=masks, saturation_level=sat_lin, noise_floor=nf_lin,
+            levels, times, response=lut, max_level=b.max_level, masks=masks,
+            saturation_level=float(p.saturation), noise_floor=float(p.noise_floor),
             weighting="noise-aware" if lut is None else "hat", noise=noise,
+            transforms=transforms,
             # A recovered response and 8-bit (often JPEG or scanned) data agree between frames
             # only to a few per cent; RAW data to the noise.
             model_error=DEFAULT_MODEL_ERROR if lut is None else NONLINEAR_MODEL_ERROR,
         )
-        del frames
         radiance = result.radiance
         colour_info: dict[str, Any] = {"working_space": p.working_space}
         f0 = b.frames[0].meta
