@@ -251,10 +251,44 @@ def solve_3v(
     return k, iterates, mask, wy - k * wx, iterations, se
 
 
+def _sampled_btf(btf: BrightnessTransferFunction, at_edges: bool) -> tuple[np.ndarray, ...]:
+    """What the equations of one channel need that depends on the histograms only (cached in
+    the BTF): sample positions, transfers and the indices of occupied, interior levels."""
+    key = ("equations", at_edges)
+    cached = btf._memo.get(key)
+    if cached is not None:
+        return cached
+    n = btf.hist_dark.size
+    levels = np.arange(n, dtype=np.float64)
+    if at_edges:
+        pos = levels + 0.5
+        t_fwd, t_inv = btf.forward_at_edges(), btf.inverse_at_edges()
+        inner_d = (btf.cdf_dark > 0) & (btf.cdf_dark < 1)
+        inner_b = (btf.cdf_bright > 0) & (btf.cdf_bright < 1)
+    else:
+        pos = levels
+        t_fwd, t_inv = btf.forward, btf.inverse
+        inner_d = inner_b = np.ones(n, bool)
+    base_d = np.flatnonzero((btf.hist_dark > 0) & inner_d)
+    base_b = np.flatnonzero((btf.hist_bright > 0) & inner_b)
+    out = (pos, np.asarray(t_fwd), np.asarray(t_inv), base_d, base_b)
+    btf._memo[key] = out
+    return out
+
+
+def _select(base: np.ndarray, lo: int, hi: int) -> np.ndarray:
+    """Entries of the sorted index array ``base`` in ``[lo, hi)``."""
+    return base[np.searchsorted(base, lo):np.searchsorted(base, max(lo, hi))]
+
+
 def _equations_for_channel(
     btf: BrightnessTransferFunction, g: np.ndarray | None, saturation: float, noise_floor: float,
     options: FitOptions, channel: int,
 ) -> tuple[np.ndarray, ...]:
+    """Rows of eq. 4 for one channel: forward rows from dark levels ``noise floor < M_A < Z``
+    with ``T(M_A) < Z``, inverse rows from bright levels ``noise floor < M_B < Z`` with
+    ``T^-1(M_B) > noise floor``. Positions and transfers are non-decreasing, so each condition
+    selects a range of levels (found by bisection; a re-fit costs no mask over all levels)."""
     n = btf.hist_dark.size
     levels = np.arange(n, dtype=np.float64)
 
@@ -263,26 +297,22 @@ def _equations_for_channel(
             return np.clip(pos, 0.0, n - 1) / (n - 1)
         return np.interp(pos, levels, g)
 
+    pos, t_fwd, t_inv, base_d, base_b = _sampled_btf(btf, options.at_edges)
+    z, floor = saturation, noise_floor
+    above_floor = int(np.searchsorted(pos, floor, side="right"))
+    below_z = int(np.searchsorted(pos, z, side="left"))
+    fwd = _select(base_d, above_floor,
+                  min(below_z, int(np.searchsorted(t_fwd, z, side="left"))))
+    inv = _select(base_b, max(above_floor, int(np.searchsorted(t_inv, floor, side="right"))),
+                  below_z)
     hd, hb = btf.hist_dark, btf.hist_bright
-    if options.at_edges:
-        pos_d, t_fwd = levels + 0.5, btf.forward_at_edges()
-        pos_b, t_inv = levels + 0.5, btf.inverse_at_edges()
-        inner_d = (btf.cdf_dark > 0) & (btf.cdf_dark < 1)
-        inner_b = (btf.cdf_bright > 0) & (btf.cdf_bright < 1)
-    else:
-        pos_d, t_fwd = levels, btf.forward
-        pos_b, t_inv = levels, btf.inverse
-        inner_d = np.ones(n, bool)
-        inner_b = np.ones(n, bool)
-    fwd = (hd > 0) & inner_d & (pos_d > noise_floor) & (pos_d < saturation) & (t_fwd < saturation)
-    inv = (hb > 0) & inner_b & (pos_b < saturation) & (t_inv > noise_floor) & (pos_b > noise_floor)
-    x = np.concatenate([lin(pos_d[fwd]), lin(t_inv[inv])])
-    y = np.concatenate([lin(t_fwd[fwd]), lin(pos_b[inv])])
+    x = np.concatenate([lin(pos[fwd]), lin(t_inv[inv])])
+    y = np.concatenate([lin(t_fwd[fwd]), lin(pos[inv])])
     counts = np.concatenate([hd[fwd], hb[inv]]).astype(np.float64)
     w = counts**options.weight_power
-    direction = np.concatenate([np.full(fwd.sum(), FORWARD, np.int8),
-                                np.full(inv.sum(), INVERSE, np.int8)])
-    level = np.concatenate([pos_d[fwd], pos_b[inv]])
+    direction = np.concatenate([np.full(fwd.size, FORWARD, np.int8),
+                                np.full(inv.size, INVERSE, np.int8)])
+    level = np.concatenate([pos[fwd], pos[inv]])
     ch = np.full(x.size, channel, np.int8)
     return x, y, w, direction, ch, level
 

@@ -219,6 +219,8 @@ def chain_bracket(
     else:
         status = "ok"
         message = f"{n} frames, {len(pairs)} consecutive and {len(extra)} further pairs, all ok"
+    if hists.overlap_restricted:
+        message += "; histograms restricted to each pair's common field of view"
     first = pairs[0]
     return BracketExposureResult(
         relative_exposures=tuple(float(v) for v in exposures),
