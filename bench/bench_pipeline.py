@@ -56,6 +56,13 @@ def make_bracket(size: tuple[int, int], frames: int) -> Path:
 
 
 def _peak_mb() -> float:
+    """Peak resident memory of this process (VmHWM; ru_maxrss survives exec from the parent)."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return float(line.split()[1]) / 1024.0
+    except OSError:
+        pass
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
