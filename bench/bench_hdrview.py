@@ -162,15 +162,18 @@ def bench_pipeline(sim, repeat: int) -> list[tuple[str, float, str]]:
                 ("threshold-t change (target < 1.5 s)", "threshold",
                  [0.05 + 0.01 * r for r in range(repeat)]),
             ):
-                times, quick = [], []
+                times, quick, reg = [], [], []
                 for v in values:
                     t = time.perf_counter()
                     app.set_control(control, float(v))
                     app.wait_idle(600)
                     times.append(time.perf_counter() - t)
                     quick.append(app.last_ratios_seconds or float("nan"))
+                    reg.append(app.last_registration_seconds or float("nan"))
                 rows.append((label.replace("(target", "ratios + BTF drawn (target"),
                              float(np.median(quick)), "app"))
+                rows.append((label.split(" (")[0] + ": re-registered + overlays drawn",
+                             float(np.median(reg)), "app"))
                 rows.append((label.split(" (")[0] + ": every stage re-run and drawn",
                              float(np.median(times)), "app"))
             errors = [n for n in app.notifications if n[0] == "error"]

@@ -69,6 +69,7 @@ class InspectorApp:
         self.draw_count = 0
         self.last_job_seconds: float | None = None
         self.last_ratios_seconds: float | None = None  # job start -> BTF plot and masks drawn
+        self.last_registration_seconds: float | None = None  # job start -> overlays drawn
         self._lock = threading.RLock()
         self._syncing = False
         self._wanted: tuple[tuple[str, ...], str] | None = None  # (paths, label)
@@ -394,6 +395,14 @@ class InspectorApp:
             ctx.check()
             self._draw(quick, stages=("btf", "masks"))
             self.last_ratios_seconds = time.perf_counter() - t0
+            ctx.check()
+            # Then the registration (a threshold-t change lands here first), then the rest.
+            registered = self.session.run(self.controls, progress=progress,
+                                          until="registration")
+            ctx.check()
+            if getattr(registered, "registration", None) is not None:
+                self._draw(registered, stages=("registration",))
+            self.last_registration_seconds = time.perf_counter() - t0
             ctx.check()
             result = self.session.run(self.controls, progress=progress)
         ctx.check()
