@@ -406,6 +406,10 @@ def warm_up() -> float:
         merge(frames, (1.0, 2.0, 4.0), max_level=255, transforms=tf, engine="numba", workers=1)
         merge(frames, (1.0, 2.0, 4.0), response=np.linspace(0, 1, 256), transforms=tf,
               engine="numba", workers=1)
+    from .colour import camera_to_working
+
+    camera_to_working(np.ones((2, 3, 3), np.float32), None, None, clipped=np.zeros((2, 3), bool),
+                      workers=1)
     return time.perf_counter() - t0
 
 

@@ -51,6 +51,12 @@ WORKING_SPACES: dict[str, str] = {
 
 _SRGB_PRIMARIES = ("sRGB", "ITU-R BT.709")
 
+_SRGB_TO_XYZ = np.array(
+    [[0.4124, 0.3576, 0.1805], [0.2126, 0.7152, 0.0722], [0.0193, 0.1192, 0.9505]]
+)
+"""colour-science's ``RGB_COLOURSPACES["sRGB"].matrix_RGB_to_XYZ`` (IEC 61966-2-1), copied so
+that the default working space needs no ``import colour`` (about a second on first use)."""
+
 
 def _white_balance(camera_whitebalance: Sequence[float] | np.ndarray | None) -> np.ndarray:
     if camera_whitebalance is None:
@@ -81,11 +87,7 @@ def camera_to_working_matrix(
     by its response), so only the white balance and the sRGB -> working-space step apply.
     ``camera_whitebalance`` holds rawpy's as-shot multipliers (normalised to green here).
     """
-    import colour  # imported lazily: colour-science (with colour.plotting) takes seconds
-
     key = validate_method(working_space, WORKING_SPACES, "working space")
-    srgb = colour.RGB_COLOURSPACES["sRGB"]
-    target = colour.RGB_COLOURSPACES[WORKING_SPACES[key]]
     wb = _white_balance(camera_whitebalance)
     rgb_cam = np.eye(3)
     if rgb_xyz_matrix is not None:
@@ -100,7 +102,7 @@ def camera_to_working_matrix(
         if not np.all(np.isfinite(cam_xyz)):
             raise ParameterError("camera matrix must be finite")
         if np.any(cam_xyz != 0):
-            cam_rgb = cam_xyz @ np.asarray(srgb.matrix_RGB_to_XYZ, dtype=np.float64)
+            cam_rgb = cam_xyz @ _SRGB_TO_XYZ
             sums = cam_rgb.sum(axis=1, keepdims=True)
             if np.any(np.abs(sums) < 1e-12):
                 raise ParameterError("camera matrix is singular", found=str(cam_xyz.tolist()))
@@ -116,6 +118,10 @@ def camera_to_working_matrix(
         # exact inverses of each other).
         to_space = np.eye(3)
     else:
+        import colour  # lazily: colour-science (with colour.plotting) takes about a second
+
+        srgb = colour.RGB_COLOURSPACES["sRGB"]
+        target = colour.RGB_COLOURSPACES[WORKING_SPACES[key]]
         to_space = np.asarray(
             colour.matrix_RGB_to_RGB(srgb, target, chromatic_adaptation_transform="Bradford"),
             dtype=np.float64,

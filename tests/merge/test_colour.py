@@ -93,3 +93,12 @@ def test_numpy_fallback_in_place(monkeypatch):
     inplace = rad.copy()
     camera_to_working(inplace, CAM_XYZ, WB, clipped=clipped, out=inplace)
     np.testing.assert_allclose(inplace, fused, rtol=1e-5, atol=1e-7)
+
+
+def test_srgb_matrix_copy_matches_colour_science():
+    import hdrcore.merge.colour as colour_module
+
+    np.testing.assert_array_equal(
+        colour_module._SRGB_TO_XYZ,
+        np.asarray(colour.RGB_COLOURSPACES["sRGB"].matrix_RGB_to_XYZ, dtype=np.float64),
+    )
