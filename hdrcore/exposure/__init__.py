@@ -83,7 +83,10 @@ def exposure_ratio(
 
     Keyword arguments: ``saturation`` (Z, levels), ``noise_floor`` (levels), ``lut``
     (linearisation ``(L,)`` or ``(C, L)``), ``noise_sigma`` (refined method only), ``precision``,
-    ``max_iterations``, ``max_relative_error``, ``min_overlap``, ``dark``, ``bright``.
+    ``max_iterations``, ``max_relative_error``, ``min_overlap``, ``max_groups`` (groups of
+    neighbouring levels in the 3V test), ``btfs`` (known transfer functions), ``dark``,
+    ``bright``. The bracket functions also take ``jackknife``, ``max_region_error`` and
+    ``jackknife_groups`` (:func:`hdrcore.exposure.chain.chain_bracket`).
     """
     key = validate_method(method, EXPOSURE_METHODS, "exposure")
     return EXPOSURE_METHODS[key](hist_dark, hist_bright, **kwargs)
