@@ -476,7 +476,12 @@ class Pipeline:
         times, times_source = self._merge_times(exposures_hist, p)
 
         if want("registration"):
-            ratios = tuple(times[k + 1] / times[k] for k in range(len(times) - 1))
+            if p.times == "exif":
+                ratios = tuple(times[k + 1] / times[k] for k in range(len(times) - 1))
+            else:
+                # Registration tolerates the few per cent that motion leaves in the whole-frame
+                # estimate, not a wild ratio: those are replaced by EXIF or the median step.
+                ratios = tuple(float(r) for r in exposures_hist.starting_ratios())
             reg_key = (resp_key, ratios, p.saturation, p.noise_floor, p.threshold, p.align,
                        p.reference, p.registration_method)
             registration = self._stage(

@@ -7,7 +7,7 @@ import argparse
 import numpy as np
 
 from ..errors import ParameterError
-from ..exposure import DEFAULT_METHOD, EXPOSURE_METHODS, bracket_exposures, srgb_lut
+from ..exposure import DEFAULT_METHOD, EXPOSURE_METHODS, bracket_exposures
 from ._common import add_bracket_arguments, load_bracket_from_args, print_json, print_warnings
 
 
@@ -20,14 +20,16 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    help="saturation level Z in levels (default 97%% of the largest level)")
     p.add_argument("--noise-floor", type=float, metavar="N",
                    help="ignore levels at or below N (default 2%% of the largest level, >= 3)")
-    p.add_argument("--response", metavar="FILE|srgb|linear",
-                   help="linearisation of non-linear frames: a response JSON from "
-                        "'hdrcore response', 'srgb' (default for JPEG/PNG) or 'linear'")
+    p.add_argument("--response", default="auto", metavar="NAME|FILE",
+                   help="linearisation: 'auto' (linear for RAW, recovered from the histograms "
+                        "for JPEG/PNG/TIFF), 'linear', 'srgb', a method (debevec1997, "
+                        "debevec-histogram, mitsunaga1999, grossberg2003) or a saved curve")
     p.add_argument("--method", default=DEFAULT_METHOD, choices=list(EXPOSURE_METHODS),
                    help="estimator (default: %(default)s)")
     p.add_argument("--noise-sigma", type=float, default=None, metavar="S",
                    help="additive noise in levels for noise matching (refined method)")
-    p.add_argument("--mask-colour", metavar="R,G,B", type=_colour,
+    p.add_argument("--mask-colour", "--exclude-colour", dest="mask_colour", metavar="R,G,B",
+                   type=_colour,
                    help="exclude pixels of exactly this colour in any frame (in levels), e.g. "
                         "0,0,255 for the blue border of memorial-debevec")
     p.add_argument("--json", action="store_true", help="print JSON on stdout")
@@ -59,33 +61,30 @@ def colour_mask(levels: list[np.ndarray], colour: tuple[int, ...]) -> np.ndarray
     return ~hit
 
 
-def _lut(args: argparse.Namespace, linear: bool, max_level: int):
-    choice = args.response
-    if choice is None:
-        return None if linear else srgb_lut(max_level)
-    if choice.lower() == "linear":
-        return None
-    if choice.lower() == "srgb":
-        return srgb_lut(max_level)
-    from ..response.curve import ResponseCurve
-
-    return ResponseCurve.load(choice).to_lut(max_level)
-
-
 def run(args: argparse.Namespace) -> int:
+    from ..pipeline import Pipeline, PipelineParams
+
     bracket = load_bracket_from_args(args)
     print_warnings(bracket)
     frames = bracket.frames
     max_level = frames[0].max_level
-    lut = _lut(args, all(f.is_linear for f in frames), max_level)
     times = [None if f.meta.exposure_time is None else float(f.meta.exposure_time) for f in frames]
     levels = [f.levels for f in frames]
     mask = None if args.mask_colour is None else colour_mask(levels, args.mask_colour)
-    res = bracket_exposures(
-        levels, max_level, method=args.method, exposure_times=times, mask=mask,
-        saturation=args.saturation, noise_floor=args.noise_floor, lut=lut,
-        noise_sigma=args.noise_sigma,
+    # The same response, defaults and exclusions as 'hdrcore merge' and 'hdrcore align'.
+    params = PipelineParams(
+        saturation=args.saturation, noise_floor=args.noise_floor, response=args.response,
+        exposure_method=args.method,
+        exclude_colour=None if args.mask_colour is None else tuple(args.mask_colour),
     )
+    pres = Pipeline(bracket, params).run(until="ratios")
+    res = pres.exposures
+    if args.noise_sigma is not None:
+        res = bracket_exposures(
+            levels, max_level, method=args.method, exposure_times=times, mask=mask,
+            saturation=pres.saturation, noise_floor=pres.noise_floor, lut=pres.lut,
+            noise_sigma=args.noise_sigma,
+        )
     out = {
         "masked_fraction": None if mask is None else float(1.0 - mask.mean()),
         "frames": [
