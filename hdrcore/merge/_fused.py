@@ -432,33 +432,54 @@ def _keys(f):
 
 
 @_njit
-def _tap(row, xb, wj, s0, s1, s2):
-    t0 = row[xb, 0]
-    t1 = row[xb, 1]
-    t2 = row[xb, 2]
-    cl = (t0 >= s0) | (t1 >= s1) | (t2 >= s2)
-    return np.float32(t0) * wj, np.float32(t1) * wj, np.float32(t2) * wj, cl
+def _tap(row, xb, wj):
+    return (np.float32(row[xb, 0]) * wj, np.float32(row[xb, 1]) * wj,
+            np.float32(row[xb, 2]) * wj)
 
 
 @_njit
-def _row3(fr, yy, xb, wx0, wx1, wx2, wx3, s0, s1, s2):
-    """One row of 4 taps for 3 channels: the x-interpolated values and whether any tap is
-    clipped (``s*``: saturation thresholds in the frame's dtype, see :func:`tap_thresholds`)."""
+def _row3(fr, yy, xb, wx0, wx1, wx2, wx3):
+    """One row of 4 taps for 3 channels: the x-interpolated values."""
     row = fr[yy]
-    a0, a1, a2, c0 = _tap(row, xb, wx0, s0, s1, s2)
-    b0, b1, b2, c1 = _tap(row, xb + 1, wx1, s0, s1, s2)
+    a0, a1, a2 = _tap(row, xb, wx0)
+    b0, b1, b2 = _tap(row, xb + 1, wx1)
     a0 = a0 + b0
     a1 = a1 + b1
     a2 = a2 + b2
-    b0, b1, b2, c2 = _tap(row, xb + 2, wx2, s0, s1, s2)
+    b0, b1, b2 = _tap(row, xb + 2, wx2)
     a0 = a0 + b0
     a1 = a1 + b1
     a2 = a2 + b2
-    b0, b1, b2, c3 = _tap(row, xb + 3, wx3, s0, s1, s2)
+    b0, b1, b2 = _tap(row, xb + 3, wx3)
     a0 = a0 + b0
     a1 = a1 + b1
     a2 = a2 + b2
-    return a0, a1, a2, c0 | c1 | c2 | c3
+    return a0, a1, a2
+
+
+@_njit
+def clip_support_rows(fr, s0, s1, s2, r0, r1, out):
+    """``out[y, x] = 1`` when any sample of ``fr[y:y + 4, x:x + 4]`` (any channel) is at or above
+    its threshold ``s*`` (in the frame's dtype, :func:`tap_thresholds`), for rows ``r0:r1`` with
+    ``y <= H - 4`` (the 4x4 Keys support whose top-left tap is ``(x, y)``; columns past
+    ``W - 4`` see the samples that exist). One compare per sample instead of 16 per tap read:
+    the warped kernel reads one byte per resampled pixel."""
+    h = fr.shape[0]
+    w = fr.shape[1]
+    ring = np.zeros((4, w), np.uint8)
+    c = np.zeros(w + 3, np.uint8)
+    for yy in range(r0, min(r1 + 3, h)):
+        row = fr[yy]
+        for x in range(w):
+            c[x] = (row[x, 0] >= s0) | (row[x, 1] >= s1) | (row[x, 2] >= s2)
+        hr = ring[yy % 4]
+        for x in range(w):
+            hr[x] = c[x] | c[x + 1] | c[x + 2] | c[x + 3]
+        y = yy - 3
+        if y >= r0:
+            o = out[y]
+            for x in range(w):
+                o[x] = ring[0, x] | ring[1, x] | ring[2, x] | ring[3, x]
 
 
 def tap_thresholds(sat: np.ndarray, dtype: np.dtype) -> np.ndarray:
@@ -476,7 +497,7 @@ def tap_thresholds(sat: np.ndarray, dtype: np.dtype) -> np.ndarray:
 @_njit
 def merge_rows_warped(
     frames, masks, has_mask, mats, has_mat, order, times, inv_t, inv_t2, t2, wcode, shot,
-    const_var, floor_norm, inv_max, max_level, hi, has_lut, lut, lut_var, sat, tap_thr, me2,
+    const_var, floor_norm, inv_max, max_level, hi, has_lut, lut, lut_var, sat, supports, me2,
     thr, r0, r1,
     rad, wsum_out, shares, clip_count, clipped_out, under_out, gscore, ghost,
 ):
@@ -503,9 +524,6 @@ def merge_rows_warped(
     half = np.float32(0.5)
     m16 = np.float32(-16.0)
     zero = np.float32(0.0)
-    thr0 = tap_thr[0]
-    thr1 = tap_thr[1]
-    thr2 = tap_thr[2]
     nb = (w + _BLOCK - 1) // _BLOCK
     vals = np.empty(3, np.float32)
     nr = r1 - r0
@@ -525,6 +543,7 @@ def merge_rows_warped(
         for j in range(n):
             k = order[j]
             fr = frames[k]
+            sup = supports[k]
             mrow = masks[k][y if has_mask[k] else 0]
             hm = has_mask[k]
             warped = has_mat[k]
@@ -548,17 +567,16 @@ def merge_rows_warped(
                     inside = fx0 >= 1.0 and fx0 <= w - 3.0 and fy0 >= 1.0 and fy0 <= h - 3.0
                     tcl = False
                     if inside:
-                        wx0, wx1, wx2, wx3 = _keys(sx - fx0)
-                        wy0, wy1, wy2, wy3 = _keys(sy - fy0)
                         ix = int(fx0) - 1
                         iy = int(fy0) - 1
+                        tcl = sup[iy, ix] != 0
+                        wx0, wx1, wx2, wx3 = _keys(sx - fx0)
+                        wy0, wy1, wy2, wy3 = _keys(sy - fy0)
                         a0 = a1 = a2 = zero
                         for jy in range(4):
                             wj = wy0 if jy == 0 else (wy1 if jy == 1 else (wy2 if jy == 2
                                                                          else wy3))
-                            q0, q1, q2, rc = _row3(fr, iy + jy, ix, wx0, wx1, wx2, wx3,
-                                                   thr0, thr1, thr2)
-                            tcl = tcl | rc
+                            q0, q1, q2 = _row3(fr, iy + jy, ix, wx0, wx1, wx2, wx3)
                             if jy == 0:
                                 a0 = q0 * wj
                                 a1 = q1 * wj

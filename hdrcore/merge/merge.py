@@ -922,6 +922,34 @@ def _fused_supported(plan: _Plan) -> str | None:
     return None
 
 
+def _clip_supports(
+    frames: tuple[np.ndarray, ...], has_mat: np.ndarray, tap_thr: np.ndarray, workers: int
+) -> tuple[np.ndarray, ...]:
+    """Per frame, uint8 ``(H, W)``: 1 where the 4x4 Keys support with that top-left tap holds a
+    clipped sample (any channel); a 1x1 dummy for frames read in place."""
+    h = frames[0].shape[0]
+    out = []
+    spans = [(r, min(h, r + 256)) for r in range(0, h, 256)]
+    for k, f in enumerate(frames):
+        if not has_mat[k]:
+            out.append(np.zeros((1, 1), np.uint8))
+            continue
+        sup = np.zeros(f.shape[:2], np.uint8)
+        s0, s1, s2 = tap_thr
+
+        def work(span, f=f, sup=sup, s0=s0, s1=s1, s2=s2) -> None:
+            _fused.clip_support_rows(f, s0, s1, s2, span[0], span[1], sup)
+
+        if workers == 1:
+            for sp in spans:
+                work(sp)
+        else:
+            with ThreadPoolExecutor(max_workers=workers) as pool:
+                list(pool.map(work, spans))
+        out.append(sup)
+    return tuple(out)
+
+
 def _run_numba(
     kernel: _Kernel, out: _Outputs, spans: list[tuple[int, int]], workers: int,
     force_tables: bool = False,
@@ -960,12 +988,13 @@ def _run_numba(
         max_level = float(p.max_level) if p.integer else 1.0
         hi = np.float32(max_level)
         tap_thr = _fused.tap_thresholds(sat, frames_t[0].dtype)
+        supports = _clip_supports(frames_t, has_mat, tap_thr, workers)
 
         def work(span: tuple[int, int]) -> int:
             return _fused.merge_rows_warped(
                 frames_t, masks_t, has_mask, mats, has_mat, order, times, inv_t, inv_t2, t2,
                 wcode, kernel.shot, kernel.const_var, kernel.floor_norm, kernel.inv_max,
-                max_level, hi, has_lut, lut, lut_var, sat, tap_thr, me2, thr, span[0], span[1],
+                max_level, hi, has_lut, lut, lut_var, sat, supports, me2, thr, span[0], span[1],
                 *outs,
             )
     elif p.lut is not None or force_tables:

@@ -176,3 +176,20 @@ def test_handheld_merge_is_as_sharp_as_tripod():
     sa, sb_ = _sharpness(a.radiance, region), _sharpness(b.radiance, region)
     st = _sharpness(held.radiance * held.key, region)
     assert abs(sa / sb_ - 1.0) < 0.03, (sa, sb_, st)
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
+def test_clip_support_mask_is_the_4x4_any_of_the_taps(dtype):
+    from hdrcore.merge import _fused
+
+    rng = np.random.default_rng(5)
+    h, w = 37, 29
+    fr = rng.integers(0, 250, (h, w, 3)).astype(dtype)
+    thr = _fused.tap_thresholds(np.array([240.0, 245.5, 248.0]), fr.dtype)
+    clipped = (fr >= thr).any(axis=2)
+    out = np.zeros((h, w), np.uint8)
+    for r0 in range(0, h, 8):  # row spans as the threads run them
+        _fused.clip_support_rows(fr, thr[0], thr[1], thr[2], r0, min(h, r0 + 8), out)
+    for y in range(h - 3):
+        for x in range(w - 3):
+            assert out[y, x] == clipped[y:y + 4, x:x + 4].any(), (y, x)
