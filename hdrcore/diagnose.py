@@ -121,8 +121,8 @@ def diagnose(result: PipelineResult) -> list[Verdict]:
     if "EXIF for pairs" in result.times_source:
         out.append(Verdict(
             "times-fallback", "warning",
-            "Some exposure ratios could not be measured reliably from the histograms and "
-            "disagree with the metadata; the EXIF ratios were used for them in the merge "
+            "Some exposure ratios could not be measured reliably from the histograms; the "
+            "EXIF ratios were used for them in the merge "
             f"({result.times_source.split('; ', 1)[1]}).",
         ))
 

@@ -110,7 +110,9 @@ class PipelineParams:
         left out of the histograms and the response wherever any frame has them, and out of the
         merge in the frames that have them.
     ratio_fallback_stops : a pair whose ratio estimate is not ok and differs from the EXIF
-        ratio by more than this (stops) uses the EXIF ratio in the merge.
+        ratio by more than this (stops) uses the EXIF ratio in the merge; the default 0 means
+        every not-ok pair with known exposure times uses them (a measurement we do not trust
+        is no better than the metadata).
     """
 
     saturation: float | None = None
@@ -127,7 +129,7 @@ class PipelineParams:
     preview_max_side: int | None = 1600
     working_space: str = "sRGB"
     exclude_colour: tuple[int, int, int] | None = None
-    ratio_fallback_stops: float = 0.15
+    ratio_fallback_stops: float = 0.0
 
     def replace(self, **changes: Any) -> PipelineParams:
         return replace(self, **changes)
@@ -615,7 +617,7 @@ class Pipeline:
             exif_r = None if exif[k] is None or exif[k + 1] is None else exif[k + 1] / exif[k]
             good = math.isfinite(r) and r > 0
             if exif_r is not None and (not good or (not pair.ok and abs(
-                    math.log2(r / exif_r)) > p.ratio_fallback_stops)):
+                    math.log2(r / exif_r)) >= p.ratio_fallback_stops)):
                 # An unreliable estimate far from the metadata: trust the metadata here.
                 ratios[k] = float(exif_r)
                 fallback.append(k)
