@@ -458,6 +458,67 @@ def _row3(fr, yy, xb, wx0, wx1, wx2, wx3):
 
 
 @_njit
+def _interp3(fr, sx, sy, fx0, fy0, hi):
+    """Keys cubic of the 3 channels at ``(sx, sy)`` (``fx0, fy0`` their floors; the 4x4 support
+    inside the frame), clamped to ``[0, hi]``."""
+    zero = np.float32(0.0)
+    ix = int(fx0) - 1
+    iy = int(fy0) - 1
+    wx0, wx1, wx2, wx3 = _keys(sx - fx0)
+    wy0, wy1, wy2, wy3 = _keys(sy - fy0)
+    q0, q1, q2 = _row3(fr, iy, ix, wx0, wx1, wx2, wx3)
+    a0 = q0 * wy0
+    a1 = q1 * wy0
+    a2 = q2 * wy0
+    q0, q1, q2 = _row3(fr, iy + 1, ix, wx0, wx1, wx2, wx3)
+    a0 = a0 + q0 * wy1
+    a1 = a1 + q1 * wy1
+    a2 = a2 + q2 * wy1
+    q0, q1, q2 = _row3(fr, iy + 2, ix, wx0, wx1, wx2, wx3)
+    a0 = a0 + q0 * wy2
+    a1 = a1 + q1 * wy2
+    a2 = a2 + q2 * wy2
+    q0, q1, q2 = _row3(fr, iy + 3, ix, wx0, wx1, wx2, wx3)
+    a0 = a0 + q0 * wy3
+    a1 = a1 + q1 * wy3
+    a2 = a2 + q2 * wy3
+    return min(max(a0, zero), hi), min(max(a1, zero), hi), min(max(a2, zero), hi)
+
+
+@_njit
+def _lazy_values(fr, m, x, yf, hi, has_lut, lut, inv_max, vals):
+    """The linear values ``x`` of a resampled frame at output pixel ``(x, y)`` into ``vals``,
+    exactly as :func:`merge_rows_warped`'s main loop computes them (zeros where the support
+    leaves the frame): for fallbacks that pick a frame whose taps were skipped."""
+    h = fr.shape[0]
+    w = fr.shape[1]
+    zero = np.float32(0.0)
+    xf = np.float64(x)
+    sx = m[0, 0] * xf + m[0, 1] * yf + m[0, 2]
+    sy = m[1, 0] * xf + m[1, 1] * yf + m[1, 2]
+    fx0 = np.floor(sx)
+    fy0 = np.floor(sy)
+    if fx0 >= 1.0 and fx0 <= w - 3.0 and fy0 >= 1.0 and fy0 <= h - 3.0:
+        vals[0], vals[1], vals[2] = _interp3(fr, sx, sy, fx0, fy0, hi)
+    else:
+        vals[0] = zero
+        vals[1] = zero
+        vals[2] = zero
+    lmax = lut.shape[1] - 1
+    for ch in range(3):
+        v = vals[ch]
+        if has_lut:
+            lo = min(int(v), lmax - 1)
+            frac = v - np.float32(lo)
+            l0 = lut[ch, lo]
+            xv = lut[ch, lo + 1] - l0
+            xv = xv * frac
+            vals[ch] = xv + l0
+        else:
+            vals[ch] = v * inv_max
+
+
+@_njit
 def clip_support_rows(fr, s0, s1, s2, r0, r1, out):
     """``out[y, x] = 1`` when any sample of ``fr[y:y + 4, x:x + 4]`` (any channel) is at or above
     its threshold ``s*`` (in the frame's dtype, :func:`tap_thresholds`), for rows ``r0:r1`` with
@@ -517,6 +578,7 @@ def merge_rows_warped(
     bw = min(w, _BLOCK)
     xs = np.empty((n, c, bw), np.float32)  # linear values x of the resampled frames
     dark = np.empty((c, bw), np.float32)  # E_k of the darkest frame
+    lazy = np.zeros((n, bw), np.bool_)  # resampled frame dropped here: value not computed
     lmax = lut.shape[1] - 1
     out_of_range = 0
     one = np.float32(1.0)
@@ -570,37 +632,28 @@ def merge_rows_warped(
                         ix = int(fx0) - 1
                         iy = int(fy0) - 1
                         tcl = sup[iy, ix] != 0
-                        wx0, wx1, wx2, wx3 = _keys(sx - fx0)
-                        wy0, wy1, wy2, wy3 = _keys(sy - fy0)
-                        a0 = a1 = a2 = zero
-                        for jy in range(4):
-                            wj = wy0 if jy == 0 else (wy1 if jy == 1 else (wy2 if jy == 2
-                                                                         else wy3))
-                            q0, q1, q2 = _row3(fr, iy + jy, ix, wx0, wx1, wx2, wx3)
-                            if jy == 0:
-                                a0 = q0 * wj
-                                a1 = q1 * wj
-                                a2 = q2 * wj
-                            else:
-                                a0 = a0 + q0 * wj
-                                a1 = a1 + q1 * wj
-                                a2 = a2 + q2 * wj
                         if has_lut and tcl:  # levels past the LUT are clipped: count them
                             for jy in range(4):
                                 for jx in range(4):
                                     for ch in range(3):
                                         if int(fr[iy + jy, ix + jx, ch]) > lmax:
                                             out_of_range += 1
-                        vals[0] = min(max(a0, zero), hi)
-                        vals[1] = min(max(a1, zero), hi)
-                        vals[2] = min(max(a2, zero), hi)
-                    else:
-                        vals[0] = zero
-                        vals[1] = zero
-                        vals[2] = zero
                     valid = inside and (mrow[x] if hm else True)
                     cl = tcl and valid
                     b = (not valid) or cl
+                    lazy[k, i] = b
+                    if b:
+                        # dropped: its weight is zero, so only a fallback may need its value
+                        # (computed then, see below); skipping the 16 taps here is what makes
+                        # clipped and uncovered areas cheap
+                        clip[k, i] = cl
+                        bad[k, i] = True
+                        if cl:
+                            clip_count[y, x] += 1
+                        nbad[i] += 1
+                        share[k, i] = zero
+                        continue
+                    vals[0], vals[1], vals[2] = _interp3(fr, sx, sy, fx0, fy0, hi)
                 else:
                     cl, b = _clip_flags(fr[y], x, c, sat, hm, mrow)
                     for ch in range(3):
@@ -680,10 +733,20 @@ def merge_rows_warped(
         for x in range(x0, x1):
             i = x - x0
             if mode[i] == 3:
-                for ch in range(c):
-                    rad[y, x, ch] = dark[ch, i]
+                dk = order[0]
+                if has_mat[dk] and lazy[dk, i]:
+                    _lazy_values(frames[dk], mats[dk], x, yf, hi, has_lut, lut, inv_max, vals)
+                    for ch in range(c):
+                        rad[y, x, ch] = vals[ch] * inv_t[dk]
+                else:
+                    for ch in range(c):
+                        rad[y, x, ch] = dark[ch, i]
             elif mode[i] != 0:
                 p = pick[i]
+                if has_mat[p] and lazy[p, i]:
+                    _lazy_values(frames[p], mats[p], x, yf, hi, has_lut, lut, inv_max, vals)
+                    for ch in range(c):
+                        xs[p, ch, i] = vals[ch]
                 for ch in range(c):
                     if mode[i] == 1 or den[ch, i] <= zero:
                         if has_mat[p]:

@@ -193,3 +193,18 @@ def test_clip_support_mask_is_the_4x4_any_of_the_taps(dtype):
     for y in range(h - 3):
         for x in range(w - 3):
             assert out[y, x] == clipped[y:y + 4, x:x + 4].any(), (y, x)
+
+
+@pytest.mark.parametrize("lut", [False, True])
+def test_engines_agree_where_fallbacks_pick_a_dropped_resampled_frame(lut):
+    # the darkest frame is moved and clipped over a patch (so are the others): the fallback
+    # takes its value, which the fused kernel computes only then; a masked-out moved frame too
+    sb, tf = handheld(seed=4)
+    frames = [f.copy() for f in sb.frames]
+    for f in frames:
+        f[40:80, 60:120] = sb.max_level
+    tf[0] = shift(1.3, -0.6) if tf[0] is None else tf[0]
+    mask = np.ones(SHAPE, bool)
+    mask[90:120, 30:200] = False
+    kw = {"response": inverse_gamma_lut(sb.max_level)} if lut else {"max_level": sb.max_level}
+    both(frames, sb.exposure_times, transforms=tf, masks=[mask, None, mask], **kw)
