@@ -406,6 +406,8 @@ def warm_up() -> float:
         merge(frames, (1.0, 2.0, 4.0), max_level=255, transforms=tf, engine="numba", workers=1)
         merge(frames, (1.0, 2.0, 4.0), response=np.linspace(0, 1, 256), transforms=tf,
               engine="numba", workers=1)
+        merge(frames, (1.0, 2.0, 4.0), max_level=255, transforms=tf, engine="numba",
+              workers=1, resample="bilinear")
     from .colour import camera_to_working
 
     camera_to_working(np.ones((2, 3, 3), np.float32), None, None, clipped=np.zeros((2, 3), bool),
@@ -486,7 +488,46 @@ def _interp3(fr, sx, sy, fx0, fy0, hi):
 
 
 @_njit
-def _lazy_values(fr, m, x, yf, hi, has_lut, lut, inv_max, vals):
+def _interp3_bilinear(fr, sx, sy, fx0, fy0, hi):
+    """Bilinear interpolation of the 3 channels at ``(sx, sy)`` (2x2 support inside the
+    frame; weights ``float32(1 - f), float32(f)``), clamped to ``[0, hi]``."""
+    zero = np.float32(0.0)
+    ix = int(fx0)
+    iy = int(fy0)
+    fx = sx - fx0
+    fy = sy - fy0
+    wx0 = np.float32(1.0 - fx)
+    wx1 = np.float32(fx)
+    wy0 = np.float32(1.0 - fy)
+    wy1 = np.float32(fy)
+    r = fr[iy]
+    q0 = np.float32(r[ix, 0]) * wx0 + np.float32(r[ix + 1, 0]) * wx1
+    q1 = np.float32(r[ix, 1]) * wx0 + np.float32(r[ix + 1, 1]) * wx1
+    q2 = np.float32(r[ix, 2]) * wx0 + np.float32(r[ix + 1, 2]) * wx1
+    a0 = q0 * wy0
+    a1 = q1 * wy0
+    a2 = q2 * wy0
+    r = fr[iy + 1]
+    q0 = np.float32(r[ix, 0]) * wx0 + np.float32(r[ix + 1, 0]) * wx1
+    q1 = np.float32(r[ix, 1]) * wx0 + np.float32(r[ix + 1, 1]) * wx1
+    q2 = np.float32(r[ix, 2]) * wx0 + np.float32(r[ix + 1, 2]) * wx1
+    a0 = a0 + q0 * wy1
+    a1 = a1 + q1 * wy1
+    a2 = a2 + q2 * wy1
+    return min(max(a0, zero), hi), min(max(a1, zero), hi), min(max(a2, zero), hi)
+
+
+@_njit
+def _support(fx0, fy0, w, h, ntap):
+    """Whether the ``ntap x ntap`` support at the floors ``fx0, fy0`` lies in the frame, and
+    its top-left tap."""
+    o = 1.0 if ntap == 4 else 0.0
+    inside = (fx0 >= o and fx0 <= w - (ntap - o) and fy0 >= o and fy0 <= h - (ntap - o))
+    return inside, int(fx0 - o) if inside else 0, int(fy0 - o) if inside else 0
+
+
+@_njit
+def _lazy_values(fr, m, x, yf, hi, has_lut, lut, inv_max, vals, ntap=4):
     """The linear values ``x`` of a resampled frame at output pixel ``(x, y)`` into ``vals``,
     exactly as :func:`merge_rows_warped`'s main loop computes them (zeros where the support
     leaves the frame): for fallbacks that pick a frame whose taps were skipped."""
@@ -498,8 +539,11 @@ def _lazy_values(fr, m, x, yf, hi, has_lut, lut, inv_max, vals):
     sy = m[1, 0] * xf + m[1, 1] * yf + m[1, 2]
     fx0 = np.floor(sx)
     fy0 = np.floor(sy)
-    if fx0 >= 1.0 and fx0 <= w - 3.0 and fy0 >= 1.0 and fy0 <= h - 3.0:
-        vals[0], vals[1], vals[2] = _interp3(fr, sx, sy, fx0, fy0, hi)
+    if _support(fx0, fy0, w, h, ntap)[0]:
+        if ntap == 4:
+            vals[0], vals[1], vals[2] = _interp3(fr, sx, sy, fx0, fy0, hi)
+        else:
+            vals[0], vals[1], vals[2] = _interp3_bilinear(fr, sx, sy, fx0, fy0, hi)
     else:
         vals[0] = zero
         vals[1] = zero
@@ -519,28 +563,34 @@ def _lazy_values(fr, m, x, yf, hi, has_lut, lut, inv_max, vals):
 
 
 @_njit
-def clip_support_rows(fr, s0, s1, s2, r0, r1, out):
-    """``out[y, x] = 1`` when any sample of ``fr[y:y + 4, x:x + 4]`` (any channel) is at or above
-    its threshold ``s*`` (in the frame's dtype, :func:`tap_thresholds`), for rows ``r0:r1`` with
-    ``y <= H - 4`` (the 4x4 Keys support whose top-left tap is ``(x, y)``; columns past
-    ``W - 4`` see the samples that exist). One compare per sample instead of 16 per tap read:
-    the warped kernel reads one byte per resampled pixel."""
+def clip_support_rows(fr, s0, s1, s2, r0, r1, out, ntap=4):
+    """``out[y, x] = 1`` when any sample of ``fr[y:y + n, x:x + n]`` (``n = ntap``, any
+    channel) is at or above its threshold ``s*`` (in the frame's dtype, :func:`tap_thresholds`),
+    for rows ``r0:r1`` with ``y <= H - n`` (the n x n support whose top-left tap is ``(x, y)``;
+    columns past ``W - n`` see the samples that exist). One compare per sample instead of
+    ``3 n**2`` per tap read: the warped kernel reads one byte per resampled pixel."""
     h = fr.shape[0]
     w = fr.shape[1]
-    ring = np.zeros((4, w), np.uint8)
-    c = np.zeros(w + 3, np.uint8)
-    for yy in range(r0, min(r1 + 3, h)):
+    ring = np.zeros((ntap, w), np.uint8)
+    c = np.zeros(w + ntap - 1, np.uint8)
+    for yy in range(r0, min(r1 + ntap - 1, h)):
         row = fr[yy]
         for x in range(w):
             c[x] = (row[x, 0] >= s0) | (row[x, 1] >= s1) | (row[x, 2] >= s2)
-        hr = ring[yy % 4]
+        hr = ring[yy % ntap]
         for x in range(w):
-            hr[x] = c[x] | c[x + 1] | c[x + 2] | c[x + 3]
-        y = yy - 3
+            v = c[x]
+            for j in range(1, ntap):
+                v |= c[x + j]
+            hr[x] = v
+        y = yy - (ntap - 1)
         if y >= r0:
             o = out[y]
             for x in range(w):
-                o[x] = ring[0, x] | ring[1, x] | ring[2, x] | ring[3, x]
+                v = ring[0, x]
+                for j in range(1, ntap):
+                    v |= ring[j, x]
+                o[x] = v
 
 
 def tap_thresholds(sat: np.ndarray, dtype: np.dtype) -> np.ndarray:
@@ -560,13 +610,14 @@ def merge_rows_warped(
     frames, masks, has_mask, mats, has_mat, order, times, inv_t, inv_t2, t2, wcode, shot,
     const_var, floor_norm, inv_max, max_level, hi, has_lut, lut, lut_var, sat, supports, me2,
     thr, r0, r1,
-    rad, wsum_out, shares, clip_count, clipped_out, under_out, gscore, ghost,
+    rad, wsum_out, shares, clip_count, clipped_out, under_out, gscore, ghost, ntap=4,
 ):
     """Rows ``r0:r1`` of the output grid; frame ``k`` with ``has_mat[k]`` is read at
-    ``mats[k] @ (x, y, 1)`` (Keys cubic, 4 weights per axis shared by the 3 channels), the
-    others at ``(x, y)``. A resampled frame is clipped at a pixel when any of the 16 taps of any
-    channel is at or above its saturation level, and invalid when the 4x4 support leaves the
-    frame. Integer levels with a LUT are interpolated, then read linearly between table entries;
+    ``mats[k] @ (x, y, 1)`` (``ntap`` 4: Keys cubic, 4 weights per axis shared by the 3
+    channels; 2: bilinear), the others at ``(x, y)``. A resampled frame is clipped at a pixel
+    when any of the taps of any channel is at or above its saturation level (``supports[k]``,
+    :func:`clip_support_rows`), and invalid when the support leaves the frame. Integer levels
+    with a LUT are interpolated, then read linearly between table entries;
     integer levels without one and float frames are linear (``level = value * inv_max``).
     Returns the number of samples above the LUT's last level (the caller refuses the input).
     """
@@ -626,15 +677,13 @@ def merge_rows_warped(
                     sy = m10 * xf + m11 * yf + m12
                     fx0 = np.floor(sx)
                     fy0 = np.floor(sy)
-                    inside = fx0 >= 1.0 and fx0 <= w - 3.0 and fy0 >= 1.0 and fy0 <= h - 3.0
+                    inside, ix, iy = _support(fx0, fy0, w, h, ntap)
                     tcl = False
                     if inside:
-                        ix = int(fx0) - 1
-                        iy = int(fy0) - 1
                         tcl = sup[iy, ix] != 0
                         if has_lut and tcl:  # levels past the LUT are clipped: count them
-                            for jy in range(4):
-                                for jx in range(4):
+                            for jy in range(ntap):
+                                for jx in range(ntap):
                                     for ch in range(3):
                                         if int(fr[iy + jy, ix + jx, ch]) > lmax:
                                             out_of_range += 1
@@ -653,7 +702,10 @@ def merge_rows_warped(
                         nbad[i] += 1
                         share[k, i] = zero
                         continue
-                    vals[0], vals[1], vals[2] = _interp3(fr, sx, sy, fx0, fy0, hi)
+                    if ntap == 4:
+                        vals[0], vals[1], vals[2] = _interp3(fr, sx, sy, fx0, fy0, hi)
+                    else:
+                        vals[0], vals[1], vals[2] = _interp3_bilinear(fr, sx, sy, fx0, fy0, hi)
                 else:
                     cl, b = _clip_flags(fr[y], x, c, sat, hm, mrow)
                     for ch in range(3):
@@ -735,7 +787,8 @@ def merge_rows_warped(
             if mode[i] == 3:
                 dk = order[0]
                 if has_mat[dk] and lazy[dk, i]:
-                    _lazy_values(frames[dk], mats[dk], x, yf, hi, has_lut, lut, inv_max, vals)
+                    _lazy_values(frames[dk], mats[dk], x, yf, hi, has_lut, lut, inv_max, vals,
+                                 ntap)
                     for ch in range(c):
                         rad[y, x, ch] = vals[ch] * inv_t[dk]
                 else:
@@ -744,7 +797,8 @@ def merge_rows_warped(
             elif mode[i] != 0:
                 p = pick[i]
                 if has_mat[p] and lazy[p, i]:
-                    _lazy_values(frames[p], mats[p], x, yf, hi, has_lut, lut, inv_max, vals)
+                    _lazy_values(frames[p], mats[p], x, yf, hi, has_lut, lut, inv_max, vals,
+                                 ntap)
                     for ch in range(c):
                         xs[p, ch, i] = vals[ch]
                 for ch in range(c):

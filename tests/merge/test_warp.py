@@ -162,7 +162,8 @@ def _sharpness(radiance: np.ndarray, region: np.ndarray) -> float:
     return float(np.mean(np.hypot(gx, gy)[region]))
 
 
-def test_handheld_merge_is_as_sharp_as_tripod():
+def _sharpness_ratios(resample: str = "cubic") -> tuple[float, float]:
+    """(hand-held / tripod sharpness, median relative error) of the 'window' scene."""
     motion = [(3.4, -2.2, 0.8), (0.0, 0.0, 0.0), (-2.7, 4.1, -1.1)]
     kw = dict(bits=12, response="linear", noise_sigma=0.5, seed=10, shape=(192, 256),
               scene="window")
@@ -170,16 +171,51 @@ def test_handheld_merge_is_as_sharp_as_tripod():
     # the tripod bracket of the same scene: the hand-held bracket's truth as its radiance
     tripod = bracket(radiance=held.radiance, key=held.key, **kw)
     tf = [invert(t) for t in held.to_reference]
-    a = merge(held.frames, held.exposure_times, max_level=4095, transforms=tf)
+    a = merge(held.frames, held.exposure_times, max_level=4095, transforms=tf,
+              resample=resample)
     b = merge(tripod.frames, tripod.exposure_times, max_level=4095)
     region = interior(held.radiance.shape[:2], 16)
     sa, sb_ = _sharpness(a.radiance, region), _sharpness(b.radiance, region)
-    st = _sharpness(held.radiance * held.key, region)
-    assert abs(sa / sb_ - 1.0) < 0.03, (sa, sb_, st)
+    ok = well_exposed(held) & region
+    return sa / sb_, float(np.median(relative_error(a.radiance, held)[ok]))
 
 
+def test_handheld_merge_is_as_sharp_as_tripod():
+    ratio, _ = _sharpness_ratios()
+    assert abs(ratio - 1.0) < 0.03, ratio
+
+
+def test_bilinear_is_softer_and_less_accurate_than_cubic():
+    # measured: sharpness / tripod 0.953 vs 0.988, median error 0.89 % vs 0.29 % (why cubic
+    # stays the default)
+    cubic, err_c = _sharpness_ratios("cubic")
+    bilinear, err_b = _sharpness_ratios("bilinear")
+    assert 0.9 < bilinear < cubic, (bilinear, cubic)
+    assert err_c < err_b <= 0.015, (err_b, err_c)
+
+
+@pytest.mark.parametrize("lut", [False, True])
+def test_engines_agree_bilinear(lut):
+    sb, tf = handheld(seed=4)
+    frames = [f.copy() for f in sb.frames]
+    for f in frames:
+        f[40:80, 60:120] = sb.max_level  # fallbacks that pick dropped resampled frames
+    kw = {"response": inverse_gamma_lut(sb.max_level)} if lut else {"max_level": sb.max_level}
+    both(frames, sb.exposure_times, transforms=tf, resample="bilinear", **kw)
+    floats = [f.astype(np.float32) / sb.max_level for f in sb.frames]
+    if not lut:
+        both(floats, sb.exposure_times, transforms=tf, resample="bilinear")
+
+
+def test_bad_resampling_name_is_refused():
+    sb, tf = handheld(seed=4)
+    with pytest.raises(ParameterError, match="resampling"):
+        merge(sb.frames, sb.exposure_times, max_level=4095, transforms=tf, resample="lanczos")
+
+
+@pytest.mark.parametrize("ntap", [4, 2])
 @pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
-def test_clip_support_mask_is_the_4x4_any_of_the_taps(dtype):
+def test_clip_support_mask_is_the_nxn_any_of_the_taps(dtype, ntap):
     from hdrcore.merge import _fused
 
     rng = np.random.default_rng(5)
@@ -189,10 +225,10 @@ def test_clip_support_mask_is_the_4x4_any_of_the_taps(dtype):
     clipped = (fr >= thr).any(axis=2)
     out = np.zeros((h, w), np.uint8)
     for r0 in range(0, h, 8):  # row spans as the threads run them
-        _fused.clip_support_rows(fr, thr[0], thr[1], thr[2], r0, min(h, r0 + 8), out)
-    for y in range(h - 3):
-        for x in range(w - 3):
-            assert out[y, x] == clipped[y:y + 4, x:x + 4].any(), (y, x)
+        _fused.clip_support_rows(fr, thr[0], thr[1], thr[2], r0, min(h, r0 + 8), out, ntap)
+    for y in range(h - ntap + 1):
+        for x in range(w - ntap + 1):
+            assert out[y, x] == clipped[y:y + ntap, x:x + ntap].any(), (y, x)
 
 
 @pytest.mark.parametrize("lut", [False, True])
