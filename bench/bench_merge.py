@@ -14,6 +14,9 @@ reference. Peak memory is the rise of the process's peak resident set during the
 (``/proc/self/clear_refs`` resets the peak), which sees OpenCV's C++ allocations too.
 Timings on a shared machine are pessimistic; the ratio is what the target is about.
 
+Run it from the repository root with ``PYTHONPATH=.`` (an editable install elsewhere may
+otherwise provide ``hdrcore``; the first line prints which one ran).
+
 The "+ warp" rows give ``merge(..., transforms=...)`` a small rotation and shift for 2 of the 3
 frames: the fused kernel resamples them itself (Keys cubic from the levels), so the row is the
 whole warp + merge step. The "old path" row is what the pipeline did before: every frame to
@@ -211,6 +214,9 @@ def main() -> None:
     lut = np.tile(np.linspace(0.0, 1.0, 256) ** 2.2, (3, 1))
     times32 = np.asarray(TIMES, np.float32)
     load0 = os.getloadavg()
+    import hdrcore
+
+    print(f"hdrcore from {os.path.dirname(hdrcore.__file__)}")
     print(f"3 frames of {w} x {h} ({h * w / 1e6:.1f} MP) x 3 channels; cpu count "
           f"{os.cpu_count()}, load average {load0[0]:.2f} {load0[1]:.2f} {load0[2]:.2f}")
 
@@ -238,6 +244,9 @@ def main() -> None:
         rows.append((f"ours (numba) {label} + warp 2 frames", *measure(
             lambda frames=frames, kw=kw: merge(frames, TIMES, engine="numba", transforms=tf,
                                                **kw), trace=False)))
+        rows.append((f"ours (numba) {label} + warp 2 bilinear", *measure(
+            lambda frames=frames, kw=kw: merge(frames, TIMES, engine="numba", transforms=tf,
+                                               resample="bilinear", **kw), trace=False)))
     if not args.no_old:
         rows.append(("old path: float32 + shear warp 2 + merge (12-bit)", *measure(
             lambda: old_path(fr12, 4095, to_ref, 0.98 * 4095), trace=False)))
