@@ -22,8 +22,11 @@ values. The radiance is in the units of ``g(M) / dt``: with times relative to th
 ``E`` of the darkest frame's unclipped pixels is its linear value.
 
 Hand-held frames need not be warped beforehand: with ``transforms`` the merge resamples them
-itself (Keys cubic convolution from the integer levels, see :func:`merge`), so the pipeline passes
-the bracket's own levels and no warped float copies exist.
+itself (Keys cubic convolution from the integer levels, see :func:`merge`; ``resample="bilinear"``
+is a faster, softer opt-in), so the pipeline passes the bracket's own levels and no warped float
+copies exist. The fused kernel reads one byte per resampled pixel for the "any tap clipped" test
+(a per-frame mask of clipped supports, built in one pass) and skips the taps of samples it drops
+(clipped or no data) unless a fallback needs their value.
 
 The work runs over chunks of rows so that every temporary stays in cache (float32 throughout); the
 peak memory beyond inputs and outputs is a few megabytes per worker.
