@@ -610,13 +610,15 @@ def merge_rows_warped(
     frames, masks, has_mask, mats, has_mat, order, times, inv_t, inv_t2, t2, wcode, shot,
     const_var, floor_norm, inv_max, max_level, hi, has_lut, lut, lut_var, sat, supports, me2,
     thr, r0, r1,
-    rad, wsum_out, shares, clip_count, clipped_out, under_out, gscore, ghost, ntap=4,
+    rad, wsum_out, shares, clip_count, clipped_out, under_out, gscore, ghost, ntap, oor,
 ):
     """Rows ``r0:r1`` of the output grid; frame ``k`` with ``has_mat[k]`` is read at
     ``mats[k] @ (x, y, 1)`` (``ntap`` 4: Keys cubic, 4 weights per axis shared by the 3
     channels; 2: bilinear), the others at ``(x, y)``. A resampled frame is clipped at a pixel
     when any of the taps of any channel is at or above its saturation level (``supports[k]``,
-    :func:`clip_support_rows`), and invalid when the support leaves the frame. Integer levels
+    :func:`clip_support_rows`), and invalid when the support leaves the frame. ``oor[k]``:
+    frame ``k`` (resampled, with a LUT) holds levels past the LUT, so clipped supports are
+    searched for them. Integer levels
     with a LUT are interpolated, then read linearly between table entries;
     integer levels without one and float frames are linear (``level = value * inv_max``).
     Returns the number of samples above the LUT's last level (the caller refuses the input).
@@ -681,7 +683,7 @@ def merge_rows_warped(
                     tcl = False
                     if inside:
                         tcl = sup[iy, ix] != 0
-                        if has_lut and tcl:  # levels past the LUT are clipped: count them
+                        if tcl and oor[k]:  # levels past the LUT are clipped: count them
                             for jy in range(ntap):
                                 for jx in range(ntap):
                                     for ch in range(3):

@@ -1005,13 +1005,19 @@ def _run_numba(
         tap_thr = _fused.tap_thresholds(sat, frames_t[0].dtype)
         ntap = 4 if p.resample == "cubic" else 2
         supports = _clip_supports(frames_t, has_mat, tap_thr, workers, ntap)
+        # levels past the LUT (refused): only a frame that holds any is searched for them
+        lmax = lut.shape[1] - 1
+        oor = np.array([
+            bool(has_lut and has_mat[k] and np.iinfo(f.dtype).max > lmax and f.max() > lmax)
+            for k, f in enumerate(frames_t)
+        ], np.bool_)
 
         def work(span: tuple[int, int]) -> int:
             return _fused.merge_rows_warped(
                 frames_t, masks_t, has_mask, mats, has_mat, order, times, inv_t, inv_t2, t2,
                 wcode, kernel.shot, kernel.const_var, kernel.floor_norm, kernel.inv_max,
                 max_level, hi, has_lut, lut, lut_var, sat, supports, me2, thr, span[0], span[1],
-                *outs, ntap,
+                *outs, ntap, oor,
             )
     elif p.lut is not None or force_tables:
         tab = _level_tables(kernel)

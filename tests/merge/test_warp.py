@@ -244,3 +244,18 @@ def test_engines_agree_where_fallbacks_pick_a_dropped_resampled_frame(lut):
     mask[90:120, 30:200] = False
     kw = {"response": inverse_gamma_lut(sb.max_level)} if lut else {"max_level": sb.max_level}
     both(frames, sb.exposure_times, transforms=tf, masks=[mask, None, mask], **kw)
+
+
+@pytest.mark.parametrize("engine", ["numpy", "numba"])
+@pytest.mark.parametrize("resample", ["cubic", "bilinear"])
+def test_levels_past_the_lut_in_a_resampled_frame_are_refused(engine, resample):
+    sb, tf = handheld(seed=4, bits=12, response="gamma")
+    frames = [f.copy() for f in sb.frames]
+    lut = inverse_gamma_lut(1023)  # a 10-bit LUT for 12-bit levels
+    frames = [np.minimum(f, 1023) for f in frames]
+    merge(frames, sb.exposure_times, response=lut, transforms=tf, engine=engine,
+          resample=resample)  # in range: fine
+    frames[0][60, 80, 1] = 2000  # frame 0 is resampled
+    with pytest.raises(ParameterError, match="no response LUT entry"):
+        merge(frames, sb.exposure_times, response=lut, transforms=tf, engine=engine,
+              resample=resample)
