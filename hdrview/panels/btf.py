@@ -154,5 +154,10 @@ class BtfPanel:
         self._figures = {"btf-equations": scatter, "btf-transfer": transfer}
 
     def bundle_files(self) -> list[tuple[str, bytes]]:
-        return [(f"{name}.plotly.json", fig.to_json().encode()) for name, fig in
-                self._figures.items()]
+        from ._png_plot import figure_to_png
+
+        files = []
+        for name, fig in self._figures.items():
+            files.append((f"{name}.plotly.json", fig.to_json().encode()))
+            files.append((f"{name}.png", figure_to_png(fig)))
+        return files

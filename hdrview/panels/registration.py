@@ -107,5 +107,8 @@ class RegistrationPanel:
     def bundle_files(self) -> list[tuple[str, bytes]]:
         files = [(f"{name}.png", encode_png(img)) for name, img in self._images.items()]
         if self._figure is not None:
+            from ._png_plot import figure_to_png
+
             files.append(("registration-costs.plotly.json", self._figure.to_json().encode()))
+            files.append(("registration-costs.png", figure_to_png(self._figure)))
         return files

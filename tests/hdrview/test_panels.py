@@ -133,6 +133,14 @@ def test_exports_and_bundle(viewer, stage_result, sim_bracket) -> None:
     assert "btf-equations.plotly.json" in names
     assert any(n.startswith("mask-dark") for n in names)
     assert "result-provenance.png" in names
+    # The plots as pictures too (no kaleido or browser needed), next to their plotly JSON.
+    assert "btf-equations.png" in names and "registration-costs.png" in names
+    from PIL import Image
+
+    with zipfile.ZipFile(io.BytesIO(viewer.bundle_bytes())) as zf:
+        png = Image.open(io.BytesIO(zf.read("btf-equations.png")))
+        assert png.size == (960, 600)
+        assert len(set(png.convert("RGB").getdata())) > 3  # something was drawn
 
 
 def test_waiting_notes_without_a_result(viewer, sim_bracket) -> None:
