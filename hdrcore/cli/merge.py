@@ -62,6 +62,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    help="preview operator (default: reinhard)")
     p.add_argument("--exposure", type=float, default=0.0, metavar="EV",
                    help="preview exposure in stops (default 0, auto key)")
+    p.add_argument("--preview-size", type=int, default=2048, metavar="PX",
+                   help="longest side of the preview PNG (default 2048; 0 = full resolution)")
     p.add_argument("--float32", action="store_true", help="write float32 instead of half")
     p.add_argument("--force", action="store_true", help="replace existing output files")
     p.add_argument("--json", action="store_true", help="print the report on stdout")
@@ -116,7 +118,8 @@ def run(args: argparse.Namespace) -> int:
         saturation=args.saturation, noise_floor=args.noise_floor, threshold=args.threshold,
         align=args.align, reference=args.reference, response=args.response,
         times=args.times_source, tonemap=args.tonemap, tonemap_exposure=args.exposure,
-        preview_max_side=None, exclude_colour=parse_colour(args.exclude_colour),
+        preview_max_side=None if args.preview_size <= 0 else args.preview_size,
+        exclude_colour=parse_colour(args.exclude_colour),
     )
     progress = _Progress(not args.quiet)
     try:
