@@ -35,8 +35,17 @@ def downsample_area(image: np.ndarray, factor: int) -> np.ndarray:
         raise ParameterError("image smaller than the downsampling factor",
                              found=f"{h}x{w} for factor {f}")
     crop = img[: hh * f, : ww * f].astype(np.float32, copy=False)
-    blocks = crop.reshape(hh, f, ww, f, *img.shape[2:])
-    if np.isnan(blocks).any():
+    if np.isnan(crop).any():
+        blocks = crop.reshape(hh, f, ww, f, *img.shape[2:])
         with np.errstate(invalid="ignore"):
             return np.nanmean(blocks, axis=(1, 3)).astype(np.float32)
-    return blocks.mean(axis=(1, 3), dtype=np.float32)
+    # Sum of the f x f strided sub-images: one pass over memory (a reshape + mean over the
+    # block axes walks it with a stride and is ~10x slower at 24 MP).
+    rows = crop[0::f].copy()
+    for i in range(1, f):
+        rows += crop[i::f]
+    out = rows[:, 0::f].copy()
+    for j in range(1, f):
+        out += rows[:, j::f]
+    out *= np.float32(1.0 / (f * f))
+    return out
