@@ -75,7 +75,7 @@ def child_ours(d: Path) -> dict:
     decode = time.perf_counter() - t0
     base_mb = _peak_mb()
     # As ``hdrcore merge --preview``: a preview PNG of at most 2048 px on its longest side.
-    pipe = Pipeline(bracket, PipelineParams(preview_max_side=2048))
+    pipe = Pipeline(bracket, PipelineParams(preview_max_side=2048, registration_previews=False))
     t1 = time.perf_counter()
     res = pipe.run()
     cold = time.perf_counter() - t1

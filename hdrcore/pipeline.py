@@ -105,6 +105,8 @@ class PipelineParams:
     tonemap, tonemap_exposure : preview operator and exposure in stops.
     preview_max_side : longest side of the preview (``None`` = full resolution).
     working_space : colour space of the radiance map (RAW input).
+    registration_previews : keep the small before/after overlays of every pair for the
+        inspector (the command line switches them off: they cost ~0.3 s a pair at 24 MP).
     exclude_colour : pixels of exactly this colour (levels ``(R, G, B)``) carry no data, e.g.
         the pure blue ``(0, 0, 255)`` border marks of the Debevec-Malik memorial scans: they are
         left out of the histograms and the response wherever any frame has them, and out of the
@@ -130,6 +132,7 @@ class PipelineParams:
     working_space: str = "sRGB"
     exclude_colour: tuple[int, int, int] | None = None
     ratio_fallback_stops: float = 0.0
+    registration_previews: bool = True
 
     def replace(self, **changes: Any) -> PipelineParams:
         return replace(self, **changes)
@@ -485,7 +488,7 @@ class Pipeline:
                 # estimate, not a wild ratio: those are replaced by EXIF or the median step.
                 ratios = tuple(float(r) for r in exposures_hist.starting_ratios())
             reg_key = (resp_key, ratios, p.saturation, p.noise_floor, p.threshold, p.align,
-                       p.reference, p.registration_method)
+                       p.reference, p.registration_method, p.registration_previews)
             registration = self._stage(
                 "registration", reg_key, lambda: self._register(p, lut, ratios), ran, timings
             )
@@ -673,6 +676,7 @@ class Pipeline:
             saturation=self._linear_level(lut, p.saturation),
             noise_floor=self._linear_level(lut, p.noise_floor),
             threshold=p.threshold, model=p.align, progress=progress,
+            previews=p.registration_previews,
         )
 
     def _merge(self, p: PipelineParams, lut: np.ndarray | None, times: tuple[float, ...],

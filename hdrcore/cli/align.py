@@ -63,6 +63,7 @@ def run(args: argparse.Namespace) -> int:
         align=args.model, reference=args.reference, response=args.response,
         times="exif" if args.ratios == "exif" else "estimated",
         registration_method=args.method, exclude_colour=parse_colour(args.exclude_colour),
+        registration_previews=False,
     )
     result = Pipeline(bracket, params).run(until="registration")
     reg = result.registration

@@ -120,6 +120,7 @@ def run(args: argparse.Namespace) -> int:
         times=args.times_source, tonemap=args.tonemap, tonemap_exposure=args.exposure,
         preview_max_side=None if args.preview_size <= 0 else args.preview_size,
         exclude_colour=parse_colour(args.exclude_colour),
+        registration_previews=False,
     )
     progress = _Progress(not args.quiet)
     try:
