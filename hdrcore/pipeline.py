@@ -52,9 +52,12 @@ from .registration import (
     BracketRegistration,
     invert,
     register_bracket,
+    rigid_parameters,
+    to_reference,
     warp_to_reference,
 )
-from .resample import downsample_area, downsample_factor
+from .registration.transform import scale_matrix
+from .resample import bin_channel, downsample_area, downsample_factor
 from .response import RESPONSE_METHODS, ResponseCurve, resolve_response
 from .tonemap import TONEMAP_OPERATORS, TonemapResult, tonemap
 
@@ -107,6 +110,10 @@ class PipelineParams:
     working_space : colour space of the radiance map (RAW input).
     registration_previews : keep the small before/after overlays of every pair for the
         inspector (the command line switches them off: they cost ~0.3 s a pair at 24 MP).
+    registration_max_pixels : frames larger than this register on their green channel binned
+        2x2 (or 4x4, ...) until they fit; the motion is scaled back to full resolution
+        (``None``, the default: always full resolution). At 24 MP, 2x2 binning took the
+        registration from 1.7 s to 0.5 s and the worst corner error from 0.016 to 0.077 px.
     exclude_colour : pixels of exactly this colour (levels ``(R, G, B)``) carry no data, e.g.
         the pure blue ``(0, 0, 255)`` border marks of the Debevec-Malik memorial scans: they are
         left out of the histograms and the response wherever any frame has them, and out of the
@@ -133,6 +140,7 @@ class PipelineParams:
     exclude_colour: tuple[int, int, int] | None = None
     ratio_fallback_stops: float = 0.0
     registration_previews: bool = True
+    registration_max_pixels: int | None = None
 
     def replace(self, **changes: Any) -> PipelineParams:
         return replace(self, **changes)
@@ -488,7 +496,8 @@ class Pipeline:
                 # estimate, not a wild ratio: those are replaced by EXIF or the median step.
                 ratios = tuple(float(r) for r in exposures_hist.starting_ratios())
             reg_key = (resp_key, ratios, p.saturation, p.noise_floor, p.threshold, p.align,
-                       p.reference, p.registration_method, p.registration_previews)
+                       p.reference, p.registration_method, p.registration_previews,
+                       p.registration_max_pixels)
             registration = self._stage(
                 "registration", reg_key, lambda: self._register(p, lut, ratios), ran, timings
             )
@@ -665,19 +674,56 @@ class Pipeline:
                   ratios: tuple[float, ...]) -> BracketRegistration | None:
         if p.align == "none":
             return None
-        n = len(self.bracket)
-        images = [self._channel_linear(k, lut, 1) for k in range(n)]
+        b = self.bracket
+        n = len(b)
+        h, w = b.shape
+        factor = 1
+        limit = p.registration_max_pixels
+        while limit is not None and (h // factor) * (w // factor) > limit:
+            factor *= 2
+        if factor == 1:
+            images = [self._channel_linear(k, lut, 1) for k in range(n)]
+        else:
+            # Large frames register on their green channel binned factor x factor: a quarter
+            # of the memory traffic per halving, and the pyramid's finest level still resolves
+            # hundredths of a (binned) pixel; the motion is scaled back to full resolution.
+            images = []
+            for f in b.frames:
+                binned = bin_channel(f.levels, 1, factor)
+                if lut is None:
+                    binned *= np.float32(1.0 / f.max_level)
+                else:
+                    binned = np.interp(binned, np.arange(lut.shape[1]), lut[1]).astype(
+                        np.float32)
+                images.append(binned)
 
         def progress(done: int, total: int) -> None:
             self._report("registration", done / total, f"registered pair {done} of {total}")
 
-        return register_bracket(
+        reg = register_bracket(
             images, ratios, reference=p.reference, method=p.registration_method,
             saturation=self._linear_level(lut, p.saturation),
             noise_floor=self._linear_level(lut, p.noise_floor),
             threshold=p.threshold, model=p.align, progress=progress,
             previews=p.registration_previews,
         )
+        if factor == 1:
+            return reg
+        pairs = []
+        for q in reg.pairs:
+            mat = scale_matrix(q.matrix, float(factor)) if q.ok else np.eye(2, 3)
+            dx, dy, angle = rigid_parameters(mat, (h, w))
+            preview = q.preview
+            if preview is not None:
+                preview = replace(preview, scale=preview.scale / factor)
+            pairs.append(replace(
+                q, matrix=mat, dx=dx, dy=dy, angle_deg=angle, shape=(h, w),
+                initial_shift=(q.initial_shift[0] * factor, q.initial_shift[1] * factor),
+                preview=preview,
+                message=q.message + f" (registered on the green channel binned {factor}x{factor})",
+            ))
+        chain = to_reference([q.matrix for q in pairs], reg.reference)
+        return replace(reg, pairs=tuple(pairs), to_reference=chain)
 
     def _merge(self, p: PipelineParams, lut: np.ndarray | None, times: tuple[float, ...],
                registration: BracketRegistration | None, excluded=None):

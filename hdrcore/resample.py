@@ -6,7 +6,7 @@ import numpy as np
 
 from .errors import ParameterError
 
-__all__ = ["downsample_factor", "downsample_area"]
+__all__ = ["downsample_factor", "downsample_area", "bin_channel"]
 
 
 def downsample_factor(shape: tuple[int, int], max_side: int | None) -> int:
@@ -44,6 +44,33 @@ def downsample_area(image: np.ndarray, factor: int) -> np.ndarray:
     rows = crop[0::f].copy()
     for i in range(1, f):
         rows += crop[i::f]
+    out = rows[:, 0::f].copy()
+    for j in range(1, f):
+        out += rows[:, j::f]
+    out *= np.float32(1.0 / (f * f))
+    return out
+
+
+def bin_channel(image: np.ndarray, channel: int, factor: int) -> np.ndarray:
+    """Mean over ``factor x factor`` blocks of one channel of ``(H, W, C)`` data, float32.
+
+    Sums strided views of the channel directly, so no full-resolution float copy is made (the
+    ragged edge is cropped).
+    """
+    img = np.asarray(image)
+    f = int(factor)
+    if f < 1:
+        raise ParameterError("binning factor must be >= 1", found=str(factor))
+    plane = img[..., channel] if img.ndim == 3 else img
+    h, w = plane.shape
+    hh, ww = h // f, w // f
+    if hh == 0 or ww == 0:
+        raise ParameterError("image smaller than the binning factor",
+                             found=f"{h}x{w} for factor {f}")
+    plane = plane[: hh * f, : ww * f]
+    rows = plane[0::f].astype(np.float32)
+    for i in range(1, f):
+        rows += plane[i::f]
     out = rows[:, 0::f].copy()
     for j in range(1, f):
         out += rows[:, j::f]

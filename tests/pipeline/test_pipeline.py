@@ -165,3 +165,26 @@ def test_ratio_errors_over_one_percent_are_flagged(demo_result) -> None:
         for p, t in zip(res.pairs, truth, strict=True):
             if abs(p.ratio / t - 1) > 0.01:
                 assert p.status != "ok", (p.dark, p.ratio, t)
+
+
+def test_binned_registration_scales_back_to_full_resolution(demo_result) -> None:
+    from hdrcore.registration import corner_error
+
+    b = demo_result[0].bracket
+    truth = json.loads((DEMO / "truth.json").read_text())
+    r = Pipeline(b, PipelineParams(registration_max_pixels=100_000)).run(until="registration")
+    assert r.registration is not None
+    for k, p in enumerate(r.registration.pairs):
+        assert p.shape == b.shape and "binned 2x2" in p.message
+        err = corner_error(p.matrix, np.array(truth["pairs"][k]["matrix"]), b.shape)
+        assert float(np.max(err)) < 0.2, (k, err)
+    assert len(r.registration.to_reference) == len(b)
+
+
+def test_bin_channel_matches_block_mean() -> None:
+    from hdrcore.resample import bin_channel
+
+    x = np.random.default_rng(0).integers(0, 4096, (9, 13, 3), dtype=np.uint16)
+    out = bin_channel(x, 1, 2)
+    expected = x[:8, :12, 1].reshape(4, 2, 6, 2).mean(axis=(1, 3))
+    np.testing.assert_allclose(out, expected, rtol=1e-6)
