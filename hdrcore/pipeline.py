@@ -64,6 +64,7 @@ from .tonemap import TONEMAP_OPERATORS, TonemapResult, tonemap
 __all__ = [
     "ALIGN_CHOICES",
     "Cancelled",
+    "colour_masks",
     "STAGES",
     "Pipeline",
     "PipelineParams",
@@ -591,11 +592,7 @@ class Pipeline:
                 "exclude_colour must be three levels", expected=f"0..{self.bracket.max_level}",
                 found=str(p.exclude_colour),
             )
-        per_frame = []
-        for f in self.bracket.frames:
-            lv = f.levels
-            per_frame.append((lv[..., 0] == colour[0]) & (lv[..., 1] == colour[1])
-                             & (lv[..., 2] == colour[2]))
+        per_frame = colour_masks([f.levels for f in self.bracket.frames], colour)
         union = np.logical_or.reduce(per_frame)
         if union.all():
             raise EstimationError(
@@ -650,19 +647,12 @@ class Pipeline:
             scale = 1.0
         return tuple(float(v * scale) for v in rel), source
 
-    def _channel_linear(self, k: int, lut: np.ndarray | None, channel: int | None):
+    def _green_linear(self, k: int, lut: np.ndarray | None) -> np.ndarray:
+        """Linear float32 green channel of frame ``k`` (what the registration works on)."""
         f = self.bracket.frames[k]
-        m = f.max_level
-        if channel is None:
-            if lut is None:
-                return np.multiply(f.levels, np.float32(1.0 / m), dtype=np.float32)
-            out = np.empty(f.levels.shape, np.float32)
-            for c in range(3):
-                out[..., c] = lut[c].astype(np.float32)[f.levels[..., c]]
-            return out
         if lut is None:
-            return np.multiply(f.levels[..., channel], np.float32(1.0 / m), dtype=np.float32)
-        return lut[channel].astype(np.float32)[f.levels[..., channel]]
+            return np.multiply(f.levels[..., 1], np.float32(1.0 / f.max_level), dtype=np.float32)
+        return lut[1].astype(np.float32)[f.levels[..., 1]]
 
     def _linear_level(self, lut: np.ndarray | None, level: float, channel: int = 1) -> float:
         m = self.bracket.max_level
@@ -682,7 +672,7 @@ class Pipeline:
         while limit is not None and (h // factor) * (w // factor) > limit:
             factor *= 2
         if factor == 1:
-            images = [self._channel_linear(k, lut, 1) for k in range(n)]
+            images = [self._green_linear(k, lut) for k in range(n)]
         else:
             # Large frames register on their green channel binned factor x factor: a quarter
             # of the memory traffic per halving, and the pyramid's finest level still resolves
@@ -791,6 +781,12 @@ class Pipeline:
         factor = downsample_factor(radiance.shape[:2], p.preview_max_side)
         small = downsample_area(radiance, factor) if factor > 1 else radiance
         return tonemap(small, p.tonemap, exposure=p.tonemap_exposure), factor
+
+
+def colour_masks(levels: list[np.ndarray], colour) -> list[np.ndarray]:
+    """Per frame, True where a pixel of ``(H, W, 3)`` levels is exactly ``colour``."""
+    c = np.asarray(colour, dtype=np.int64)
+    return [(lv[..., 0] == c[0]) & (lv[..., 1] == c[1]) & (lv[..., 2] == c[2]) for lv in levels]
 
 
 def _noise_model(bracket: Bracket) -> NoiseModel:

@@ -14,6 +14,7 @@ from ..io import Bracket, load_bracket
 __all__ = [
     "add_bracket_arguments",
     "add_exclude_colour_argument",
+    "add_level_arguments",
     "parse_colour",
     "load_bracket_from_args",
     "print_json",
@@ -34,27 +35,44 @@ def add_bracket_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def parse_colour(text: str | None) -> tuple[int, int, int] | None:
-    """``"0,0,255"`` -> ``(0, 0, 255)``; ``None`` stays ``None``."""
-    if text is None:
-        return None
-    from ..errors import ParameterError
-
+def parse_colour(text: str) -> tuple[int, int, int]:
+    """``"0,0,255"`` -> ``(0, 0, 255)``; an argparse ``type``, so bad input is a usage error."""
     try:
         parts = tuple(int(v) for v in str(text).split(","))
-    except ValueError as exc:
-        raise ParameterError("bad colour", expected="R,G,B levels such as 0,0,255",
-                             found=repr(text)) from exc
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected three integer levels R,G,B (e.g. 0,0,255), found {text!r}") from None
     if len(parts) != 3 or min(parts) < 0:
-        raise ParameterError("bad colour", expected="three levels R,G,B >= 0", found=repr(text))
+        raise argparse.ArgumentTypeError(
+            f"expected three non-negative integer levels R,G,B, found {text!r}")
     return parts  # type: ignore[return-value]
 
 
-def add_exclude_colour_argument(parser: argparse.ArgumentParser) -> None:
+def add_exclude_colour_argument(parser: argparse.ArgumentParser, *aliases: str) -> None:
+    """``--exclude-colour R,G,B`` (into ``args.exclude_colour``)."""
     parser.add_argument(
-        "--exclude-colour", metavar="R,G,B",
+        "--exclude-colour", *aliases, dest="exclude_colour", metavar="R,G,B", type=parse_colour,
         help="pixels of exactly this colour carry no data (e.g. 0,0,255: the blue border "
              "marks of the Debevec-Malik memorial scans)",
+    )
+
+
+def add_level_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--response``, ``--saturation Z`` and ``--noise-floor N``: the pipeline's defaults."""
+    parser.add_argument(
+        "--response", default="auto", metavar="NAME|FILE",
+        help="'auto' (linear for RAW, recovered from the histograms otherwise), 'linear', "
+             "'srgb', a method (debevec1997, debevec-histogram, mitsunaga1999, grossberg2003) "
+             "or a saved curve .json",
+    )
+    parser.add_argument(
+        "--saturation", type=float, metavar="Z",
+        help="saturation level Z in levels (default 97%% of the largest level)",
+    )
+    parser.add_argument(
+        "--noise-floor", type=float, metavar="N",
+        help="noise floor in levels (default 2%% of the largest level, at least 3, raised "
+             "above a black pedestal of the darkest frame)",
     )
 
 

@@ -16,8 +16,8 @@ from ..registration import MODELS, REGISTRATION_METHODS
 from ._common import (
     add_bracket_arguments,
     add_exclude_colour_argument,
+    add_level_arguments,
     load_bracket_from_args,
-    parse_colour,
     print_json,
     print_warnings,
 )
@@ -32,6 +32,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     )
     add_bracket_arguments(p)
     add_exclude_colour_argument(p)
+    add_level_arguments(p)
     p.add_argument("--model", default="euclidean", choices=list(MODELS),
                    help="motion model (default: %(default)s)")
     p.add_argument("--method", default="fast", choices=list(REGISTRATION_METHODS),
@@ -44,13 +45,6 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--ratios", default="histogram", choices=("histogram", "exif"),
                    help="exposure ratios from the histograms (falls back to EXIF when they "
                         "cannot be measured) or from EXIF times (default: %(default)s)")
-    p.add_argument("--response", default="auto", metavar="NAME|FILE",
-                   help="'auto' (linear for RAW, recovered from the histograms otherwise), "
-                        "'linear', 'srgb', a method name or a saved curve .json")
-    p.add_argument("--saturation", type=float, metavar="Z",
-                   help="saturation level in levels (default 97%% of the largest level)")
-    p.add_argument("--noise-floor", type=float, metavar="N",
-                   help="noise floor in levels (default 2%% of the largest level, >= 3)")
     p.add_argument("--json", action="store_true", help="print JSON on stdout")
     p.set_defaults(run=run)
 
@@ -62,7 +56,7 @@ def run(args: argparse.Namespace) -> int:
         saturation=args.saturation, noise_floor=args.noise_floor, threshold=args.threshold,
         align=args.model, reference=args.reference, response=args.response,
         times="exif" if args.ratios == "exif" else "estimated",
-        registration_method=args.method, exclude_colour=parse_colour(args.exclude_colour),
+        registration_method=args.method, exclude_colour=args.exclude_colour,
         registration_previews=False,
     )
     result = Pipeline(bracket, params).run(until="registration")

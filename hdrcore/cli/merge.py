@@ -15,14 +15,15 @@ import json
 import sys
 import time
 
+from ..errors import OutputError
 from ..io import atomic_write, check_output_path, write_exr, write_png
 from ..pipeline import ALIGN_CHOICES, Pipeline, PipelineParams
 from ..tonemap import TONEMAP_OPERATORS
 from ._common import (
     add_bracket_arguments,
     add_exclude_colour_argument,
+    add_level_arguments,
     load_bracket_from_args,
-    parse_colour,
     print_json,
     to_jsonable,
 )
@@ -37,6 +38,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     )
     add_bracket_arguments(p)
     add_exclude_colour_argument(p)
+    add_level_arguments(p)
     p.add_argument("-o", "--output", required=True, metavar="OUT.exr", help="OpenEXR output")
     p.add_argument("--preview", metavar="OUT.png", help="also write a tonemapped 8-bit preview")
     p.add_argument("--report", metavar="OUT.json", help="write the JSON report of every stage")
@@ -44,14 +46,6 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    help="motion model for hand-held frames (default: euclidean)")
     p.add_argument("--reference", type=int, metavar="N",
                    help="frame the others are aligned to (default: the middle one)")
-    p.add_argument("--response", default="auto", metavar="NAME|FILE",
-                   help="'auto' (linear for RAW, recovered from the histograms otherwise), "
-                        "'linear', 'srgb', a method (debevec1997, debevec-histogram, "
-                        "mitsunaga1999, grossberg2003) or a saved curve .json")
-    p.add_argument("--saturation", type=float, metavar="Z",
-                   help="saturation level Z in levels (default 97%% of the largest level)")
-    p.add_argument("--noise-floor", type=float, metavar="N",
-                   help="noise floor in levels (default 2%% of the largest level, >= 3)")
     p.add_argument("--threshold", type=float, default=0.1, metavar="t",
                    help="normalisation threshold t of eq. 7, fraction of Z (default 0.1)")
     p.add_argument("--times-source", dest="times_source", default="estimated",
@@ -97,12 +91,8 @@ class _Progress:
 def run(args: argparse.Namespace) -> int:
     outputs = [args.output] + [p for p in (args.preview, args.report) if p]
     if len(set(outputs)) != len(outputs):
-        from ..errors import OutputError
-
         raise OutputError("the same path is given for two outputs", found=", ".join(outputs))
     if not str(args.output).lower().endswith(".exr"):
-        from ..errors import OutputError
-
         raise OutputError("the HDR output must be an OpenEXR file", path=args.output,
                           expected="a name ending in .exr")
     t_load = time.perf_counter()
@@ -119,7 +109,7 @@ def run(args: argparse.Namespace) -> int:
         align=args.align, reference=args.reference, response=args.response,
         times=args.times_source, tonemap=args.tonemap, tonemap_exposure=args.exposure,
         preview_max_side=None if args.preview_size <= 0 else args.preview_size,
-        exclude_colour=parse_colour(args.exclude_colour),
+        exclude_colour=args.exclude_colour,
         registration_previews=False,
     )
     progress = _Progress(not args.quiet)

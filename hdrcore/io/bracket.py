@@ -324,18 +324,18 @@ def load_bracket(
     # Indices in warnings refer to the sorted order; remap the exif-times warnings (none carry
     # indices) and compute the capture warnings on the sorted frames.
     warns.extend(_capture_warnings(sorted_frames, order_source))
-    for f in sorted_frames:
+    for k, f in enumerate(sorted_frames):
         step = max(1, int(np.sqrt(f.levels.size / 3 / 262144)))
         sub = f.levels[::step, ::step]
         if float(np.mean(sub >= f.max_level)) > 0.98:
             warns.append(BracketWarning(
                 "frame-saturated", f"{f.name} is almost entirely saturated",
-                (sorted_frames.index(f),),
+                (k,),
             ))
         elif float(np.mean(sub == 0)) > 0.98:
             warns.append(BracketWarning(
                 "frame-black", f"{f.name} is almost entirely black",
-                (sorted_frames.index(f),),
+                (k,),
             ))
     return Bracket(
         frames=tuple(sorted_frames),

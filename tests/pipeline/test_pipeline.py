@@ -161,10 +161,13 @@ def test_ratio_errors_over_one_percent_are_flagged(demo_result) -> None:
     _, r = demo_result
     truth = json.loads((DEMO / "truth.json").read_text())["ratios"]
     assert r.exposures is not r.exposures_histogram  # re-measured after registration
+    checked = 0
     for res in (r.exposures_histogram, r.exposures):
         for p, t in zip(res.pairs, truth, strict=True):
             if abs(p.ratio / t - 1) > 0.01:
                 assert p.status != "ok", (p.dark, p.ratio, t)
+                checked += 1
+    assert checked > 0  # the demo's motion does bias some whole-frame ratio by over 1 %
 
 
 def test_binned_registration_scales_back_to_full_resolution(demo_result) -> None:
