@@ -41,6 +41,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import ParameterError, validate_method
+from . import _kernels
 from ._sampling import reduce2, sample
 from .fourier import FourierShift, cross_correlation_shift
 from .result import PairPreview, PairRegistration
@@ -53,7 +54,10 @@ from .transform import (
     scale_matrix,
 )
 
-__all__ = ["MODELS", "PairData", "prepare", "register_with", "Samples", "RefineResult"]
+__all__ = [
+    "MODELS", "PairData", "prepare", "register_with", "Samples", "RefineResult", "cost",
+    "normal_equations",
+]
 
 log = logging.getLogger(__name__)
 
@@ -154,16 +158,37 @@ def prepare(
     if lo >= hi:
         data.levels = [None]
         return data
-    a0 = np.clip(bright, lo, hi).astype(np.float32, copy=False)
-    b0 = np.multiply(dark, np.float32(k), dtype=np.float32)
-    np.clip(b0, lo, hi, out=b0)
-    levels: list = [(a0, b0) if a0.size <= _SMALL else None]
-    a, b = a0, b0
+    small = dark.size <= _SMALL
+    if small or not _kernels.AVAILABLE:
+        a0 = np.clip(bright, lo, hi).astype(np.float32, copy=False)
+        b0 = np.multiply(dark, np.float32(k), dtype=np.float32)
+        np.clip(b0, lo, hi, out=b0)
+    levels: list = [(a0, b0) if small else None]
+    h, w = dark.shape
+    if min(h, w) // 2 < min_level_size:
+        data.levels = levels
+        return data
+    if _kernels.AVAILABLE:  # level 1 straight from the raw frames: one read, no full-size copy
+        a = np.empty((h // 2, w // 2), np.float32)
+        b = np.empty_like(a)
+        _kernels.bin_clip(bright, None, 1.0, lo, hi, a)
+        _kernels.bin_clip(dark, None, k, lo, hi, b)
+    else:
+        a, b = reduce2(a0), reduce2(b0)
+    levels.append((a, b))
     while min(a.shape) // 2 >= min_level_size:
-        a, b = reduce2(a), reduce2(b)
+        a, b = _reduce2(a), _reduce2(b)
         levels.append((a, b))
     data.levels = levels
     return data
+
+
+def _reduce2(image: np.ndarray) -> np.ndarray:
+    if not _kernels.AVAILABLE:
+        return reduce2(image)
+    out = np.empty((image.shape[0] // 2, image.shape[1] // 2), np.float32)
+    _kernels.reduce2(image, out)
+    return out
 
 
 @dataclass
@@ -218,6 +243,8 @@ def select_samples(
     elif idx.size > max_samples:
         keep = rng.choice(idx.size, max_samples, replace=False)
         idx, v = idx[keep], v[keep]
+    order = np.argsort(idx, kind="stable")  # raster order: the searches' reads stay local
+    idx, v = idx[order], v[order]
     return Samples(
         (idx % w).astype(np.float64), (idx // w).astype(np.float64), k * v, well_exposed
     )
@@ -259,16 +286,61 @@ def residuals(
     return n, dn_da * sm.gx, dn_da * sm.gy, valid
 
 
+def normal_equations(
+    data: PairData, level: int, inverse: np.ndarray, s: Samples, *, n_par: int = 3,
+    gradient: bool = True, max_contrast: float = MAX_CONTRAST, compiled: bool | None = None,
+) -> tuple[float, int, np.ndarray, np.ndarray]:
+    """Eq. 6 sum over the samples and its Gauss-Newton normal equations in one pass.
+
+    ``inverse`` (level coordinates, dark -> bright) is taken as a rigid matrix
+    ``rigid_matrix(dx, dy, angle)`` about the level's centre; the Jacobian columns are the
+    derivatives of the eq. 7 residuals by ``dx``, ``dy`` and (``n_par == 3``) the angle in
+    radians. Returns ``(sum n^2, count, J'J (n_par x n_par), J'n (n_par))``; with
+    ``gradient=False`` the matrices are zeros. ``compiled``: use the numba kernel (default: when
+    available) or the numpy reference (:func:`residuals`); both give the same numbers to
+    rounding.
+    """
+    if compiled is None:
+        compiled = _kernels.AVAILABLE
+    shape_l = data.level_shape(level)
+    h, w = shape_l
+    cx, cy = (w - 1) / 2.0, (h - 1) / 2.0
+    m = np.asarray(inverse, np.float64)
+    angle = float(np.arctan2(m[1, 0] - m[0, 1], m[0, 0] + m[1, 1]))
+    if compiled:
+        hess = np.zeros((3, 3))
+        grad = np.zeros(3)
+        img = data.bright if level == 0 else data.levels[level][0]
+        ssum, count = _kernels.gauss_newton_sums(
+            img, None, s.x, s.y, s.b, m, level == 0, data.noise_floor,
+            data.saturation, float(max_contrast or 0.0), data.threshold, angle, cx, cy, n_par,
+            gradient, hess, grad,
+        )
+        return float(ssum), int(count), hess[:n_par, :n_par], grad[:n_par]
+    n, gx, gy, valid = residuals(data, level, m, s, gradient=gradient,
+                                 max_contrast=max_contrast)
+    count = int(valid.sum())
+    ssum = float(np.sum(n * n))
+    if not gradient:
+        return ssum, count, np.zeros((n_par, n_par)), np.zeros(n_par)
+    cols = [gx, gy]
+    if n_par == 3:  # d(B x)/d(angle) = R'(x - c)
+        xc, yc = s.x - cx, s.y - cy
+        cos, sin = np.cos(angle), np.sin(angle)
+        cols.append(gx * (-sin * xc - cos * yc) + gy * (cos * xc - sin * yc))
+    jac = np.stack(cols, axis=1)
+    return ssum, count, jac.T @ jac, jac.T @ n
+
+
 def cost(data: PairData, level: int, inverse: np.ndarray, s: Samples) -> tuple[float, int]:
     """Eq. 6 cost (mean squared eq. 7 difference) and the number of valid samples.
 
     ``inverse`` maps dark-frame coordinates to the bright frame (see :func:`residuals`).
     """
-    n, _, _, valid = residuals(data, level, inverse, s, gradient=False)
-    count = int(valid.sum())
+    ssum, count, _, _ = normal_equations(data, level, inverse, s, gradient=False)
     if count == 0:
         return float("inf"), 0
-    return float(np.sum(n * n) / count), count
+    return ssum / count, count
 
 
 def overlap_fraction(matrix: np.ndarray, shape: tuple[int, int], grid: int = 64) -> float:

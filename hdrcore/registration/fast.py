@@ -32,8 +32,8 @@ from ._problem import (
     RefineResult,
     Samples,
     level_to_full,
+    normal_equations,
     register_with,
-    residuals,
     rigid_to_level,
     select_samples,
 )
@@ -47,9 +47,8 @@ def _level_cost(
     data: PairData, level: int, p: np.ndarray, shape_l: tuple[int, int], s: Samples
 ) -> float:
     m = rigid_matrix(p[0], p[1], np.rad2deg(p[2]), shape_l)
-    n, _, _, valid = residuals(data, level, m, s, gradient=False)
-    count = int(valid.sum())
-    return float(np.sum(n * n) / count) if count else np.inf
+    ssum, count, _, _ = normal_equations(data, level, m, s, gradient=False)
+    return ssum / count if count else np.inf
 
 
 def refine_gauss_newton(
@@ -87,7 +86,6 @@ def refine_gauss_newton(
         s = select_samples(data, level, max_samples if level == 0 else coarse_samples)
         if s.b.size < 8:
             continue
-        xc, yc = s.x - cx, s.y - cy
         p = rigid_to_level(matrix, level, shape_l)
         if level < top:  # a coarse level can mislead (photometric mismatch, little detail):
             p0 = rigid_to_level(initial, level, shape_l)  # restart if the start is better here
@@ -99,9 +97,8 @@ def refine_gauss_newton(
         best_c, best_p = np.inf, p
         for _ in range(max_iterations if level == 0 else coarse_iterations):
             m = rigid_matrix(p[0], p[1], np.rad2deg(p[2]), shape_l)
-            n, gx, gy, valid = residuals(data, level, m, s)
-            count = int(valid.sum())
-            c = float(np.sum(n * n) / count) if count else np.inf
+            ssum, count, hess, grad = normal_equations(data, level, m, s, n_par=n_par)
+            c = ssum / count if count else np.inf
             history.append(c)
             levels.append(level)
             iterations += 1
@@ -118,13 +115,6 @@ def refine_gauss_newton(
                 break  # no further decrease: converged to the noise floor of the cost
             if count < n_par * 4:
                 break
-            cos, sin = np.cos(p[2]), np.sin(p[2])
-            cols = [gx, gy]
-            if n_par == 3:  # d(A x)/d(angle) = R'(x - c)
-                cols.append(gx * (-sin * xc - cos * yc) + gy * (cos * xc - sin * yc))
-            jac = np.stack(cols, axis=1)
-            hess = jac.T @ jac
-            grad = jac.T @ n
             try:
                 delta = -np.linalg.solve(hess, grad)
             except np.linalg.LinAlgError:
