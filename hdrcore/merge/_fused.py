@@ -606,7 +606,7 @@ def tap_thresholds(sat: np.ndarray, dtype: np.dtype) -> np.ndarray:
 
 
 @_njit
-def merge_rows_warped(
+def _merge_rows_warped_old(
     frames, masks, has_mask, mats, has_mat, order, times, inv_t, inv_t2, t2, wcode, shot,
     const_var, floor_norm, inv_max, max_level, hi, has_lut, lut, lut_var, sat, supports, me2,
     thr, r0, r1,
@@ -813,4 +813,539 @@ def merge_rows_warped(
                         else:
                             val = np.float64(frames[p][y, x, ch]) / max_level
                         rad[y, x, ch] = np.float32(val / times[p])
+    return out_of_range
+
+
+# --------------------------------------------------------------------------------------------
+# The warped kernel, arranged for SIMD: per block of a row, each frame's values are produced as
+# one interleaved float32 run ``3 x + ch`` (resampled frames: the taps of a run of pixels that
+# share their source rows and column offset are contiguous in the frame's row, so the 4 x 4
+# taps become 16 contiguous multiply-adds over the run), then the sums are accumulated over that
+# run with no per-channel branch, then the row is finished. The arithmetic of every pixel is
+# the same as :func:`_interp3` / :func:`_interp3_bilinear` and the reference's, in the same
+# float32 order, so the results are bit for bit those of the numpy reference.
+
+
+@_njit
+def _finish_block(
+    y, x0, x1, n, order, den, num, s2, sv, share, bad, clip, nbad, me2, thr,
+    rad, wsum_out, shares, clipped_out, under_out, gscore, ghost, mode, pick, anyz,
+):
+    """:func:`_finish_row` for interleaved sums (``den[3 i + ch]``): the common case (every
+    channel has weight) in one branch-free pass, the fallbacks of the rest in a second."""
+    zero = np.float32(0.0)
+    one = np.float32(1.0)
+    nbk = x1 - x0
+    rrow = rad[y]
+    nz = 0
+    for i in range(nbk):
+        e = 3 * i
+        x = x0 + i
+        d0 = den[e]
+        d1 = den[e + 1]
+        d2 = den[e + 2]
+        inv0 = one / (d0 if d0 >= _TINY else _TINY)
+        inv1 = one / (d1 if d1 >= _TINY else _TINY)
+        inv2 = one / (d2 if d2 >= _TINY else _TINY)
+        a0 = num[e] * inv0
+        a1 = num[e + 1] * inv1
+        a2 = num[e + 2] * inv2
+        rrow[x, 0] = a0
+        rrow[x, 1] = a1
+        rrow[x, 2] = a2
+        q0 = a0 * a0
+        q1 = a1 * a1
+        q2 = a2 * a2
+        b0 = s2[e] * inv0 - q0
+        b1 = s2[e + 1] * inv1 - q1
+        b2 = s2[e + 2] * inv2 - q2
+        b0 = b0 if b0 >= zero else zero
+        b1 = b1 if b1 >= zero else zero
+        b2 = b2 if b2 >= zero else zero
+        spread = (b0 + b1) + b2
+        c0 = sv[e] * inv0 + q0 * me2
+        c1 = sv[e + 1] * inv1 + q1 * me2
+        c2 = sv[e + 2] * inv2 + q2 * me2
+        noise = (c0 + c1) + c2
+        noise = noise if noise >= _TINY else _TINY
+        spread = spread / noise
+        ghost[y, x] = spread > thr
+        gscore[y, x] = _f16_bits(spread)
+        wsum = (d0 + d1) + d2
+        wsum_out[y, x] = wsum
+        invw = one / (wsum if wsum >= _TINY else _TINY)
+        for k in range(n):
+            shares[k, y, x] = _f16_bits(share[k, i] * invw)
+        clipped_out[y, x] = False
+        under_out[y, x] = False
+        mode[i] = 0
+        z = (d0 <= zero) | (d1 <= zero) | (d2 <= zero)
+        anyz[nz] = i
+        nz += 1 if z else 0
+    for q in range(nz):
+        i = anyz[q]
+        x = x0 + i
+        e = 3 * i
+        is_clipped = nbad[i] == n
+        under = False
+        if is_clipped:
+            dk = order[0]
+            if not (bad[dk, i] and not clip[dk, i]):
+                p = dk
+                mode[i] = 3
+            else:
+                p = -1
+                for j in range(n):
+                    k = order[j]
+                    if not (bad[k, i] and not clip[k, i]):
+                        p = k
+                        break
+                if p < 0:  # no valid frame at all: unknown, not clipped
+                    p = dk
+                    is_clipped = False
+                mode[i] = 1
+            for k in range(n):
+                shares[k, y, x] = np.uint16(0)
+            shares[p, y, x] = _ONE_F16
+            pick[i] = p
+        elif nbad[i] < n:
+            last = 0
+            for j in range(n):
+                if not bad[order[j], i]:
+                    last = j
+            p = order[last]
+            mode[i] = 2
+            pick[i] = p
+            whole = True
+            for ch in range(3):
+                if den[e + ch] > zero:
+                    whole = False
+            if whole:
+                for k in range(n):
+                    shares[k, y, x] = np.uint16(0)
+                shares[p, y, x] = _ONE_F16
+            under = True
+        clipped_out[y, x] = is_clipped
+        under_out[y, x] = under
+    return nz
+
+
+@_njit
+def _lut_value(v, ch, warped, lut, lut_var, lmax):
+    """Linear value and level-noise variance of value ``v`` of channel ``ch`` through the LUT:
+    resampled frames read it linearly between entries, frames read in place at the level."""
+    if warped:
+        lo = min(int(v), lmax - 1)
+        frac = v - np.float32(lo)
+        l0 = lut[ch, lo]
+        xv = lut[ch, lo + 1] - l0
+        xv = xv * frac
+        xv = xv + l0
+        q0 = lut_var[ch, lo]
+        var = lut_var[ch, lo + 1] - q0
+        var = var * frac
+        var = var + q0
+        return xv, var
+    li = min(int(v), lmax)
+    return lut[ch, li], lut_var[ch, li]
+
+
+@_njit
+def _weight(wcode, level, var, t2k):
+    one = np.float32(1.0)
+    if wcode == 0:
+        wk = level * np.float32(2.0)
+        wk = wk - one
+        wk = abs(wk)
+        return one - wk
+    if wcode == 1:
+        wk = level - np.float32(0.5)
+        wk = wk * wk
+        wk = wk * np.float32(-16.0)
+        return np.exp(wk)
+    if wcode == 2:
+        return t2k / var
+    return one
+
+
+@_njit
+def _accumulate_run(
+    xk, okf, ne, wcode, inv_max, shot, const_var, floor_norm, itk, it2, t2k, den, num, s2, sv,
+    wbuf,
+):
+    """The sums of one frame over ``ne`` interleaved samples of linear data (no LUT): one loop
+    per weighting so that each is a straight SIMD loop."""
+    zero = np.float32(0.0)
+    one = np.float32(1.0)
+    if wcode == 2:
+        for e in range(ne):
+            level = xk[e] * inv_max
+            var = level * shot
+            var = var + const_var
+            ev = level * itk
+            wk = t2k / var
+            wk = wk * (okf[e] if level > floor_norm else zero)
+            wbuf[e] = wk
+            den[e] += wk
+            var = var * wk
+            sv[e] += var * it2
+            wk = wk * ev
+            num[e] += wk
+            s2[e] += wk * ev
+    elif wcode == 0:
+        two = np.float32(2.0)
+        for e in range(ne):
+            level = xk[e] * inv_max
+            var = level * shot
+            var = var + const_var
+            ev = level * itk
+            wk = level * two
+            wk = wk - one
+            wk = one - abs(wk)
+            wk = wk * (okf[e] if level > floor_norm else zero)
+            wbuf[e] = wk
+            den[e] += wk
+            var = var * wk
+            sv[e] += var * it2
+            wk = wk * ev
+            num[e] += wk
+            s2[e] += wk * ev
+    else:
+        for e in range(ne):
+            level = xk[e] * inv_max
+            var = level * shot
+            var = var + const_var
+            ev = level * itk
+            wk = _weight(wcode, level, var, t2k)
+            wk = wk * (okf[e] if level > floor_norm else zero)
+            wbuf[e] = wk
+            den[e] += wk
+            var = var * wk
+            sv[e] += var * it2
+            wk = wk * ev
+            num[e] += wk
+            s2[e] += wk * ev
+
+
+@_njit
+def _taps_run(flat, iy0, b, e0, e1, ntap, wxe, wye, acc, xk, hi):
+    """Interpolated values ``xk[e0:e1]`` of a run of pixels whose support starts at row
+    ``iy0`` and element ``b + e`` of the frame's flattened rows (``(H, W * 3)``). Zero-based
+    slices keep the loops free of negative-index checks, so they vectorise."""
+    zero = np.float32(0.0)
+    m = e1 - e0
+    a = acc[e0:e1]
+    s0 = b + e0
+    if ntap == 4:
+        wx0 = wxe[0, e0:e1]
+        wx1 = wxe[1, e0:e1]
+        wx2 = wxe[2, e0:e1]
+        wx3 = wxe[3, e0:e1]
+        for jy in range(4):
+            row = flat[iy0 + jy]
+            t0 = row[s0:s0 + m]
+            t1 = row[s0 + 3:s0 + 3 + m]
+            t2 = row[s0 + 6:s0 + 6 + m]
+            t3 = row[s0 + 9:s0 + 9 + m]
+            wy = wye[jy, e0:e1]
+            if jy == 0:
+                for q in range(m):
+                    t = np.float32(t0[q]) * wx0[q]
+                    t = t + np.float32(t1[q]) * wx1[q]
+                    t = t + np.float32(t2[q]) * wx2[q]
+                    t = t + np.float32(t3[q]) * wx3[q]
+                    a[q] = t * wy[q]
+            else:
+                for q in range(m):
+                    t = np.float32(t0[q]) * wx0[q]
+                    t = t + np.float32(t1[q]) * wx1[q]
+                    t = t + np.float32(t2[q]) * wx2[q]
+                    t = t + np.float32(t3[q]) * wx3[q]
+                    a[q] = a[q] + t * wy[q]
+    else:
+        wx0 = wxe[0, e0:e1]
+        wx1 = wxe[1, e0:e1]
+        wy0 = wye[0, e0:e1]
+        wy1 = wye[1, e0:e1]
+        r0 = flat[iy0]
+        r1 = flat[iy0 + 1]
+        t0 = r0[s0:s0 + m]
+        t1 = r0[s0 + 3:s0 + 3 + m]
+        u0 = r1[s0:s0 + m]
+        u1 = r1[s0 + 3:s0 + 3 + m]
+        for q in range(m):
+            t = np.float32(t0[q]) * wx0[q] + np.float32(t1[q]) * wx1[q]
+            u = np.float32(u0[q]) * wx0[q] + np.float32(u1[q]) * wx1[q]
+            a[q] = t * wy0[q] + u * wy1[q]
+    out = xk[e0:e1]
+    for q in range(m):
+        out[q] = min(max(a[q], zero), hi)
+
+
+@_njit
+def merge_rows_warped(
+    frames, flats, masks, has_mask, mats, has_mat, order, times, inv_t, inv_t2, t2, wcode, shot,
+    const_var, floor_norm, inv_max, max_level, hi, has_lut, lut, lut_var, sat, supports, me2,
+    thr, r0, r1,
+    rad, wsum_out, shares, clip_count, clipped_out, under_out, gscore, ghost, ntap, oor,
+):
+    """Rows ``r0:r1`` of the output grid; frame ``k`` with ``has_mat[k]`` is read at
+    ``mats[k] @ (x, y, 1)`` (``ntap`` 4: Keys cubic, 4 weights per axis shared by the 3
+    channels; 2: bilinear), the others at ``(x, y)``; ``flats[k]`` is frame ``k`` as
+    ``(H, W * 3)``. A resampled frame is clipped at a pixel when any of the taps of any channel
+    is at or above its saturation level (``supports[k]``, :func:`clip_support_rows`), and
+    invalid when the support leaves the frame (its values read 0 there). ``oor[k]``: frame
+    ``k`` (resampled, with a LUT) holds levels past the LUT, so clipped supports are searched
+    for them. Integer levels with a LUT are interpolated, then read linearly between table
+    entries; integer levels without one and float frames are linear
+    (``level = value * inv_max``). Returns the number of samples above the LUT's last level
+    (the caller refuses the input).
+    """
+    n = len(frames)
+    h = frames[0].shape[0]
+    w = frames[0].shape[1]
+    bw = min(w, _BLOCK)
+    b3 = 3 * bw
+    xs = np.empty((n, b3), np.float32)  # interleaved values (levels or floats) per frame
+    den = np.empty(b3, np.float32)
+    num = np.empty(b3, np.float32)
+    s2 = np.empty(b3, np.float32)
+    sv = np.empty(b3, np.float32)
+    wbuf = np.empty(b3, np.float32)
+    okf = np.empty(b3, np.float32)
+    acc = np.empty(b3, np.float32)
+    wxe = np.empty((4, b3), np.float32)
+    wye = np.empty((4, b3), np.float32)
+    ixs = np.empty(bw, np.int64)
+    iys = np.empty(bw, np.int64)
+    ins = np.empty(bw, np.bool_)
+    share = np.empty((n, bw), np.float32)
+    bad = np.empty((n, bw), np.bool_)
+    clip = np.empty((n, bw), np.bool_)
+    nbad = np.empty(bw, np.int64)
+    mode = np.empty(bw, np.int8)
+    pick = np.empty(bw, np.int64)
+    anyz = np.empty(bw, np.int64)
+    lmax = lut.shape[1] - 1
+    out_of_range = 0
+    zero = np.float32(0.0)
+    one = np.float32(1.0)
+    nb = (w + _BLOCK - 1) // _BLOCK
+    nr = r1 - r0
+    o = 1.0 if ntap == 4 else 0.0
+    # column blocks outermost: consecutive rows of a block read the same band of source rows
+    # (a rotated frame's rows drift across many source rows over the full width)
+    for yb in range(nr * nb):
+        y = r0 + yb % nr
+        yf = np.float64(y)
+        x0 = (yb // nr) * _BLOCK
+        x1 = min(w, x0 + _BLOCK)
+        nbk = x1 - x0
+        ne = 3 * nbk
+        den[:ne] = zero
+        num[:ne] = zero
+        s2[:ne] = zero
+        sv[:ne] = zero
+        nbad[:nbk] = 0
+        crow = clip_count[y]
+        crow[x0:x1] = 0
+        for j in range(n):
+            k = order[j]
+            fr = frames[k]
+            flat = flats[k]
+            xk = xs[k]
+            mrow = masks[k][y if has_mask[k] else 0]
+            hm = has_mask[k]
+            warped = has_mat[k]
+            if warped:
+                sup = supports[k]
+                m00 = mats[k, 0, 0]
+                m01 = mats[k, 0, 1]
+                m02 = mats[k, 0, 2]
+                m10 = mats[k, 1, 0]
+                m11 = mats[k, 1, 1]
+                m12 = mats[k, 1, 2]
+                for i in range(nbk):
+                    x = x0 + i
+                    xf = np.float64(x)
+                    sx = m00 * xf + m01 * yf + m02
+                    sy = m10 * xf + m11 * yf + m12
+                    fx0 = np.floor(sx)
+                    fy0 = np.floor(sy)
+                    inside = (fx0 >= o and fx0 <= w - (ntap - o) and fy0 >= o
+                              and fy0 <= h - (ntap - o))
+                    e = 3 * i
+                    if ntap == 4:
+                        wa, wb_, wc, wd = _keys(sx - fx0)
+                        wxe[0, e] = wa
+                        wxe[0, e + 1] = wa
+                        wxe[0, e + 2] = wa
+                        wxe[1, e] = wb_
+                        wxe[1, e + 1] = wb_
+                        wxe[1, e + 2] = wb_
+                        wxe[2, e] = wc
+                        wxe[2, e + 1] = wc
+                        wxe[2, e + 2] = wc
+                        wxe[3, e] = wd
+                        wxe[3, e + 1] = wd
+                        wxe[3, e + 2] = wd
+                        wa, wb_, wc, wd = _keys(sy - fy0)
+                        wye[0, e] = wa
+                        wye[0, e + 1] = wa
+                        wye[0, e + 2] = wa
+                        wye[1, e] = wb_
+                        wye[1, e + 1] = wb_
+                        wye[1, e + 2] = wb_
+                        wye[2, e] = wc
+                        wye[2, e + 1] = wc
+                        wye[2, e + 2] = wc
+                        wye[3, e] = wd
+                        wye[3, e + 1] = wd
+                        wye[3, e + 2] = wd
+                    else:
+                        fx = sx - fx0
+                        fy = sy - fy0
+                        wa = np.float32(1.0 - fx)
+                        wb_ = np.float32(fx)
+                        wxe[0, e] = wa
+                        wxe[0, e + 1] = wa
+                        wxe[0, e + 2] = wa
+                        wxe[1, e] = wb_
+                        wxe[1, e + 1] = wb_
+                        wxe[1, e + 2] = wb_
+                        wa = np.float32(1.0 - fy)
+                        wb_ = np.float32(fy)
+                        wye[0, e] = wa
+                        wye[0, e + 1] = wa
+                        wye[0, e + 2] = wa
+                        wye[1, e] = wb_
+                        wye[1, e + 1] = wb_
+                        wye[1, e + 2] = wb_
+                    ins[i] = inside
+                    tcl = False
+                    if inside:
+                        ix = int(fx0 - o)
+                        iy = int(fy0 - o)
+                        ixs[i] = ix
+                        iys[i] = iy
+                        tcl = sup[iy, ix] != 0
+                        if tcl and oor[k]:  # levels past the LUT are clipped: count them
+                            for jy in range(ntap):
+                                for jx in range(ntap):
+                                    for ch in range(3):
+                                        if int(fr[iy + jy, ix + jx, ch]) > lmax:
+                                            out_of_range += 1
+                    valid = inside and (mrow[x] if hm else True)
+                    cl = tcl and valid
+                    b = (not valid) or cl
+                    clip[k, i] = cl
+                    bad[k, i] = b
+                    if cl:
+                        crow[x] += 1
+                    if b:
+                        nbad[i] += 1
+                    okv = zero if b else one
+                    okf[e] = okv
+                    okf[e + 1] = okv
+                    okf[e + 2] = okv
+                # runs of pixels whose supports share their rows and column offset
+                i = 0
+                while i < nbk:
+                    if not ins[i]:
+                        e = 3 * i
+                        xk[e] = zero
+                        xk[e + 1] = zero
+                        xk[e + 2] = zero
+                        i += 1
+                        continue
+                    s = i
+                    iy0 = iys[i]
+                    dx = ixs[i] - i
+                    i += 1
+                    while i < nbk and ins[i] and iys[i] == iy0 and ixs[i] - i == dx:
+                        i += 1
+                    _taps_run(flat, iy0, 3 * dx, 3 * s, 3 * i, ntap, wxe, wye,
+                              acc, xk, hi)
+            else:
+                frow = fr[y]
+                for i in range(nbk):
+                    x = x0 + i
+                    cl, b = _clip_flags(frow, x, 3, sat, hm, mrow)
+                    clip[k, i] = cl
+                    bad[k, i] = b
+                    if cl:
+                        crow[x] += 1
+                    if b:
+                        nbad[i] += 1
+                    okv = zero if b else one
+                    e = 3 * i
+                    okf[e] = okv
+                    okf[e + 1] = okv
+                    okf[e + 2] = okv
+                frf = flat[y]
+                e0 = 3 * x0
+                for e in range(ne):
+                    xk[e] = np.float32(frf[e0 + e])
+            itk = inv_t[k]
+            it2 = inv_t2[k]
+            t2k = t2[k]
+            if has_lut:
+                for e in range(ne):
+                    ch = e % 3
+                    v = xk[e]
+                    level = v * inv_max
+                    if not warped and int(v) > lmax:
+                        out_of_range += 1
+                    xv, var = _lut_value(v, ch, warped, lut, lut_var, lmax)
+                    if shot != zero:
+                        var = var + xv * shot
+                    var = var + const_var
+                    ev = xv * itk
+                    wk = _weight(wcode, level, var, t2k)
+                    wk = wk * (okf[e] if level > floor_norm else zero)
+                    wbuf[e] = wk
+                    den[e] += wk
+                    var = var * wk
+                    sv[e] += var * it2
+                    wk = wk * ev
+                    num[e] += wk
+                    s2[e] += wk * ev
+            else:
+                _accumulate_run(xk, okf, ne, wcode, inv_max, shot, const_var, floor_norm, itk,
+                                it2, t2k, den, num, s2, sv, wbuf)
+            for i in range(nbk):
+                e = 3 * i
+                share[k, i] = (wbuf[e] + wbuf[e + 1]) + wbuf[e + 2]
+        nz = _finish_block(
+            y, x0, x1, n, order, den, num, s2, sv, share, bad, clip, nbad, me2, thr,
+            rad, wsum_out, shares, clipped_out, under_out, gscore, ghost, mode, pick, anyz,
+        )
+        rrow = rad[y]
+        for q in range(nz):
+            i = anyz[q]
+            if mode[i] == 0:
+                continue
+            x = x0 + i
+            e = 3 * i
+            p = order[0] if mode[i] == 3 else pick[i]
+            warped = has_mat[p]
+            for ch in range(3):
+                if mode[i] == 3 or mode[i] == 1 or den[e + ch] <= zero:
+                    v = xs[p, e + ch]
+                    if has_lut:
+                        if warped:
+                            xv = _lut_value(v, ch, True, lut, lut_var, lmax)[0]
+                        else:
+                            xv = lut[ch, min(int(v), lmax)]
+                    else:
+                        xv = v * inv_max
+                    if mode[i] == 3:  # the darkest frame's E_k, as the sums saw it
+                        rrow[x, ch] = xv * inv_t[p]
+                    elif warped:
+                        rrow[x, ch] = np.float32(np.float64(xv) / times[p])
+                    elif has_lut:
+                        rrow[x, ch] = np.float32(np.float64(lut[ch, min(int(v), lmax)])
+                                                 / times[p])
+                    else:
+                        rrow[x, ch] = np.float32((np.float64(v) / max_level) / times[p])
     return out_of_range

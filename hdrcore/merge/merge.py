@@ -1012,9 +1012,11 @@ def _run_numba(
             for k, f in enumerate(frames_t)
         ], np.bool_)
 
+        flats = tuple(f.reshape(f.shape[0], -1) for f in frames_t)
+
         def work(span: tuple[int, int]) -> int:
             return _fused.merge_rows_warped(
-                frames_t, masks_t, has_mask, mats, has_mat, order, times, inv_t, inv_t2, t2,
+                frames_t, flats, masks_t, has_mask, mats, has_mat, order, times, inv_t, inv_t2, t2,
                 wcode, kernel.shot, kernel.const_var, kernel.floor_norm, kernel.inv_max,
                 max_level, hi, has_lut, lut, lut_var, sat, supports, me2, thr, span[0], span[1],
                 *outs, ntap, oor,
