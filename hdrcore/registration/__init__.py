@@ -95,7 +95,9 @@ def register_pair(
     model : ``"euclidean"`` (shift and rotation) or ``"shift"``.
     method : a key of :data:`REGISTRATION_METHODS`.
     options : ``initial`` (2x3 start instead of eq. 5), ``previews`` (bool), ``fft_size``,
-        ``min_ncc``, and the search's own options.
+        ``min_ncc``, ``lut`` (the frames are uint8/uint16 levels, any strides, and ``lut[level]``
+        their linear value: a channel view of the raw RGB frames registers without a linear
+        copy), and the search's own options.
 
     Returns a :class:`PairRegistration` whose ``matrix`` maps bright-frame pixel coordinates to the
     dark frame; on failure its ``status`` says why and the matrix is the identity.

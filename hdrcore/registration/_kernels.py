@@ -44,7 +44,7 @@ except ImportError:  # pragma: no cover - exercised only without numba
     _inline = _njit
 
 
-__all__ = ["AVAILABLE", "bin_clip", "reduce2", "gauss_newton_sums"]
+__all__ = ["AVAILABLE", "bin_clip", "reduce2", "gauss_newton_sums", "score_candidates"]
 
 
 
@@ -77,6 +77,54 @@ def bin_clip(src, lut, scale, lo, hi, out):
             v01 = min(max(a01 * s, lo32), hi32)
             v11 = min(max(a11 * s, lo32), hi32)
             out[i, j] = (((v00 + v10) + v01) + v11) * q
+
+
+@_inline
+def _linear(img, lut, y, x):
+    if lut is None:  # resolved at compile time
+        return np.float64(img[y, x])
+    return np.float64(lut[img[y, x]])
+
+
+@_njit
+def score_candidates(img, lut, n_cand, margin, phase, lo, hi, eps2, gradient, ys, xs, vs,
+                     scores):
+    """Stratified candidate pixels of ``img`` (dark frame or a level of ``k * dark``) and their
+    relative-gradient scores; returns how many were well exposed.
+
+    The interior (``margin`` pixels from the border) is cut, in raster order, into ``n_cand``
+    equal runs and one pixel is taken in each run, at the offset given by the golden-ratio
+    sequence (``phase`` shifts it): spread over the whole frame, in raster order, without a
+    random generator. Pixels with ``lo < v < hi`` (``v = lut[img]`` unless ``lut`` is None) are
+    written to ``ys, xs, vs``; with ``gradient`` also ``scores = |grad v|^2 / (v^2 + eps2)``
+    (central differences).
+    """
+    h, w = img.shape
+    inner_w = w - 2 * margin
+    n_inner = (h - 2 * margin) * inner_w
+    step = n_inner / n_cand
+    golden = 0.6180339887498949
+    n = 0
+    for k in range(n_cand):
+        u = k * golden + phase
+        u -= math.floor(u)
+        idx = int((k + u) * step)
+        if idx >= n_inner:
+            idx = n_inner - 1
+        y = idx // inner_w + margin
+        x = idx % inner_w + margin
+        v = _linear(img, lut, y, x)
+        if not (v > lo and v < hi):
+            continue
+        ys[n] = y
+        xs[n] = x
+        vs[n] = v
+        if gradient:
+            gx = _linear(img, lut, y, x + 1) - _linear(img, lut, y, x - 1)
+            gy = _linear(img, lut, y + 1, x) - _linear(img, lut, y - 1, x)
+            scores[n] = (gx * gx + gy * gy) / (v * v + eps2)
+        n += 1
+    return n
 
 
 @_njit

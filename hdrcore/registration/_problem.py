@@ -73,7 +73,11 @@ MAX_CONTRAST = 4.0
 
 @dataclass
 class PairData:
-    """A prepared pair: raw frames, the exposure range they share, clipped pyramids."""
+    """A prepared pair: raw frames, the exposure range they share, clipped pyramids.
+
+    With ``lut`` (float32, one entry per possible value of the integer frames) ``dark`` and
+    ``bright`` hold integer levels and ``lut[level]`` is the linear value.
+    """
 
     dark: np.ndarray
     bright: np.ndarray
@@ -85,6 +89,11 @@ class PairData:
     hi: float
     # levels[l] = (bright_l, k*dark_l) clipped to [lo, hi]; levels[0] is None for large frames
     levels: list = field(default_factory=list)
+    lut: np.ndarray | None = None
+
+    def linear(self, frame: np.ndarray) -> np.ndarray:
+        """A raw frame (``self.dark`` or ``self.bright``) as linear float values."""
+        return frame if self.lut is None else self.lut[frame]
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -99,22 +108,46 @@ class PairData:
     def clipped(self, level: int) -> tuple[np.ndarray, np.ndarray]:
         if self.levels[level] is None:  # full resolution of a large frame: clip on demand
             k = self.ratio
-            a = np.clip(self.bright, self.lo, self.hi).astype(np.float32)
-            b = np.clip(self.dark * np.float32(k), self.lo, self.hi).astype(np.float32)
+            a = np.clip(self.linear(self.bright), self.lo, self.hi).astype(np.float32)
+            b = np.clip(self.linear(self.dark) * np.float32(k), self.lo, self.hi).astype(
+                np.float32)
             return a, b
         return self.levels[level]
 
 
-def _as_image(x: np.ndarray, name: str) -> np.ndarray:
+def _as_image(x: np.ndarray, name: str, lut: np.ndarray | None = None) -> np.ndarray:
     arr = np.asarray(x)
     if arr.ndim != 2:
         raise ParameterError(
             f"the {name} frame must be a single-channel 2-D image",
-            expected="(H, W) linear values", found=f"shape {arr.shape}",
+            expected="(H, W) linear values" if lut is None else "(H, W) integer levels",
+            found=f"shape {arr.shape}",
         )
+    if lut is not None:
+        if arr.dtype not in (np.uint8, np.uint16):
+            raise ParameterError(
+                f"with a linearisation table the {name} frame must hold integer levels",
+                expected="uint8 or uint16", found=str(arr.dtype),
+            )
+        return arr
     if arr.dtype not in (np.float32, np.float64):
         arr = arr.astype(np.float32)
     return arr
+
+
+def _as_lut(lut: np.ndarray, dtype: np.dtype) -> np.ndarray:
+    """The table as float32, extended to every value of ``dtype`` (levels past its end read
+    its last entry), so no level can index outside it."""
+    table = np.asarray(lut, np.float32)
+    if table.ndim != 1 or table.size < 2 or not np.all(np.isfinite(table)):
+        raise ParameterError(
+            "the linearisation table must be a 1-D array of finite linear values",
+            found=f"shape {table.shape}",
+        )
+    n = int(np.iinfo(dtype).max) + 1
+    if table.size < n:
+        table = np.concatenate([table, np.full(n - table.size, table[-1], np.float32)])
+    return np.ascontiguousarray(table[:n])
 
 
 def prepare(
@@ -126,10 +159,23 @@ def prepare(
     noise_floor: float,
     threshold: float,
     min_level_size: int = 12,
+    lut: np.ndarray | None = None,
 ) -> PairData:
-    """Validate a pair and build the clipped, exposure-equalised pyramids."""
-    dark = _as_image(dark, "dark")
-    bright = _as_image(bright, "bright")
+    """Validate a pair and build the clipped, exposure-equalised pyramids.
+
+    ``lut``: the frames hold integer levels (uint8 or uint16, e.g. a channel view of the raw
+    RGB frames, any strides) and ``lut[level]`` is the linear value; no linear copy of the
+    frames is made when the compiled kernels are available.
+    """
+    dark = _as_image(dark, "dark", lut)
+    bright = _as_image(bright, "bright", lut)
+    if lut is not None:
+        if dark.dtype != bright.dtype:
+            raise ParameterError("dark and bright levels differ in type",
+                                 expected=str(bright.dtype), found=str(dark.dtype))
+        lut = _as_lut(lut, dark.dtype)
+        if not _kernels.AVAILABLE:  # the numpy reference works on linear frames
+            dark, bright, lut = lut[dark], lut[bright], None
     if dark.shape != bright.shape:
         raise ParameterError(
             "dark and bright frames differ in size", expected=str(bright.shape),
@@ -154,14 +200,14 @@ def prepare(
         raise ParameterError("normalisation threshold t must be >= 0", found=str(threshold))
     lo = max(nf * max(1.0, k), np.finfo(np.float32).tiny)
     hi = sat * min(1.0, k)
-    data = PairData(dark, bright, k, sat, nf, float(threshold) * sat, lo, hi)
+    data = PairData(dark, bright, k, sat, nf, float(threshold) * sat, lo, hi, lut=lut)
     if lo >= hi:
         data.levels = [None]
         return data
     small = dark.size <= _SMALL
     if small or not _kernels.AVAILABLE:
-        a0 = np.clip(bright, lo, hi).astype(np.float32, copy=False)
-        b0 = np.multiply(dark, np.float32(k), dtype=np.float32)
+        a0 = np.clip(data.linear(bright), lo, hi).astype(np.float32, copy=False)
+        b0 = np.multiply(data.linear(dark), np.float32(k), dtype=np.float32)
         np.clip(b0, lo, hi, out=b0)
     levels: list = [(a0, b0) if small else None]
     h, w = dark.shape
@@ -171,8 +217,8 @@ def prepare(
     if _kernels.AVAILABLE:  # level 1 straight from the raw frames: one read, no full-size copy
         a = np.empty((h // 2, w // 2), np.float32)
         b = np.empty_like(a)
-        _kernels.bin_clip(bright, None, 1.0, lo, hi, a)
-        _kernels.bin_clip(dark, None, k, lo, hi, b)
+        _kernels.bin_clip(bright, lut, 1.0, lo, hi, a)
+        _kernels.bin_clip(dark, lut, k, lo, hi, b)
     else:
         a, b = reduce2(a0), reduce2(b0)
     levels.append((a, b))
@@ -202,52 +248,73 @@ class Samples:
 
 
 def select_samples(
-    data: PairData, level: int, max_samples: int, *, by_gradient: bool = True, seed: int = 0
+    data: PairData, level: int, max_samples: int, *, by_gradient: bool = True, seed: int = 0,
+    compiled: bool | None = None,
 ) -> Samples:
-    """Up to ``max_samples`` well-exposed pixels of the dark frame on ``level``.
+    """Up to ``max_samples`` well-exposed pixels of the dark frame on ``level``, in raster order.
 
     The dark frame stays on its pixel grid and the bright frame is interpolated: after the
     multiplication by ``k`` the dark frame is the noisier one, and interpolating noise lowers its
     variance by an amount that depends on the sub-pixel phase, which would pull the eq. 6 minimum
-    towards half-pixel shifts. Candidates are all interior pixels (or, on large levels, a seeded
-    random subset of ``4 * max_samples``); with ``by_gradient`` the ones with the largest relative
-    gradient are kept (the informative ones), otherwise a random subset.
+    towards half-pixel shifts. Candidates are all interior pixels or, on large levels,
+    ``4 * max_samples`` of them (``max_samples`` without ``by_gradient``) spread over the frame:
+    the interior is cut in raster order into equal runs and one pixel of each run is taken at
+    an offset from the golden-ratio sequence (``seed`` shifts it). With ``by_gradient`` the
+    well-exposed candidates with the largest relative gradient are kept (the informative ones),
+    otherwise a seeded random subset. ``compiled``: the numba kernel (default when available)
+    or numpy; both select the same pixels.
     """
+    if compiled is None:
+        compiled = _kernels.AVAILABLE
     if level == 0:
-        img, lo, hi, k = data.dark, data.noise_floor, data.saturation, data.ratio
+        img, lut = data.dark, data.lut
+        lo, hi, k = data.noise_floor, data.saturation, data.ratio
     else:
-        img, lo, hi, k = data.levels[level][1], data.lo, data.hi, 1.0
+        img, lut, lo, hi, k = data.levels[level][1], None, data.lo, data.hi, 1.0
     h, w = img.shape
-    flat = img.reshape(-1) if img.flags.c_contiguous else np.ascontiguousarray(img).ravel()
     m = 2
-    n_inner = (h - 2 * m) * (w - 2 * m)
-    rng = np.random.default_rng(seed)
-    n_cand = 4 * max_samples if by_gradient else max_samples
-    if n_inner <= n_cand:
-        yy, xx = np.mgrid[m : h - m, m : w - m]
-        idx = (yy * w + xx).ravel()
+    inner_w = w - 2 * m
+    n_inner = (h - 2 * m) * inner_w
+    n_cand = min(n_inner, 4 * max_samples if by_gradient else max_samples)
+    phase = (seed * 0.7548776662466927) % 1.0
+    eps2 = (data.threshold / k) ** 2
+    if compiled:
+        yy = np.empty(n_cand, np.int64)
+        xx = np.empty(n_cand, np.int64)
+        v = np.empty(n_cand)
+        score = np.empty(n_cand if by_gradient else 0)
+        n = _kernels.score_candidates(img, lut, n_cand, m, phase, lo, hi, eps2, by_gradient,
+                                      yy, xx, v, score)
+        yy, xx, v, score = yy[:n], xx[:n], v[:n], score[:n]
     else:
-        yy = rng.integers(m, h - m, n_cand)
-        xx = rng.integers(m, w - m, n_cand)
-        idx = yy * w + xx  # duplicates are harmless
-    v = flat[idx].astype(np.float64)
-    ok = (v > lo) & (v < hi)
-    well_exposed = float(ok.mean()) if ok.size else 0.0
-    idx, v = idx[ok], v[ok]
-    if by_gradient and idx.size > max_samples:
-        gx = flat[idx + 1].astype(np.float64) - flat[idx - 1]
-        gy = flat[idx + w].astype(np.float64) - flat[idx - w]
-        score = (gx * gx + gy * gy) / (v * v + (data.threshold / k) ** 2)
+        kk = np.arange(n_cand, dtype=np.float64)
+        u = kk * 0.6180339887498949 + phase
+        u -= np.floor(u)
+        idx = np.minimum(((kk + u) * (n_inner / n_cand)).astype(np.int64), n_inner - 1)
+        yy = idx // inner_w + m
+        xx = idx % inner_w + m
+
+        def at(dy: int, dx: int) -> np.ndarray:
+            val = img[yy + dy, xx + dx]  # 2-D indexing: any strides (a channel of RGB levels)
+            return (val if lut is None else lut[val]).astype(np.float64)
+
+        v = at(0, 0)
+        ok = (v > lo) & (v < hi)
+        yy, xx, v = yy[ok], xx[ok], v[ok]
+        if by_gradient:
+            gx = at(0, 1) - at(0, -1)
+            gy = at(1, 0) - at(-1, 0)
+            score = (gx * gx + gy * gy) / (v * v + eps2)
+    well_exposed = v.size / n_cand if n_cand else 0.0
+    keep = None
+    if by_gradient and v.size > max_samples:
         keep = np.argpartition(score, -max_samples)[-max_samples:]
-        idx, v = idx[keep], v[keep]
-    elif idx.size > max_samples:
-        keep = rng.choice(idx.size, max_samples, replace=False)
-        idx, v = idx[keep], v[keep]
-    order = np.argsort(idx, kind="stable")  # raster order: the searches' reads stay local
-    idx, v = idx[order], v[order]
-    return Samples(
-        (idx % w).astype(np.float64), (idx // w).astype(np.float64), k * v, well_exposed
-    )
+    elif v.size > max_samples:
+        keep = np.random.default_rng(seed).choice(v.size, max_samples, replace=False)
+    if keep is not None:
+        keep.sort()  # raster order: the searches' reads stay local in memory
+        yy, xx, v = yy[keep], xx[keep], v[keep]
+    return Samples(xx.astype(np.float64), yy.astype(np.float64), k * v, well_exposed)
 
 
 def residuals(
@@ -264,7 +331,7 @@ def residuals(
     """
     qx, qy = apply(inverse, s.x, s.y)
     if level == 0:
-        sm = sample(data.bright, qx, qy, gradient=gradient, tap_range=True)
+        sm = sample(data.linear(data.bright), qx, qy, gradient=gradient, tap_range=True)
         valid = sm.inside & (sm.tap_min > data.noise_floor) & (sm.tap_max < data.saturation)
     else:
         sm = sample(data.levels[level][0], qx, qy, gradient=gradient, tap_range=True)
@@ -312,7 +379,7 @@ def normal_equations(
         grad = np.zeros(3)
         img = data.bright if level == 0 else data.levels[level][0]
         ssum, count = _kernels.gauss_newton_sums(
-            img, None, s.x, s.y, s.b, m, level == 0, data.noise_floor,
+            img, data.lut if level == 0 else None, s.x, s.y, s.b, m, level == 0, data.noise_floor,
             data.saturation, float(max_contrast or 0.0), data.threshold, angle, cx, cy, n_par,
             gradient, hess, grad,
         )
@@ -449,6 +516,7 @@ def register_with(
     min_overlap: float = 0.2,
     evaluation_samples: int = 100_000,
     previews: bool = True,
+    lut: np.ndarray | None = None,
     dark_index: int = 0,
     bright_index: int = 1,
     **refine_options,
@@ -465,7 +533,8 @@ def register_with(
         )
     model = validate_method(model, MODELS, "motion model")
     data = prepare(
-        dark, bright, ratio, saturation=saturation, noise_floor=noise_floor, threshold=threshold
+        dark, bright, ratio, saturation=saturation, noise_floor=noise_floor, threshold=threshold,
+        lut=lut,
     )
     common = dict(method=method, model=model, dark_index=dark_index,
                   bright_index=bright_index, t0=t0)
@@ -479,7 +548,7 @@ def register_with(
     ev = select_samples(data, 0, evaluation_samples, by_gradient=False, seed=1)
     rng = np.random.default_rng(2)
     h, w = data.shape
-    probe = data.bright.reshape(-1)[rng.integers(0, h * w, 20_000)]
+    probe = data.linear(data.bright[rng.integers(0, h, 20_000), rng.integers(0, w, 20_000)])
     bright_ok = float(np.mean((probe > data.noise_floor) & (probe < data.saturation)))
     dark_ok = ev.well_exposed
     if ev.b.size < 64 or dark_ok * bright_ok < min_valid_fraction:

@@ -66,3 +66,30 @@ def test_normal_equations_match_numpy_reference(pair, level, n_par):
         np.testing.assert_allclose(c_jit[2], c_ref[2], rtol=1e-9, atol=1e-12 * abs(c_ref[2]).max())
         np.testing.assert_allclose(c_jit[3], c_ref[3], rtol=1e-9, atol=1e-12 * abs(c_ref[3]).max())
         assert c_jit[2].shape == (n_par, n_par) and c_jit[3].shape == (n_par,)
+
+
+@pytest.mark.parametrize("level", [0, 1])
+@pytest.mark.parametrize("by_gradient, n", [(True, 4000), (False, 6000), (True, 10**6)])
+def test_select_samples_compiled_matches_numpy(pair, level, by_gradient, n):
+    dark, bright, ml = pair
+    data = prepare(dark, bright, 4.0, saturation=0.98, noise_floor=3 / ml, threshold=0.1)
+    a = select_samples(data, level, n, by_gradient=by_gradient, seed=3, compiled=False)
+    b = select_samples(data, level, n, by_gradient=by_gradient, seed=3, compiled=True)
+    assert 0 < a.b.size <= n
+    np.testing.assert_array_equal(a.x, b.x)
+    np.testing.assert_array_equal(a.y, b.y)
+    np.testing.assert_array_equal(a.b, b.b)
+    assert a.well_exposed == b.well_exposed
+    order = a.y * dark.shape[1] + a.x
+    assert np.all(np.diff(order) >= 0)  # raster order
+
+
+def test_candidates_spread_over_the_frame(pair):
+    dark, bright, ml = pair
+    data = prepare(dark, bright, 4.0, saturation=2.0, noise_floor=0.0, threshold=0.1)
+    s = select_samples(data, 0, 500, by_gradient=False)
+    h, w = dark.shape
+    # one candidate per run of the raster: every band of rows gets its share
+    counts = np.histogram(s.y, bins=8, range=(0, h))[0]
+    assert counts.min() >= 0.6 * counts.mean()
+    assert s.x.min() < 0.2 * w and s.x.max() > 0.8 * w
