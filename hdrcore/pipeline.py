@@ -44,6 +44,7 @@ from .exposure import (
     default_saturation,
     srgb_lut,
 )
+from .exposure.registered import bracket_exposures_from_pixels, cfa_planes
 from .io import Bracket
 from .merge import DEFAULT_MODEL_ERROR, MergeResult, NoiseModel, camera_to_working, merge
 from .registration import (
@@ -63,6 +64,7 @@ from .tonemap import TONEMAP_OPERATORS, TonemapResult, tonemap
 
 __all__ = [
     "ALIGN_CHOICES",
+    "REFINE_CHOICES",
     "Cancelled",
     "colour_masks",
     "STAGES",
@@ -79,6 +81,7 @@ STAGES = (
     "merge", "preview",
 )
 ALIGN_CHOICES = ("none", "shift", "euclidean")
+REFINE_CHOICES = ("pixels", "histograms", "none")
 
 ProgressCallback = Callable[[str, float, str], None]
 
@@ -115,6 +118,13 @@ class PipelineParams:
         2x2 (or 4x4, ...) until they fit; the motion is scaled back to full resolution
         (``None``, the default: always full resolution). At 24 MP, 2x2 binning took the
         registration from 1.7 s to 0.5 s and the worst corner error from 0.016 to 0.077 px.
+    refine_ratios : after registration, measure the ratios again over each pair's common field
+        of view: ``"pixels"`` (default) from the registered pixels themselves
+        (:mod:`hdrcore.exposure.registered`), ``"histograms"`` from the histograms of that field
+        (:func:`hdrcore.exposure.bracket_exposures_registered`), ``"none"`` keeps the
+        whole-frame histogram estimate (the paper's method). Measured on simulated hand-held
+        brackets (shift <= 20 px, rotation <= 1 deg): median ratio error 0.003 % (pixels),
+        0.08 % (histograms), 2 % (none) at 12 bits.
     exclude_colour : pixels of exactly this colour (levels ``(R, G, B)``) carry no data, e.g.
         the pure blue ``(0, 0, 255)`` border marks of the Debevec-Malik memorial scans: they are
         left out of the histograms and the response wherever any frame has them, and out of the
@@ -142,6 +152,7 @@ class PipelineParams:
     ratio_fallback_stops: float = 0.0
     registration_previews: bool = True
     registration_max_pixels: int | None = None
+    refine_ratios: str = "pixels"
 
     def replace(self, **changes: Any) -> PipelineParams:
         return replace(self, **changes)
@@ -162,8 +173,9 @@ class PipelineResult:
     used (seconds when EXIF anchors them, else relative to the darkest frame) and
     ``times_source`` where they came from; ``radiance`` the merged map in ``working_space``.
     ``stages_run`` lists the stages computed in this run (the others came from the cache).
-    ``exposures`` are the ratios the merge used: measured over each pair's common field of view
-    once the registration is known (``overlap_ratios``), else from the whole frames;
+    ``exposures`` are the ratios the merge used: measured again over each pair's common field
+    of view once the registration is known (``overlap_ratios``: from the registered pixels by
+    default, see ``PipelineParams.refine_ratios``), else from the whole frames;
     ``exposures_histogram`` always holds the whole-frame estimate (the paper's method, before
     registration). Stages after ``until`` are ``None``.
     """
@@ -362,6 +374,9 @@ class Pipeline:
         if not 0 <= ref < len(b):
             raise ParameterError("reference frame out of range",
                                  expected=f"0..{len(b) - 1}", found=str(p.reference))
+        if p.refine_ratios not in REFINE_CHOICES:
+            raise ParameterError(f"unknown ratio refinement {p.refine_ratios!r}",
+                                 expected=f"one of {', '.join(REFINE_CHOICES)}")
         if p.times not in ("estimated", "exif"):
             raise ParameterError(f"unknown times source {p.times!r}",
                                  expected="'estimated' or 'exif'")
@@ -502,21 +517,29 @@ class Pipeline:
             registration = self._stage(
                 "registration", reg_key, lambda: self._register(p, lut, ratios), ran, timings
             )
-        if want("overlap_ratios") and registration is not None:
-            # Beyond the paper: with the geometry known, each pair's histograms are counted
-            # over its common field of view only, so content that the hand-held motion moved
-            # across the frame borders no longer biases the ratios.
+        if want("overlap_ratios") and registration is not None and p.refine_ratios != "none":
+            # Beyond the paper: with the geometry known, each pair is measured again over its
+            # common field of view only, so content that the hand-held motion moved across the
+            # frame borders no longer biases the ratios: from the registered pixels themselves
+            # (default, hdrcore.exposure.registered) or from the histograms of that field.
             matrices = tuple(np.asarray(q.matrix) for q in registration.pairs)
             ov_key = (reg_key, tuple(mat.tobytes() for mat in matrices))
-            ov_hists = self._stage(
-                "overlap_histograms", ov_key,
-                lambda: bracket_histograms(levels, m, pair_matrices=matrices, mask=use), ran,
-                timings,
-            )
-            exposures = self._stage(
-                "overlap_ratios", (ov_key, ratio_key),
-                lambda: bracket_exposures_from_histograms(ov_hists, **fit), ran, timings,
-            )
+            if p.refine_ratios == "pixels":
+                exposures = self._stage(
+                    "overlap_ratios", (ov_key, ratio_key, "pixels"),
+                    lambda: self._pixel_ratios(p, lut, registration, exposures_hist),
+                    ran, timings,
+                )
+            else:
+                ov_hists = self._stage(
+                    "overlap_histograms", ov_key,
+                    lambda: bracket_histograms(levels, m, pair_matrices=matrices, mask=use),
+                    ran, timings,
+                )
+                exposures = self._stage(
+                    "overlap_ratios", (ov_key, ratio_key, "histograms"),
+                    lambda: bracket_exposures_from_histograms(ov_hists, **fit), ran, timings,
+                )
             times, times_source = self._merge_times(exposures, p)
         if want("merge"):
             merge_key = (ratio_key, None if registration is None else reg_key, tuple(times),
@@ -646,6 +669,30 @@ class Pipeline:
         else:
             scale = 1.0
         return tuple(float(v * scale) for v in rel), source
+
+    def _pixel_ratios(self, p: PipelineParams, lut: np.ndarray | None,
+                      registration: BracketRegistration,
+                      fallback: BracketExposureResult) -> BracketExposureResult:
+        b = self.bracket
+        excluded = self._excluded
+        masks = None if excluded is None else [~mask for mask in excluded[0]]
+        common = dict(registered=[q.ok for q in registration.pairs], fallback=fallback,
+                      exposure_times=b.exposure_times, saturation=p.saturation,
+                      noise_floor=p.noise_floor)
+        matrices = [q.matrix for q in registration.pairs]
+        cfa_ok = masks is None and lut is None and all(
+            f.cfa is not None and f.cfa.data.shape == f.levels.shape[:2]
+            and (f.meta.orientation in (None, 1)) for f in b.frames)
+        if cfa_ok:
+            # RAW: compare the sensor's own CFA sites, not demosaiced values (demosaicing is
+            # not linear in the exposure; see hdrcore.exposure.registered.cfa_planes).
+            planes = [cfa_planes(f.cfa.data, f.cfa.pattern, f.cfa.colors, f.cfa.black_level,
+                                 b.max_level) for f in b.frames]
+            return bracket_exposures_from_pixels(
+                [pl[0] for pl in planes], b.max_level, matrices, geometry=planes[0][1],
+                channel_groups=planes[0][2], **common)
+        return bracket_exposures_from_pixels(
+            [f.levels for f in b.frames], b.max_level, matrices, masks=masks, lut=lut, **common)
 
     def _green_linear(self, k: int, lut: np.ndarray | None) -> np.ndarray:
         """Linear float32 green channel of frame ``k`` (what the registration works on)."""

@@ -25,7 +25,9 @@ from .pair_histograms import BracketHistograms, PairHistograms, bracket_histogra
 from .result import BracketExposureResult, ExposureRatioResult
 from .stability import region_jackknife
 
-__all__ = ["BracketHistograms", "bracket_histograms", "solve_chain", "chain_bracket"]
+__all__ = [
+    "BracketHistograms", "bracket_histograms", "solve_chain", "chain_bracket", "assemble_bracket",
+]
 
 
 def solve_chain(
@@ -166,6 +168,33 @@ def chain_bracket(
                 r = one(i, i + span)
                 if r.status != "no-overlap":
                     extra.append(r)
+    message_suffix = ("; histograms restricted to each pair's common field of view"
+                      if hists.overlap_restricted else "")
+    return assemble_bracket(n, pairs, extra, method=method, exposure_times=exposure_times,
+                            max_level=hists.max_level, consistency_stops=consistency_stops,
+                            message_suffix=message_suffix)
+
+
+def assemble_bracket(
+    n: int,
+    pairs: Sequence[ExposureRatioResult],
+    extra: Sequence[ExposureRatioResult],
+    *,
+    method: str,
+    max_level: int,
+    exposure_times: Sequence[float | None] | None = None,
+    consistency_stops: float = 0.02,
+    message_suffix: str = "",
+) -> BracketExposureResult:
+    """The bracket result from its consecutive ``pairs`` and estimated ``extra`` pairs.
+
+    Solves the chain (:func:`solve_chain`), marks consecutive pairs that a closed loop
+    contradicts ``"inconsistent"`` and puts the EXIF ratios beside the estimates. Shared by the
+    histogram estimators (:func:`chain_bracket`) and the registered-pixel estimator
+    (:mod:`.registered`).
+    """
+    pairs = list(pairs)
+    extra = list(extra)
     exposures, residuals = solve_chain(n, pairs + extra)
     chained = [1.0]
     for p in pairs:
@@ -219,8 +248,7 @@ def chain_bracket(
     else:
         status = "ok"
         message = f"{n} frames, {len(pairs)} consecutive and {len(extra)} further pairs, all ok"
-    if hists.overlap_restricted:
-        message += "; histograms restricted to each pair's common field of view"
+    message += message_suffix
     first = pairs[0]
     return BracketExposureResult(
         relative_exposures=tuple(float(v) for v in exposures),
@@ -228,5 +256,5 @@ def chain_bracket(
         pairs=tuple(pairs), extra_pairs=tuple(extra), exif_times=times,
         exif_ratios=tuple(exif_ratios), mismatch_stops=tuple(mismatch),
         chain_residuals_stops=residuals, status=status, message=message, method=method,
-        saturation=first.saturation, noise_floor=first.noise_floor, max_level=hists.max_level,
+        saturation=first.saturation, noise_floor=first.noise_floor, max_level=max_level,
     )

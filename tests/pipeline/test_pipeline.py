@@ -37,8 +37,10 @@ def demo_result():
 
 def test_demo_runs_every_stage(demo_result) -> None:
     pipe, r = demo_result
+    # After registration the ratios are measured again from the registered pixels (the
+    # overlap histograms are the other refinement, run only when chosen).
     assert r.stages_run == ("histograms", "response", "ratios", "registration",
-                            "overlap_histograms", "overlap_ratios", "merge", "preview")
+                            "overlap_ratios", "merge", "preview")
     assert r.response is None and r.lut is None  # RAW: linear
     assert r.radiance.shape == (432, 648, 3) and r.radiance.dtype == np.float32
     assert r.preview is not None and r.preview.image.dtype == np.uint8
@@ -191,3 +193,27 @@ def test_bin_channel_matches_block_mean() -> None:
     out = bin_channel(x, 1, 2)
     expected = x[:8, :12, 1].reshape(4, 2, 6, 2).mean(axis=(1, 3))
     np.testing.assert_allclose(out, expected, rtol=1e-6)
+
+
+def test_registered_pixel_ratios_are_accurate_and_used_for_the_merge(demo_result) -> None:
+    _, r = demo_result
+    truth = json.loads((DEMO / "truth.json").read_text())["ratios"]
+    assert r.exposures.method == "registered pixels"
+    for p, t in zip(r.exposures.pairs, truth, strict=True):
+        # RAW: measured on the CFA sites (half-size planes of a 432x648 frame).
+        assert p.ok and abs(p.ratio / t - 1) < 0.003, (p.dark, p.ratio, p.message)
+    assert r.times_source == "estimated"
+    rel = np.array(r.exposure_times) / r.exposure_times[0]
+    np.testing.assert_allclose(rel, np.cumprod([1.0, *truth]), rtol=0.004)
+
+
+def test_histogram_refinement_still_runs_by_name(demo_result) -> None:
+    b = demo_result[0].bracket
+    r = Pipeline(b, PipelineParams(refine_ratios="histograms")).run(until="overlap_ratios")
+    assert "overlap_histograms" in r.stages_run
+    assert all(p.overlap_restricted for p in r.exposures.pairs)
+    assert r.exposures.method != "registered pixels"
+    off = Pipeline(b, PipelineParams(refine_ratios="none")).run(until="overlap_ratios")
+    assert off.exposures is off.exposures_histogram
+    with pytest.raises(ParameterError):
+        Pipeline(b, PipelineParams(refine_ratios="pixel")).run(until="ratios")
