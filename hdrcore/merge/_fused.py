@@ -408,6 +408,11 @@ def warm_up() -> float:
               engine="numba", workers=1)
         merge(frames, (1.0, 2.0, 4.0), max_level=255, transforms=tf, engine="numba",
               workers=1, resample="bilinear")
+        # read-only frames (a decoded bracket's levels) are another type to numba
+        for f in frames:
+            f.setflags(write=False)
+        merge(frames, (1.0, 2.0, 4.0), max_level=255, engine="numba", workers=1)
+        merge(frames, (1.0, 2.0, 4.0), max_level=255, transforms=tf, engine="numba", workers=1)
     from .colour import camera_to_working
 
     camera_to_working(np.ones((2, 3, 3), np.float32), None, None, clipped=np.zeros((2, 3), bool),
@@ -431,135 +436,6 @@ def _keys(f):
     w2 = (1.5 * g - 2.5) * g * g + 1.0
     w3 = -0.5 * f * f * g
     return np.float32(w0), np.float32(w1), np.float32(w2), np.float32(w3)
-
-
-@_njit
-def _tap(row, xb, wj):
-    return (np.float32(row[xb, 0]) * wj, np.float32(row[xb, 1]) * wj,
-            np.float32(row[xb, 2]) * wj)
-
-
-@_njit
-def _row3(fr, yy, xb, wx0, wx1, wx2, wx3):
-    """One row of 4 taps for 3 channels: the x-interpolated values."""
-    row = fr[yy]
-    a0, a1, a2 = _tap(row, xb, wx0)
-    b0, b1, b2 = _tap(row, xb + 1, wx1)
-    a0 = a0 + b0
-    a1 = a1 + b1
-    a2 = a2 + b2
-    b0, b1, b2 = _tap(row, xb + 2, wx2)
-    a0 = a0 + b0
-    a1 = a1 + b1
-    a2 = a2 + b2
-    b0, b1, b2 = _tap(row, xb + 3, wx3)
-    a0 = a0 + b0
-    a1 = a1 + b1
-    a2 = a2 + b2
-    return a0, a1, a2
-
-
-@_njit
-def _interp3(fr, sx, sy, fx0, fy0, hi):
-    """Keys cubic of the 3 channels at ``(sx, sy)`` (``fx0, fy0`` their floors; the 4x4 support
-    inside the frame), clamped to ``[0, hi]``."""
-    zero = np.float32(0.0)
-    ix = int(fx0) - 1
-    iy = int(fy0) - 1
-    wx0, wx1, wx2, wx3 = _keys(sx - fx0)
-    wy0, wy1, wy2, wy3 = _keys(sy - fy0)
-    q0, q1, q2 = _row3(fr, iy, ix, wx0, wx1, wx2, wx3)
-    a0 = q0 * wy0
-    a1 = q1 * wy0
-    a2 = q2 * wy0
-    q0, q1, q2 = _row3(fr, iy + 1, ix, wx0, wx1, wx2, wx3)
-    a0 = a0 + q0 * wy1
-    a1 = a1 + q1 * wy1
-    a2 = a2 + q2 * wy1
-    q0, q1, q2 = _row3(fr, iy + 2, ix, wx0, wx1, wx2, wx3)
-    a0 = a0 + q0 * wy2
-    a1 = a1 + q1 * wy2
-    a2 = a2 + q2 * wy2
-    q0, q1, q2 = _row3(fr, iy + 3, ix, wx0, wx1, wx2, wx3)
-    a0 = a0 + q0 * wy3
-    a1 = a1 + q1 * wy3
-    a2 = a2 + q2 * wy3
-    return min(max(a0, zero), hi), min(max(a1, zero), hi), min(max(a2, zero), hi)
-
-
-@_njit
-def _interp3_bilinear(fr, sx, sy, fx0, fy0, hi):
-    """Bilinear interpolation of the 3 channels at ``(sx, sy)`` (2x2 support inside the
-    frame; weights ``float32(1 - f), float32(f)``), clamped to ``[0, hi]``."""
-    zero = np.float32(0.0)
-    ix = int(fx0)
-    iy = int(fy0)
-    fx = sx - fx0
-    fy = sy - fy0
-    wx0 = np.float32(1.0 - fx)
-    wx1 = np.float32(fx)
-    wy0 = np.float32(1.0 - fy)
-    wy1 = np.float32(fy)
-    r = fr[iy]
-    q0 = np.float32(r[ix, 0]) * wx0 + np.float32(r[ix + 1, 0]) * wx1
-    q1 = np.float32(r[ix, 1]) * wx0 + np.float32(r[ix + 1, 1]) * wx1
-    q2 = np.float32(r[ix, 2]) * wx0 + np.float32(r[ix + 1, 2]) * wx1
-    a0 = q0 * wy0
-    a1 = q1 * wy0
-    a2 = q2 * wy0
-    r = fr[iy + 1]
-    q0 = np.float32(r[ix, 0]) * wx0 + np.float32(r[ix + 1, 0]) * wx1
-    q1 = np.float32(r[ix, 1]) * wx0 + np.float32(r[ix + 1, 1]) * wx1
-    q2 = np.float32(r[ix, 2]) * wx0 + np.float32(r[ix + 1, 2]) * wx1
-    a0 = a0 + q0 * wy1
-    a1 = a1 + q1 * wy1
-    a2 = a2 + q2 * wy1
-    return min(max(a0, zero), hi), min(max(a1, zero), hi), min(max(a2, zero), hi)
-
-
-@_njit
-def _support(fx0, fy0, w, h, ntap):
-    """Whether the ``ntap x ntap`` support at the floors ``fx0, fy0`` lies in the frame, and
-    its top-left tap."""
-    o = 1.0 if ntap == 4 else 0.0
-    inside = (fx0 >= o and fx0 <= w - (ntap - o) and fy0 >= o and fy0 <= h - (ntap - o))
-    return inside, int(fx0 - o) if inside else 0, int(fy0 - o) if inside else 0
-
-
-@_njit
-def _lazy_values(fr, m, x, yf, hi, has_lut, lut, inv_max, vals, ntap=4):
-    """The linear values ``x`` of a resampled frame at output pixel ``(x, y)`` into ``vals``,
-    exactly as :func:`merge_rows_warped`'s main loop computes them (zeros where the support
-    leaves the frame): for fallbacks that pick a frame whose taps were skipped."""
-    h = fr.shape[0]
-    w = fr.shape[1]
-    zero = np.float32(0.0)
-    xf = np.float64(x)
-    sx = m[0, 0] * xf + m[0, 1] * yf + m[0, 2]
-    sy = m[1, 0] * xf + m[1, 1] * yf + m[1, 2]
-    fx0 = np.floor(sx)
-    fy0 = np.floor(sy)
-    if _support(fx0, fy0, w, h, ntap)[0]:
-        if ntap == 4:
-            vals[0], vals[1], vals[2] = _interp3(fr, sx, sy, fx0, fy0, hi)
-        else:
-            vals[0], vals[1], vals[2] = _interp3_bilinear(fr, sx, sy, fx0, fy0, hi)
-    else:
-        vals[0] = zero
-        vals[1] = zero
-        vals[2] = zero
-    lmax = lut.shape[1] - 1
-    for ch in range(3):
-        v = vals[ch]
-        if has_lut:
-            lo = min(int(v), lmax - 1)
-            frac = v - np.float32(lo)
-            l0 = lut[ch, lo]
-            xv = lut[ch, lo + 1] - l0
-            xv = xv * frac
-            vals[ch] = xv + l0
-        else:
-            vals[ch] = v * inv_max
 
 
 @_njit
@@ -603,227 +479,6 @@ def tap_thresholds(sat: np.ndarray, dtype: np.dtype) -> np.ndarray:
     low = thr.astype(np.float64) < sat
     thr[low] = np.nextafter(thr[low], np.float32(np.inf))
     return thr
-
-
-@_njit
-def _merge_rows_warped_old(
-    frames, masks, has_mask, mats, has_mat, order, times, inv_t, inv_t2, t2, wcode, shot,
-    const_var, floor_norm, inv_max, max_level, hi, has_lut, lut, lut_var, sat, supports, me2,
-    thr, r0, r1,
-    rad, wsum_out, shares, clip_count, clipped_out, under_out, gscore, ghost, ntap, oor,
-):
-    """Rows ``r0:r1`` of the output grid; frame ``k`` with ``has_mat[k]`` is read at
-    ``mats[k] @ (x, y, 1)`` (``ntap`` 4: Keys cubic, 4 weights per axis shared by the 3
-    channels; 2: bilinear), the others at ``(x, y)``. A resampled frame is clipped at a pixel
-    when any of the taps of any channel is at or above its saturation level (``supports[k]``,
-    :func:`clip_support_rows`), and invalid when the support leaves the frame. ``oor[k]``:
-    frame ``k`` (resampled, with a LUT) holds levels past the LUT, so clipped supports are
-    searched for them. Integer levels
-    with a LUT are interpolated, then read linearly between table entries;
-    integer levels without one and float frames are linear (``level = value * inv_max``).
-    Returns the number of samples above the LUT's last level (the caller refuses the input).
-    """
-    n = len(frames)
-    c = frames[0].shape[2]
-    h = frames[0].shape[0]
-    w = frames[0].shape[1]
-    den, num, s2, sv, share, bad, clip, nbad, mode, pick = _row_buffers(n, c, w)
-    bw = min(w, _BLOCK)
-    xs = np.empty((n, c, bw), np.float32)  # linear values x of the resampled frames
-    dark = np.empty((c, bw), np.float32)  # E_k of the darkest frame
-    lazy = np.zeros((n, bw), np.bool_)  # resampled frame dropped here: value not computed
-    lmax = lut.shape[1] - 1
-    out_of_range = 0
-    one = np.float32(1.0)
-    two = np.float32(2.0)
-    half = np.float32(0.5)
-    m16 = np.float32(-16.0)
-    zero = np.float32(0.0)
-    nb = (w + _BLOCK - 1) // _BLOCK
-    vals = np.empty(3, np.float32)
-    nr = r1 - r0
-    # column blocks outermost: consecutive rows of a block read the same band of source rows
-    # (a rotated frame's rows drift across many source rows over the full width)
-    for yb in range(nr * nb):
-        y = r0 + yb % nr
-        yf = np.float64(y)
-        x0 = (yb // nr) * _BLOCK
-        x1 = min(w, x0 + _BLOCK)
-        den[:] = zero
-        num[:] = zero
-        s2[:] = zero
-        sv[:] = zero
-        nbad[:] = 0
-        clip_count[y, x0:x1] = 0
-        for j in range(n):
-            k = order[j]
-            fr = frames[k]
-            sup = supports[k]
-            mrow = masks[k][y if has_mask[k] else 0]
-            hm = has_mask[k]
-            warped = has_mat[k]
-            m00 = mats[k, 0, 0]
-            m01 = mats[k, 0, 1]
-            m02 = mats[k, 0, 2]
-            m10 = mats[k, 1, 0]
-            m11 = mats[k, 1, 1]
-            m12 = mats[k, 1, 2]
-            itk = inv_t[k]
-            it2 = inv_t2[k]
-            t2k = t2[k]
-            for x in range(x0, x1):
-                i = x - x0
-                if warped:
-                    xf = np.float64(x)
-                    sx = m00 * xf + m01 * yf + m02
-                    sy = m10 * xf + m11 * yf + m12
-                    fx0 = np.floor(sx)
-                    fy0 = np.floor(sy)
-                    inside, ix, iy = _support(fx0, fy0, w, h, ntap)
-                    tcl = False
-                    if inside:
-                        tcl = sup[iy, ix] != 0
-                        if tcl and oor[k]:  # levels past the LUT are clipped: count them
-                            for jy in range(ntap):
-                                for jx in range(ntap):
-                                    for ch in range(3):
-                                        if int(fr[iy + jy, ix + jx, ch]) > lmax:
-                                            out_of_range += 1
-                    valid = inside and (mrow[x] if hm else True)
-                    cl = tcl and valid
-                    b = (not valid) or cl
-                    lazy[k, i] = b
-                    if b:
-                        # dropped: its weight is zero, so only a fallback may need its value
-                        # (computed then, see below); skipping the 16 taps here is what makes
-                        # clipped and uncovered areas cheap
-                        clip[k, i] = cl
-                        bad[k, i] = True
-                        if cl:
-                            clip_count[y, x] += 1
-                        nbad[i] += 1
-                        share[k, i] = zero
-                        continue
-                    if ntap == 4:
-                        vals[0], vals[1], vals[2] = _interp3(fr, sx, sy, fx0, fy0, hi)
-                    else:
-                        vals[0], vals[1], vals[2] = _interp3_bilinear(fr, sx, sy, fx0, fy0, hi)
-                else:
-                    cl, b = _clip_flags(fr[y], x, c, sat, hm, mrow)
-                    for ch in range(3):
-                        vals[ch] = np.float32(fr[y, x, ch])
-                clip[k, i] = cl
-                bad[k, i] = b
-                if cl:
-                    clip_count[y, x] += 1
-                if b:
-                    nbad[i] += 1
-                ok = zero if b else one
-                sh = zero
-                for ch in range(3):
-                    v = vals[ch]
-                    level = v * inv_max
-                    if has_lut:
-                        if warped:
-                            lo = min(int(v), lmax - 1)
-                            frac = v - np.float32(lo)
-                            l0 = lut[ch, lo]
-                            xv = lut[ch, lo + 1] - l0
-                            xv = xv * frac
-                            xv = xv + l0
-                            q0 = lut_var[ch, lo]
-                            var = lut_var[ch, lo + 1] - q0
-                            var = var * frac
-                            var = var + q0
-                        else:
-                            li = int(v)
-                            if li > lmax:
-                                out_of_range += 1
-                                li = lmax
-                            xv = lut[ch, li]
-                            var = lut_var[ch, li]
-                        if shot != zero:
-                            var = var + xv * shot
-                        var = var + const_var
-                    else:
-                        xv = level
-                        var = xv * shot
-                        var = var + const_var
-                    if warped:
-                        xs[k, ch, i] = xv
-                    e = xv * itk
-                    if j == 0:
-                        dark[ch, i] = e
-                    if wcode == 0:
-                        wk = level * two
-                        wk = wk - one
-                        wk = abs(wk)
-                        wk = one - wk
-                    elif wcode == 1:
-                        wk = level - half
-                        wk = wk * wk
-                        wk = wk * m16
-                        wk = np.exp(wk)
-                    elif wcode == 2:
-                        wk = t2k / var
-                    else:
-                        wk = one
-                    keep = ok if level > floor_norm else zero
-                    wk = wk * keep
-                    den[ch, i] += wk
-                    sh = wk if ch == 0 else sh + wk
-                    var = var * wk
-                    var = var * it2
-                    sv[ch, i] += var
-                    wk = wk * e
-                    num[ch, i] += wk
-                    wk = wk * e
-                    s2[ch, i] += wk
-                share[k, i] = sh
-        _finish_row(
-            y, x0, x1, n, c, order, den, num, s2, sv, share, bad, clip, nbad, me2, thr,
-            rad, wsum_out, shares, clipped_out, under_out, gscore, ghost, mode, pick,
-        )
-        for x in range(x0, x1):
-            i = x - x0
-            if mode[i] == 3:
-                dk = order[0]
-                if has_mat[dk] and lazy[dk, i]:
-                    _lazy_values(frames[dk], mats[dk], x, yf, hi, has_lut, lut, inv_max, vals,
-                                 ntap)
-                    for ch in range(c):
-                        rad[y, x, ch] = vals[ch] * inv_t[dk]
-                else:
-                    for ch in range(c):
-                        rad[y, x, ch] = dark[ch, i]
-            elif mode[i] != 0:
-                p = pick[i]
-                if has_mat[p] and lazy[p, i]:
-                    _lazy_values(frames[p], mats[p], x, yf, hi, has_lut, lut, inv_max, vals,
-                                 ntap)
-                    for ch in range(c):
-                        xs[p, ch, i] = vals[ch]
-                for ch in range(c):
-                    if mode[i] == 1 or den[ch, i] <= zero:
-                        if has_mat[p]:
-                            val = np.float64(xs[p, ch, i])
-                        elif has_lut:
-                            vi = min(int(frames[p][y, x, ch]), lmax)
-                            val = np.float64(lut[ch, vi])
-                        else:
-                            val = np.float64(frames[p][y, x, ch]) / max_level
-                        rad[y, x, ch] = np.float32(val / times[p])
-    return out_of_range
-
-
-# --------------------------------------------------------------------------------------------
-# The warped kernel, arranged for SIMD: per block of a row, each frame's values are produced as
-# one interleaved float32 run ``3 x + ch`` (resampled frames: the taps of a run of pixels that
-# share their source rows and column offset are contiguous in the frame's row, so the 4 x 4
-# taps become 16 contiguous multiply-adds over the run), then the sums are accumulated over that
-# run with no per-channel branch, then the row is finished. The arithmetic of every pixel is
-# the same as :func:`_interp3` / :func:`_interp3_bilinear` and the reference's, in the same
-# float32 order, so the results are bit for bit those of the numpy reference.
 
 
 @_njit
@@ -1083,6 +738,62 @@ def _taps_run(flat, iy0, b, e0, e1, ntap, wxe, wye, acc, xk, hi):
 
 
 @_njit
+def _cubic_weights(m00, m01, m02, m10, m11, m12, x0, yf, nbk, fxs, fys, wx, wy):
+    """Source floors and Keys weights ``wx[j, i]``, ``wy[j, i]`` of pixels
+    ``x0 .. x0 + nbk - 1`` of row ``yf``: one straight loop (SIMD)."""
+    for i in range(nbk):
+        xf = np.float64(x0 + i)
+        sx = m00 * xf + m01 * yf + m02
+        sy = m10 * xf + m11 * yf + m12
+        fx0 = np.floor(sx)
+        fy0 = np.floor(sy)
+        fxs[i] = fx0
+        fys[i] = fy0
+        wa, wb, wc, wd = _keys(sx - fx0)
+        wx[0, i] = wa
+        wx[1, i] = wb
+        wx[2, i] = wc
+        wx[3, i] = wd
+        wa, wb, wc, wd = _keys(sy - fy0)
+        wy[0, i] = wa
+        wy[1, i] = wb
+        wy[2, i] = wc
+        wy[3, i] = wd
+
+
+@_njit
+def _linear_weights(m00, m01, m02, m10, m11, m12, x0, yf, nbk, fxs, fys, wx, wy):
+    """As :func:`_cubic_weights` for bilinear weights ``float32(1 - f), float32(f)``."""
+    for i in range(nbk):
+        xf = np.float64(x0 + i)
+        sx = m00 * xf + m01 * yf + m02
+        sy = m10 * xf + m11 * yf + m12
+        fx0 = np.floor(sx)
+        fy0 = np.floor(sy)
+        fxs[i] = fx0
+        fys[i] = fy0
+        fx = sx - fx0
+        fy = sy - fy0
+        wx[0, i] = np.float32(1.0 - fx)
+        wx[1, i] = np.float32(fx)
+        wy[0, i] = np.float32(1.0 - fy)
+        wy[1, i] = np.float32(fy)
+
+
+@_njit
+def _expand3(nt, nbk, src, dst):
+    """``dst[j, 3 i + ch] = src[j, i]`` for the 3 channels (the tap loops run over elements)."""
+    for j in range(nt):
+        a = src[j]
+        b = dst[j]
+        for i in range(nbk):
+            v = a[i]
+            b[3 * i] = v
+            b[3 * i + 1] = v
+            b[3 * i + 2] = v
+
+
+@_njit
 def merge_rows_warped(
     frames, flats, masks, has_mask, mats, has_mat, order, times, inv_t, inv_t2, t2, wcode, shot,
     const_var, floor_norm, inv_max, max_level, hi, has_lut, lut, lut_var, sat, supports, me2,
@@ -1116,8 +827,12 @@ def merge_rows_warped(
     acc = np.empty(b3, np.float32)
     wxe = np.empty((4, b3), np.float32)
     wye = np.empty((4, b3), np.float32)
+    wxp = np.empty((4, bw), np.float32)  # per pixel, before _expand3
+    wyp = np.empty((4, bw), np.float32)
     ixs = np.empty(bw, np.int64)
     iys = np.empty(bw, np.int64)
+    fxs = np.empty(bw, np.float64)
+    fys = np.empty(bw, np.float64)
     ins = np.empty(bw, np.bool_)
     share = np.empty((n, bw), np.float32)
     bad = np.empty((n, bw), np.bool_)
@@ -1165,62 +880,21 @@ def merge_rows_warped(
                 m10 = mats[k, 1, 0]
                 m11 = mats[k, 1, 1]
                 m12 = mats[k, 1, 2]
+                if ntap == 4:
+                    _cubic_weights(m00, m01, m02, m10, m11, m12, x0, yf, nbk, fxs, fys, wxp,
+                                   wyp)
+                else:
+                    _linear_weights(m00, m01, m02, m10, m11, m12, x0, yf, nbk, fxs, fys, wxp,
+                                    wyp)
+                _expand3(ntap, nbk, wxp, wxe)
+                _expand3(ntap, nbk, wyp, wye)
                 for i in range(nbk):
                     x = x0 + i
-                    xf = np.float64(x)
-                    sx = m00 * xf + m01 * yf + m02
-                    sy = m10 * xf + m11 * yf + m12
-                    fx0 = np.floor(sx)
-                    fy0 = np.floor(sy)
+                    fx0 = fxs[i]
+                    fy0 = fys[i]
                     inside = (fx0 >= o and fx0 <= w - (ntap - o) and fy0 >= o
                               and fy0 <= h - (ntap - o))
                     e = 3 * i
-                    if ntap == 4:
-                        wa, wb_, wc, wd = _keys(sx - fx0)
-                        wxe[0, e] = wa
-                        wxe[0, e + 1] = wa
-                        wxe[0, e + 2] = wa
-                        wxe[1, e] = wb_
-                        wxe[1, e + 1] = wb_
-                        wxe[1, e + 2] = wb_
-                        wxe[2, e] = wc
-                        wxe[2, e + 1] = wc
-                        wxe[2, e + 2] = wc
-                        wxe[3, e] = wd
-                        wxe[3, e + 1] = wd
-                        wxe[3, e + 2] = wd
-                        wa, wb_, wc, wd = _keys(sy - fy0)
-                        wye[0, e] = wa
-                        wye[0, e + 1] = wa
-                        wye[0, e + 2] = wa
-                        wye[1, e] = wb_
-                        wye[1, e + 1] = wb_
-                        wye[1, e + 2] = wb_
-                        wye[2, e] = wc
-                        wye[2, e + 1] = wc
-                        wye[2, e + 2] = wc
-                        wye[3, e] = wd
-                        wye[3, e + 1] = wd
-                        wye[3, e + 2] = wd
-                    else:
-                        fx = sx - fx0
-                        fy = sy - fy0
-                        wa = np.float32(1.0 - fx)
-                        wb_ = np.float32(fx)
-                        wxe[0, e] = wa
-                        wxe[0, e + 1] = wa
-                        wxe[0, e + 2] = wa
-                        wxe[1, e] = wb_
-                        wxe[1, e + 1] = wb_
-                        wxe[1, e + 2] = wb_
-                        wa = np.float32(1.0 - fy)
-                        wb_ = np.float32(fy)
-                        wye[0, e] = wa
-                        wye[0, e + 1] = wa
-                        wye[0, e + 2] = wa
-                        wye[1, e] = wb_
-                        wye[1, e + 1] = wb_
-                        wye[1, e + 2] = wb_
                     ins[i] = inside
                     tcl = False
                     if inside:
