@@ -29,6 +29,12 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--noise-sigma", type=float, default=None, metavar="S",
                    help="additive noise in levels for noise matching (refined method)")
     add_exclude_colour_argument(p, "--mask-colour")
+    p.add_argument(
+        "--registered", action="store_true",
+        help="hand-held brackets: register the frames (as 'hdrcore align') and measure the "
+             "ratios again from the registered pixels (without it: histograms only, the "
+             "paper's method, no registration)",
+    )
     p.add_argument("--json", action="store_true", help="print JSON on stdout")
     p.set_defaults(run=run)
 
@@ -58,9 +64,11 @@ def run(args: argparse.Namespace) -> int:
     params = PipelineParams(
         saturation=args.saturation, noise_floor=args.noise_floor, response=args.response,
         exposure_method=args.method,
-        exclude_colour=args.exclude_colour,
+        exclude_colour=args.exclude_colour, registration_previews=False,
     )
-    pres = Pipeline(bracket, params).run(until="ratios")
+    if args.registered and args.noise_sigma is not None:
+        raise ParameterError("--noise-sigma applies to the histogram estimate, not --registered")
+    pres = Pipeline(bracket, params).run(until="overlap_ratios" if args.registered else "ratios")
     res = pres.exposures
     if args.noise_sigma is not None:
         res = bracket_exposures(
@@ -69,7 +77,7 @@ def run(args: argparse.Namespace) -> int:
             noise_sigma=args.noise_sigma,
         )
     out = {"masked_fraction": None if mask is None else float(1.0 - mask.mean()),
-           **ratios_json(bracket, res)}
+           "method": res.method, **ratios_json(bracket, res)}
     for d, p in zip(out["pairs"], res.pairs, strict=True):
         d["region_std_error"] = p.to_json()["region_std_error"]
     if args.json:

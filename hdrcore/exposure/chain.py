@@ -120,7 +120,8 @@ def _with_diagnostics(
             else:
                 hint = ("content entering or leaving at the borders (hand-held motion) or a "
                         "moving object disturbs the histograms; register the frames first and "
-                        "estimate from their common field of view (bracket_exposures_registered)")
+                        "measure from the registered pixels ('hdrcore ratios --registered', "
+                        "hdrcore.exposure.registered)")
             changes["message"] = (
                 f"ratio {r.ratio:.4f} of frames {r.dark} and {r.bright} is unstable: leaving out "
                 f"one of {sk.n_regions} image regions moves it by {rel:.2%} (jack-knife standard "

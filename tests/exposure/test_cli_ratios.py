@@ -53,3 +53,20 @@ def test_mask_colour_is_validated(tmp_path, capsys) -> None:
     frames[1][0, 0] = (0, 0, 255)
     m = colour_mask(frames, (0, 0, 255))
     assert m.sum() == 19 and not m[0, 0]
+
+
+def test_registered_ratios_of_a_handheld_bracket(capsys) -> None:
+    from pathlib import Path
+
+    demo = Path(__file__).resolve().parents[2] / "assets" / "demo"
+    truth = json.loads((demo / "truth.json").read_text())["ratios"]
+    assert main(["ratios", str(demo), "--json"]) == 1  # hand-held: histograms are unstable
+    hist = json.loads(capsys.readouterr().out)
+    assert main(["ratios", str(demo), "--registered", "--json"]) == 0
+    reg = json.loads(capsys.readouterr().out)
+    assert reg["method"] == "registered pixels" and hist["method"] != reg["method"]
+    for h, r, t in zip(hist["pairs"], reg["pairs"], truth, strict=True):
+        assert r["status"] == "ok" and abs(r["ratio"] / t - 1) < 0.003, r
+        assert abs(r["ratio"] / t - 1) <= abs(h["ratio"] / t - 1) + 1e-4
+    assert main(["ratios", str(demo), "--registered", "--noise-sigma", "1"]) == 2
+    assert "--noise-sigma applies to the histogram estimate" in capsys.readouterr().err
