@@ -121,7 +121,7 @@ def diagnose(result: PipelineResult) -> list[Verdict]:
     if "EXIF for pairs" in result.times_source:
         out.append(Verdict(
             "times-fallback", "warning",
-            "Some exposure ratios could not be measured reliably from the histograms; the "
+            "Some exposure ratios could not be measured reliably from the images; the "
             "EXIF ratios were used for them in the merge "
             f"({result.times_source.split('; ', 1)[1]}).",
         ))
@@ -145,8 +145,8 @@ def diagnose(result: PipelineResult) -> list[Verdict]:
                 out.append(Verdict(
                     "motion-biased-ratio", "info",
                     f"Hand-held motion biased the whole-frame ratio of frames {k} and {k + 1} "
-                    f"by {100 * (a / c - 1):+.1f} %; it was re-measured over their common field "
-                    f"of view ({c:.4g}).", (k, k + 1),
+                    f"by {100 * (a / c - 1):+.1f} %; it was measured again after registration "
+                    f"({ex.method}: {c:.4g}).", (k, k + 1),
                 ))
     if m is None:
         order = {"error": 0, "warning": 1, "info": 2}

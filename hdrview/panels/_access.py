@@ -23,8 +23,15 @@ def pick(obj: Any, names: tuple[str, ...]) -> Any:
 
 
 def exposure_of(result: Any) -> Any:
-    """The :class:`hdrcore.exposure.BracketExposureResult`."""
+    """The :class:`hdrcore.exposure.BracketExposureResult` the merge used."""
     return pick(result, ("exposures", "exposure", "ratios"))
+
+
+def histogram_exposure_of(result: Any) -> Any:
+    """The histogram estimate (the paper's equations of eq. 4 and transfer functions): what
+    the BTF and mask panels draw, even when the ratios were measured again after
+    registration."""
+    return pick(result, ("exposures_histogram", "exposures", "exposure", "ratios"))
 
 
 def registration_of(result: Any) -> Any:

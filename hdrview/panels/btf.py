@@ -13,7 +13,7 @@ import numpy as np
 import plotly.graph_objects as go
 import viser
 
-from ._access import exposure_of
+from ._access import exposure_of, histogram_exposure_of
 from ._draw import fmt
 
 __all__ = ["BtfPanel", "equations_figure", "transfer_figure", "pair_summary"]
@@ -34,8 +34,10 @@ def _figure(data: list[dict], layout: dict) -> go.Figure:
     return go.Figure({"data": data, "layout": {**base, **layout}}, _validate=False)
 
 
-def equations_figure(pair: Any, exif_ratio: float | None) -> go.Figure:
-    """Scatter of the equations ``k x = y`` with the initial, converged and EXIF lines."""
+def equations_figure(pair: Any, exif_ratio: float | None,
+                     registered_ratio: float | None = None) -> go.Figure:
+    """Scatter of the equations ``k x = y`` with the initial, converged and EXIF lines (and the
+    ratio measured from the registered pixels, when known)."""
     eq = pair.equations
     x = np.asarray(eq.x, np.float64)
     y = np.asarray(eq.y, np.float64)
@@ -70,6 +72,7 @@ def equations_figure(pair: Any, exif_ratio: float | None) -> go.Figure:
     line(pair.initial_ratio, "initial k0", "dash", "#7f7f7f")
     line(pair.ratio, "converged k", "solid", "#000000")
     line(exif_ratio, "EXIF", "dot", "#9467bd")
+    line(registered_ratio, "registered pixels", "dashdot", "#2ca02c")
     title = (f"Frames {pair.dark}→{pair.bright}: k = {fmt(pair.ratio, 6)} "
              f"({pair.n_inliers}/{pair.n_equations} inliers, {pair.status})")
     return _figure(data, {
@@ -141,12 +144,24 @@ class BtfPanel:
             self.scatter.visible = self.transfer.visible = False
             self._figures = {}
             return
-        k = min(int(view.get("pair", 0)), len(exposure.pairs) - 1)
-        pair = exposure.pairs[k]
-        exif = exposure.exif_ratios[k] if k < len(exposure.exif_ratios) else None
-        mismatch = exposure.mismatch_stops[k] if k < len(exposure.mismatch_stops) else None
-        self.summary.content = pair_summary(pair, exif, mismatch)
-        scatter = equations_figure(pair, exif)
+        # The figures show the paper's estimate from histograms (its equations and transfer
+        # functions); a ratio measured again from the registered pixels is shown beside it.
+        hist = histogram_exposure_of(result)
+        refined = exposure if exposure is not hist else None
+        k = min(int(view.get("pair", 0)), len(hist.pairs) - 1)
+        pair = hist.pairs[k]
+        exif = hist.exif_ratios[k] if k < len(hist.exif_ratios) else None
+        mismatch = hist.mismatch_stops[k] if k < len(hist.mismatch_stops) else None
+        text = pair_summary(pair, exif, mismatch)
+        reg_ratio = None
+        if refined is not None and k < len(refined.pairs):
+            rp = refined.pairs[k]
+            reg_ratio = rp.ratio
+            text += (f"\n\n**After registration** ({rp.method}): ratio **{fmt(rp.ratio, 6)}** "
+                     f"± {fmt(rp.std_error, 2)}; status **{rp.status}**: {fmt(rp.message)}. "
+                     "The merge uses this estimate.")
+        self.summary.content = text
+        scatter = equations_figure(pair, exif, reg_ratio)
         transfer = transfer_figure(pair)
         self.scatter.figure = scatter
         self.transfer.figure = transfer

@@ -16,7 +16,7 @@ import viser
 
 from hdrcore.io import encode_png
 
-from ._access import exposure_of
+from ._access import histogram_exposure_of
 from ._draw import DISPLAY_WIDTH, enlarge, labels_to_rgb, shrink
 
 __all__ = ["MasksPanel", "CLASSES", "PALETTE", "level_classes", "pixel_classes"]
@@ -81,7 +81,7 @@ class MasksPanel:
         return self._small[k]
 
     def show(self, bracket: Any, result: Any, view: dict) -> None:
-        exposure = exposure_of(result)
+        exposure = histogram_exposure_of(result)
         if bracket is None or exposure is None:
             self.summary.content = ("No bracket loaded." if bracket is None else
                                     "_Waiting for the exposure-ratio stage (hdrcore.pipeline)._")

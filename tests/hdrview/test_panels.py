@@ -151,3 +151,24 @@ def test_waiting_notes_without_a_result(viewer, sim_bracket) -> None:
     assert not viewer.masks_panel.dark.visible
 
 
+
+
+def test_btf_panel_shows_the_histogram_fit_and_the_registered_ratio(viewer, sim_bracket) -> None:
+    from pathlib import Path
+
+    from hdrcore.io import load_bracket
+    from hdrcore.pipeline import Pipeline
+
+    demo = Path(__file__).resolve().parents[2] / "assets" / "demo"
+    b = load_bracket([demo])
+    res = Pipeline(b).run(until="overlap_ratios")
+    assert res.exposures.method == "registered pixels"
+    viewer.btf_panel.show(b, res, {"pair": 1})
+    text = viewer.btf_panel.summary.content
+    assert "After registration" in text and "registered pixels" in text
+    assert f"({res.exposures_histogram.method})" in text
+    names = [t.get("name", "") for t in viewer.btf_panel.scatter.figure.to_dict()["data"]]
+    assert any(n.startswith("registered pixels") for n in names)
+    assert viewer.btf_panel.transfer.visible
+    viewer.masks_panel.show(b, res, {"pair": 1})
+    assert viewer.masks_panel.dark.visible
