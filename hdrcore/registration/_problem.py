@@ -28,6 +28,13 @@ the minimum of eq. 6 towards half-pixel shifts (measured on simulated 8-bit pair
 floor 3 levels, t = 0.02: mean corner error 0.116 px with the bright frame on its grid, 0.025 px
 with the dark frame on its grid). The searches therefore estimate ``B`` and the driver returns
 ``A = B^-1``.
+
+Speed: the pyramid's level 1, the sample scoring and the eq. 6 sums with their normal equations
+run in compiled kernels (:mod:`hdrcore.registration._kernels`); the numpy functions here
+(:func:`residuals`, the numpy branches of :func:`select_samples` and :func:`normal_equations`)
+are their reference, checked against them in the tests, and the fallback without numba.
+Frames may also be integer levels read through a table (``lut``), e.g. the green channel view
+of the raw RGB frames, so no linear copy of a 24-megapixel frame is needed.
 """
 
 from __future__ import annotations
