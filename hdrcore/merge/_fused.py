@@ -484,65 +484,65 @@ def tap_thresholds(sat: np.ndarray, dtype: np.dtype) -> np.ndarray:
 @_njit
 def _finish_block(
     y, x0, x1, n, order, den, num, s2, sv, share, bad, clip, nbad, me2, thr,
-    rad, wsum_out, shares, clipped_out, under_out, gscore, ghost, mode, pick, anyz,
+    rad, wsum_out, shares, clipped_out, under_out, gscore, ghost, mode, pick, anyz, invw,
+    zflag, radf, bb, cc, sp,
 ):
     """:func:`_finish_row` for interleaved sums (``den[3 i + ch]``): the common case (every
-    channel has weight) in one branch-free pass, the fallbacks of the rest in a second."""
+    channel has weight) in straight passes (SIMD), the fallbacks of the rest in a last one.
+    Returns how many pixels need a fallback; their indices are ``anyz[:count]``."""
     zero = np.float32(0.0)
     one = np.float32(1.0)
     nbk = x1 - x0
-    rrow = rad[y]
-    nz = 0
+    ne = 3 * nbk
+    ro = radf[y, 3 * x0:3 * x1]
+    for e in range(ne):
+        d = den[e]
+        inv = one / (d if d >= _TINY else _TINY)
+        a = num[e] * inv
+        ro[e] = a
+        a = a * a
+        b = s2[e] * inv - a
+        bb[e] = b if b >= zero else zero
+        cc[e] = sv[e] * inv + a * me2
+    ws = wsum_out[y, x0:x1]
     for i in range(nbk):
         e = 3 * i
-        x = x0 + i
+        spread = (bb[e] + bb[e + 1]) + bb[e + 2]
+        noise = (cc[e] + cc[e + 1]) + cc[e + 2]
+        noise = noise if noise >= _TINY else _TINY
+        sp[i] = spread / noise
         d0 = den[e]
         d1 = den[e + 1]
         d2 = den[e + 2]
-        inv0 = one / (d0 if d0 >= _TINY else _TINY)
-        inv1 = one / (d1 if d1 >= _TINY else _TINY)
-        inv2 = one / (d2 if d2 >= _TINY else _TINY)
-        a0 = num[e] * inv0
-        a1 = num[e + 1] * inv1
-        a2 = num[e + 2] * inv2
-        rrow[x, 0] = a0
-        rrow[x, 1] = a1
-        rrow[x, 2] = a2
-        q0 = a0 * a0
-        q1 = a1 * a1
-        q2 = a2 * a2
-        b0 = s2[e] * inv0 - q0
-        b1 = s2[e + 1] * inv1 - q1
-        b2 = s2[e + 2] * inv2 - q2
-        b0 = b0 if b0 >= zero else zero
-        b1 = b1 if b1 >= zero else zero
-        b2 = b2 if b2 >= zero else zero
-        spread = (b0 + b1) + b2
-        c0 = sv[e] * inv0 + q0 * me2
-        c1 = sv[e + 1] * inv1 + q1 * me2
-        c2 = sv[e + 2] * inv2 + q2 * me2
-        noise = (c0 + c1) + c2
-        noise = noise if noise >= _TINY else _TINY
-        spread = spread / noise
-        ghost[y, x] = spread > thr
-        gscore[y, x] = _f16_bits(spread)
         wsum = (d0 + d1) + d2
-        wsum_out[y, x] = wsum
-        invw = one / (wsum if wsum >= _TINY else _TINY)
-        for k in range(n):
-            shares[k, y, x] = _f16_bits(share[k, i] * invw)
-        clipped_out[y, x] = False
-        under_out[y, x] = False
-        mode[i] = 0
-        z = (d0 <= zero) | (d1 <= zero) | (d2 <= zero)
-        anyz[nz] = i
-        nz += 1 if z else 0
+        ws[i] = wsum
+        invw[i] = one / (wsum if wsum >= _TINY else _TINY)
+        zflag[i] = (d0 <= zero) | (d1 <= zero) | (d2 <= zero)
+    gh = ghost[y, x0:x1]
+    gs = gscore[y, x0:x1]
+    for i in range(nbk):
+        v = sp[i]
+        gh[i] = v > thr
+        gs[i] = _f16_bits(v)
+    for k in range(n):
+        sk = share[k]
+        so = shares[k, y, x0:x1]
+        for i in range(nbk):
+            so[i] = _f16_bits(sk[i] * invw[i])
+    clipped_out[y, x0:x1] = False
+    under_out[y, x0:x1] = False
+    nz = 0
+    for i in range(nbk):
+        if zflag[i]:
+            anyz[nz] = i
+            nz += 1
     for q in range(nz):
         i = anyz[q]
         x = x0 + i
         e = 3 * i
         is_clipped = nbad[i] == n
         under = False
+        mode[i] = 0
         if is_clipped:
             dk = order[0]
             if not (bad[dk, i] and not clip[dk, i]):
@@ -841,6 +841,12 @@ def merge_rows_warped(
     mode = np.empty(bw, np.int8)
     pick = np.empty(bw, np.int64)
     anyz = np.empty(bw, np.int64)
+    invw = np.empty(bw, np.float32)
+    zflag = np.empty(bw, np.bool_)
+    sp = np.empty(bw, np.float32)
+    bb = np.empty(b3, np.float32)
+    cc = np.empty(b3, np.float32)
+    radf = rad.reshape(h, w * 3)
     lmax = lut.shape[1] - 1
     out_of_range = 0
     zero = np.float32(0.0)
@@ -993,6 +999,7 @@ def merge_rows_warped(
         nz = _finish_block(
             y, x0, x1, n, order, den, num, s2, sv, share, bad, clip, nbad, me2, thr,
             rad, wsum_out, shares, clipped_out, under_out, gscore, ghost, mode, pick, anyz,
+            invw, zflag, radf, bb, cc, sp,
         )
         rrow = rad[y]
         for q in range(nz):
