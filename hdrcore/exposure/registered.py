@@ -583,9 +583,9 @@ def cfa_planes(data: np.ndarray, pattern: np.ndarray, colors: str,
     """
     raw = np.asarray(data)
     h2, w2 = raw.shape[0] // 2, raw.shape[1] // 2
-    planes = np.empty((h2, w2, 4), np.uint16)
     offsets = np.empty((4, 2))
-    groups = []
+    groups: list[int] = []
+    blacks: list[int] = []
     names = {"R": 0, "G": 1, "B": 2}
     for k, (r, c) in enumerate(((0, 0), (0, 1), (1, 0), (1, 1))):
         idx = int(pattern[r][c])
@@ -593,11 +593,33 @@ def cfa_planes(data: np.ndarray, pattern: np.ndarray, colors: str,
         if letter not in names:
             raise ParameterError("colour filter array site is not R, G or B",
                                  found=f"{letter!r} in {colors!r}")
-        site = raw[r:2 * h2:2, c:2 * w2:2].astype(np.int32) - int(round(black_level[idx]))
-        np.clip(site, 0, max_level, out=site)
-        planes[..., k] = site
+        blacks.append(int(round(black_level[idx])))
         offsets[k] = (c, r)
         groups.append(names[letter])
     if sorted(set(groups)) != [0, 1, 2]:
         raise ParameterError("colour filter array needs R, G and B sites", found=colors)
+    if not np.issubdtype(raw.dtype, np.integer):
+        raise ParameterError("colour filter array data must be integer", found=str(raw.dtype))
+    planes = _planes(np.ascontiguousarray(raw), np.array(blacks, np.int64), int(max_level))
     return planes, (2.0, offsets), tuple(groups)
+
+
+@_njit
+def _planes(raw, blacks, max_level):  # pragma: no cover - numba
+    """One pass over the mosaic: site ``(r, c)`` of cell ``(y, x)`` to ``out[y, x, 2r + c]``,
+    black-subtracted, held in ``0..max_level``."""
+    h2 = raw.shape[0] // 2
+    w2 = raw.shape[1] // 2
+    out = np.empty((h2, w2, 4), np.uint16)
+    for y in range(h2):
+        for r in range(2):
+            for x in range(w2):
+                for c in range(2):
+                    k = 2 * r + c
+                    v = np.int64(raw[2 * y + r, 2 * x + c]) - blacks[k]
+                    if v < 0:
+                        v = 0
+                    elif v > max_level:
+                        v = max_level
+                    out[y, x, k] = v
+    return out
