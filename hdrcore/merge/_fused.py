@@ -844,6 +844,8 @@ def merge_rows_warped(
     invw = np.empty(bw, np.float32)
     zflag = np.empty(bw, np.bool_)
     sp = np.empty(bw, np.float32)
+    tc = np.empty(bw, np.bool_)
+    ones = np.ones(bw, np.bool_)
     bb = np.empty(b3, np.float32)
     cc = np.empty(b3, np.float32)
     radf = rad.reshape(h, w * 3)
@@ -875,9 +877,8 @@ def merge_rows_warped(
             fr = frames[k]
             flat = flats[k]
             xk = xs[k]
-            mrow = masks[k][y if has_mask[k] else 0]
-            hm = has_mask[k]
             warped = has_mat[k]
+            vrow = masks[k][y, x0:x1] if has_mask[k] else ones[:nbk]  # valid (mask)
             if warped:
                 sup = supports[k]
                 m00 = mats[k, 0, 0]
@@ -894,41 +895,17 @@ def merge_rows_warped(
                                     wyp)
                 _expand3(ntap, nbk, wxp, wxe)
                 _expand3(ntap, nbk, wyp, wye)
+                wlim = w - (ntap - o)
+                hlim = h - (ntap - o)
                 for i in range(nbk):
-                    x = x0 + i
                     fx0 = fxs[i]
                     fy0 = fys[i]
-                    inside = (fx0 >= o and fx0 <= w - (ntap - o) and fy0 >= o
-                              and fy0 <= h - (ntap - o))
-                    e = 3 * i
-                    ins[i] = inside
-                    tcl = False
-                    if inside:
-                        ix = int(fx0 - o)
-                        iy = int(fy0 - o)
-                        ixs[i] = ix
-                        iys[i] = iy
-                        tcl = sup[iy, ix] != 0
-                        if tcl and oor[k]:  # levels past the LUT are clipped: count them
-                            for jy in range(ntap):
-                                for jx in range(ntap):
-                                    for ch in range(3):
-                                        if int(fr[iy + jy, ix + jx, ch]) > lmax:
-                                            out_of_range += 1
-                    valid = inside and (mrow[x] if hm else True)
-                    cl = tcl and valid
-                    b = (not valid) or cl
-                    clip[k, i] = cl
-                    bad[k, i] = b
-                    if cl:
-                        crow[x] += 1
-                    if b:
-                        nbad[i] += 1
-                    okv = zero if b else one
-                    okf[e] = okv
-                    okf[e + 1] = okv
-                    okf[e + 2] = okv
-                # runs of pixels whose supports share their rows and column offset
+                    ins[i] = (fx0 >= o) & (fx0 <= wlim) & (fy0 >= o) & (fy0 <= hlim)
+                    # clamped so that the (unused) index of an outside pixel stays valid
+                    ixs[i] = int(min(max(fx0 - o, 0.0), wlim - o))
+                    iys[i] = int(min(max(fy0 - o, 0.0), hlim - o))
+                # runs of pixels whose supports share their rows and column offset: the taps
+                # and the clipped-support flags of a run are contiguous in the source rows
                 i = 0
                 while i < nbk:
                     if not ins[i]:
@@ -936,6 +913,7 @@ def merge_rows_warped(
                         xk[e] = zero
                         xk[e + 1] = zero
                         xk[e + 2] = zero
+                        tc[i] = False
                         i += 1
                         continue
                     s = i
@@ -944,28 +922,51 @@ def merge_rows_warped(
                     i += 1
                     while i < nbk and ins[i] and iys[i] == iy0 and ixs[i] - i == dx:
                         i += 1
-                    _taps_run(flat, iy0, 3 * dx, 3 * s, 3 * i, ntap, wxe, wye,
-                              acc, xk, hi)
-            else:
-                frow = fr[y]
+                    _taps_run(flat, iy0, 3 * dx, 3 * s, 3 * i, ntap, wxe, wye, acc, xk, hi)
+                    srow = sup[iy0, dx + s:dx + i]
+                    tcs = tc[s:i]
+                    for q in range(i - s):
+                        tcs[q] = srow[q] != 0
+                if oor[k]:  # levels past the LUT are clipped: count them
+                    for i in range(nbk):
+                        if ins[i] and tc[i]:
+                            for jy in range(ntap):
+                                for jx in range(ntap):
+                                    for ch in range(3):
+                                        if int(fr[iys[i] + jy, ixs[i] + jx, ch]) > lmax:
+                                            out_of_range += 1
                 for i in range(nbk):
-                    x = x0 + i
-                    cl, b = _clip_flags(frow, x, 3, sat, hm, mrow)
-                    clip[k, i] = cl
-                    bad[k, i] = b
-                    if cl:
-                        crow[x] += 1
-                    if b:
-                        nbad[i] += 1
-                    okv = zero if b else one
-                    e = 3 * i
-                    okf[e] = okv
-                    okf[e + 1] = okv
-                    okf[e + 2] = okv
+                    ins[i] = ins[i] & vrow[i]
+            else:
                 frf = flat[y]
                 e0 = 3 * x0
                 for e in range(ne):
                     xk[e] = np.float32(frf[e0 + e])
+                s0 = sat[0]
+                s1 = sat[1]
+                s2_ = sat[2]
+                for i in range(nbk):
+                    e = 3 * i
+                    tc[i] = ((np.float64(xk[e]) >= s0) | (np.float64(xk[e + 1]) >= s1)
+                             | (np.float64(xk[e + 2]) >= s2_))
+                    ins[i] = vrow[i]
+            # tc: clipped, ins: valid; a frame is dropped where invalid or clipped
+            ck = clip[k]
+            bk = bad[k]
+            cs = crow[x0:x1]
+            for i in range(nbk):
+                valid = ins[i]
+                cl = tc[i] & valid
+                b = (not valid) | cl
+                ck[i] = cl
+                bk[i] = b
+                cs[i] += np.uint8(cl)
+                nbad[i] += np.int64(b)
+                okv = zero if b else one
+                e = 3 * i
+                okf[e] = okv
+                okf[e + 1] = okv
+                okf[e + 2] = okv
             itk = inv_t[k]
             it2 = inv_t2[k]
             t2k = t2[k]
