@@ -60,6 +60,29 @@ def default_noise_floor(max_level: int) -> float:
     return max(3.0, 0.02 * max_level)
 
 
+def check_levels(max_level: int, saturation: float | None,
+                 noise_floor: float | None) -> tuple[float, float]:
+    """``(Z, noise floor)`` in levels, defaults filled in and their order checked."""
+    z = default_saturation(max_level) if saturation is None else float(saturation)
+    floor = default_noise_floor(max_level) if noise_floor is None else float(noise_floor)
+    if not 0 <= floor < z <= max_level + 1:
+        raise ParameterError("need 0 <= noise floor < saturation <= max_level + 1",
+                             found=f"noise floor {floor:g}, saturation {z:g}")
+    return z, floor
+
+
+def channels_disagree(ratios: np.ndarray, std_errors: np.ndarray, k: float,
+                      tolerance: float) -> bool:
+    """Whether a colour channel's ratio is off the joint ``k`` by more than ``tolerance`` and
+    four of its standard errors (a white-level, colour-cast or response problem)."""
+    finite = np.isfinite(ratios)
+    if ratios.size < 2 or np.count_nonzero(finite) < 2:
+        return False
+    dev = np.abs(ratios[finite] / k - 1)
+    allowed = np.maximum(tolerance, 4 * std_errors[finite] / k)
+    return bool(np.any(dev > allowed))
+
+
 def as_lut(lut: np.ndarray | None, n_channels: int, max_level: int) -> np.ndarray:
     """A ``(C, max_level + 1)`` float64 linearisation table; ``None`` means linear levels."""
     n = max_level + 1
@@ -372,11 +395,7 @@ def estimate_pair(
     hd, hb = check_histograms(hist_dark, hist_bright)
     n_ch, n = hd.shape
     max_level = n - 1
-    z = default_saturation(max_level) if saturation is None else float(saturation)
-    floor = default_noise_floor(max_level) if noise_floor is None else float(noise_floor)
-    if not 0 <= floor < z <= max_level + 1:
-        raise ParameterError("need 0 <= noise floor < saturation <= max_level + 1",
-                             found=f"noise floor {floor:g}, saturation {z:g}")
+    z, floor = check_levels(max_level, saturation, noise_floor)
     _check_usable(hd, "darker", z, floor)
     _check_usable(hb, "brighter", z, floor)
     g = None if lut is None else as_lut(lut, n_ch, max_level)
@@ -437,12 +456,7 @@ def estimate_pair(
         channel_se.append(sec)
     cr = np.array(channel_ratios)
     cse = np.array(channel_se)
-    finite = np.isfinite(cr)
-    disagree = False
-    if n_ch > 1 and np.count_nonzero(finite) > 1:
-        dev = np.abs(cr[finite] / k - 1)
-        allowed = np.maximum(disagreement_tolerance, 4 * cse[finite] / k)
-        disagree = bool(np.any(dev > allowed))
+    disagree = channels_disagree(cr, cse, k, disagreement_tolerance)
 
     rel = se / k if k > 0 else float("inf")
     n_inliers = int(np.count_nonzero(mask))

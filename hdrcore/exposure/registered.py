@@ -59,7 +59,7 @@ from dataclasses import replace
 import numpy as np
 
 from ..errors import EstimationError, ParameterError
-from ._core import as_lut, default_noise_floor, default_saturation
+from ._core import as_lut, channels_disagree, check_levels
 from .chain import assemble_bracket
 from .pair_histograms import chain_pair_matrix
 from .result import FORWARD, INVERSE, BracketExposureResult, ExposureEquations, ExposureRatioResult
@@ -82,8 +82,9 @@ def _tile_sums(grid, other, use_g, use_o, has_mask, lut_g, lut_o, mat, lo, hi, t
                tile):  # pragma: no cover - numba
     """Per tile and channel: sum of grid values, sum of bilinear samples of ``other`` at
     ``mat[c] @ p`` (one matrix per channel), pixel count. Pixels enter when their 3x3 grid
-    neighbourhood and the 3x3 neighbourhood of the nearest pixel in ``other`` (which holds the four bilinear taps) lie
-    strictly between ``lo`` and ``hi``: the pixels within 1.5 px of the point in both frames.
+    neighbourhood and the 3x3 neighbourhood of the nearest pixel in ``other`` (which holds the
+    four bilinear taps) lie strictly between ``lo`` and ``hi``: the pixels within 1.5 px of the
+    point in both frames.
     With ``has_mask``, the grid pixel and the nearest pixel in ``other`` must also be usable
     (``use_g``/``use_o`` non-zero)."""
     h, w, nc = grid.shape
@@ -276,11 +277,7 @@ def exposure_ratio_registered(
     if not np.all(np.isfinite(mat)) or abs(np.linalg.det(mat[:, :2])) < 1e-6:
         raise ParameterError("pair matrix must be a finite invertible 2x3 affine matrix",
                              found=str(mat.tolist()))
-    z = default_saturation(max_level) if saturation is None else float(saturation)
-    floor = default_noise_floor(max_level) if noise_floor is None else float(noise_floor)
-    if not 0 <= floor < z <= max_level + 1:
-        raise ParameterError("need 0 <= noise floor < saturation <= max_level + 1",
-                             found=f"noise floor {floor:g}, saturation {z:g}")
+    z, floor = check_levels(max_level, saturation, noise_floor)
     h, w, nk = d.shape
     g = np.ascontiguousarray(as_lut(lut, nk, max_level), np.float64)
     full = _homogeneous(mat)
@@ -390,12 +387,7 @@ def exposure_ratio_registered(
         ch_k.append(kc)
         ch_se.append(sec)
     cr, cse = np.array(ch_k), np.array(ch_se)
-    finite = np.isfinite(cr)
-    disagree = False
-    if nc > 1 and np.count_nonzero(finite) > 1:
-        dev = np.abs(cr[finite] / k - 1)
-        allowed = np.maximum(disagreement_tolerance, 4 * cse[finite] / k)
-        disagree = bool(np.any(dev > allowed))
+    disagree = channels_disagree(cr, cse, k, disagreement_tolerance)
 
     inlier_mask = np.concatenate([np.repeat(in_f[:, None], nc, 1).ravel(),
                                   np.repeat(in_i[:, None], nc, 1).ravel()])[eqs_keep(sf, si)]
@@ -502,8 +494,7 @@ def bracket_exposures_from_pixels(
     mats = [np.asarray(m, np.float64).reshape(2, 3) for m in pair_matrices]
     z = kwargs.get("saturation")
     floor = kwargs.get("noise_floor")
-    zl = default_saturation(max_level) if z is None else float(z)  # type: ignore[arg-type]
-    fl = default_noise_floor(max_level) if floor is None else float(floor)  # type: ignore[arg-type]
+    zl, fl = check_levels(max_level, z, floor)  # type: ignore[arg-type]
     for k, f in enumerate(frames):
         lv = np.asarray(f)[::4, ::4]
         # A frame with no level strictly between the floor and Z can give no ratio (checked
@@ -582,7 +573,6 @@ def cfa_planes(data: np.ndarray, pattern: np.ndarray, colors: str,
     are the sensor's own measurements, linear in the exposure, as the paper recommends.
     """
     raw = np.asarray(data)
-    h2, w2 = raw.shape[0] // 2, raw.shape[1] // 2
     offsets = np.empty((4, 2))
     groups: list[int] = []
     blacks: list[int] = []

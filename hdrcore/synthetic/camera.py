@@ -189,6 +189,16 @@ class SimulatedBracket:
         }
 
 
+def _positions(matrix: np.ndarray, shape: tuple[int, int],
+               offset: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
+    """``(ys, xs)``: where each pixel of a frame of ``shape`` lies in the radiance grid."""
+    h, w = shape
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    xs = matrix[0, 0] * xx + matrix[0, 1] * yy + matrix[0, 2] + offset[0]
+    ys = matrix[1, 0] * xx + matrix[1, 1] * yy + matrix[1, 2] + offset[1]
+    return ys, xs
+
+
 def _warp_log(radiance_big: np.ndarray, matrix: np.ndarray, shape: tuple[int, int],
               offset: tuple[float, float]) -> np.ndarray:
     """Sample ``radiance_big`` at ``matrix @ p + offset`` for every pixel p of a frame of ``shape``.
@@ -199,11 +209,8 @@ def _warp_log(radiance_big: np.ndarray, matrix: np.ndarray, shape: tuple[int, in
     four-decade edges: spline overshoot in log is amplified by the exponential), so a moved
     frame is not the same scene at another exposure.
     """
-    h, w = shape
-    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
-    xs = matrix[0, 0] * xx + matrix[0, 1] * yy + matrix[0, 2] + offset[0]
-    ys = matrix[1, 0] * xx + matrix[1, 1] * yy + matrix[1, 2] + offset[1]
-    out = np.empty((h, w, radiance_big.shape[2]), np.float32)
+    ys, xs = _positions(matrix, shape, offset)
+    out = np.empty((*shape, radiance_big.shape[2]), np.float32)
     for c in range(radiance_big.shape[2]):
         logc = np.log(radiance_big[..., c].astype(np.float64))
         out[..., c] = np.exp(ndimage.map_coordinates(logc, [ys, xs], order=3, mode="nearest"))
@@ -223,11 +230,8 @@ def _render_area(radiance_big: np.ndarray, matrix: np.ndarray, shape: tuple[int,
     exposure (as on a real sensor). The footprint's rotation (at most a few degrees) is
     neglected.
     """
-    h, w = shape
-    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
-    xs = matrix[0, 0] * xx + matrix[0, 1] * yy + matrix[0, 2] + offset[0]
-    ys = matrix[1, 0] * xx + matrix[1, 1] * yy + matrix[1, 2] + offset[1]
-    out = np.empty((h, w, radiance_big.shape[2]), np.float32)
+    ys, xs = _positions(matrix, shape, offset)
+    out = np.empty((*shape, radiance_big.shape[2]), np.float32)
     for c in range(radiance_big.shape[2]):
         out[..., c] = ndimage.map_coordinates(
             radiance_big[..., c].astype(np.float64), [ys, xs], order=2, mode="nearest",
