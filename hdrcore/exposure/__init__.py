@@ -8,8 +8,10 @@ Methods (registry :data:`EXPOSURE_METHODS`, chosen by name, case-insensitive):
 
 Every bracket estimate also runs the region jack-knife (:mod:`.stability`): an honest standard
 error, and status ``"unstable"`` for pairs that hand-held motion disturbs. Such brackets are
-estimated again after registration from the histograms of each pair's common field of view
-(:func:`bracket_exposures_registered`, :func:`pair_histograms_in_overlap`).
+estimated again after registration: from the registered pixels themselves
+(:mod:`.registered`, :func:`bracket_exposures_from_pixels`, what the pipeline uses), or from the
+histograms of each pair's common field of view (:func:`bracket_exposures_registered`,
+:func:`pair_histograms_in_overlap`).
 
 Entry points: :func:`exposure_ratio` (a pair, from histograms), :func:`exposure_ratio_frames`
 (a pair, from frames), :func:`bracket_exposures` (a bracket, from frames),
@@ -41,6 +43,7 @@ from .pair_histograms import (
     region_histograms,
 )
 from .refined import exposure_ratio_refined
+from .registered import bracket_exposures_from_pixels, cfa_planes, exposure_ratio_registered
 from .result import BracketExposureResult, ExposureEquations, ExposureRatioResult
 
 __all__ = [
@@ -51,6 +54,9 @@ __all__ = [
     "bracket_exposures",
     "bracket_exposures_from_histograms",
     "bracket_exposures_registered",
+    "bracket_exposures_from_pixels",
+    "exposure_ratio_registered",
+    "cfa_planes",
     "bracket_histograms",
     "BracketHistograms",
     "PairHistograms",
