@@ -452,21 +452,42 @@ def clip_support_rows(fr, s0, s1, s2, r0, r1, out, ntap=4):
     for yy in range(r0, min(r1 + ntap - 1, h)):
         row = fr[yy]
         for x in range(w):
-            c[x] = (row[x, 0] >= s0) | (row[x, 1] >= s1) | (row[x, 2] >= s2)
+            c[x] = np.uint8((row[x, 0] >= s0) | (row[x, 1] >= s1) | (row[x, 2] >= s2))
         hr = ring[yy % ntap]
-        for x in range(w):
-            v = c[x]
-            for j in range(1, ntap):
-                v |= c[x + j]
-            hr[x] = v
+        # the taps' loops spelled out per support size: straight SIMD loops
+        if ntap == 4:
+            for x in range(w):
+                hr[x] = (c[x] | c[x + 1]) | (c[x + 2] | c[x + 3])
+        elif ntap == 2:
+            for x in range(w):
+                hr[x] = c[x] | c[x + 1]
+        else:
+            for x in range(w):
+                v = c[x]
+                for j in range(1, ntap):
+                    v |= c[x + j]
+                hr[x] = v
         y = yy - (ntap - 1)
         if y >= r0:
             o = out[y]
-            for x in range(w):
-                v = ring[0, x]
-                for j in range(1, ntap):
-                    v |= ring[j, x]
-                o[x] = v
+            if ntap == 4:
+                q0 = ring[0]
+                q1 = ring[1]
+                q2 = ring[2]
+                q3 = ring[3]
+                for x in range(w):
+                    o[x] = (q0[x] | q1[x]) | (q2[x] | q3[x])
+            elif ntap == 2:
+                q0 = ring[0]
+                q1 = ring[1]
+                for x in range(w):
+                    o[x] = q0[x] | q1[x]
+            else:
+                for x in range(w):
+                    v = ring[0, x]
+                    for j in range(1, ntap):
+                        v |= ring[j, x]
+                    o[x] = v
 
 
 def tap_thresholds(sat: np.ndarray, dtype: np.dtype) -> np.ndarray:
