@@ -182,84 +182,102 @@ def gauss_newton_sums(
     wy = np.empty(4)
     dwx = np.empty(4)
     dwy = np.empty(4)
-    taps = np.empty((4, 4))
     rows = np.empty(4)
     ssum = 0.0
     count = 0
     inv_t = 1.0 / max(t, 1e-300)
-    for k in range(xs.size):
-        x = xs[k]
-        y = ys[k]
-        qx = m00 * x + m01 * y + m02
-        qy = m10 * x + m11 * y + m12
-        if not (qx >= 1.0 and qx < w - 2.0 and qy >= 1.0 and qy < h - 2.0):
-            continue  # the 4x4 support leaves the bright frame
-        ix = int(math.floor(qx))
-        iy = int(math.floor(qy))
-        if ix > w - 3 or iy > h - 3:
-            continue
-        tmin = np.inf
-        tmax = -np.inf
-        for j in range(4):
-            for i in range(4):
-                if lut is None:
-                    v = np.float64(img[iy - 1 + j, ix - 1 + i])
-                else:
-                    v = np.float64(lut[img[iy - 1 + j, ix - 1 + i]])
-                taps[j, i] = v
-                if v < tmin:
-                    tmin = v
-                if v > tmax:
-                    tmax = v
-        if check_range and not (tmin > noise_floor and tmax < saturation):
-            continue
-        if max_contrast > 0 and not (tmax <= max_contrast * max(tmin, 1e-30)):
-            continue
-        fx = qx - ix
-        fy = qy - iy
-        _keys(fx, wx)
-        _keys(fy, wy)
-        for j in range(4):
-            rows[j] = taps[j, 0] * wx[0] + taps[j, 1] * wx[1] + taps[j, 2] * wx[2] \
-                + taps[j, 3] * wx[3]
-        a = rows[0] * wy[0] + rows[1] * wy[1] + rows[2] * wy[2] + rows[3] * wy[3]
-        b = bs[k]
-        total = a + b
-        above = total > t
-        if t > 0:
-            denom = total if above else t
-        else:
-            denom = total
-        if not denom > 0:
-            denom = 1.0
-        n = (a - b) / denom
-        ssum += n * n
-        count += 1
-        if not gradient:
-            continue
-        _dkeys(fx, dwx)
-        _dkeys(fy, dwy)
-        sx = 0.0
-        for j in range(4):
-            sx += (taps[j, 0] * dwx[0] + taps[j, 1] * dwx[1] + taps[j, 2] * dwx[2]
-                   + taps[j, 3] * dwx[3]) * wy[j]
-        sy = rows[0] * dwy[0] + rows[1] * dwy[1] + rows[2] * dwy[2] + rows[3] * dwy[3]
-        dn_da = 2.0 * b / (denom * denom) if above else inv_t
-        j0 = dn_da * sx
-        j1 = dn_da * sy
-        hess[0, 0] += j0 * j0
-        hess[0, 1] += j0 * j1
-        hess[1, 1] += j1 * j1
-        grad[0] += j0 * n
-        grad[1] += j1 * n
-        if n_par == 3:
-            xc = x - cx
-            yc = y - cy
-            j2 = j0 * (-sn * xc - cs * yc) + j1 * (cs * xc - sn * yc)
-            hess[0, 2] += j0 * j2
-            hess[1, 2] += j1 * j2
-            hess[2, 2] += j2 * j2
-            grad[2] += j2 * n
+    # Two phases per block of samples: first only the loads of the 16 taps (independent of each
+    # other, so the processor overlaps their cache misses), then the arithmetic.
+    block = 64
+    buf = np.empty((block, 4, 4))
+    fxs = np.empty(block)
+    fys = np.empty(block)
+    ks = np.empty(block, np.int64)
+    n_all = xs.size
+    for start in range(0, n_all, block):
+        nb = 0
+        for k in range(start, min(start + block, n_all)):
+            x = xs[k]
+            y = ys[k]
+            qx = m00 * x + m01 * y + m02
+            qy = m10 * x + m11 * y + m12
+            if not (qx >= 1.0 and qx < w - 2.0 and qy >= 1.0 and qy < h - 2.0):
+                continue  # the 4x4 support leaves the bright frame
+            ix = int(math.floor(qx))
+            iy = int(math.floor(qy))
+            if ix > w - 3 or iy > h - 3:
+                continue
+            for j in range(4):
+                for i in range(4):
+                    if lut is None:
+                        buf[nb, j, i] = np.float64(img[iy - 1 + j, ix - 1 + i])
+                    else:
+                        buf[nb, j, i] = np.float64(lut[img[iy - 1 + j, ix - 1 + i]])
+            fxs[nb] = qx - ix
+            fys[nb] = qy - iy
+            ks[nb] = k
+            nb += 1
+        for q in range(nb):
+            taps = buf[q]
+            tmin = np.inf
+            tmax = -np.inf
+            for j in range(4):
+                for i in range(4):
+                    v = taps[j, i]
+                    if v < tmin:
+                        tmin = v
+                    if v > tmax:
+                        tmax = v
+            if check_range and not (tmin > noise_floor and tmax < saturation):
+                continue
+            if max_contrast > 0 and not (tmax <= max_contrast * max(tmin, 1e-30)):
+                continue
+            k = ks[q]
+            fx = fxs[q]
+            fy = fys[q]
+            _keys(fx, wx)
+            _keys(fy, wy)
+            for j in range(4):
+                rows[j] = taps[j, 0] * wx[0] + taps[j, 1] * wx[1] + taps[j, 2] * wx[2] \
+                    + taps[j, 3] * wx[3]
+            a = rows[0] * wy[0] + rows[1] * wy[1] + rows[2] * wy[2] + rows[3] * wy[3]
+            b = bs[k]
+            total = a + b
+            above = total > t
+            if t > 0:
+                denom = total if above else t
+            else:
+                denom = total
+            if not denom > 0:
+                denom = 1.0
+            n = (a - b) / denom
+            ssum += n * n
+            count += 1
+            if not gradient:
+                continue
+            _dkeys(fx, dwx)
+            _dkeys(fy, dwy)
+            sx = 0.0
+            for j in range(4):
+                sx += (taps[j, 0] * dwx[0] + taps[j, 1] * dwx[1] + taps[j, 2] * dwx[2]
+                       + taps[j, 3] * dwx[3]) * wy[j]
+            sy = rows[0] * dwy[0] + rows[1] * dwy[1] + rows[2] * dwy[2] + rows[3] * dwy[3]
+            dn_da = 2.0 * b / (denom * denom) if above else inv_t
+            j0 = dn_da * sx
+            j1 = dn_da * sy
+            hess[0, 0] += j0 * j0
+            hess[0, 1] += j0 * j1
+            hess[1, 1] += j1 * j1
+            grad[0] += j0 * n
+            grad[1] += j1 * n
+            if n_par == 3:
+                xc = xs[k] - cx
+                yc = ys[k] - cy
+                j2 = j0 * (-sn * xc - cs * yc) + j1 * (cs * xc - sn * yc)
+                hess[0, 2] += j0 * j2
+                hess[1, 2] += j1 * j2
+                hess[2, 2] += j2 * j2
+                grad[2] += j2 * n
     if gradient:
         hess[1, 0] = hess[0, 1]
         hess[2, 0] = hess[0, 2]

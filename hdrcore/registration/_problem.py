@@ -264,12 +264,13 @@ def select_samples(
     multiplication by ``k`` the dark frame is the noisier one, and interpolating noise lowers its
     variance by an amount that depends on the sub-pixel phase, which would pull the eq. 6 minimum
     towards half-pixel shifts. Candidates are all interior pixels or, on large levels,
-    ``4 * max_samples`` of them (``max_samples`` without ``by_gradient``) spread over the frame:
-    the interior is cut in raster order into equal runs and one pixel of each run is taken at
-    an offset from the golden-ratio sequence (``seed`` shifts it). With ``by_gradient`` the
-    well-exposed candidates with the largest relative gradient are kept (the informative ones),
-    otherwise a seeded random subset. ``compiled``: the numba kernel (default when available)
-    or numpy; both select the same pixels.
+    ``4 * max_samples`` of them spread over the frame: the interior is cut in raster order into
+    equal runs and one pixel of each run is taken at an offset from the golden-ratio sequence
+    (``seed`` shifts it). With ``by_gradient`` the well-exposed candidates with the largest
+    relative gradient are kept (the informative ones); otherwise about ``max_samples``
+    well-exposed candidates are drawn the same way (more candidates on a mostly badly exposed
+    frame) and a seeded random subset of ``max_samples`` is kept. ``compiled``: the numba
+    kernel (default when available) or numpy; both select the same pixels.
     """
     if compiled is None:
         compiled = _kernels.AVAILABLE
@@ -285,15 +286,16 @@ def select_samples(
     n_cand = min(n_inner, 4 * max_samples if by_gradient else max_samples)
     phase = (seed * 0.7548776662466927) % 1.0
     eps2 = (data.threshold / k) ** 2
-    if compiled:
-        yy = np.empty(n_cand, np.int64)
-        xx = np.empty(n_cand, np.int64)
-        v = np.empty(n_cand)
-        score = np.empty(n_cand if by_gradient else 0)
-        n = _kernels.score_candidates(img, lut, n_cand, m, phase, lo, hi, eps2, by_gradient,
-                                      yy, xx, v, score)
-        yy, xx, v, score = yy[:n], xx[:n], v[:n], score[:n]
-    else:
+
+    def candidates(n_cand: int):
+        if compiled:
+            yy = np.empty(n_cand, np.int64)
+            xx = np.empty(n_cand, np.int64)
+            v = np.empty(n_cand)
+            score = np.empty(n_cand if by_gradient else 0)
+            n = _kernels.score_candidates(img, lut, n_cand, m, phase, lo, hi, eps2, by_gradient,
+                                          yy, xx, v, score)
+            return yy[:n], xx[:n], v[:n], score[:n]
         kk = np.arange(n_cand, dtype=np.float64)
         u = kk * 0.6180339887498949 + phase
         u -= np.floor(u)
@@ -308,10 +310,19 @@ def select_samples(
         v = at(0, 0)
         ok = (v > lo) & (v < hi)
         yy, xx, v = yy[ok], xx[ok], v[ok]
+        score = None
         if by_gradient:
             gx = at(0, 1) - at(0, -1)
             gy = at(1, 0) - at(-1, 0)
             score = (gx * gx + gy * gy) / (v * v + eps2)
+        return yy, xx, v, score
+
+    yy, xx, v, score = candidates(n_cand)
+    if not by_gradient and 0 < v.size < max_samples and n_cand < n_inner:
+        # a random subset is meant to hold max_samples well-exposed pixels: on a mostly dark
+        # or saturated frame, draw proportionally more candidates (once)
+        n_cand = min(n_inner, int(n_cand * 1.05 * max_samples / v.size) + 1)
+        yy, xx, v, score = candidates(n_cand)
     well_exposed = v.size / n_cand if n_cand else 0.0
     keep = None
     if by_gradient and v.size > max_samples:
