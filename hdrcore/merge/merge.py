@@ -989,7 +989,9 @@ def _run_numba(
         out.underexposed, out.ghost_score.view(np.uint16), out.ghost,
     )
     inv_t = np.array([1.0 / t for t in p.times], np.float32)
-    if p.warped:
+    if p.warped or (p.lut is None and not force_tables):
+        # resampled frames, or linear ones (float, or integer levels without a LUT) read in
+        # place: the SIMD kernel (frames without a transform take its direct path)
         inv_t2 = np.array([1.0 / (t * t) for t in p.times], np.float32)
         t2 = np.array([float(t) ** 2 for t in p.times], np.float32)
         wcode = _fused.WEIGHT_CODES[p.weighting]
@@ -1031,20 +1033,6 @@ def _run_numba(
                 frames_t, masks_t, has_mask, order, times, tab, lut, p.lut is not None,
                 max_level, kernel.inv_max, inv_t, sat, me2, thr, span[0], span[1], *outs,
             )
-    else:
-        inv_t2 = np.array([1.0 / (t * t) for t in p.times], np.float32)
-        t2 = np.array([float(t) ** 2 for t in p.times], np.float32)
-        wcode = _fused.WEIGHT_CODES[p.weighting]
-
-        max_level = float(p.max_level) if p.integer else 1.0
-
-        def work(span: tuple[int, int]) -> int:
-            _fused.merge_rows_linear(
-                frames_t, masks_t, has_mask, order, times, inv_t, inv_t2, t2, wcode,
-                kernel.shot, kernel.const_var, kernel.floor_norm, kernel.inv_max, max_level,
-                sat, me2, thr, span[0], span[1], *outs,
-            )
-            return 0
 
     if workers == 1:
         bad_levels = sum(work(sp) for sp in spans)
