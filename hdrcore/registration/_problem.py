@@ -532,7 +532,7 @@ def register_with(
     min_ncc: float = 0.2,
     min_valid_fraction: float = 0.005,
     min_overlap: float = 0.2,
-    evaluation_samples: int = 100_000,
+    evaluation_samples: int = 30_000,
     previews: bool = True,
     lut: np.ndarray | None = None,
     dark_index: int = 0,
