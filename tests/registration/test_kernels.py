@@ -93,3 +93,15 @@ def test_candidates_spread_over_the_frame(pair):
     counts = np.histogram(s.y, bins=8, range=(0, h))[0]
     assert counts.min() >= 0.6 * counts.mean()
     assert s.x.min() < 0.2 * w and s.x.max() > 0.8 * w
+
+
+@pytest.mark.parametrize("compiled", [False, True])
+def test_random_subset_holds_max_samples_well_exposed_pixels(compiled):
+    # a mostly dark frame: 10 % of the pixels above the noise floor
+    rng = np.random.default_rng(1)
+    dark = np.where(rng.random((300, 400)) < 0.1, 0.3, 0.001).astype(np.float32)
+    data = prepare(dark, dark, 1.0, saturation=0.98, noise_floor=0.01, threshold=0.1)
+    s = select_samples(data, 0, 5000, by_gradient=False, compiled=compiled)
+    assert s.b.size == 5000
+    assert np.all(s.b == np.float32(0.3))
+    assert 0.07 < s.well_exposed < 0.13
