@@ -4,6 +4,7 @@
     python bench/bench_merge.py --mp 6     # smaller
     python bench/bench_merge.py --no-numpy # only the fused kernel
     python bench/bench_merge.py --no-old   # skip today's pipeline path (float32 + shear warp)
+    python bench/bench_merge.py --handheld-only  # the 24 MP DNG hand-held merge step only
 
 Frames come from ``hdrcore.synthetic.simulate_bracket`` at 750 x 500 and are upsampled by
 pixel repetition (generation time excluded). OpenCV needs 8-bit frames, so MergeDebevec always
@@ -22,6 +23,11 @@ frames: the fused kernel resamples them itself (Keys cubic from the levels), so 
 whole warp + merge step. The "old path" row is what the pipeline did before: every frame to
 float32 linear, the two moved frames warped with ``hdrcore.registration.warp_to_reference``
 (clipped samples as NaN), then the merge with masks.
+
+The last table is the target of issue 6 on ``bench_pipeline``'s 24 MP 12-bit DNG hand-held
+bracket (built once under ``bench/out/``): the pipeline's merge step (``Pipeline._merge``: warp
++ merge + colour) and OpenCV's MergeDebevec on the same frames, alternating in one process;
+the line "hand-held merge step / MergeDebevec" is the ratio the target (<= 0.30) is about.
 """
 
 from __future__ import annotations
@@ -193,15 +199,82 @@ def compile_times() -> tuple[float, float]:
     return cold, cached
 
 
+def handheld_dng(reps: int = 3) -> None:
+    """The issue-6 target on ``bench_pipeline``'s 24 MP 12-bit DNG hand-held bracket (two frames
+    moved by a shift and a rotation): the merge step -- what ``Pipeline._merge`` runs: warp +
+    merge + colour conversion -- against ``cv2.createMergeDebevec().process`` on the same frames
+    as 8-bit (as ``bench_pipeline``'s OpenCV child gives them), alternating in this process,
+    ``reps`` times each; also the same step without the registration (tripod: no warp)."""
+    import cv2
+
+    sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+    from bench_pipeline import make_bracket
+
+    from hdrcore.io import load_bracket
+    from hdrcore.pipeline import Pipeline, PipelineParams
+
+    d = make_bracket((4000, 6000), 3)
+    bracket = load_bracket([d])
+    pipe = Pipeline(bracket, PipelineParams(preview_max_side=2048, registration_previews=False))
+    res = pipe.run(until="overlap_ratios")
+    reg = res.registration
+    imgs8 = []
+    for f in bracket.frames:
+        x = np.minimum(f.levels, f.max_level).astype(np.float32) * (255.0 / f.max_level)
+        imgs8.append(np.ascontiguousarray(np.rint(x).astype(np.uint8)[..., ::-1]))
+    times32 = np.asarray(res.exposure_times, np.float32)
+    moved = [k for k in range(len(bracket)) if reg is not None and k != reg.reference]
+    h, w = bracket.shape
+    print(f"\nhand-held DNG bracket {d.name}: {len(bracket)} frames of {w} x {h}, frames "
+          f"{moved} resampled (reference {None if reg is None else reg.reference}); "
+          f"load average {os.getloadavg()[0]:.2f}")
+
+    def timed(fn):
+        gc.collect()
+        t0, c0 = time.perf_counter(), time.process_time()
+        out = fn()
+        wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+        del out
+        return wall, cpu
+
+    def ours(registration):
+        return pipe._merge(res.params, res.lut, res.exposure_times, registration, None)
+
+    ours(reg)  # kernels compiled or loaded from numba's cache outside the timed runs
+    rows: dict[str, list[tuple[float, float]]] = {"debevec": [], "hand-held": [], "tripod": []}
+    for _ in range(reps):
+        rows["debevec"].append(timed(lambda: cv2.createMergeDebevec().process(imgs8, times32)))
+        rows["hand-held"].append(timed(lambda: ours(reg)))
+        rows["tripod"].append(timed(lambda: ours(None)))
+    ref = min(t for t, _ in rows["debevec"])
+    print(f"{'':38s} {'min wall s':>10s} {'cpu s':>7s} {'/Debevec':>9s} {'per run':>16s}")
+    for name, label in (("debevec", "OpenCV MergeDebevec (8-bit)"),
+                        ("hand-held", "merge step, hand-held (warp 2 frames)"),
+                        ("tripod", "merge step, no warp")):
+        wall, cpu = min(rows[name])
+        per = [t / d for (t, _), (d, _) in zip(rows[name], rows["debevec"], strict=True)]
+        print(f"{label:38s} {wall:10.2f} {cpu:7.2f} {wall / ref:9.2f} "
+              f"{min(per):7.2f}..{max(per):.2f}")
+    print(f"hand-held merge step / MergeDebevec: {min(rows['hand-held'])[0] / ref:.2f}   "
+          f"target <= 0.30 (min over {reps} alternating runs; 'per run' pairs each run with "
+          f"the Debevec run before it)")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--mp", type=float, default=24.0, help="megapixels per frame (default 24)")
+    ap.add_argument("--handheld-only", action="store_true",
+                    help="only the 24 MP DNG hand-held merge step against MergeDebevec")
     ap.add_argument("--mertens", action="store_true", help="also time MergeMertens")
     ap.add_argument("--no-numpy", action="store_true", help="skip the numpy reference rows")
     ap.add_argument("--no-old", action="store_true", help="skip today's pipeline path row")
     args = ap.parse_args()
     import cv2
 
+    if args.handheld_only:
+        warm_up()
+        handheld_dng()
+        return
     t_compile = compile_times()
     warm_up()  # compile/load outside the timed rows
     factor = max(1, int(round(np.sqrt(args.mp * 1e6 / (750 * 500)))))
@@ -277,6 +350,7 @@ def main() -> None:
     print(f"  {'case':40s} {'median err':>10s} {'sharpness / tripod':>19s}")
     for name, err, sharp in warp_accuracy_table():
         print(f"  {name:40s} {100 * err:8.3f} % {sharp:19.3f}")
+    handheld_dng()
 
 
 if __name__ == "__main__":
