@@ -1,22 +1,43 @@
-"""The fused merge kernel: one pass over the pixels, every frame and channel in registers.
+"""The fused merge kernels: one pass over the pixels, every frame and channel in registers.
 
-Same arithmetic as the numpy reference (:class:`hdrcore.merge.merge._Kernel`), in the same float32
-order, so both give the same radiance, shares, weight sums and maps (bit for bit for integer
+Same arithmetic as the numpy reference (:class:`hdrcore.merge.merge._Kernel`), in the same
+float32 order, so both give the same radiance, shares, weight sums and maps (bit for bit for integer
 frames; within float32 rounding of ``exp`` for the Gaussian weight of float frames).
 
-Integer frames use per-level tables built *by the reference itself* (its linearisation and weight
-function applied to every level ``0..L-1`` of every frame and channel): for each level the table
-holds ``E_k = g(M) / dt``, ``w`` (noise floor applied), ``w var(E_k)``, ``w E_k`` and
-``w E_k**2``, so the kernel does five loads and five adds per sample. Float frames (already
-linear) compute the same terms inline.
+Two kernels:
 
-The kernel is compiled by numba with ``nogil=True`` and runs over row blocks on the caller's
+* :func:`merge_rows_warped` -- frames with a transform (resampled inside the merge, Keys cubic
+  convolution (Keys 1981, a = -1/2) or bilinear, see :func:`hdrcore.merge.merge`) and linear
+  frames read in place (float, or integer levels without a LUT; a tripod bracket of RAW
+  levels). It is laid out for SIMD: per block of a row each frame's values form one
+  interleaved float32 run (element ``3 x + ch``), so the sums, the weights and the finish are
+  straight loops over elements with no per-channel branch. A resampled frame's coordinates
+  and Keys weights are computed for the whole block in one loop (float64, as the reference),
+  then the block is cut into runs of pixels whose 4 x 4 supports share their source rows and
+  column offset (under a small rotation a run is about ``1 / sin(angle)`` pixels long): over
+  a run the taps of each source row are contiguous, so the 16 taps are 16 multiply-adds over
+  contiguous memory instead of 48 scattered loads per pixel. The "any tap clipped" test reads
+  one byte per pixel from a per-frame mask of clipped supports (:func:`clip_support_rows`).
+* :func:`merge_rows_integer` -- integer frames with a response LUT, through per-level tables
+  built *by the reference itself* (its linearisation and weight function applied to every
+  level ``0..L-1`` of every frame and channel): for each level the table holds
+  ``E_k = g(M) / dt``, ``w`` (noise floor applied), ``w var(E_k)``, ``w E_k`` and
+  ``w E_k**2``, so the kernel does five loads and five adds per sample.
+
+The kernels are compiled by numba with ``nogil=True`` and run over row blocks on the caller's
 thread pool rather than numba's own ``prange``: numba's default (workqueue) threading layer
 aborts the process when two Python threads launch parallel kernels at once, and the inspector
 merges on a background thread; a ``nogil`` kernel has no such restriction and keeps the
 ``workers`` parameter meaning what it says. ``cache=True`` stores the machine code next to this
 file (``__pycache__``), so only the first call on a machine pays the compilation; see
 :func:`warm_up`.
+
+References
+----------
+R. G. Keys, "Cubic convolution interpolation for digital image processing", IEEE Trans.
+Acoustics, Speech and Signal Processing 29(6), 1981. doi:10.1109/TASSP.1981.1163711
+P. E. Debevec, J. Malik, "Recovering high dynamic range radiance maps from photographs",
+SIGGRAPH 1997, eq. 6. doi:10.1145/258734.258884
 """
 
 from __future__ import annotations

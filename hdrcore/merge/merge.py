@@ -25,8 +25,9 @@ Hand-held frames need not be warped beforehand: with ``transforms`` the merge re
 itself (Keys cubic convolution from the integer levels, see :func:`merge`; ``resample="bilinear"``
 is a faster, softer opt-in), so the pipeline passes the bracket's own levels and no warped float
 copies exist. The fused kernel reads one byte per resampled pixel for the "any tap clipped" test
-(a per-frame mask of clipped supports, built in one pass) and skips the taps of samples it drops
-(clipped or no data) unless a fallback needs their value.
+(a per-frame mask of clipped supports, built in one pass) and runs the taps of pixels that share
+their source rows as contiguous SIMD loops (see :mod:`hdrcore.merge._fused`); the support
+leaving the frame reads as no data.
 
 The work runs over chunks of rows so that every temporary stays in cache (float32 throughout); the
 peak memory beyond inputs and outputs is a few megabytes per worker.
@@ -970,7 +971,8 @@ def _run_numba(
     force_tables: bool = False,
 ) -> None:
     """The fused kernel over ``spans`` of rows: per-level tables for integer frames with a LUT,
-    inline arithmetic for linear frames (float, or integer levels without a LUT)."""
+    the SIMD kernel for resampled frames and linear ones (float, or integer levels without a
+    LUT) read in place."""
     p = kernel.p
     frames = p.frames
     if p.integer and len({f.dtype for f in frames}) > 1:
