@@ -610,7 +610,9 @@ class _Kernel:
             for jy in range(ntap):
                 row = lrow = None
                 for jx in range(ntap):
-                    taps = flat.take(base + ((jy * w + jx) * c + ch))
+                    # (clip: an outside pixel of a frame smaller than the support reads
+                    # some sample; its value and flag are discarded below)
+                    taps = flat.take(base + ((jy * w + jx) * c + ch), mode="clip")
                     tap_clip |= taps >= p.saturation[ch]
                     if p.lut is not None and np.any((taps >= p.lut_len) & inside):
                         raise IndexError(f"level {int(taps.max())} past the end of the LUT")

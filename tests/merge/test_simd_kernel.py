@@ -1,0 +1,84 @@
+"""The SIMD layout of :func:`hdrcore.merge._fused.merge_rows_warped` against the numpy reference.
+
+The kernel cuts each row into blocks of ``_fused._WBLOCK`` pixels and each block into runs of
+pixels whose supports share their source rows and column offset; the suite's usual frames are
+narrower than one block. These frames are wider than two blocks, with motions that break runs
+at many places (rotation: the source row steps; shear and scale: the column offset steps; a
+large shift: supports leave the frame at both ends), and must give the reference's result bit
+for bit.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from hdrcore.merge import _fused, merge
+
+from ._brackets import inverse_gamma_lut
+from .test_engines import both
+
+pytest.importorskip("numba")
+
+WIDE = (24, 2 * _fused._WBLOCK + 77)  # two full blocks and a partial one per row
+
+
+def _frames(dtype=np.uint16, max_level: int = 4095, seed: int = 0) -> list[np.ndarray]:
+    rng = np.random.default_rng(seed)
+    h, w = WIDE
+    yy, xx = np.mgrid[0:h, 0:w]
+    # smooth scene with fine detail, a few clipped spots in the brighter frames
+    base = 0.35 + 0.25 * np.sin(xx / 7.0)[..., None] * np.cos(yy / 5.0)[..., None]
+    base = base * np.array([1.0, 0.8, 0.6])
+    frames = []
+    for k, gain in enumerate((0.5, 1.0, 2.0)):
+        v = base * gain * max_level + rng.normal(0, 2.0, base.shape)
+        f = np.clip(np.rint(v), 0, max_level).astype(dtype)
+        frames.append(f)
+        assert k < 2 or (f >= 0.98 * max_level).any()
+    return frames
+
+
+MOTIONS = {
+    "rotation": np.array([[np.cos(0.02), -np.sin(0.02), 1.3], [np.sin(0.02), np.cos(0.02), -0.4]]),
+    "shear-scale": np.array([[1.003, 0.01, -2.2], [0.0, 0.998, 0.7]]),
+    "large-shift": np.array([[1.0, 0.0, 35.25], [0.0, 1.0, 3.5]]),
+}
+
+
+@pytest.mark.parametrize("resample", ["cubic", "bilinear"])
+@pytest.mark.parametrize("motion", sorted(MOTIONS))
+def test_wide_rows_agree_bit_for_bit(motion, resample):
+    frames = _frames()
+    tf = [MOTIONS[motion], None, np.linalg.inv(np.vstack([MOTIONS[motion], [0, 0, 1]]))[:2]]
+    both(frames, (1.0, 2.0, 4.0), max_level=4095, transforms=tf, resample=resample)
+
+
+def test_wide_rows_with_masks_and_a_lut_agree_bit_for_bit():
+    frames = _frames(np.uint8, 255, seed=1)
+    mask = np.ones(WIDE, bool)
+    mask[5:15, 600:900] = False
+    tf = [MOTIONS["rotation"], MOTIONS["shear-scale"], None]
+    both(frames, (1.0, 2.0, 4.0), response=inverse_gamma_lut(255), transforms=tf,
+         masks=[None, mask, mask])
+
+
+@pytest.mark.parametrize("weighting", ["hat", "noise-aware", "uniform"])
+def test_wide_linear_frames_read_in_place_agree_bit_for_bit(weighting):
+    # no transform at all: the tripod path of linear levels takes the same kernel
+    frames = _frames(seed=2)
+    mask = np.ones(WIDE, bool)
+    mask[:, 1000:1100] = False
+    res, _ = both(frames, (1.0, 2.0, 4.0), max_level=4095, weighting=weighting,
+                  masks=[mask, None, None], noise_floor=20)
+    assert res.clipped.any() or res.clip_count.any()
+
+
+def test_frames_smaller_than_the_support_are_no_data():
+    # every 4x4 support leaves a 3 x 3 frame: the resampled frame reads no taps and has no data
+    frames = [np.full((3, 3, 3), 100 * (k + 1), np.uint16) for k in range(3)]
+    tf = [np.array([[1.0, 0.0, 0.25], [0.0, 1.0, 0.5]]), None, None]
+    res = merge(frames, (1.0, 2.0, 4.0), max_level=4095, transforms=tf, engine="numba")
+    assert (res.shares[0] == 0).all()
+    ref = merge(frames, (1.0, 2.0, 4.0), max_level=4095, transforms=tf, engine="numpy")
+    np.testing.assert_array_equal(res.radiance, ref.radiance)
