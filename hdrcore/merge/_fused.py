@@ -16,8 +16,9 @@ Two kernels:
   then the block is cut into runs of pixels whose 4 x 4 supports share their source rows and
   column offset (under a small rotation a run is about ``1 / sin(angle)`` pixels long): over
   a run the taps of each source row are contiguous, so the 16 taps are 16 multiply-adds over
-  contiguous memory instead of 48 scattered loads per pixel. The "any tap clipped" test reads
-  one byte per pixel from a per-frame mask of clipped supports (:func:`clip_support_rows`).
+  contiguous memory instead of 48 scattered loads per pixel. The "any tap clipped" test is
+  made per run too: each source column of the run once, then ``ntap`` columns per support
+  (:func:`_clipped_supports`).
 * :func:`merge_rows_integer` -- integer frames with a response LUT, through per-level tables
   built *by the reference itself* (its linearisation and weight function applied to every
   level ``0..L-1`` of every frame and channel): for each level the table holds
@@ -361,58 +362,6 @@ def _keys(f):
     return np.float32(w0), np.float32(w1), np.float32(w2), np.float32(w3)
 
 
-@_njit
-def clip_support_rows(fr, s0, s1, s2, r0, r1, out, ntap=4):
-    """``out[y, x] = 1`` when any sample of ``fr[y:y + n, x:x + n]`` (``n = ntap``, any
-    channel) is at or above its threshold ``s*`` (in the frame's dtype, :func:`tap_thresholds`),
-    for rows ``r0:r1`` with ``y <= H - n`` (the n x n support whose top-left tap is ``(x, y)``;
-    columns past ``W - n`` see the samples that exist). One compare per sample instead of
-    ``3 n**2`` per tap read: the warped kernel reads one byte per resampled pixel."""
-    h = fr.shape[0]
-    w = fr.shape[1]
-    ring = np.zeros((ntap, w), np.uint8)
-    c = np.zeros(w + ntap - 1, np.uint8)
-    for yy in range(r0, min(r1 + ntap - 1, h)):
-        row = fr[yy]
-        for x in range(w):
-            c[x] = np.uint8((row[x, 0] >= s0) | (row[x, 1] >= s1) | (row[x, 2] >= s2))
-        hr = ring[yy % ntap]
-        # the taps' loops spelled out per support size: straight SIMD loops
-        if ntap == 4:
-            for x in range(w):
-                hr[x] = (c[x] | c[x + 1]) | (c[x + 2] | c[x + 3])
-        elif ntap == 2:
-            for x in range(w):
-                hr[x] = c[x] | c[x + 1]
-        else:
-            for x in range(w):
-                v = c[x]
-                for j in range(1, ntap):
-                    v |= c[x + j]
-                hr[x] = v
-        y = yy - (ntap - 1)
-        if y >= r0:
-            o = out[y]
-            if ntap == 4:
-                q0 = ring[0]
-                q1 = ring[1]
-                q2 = ring[2]
-                q3 = ring[3]
-                for x in range(w):
-                    o[x] = (q0[x] | q1[x]) | (q2[x] | q3[x])
-            elif ntap == 2:
-                q0 = ring[0]
-                q1 = ring[1]
-                for x in range(w):
-                    o[x] = q0[x] | q1[x]
-            else:
-                for x in range(w):
-                    v = ring[0, x]
-                    for j in range(1, ntap):
-                        v |= ring[j, x]
-                    o[x] = v
-
-
 def tap_thresholds(sat: np.ndarray, dtype: np.dtype) -> np.ndarray:
     """Per-channel thresholds in ``dtype`` with ``v >= thr`` exactly when ``float64(v) >= sat``
     (integer frames: ``ceil(sat)``; float32 frames: the smallest float32 not below ``sat``)."""
@@ -738,9 +687,32 @@ def _expand3(nt, nbk, src, dst):
 
 
 @_njit
+def _clipped_supports(flat, iy0, c0, m, ntap, t0, t1, t2, cf, out):
+    """``out[q]`` (``q < m``): whether the ``ntap x ntap`` support with top-left tap
+    ``(c0 + q, iy0)`` holds a sample at or above its threshold (``t*``, in the frame's dtype,
+    :func:`tap_thresholds`) in any channel. A run's supports share their rows, so each column
+    is tested once (``cf``) and each support ORs ``ntap`` columns: straight loops."""
+    ncol = m + ntap - 1
+    for q in range(ncol):
+        cf[q] = False
+    for jy in range(ntap):
+        row = flat[iy0 + jy]
+        r = row[3 * c0:3 * (c0 + ncol)]
+        for q in range(ncol):
+            e = 3 * q
+            cf[q] = cf[q] | ((r[e] >= t0) | (r[e + 1] >= t1) | (r[e + 2] >= t2))
+    if ntap == 4:
+        for q in range(m):
+            out[q] = (cf[q] | cf[q + 1]) | (cf[q + 2] | cf[q + 3])
+    else:
+        for q in range(m):
+            out[q] = cf[q] | cf[q + 1]
+
+
+@_njit
 def merge_rows_warped(
     frames, flats, masks, has_mask, mats, has_mat, order, times, inv_t, inv_t2, t2, wcode, shot,
-    const_var, floor_norm, inv_max, max_level, hi, has_lut, lut, lut_var, sat, supports, me2,
+    const_var, floor_norm, inv_max, max_level, hi, has_lut, lut, lut_var, sat, tap_thr, me2,
     thr, r0, r1,
     rad, wsum_out, shares, clip_count, clipped_out, under_out, gscore, ghost, ntap, oor,
 ):
@@ -748,7 +720,8 @@ def merge_rows_warped(
     ``mats[k] @ (x, y, 1)`` (``ntap`` 4: Keys cubic, 4 weights per axis shared by the 3
     channels; 2: bilinear), the others at ``(x, y)``; ``flats[k]`` is frame ``k`` as
     ``(H, W * 3)``. A resampled frame is clipped at a pixel when any of the taps of any channel
-    is at or above its saturation level (``supports[k]``, :func:`clip_support_rows`), and
+    is at or above its saturation level (``tap_thr``: :func:`tap_thresholds` in the frames'
+    dtype; :func:`_clipped_supports`), and
     invalid when the support leaves the frame (its values read 0 there). ``oor[k]``: frame
     ``k`` (resampled, with a LUT) holds levels past the LUT, so clipped supports are searched
     for them. Integer levels with a LUT are interpolated, then read linearly between table
@@ -790,6 +763,10 @@ def merge_rows_warped(
     sp = np.empty(bw, np.float32)
     tc = np.empty(bw, np.bool_)
     ones = np.ones(bw, np.bool_)
+    cf = np.empty(bw + 4, np.bool_)  # per source column of a run: any tap clipped
+    th0 = tap_thr[0]
+    th1 = tap_thr[1]
+    th2 = tap_thr[2]
     bb = np.empty(b3, np.float32)
     cc = np.empty(b3, np.float32)
     radf = rad.reshape(h, w * 3)
@@ -824,7 +801,6 @@ def merge_rows_warped(
             warped = has_mat[k]
             vrow = masks[k][y, x0:x1] if has_mask[k] else ones[:nbk]  # valid (mask)
             if warped:
-                sup = supports[k]
                 m00 = mats[k, 0, 0]
                 m01 = mats[k, 0, 1]
                 m02 = mats[k, 0, 2]
@@ -867,10 +843,8 @@ def merge_rows_warped(
                     while i < nbk and ins[i] and iys[i] == iy0 and ixs[i] - i == dx:
                         i += 1
                     _taps_run(flat, iy0, 3 * dx, 3 * s, 3 * i, ntap, wxe, wye, acc, xk, hi)
-                    srow = sup[iy0, dx + s:dx + i]
-                    tcs = tc[s:i]
-                    for q in range(i - s):
-                        tcs[q] = srow[q] != 0
+                    _clipped_supports(flat, iy0, dx + s, i - s, ntap, th0, th1, th2, cf,
+                                      tc[s:i])
                 if oor[k]:  # levels past the LUT are clipped: count them
                     for i in range(nbk):
                         if ins[i] and tc[i]:

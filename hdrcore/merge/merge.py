@@ -24,10 +24,9 @@ values. The radiance is in the units of ``g(M) / dt``: with times relative to th
 Hand-held frames need not be warped beforehand: with ``transforms`` the merge resamples them
 itself (Keys cubic convolution from the integer levels, see :func:`merge`; ``resample="bilinear"``
 is a faster, softer opt-in), so the pipeline passes the bracket's own levels and no warped float
-copies exist. The fused kernel reads one byte per resampled pixel for the "any tap clipped" test
-(a per-frame mask of clipped supports, built in one pass) and runs the taps of pixels that share
-their source rows as contiguous SIMD loops (see :mod:`hdrcore.merge._fused`); the support
-leaving the frame reads as no data.
+copies exist. The fused kernel runs the taps and the "any tap clipped" test of pixels whose
+supports share their source rows as contiguous SIMD loops (see :mod:`hdrcore.merge._fused`); a
+support leaving the frame reads as no data.
 
 The work runs over chunks of rows so that every temporary stays in cache (float32 throughout); the
 peak memory beyond inputs and outputs is a few megabytes per worker.
@@ -939,35 +938,6 @@ def _fused_supported(plan: _Plan) -> str | None:
     return None
 
 
-def _clip_supports(
-    frames: tuple[np.ndarray, ...], has_mat: np.ndarray, tap_thr: np.ndarray, workers: int,
-    ntap: int,
-) -> tuple[np.ndarray, ...]:
-    """Per frame, uint8 ``(H, W)``: 1 where the ``ntap x ntap`` support with that top-left tap
-    holds a clipped sample (any channel); a 1x1 dummy for frames read in place."""
-    h = frames[0].shape[0]
-    out = []
-    spans = [(r, min(h, r + 256)) for r in range(0, h, 256)]
-    for k, f in enumerate(frames):
-        if not has_mat[k]:
-            out.append(np.zeros((1, 1), np.uint8))
-            continue
-        sup = np.zeros(f.shape[:2], np.uint8)
-        s0, s1, s2 = tap_thr
-
-        def work(span, f=f, sup=sup, s0=s0, s1=s1, s2=s2) -> None:
-            _fused.clip_support_rows(f, s0, s1, s2, span[0], span[1], sup, ntap)
-
-        if workers == 1:
-            for sp in spans:
-                work(sp)
-        else:
-            with ThreadPoolExecutor(max_workers=workers) as pool:
-                list(pool.map(work, spans))
-        out.append(sup)
-    return tuple(out)
-
-
 def _run_numba(
     kernel: _Kernel, out: _Outputs, spans: list[tuple[int, int]], workers: int,
     force_tables: bool = False,
@@ -1010,7 +980,6 @@ def _run_numba(
         hi = np.float32(max_level)
         tap_thr = _fused.tap_thresholds(sat, frames_t[0].dtype)
         ntap = 4 if p.resample == "cubic" else 2
-        supports = _clip_supports(frames_t, has_mat, tap_thr, workers, ntap)
         # levels past the LUT (refused): only a frame that holds any is searched for them
         lmax = lut.shape[1] - 1
         oor = np.array([
@@ -1024,7 +993,7 @@ def _run_numba(
             return _fused.merge_rows_warped(
                 frames_t, flats, masks_t, has_mask, mats, has_mat, order, times, inv_t, inv_t2, t2,
                 wcode, kernel.shot, kernel.const_var, kernel.floor_norm, kernel.inv_max,
-                max_level, hi, has_lut, lut, lut_var, sat, supports, me2, thr, span[0], span[1],
+                max_level, hi, has_lut, lut, lut_var, sat, tap_thr, me2, thr, span[0], span[1],
                 *outs, ntap, oor,
             )
     elif p.lut is not None or force_tables:

@@ -214,8 +214,8 @@ def test_bad_resampling_name_is_refused():
 
 
 @pytest.mark.parametrize("ntap", [4, 2])
-@pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
-def test_clip_support_mask_is_the_nxn_any_of_the_taps(dtype, ntap):
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16, np.float32])
+def test_clipped_supports_are_the_nxn_any_of_the_taps(dtype, ntap):
     from hdrcore.merge import _fused
 
     rng = np.random.default_rng(5)
@@ -223,12 +223,16 @@ def test_clip_support_mask_is_the_nxn_any_of_the_taps(dtype, ntap):
     fr = rng.integers(0, 250, (h, w, 3)).astype(dtype)
     thr = _fused.tap_thresholds(np.array([240.0, 245.5, 248.0]), fr.dtype)
     clipped = (fr >= thr).any(axis=2)
-    out = np.zeros((h, w), np.uint8)
-    for r0 in range(0, h, 8):  # row spans as the threads run them
-        _fused.clip_support_rows(fr, thr[0], thr[1], thr[2], r0, min(h, r0 + 8), out, ntap)
-    for y in range(h - ntap + 1):
-        for x in range(w - ntap + 1):
-            assert out[y, x] == clipped[y:y + ntap, x:x + ntap].any(), (y, x)
+    assert clipped.mean() > 0.05
+    flat = fr.reshape(h, -1)
+    cf = np.empty(w + 4, bool)
+    for iy in range(h - ntap + 1):
+        for c0, m in ((0, w - ntap + 1), (3, 7), (w - ntap, 1)):  # runs of supports in a row
+            out = np.zeros(m, bool)
+            _fused._clipped_supports(flat, iy, c0, m, ntap, thr[0], thr[1], thr[2], cf, out)
+            for q in range(m):
+                x = c0 + q
+                assert out[q] == clipped[iy:iy + ntap, x:x + ntap].any(), (iy, x)
 
 
 @pytest.mark.parametrize("lut", [False, True])
