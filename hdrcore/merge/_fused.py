@@ -721,12 +721,11 @@ def merge_rows_warped(
     channels; 2: bilinear), the others at ``(x, y)``; ``flats[k]`` is frame ``k`` as
     ``(H, W * 3)``. A resampled frame is clipped at a pixel when any of the taps of any channel
     is at or above its saturation level (``tap_thr``: :func:`tap_thresholds` in the frames'
-    dtype; :func:`_clipped_supports`), and
-    invalid when the support leaves the frame (its values read 0 there). ``oor[k]``: frame
-    ``k`` (resampled, with a LUT) holds levels past the LUT, so clipped supports are searched
-    for them. Integer levels with a LUT are interpolated, then read linearly between table
-    entries; integer levels without one and float frames are linear
-    (``level = value * inv_max``). Returns the number of samples above the LUT's last level
+    dtype; :func:`_clipped_supports`), and invalid when the support leaves the frame (its
+    values read 0 there). ``oor[k]``: frame ``k`` (resampled, with a LUT) holds levels past
+    the LUT, so clipped supports are searched for them. Integer levels with a LUT are
+    interpolated, then read linearly between table entries; integer levels without one and
+    float frames are linear (``level = value * inv_max``). Returns the number of samples above the LUT's last level
     (the caller refuses the input).
     """
     n = len(frames)
