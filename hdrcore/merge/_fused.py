@@ -725,8 +725,8 @@ def merge_rows_warped(
     values read 0 there). ``oor[k]``: frame ``k`` (resampled, with a LUT) holds levels past
     the LUT, so clipped supports are searched for them. Integer levels with a LUT are
     interpolated, then read linearly between table entries; integer levels without one and
-    float frames are linear (``level = value * inv_max``). Returns the number of samples above the LUT's last level
-    (the caller refuses the input).
+    float frames are linear (``level = value * inv_max``). Returns the number of samples
+    above the LUT's last level (the caller refuses the input).
     """
     n = len(frames)
     h = frames[0].shape[0]
