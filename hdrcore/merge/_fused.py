@@ -576,6 +576,81 @@ def _accumulate_run(
 
 
 @_njit
+def _accumulate_lut_run(
+    xk, okf, nbk, wcode, inv_max, shot, const_var, floor_norm, itk, it2, t2k, lut, lut_var,
+    den, num, s2, sv, wbuf,
+):
+    """The sums of one resampled frame with a LUT over ``nbk`` pixels: each channel's
+    interpolated level read linearly between the entries of its LUT row (as
+    :func:`_lut_value`), one straight loop per channel and weighting."""
+    zero = np.float32(0.0)
+    one = np.float32(1.0)
+    lmax1 = lut.shape[1] - 2
+    for ch in range(3):
+        lr = lut[ch]
+        vr = lut_var[ch]
+        if wcode == 0:
+            for i in range(nbk):
+                e = 3 * i + ch
+                v = xk[e]
+                level = v * inv_max
+                # v >= 0 (clamped interpolation): max() only tells the compiler so
+                lo = min(max(int(v), 0), lmax1)
+                frac = v - np.float32(lo)
+                l0 = lr[lo]
+                xv = lr[lo + 1] - l0
+                xv = xv * frac
+                xv = xv + l0
+                q0 = vr[lo]
+                var = vr[lo + 1] - q0
+                var = var * frac
+                var = var + q0
+                if shot != zero:
+                    var = var + xv * shot
+                var = var + const_var
+                ev = xv * itk
+                wk = level * np.float32(2.0)
+                wk = wk - one
+                wk = one - abs(wk)
+                wk = wk * (okf[e] if level > floor_norm else zero)
+                wbuf[e] = wk
+                den[e] += wk
+                var = var * wk
+                sv[e] += var * it2
+                wk = wk * ev
+                num[e] += wk
+                s2[e] += wk * ev
+        else:
+            for i in range(nbk):
+                e = 3 * i + ch
+                v = xk[e]
+                level = v * inv_max
+                lo = min(max(int(v), 0), lmax1)
+                frac = v - np.float32(lo)
+                l0 = lr[lo]
+                xv = lr[lo + 1] - l0
+                xv = xv * frac
+                xv = xv + l0
+                q0 = vr[lo]
+                var = vr[lo + 1] - q0
+                var = var * frac
+                var = var + q0
+                if shot != zero:
+                    var = var + xv * shot
+                var = var + const_var
+                ev = xv * itk
+                wk = _weight(wcode, level, var, t2k)
+                wk = wk * (okf[e] if level > floor_norm else zero)
+                wbuf[e] = wk
+                den[e] += wk
+                var = var * wk
+                sv[e] += var * it2
+                wk = wk * ev
+                num[e] += wk
+                s2[e] += wk * ev
+
+
+@_njit
 def _taps_run(flat, iy0, b, e0, e1, ntap, wxe, wye, acc, xk, hi):
     """Interpolated values ``xk[e0:e1]`` of a run of pixels whose support starts at row
     ``iy0`` and element ``b + e`` of the frame's flattened rows (``(H, W * 3)``). Zero-based
@@ -887,14 +962,17 @@ def merge_rows_warped(
             itk = inv_t[k]
             it2 = inv_t2[k]
             t2k = t2[k]
-            if has_lut:
+            if has_lut and warped:
+                _accumulate_lut_run(xk, okf, nbk, wcode, inv_max, shot, const_var, floor_norm,
+                                    itk, it2, t2k, lut, lut_var, den, num, s2, sv, wbuf)
+            elif has_lut:
                 for e in range(ne):
                     ch = e % 3
                     v = xk[e]
                     level = v * inv_max
-                    if not warped and int(v) > lmax:
+                    if int(v) > lmax:
                         out_of_range += 1
-                    xv, var = _lut_value(v, ch, warped, lut, lut_var, lmax)
+                    xv, var = _lut_value(v, ch, False, lut, lut_var, lmax)
                     if shot != zero:
                         var = var + xv * shot
                     var = var + const_var
