@@ -217,3 +217,26 @@ def test_histogram_refinement_still_runs_by_name(demo_result) -> None:
     assert off.exposures is off.exposures_histogram
     with pytest.raises(ParameterError):
         Pipeline(b, PipelineParams(refine_ratios="pixel")).run(until="ratios")
+
+
+def test_reuse_buffers_writes_the_next_merge_into_the_previous_arrays(demo_result) -> None:
+    b = demo_result[0].bracket
+    fresh = Pipeline(b).run(until="merge")
+    pipe = Pipeline(b, reuse_buffers=True)
+    first = pipe.run(until="merge")
+    first_radiance = first.radiance
+    pipe.clear_cache()
+    second = pipe.run(until="merge")
+    assert np.shares_memory(second.merge.radiance, first.merge.radiance)
+    np.testing.assert_array_equal(second.radiance, fresh.radiance)
+    # A parameter change that makes the merge stale reuses the cached merge's arrays.
+    third = pipe.run(second.params.replace(noise_floor=second.noise_floor + 20), until="merge")
+    assert np.shares_memory(third.merge.shares, first.merge.shares)
+    other = Pipeline(b).run(third.params, until="merge")
+    np.testing.assert_array_equal(third.radiance, other.radiance)
+    assert first_radiance is first.radiance  # the old result object now holds the new values
+    # Without the option every merge has arrays of its own.
+    plain = Pipeline(b)
+    a = plain.run(until="merge")
+    plain.clear_cache()
+    assert not np.shares_memory(plain.run(until="merge").merge.radiance, a.merge.radiance)
