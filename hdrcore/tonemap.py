@@ -51,13 +51,63 @@ _LUT_SIZE = 1 << 16
 _DELTA = 1e-6  # Reinhard's delta in eq. 1, avoids log(0) on black pixels
 
 
-@lru_cache(maxsize=1)
-def _luminance_weights() -> np.ndarray:
-    """Rec.709 / sRGB luminance weights (the Y row of the RGB -> XYZ matrix)."""
-    import colour  # imported lazily: colour-science (with colour.plotting) takes seconds
+def _cache_file() -> str | None:
+    """Where colour-science's constants for the preview are kept between processes: the user's
+    cache folder, one file per colour-science version (``None`` if unknown)."""
+    try:
+        from importlib.metadata import version
+
+        ver = version("colour-science")
+    except Exception:
+        return None
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return os.path.join(base, "hdrcore", f"srgb-colour-science-{ver}-{_LUT_SIZE}.npz")
+
+
+def _compute_constants() -> tuple[np.ndarray, np.ndarray]:
+    import colour  # imported lazily: colour-science takes about 0.6 s to import
 
     m = np.asarray(colour.RGB_COLOURSPACES["sRGB"].matrix_RGB_to_XYZ, dtype=np.float64)
-    return m[1].astype(np.float32)
+    x = np.linspace(0.0, 1.0, _LUT_SIZE)
+    v = np.asarray(colour.cctf_encoding(x, function="sRGB"), dtype=np.float64)
+    return m[1].astype(np.float32), np.clip(np.rint(v * 255.0), 0, 255).astype(np.uint8)
+
+
+@lru_cache(maxsize=1)
+def _colour_constants() -> tuple[np.ndarray, np.ndarray]:
+    """``(luminance weights, sRGB 16-bit -> 8-bit table)`` from colour-science.
+
+    Both are computed by colour-science (the Y row of its sRGB RGB -> XYZ matrix, and its sRGB
+    ``cctf_encoding`` sampled at 65536 points) and kept in the user's cache folder, keyed by the
+    colour-science version: importing colour-science costs about 0.6 s, which a command that
+    only writes a preview would pay on every run. A missing, stale or unreadable cache is
+    computed again; a cache that cannot be written is not an error.
+    """
+    path = _cache_file()
+    if path is not None:
+        try:
+            with np.load(path) as z:
+                y, lut = z["luminance"], z["srgb"]
+            if y.shape == (3,) and y.dtype == np.float32 and lut.shape == (_LUT_SIZE,) \
+                    and lut.dtype == np.uint8:
+                return y, lut
+        except (OSError, KeyError, ValueError):
+            pass
+    y, lut = _compute_constants()
+    if path is not None:
+        try:
+            os.makedirs(os.path.dirname(path), exist_ok=True)
+            tmp = f"{path}.{os.getpid()}.tmp.npz"
+            np.savez(tmp, luminance=y, srgb=lut)
+            os.replace(tmp, path)
+        except OSError:
+            pass
+    return y, lut
+
+
+def _luminance_weights() -> np.ndarray:
+    """Rec.709 / sRGB luminance weights (the Y row of colour-science's RGB -> XYZ matrix)."""
+    return _colour_constants()[0]
 
 
 def _luminance(rgb: np.ndarray) -> np.ndarray:
@@ -113,13 +163,9 @@ TONEMAP_OPERATORS: dict[str, Callable[..., np.ndarray]] = {
 """Global operators by name: exposed radiance (float32, modified in place) -> [0, 1]."""
 
 
-@lru_cache(maxsize=1)
 def _srgb_lut() -> np.ndarray:
-    import colour  # imported lazily
-
-    x = np.linspace(0.0, 1.0, _LUT_SIZE)
-    v = np.asarray(colour.cctf_encoding(x, function="sRGB"), dtype=np.float64)
-    return np.clip(np.rint(v * 255.0), 0, 255).astype(np.uint8)
+    """colour-science's sRGB encoding at 65536 points, as 8-bit codes."""
+    return _colour_constants()[1]
 
 
 def srgb_encode_8bit(x: np.ndarray) -> np.ndarray:
