@@ -68,8 +68,12 @@ def _peak_mb() -> float:
 
 
 def child_ours(d: Path) -> dict:
+    from hdrcore._memory import retain_freed_memory
     from hdrcore.io import load_bracket
     from hdrcore.pipeline import Pipeline, PipelineParams
+
+    # As the hdrcore and hdrview programs do (HDRCORE_RETAIN_MEMORY=0 to compare without).
+    retained = retain_freed_memory()
 
     t0 = time.perf_counter()
     bracket = load_bracket([d])
@@ -104,6 +108,7 @@ def child_ours(d: Path) -> dict:
         for k, p in enumerate(res.registration.pairs)
     ] if res.registration is not None else []
     return {
+        "retain_freed_memory": retained,
         "decode_s": decode,
         "pipeline_s": total,
         "cold_s": cold,
@@ -216,7 +221,8 @@ def main() -> None:
     ours, cv = res.get("ours", {}), res.get("opencv", {})
     if "error" not in ours and ours:
         print("\n## ours, per stage (seconds): first run in a new process (numba kernels load "
-              "from their cache) and a second run in the same process")
+              "from their cache) and a second run in the same process; glibc keeps freed "
+              f"memory as in the hdrcore program: {ours.get('retain_freed_memory')}")
         print(f"{'stage':<20}{'first':>8}{'second':>8}")
         print(f"{'decode':<20}{ours['decode_s']:>8.2f}   (excluded from the totals)")
         for k, v in ours["stages"].items():

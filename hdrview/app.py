@@ -604,6 +604,10 @@ def create_app(
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    if argv is None:  # run as the program: large buffers reuse freed memory (hdrcore._memory)
+        from hdrcore._memory import retain_freed_memory
+
+        retain_freed_memory()
     args = build_parser().parse_args(argv)
     logging.basicConfig(
         level=logging.DEBUG if args.debug else logging.INFO,

@@ -47,6 +47,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    if argv is None:  # run as the program (not called from Python): see hdrcore._memory
+        from .._memory import retain_freed_memory
+
+        retain_freed_memory()
     parser = build_parser()
     args = parser.parse_args(argv)
     logging.basicConfig(
