@@ -238,19 +238,10 @@ def handheld_dng(reps: int = 3) -> None:
         del out
         return wall, cpu, sys_s
 
-    import hdrcore.pipeline as pipeline_module
-
     def ours(registration, reuse=None):
-        if reuse is None:
-            return pipe._merge(res.params, res.lut, res.exposure_times, registration, None)
-        # the same call with merge(..., reuse=previous result): what the pipeline would run if
-        # it handed its previous result's arrays over
-        plain = pipeline_module.merge
-        pipeline_module.merge = lambda *a, **k: plain(*a, reuse=reuse, **k)
-        try:
-            return pipe._merge(res.params, res.lut, res.exposure_times, registration, None)
-        finally:
-            pipeline_module.merge = plain
+        # with reuse: the previous result's arrays, as Pipeline(reuse_buffers=True) hands over
+        return pipe._merge(res.params, res.lut, res.exposure_times, registration, None,
+                           reuse=reuse)
 
     prev = ours(reg)[0]  # kernels compiled or loaded from numba's cache outside the runs
     rows: dict[str, list[tuple[float, float, float]]] = {
