@@ -58,19 +58,12 @@ from dataclasses import replace
 
 import numpy as np
 
+from .._numba import njit as _njit
 from ..errors import EstimationError, ParameterError
 from ._core import as_lut, channels_disagree, check_levels
 from .chain import assemble_bracket
 from .pair_histograms import chain_pair_matrix
 from .result import FORWARD, INVERSE, BracketExposureResult, ExposureEquations, ExposureRatioResult
-
-try:
-    import numba
-
-    _njit = numba.njit(nogil=True, cache=True, error_model="numpy")
-except ImportError:  # pragma: no cover - numba is a dependency
-    def _njit(fn):
-        return fn
 
 __all__ = ["METHOD", "exposure_ratio_registered", "bracket_exposures_from_pixels", "cfa_planes"]
 

@@ -48,20 +48,10 @@ import time
 
 import numpy as np
 
+from .._numba import AVAILABLE  # without numba the numpy reference runs
+from .._numba import njit as _njit
+
 logger = logging.getLogger(__name__)
-
-try:  # numba is a dependency; the numpy reference keeps working without it
-    import numba
-
-    _njit = numba.njit(nogil=True, cache=True, fastmath=False, error_model="numpy")
-    AVAILABLE = True
-except ImportError:  # pragma: no cover - exercised only without numba
-    numba = None
-    AVAILABLE = False
-
-    def _njit(fn):
-        return fn
-
 
 WEIGHT_CODES = {"hat": 0, "gaussian": 1, "noise-aware": 2, "uniform": 3}
 """Weighting names of :data:`hdrcore.merge.weights.WEIGHTS` -> the kernel's inline code."""

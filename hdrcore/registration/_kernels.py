@@ -26,23 +26,10 @@ import math
 
 import numpy as np
 
-try:  # numba is a dependency; the numpy reference keeps working without it
-    import numba
-
-    _njit = numba.njit(nogil=True, cache=True, fastmath=False, error_model="numpy")
-    # helpers are inlined: a call passing arrays would touch their reference counts per pixel
-    _inline = numba.njit(nogil=True, cache=True, fastmath=False, error_model="numpy",
-                         inline="always")
-    AVAILABLE = True
-except ImportError:  # pragma: no cover - exercised only without numba
-    numba = None
-    AVAILABLE = False
-
-    def _njit(fn):
-        return fn
-
-    _inline = _njit
-
+# helpers are inlined: a call passing arrays would touch their reference counts per pixel
+from .._numba import AVAILABLE
+from .._numba import inline as _inline
+from .._numba import njit as _njit
 
 __all__ = ["AVAILABLE", "bin_clip", "reduce2", "gauss_newton_sums", "score_candidates"]
 
