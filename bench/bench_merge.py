@@ -5,6 +5,7 @@
     python bench/bench_merge.py --no-numpy # only the fused kernel
     python bench/bench_merge.py --no-old   # skip today's pipeline path (float32 + shear warp)
     python bench/bench_merge.py --handheld-only  # the 24 MP DNG hand-held merge step only
+    python bench/bench_merge.py --handheld-only --retain-memory  # both without first-touch costs
 
 Frames come from ``hdrcore.synthetic.simulate_bracket`` at 750 x 500 and are upsampled by
 pixel repetition (generation time excluded). OpenCV needs 8-bit frames, so MergeDebevec always
@@ -278,9 +279,16 @@ def main() -> None:
     ap.add_argument("--mertens", action="store_true", help="also time MergeMertens")
     ap.add_argument("--no-numpy", action="store_true", help="skip the numpy reference rows")
     ap.add_argument("--no-old", action="store_true", help="skip today's pipeline path row")
+    ap.add_argument("--retain-memory", action="store_true",
+                    help="glibc keeps freed memory, as the hdrcore program does "
+                         "(hdrcore._memory); both contenders then reuse touched pages")
     args = ap.parse_args()
     import cv2
 
+    if args.retain_memory:
+        from hdrcore._memory import retain_freed_memory
+
+        print(f"# allocator: freed memory kept and reused: {retain_freed_memory()}")
     if args.handheld_only:
         warm_up()
         handheld_dng()
