@@ -314,9 +314,10 @@ def exposure_ratio_registered(
     pixels = int(min(n_f.sum(), n_i.sum()) / max(nk, 1))
     common = dict(method=METHOD, saturation=z, noise_floor=floor, max_level=int(max_level),
                   dark=int(dark_index), bright=int(bright_index), overlap_restricted=True)
-    eqs = _equations(sf, si, tf, ti, d, b)
-    total = float(h * w)
-    overlap = pixels / total
+    eqs = _equations(sf, si)
+    # The fraction of the read pixels (of the sampled tiles) that entered the sums.
+    examined = float(np.sum(np.minimum(tile, h - tf[:, 0]) * np.minimum(tile, w - tf[:, 1])))
+    overlap = pixels / max(examined, 1.0)
     if pixels < min_pixels or np.count_nonzero(n_f) < min_tiles or np.count_nonzero(
             n_i) < min_tiles:
         return ExposureRatioResult(
@@ -383,7 +384,7 @@ def exposure_ratio_registered(
     disagree = channels_disagree(cr, cse, k, disagreement_tolerance)
 
     inlier_mask = np.concatenate([np.repeat(in_f[:, None], nc, 1).ravel(),
-                                  np.repeat(in_i[:, None], nc, 1).ravel()])[eqs_keep(sf, si)]
+                                  np.repeat(in_i[:, None], nc, 1).ravel()])[_eqs_keep(sf, si)]
     residuals = eqs.weights * (eqs.y - k * eqs.x)
     rel = se / k if k > 0 else float("inf")
     n_in = int(np.count_nonzero(in_f) + np.count_nonzero(in_i))
@@ -418,16 +419,15 @@ def exposure_ratio_registered(
     )
 
 
-def eqs_keep(sf: np.ndarray, si: np.ndarray) -> np.ndarray:
+def _eqs_keep(sf: np.ndarray, si: np.ndarray) -> np.ndarray:
     """Which (tile, channel) rows of both directions hold pixels (the equations' rows)."""
     return np.concatenate([sf[:, :, 2].ravel(), si[:, :, 2].ravel()]) > 0
 
 
-def _equations(sf: np.ndarray, si: np.ndarray, tf: np.ndarray, ti: np.ndarray,
-               dark: np.ndarray, bright: np.ndarray) -> ExposureEquations:
+def _equations(sf: np.ndarray, si: np.ndarray) -> ExposureEquations:
     """The tiles as the equations ``k x = y`` the inspector draws (one per tile and channel)."""
     nc = sf.shape[1]
-    keep = eqs_keep(sf, si)
+    keep = _eqs_keep(sf, si)
     nf, ni = sf[:, :, 2].ravel(), si[:, :, 2].ravel()
     with np.errstate(divide="ignore", invalid="ignore"):
         x = np.concatenate([sf[:, :, 1].ravel() / nf, si[:, :, 0].ravel() / ni])
