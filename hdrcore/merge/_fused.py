@@ -365,14 +365,30 @@ def tap_thresholds(sat: np.ndarray, dtype: np.dtype) -> np.ndarray:
 
 
 @_njit
+def _div32(a, t, rt):
+    """``float32(a / t)`` (float64 ``a``, ``t``; ``rt = 1 / t``) by a multiplication: the
+    product is within a few float64 ulps of the quotient, so both round to the same float32
+    unless the product lies near a float32 rounding midpoint (low 29 mantissa bits near
+    ``2**28``) or in float32's subnormal range; only those take the division."""
+    q = np.float64(a * rt)
+    m = q.view(np.int64) & np.int64(0x1FFFFFFF)
+    if abs(m - np.int64(0x10000000)) <= np.int64(16) or q < 1.5e-38:
+        q = a / t
+    return np.float32(q)
+
+
+@_njit
 def _finish_block(
-    y, x0, x1, n, order, den, num, s2, sv, share, bad, clip, nbad, me2, thr,
+    y, x0, x1, n, order, den, num, s2, sv, share, fv, lo, nbad, me2, thr,
     rad, wsum_out, shares, clipped_out, under_out, gscore, ghost, mode, pick, anyz, invw,
     zflag, radf, bb, cc, sp,
 ):
-    """:func:`_finish_row` for interleaved sums (``den[3 i + ch]``): the common case (every
-    channel has weight) in straight passes (SIMD), the fallbacks of the rest in a last one.
-    Returns how many pixels need a fallback; their indices are ``anyz[:count]``."""
+    """:func:`_finish_row` for interleaved sums (``den[3 i + ch]``), every step a straight
+    pass (SIMD), the fallback decisions included: ``fv[i]`` is the first valid frame in exposure
+    order (-1: none), ``lo[i]`` the last one not dropped, ``nbad[i]`` the number dropped.
+    Returns how many pixels need a fallback value; their indices are ``anyz[:count]``, their
+    ``mode`` (1: every channel from frame ``pick``; 2: the channels without weight; 3: every
+    channel, the darkest frame's ``E_k``) and ``pick`` are set."""
     zero = np.float32(0.0)
     one = np.float32(1.0)
     nbk = x1 - x0
@@ -407,64 +423,45 @@ def _finish_block(
         v = sp[i]
         gh[i] = v > thr
         gs[i] = _f16_bits(v)
+    # fallbacks (the reference's _finish): a pixel with a channel of no weight that is clipped
+    # in every valid frame takes the darkest valid frame (mode 3 when that is the darkest
+    # frame, else 1; no valid frame at all: the darkest, not clipped); otherwise (some frame
+    # not dropped) the channels of no weight take the brightest frame not dropped (mode 2),
+    # which also takes all of the share when no channel has weight
+    co = clipped_out[y, x0:x1]
+    uo = under_out[y, x0:x1]
+    dk = order[0]
+    for i in range(nbk):
+        z = zflag[i]
+        allbad = nbad[i] == n
+        f = fv[i]
+        cl = z & allbad
+        md = np.int8(0)
+        if cl:
+            md = np.int8(3) if f == dk else np.int8(1)
+        elif z:
+            md = np.int8(2)
+        mode[i] = md
+        p = dk if f < 0 else f
+        p = p if cl else lo[i]
+        pick[i] = p
+        co[i] = allbad & (f >= 0) if z else allbad
+        uo[i] = z & (not allbad)
+        e = 3 * i
+        whole = (den[e] <= zero) & (den[e + 1] <= zero) & (den[e + 2] <= zero)
+        # the whole share to one frame: spread as a bit per frame (p < 64)
+        zflag[i] = cl | (z & whole)
     for k in range(n):
         sk = share[k]
         so = shares[k, y, x0:x1]
         for i in range(nbk):
-            so[i] = _f16_bits(sk[i] * invw[i])
-    clipped_out[y, x0:x1] = False
-    under_out[y, x0:x1] = False
+            h = _f16_bits(sk[i] * invw[i])
+            one_k = _ONE_F16 if pick[i] == k else np.uint16(0)
+            so[i] = one_k if zflag[i] else h
     nz = 0
     for i in range(nbk):
-        if zflag[i]:
-            anyz[nz] = i
-            nz += 1
-    for q in range(nz):
-        i = anyz[q]
-        x = x0 + i
-        e = 3 * i
-        is_clipped = nbad[i] == n
-        under = False
-        mode[i] = 0
-        if is_clipped:
-            dk = order[0]
-            if not (bad[dk, i] and not clip[dk, i]):
-                p = dk
-                mode[i] = 3
-            else:
-                p = -1
-                for j in range(n):
-                    k = order[j]
-                    if not (bad[k, i] and not clip[k, i]):
-                        p = k
-                        break
-                if p < 0:  # no valid frame at all: unknown, not clipped
-                    p = dk
-                    is_clipped = False
-                mode[i] = 1
-            for k in range(n):
-                shares[k, y, x] = np.uint16(0)
-            shares[p, y, x] = _ONE_F16
-            pick[i] = p
-        elif nbad[i] < n:
-            last = 0
-            for j in range(n):
-                if not bad[order[j], i]:
-                    last = j
-            p = order[last]
-            mode[i] = 2
-            pick[i] = p
-            whole = True
-            for ch in range(3):
-                if den[e + ch] > zero:
-                    whole = False
-            if whole:
-                for k in range(n):
-                    shares[k, y, x] = np.uint16(0)
-                shares[p, y, x] = _ONE_F16
-            under = True
-        clipped_out[y, x] = is_clipped
-        under_out[y, x] = under
+        anyz[nz] = i
+        nz += mode[i] != 0
     return nz
 
 
@@ -816,8 +813,8 @@ def merge_rows_warped(
     fys = np.empty(bw, np.float64)
     ins = np.empty(bw, np.bool_)
     share = np.empty((n, bw), np.float32)
-    bad = np.empty((n, bw), np.bool_)
-    clip = np.empty((n, bw), np.bool_)
+    fv = np.empty(bw, np.int64)  # first valid frame in exposure order (-1: none)
+    lo = np.empty(bw, np.int64)  # last frame not dropped
     nbad = np.empty(bw, np.int64)
     mode = np.empty(bw, np.int8)
     pick = np.empty(bw, np.int64)
@@ -834,6 +831,9 @@ def merge_rows_warped(
     bb = np.empty(b3, np.float32)
     cc = np.empty(b3, np.float32)
     radf = rad.reshape(h, w * 3)
+    rtimes = np.empty(n, np.float64)
+    for k in range(n):
+        rtimes[k] = 1.0 / times[k]
     lmax = lut.shape[1] - 1
     out_of_range = 0
     zero = np.float32(0.0)
@@ -855,6 +855,8 @@ def merge_rows_warped(
         s2[:ne] = zero
         sv[:ne] = zero
         nbad[:nbk] = 0
+        fv[:nbk] = -1
+        lo[:nbk] = 0
         crow = clip_count[y]
         crow[x0:x1] = 0
         for j in range(n):
@@ -933,17 +935,15 @@ def merge_rows_warped(
                              | (np.float64(xk[e + 2]) >= s2_))
                     ins[i] = vrow[i]
             # tc: clipped, ins: valid; a frame is dropped where invalid or clipped
-            ck = clip[k]
-            bk = bad[k]
             cs = crow[x0:x1]
             for i in range(nbk):
                 valid = ins[i]
                 cl = tc[i] & valid
                 b = (not valid) | cl
-                ck[i] = cl
-                bk[i] = b
                 cs[i] += np.uint8(cl)
                 nbad[i] += np.int64(b)
+                fv[i] = k if (fv[i] < 0) & valid else fv[i]
+                lo[i] = lo[i] if b else k
                 okv = zero if b else one
                 e = 3 * i
                 okf[e] = okv
@@ -983,36 +983,59 @@ def merge_rows_warped(
                 e = 3 * i
                 share[k, i] = (wbuf[e] + wbuf[e + 1]) + wbuf[e + 2]
         nz = _finish_block(
-            y, x0, x1, n, order, den, num, s2, sv, share, bad, clip, nbad, me2, thr,
+            y, x0, x1, n, order, den, num, s2, sv, share, fv, lo, nbad, me2, thr,
             rad, wsum_out, shares, clipped_out, under_out, gscore, ghost, mode, pick, anyz,
             invw, zflag, radf, bb, cc, sp,
         )
-        rrow = rad[y]
+        ro = radf[y, 3 * x0:3 * x1]
         for q in range(nz):
             i = anyz[q]
-            if mode[i] == 0:
+            md = mode[i]
+            if md == 0:
                 continue
-            x = x0 + i
             e = 3 * i
-            p = order[0] if mode[i] == 3 else pick[i]
-            warped = has_mat[p]
-            for ch in range(3):
-                if mode[i] == 3 or mode[i] == 1 or den[e + ch] <= zero:
+            if md == 3:  # the darkest frame's E_k, as the sums saw it
+                p = order[0]
+                itp = inv_t[p]
+                for ch in range(3):
                     v = xs[p, e + ch]
                     if has_lut:
-                        if warped:
+                        if has_mat[p]:
                             xv = _lut_value(v, ch, True, lut, lut_var, lmax)[0]
                         else:
                             xv = lut[ch, min(int(v), lmax)]
                     else:
                         xv = v * inv_max
-                    if mode[i] == 3:  # the darkest frame's E_k, as the sums saw it
-                        rrow[x, ch] = xv * inv_t[p]
-                    elif warped:
-                        rrow[x, ch] = np.float32(np.float64(xv) / times[p])
-                    elif has_lut:
-                        rrow[x, ch] = np.float32(np.float64(lut[ch, min(int(v), lmax)])
-                                                 / times[p])
-                    else:
-                        rrow[x, ch] = np.float32((np.float64(v) / max_level) / times[p])
+                    ro[e + ch] = xv * itp
+                continue
+            p = pick[i]
+            warped = has_mat[p]
+            tp = times[p]
+            rtp = rtimes[p]
+            every = md == 1
+            if has_lut:
+                for ch in range(3):
+                    if every or den[e + ch] <= zero:
+                        v = xs[p, e + ch]
+                        if warped:
+                            xv = _lut_value(v, ch, True, lut, lut_var, lmax)[0]
+                        else:
+                            xv = lut[ch, min(int(v), lmax)]
+                        ro[e + ch] = np.float32(np.float64(xv) / tp)
+            else:  # no branch per channel: all three computed, the needed ones kept
+                xp = xs[p]
+                if warped:
+                    a0 = np.float64(xp[e] * inv_max)
+                    a1 = np.float64(xp[e + 1] * inv_max)
+                    a2 = np.float64(xp[e + 2] * inv_max)
+                else:
+                    a0 = np.float64(xp[e]) / max_level
+                    a1 = np.float64(xp[e + 1]) / max_level
+                    a2 = np.float64(xp[e + 2]) / max_level
+                v0 = np.float32(a0 / tp)
+                v1 = np.float32(a1 / tp)
+                v2 = np.float32(a2 / tp)
+                ro[e] = v0 if every or den[e] <= zero else ro[e]
+                ro[e + 1] = v1 if every or den[e + 1] <= zero else ro[e + 1]
+                ro[e + 2] = v2 if every or den[e + 2] <= zero else ro[e + 2]
     return out_of_range
