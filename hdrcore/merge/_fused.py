@@ -365,19 +365,6 @@ def tap_thresholds(sat: np.ndarray, dtype: np.dtype) -> np.ndarray:
 
 
 @_njit
-def _div32(a, t, rt):
-    """``float32(a / t)`` (float64 ``a``, ``t``; ``rt = 1 / t``) by a multiplication: the
-    product is within a few float64 ulps of the quotient, so both round to the same float32
-    unless the product lies near a float32 rounding midpoint (low 29 mantissa bits near
-    ``2**28``) or in float32's subnormal range; only those take the division."""
-    q = np.float64(a * rt)
-    m = q.view(np.int64) & np.int64(0x1FFFFFFF)
-    if abs(m - np.int64(0x10000000)) <= np.int64(16) or q < 1.5e-38:
-        q = a / t
-    return np.float32(q)
-
-
-@_njit
 def _finish_block(
     y, x0, x1, n, order, den, num, s2, sv, share, fv, lo, nbad, me2, thr,
     rad, wsum_out, shares, clipped_out, under_out, gscore, ghost, mode, pick, anyz, invw,
@@ -844,9 +831,6 @@ def merge_rows_warped(
     bb = np.empty(b3, np.float32)
     cc = np.empty(b3, np.float32)
     radf = rad.reshape(h, w * 3)
-    rtimes = np.empty(n, np.float64)
-    for k in range(n):
-        rtimes[k] = 1.0 / times[k]
     lmax = lut.shape[1] - 1
     out_of_range = 0
     zero = np.float32(0.0)
@@ -1024,7 +1008,6 @@ def merge_rows_warped(
             p = pick[i]
             warped = has_mat[p]
             tp = times[p]
-            rtp = rtimes[p]
             every = md == 1
             if has_lut:
                 for ch in range(3):

@@ -82,3 +82,34 @@ def test_frames_smaller_than_the_support_are_no_data():
     assert (res.shares[0] == 0).all()
     ref = merge(frames, (1.0, 2.0, 4.0), max_level=4095, transforms=tf, engine="numpy")
     np.testing.assert_array_equal(res.radiance, ref.radiance)
+
+
+@pytest.mark.parametrize("resample", ["cubic", "bilinear"])
+@pytest.mark.parametrize("times", [(1.0, 2.0, 4.0), (4.0, 1.0, 2.0)])
+def test_every_fallback_agrees_bit_for_bit(resample, times):
+    # the kernel decides the fallbacks of a block in straight passes: each kind must occur
+    # here and give the reference's value, shares and flags
+    h, w = WIDE
+    frames = _frames(seed=4)
+    dark = int(np.argmin(times))  # the darkest frame
+    for f in frames:
+        f[:, 100:300] = 3  # below the noise floor in every frame: brightest frame's value
+        f[:, 300:420, 1] = 3  # one channel only
+        f[:, 500:700] = 4095  # clipped in every frame
+    masks = [np.ones(WIDE, bool) for _ in range(3)]
+    masks[dark][:, 600:700] = False  # ... the darkest one invalid: the next valid one's value
+    for m in masks:
+        m[:, 800:900] = False  # no valid frame at all: the darkest frame, not flagged clipped
+    c, s = np.cos(0.002), np.sin(0.002)
+    small = np.array([[c, -s, 1.3], [s, c, -0.4]])
+    tf = [small, None, MOTIONS["shear-scale"]]  # supports inside the frame over rows 5..18
+    ref, _ = both(frames, times, max_level=4095, transforms=tf, resample=resample, masks=masks,
+                  noise_floor=40)
+    mid = slice(5, h - 5)
+    assert ref.underexposed[mid, 120:280].all() and (ref.weight_sum[mid, 120:280] == 0).all()
+    assert ref.underexposed[mid, 320:400].all() and (ref.weight_sum[mid, 320:400] > 0).all()
+    assert ref.clipped[mid, 520:680].all()
+    assert not ref.clipped[mid, 820:880].any() and not ref.underexposed[mid, 820:880].any()
+    shares = ref.shares.astype(np.float32)
+    assert (shares[dark, mid, 520:580] == 1).all() and (shares[dark, mid, 620:680] == 0).all()
+    assert (shares[dark, mid, 820:880] == 1).all()
