@@ -838,12 +838,12 @@ def merge_rows_warped(
     nb = (w + _WBLOCK - 1) // _WBLOCK
     nr = r1 - r0
     o = 1.0 if ntap == 4 else 0.0
-    # column blocks outermost: consecutive rows of a block read the same band of source rows
-    # (a rotated frame's rows drift across many source rows over the full width)
+    # rows outermost: with blocks of 2048 pixels this measured faster than column blocks
+    # outermost (which kept a block's band of source rows in cache with blocks of 512)
     for yb in range(nr * nb):
-        y = r0 + yb % nr
+        y = r0 + yb // nb
         yf = np.float64(y)
-        x0 = (yb // nr) * _WBLOCK
+        x0 = (yb % nb) * _WBLOCK
         x1 = min(w, x0 + _WBLOCK)
         nbk = x1 - x0
         ne = 3 * nbk
