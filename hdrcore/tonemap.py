@@ -23,12 +23,12 @@ from __future__ import annotations
 import os
 import time
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from functools import lru_cache
 
 import numpy as np
 
+from ._threads import run_row_spans
 from .errors import ParameterError, validate_method
 
 try:
@@ -95,12 +95,13 @@ def _colour_constants() -> tuple[np.ndarray, np.ndarray]:
             pass
     y, lut = _compute_constants()
     if path is not None:
+        from .errors import HdrError
+        from .io.atomic import atomic_write
+
         try:
             os.makedirs(os.path.dirname(path), exist_ok=True)
-            tmp = f"{path}.{os.getpid()}.tmp.npz"
-            np.savez(tmp, luminance=y, srgb=lut)
-            os.replace(tmp, path)
-        except OSError:
+            atomic_write(path, lambda tmp: np.savez(tmp, luminance=y, srgb=lut), force=True)
+        except (OSError, HdrError):
             pass
     return y, lut
 
@@ -259,20 +260,12 @@ def _tonemap_numba(
     w2 = np.float32(1.0) if white is None else np.float32(white) ** 2
     y = _luminance_weights()
     lut = _srgb_lut()
-    n_workers = min(2, os.cpu_count() or 1) if workers is None else max(1, int(workers))
-    rows = max(1, -(-h // (8 * n_workers)))
-    spans = [(r, min(h, r + rows)) for r in range(0, h, rows)]
 
-    def work(span: tuple[int, int]) -> None:
+    def work(r0: int, r1: int) -> None:
         _tonemap_rows(src, np.float32(scale), _OPERATOR_CODES[method], white is not None,
-                      w2, y, lut, dst, span[0], span[1])
+                      w2, y, lut, dst, r0, r1)
 
-    if n_workers == 1:
-        for sp in spans:
-            work(sp)
-    else:
-        with ThreadPoolExecutor(max_workers=n_workers) as pool:
-            list(pool.map(work, spans))
+    run_row_spans(h, workers, work)
     return dst
 
 

@@ -61,6 +61,17 @@ class JackknifeSkeleton:
     n_levels: int
 
 
+def jackknife_std_error(leave_one_out: np.ndarray) -> tuple[float, int]:
+    """Jack-knife standard error ``sqrt((m - 1) / m * sum((k_(-r) - mean)^2))`` of the finite,
+    positive leave-one-out estimates, and their number ``m``."""
+    kk = np.asarray(leave_one_out, np.float64)
+    kk = kk[np.isfinite(kk) & (kk > 0)]
+    m = kk.size
+    if m == 0:
+        return float("nan"), 0
+    return float(np.sqrt((m - 1) / m * np.sum((kk - kk.mean()) ** 2))), m
+
+
 def _leave_one_out(regions: np.ndarray) -> np.ndarray:
     r = np.asarray(regions, np.float64)
     return r.sum(axis=0, keepdims=True) - r
@@ -148,10 +159,5 @@ def region_jackknife(
     n = use.reshape(n_r, -1).astype(np.float64)
     k = solve_3v_batch(w2 * x * x, w2 * x * y, w2 * y * y, n, precision=precision,
                        max_iterations=max_iterations)
-    ok = np.isfinite(k) & (k > 0)
-    if np.count_nonzero(ok) < 3:
-        return k, float("nan")
-    kk = k[ok]
-    m = kk.size
-    se = float(np.sqrt((m - 1) / m * np.sum((kk - kk.mean()) ** 2)))
-    return k, se
+    se, m = jackknife_std_error(k)
+    return k, se if m >= 3 else float("nan")

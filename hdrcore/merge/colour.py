@@ -23,12 +23,11 @@ Reference: D. Coffin, dcraw.c, ``convert_to_rgb()`` and ``cam_xyz_coeff()``; Lib
 
 from __future__ import annotations
 
-import os
 from collections.abc import Sequence
-from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
+from .._threads import run_row_spans
 from ..errors import ParameterError, validate_method
 
 try:
@@ -198,19 +197,11 @@ def camera_to_working(
         dst = out if out is not None else np.empty((h, w, 3), np.float32)
         m = np.ascontiguousarray(matrix, dtype=np.float64)
         msk = np.ascontiguousarray(mask) if mask is not None else np.zeros((1, 1), bool)
-        n_workers = min(2, os.cpu_count() or 1) if workers is None else max(1, int(workers))
-        rows = max(1, -(-h // (8 * n_workers)))
-        spans = [(r, min(h, r + rows)) for r in range(0, h, rows)]
 
-        def work(span: tuple[int, int]) -> None:
-            _matrix_rows(src, m, wb, msk, mask is not None, dst, span[0], span[1])
+        def work(r0: int, r1: int) -> None:
+            _matrix_rows(src, m, wb, msk, mask is not None, dst, r0, r1)
 
-        if n_workers == 1:
-            for sp in spans:
-                work(sp)
-        else:
-            with ThreadPoolExecutor(max_workers=n_workers) as pool:
-                list(pool.map(work, spans))
+        run_row_spans(h, workers, work)
         return dst
     m_t = np.ascontiguousarray(matrix.T, dtype=np.float32)
     flat = rad.reshape(-1, 3)

@@ -42,7 +42,6 @@ SIGGRAPH 1997, eq. 6. doi:10.1145/258734.258884
 from __future__ import annotations
 
 import logging
-import os
 import time
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
@@ -50,6 +49,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from .._threads import worker_count
 from ..errors import ParameterError, validate_method
 from . import _fused
 from .maps import (
@@ -1040,17 +1040,26 @@ def default_engine() -> str:
 
 
 
-def _reused_outputs(res: MergeResult, shape: tuple[int, int, int], n: int) -> _Outputs:
-    """The arrays of ``res`` as outputs, after checking they fit (``merge(..., reuse=res)``)."""
+def _output_layout(shape: tuple[int, int, int], n: int) -> dict[str, tuple[tuple, type]]:
+    """Shape and dtype of every output array of a merge of ``n`` frames of ``shape``."""
     h, w, c = shape
-    want = {
+    return {
         "radiance": ((h, w, c), np.float32), "weight_sum": ((h, w), np.float32),
         "shares": ((n, h, w), np.float16), "clip_count": ((h, w), np.uint8),
         "clipped": ((h, w), np.bool_), "underexposed": ((h, w), np.bool_),
         "ghost_score": ((h, w), np.float16), "ghost": ((h, w), np.bool_),
     }
+
+
+def _new_outputs(shape: tuple[int, int, int], n: int) -> _Outputs:
+    return _Outputs(**{name: np.empty(shp, dtype)
+                       for name, (shp, dtype) in _output_layout(shape, n).items()})
+
+
+def _reused_outputs(res: MergeResult, shape: tuple[int, int, int], n: int) -> _Outputs:
+    """The arrays of ``res`` as outputs, after checking they fit (``merge(..., reuse=res)``)."""
     arrays = {}
-    for name, (shp, dtype) in want.items():
+    for name, (shp, dtype) in _output_layout(shape, n).items():
         a = getattr(res, name, None)
         if not (isinstance(a, np.ndarray) and a.shape == shp and a.dtype == dtype
                 and a.flags.c_contiguous and a.flags.writeable):
@@ -1166,7 +1175,7 @@ def merge(
     if not np.isfinite(model_error) or model_error < 0:
         raise ParameterError("model error must be >= 0", found=str(model_error))
     if workers is None:
-        workers = min(2, os.cpu_count() or 1)
+        workers = worker_count(None)
     if int(chunk_pixels) < 1 or int(workers) < 1:
         raise ParameterError(
             "chunk_pixels and workers must be >= 1", found=f"{chunk_pixels}, {workers}"
@@ -1184,16 +1193,8 @@ def merge(
     h, w, c = plan.shape
     n = len(plan.frames)
     t1 = time.perf_counter()
-    out = _Outputs(
-        radiance=np.empty((h, w, c), np.float32),
-        weight_sum=np.empty((h, w), np.float32),
-        shares=np.empty((n, h, w), np.float16),
-        clip_count=np.empty((h, w), np.uint8),
-        clipped=np.empty((h, w), bool),
-        underexposed=np.empty((h, w), bool),
-        ghost_score=np.empty((h, w), np.float16),
-        ghost=np.empty((h, w), bool),
-    ) if reuse is None else _reused_outputs(reuse, (h, w, c), n)
+    out = (_new_outputs((h, w, c), n) if reuse is None
+           else _reused_outputs(reuse, (h, w, c), n))
     kernel = _Kernel(plan, out, float(ghost_threshold), float(model_error))
     rows = max(1, int(chunk_pixels) // w)
     if engine == "numba":
