@@ -84,9 +84,9 @@ def _finish_row(
 
     Columns ``x0:x1`` of the row; the buffers are channel- or frame-planar ``(C, B)`` /
     ``(N, B)`` blocks indexed by ``x - x0`` (a block stays in L1 cache). Sets ``mode[i]``: 0 done;
-    1 every channel takes frame ``pick[i]``'s linear value over its time (float64, then
-    float32); 2 the channels with no weight do; 3 every channel takes the darkest frame's float32
-    ``E_k``. The caller fills those in (it knows the dtype).
+    1 every channel takes frame ``pick[i]``'s ``E_k`` (as the sums saw it); 2 the channels with
+    no weight do; 3 every channel takes the darkest frame's ``E_k`` (``pick[i]`` is that frame).
+    The caller fills those in (it knows the dtype).
     """
     zero = np.float32(0.0)
     one = np.float32(1.0)
@@ -202,15 +202,15 @@ def _clip_flags(f, x, c, sat, hm, mrow):
 
 @_njit
 def merge_rows_integer(
-    frames, masks, has_mask, order, times, tab, lut, has_lut, max_level, inv_max, inv_t, sat,
-    me2, thr, r0, r1, rad, wsum_out, shares, clip_count, clipped_out, under_out, gscore, ghost,
+    frames, masks, has_mask, order, tab, has_lut, inv_max, inv_t, sat, me2, thr, r0, r1, rad,
+    wsum_out, shares, clip_count, clipped_out, under_out, gscore, ghost,
 ):
     """Rows ``r0:r1`` of integer frames through the per-level tables ``tab (N, C, L, 8)``
     (``L = max_level + 1``; entries 5..7 pad a level to 32 bytes).
 
     Levels above ``max_level`` are clipped (the saturation level is at most ``max_level``), so
     they need no weight; without a LUT their ``E_k`` is computed as the reference does
-    (``float32(M) * float32(1 / max_level) / dt``). With a LUT they have no value: the count
+    (``float32(M) * float32(1 / max_level) * float32(1 / dt)``). With a LUT they have no value: the count
     of such samples is returned (the caller refuses the input); they are read as ``max_level``.
     """
     n = len(frames)
@@ -269,28 +269,22 @@ def merge_rows_integer(
             y, x0, x1, n, c, order, den, num, s2, sv, share, bad, clip, nbad, me2, thr,
             rad, wsum_out, shares, clipped_out, under_out, gscore, ghost, mode, pick,
         )
+        # fallbacks: frame pick[i]'s E_k as the sums saw it (every channel in modes 1 and 3,
+        # the channels without weight in mode 2)
         for x in range(x0, x1):
             i = x - x0
-            if mode[i] == 3:
-                p = pick[i]
-                fp = frames[p][y]
-                for ch in range(c):
+            md = mode[i]
+            if md == 0:
+                continue
+            p = pick[i]
+            fp = frames[p][y]
+            for ch in range(c):
+                if md != 2 or den[ch, i] <= zero:
                     v = int(fp[x, ch])
                     if v <= lmax:
                         rad[y, x, ch] = tab[p, ch, v, 0]
-                    elif not has_lut:
+                    else:  # past the table: clipped levels without a LUT (with one: refused)
                         rad[y, x, ch] = (np.float32(fp[x, ch]) * inv_max) * inv_t[p]
-            elif mode[i] != 0:
-                p = pick[i]
-                fp = frames[p][y]
-                for ch in range(c):
-                    if mode[i] == 1 or den[ch, i] <= zero:
-                        if has_lut:
-                            vi = min(int(fp[x, ch]), lut.shape[1] - 1)
-                            val = np.float64(lut[ch, vi])
-                        else:
-                            val = np.float64(fp[x, ch]) / max_level
-                        rad[y, x, ch] = np.float32(val / times[p])
     return out_of_range
 
 
@@ -367,15 +361,16 @@ def tap_thresholds(sat: np.ndarray, dtype: np.dtype) -> np.ndarray:
 @_njit
 def _finish_block(
     y, x0, x1, n, order, den, num, s2, sv, share, fv, lo, nbad, me2, thr,
-    rad, wsum_out, shares, clipped_out, under_out, gscore, ghost, mode, pick, anyz, invw,
-    zflag, radf, bb, cc, sp,
+    rad, wsum_out, shares, clipped_out, under_out, gscore, ghost, mode, pick, invw,
+    zflag, radf, bb, cc, sp, fe, fs,
 ):
     """:func:`_finish_row` for interleaved sums (``den[3 i + ch]``), every step a straight
     pass (SIMD), the fallback decisions included: ``fv[i]`` is the first valid frame in exposure
     order (-1: none), ``lo[i]`` the last one not dropped, ``nbad[i]`` the number dropped.
-    Returns how many pixels need a fallback value; their indices are ``anyz[:count]``, their
-    ``mode`` (1: every channel from frame ``pick``; 2: the channels without weight; 3: every
-    channel, the darkest frame's ``E_k``) and ``pick`` are set."""
+    Returns how many pixels need a fallback value; their ``mode`` (1: every channel from frame
+    ``pick``; 2: the channels without weight; 3: every channel, the darkest frame's ``E_k``)
+    and ``pick`` (which takes the whole share when no channel has weight) are set, and per
+    element ``fe`` (1: modes 1 and 3) and ``fs`` (1: mode 2), float32 for straight passes."""
     zero = np.float32(0.0)
     one = np.float32(1.0)
     nbk = x1 - x0
@@ -429,12 +424,21 @@ def _finish_block(
         elif z:
             md = np.int8(2)
         mode[i] = md
+        e = 3 * i
+        every = np.float32(1.0) if cl else zero
+        some = np.float32(1.0) if z & (not cl) else zero
+        fe[e] = every
+        fe[e + 1] = every
+        fe[e + 2] = every
+        fs[e] = some
+        fs[e + 1] = some
+        fs[e + 2] = some
+        last = lo[i]
         p = dk if f < 0 else f
-        p = p if cl else lo[i]
+        p = p if cl else last
         pick[i] = p
         co[i] = allbad & (f >= 0) if z else allbad
         uo[i] = z & (not allbad)
-        e = 3 * i
         whole = (den[e] <= zero) & (den[e + 1] <= zero) & (den[e + 2] <= zero)
         # the whole share to one frame: spread as a bit per frame (p < 64)
         zflag[i] = cl | (z & whole)
@@ -447,7 +451,6 @@ def _finish_block(
             so[i] = one_k if zflag[i] else h
     nz = 0
     for i in range(nbk):
-        anyz[nz] = i
         nz += mode[i] != 0
     return nz
 
@@ -492,11 +495,13 @@ def _weight(wcode, level, var, t2k):
 
 @_njit
 def _accumulate_run(
-    xk, okf, ne, wcode, inv_max, shot, const_var, floor_norm, itk, it2, t2k, den, num, s2, sv,
-    wbuf,
+    xk, okf, taf, ne, wcode, inv_max, shot, const_var, floor_norm, itk, it2, t2k, den, num, s2,
+    sv, wbuf, fa, fb,
 ):
     """The sums of one frame over ``ne`` interleaved samples of linear data (no LUT): one loop
-    per weighting so that each is a straight SIMD loop."""
+    per weighting so that each is a straight SIMD loop. The fallback candidates take this
+    frame's ``E_k``: ``fa`` where ``taf`` (the first valid frame so far), ``fb`` where ``okf``
+    (the frame is not dropped: the last such in exposure order wins)."""
     zero = np.float32(0.0)
     one = np.float32(1.0)
     if wcode == 2:
@@ -505,8 +510,14 @@ def _accumulate_run(
             var = level * shot
             var = var + const_var
             ev = level * itk
+            ok = okf[e]
+            ta = taf[e]
+            pa = fa[e]  # loads outside the selects: they vectorise
+            pb = fb[e]
+            fa[e] = ev if ta != zero else pa
+            fb[e] = ev if ok != zero else pb
             wk = t2k / var
-            wk = wk * (okf[e] if level > floor_norm else zero)
+            wk = wk * (ok if level > floor_norm else zero)
             wbuf[e] = wk
             den[e] += wk
             var = var * wk
@@ -521,10 +532,16 @@ def _accumulate_run(
             var = level * shot
             var = var + const_var
             ev = level * itk
+            ok = okf[e]
+            ta = taf[e]
+            pa = fa[e]  # loads outside the selects: they vectorise
+            pb = fb[e]
+            fa[e] = ev if ta != zero else pa
+            fb[e] = ev if ok != zero else pb
             wk = level * two
             wk = wk - one
             wk = one - abs(wk)
-            wk = wk * (okf[e] if level > floor_norm else zero)
+            wk = wk * (ok if level > floor_norm else zero)
             wbuf[e] = wk
             den[e] += wk
             var = var * wk
@@ -538,8 +555,14 @@ def _accumulate_run(
             var = level * shot
             var = var + const_var
             ev = level * itk
+            ok = okf[e]
+            ta = taf[e]
+            pa = fa[e]  # loads outside the selects: they vectorise
+            pb = fb[e]
+            fa[e] = ev if ta != zero else pa
+            fb[e] = ev if ok != zero else pb
             wk = _weight(wcode, level, var, t2k)
-            wk = wk * (okf[e] if level > floor_norm else zero)
+            wk = wk * (ok if level > floor_norm else zero)
             wbuf[e] = wk
             den[e] += wk
             var = var * wk
@@ -551,12 +574,13 @@ def _accumulate_run(
 
 @_njit
 def _accumulate_lut_run(
-    xk, okf, nbk, wcode, inv_max, shot, const_var, floor_norm, itk, it2, t2k, lut, lut_var,
-    den, num, s2, sv, wbuf,
+    xk, okf, taf, nbk, wcode, inv_max, shot, const_var, floor_norm, itk, it2, t2k, lut, lut_var,
+    den, num, s2, sv, wbuf, fa, fb,
 ):
     """The sums of one resampled frame with a LUT over ``nbk`` pixels: each channel's
     interpolated level read linearly between the entries of its LUT row (as
-    :func:`_lut_value`), one straight loop per channel and weighting."""
+    :func:`_lut_value`), one straight loop per channel and weighting; the fallback candidates
+    as :func:`_accumulate_run`."""
     zero = np.float32(0.0)
     one = np.float32(1.0)
     lmax1 = lut.shape[1] - 2
@@ -583,10 +607,16 @@ def _accumulate_lut_run(
                     var = var + xv * shot
                 var = var + const_var
                 ev = xv * itk
+                ok = okf[e]
+                ta = taf[e]
+                pa = fa[e]  # loads outside the selects: they vectorise
+                pb = fb[e]
+                fa[e] = ev if ta != zero else pa
+                fb[e] = ev if ok != zero else pb
                 wk = level * np.float32(2.0)
                 wk = wk - one
                 wk = one - abs(wk)
-                wk = wk * (okf[e] if level > floor_norm else zero)
+                wk = wk * (ok if level > floor_norm else zero)
                 wbuf[e] = wk
                 den[e] += wk
                 var = var * wk
@@ -613,8 +643,14 @@ def _accumulate_lut_run(
                     var = var + xv * shot
                 var = var + const_var
                 ev = xv * itk
+                ok = okf[e]
+                ta = taf[e]
+                pa = fa[e]  # loads outside the selects: they vectorise
+                pb = fb[e]
+                fa[e] = ev if ta != zero else pa
+                fb[e] = ev if ok != zero else pb
                 wk = _weight(wcode, level, var, t2k)
-                wk = wk * (okf[e] if level > floor_norm else zero)
+                wk = wk * (ok if level > floor_norm else zero)
                 wbuf[e] = wk
                 den[e] += wk
                 var = var * wk
@@ -802,6 +838,11 @@ def merge_rows_warped(
     sv = np.empty(b3, np.float32)
     wbuf = np.empty(b3, np.float32)
     okf = np.empty(b3, np.float32)
+    taf = np.empty(b3, np.float32)
+    fa = np.empty(b3, np.float32)  # fallback: the first valid frame's E_k (else the darkest's)
+    fb = np.empty(b3, np.float32)  # fallback: the last frame not dropped's E_k
+    fa_sel = np.empty(b3, np.float32)  # 1 where a pixel takes fa in every channel
+    fb_sel = np.empty(b3, np.float32)  # 1 where a pixel takes fb in its channels of no weight
     acc = np.empty(b3, np.float32)
     wxe = np.empty((4, b3), np.float32)
     wye = np.empty((4, b3), np.float32)
@@ -818,7 +859,6 @@ def merge_rows_warped(
     nbad = np.empty(bw, np.int64)
     mode = np.empty(bw, np.int8)
     pick = np.empty(bw, np.int64)
-    anyz = np.empty(bw, np.int64)
     invw = np.empty(bw, np.float32)
     zflag = np.empty(bw, np.bool_)
     sp = np.empty(bw, np.float32)
@@ -939,19 +979,28 @@ def merge_rows_warped(
                 b = (not valid) | cl
                 cs[i] += np.uint8(cl)
                 nbad[i] += np.int64(b)
-                fv[i] = k if (fv[i] < 0) & valid else fv[i]
-                lo[i] = lo[i] if b else k
+                # fallback candidate A: the darkest frame, replaced by the first valid one
+                ta = (j == 0) | ((fv[i] < 0) & valid)
+                f = fv[i]
+                last = lo[i]
+                fv[i] = k if (f < 0) & valid else f
+                lo[i] = last if b else k
                 okv = zero if b else one
+                tav = one if ta else zero
                 e = 3 * i
                 okf[e] = okv
                 okf[e + 1] = okv
                 okf[e + 2] = okv
+                taf[e] = tav
+                taf[e + 1] = tav
+                taf[e + 2] = tav
             itk = inv_t[k]
             it2 = inv_t2[k]
             t2k = t2[k]
             if has_lut and warped:
-                _accumulate_lut_run(xk, okf, nbk, wcode, inv_max, shot, const_var, floor_norm,
-                                    itk, it2, t2k, lut, lut_var, den, num, s2, sv, wbuf)
+                _accumulate_lut_run(xk, okf, taf, nbk, wcode, inv_max, shot, const_var,
+                                    floor_norm, itk, it2, t2k, lut, lut_var, den, num, s2, sv,
+                                    wbuf, fa, fb)
             elif has_lut:
                 for e in range(ne):
                     ch = e % 3
@@ -964,8 +1013,14 @@ def merge_rows_warped(
                         var = var + xv * shot
                     var = var + const_var
                     ev = xv * itk
+                    ok = okf[e]
+                    ta = taf[e]
+                    pa = fa[e]  # loads outside the selects: they vectorise
+                    pb = fb[e]
+                    fa[e] = ev if ta != zero else pa
+                    fb[e] = ev if ok != zero else pb
                     wk = _weight(wcode, level, var, t2k)
-                    wk = wk * (okf[e] if level > floor_norm else zero)
+                    wk = wk * (ok if level > floor_norm else zero)
                     wbuf[e] = wk
                     den[e] += wk
                     var = var * wk
@@ -974,64 +1029,29 @@ def merge_rows_warped(
                     num[e] += wk
                     s2[e] += wk * ev
             else:
-                _accumulate_run(xk, okf, ne, wcode, inv_max, shot, const_var, floor_norm, itk,
-                                it2, t2k, den, num, s2, sv, wbuf)
+                _accumulate_run(xk, okf, taf, ne, wcode, inv_max, shot, const_var, floor_norm,
+                                itk, it2, t2k, den, num, s2, sv, wbuf, fa, fb)
             for i in range(nbk):
                 e = 3 * i
                 share[k, i] = (wbuf[e] + wbuf[e + 1]) + wbuf[e + 2]
         nz = _finish_block(
             y, x0, x1, n, order, den, num, s2, sv, share, fv, lo, nbad, me2, thr,
-            rad, wsum_out, shares, clipped_out, under_out, gscore, ghost, mode, pick, anyz,
-            invw, zflag, radf, bb, cc, sp,
+            rad, wsum_out, shares, clipped_out, under_out, gscore, ghost, mode, pick,
+            invw, zflag, radf, bb, cc, sp, fa_sel, fb_sel,
         )
+        if nz == 0:
+            continue
+        # fallbacks, a straight pass: modes 1 and 3 take candidate A in every channel, mode 2
+        # candidate B in the channels without weight
         ro = radf[y, 3 * x0:3 * x1]
-        for q in range(nz):
-            i = anyz[q]
-            md = mode[i]
-            if md == 0:
-                continue
-            e = 3 * i
-            if md == 3:  # the darkest frame's E_k, as the sums saw it
-                p = order[0]
-                itp = inv_t[p]
-                for ch in range(3):
-                    v = xs[p, e + ch]
-                    if has_lut:
-                        if has_mat[p]:
-                            xv = _lut_value(v, ch, True, lut, lut_var, lmax)[0]
-                        else:
-                            xv = lut[ch, min(int(v), lmax)]
-                    else:
-                        xv = v * inv_max
-                    ro[e + ch] = xv * itp
-                continue
-            p = pick[i]
-            warped = has_mat[p]
-            tp = times[p]
-            every = md == 1
-            if has_lut:
-                for ch in range(3):
-                    if every or den[e + ch] <= zero:
-                        v = xs[p, e + ch]
-                        if warped:
-                            xv = _lut_value(v, ch, True, lut, lut_var, lmax)[0]
-                        else:
-                            xv = lut[ch, min(int(v), lmax)]
-                        ro[e + ch] = np.float32(np.float64(xv) / tp)
-            else:  # no branch per channel: all three computed, the needed ones kept
-                xp = xs[p]
-                if warped:
-                    a0 = np.float64(xp[e] * inv_max)
-                    a1 = np.float64(xp[e + 1] * inv_max)
-                    a2 = np.float64(xp[e + 2] * inv_max)
-                else:
-                    a0 = np.float64(xp[e]) / max_level
-                    a1 = np.float64(xp[e + 1]) / max_level
-                    a2 = np.float64(xp[e + 2]) / max_level
-                v0 = np.float32(a0 / tp)
-                v1 = np.float32(a1 / tp)
-                v2 = np.float32(a2 / tp)
-                ro[e] = v0 if every or den[e] <= zero else ro[e]
-                ro[e + 1] = v1 if every or den[e + 1] <= zero else ro[e + 1]
-                ro[e + 2] = v2 if every or den[e + 2] <= zero else ro[e + 2]
+        for e in range(ne):
+            # every load outside the selects (a load inside one does not vectorise)
+            every = fa_sel[e] != zero
+            some = fb_sel[e] != zero
+            va = fa[e]
+            vb = fb[e]
+            d = den[e]
+            r = ro[e]
+            v = va if every else vb
+            ro[e] = v if every | (some & (d <= zero)) else r
     return out_of_range

@@ -461,19 +461,17 @@ class _Outputs:
 class _Scratch:
     """Per-worker buffers for one chunk, channel-planar so every operation is contiguous."""
 
-    def __init__(self, n_frames: int, size: int, channels: int, warped: bool = False) -> None:
+    def __init__(self, n_frames: int, size: int, channels: int) -> None:
         planes = (channels, size)
-        # linear values of the resampled frames (fallback values come from them)
-        self.lin = np.empty((n_frames, channels, size) if warped else (0, 0, 0), np.float32)
+        # E_k = g(M) / dt of every frame, as the sums saw it: the fallback values
+        self.ek = np.empty((n_frames, channels, size), np.float32)
         self.den = np.empty(planes, np.float32)  # sum w
         self.num = np.empty(planes, np.float32)  # sum w E_k
         self.s2 = np.empty(planes, np.float32)  # sum w E_k^2
         self.sv = np.empty(planes, np.float32)  # sum w var(E_k)
-        self.dark = np.empty(planes, np.float32)  # E of the darkest frame (fallback)
         self.x = np.empty(size, np.float32)
         self.level = np.empty(size, np.float32)
         self.var = np.empty(size, np.float32)
-        self.e = np.empty(size, np.float32)
         self.a = np.empty(size, np.float32)
         self.b = np.empty(size, np.float32)
         self.keep = np.empty(size, bool)
@@ -541,23 +539,6 @@ class _Kernel:
         np.multiply(x, self.shot, out=var)
         var += self.const_var
         return x, level, var
-
-    def _linearise_points(
-        self, k: int, pick: np.ndarray, r0: int, s: _Scratch
-    ) -> np.ndarray:
-        """Linear values ``(q, C)`` of frame ``k`` at the chunk's pixels ``pick`` (float64)."""
-        p = self.p
-        if p.transforms[k] is not None:
-            return s.lin[k][:, pick].T.astype(np.float64)
-        w = p.shape[1]
-        src = p.frames[k][pick // w + r0, pick % w]
-        if not p.integer:
-            return src.astype(np.float64)
-        if p.lut is None:
-            return src.astype(np.float64) / p.max_level
-        return np.stack(
-            [p.lut[ch][src[:, ch].astype(np.intp)] for ch in range(src.shape[1])], axis=1
-        ).astype(np.float64)
 
     # ---- resampling of a frame with a transform (reference of _fused.merge_rows_warped) ---------
     def _sample(
@@ -681,7 +662,7 @@ class _Kernel:
         _, w, c = p.shape
         m = (r1 - r0) * w
         den, num, s2, sv = s.den[:, :m], s.num[:, :m], s.s2[:, :m], s.sv[:, :m]
-        e, keep, ok, flag = s.e[:m], s.keep[:m], s.ok[:m], s.flag[:m]
+        keep, ok, flag = s.keep[:m], s.ok[:m], s.flag[:m]
         nbad = s.nbad[:m]
         nbad.fill(0)
         clip_count = self.out.clip_count[r0:r1].reshape(m)
@@ -724,10 +705,8 @@ class _Kernel:
                     x, level, var = self._linearise_sampled(
                         sampled[ch], None if lut_vals is None else lut_vals[ch], ch, s, m
                     )
-                    np.copyto(s.lin[k, ch, :m], x)
+                e = s.ek[k, ch, :m]
                 np.multiply(x, inv_t, out=e)  # E_k = g(M) / dt
-                if j == 0:
-                    np.copyto(s.dark[ch, :m], e)
                 wk = self.weight_fn(level, x, t, var)
                 # zero weight at or below the noise floor (this channel) and for dropped pixels
                 # (all channels: any channel clipped, or invalid after the warp)
@@ -822,7 +801,7 @@ class _Kernel:
         if alldrop.size:
             dark_ok = ~(s.bad[dark_k, alldrop] & ~s.clip[dark_k, alldrop])
             fast = alldrop[dark_ok]
-            rad[fast] = s.dark[:, fast].T
+            rad[fast] = s.ek[dark_k][:, fast].T
             shares[:, fast] = 0.0
             shares[dark_k, fast] = 1.0
             slow = alldrop[~dark_ok]
@@ -834,8 +813,7 @@ class _Kernel:
                     pick = slow[first_valid == j]
                     if pick.size == 0:
                         continue
-                    vals = self._linearise_points(int(k), pick, r0, s)
-                    rad[pick] = (vals / p.times[k]).astype(np.float32)
+                    rad[pick] = s.ek[k][:, pick].T
                     shares[:, pick] = 0.0
                     shares[k, pick] = 1.0
                 # no valid frame at all: not clipped, just unknown (darkest frame's value)
@@ -854,10 +832,10 @@ class _Kernel:
                 if sel.size == 0:
                     continue
                 pick = rest[sel]
-                vals = self._linearise_points(int(k), pick, r0, s) / p.times[k]
+                vals = s.ek[k][:, pick].T
                 target = rad[pick]
                 zc = zero[sel]
-                target[zc] = vals[zc].astype(np.float32)
+                target[zc] = vals[zc]
                 rad[pick] = target
                 wholes = pick[whole[sel]]
                 if wholes.size:
@@ -876,11 +854,11 @@ def _run_numpy(kernel: _Kernel, spans: list[tuple[int, int]], workers: int, rows
     _, w, c = p.shape
     n = len(p.frames)
     if workers == 1:
-        scratch = _Scratch(n, rows * w, c, p.warped)
+        scratch = _Scratch(n, rows * w, c)
         for r0, r1 in spans:
             kernel.run(r0, r1, scratch)
         return
-    scratches = [_Scratch(n, rows * w, c, p.warped) for _ in range(workers)]
+    scratches = [_Scratch(n, rows * w, c) for _ in range(workers)]
     groups = [spans[i::workers] for i in range(workers)]
 
     def work(i: int) -> None:
@@ -998,13 +976,11 @@ def _run_numba(
             )
     elif p.lut is not None or force_tables:
         tab = _level_tables(kernel)
-        lut = p.lut if p.lut is not None else np.zeros((1, 1), np.float32)
-        max_level = float(p.max_level)
 
         def work(span: tuple[int, int]) -> int:
             return _fused.merge_rows_integer(
-                frames_t, masks_t, has_mask, order, times, tab, lut, p.lut is not None,
-                max_level, kernel.inv_max, inv_t, sat, me2, thr, span[0], span[1], *outs,
+                frames_t, masks_t, has_mask, order, tab, p.lut is not None, kernel.inv_max,
+                inv_t, sat, me2, thr, span[0], span[1], *outs,
             )
 
     if workers == 1:
