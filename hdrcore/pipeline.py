@@ -46,7 +46,8 @@ from .exposure import (
 )
 from .exposure.registered import bracket_exposures_from_pixels, cfa_planes
 from .io import Bracket
-from .merge import DEFAULT_MODEL_ERROR, MergeResult, NoiseModel, camera_to_working, merge
+from .merge import DEFAULT_MODEL_ERROR, MergeResult, NoiseModel, merge
+from .merge.colour import ColourConversion, colour_conversion
 from .registration import (
     MODELS,
     REGISTRATION_METHODS,
@@ -815,6 +816,7 @@ class Pipeline:
                 else:
                     masks.append(~gone)
         noise = _noise_model(b)
+        colour, colour_info = self._colour(p)
         result = merge(
             levels, times, response=lut, max_level=b.max_level, masks=masks,
             saturation_level=float(p.saturation), noise_floor=float(p.noise_floor),
@@ -824,31 +826,32 @@ class Pipeline:
             # only to a few per cent; RAW data to the noise.
             model_error=DEFAULT_MODEL_ERROR if lut is None else NONLINEAR_MODEL_ERROR,
             reuse=reuse,
+            colour=colour,  # converted inside the merge's finishing pass
         )
-        radiance = result.radiance
-        colour_info: dict[str, Any] = {"working_space": p.working_space}
+        return result, result.radiance, colour_info
+
+    def _colour(self, p: PipelineParams) -> tuple[ColourConversion | None, dict[str, Any]]:
+        """The camera RGB -> working space conversion the merge applies, and its description.
+        Pixels clipped in every frame come out neutral (no magenta highlights)."""
+        b = self.bracket
+        info: dict[str, Any] = {"working_space": p.working_space}
         f0 = b.frames[0].meta
         if b.is_linear and f0.rgb_xyz_matrix is not None and np.any(
             np.asarray(f0.rgb_xyz_matrix) != 0
         ):
-            radiance = camera_to_working(
-                radiance, np.asarray(f0.rgb_xyz_matrix), f0.camera_whitebalance,
-                p.working_space, clipped=result.clipped, out=radiance,
-            )
-            colour_info["conversion"] = "camera matrix (rawpy rgb_xyz_matrix) and as-shot WB"
-        elif b.is_linear:
-            wb = f0.camera_whitebalance
-            radiance = camera_to_working(radiance, None, wb, p.working_space,
-                                         clipped=result.clipped, out=radiance)
-            colour_info["conversion"] = (
+            info["conversion"] = "camera matrix (rawpy rgb_xyz_matrix) and as-shot WB"
+            return colour_conversion(np.asarray(f0.rgb_xyz_matrix), f0.camera_whitebalance,
+                                     p.working_space), info
+        if b.is_linear:
+            info["conversion"] = (
                 "no camera matrix in the file: camera RGB taken as linear sRGB primaries, "
                 "as-shot white balance applied"
             )
-        else:
-            if p.working_space.lower() != "srgb":
-                radiance = camera_to_working(radiance, None, None, p.working_space)
-            colour_info["conversion"] = "linearised sRGB-primaries data"
-        return result, radiance, colour_info
+            return colour_conversion(None, f0.camera_whitebalance, p.working_space), info
+        info["conversion"] = "linearised sRGB-primaries data"
+        if p.working_space.lower() != "srgb":
+            return colour_conversion(None, None, p.working_space), info
+        return None, info
 
     def _preview(self, p: PipelineParams, radiance: np.ndarray):
         factor = downsample_factor(radiance.shape[:2], p.preview_max_side)

@@ -3,10 +3,18 @@
 Public surface::
 
     from hdrcore.merge import merge, MergeResult, NoiseModel, WEIGHTS, camera_to_working
+    from hdrcore.merge import colour_conversion  # merge(..., colour=...)
 """
 
 from ._fused import warm_up
-from .colour import WORKING_SPACES, camera_to_working, camera_to_working_matrix
+from .colour import (
+    WORKING_SPACES,
+    ColourConversion,
+    apply_colour,
+    camera_to_working,
+    camera_to_working_matrix,
+    colour_conversion,
+)
 from .maps import (
     DEFAULT_GHOST_THRESHOLD,
     DEFAULT_MODEL_ERROR,
@@ -35,11 +43,14 @@ __all__ = [
     "RESAMPLING",
     "WEIGHTS",
     "WORKING_SPACES",
+    "ColourConversion",
     "MergeResult",
     "NoiseModel",
     "WeightFunction",
+    "apply_colour",
     "camera_to_working",
     "camera_to_working_matrix",
+    "colour_conversion",
     "default_engine",
     "dominant_frame",
     "ghost_score_from_moments",

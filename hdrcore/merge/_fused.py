@@ -50,6 +50,7 @@ import numpy as np
 
 from .._numba import AVAILABLE  # without numba the numpy reference runs
 from .._numba import njit as _njit
+from .colour import convert_pixels
 
 logger = logging.getLogger(__name__)
 
@@ -506,7 +507,7 @@ def _accumulate_run(
     one = np.float32(1.0)
     if wcode == 2:
         for e in range(ne):
-            level = xk[e] * inv_max
+            level = np.float32(xk[e]) * inv_max
             var = level * shot
             var = var + const_var
             ev = level * itk
@@ -528,7 +529,7 @@ def _accumulate_run(
     elif wcode == 0:
         two = np.float32(2.0)
         for e in range(ne):
-            level = xk[e] * inv_max
+            level = np.float32(xk[e]) * inv_max
             var = level * shot
             var = var + const_var
             ev = level * itk
@@ -551,7 +552,7 @@ def _accumulate_run(
             s2[e] += wk * ev
     else:
         for e in range(ne):
-            level = xk[e] * inv_max
+            level = np.float32(xk[e]) * inv_max
             var = level * shot
             var = var + const_var
             ev = level * itk
@@ -813,6 +814,7 @@ def merge_rows_warped(
     const_var, floor_norm, inv_max, max_level, hi, has_lut, lut, lut_var, sat, tap_thr, me2,
     thr, r0, r1,
     rad, wsum_out, shares, clip_count, clipped_out, under_out, gscore, ghost, ntap, oor,
+    has_colour, cm, cwb, cneu,
 ):
     """Rows ``r0:r1`` of the output grid; frame ``k`` with ``has_mat[k]`` is read at
     ``mats[k] @ (x, y, 1)`` (``ntap`` 4: Keys cubic, 4 weights per axis shared by the 3
@@ -823,15 +825,17 @@ def merge_rows_warped(
     values read 0 there). ``oor[k]``: frame ``k`` (resampled, with a LUT) holds levels past
     the LUT, so clipped supports are searched for them. Integer levels with a LUT are
     interpolated, then read linearly between table entries; integer levels without one and
-    float frames are linear (``level = value * inv_max``). Returns the number of samples
-    above the LUT's last level (the caller refuses the input).
+    float frames are linear (``level = value * inv_max``). With ``has_colour`` each finished
+    block is converted to the working space (:func:`hdrcore.merge.colour.convert_pixels` with
+    ``cm``, ``cwb``, ``cneu``) while it is in cache. Returns the number of samples above the
+    LUT's last level (the caller refuses the input).
     """
     n = len(frames)
     h = frames[0].shape[0]
     w = frames[0].shape[1]
     bw = min(w, _WBLOCK)
     b3 = 3 * bw + 48  # padded: buffers off 4 KiB multiples (cache-set aliasing)
-    xs = np.empty((n, b3), np.float32)  # interleaved values (levels or floats) per frame
+    xk = np.empty(b3, np.float32)  # a resampled frame's interleaved values (levels or floats)
     den = np.empty(b3, np.float32)
     num = np.empty(b3, np.float32)
     s2 = np.empty(b3, np.float32)
@@ -900,9 +904,9 @@ def merge_rows_warped(
             k = order[j]
             fr = frames[k]
             flat = flats[k]
-            xk = xs[k]
             warped = has_mat[k]
             vrow = masks[k][y, x0:x1] if has_mask[k] else ones[:nbk]  # valid (mask)
+            frf = flat[y, 3 * x0:3 * x1]  # the row block in place (zero-based: vectorises)
             if warped:
                 m00 = mats[k, 0, 0]
                 m01 = mats[k, 0, 1]
@@ -959,17 +963,14 @@ def merge_rows_warped(
                 for i in range(nbk):
                     ins[i] = ins[i] & vrow[i]
             else:
-                frf = flat[y]
-                e0 = 3 * x0
-                for e in range(ne):
-                    xk[e] = np.float32(frf[e0 + e])
-                s0 = sat[0]
-                s1 = sat[1]
-                s2_ = sat[2]
+                # read in place (the sums convert); tap_thr: v >= th exactly when
+                # float64(v) >= sat
                 for i in range(nbk):
                     e = 3 * i
-                    tc[i] = ((np.float64(xk[e]) >= s0) | (np.float64(xk[e + 1]) >= s1)
-                             | (np.float64(xk[e + 2]) >= s2_))
+                    a0 = frf[e]
+                    a1 = frf[e + 1]
+                    a2 = frf[e + 2]
+                    tc[i] = (a0 >= th0) | (a1 >= th1) | (a2 >= th2)
                     ins[i] = vrow[i]
             # tc: clipped, ins: valid; a frame is dropped where invalid or clipped
             cs = crow[x0:x1]
@@ -1004,7 +1005,7 @@ def merge_rows_warped(
             elif has_lut:
                 for e in range(ne):
                     ch = e % 3
-                    v = xk[e]
+                    v = np.float32(frf[e])
                     level = v * inv_max
                     if int(v) > lmax:
                         out_of_range += 1
@@ -1028,8 +1029,11 @@ def merge_rows_warped(
                     wk = wk * ev
                     num[e] += wk
                     s2[e] += wk * ev
-            else:
+            elif warped:
                 _accumulate_run(xk, okf, taf, ne, wcode, inv_max, shot, const_var, floor_norm,
+                                itk, it2, t2k, den, num, s2, sv, wbuf, fa, fb)
+            else:  # the frame's own dtype (a specialisation per dtype)
+                _accumulate_run(frf, okf, taf, ne, wcode, inv_max, shot, const_var, floor_norm,
                                 itk, it2, t2k, den, num, s2, sv, wbuf, fa, fb)
             for i in range(nbk):
                 e = 3 * i
@@ -1039,12 +1043,10 @@ def merge_rows_warped(
             rad, wsum_out, shares, clipped_out, under_out, gscore, ghost, mode, pick,
             invw, zflag, radf, bb, cc, sp, fa_sel, fb_sel,
         )
-        if nz == 0:
-            continue
+        ro = radf[y, 3 * x0:3 * x1]
         # fallbacks, a straight pass: modes 1 and 3 take candidate A in every channel, mode 2
         # candidate B in the channels without weight
-        ro = radf[y, 3 * x0:3 * x1]
-        for e in range(ne):
+        for e in range(ne if nz > 0 else 0):
             # every load outside the selects (a load inside one does not vectorise)
             every = fa_sel[e] != zero
             some = fb_sel[e] != zero
@@ -1054,4 +1056,6 @@ def merge_rows_warped(
             r = ro[e]
             v = va if every else vb
             ro[e] = v if every | (some & (d <= zero)) else r
+        if has_colour:
+            convert_pixels(ro, clipped_out[y, x0:x1], True, cm, cwb, cneu)
     return out_of_range

@@ -24,18 +24,19 @@ Reference: D. Coffin, dcraw.c, ``convert_to_rgb()`` and ``cam_xyz_coeff()``; Lib
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import NamedTuple
 
 import numpy as np
 
+from .._numba import AVAILABLE
+from .._numba import njit as _njit
 from .._threads import run_row_spans
 from ..errors import ParameterError, validate_method
 
-try:
-    import numba
-except ImportError:  # pragma: no cover - numba is a dependency; numpy does the work without it
-    numba = None
-
-__all__ = ["WORKING_SPACES", "camera_to_working_matrix", "camera_to_working"]
+__all__ = [
+    "WORKING_SPACES", "ColourConversion", "apply_colour", "camera_to_working_matrix",
+    "camera_to_working", "colour_conversion",
+]
 
 WORKING_SPACES: dict[str, str] = {
     "sRGB": "sRGB",
@@ -128,26 +129,74 @@ def camera_to_working_matrix(
     return to_space @ rgb_cam @ np.diag(wb)
 
 
-if numba is not None:
+class ColourConversion(NamedTuple):
+    """Camera RGB -> working space, as :func:`camera_to_working` applies it (and
+    :func:`hdrcore.merge.merge` with ``colour=``, inside its finishing pass).
 
-    @numba.njit(nogil=True, cache=True, fastmath=False)
-    def _matrix_rows(src, m, wb, mask, has_mask, dst, r0, r1):  # pragma: no cover - compiled
-        """``dst = m @ src`` per pixel (float64 sums, float32 out); masked pixels first become
-        the neutral ``max(wb * rgb) / wb``. ``dst`` may be ``src``."""
-        w = src.shape[1]
-        for y in range(r0, r1):
-            for x in range(w):
-                r = np.float64(src[y, x, 0])
-                g = np.float64(src[y, x, 1])
-                b = np.float64(src[y, x, 2])
-                if has_mask and mask[y, x]:
-                    v = max(r * wb[0], g * wb[1], b * wb[2])
-                    r = v / wb[0]
-                    g = v / wb[1]
-                    b = v / wb[2]
-                dst[y, x, 0] = np.float32(m[0, 0] * r + m[0, 1] * g + m[0, 2] * b)
-                dst[y, x, 1] = np.float32(m[1, 0] * r + m[1, 1] * g + m[1, 2] * b)
-                dst[y, x, 2] = np.float32(m[2, 0] * r + m[2, 1] * g + m[2, 2] * b)
+    ``matrix`` (3x3 float64): :func:`camera_to_working_matrix`. ``white_balance`` (3,): the
+    as-shot multipliers normalised to green. ``neutral`` (3,): ``matrix @ (1 / white_balance)``,
+    the working-space value of a neutral of white-balanced value 1; a pixel marked clipped
+    becomes ``max(white_balance * rgb) * neutral``.
+    """
+
+    matrix: np.ndarray
+    white_balance: np.ndarray
+    neutral: np.ndarray
+
+
+def colour_conversion(
+    rgb_xyz_matrix: np.ndarray | None = None,
+    camera_whitebalance: Sequence[float] | np.ndarray | None = None,
+    working_space: str = "sRGB",
+) -> ColourConversion:
+    """The :class:`ColourConversion` of :func:`camera_to_working_matrix`'s arguments."""
+    matrix = camera_to_working_matrix(rgb_xyz_matrix, camera_whitebalance, working_space)
+    wb = _white_balance(camera_whitebalance)
+    return ColourConversion(np.ascontiguousarray(matrix, np.float64), wb,
+                            np.ascontiguousarray(matrix @ (1.0 / wb), np.float64))
+
+
+@_njit
+def convert_pixels(buf, mask, has_mask, m, wb, neutral):
+    """In place, ``buf`` interleaved RGB (``3 x + ch``, float32) of ``len(buf) // 3`` pixels:
+    ``m @ rgb`` in float64, rounded to float32; where ``mask`` (with ``has_mask``) the neutral
+    ``max(wb * rgb) * neutral``. One array in and out and no branch per pixel: it vectorises
+    (an output array that may alias the input would not)."""
+    m00, m01, m02 = m[0, 0], m[0, 1], m[0, 2]
+    m10, m11, m12 = m[1, 0], m[1, 1], m[1, 2]
+    m20, m21, m22 = m[2, 0], m[2, 1], m[2, 2]
+    w0, w1, w2 = wb[0], wb[1], wb[2]
+    n0, n1, n2 = neutral[0], neutral[1], neutral[2]
+    npx = len(buf) // 3
+    if has_mask:
+        for i in range(npx):
+            e = 3 * i
+            r = np.float64(buf[e])
+            g = np.float64(buf[e + 1])
+            b = np.float64(buf[e + 2])
+            clip = mask[i]
+            v = max(r * w0, g * w1, b * w2)
+            o0 = m00 * r + m01 * g + m02 * b
+            o1 = m10 * r + m11 * g + m12 * b
+            o2 = m20 * r + m21 * g + m22 * b
+            buf[e] = np.float32(v * n0 if clip else o0)
+            buf[e + 1] = np.float32(v * n1 if clip else o1)
+            buf[e + 2] = np.float32(v * n2 if clip else o2)
+    else:
+        for i in range(npx):
+            e = 3 * i
+            r = np.float64(buf[e])
+            g = np.float64(buf[e + 1])
+            b = np.float64(buf[e + 2])
+            buf[e] = np.float32(m00 * r + m01 * g + m02 * b)
+            buf[e + 1] = np.float32(m10 * r + m11 * g + m12 * b)
+            buf[e + 2] = np.float32(m20 * r + m21 * g + m22 * b)
+
+
+@_njit
+def _convert_rows(buf, mask, has_mask, m, wb, neutral, r0, r1):
+    for y in range(r0, r1):
+        convert_pixels(buf[y], mask[y if has_mask else 0], has_mask, m, wb, neutral)
 
 
 def camera_to_working(
@@ -169,12 +218,25 @@ def camera_to_working(
     a 12-bytes-a-pixel allocation. With numba one fused pass over row blocks on ``workers``
     threads (default: up to 2) does it; without, numpy matrix products over chunks.
     """
+    conversion = colour_conversion(rgb_xyz_matrix, camera_whitebalance, working_space)
+    return apply_colour(radiance, conversion, clipped=clipped, chunk_pixels=chunk_pixels,
+                        out=out, workers=workers)
+
+
+def apply_colour(
+    radiance: np.ndarray,
+    conversion: ColourConversion,
+    *,
+    clipped: np.ndarray | None = None,
+    chunk_pixels: int = 1 << 20,
+    out: np.ndarray | None = None,
+    workers: int | None = None,
+) -> np.ndarray:
+    """:func:`camera_to_working` with a :class:`ColourConversion` made beforehand."""
     rad = np.asarray(radiance)
     if rad.ndim != 3 or rad.shape[2] != 3:
         raise ParameterError("radiance must be (H, W, 3)", found=str(rad.shape))
     h, w, _ = rad.shape
-    matrix = camera_to_working_matrix(rgb_xyz_matrix, camera_whitebalance, working_space)
-    wb = _white_balance(camera_whitebalance)
     mask = None
     if clipped is not None:
         mask = np.asarray(clipped, dtype=bool)
@@ -190,16 +252,17 @@ def camera_to_working(
             "out must be a C-contiguous float32 array of the radiance's shape",
             expected=str((h, w, 3)), found=f"{out.shape} {out.dtype}",
         )
-    if numba is not None and h * w > 0:
-        src = rad if rad.flags.c_contiguous else np.ascontiguousarray(rad)
-        if src.dtype not in (np.float32, np.float64):
-            src = src.astype(np.float32)
+    matrix, wb, neutral = conversion
+    if AVAILABLE and h * w > 0:
+        # in place on the output (float32 values, converted in float64)
         dst = out if out is not None else np.empty((h, w, 3), np.float32)
-        m = np.ascontiguousarray(matrix, dtype=np.float64)
+        if dst is not rad:
+            np.copyto(dst, rad, casting="unsafe")
         msk = np.ascontiguousarray(mask) if mask is not None else np.zeros((1, 1), bool)
+        flat = dst.reshape(h, w * 3)
 
         def work(r0: int, r1: int) -> None:
-            _matrix_rows(src, m, wb, msk, mask is not None, dst, r0, r1)
+            _convert_rows(flat, msk, mask is not None, matrix, wb, neutral, r0, r1)
 
         run_row_spans(h, workers, work)
         return dst
@@ -213,8 +276,7 @@ def camera_to_working(
         chunk = flat[i : i + step].astype(np.float32)  # a copy: ``out`` may be ``radiance``
         np.matmul(chunk, m_t, out=res[i : i + step])
     if idx.size:
-        v = balanced.max(axis=1, keepdims=True)
         # A neutral of value v in white-balanced camera RGB is a neutral in the working space.
-        neutral = np.repeat(v, 3, axis=1) / wb
-        res[idx] = (neutral @ matrix.T).astype(np.float32)
+        v = balanced.max(axis=1, keepdims=True)
+        res[idx] = (v * neutral).astype(np.float32)
     return res.reshape(h, w, 3)

@@ -52,6 +52,7 @@ import numpy as np
 from .._threads import worker_count
 from ..errors import ParameterError, validate_method
 from . import _fused
+from .colour import ColourConversion, apply_colour
 from .maps import (
     DEFAULT_GHOST_THRESHOLD,
     DEFAULT_MODEL_ERROR,
@@ -918,11 +919,11 @@ def _fused_supported(plan: _Plan) -> str | None:
 
 def _run_numba(
     kernel: _Kernel, out: _Outputs, spans: list[tuple[int, int]], workers: int,
-    force_tables: bool = False,
-) -> None:
+    force_tables: bool = False, colour: ColourConversion | None = None,
+) -> bool:
     """The fused kernel over ``spans`` of rows: per-level tables for integer frames with a LUT,
     the SIMD kernel for resampled frames and linear ones (float, or integer levels without a
-    LUT) read in place."""
+    LUT) read in place. Returns whether the kernel applied ``colour`` (the SIMD kernel does)."""
     p = kernel.p
     frames = p.frames
     if p.integer and len({f.dtype for f in frames}) > 1:
@@ -966,15 +967,18 @@ def _run_numba(
         ], np.bool_)
 
         flats = tuple(f.reshape(f.shape[0], -1) for f in frames_t)
+        converted = colour is not None
+        cm, cwb, cneu = colour if converted else (np.eye(3), np.ones(3), np.ones(3))
 
         def work(span: tuple[int, int]) -> int:
             return _fused.merge_rows_warped(
                 frames_t, flats, masks_t, has_mask, mats, has_mat, order, times, inv_t, inv_t2, t2,
                 wcode, kernel.shot, kernel.const_var, kernel.floor_norm, kernel.inv_max,
                 max_level, hi, has_lut, lut, lut_var, sat, tap_thr, me2, thr, span[0], span[1],
-                *outs, ntap, oor,
+                *outs, ntap, oor, converted, cm, cwb, cneu,
             )
     elif p.lut is not None or force_tables:
+        converted = False
         tab = _level_tables(kernel)
 
         def work(span: tuple[int, int]) -> int:
@@ -994,6 +998,7 @@ def _run_numba(
             expected=f"levels 0..{p.max_level}",
             found=f"{bad_levels} samples above {p.max_level}",
         )
+    return converted
 
 
 RESAMPLING: dict[str, str] = {
@@ -1068,6 +1073,7 @@ def merge(
     transforms: Sequence[np.ndarray | None] | None = None,
     resample: str = "cubic",
     reuse: MergeResult | None = None,
+    colour: ColourConversion | None = None,
 ) -> MergeResult:
     """Merge aligned frames into one radiance map ``E = sum(w g(M) / dt) / sum(w)``.
 
@@ -1131,6 +1137,13 @@ def merge(
         already touched saves the first-touch cost of new output arrays (28 bytes a pixel for
         3 frames), which on a virtual machine can exceed the merge itself.
 
+    colour
+        A :class:`hdrcore.merge.colour.ColourConversion` (camera RGB -> working space,
+        :func:`~hdrcore.merge.colour.colour_conversion`): the radiance comes out converted, the
+        pixels clipped in every frame made neutral, exactly as
+        :func:`~hdrcore.merge.colour.camera_to_working` would; the fused kernel does it while
+        the block is in cache (one pass less over the map).
+
     Raises
     ------
     ParameterError
@@ -1181,9 +1194,10 @@ def merge(
     if engine == "numba":
         # exp() of the Gaussian weight is not numpy's to the last bit: integer levels take it
         # from the per-level tables the reference computes, so they stay bit for bit the same
-        _run_numba(kernel, out, spans, workers, force_tables=plan.integer
-                   and plan.weighting == "gaussian")
+        converted = _run_numba(kernel, out, spans, workers, force_tables=plan.integer
+                               and plan.weighting == "gaussian", colour=colour)
     else:
+        converted = False
         try:
             _run_numpy(kernel, spans, workers, rows)
         except IndexError as exc:  # np.take of a level past the end of the LUT
@@ -1191,6 +1205,9 @@ def merge(
                 "levels above max_level have no response LUT entry",
                 expected=f"levels 0..{plan.max_level}", found=str(exc),
             ) from exc
+    if colour is not None and not converted:
+        apply_colour(out.radiance, colour, clipped=out.clipped, out=out.radiance,
+                     workers=workers)
     t2 = time.perf_counter()
     ghost_score, ghost = out.ghost_score, out.ghost
     t3 = time.perf_counter()

@@ -89,7 +89,7 @@ def test_numpy_fallback_in_place(monkeypatch):
     rad = rng.random((8, 12, 3)).astype(np.float32)
     clipped = rng.random((8, 12)) < 0.2
     fused = camera_to_working(rad, CAM_XYZ, WB, clipped=clipped)
-    monkeypatch.setattr(colour_module, "numba", None)
+    monkeypatch.setattr(colour_module, "AVAILABLE", False)
     inplace = rad.copy()
     camera_to_working(inplace, CAM_XYZ, WB, clipped=clipped, out=inplace)
     np.testing.assert_allclose(inplace, fused, rtol=1e-5, atol=1e-7)
@@ -102,3 +102,41 @@ def test_srgb_matrix_copy_matches_colour_science():
         colour_module._SRGB_TO_XYZ,
         np.asarray(colour.RGB_COLOURSPACES["sRGB"].matrix_RGB_to_XYZ, dtype=np.float64),
     )
+
+
+@pytest.mark.parametrize("case", ["raw", "raw-warped", "lut", "float"])
+@pytest.mark.parametrize("engine", ["numba", "numpy"])
+def test_merge_applies_colour_as_camera_to_working(case, engine):
+    """merge(..., colour=) gives bit for bit what camera_to_working gives on its result, the
+    pixels clipped in every frame made neutral, on every engine and kernel (the SIMD kernel
+    converts each block inside its finishing pass; the others convert afterwards)."""
+    from hdrcore.merge import apply_colour, colour_conversion, merge
+
+    rng = np.random.default_rng(5)
+    base = rng.random((24, 40, 3)) * np.array([1.0, 0.6, 0.8])
+    base[:4, :6] = 40.0  # clipped in every frame
+    times = (1.0, 4.0, 16.0)
+    kw: dict = {}
+    if case == "lut":
+        frames = [np.clip(np.rint(255 * np.clip(base * t / 16, 0, 1) ** (1 / 2.2)), 0, 255)
+                  .astype(np.uint8) for t in times]
+        kw["response"] = np.tile(np.linspace(0, 1, 256) ** 2.2, (3, 1))
+    elif case == "float":
+        frames = [np.clip(base * t / 16, 0, 1).astype(np.float32) for t in times]
+    else:
+        frames = [np.clip(np.rint(4095 * base * t / 16), 0, 4095).astype(np.uint16)
+                  for t in times]
+        kw["max_level"] = 4095
+    if case == "raw-warped":
+        kw["transforms"] = [np.array([[1.0, 0.01, 0.4], [-0.01, 1.0, -0.3]]), None, None]
+    conv = colour_conversion(CAM_XYZ, WB, "sRGB")
+    plain = merge(frames, times, engine=engine, **kw)
+    assert plain.clipped.any()
+    fused = merge(frames, times, engine=engine, colour=conv, **kw)
+    expected = apply_colour(plain.radiance, conv, clipped=plain.clipped)
+    np.testing.assert_array_equal(fused.radiance, expected)
+    np.testing.assert_array_equal(fused.clipped, plain.clipped)
+    # a clipped pixel is neutral: equal white-balanced camera values
+    y, x = np.argwhere(plain.clipped)[0]
+    v = (plain.radiance[y, x] * conv.white_balance).max()
+    np.testing.assert_allclose(fused.radiance[y, x], v * conv.neutral, rtol=1e-6)
