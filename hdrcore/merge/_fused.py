@@ -211,8 +211,9 @@ def merge_rows_integer(
 
     Levels above ``max_level`` are clipped (the saturation level is at most ``max_level``), so
     they need no weight; without a LUT their ``E_k`` is computed as the reference does
-    (``float32(M) * float32(1 / max_level) * float32(1 / dt)``). With a LUT they have no value: the count
-    of such samples is returned (the caller refuses the input); they are read as ``max_level``.
+    (``float32(M) * float32(1 / max_level) * float32(1 / dt)``). With a LUT they have no
+    value: the count of such samples is returned (the caller refuses the input); they are read
+    as ``max_level``.
     """
     n = len(frames)
     c = frames[0].shape[2]
@@ -858,11 +859,12 @@ def merge_rows_warped(
     fys = np.empty(bw, np.float64)
     ins = np.empty(bw, np.bool_)
     share = np.empty((n, bw), np.float32)
-    fv = np.empty(bw, np.int64)  # first valid frame in exposure order (-1: none)
-    lo = np.empty(bw, np.int64)  # last frame not dropped
-    nbad = np.empty(bw, np.int64)
+    # int32 (not int64): the per-pixel loops then vectorise at the float32 width
+    fv = np.empty(bw, np.int32)  # first valid frame in exposure order (-1: none)
+    lo = np.empty(bw, np.int32)  # last frame not dropped
+    nbad = np.empty(bw, np.int32)
     mode = np.empty(bw, np.int8)
-    pick = np.empty(bw, np.int64)
+    pick = np.empty(bw, np.int32)
     invw = np.empty(bw, np.float32)
     zflag = np.empty(bw, np.bool_)
     sp = np.empty(bw, np.float32)
@@ -979,7 +981,7 @@ def merge_rows_warped(
                 cl = tc[i] & valid
                 b = (not valid) | cl
                 cs[i] += np.uint8(cl)
-                nbad[i] += np.int64(b)
+                nbad[i] += np.int32(b)
                 # fallback candidate A: the darkest frame, replaced by the first valid one
                 ta = (j == 0) | ((fv[i] < 0) & valid)
                 f = fv[i]
