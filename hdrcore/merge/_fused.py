@@ -363,16 +363,17 @@ def tap_thresholds(sat: np.ndarray, dtype: np.dtype) -> np.ndarray:
 @_njit
 def _finish_block(
     y, x0, x1, n, order, den, num, s2, sv, share, fv, lo, nbad, me2, thr,
-    rad, wsum_out, shares, clipped_out, under_out, gscore, ghost, mode, pick, invw,
-    zflag, radf, bb, cc, sp, fe, fs,
+    rad, wsum_out, shares, clipped_out, under_out, gscore, ghost, pick, invw, zflag, radf, bb,
+    cc, fe, fs,
 ):
     """:func:`_finish_row` for interleaved sums (``den[3 i + ch]``), every step a straight
     pass (SIMD), the fallback decisions included: ``fv[i]`` is the first valid frame in exposure
     order (-1: none), ``lo[i]`` the last one not dropped, ``nbad[i]`` the number dropped.
-    Returns how many pixels need a fallback value; their ``mode`` (1: every channel from frame
-    ``pick``; 2: the channels without weight; 3: every channel, the darkest frame's ``E_k``)
-    and ``pick`` (which takes the whole share when no channel has weight) are set, and per
-    element ``fe`` (1: modes 1 and 3) and ``fs`` (1: mode 2), float32 for straight passes."""
+    Returns how many pixels need a fallback value (:func:`_finish_row`'s modes): per element
+    ``fe`` is 1 where every channel takes the first valid frame's ``E_k`` (modes 1 and 3; the
+    darkest frame's when none is valid) and ``fs`` 1 where the channels without weight take
+    the last frame not dropped (mode 2), float32 for straight passes; ``pick[i]`` is that
+    frame, which takes the whole share when the pixel has no weight."""
     zero = np.float32(0.0)
     one = np.float32(1.0)
     nbk = x1 - x0
@@ -388,12 +389,16 @@ def _finish_block(
         bb[e] = b if b >= zero else zero
         cc[e] = sv[e] * inv + a * me2
     ws = wsum_out[y, x0:x1]
+    gh = ghost[y, x0:x1]
+    gs = gscore[y, x0:x1]
     for i in range(nbk):
         e = 3 * i
         spread = (bb[e] + bb[e + 1]) + bb[e + 2]
         noise = (cc[e] + cc[e + 1]) + cc[e + 2]
         noise = noise if noise >= _TINY else _TINY
-        sp[i] = spread / noise
+        v = spread / noise
+        gh[i] = v > thr
+        gs[i] = _f16_bits(v)
         d0 = den[e]
         d1 = den[e + 1]
         d2 = den[e + 2]
@@ -401,12 +406,6 @@ def _finish_block(
         ws[i] = wsum
         invw[i] = one / (wsum if wsum >= _TINY else _TINY)
         zflag[i] = (d0 <= zero) | (d1 <= zero) | (d2 <= zero)
-    gh = ghost[y, x0:x1]
-    gs = gscore[y, x0:x1]
-    for i in range(nbk):
-        v = sp[i]
-        gh[i] = v > thr
-        gs[i] = _f16_bits(v)
     # fallbacks (the reference's _finish): a pixel with a channel of no weight that is clipped
     # in every valid frame takes the darkest valid frame (mode 3 when that is the darkest
     # frame, else 1; no valid frame at all: the darkest, not clipped); otherwise (some frame
@@ -415,17 +414,13 @@ def _finish_block(
     co = clipped_out[y, x0:x1]
     uo = under_out[y, x0:x1]
     dk = order[0]
+    nz = 0
     for i in range(nbk):
         z = zflag[i]
         allbad = nbad[i] == n
         f = fv[i]
         cl = z & allbad
-        md = np.int8(0)
-        if cl:
-            md = np.int8(3) if f == dk else np.int8(1)
-        elif z:
-            md = np.int8(2)
-        mode[i] = md
+        nz += z
         e = 3 * i
         every = np.float32(1.0) if cl else zero
         some = np.float32(1.0) if z & (not cl) else zero
@@ -451,9 +446,6 @@ def _finish_block(
             h = _f16_bits(sk[i] * invw[i])
             one_k = _ONE_F16 if pick[i] == k else np.uint16(0)
             so[i] = one_k if zflag[i] else h
-    nz = 0
-    for i in range(nbk):
-        nz += mode[i] != 0
     return nz
 
 
@@ -863,11 +855,9 @@ def merge_rows_warped(
     fv = np.empty(bw, np.int32)  # first valid frame in exposure order (-1: none)
     lo = np.empty(bw, np.int32)  # last frame not dropped
     nbad = np.empty(bw, np.int32)
-    mode = np.empty(bw, np.int8)
     pick = np.empty(bw, np.int32)
     invw = np.empty(bw, np.float32)
     zflag = np.empty(bw, np.bool_)
-    sp = np.empty(bw, np.float32)
     tc = np.empty(bw, np.bool_)
     ones = np.ones(bw, np.bool_)
     cf = np.empty(bw + 4, np.bool_)  # per source column of a run: any tap clipped
@@ -1042,8 +1032,8 @@ def merge_rows_warped(
                 share[k, i] = (wbuf[e] + wbuf[e + 1]) + wbuf[e + 2]
         nz = _finish_block(
             y, x0, x1, n, order, den, num, s2, sv, share, fv, lo, nbad, me2, thr,
-            rad, wsum_out, shares, clipped_out, under_out, gscore, ghost, mode, pick,
-            invw, zflag, radf, bb, cc, sp, fa_sel, fb_sel,
+            rad, wsum_out, shares, clipped_out, under_out, gscore, ghost, pick, invw, zflag,
+            radf, bb, cc, fa_sel, fb_sel,
         )
         ro = radf[y, 3 * x0:3 * x1]
         # fallbacks, a straight pass: modes 1 and 3 take candidate A in every channel, mode 2
