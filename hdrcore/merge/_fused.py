@@ -723,46 +723,46 @@ def _taps_run(flat, iy0, b, e0, e1, ntap, wxe, wye, acc, xk, hi):
 
 
 @_njit
-def _cubic_weights(m00, m01, m02, m10, m11, m12, x0, yf, nbk, fxs, fys, wx, wy):
-    """Source floors and Keys weights ``wx[j, i]``, ``wy[j, i]`` of pixels
-    ``x0 .. x0 + nbk - 1`` of row ``yf``: one straight loop (SIMD)."""
+def _warp_setup(m00, m01, m02, m10, m11, m12, x0, yf, nbk, ntap, o, wlim, hlim, wxp, wyp, ins,
+                ixs, iys, same):
+    """For pixels ``x0 .. x0 + nbk - 1`` of row ``yf`` mapped by the 2x3 matrix ``m``: the
+    weights ``wxp[j, i]``, ``wyp[j, i]`` of the ``ntap`` taps per axis (Keys cubic in float64,
+    as the reference, then float32; or bilinear ``float32(1 - f), float32(f)``), ``ins[i]``
+    whether the support lies in the frame (top-left tap ``o`` before the floor, ``<= wlim``,
+    ``<= hlim``), ``ixs``/``iys`` the support's top-left tap (clamped so that an outside
+    pixel's unused index stays valid) and ``same[i]`` whether pixel ``i`` continues pixel
+    ``i - 1``'s run: both inside, the same source rows and the next column. Straight loops
+    (SIMD)."""
     for i in range(nbk):
         xf = np.float64(x0 + i)
         sx = m00 * xf + m01 * yf + m02
         sy = m10 * xf + m11 * yf + m12
         fx0 = np.floor(sx)
         fy0 = np.floor(sy)
-        fxs[i] = fx0
-        fys[i] = fy0
-        wa, wb, wc, wd = _keys(sx - fx0)
-        wx[0, i] = wa
-        wx[1, i] = wb
-        wx[2, i] = wc
-        wx[3, i] = wd
-        wa, wb, wc, wd = _keys(sy - fy0)
-        wy[0, i] = wa
-        wy[1, i] = wb
-        wy[2, i] = wc
-        wy[3, i] = wd
-
-
-@_njit
-def _linear_weights(m00, m01, m02, m10, m11, m12, x0, yf, nbk, fxs, fys, wx, wy):
-    """As :func:`_cubic_weights` for bilinear weights ``float32(1 - f), float32(f)``."""
-    for i in range(nbk):
-        xf = np.float64(x0 + i)
-        sx = m00 * xf + m01 * yf + m02
-        sy = m10 * xf + m11 * yf + m12
-        fx0 = np.floor(sx)
-        fy0 = np.floor(sy)
-        fxs[i] = fx0
-        fys[i] = fy0
-        fx = sx - fx0
-        fy = sy - fy0
-        wx[0, i] = np.float32(1.0 - fx)
-        wx[1, i] = np.float32(fx)
-        wy[0, i] = np.float32(1.0 - fy)
-        wy[1, i] = np.float32(fy)
+        if ntap == 4:
+            wa, wb, wc, wd = _keys(sx - fx0)
+            wxp[0, i] = wa
+            wxp[1, i] = wb
+            wxp[2, i] = wc
+            wxp[3, i] = wd
+            wa, wb, wc, wd = _keys(sy - fy0)
+            wyp[0, i] = wa
+            wyp[1, i] = wb
+            wyp[2, i] = wc
+            wyp[3, i] = wd
+        else:
+            fx = sx - fx0
+            fy = sy - fy0
+            wxp[0, i] = np.float32(1.0 - fx)
+            wxp[1, i] = np.float32(fx)
+            wyp[0, i] = np.float32(1.0 - fy)
+            wyp[1, i] = np.float32(fy)
+        ins[i] = (fx0 >= o) & (fx0 <= wlim) & (fy0 >= o) & (fy0 <= hlim)
+        ixs[i] = np.int32(min(max(fx0 - o, 0.0), wlim - o))
+        iys[i] = np.int32(min(max(fy0 - o, 0.0), hlim - o))
+    same[0] = False
+    for i in range(1, nbk):
+        same[i] = (ins[i] & ins[i - 1]) & (iys[i] == iys[i - 1]) & (ixs[i] == ixs[i - 1] + 1)
 
 
 @_njit
@@ -845,10 +845,9 @@ def merge_rows_warped(
     wye = np.empty((4, b3), np.float32)
     wxp = np.empty((4, bw), np.float32)  # per pixel, before _expand3
     wyp = np.empty((4, bw), np.float32)
-    ixs = np.empty(bw, np.int64)
-    iys = np.empty(bw, np.int64)
-    fxs = np.empty(bw, np.float64)
-    fys = np.empty(bw, np.float64)
+    ixs = np.empty(bw, np.int32)
+    iys = np.empty(bw, np.int32)
+    same = np.empty(bw, np.bool_)  # pixel i continues pixel i - 1's run
     ins = np.empty(bw, np.bool_)
     share = np.empty((n, bw), np.float32)
     # int32 (not int64): the per-pixel loops then vectorise at the float32 width
@@ -867,6 +866,7 @@ def merge_rows_warped(
     bb = np.empty(b3, np.float32)
     cc = np.empty(b3, np.float32)
     radf = rad.reshape(h, w * 3)
+    row_len = 3 * w
     lmax = lut.shape[1] - 1
     out_of_range = 0
     zero = np.float32(0.0)
@@ -906,23 +906,11 @@ def merge_rows_warped(
                 m10 = mats[k, 1, 0]
                 m11 = mats[k, 1, 1]
                 m12 = mats[k, 1, 2]
-                if ntap == 4:
-                    _cubic_weights(m00, m01, m02, m10, m11, m12, x0, yf, nbk, fxs, fys, wxp,
-                                   wyp)
-                else:
-                    _linear_weights(m00, m01, m02, m10, m11, m12, x0, yf, nbk, fxs, fys, wxp,
-                                    wyp)
+                _warp_setup(m00, m01, m02, m10, m11, m12, x0, yf, nbk, ntap, o,
+                            np.float64(w - (ntap - o)), np.float64(h - (ntap - o)), wxp, wyp,
+                            ins, ixs, iys, same)
                 _expand3(ntap, nbk, wxp, wxe)
                 _expand3(ntap, nbk, wyp, wye)
-                wlim = w - (ntap - o)
-                hlim = h - (ntap - o)
-                for i in range(nbk):
-                    fx0 = fxs[i]
-                    fy0 = fys[i]
-                    ins[i] = (fx0 >= o) & (fx0 <= wlim) & (fy0 >= o) & (fy0 <= hlim)
-                    # clamped so that the (unused) index of an outside pixel stays valid
-                    ixs[i] = int(min(max(fx0 - o, 0.0), wlim - o))
-                    iys[i] = int(min(max(fy0 - o, 0.0), hlim - o))
                 # runs of pixels whose supports share their rows and column offset: the taps
                 # and the clipped-support flags of a run are contiguous in the source rows
                 i = 0
@@ -939,9 +927,15 @@ def merge_rows_warped(
                     iy0 = iys[i]
                     dx = ixs[i] - i
                     i += 1
-                    while i < nbk and ins[i] and iys[i] == iy0 and ixs[i] - i == dx:
+                    while i < nbk and same[i]:
                         i += 1
-                    _taps_run(flat, iy0, 3 * dx, 3 * s, 3 * i, ntap, wxe, wye, acc, xk, hi)
+                    # the run's elements rounded up to whole SIMD vectors (no scalar tail;
+                    # the extra values are overwritten by the next run) where the source row
+                    # is long enough
+                    e1 = 3 * s + ((3 * (i - s) + 15) & ~15)
+                    if 3 * dx + e1 + 3 * ntap > row_len:
+                        e1 = 3 * i
+                    _taps_run(flat, iy0, 3 * dx, 3 * s, e1, ntap, wxe, wye, acc, xk, hi)
                     _clipped_supports(flat, iy0, dx + s, i - s, ntap, th0, th1, th2, cf,
                                       tc[s:i])
                 if oor[k]:  # levels past the LUT are clipped: count them
