@@ -14,7 +14,11 @@ Rules that keep the result free of colour casts and honest about what it could n
 * A sample at or below the noise floor gets zero weight in its own channel only.
 * A pixel clipped in every valid frame takes the darkest valid frame's value and is flagged
   ``clipped``; a channel below the noise floor in every usable frame takes the brightest usable
-  frame's value and the pixel is flagged ``underexposed``.
+  frame's value and the pixel is flagged ``underexposed``. Such a value is that frame's
+  ``E_k = g(M) / dt`` exactly as the weighted sums formed it (float32).
+* With ``colour=`` (a :class:`~hdrcore.merge.colour.ColourConversion`) the radiance comes out in
+  the working space, the pixels clipped in every frame neutral: the fused kernel converts each
+  block while it is in cache, which saves a pass over the map.
 
 Units: for integer frames ``saturation_level`` and ``noise_floor`` are output levels (the frames'
 own units, 0..``max_level``); for float frames (already linear, 1.0 = saturation) they are linear
