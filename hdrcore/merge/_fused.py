@@ -4,26 +4,28 @@ Same arithmetic as the numpy reference (:class:`hdrcore.merge.merge._Kernel`), i
 float32 order, so both give the same radiance, shares, weight sums and maps (bit for bit for integer
 frames; within float32 rounding of ``exp`` for the Gaussian weight of float frames).
 
-Two kernels:
+One kernel, :func:`merge_rows_warped`, for every input: frames with a transform (resampled
+inside the merge, Keys cubic convolution (Keys 1981, a = -1/2) or bilinear, see
+:func:`hdrcore.merge.merge`) and frames read in place (float; integer levels, linear or through
+per-level tables). It is laid out for SIMD: per block of a row each frame's values form one
+interleaved run (element ``3 x + ch``), so the sums, the weights and the finish are straight
+loops over elements with no per-channel branch. A resampled frame's coordinates and Keys
+weights are computed for the whole block in one loop (float64, as the reference), then the
+block is cut into runs of pixels whose 4 x 4 supports share their source rows and column offset
+(under a small rotation a run is about ``1 / sin(angle)`` pixels long): over a run the taps of
+each source row are contiguous, so the 16 taps are 16 multiply-adds over contiguous memory
+instead of 48 scattered loads per pixel. The "any tap clipped" test is made per run too: each
+source column of the run once, then ``ntap`` columns per support (:func:`_clipped_supports`).
+Integer frames read in place with a response LUT (or with the Gaussian weight, whose ``exp``
+must be numpy's to the last bit) go through per-level tables built *by the reference itself*
+(its linearisation and weight function applied to every level of every frame and channel:
+``E_k = g(M) / dt``, ``w`` with the noise floor applied, ``w var(E_k)``, ``w E_k`` and
+``w E_k**2``), five loads and five adds a sample: the compiler does not vectorise table
+loads on this CPU (gathers are not used on AMD), so those loops run scalar.
 
-* :func:`merge_rows_warped` -- frames with a transform (resampled inside the merge, Keys cubic
-  convolution (Keys 1981, a = -1/2) or bilinear, see :func:`hdrcore.merge.merge`) and linear
-  frames read in place (float, or integer levels without a LUT; a tripod bracket of RAW
-  levels). It is laid out for SIMD: per block of a row each frame's values form one
-  interleaved float32 run (element ``3 x + ch``), so the sums, the weights and the finish are
-  straight loops over elements with no per-channel branch. A resampled frame's coordinates
-  and Keys weights are computed for the whole block in one loop (float64, as the reference),
-  then the block is cut into runs of pixels whose 4 x 4 supports share their source rows and
-  column offset (under a small rotation a run is about ``1 / sin(angle)`` pixels long): over
-  a run the taps of each source row are contiguous, so the 16 taps are 16 multiply-adds over
-  contiguous memory instead of 48 scattered loads per pixel. The "any tap clipped" test is
-  made per run too: each source column of the run once, then ``ntap`` columns per support
-  (:func:`_clipped_supports`).
-* :func:`merge_rows_integer` -- integer frames with a response LUT, through per-level tables
-  built *by the reference itself* (its linearisation and weight function applied to every
-  level ``0..L-1`` of every frame and channel): for each level the table holds
-  ``E_k = g(M) / dt``, ``w`` (noise floor applied), ``w var(E_k)``, ``w E_k`` and
-  ``w E_k**2``, so the kernel does five loads and five adds per sample.
+Fallback values (pixels clipped in every frame, channels below the noise floor in every
+usable frame) are candidates tracked in the sums (the first valid frame's ``E_k``, the last
+frame not dropped's), so the finish fills them in one straight pass.
 
 The kernels are compiled by numba with ``nogil=True`` and run over row blocks on the caller's
 thread pool rather than numba's own ``prange``: numba's default (workqueue) threading layer
@@ -60,7 +62,6 @@ WEIGHT_CODES = {"hat": 0, "gaussian": 1, "noise-aware": 2, "uniform": 3}
 _F16_MAX = np.float32(65504.0)
 _TINY = np.float32(1e-30)
 _ONE_F16 = np.uint16(0x3C00)  # 1.0 as float16 bits
-_BLOCK = 512  # pixels of a row per block: the block's sums stay in L1 cache
 _WBLOCK = 2048  # merge_rows_warped (6000 px rows: 2048 beats 512..1536 and 3072..6000)
 
 
@@ -74,220 +75,6 @@ def _f16_bits(v):
     if s < 0:
         s = np.int32(0)
     return np.uint16(s)
-
-
-@_njit
-def _finish_row(
-    y, x0, x1, n, c, order, den, num, s2, sv, share, bad, clip, nbad, me2, thr,
-    rad, wsum_out, shares, clipped_out, under_out, gscore, ghost, mode, pick,
-):
-    """Radiance, ghost score, shares and fallbacks of row ``y`` (the reference's ``_finish``).
-
-    Columns ``x0:x1`` of the row; the buffers are channel- or frame-planar ``(C, B)`` /
-    ``(N, B)`` blocks indexed by ``x - x0`` (a block stays in L1 cache). Sets ``mode[i]``: 0 done;
-    1 every channel takes frame ``pick[i]``'s ``E_k`` (as the sums saw it); 2 the channels with
-    no weight do; 3 every channel takes the darkest frame's ``E_k`` (``pick[i]`` is that frame).
-    The caller fills those in (it knows the dtype).
-    """
-    zero = np.float32(0.0)
-    one = np.float32(1.0)
-    for x in range(x0, x1):
-        i = x - x0
-        spread = zero
-        noise = zero
-        wsum = zero
-        anyzero = False
-        for ch in range(c):
-            d = den[ch, i]
-            inv = d if d >= _TINY else _TINY
-            inv = one / inv
-            a = num[ch, i] * inv
-            rad[y, x, ch] = a
-            b = s2[ch, i] * inv
-            a2 = a * a
-            b = b - a2
-            if b < zero:
-                b = zero
-            spread = b if ch == 0 else spread + b
-            a2 = a2 * me2
-            b = sv[ch, i] * inv
-            b = b + a2
-            noise = b if ch == 0 else noise + b
-            wsum = d if ch == 0 else wsum + d
-            if d <= zero:
-                anyzero = True
-        if noise < _TINY:
-            noise = _TINY
-        spread = spread / noise
-        ghost[y, x] = spread > thr
-        gscore[y, x] = _f16_bits(spread)
-        wsum_out[y, x] = wsum
-        invw = wsum if wsum >= _TINY else _TINY
-        invw = one / invw
-        for k in range(n):
-            shares[k, y, x] = _f16_bits(share[k, i] * invw)
-        is_clipped = nbad[i] == n
-        under = False
-        mode[i] = 0
-        if anyzero:
-            if is_clipped:
-                dk = order[0]
-                if not (bad[dk, i] and not clip[dk, i]):
-                    p = dk
-                    mode[i] = 3
-                else:
-                    p = -1
-                    for j in range(n):
-                        k = order[j]
-                        if not (bad[k, i] and not clip[k, i]):
-                            p = k
-                            break
-                    if p < 0:  # no valid frame at all: unknown, not clipped
-                        p = dk
-                        is_clipped = False
-                    mode[i] = 1
-                for k in range(n):
-                    shares[k, y, x] = np.uint16(0)
-                shares[p, y, x] = _ONE_F16
-                pick[i] = p
-            elif nbad[i] < n:
-                last = 0
-                for j in range(n):
-                    if not bad[order[j], i]:
-                        last = j
-                p = order[last]
-                mode[i] = 2
-                pick[i] = p
-                whole = True
-                for ch in range(c):
-                    if den[ch, i] > zero:
-                        whole = False
-                if whole:
-                    for k in range(n):
-                        shares[k, y, x] = np.uint16(0)
-                    shares[p, y, x] = _ONE_F16
-                under = True
-        clipped_out[y, x] = is_clipped
-        under_out[y, x] = under
-
-
-@_njit
-def _row_buffers(n, c, w):
-    w = min(w, _BLOCK)
-    return (
-        np.empty((c, w), np.float32),  # den = sum w
-        np.empty((c, w), np.float32),  # num = sum w E_k
-        np.empty((c, w), np.float32),  # s2 = sum w E_k^2
-        np.empty((c, w), np.float32),  # sv = sum w var(E_k)
-        np.empty((n, w), np.float32),  # share = sum over channels of w, per frame
-        np.empty((n, w), np.bool_),  # bad = dropped (clipped or invalid)
-        np.empty((n, w), np.bool_),  # clip
-        np.empty(w, np.int64),  # nbad
-        np.empty(w, np.int8),  # mode
-        np.empty(w, np.int64),  # pick
-    )
-
-
-@_njit
-def _clip_flags(f, x, c, sat, hm, mrow):
-    cl = False
-    for ch in range(3):
-        if np.float64(f[x, ch]) >= sat[ch]:
-            cl = True
-    if hm:
-        valid = mrow[x]
-        cl = cl and valid
-        return cl, (not valid) or cl
-    return cl, cl
-
-
-@_njit
-def merge_rows_integer(
-    frames, masks, has_mask, order, tab, has_lut, inv_max, inv_t, sat, me2, thr, r0, r1, rad,
-    wsum_out, shares, clip_count, clipped_out, under_out, gscore, ghost,
-):
-    """Rows ``r0:r1`` of integer frames through the per-level tables ``tab (N, C, L, 8)``
-    (``L = max_level + 1``; entries 5..7 pad a level to 32 bytes).
-
-    Levels above ``max_level`` are clipped (the saturation level is at most ``max_level``), so
-    they need no weight; without a LUT their ``E_k`` is computed as the reference does
-    (``float32(M) * float32(1 / max_level) * float32(1 / dt)``). With a LUT they have no
-    value: the count of such samples is returned (the caller refuses the input); they are read
-    as ``max_level``.
-    """
-    n = len(frames)
-    c = frames[0].shape[2]
-    w = frames[0].shape[1]
-    lmax = tab.shape[2] - 1
-    den, num, s2, sv, share, bad, clip, nbad, mode, pick = _row_buffers(n, c, w)
-    out_of_range = 0
-    zero = np.float32(0.0)
-    nb = (w + _BLOCK - 1) // _BLOCK
-    for yb in range((r1 - r0) * nb):
-        y = r0 + yb // nb
-        x0 = (yb % nb) * _BLOCK
-        x1 = min(w, x0 + _BLOCK)
-        den[:] = zero
-        num[:] = zero
-        s2[:] = zero
-        sv[:] = zero
-        nbad[:] = 0
-        clip_count[y, x0:x1] = 0
-        for j in range(n):
-            k = order[j]
-            f = frames[k][y]
-            mrow = masks[k][y if has_mask[k] else 0]
-            hm = has_mask[k]
-            tk = tab[k]
-            for x in range(x0, x1):
-                i = x - x0
-                cl, b = _clip_flags(f, x, c, sat, hm, mrow)
-                clip[k, i] = cl
-                bad[k, i] = b
-                if cl:
-                    clip_count[y, x] += 1
-                if b:
-                    nbad[i] += 1
-                sh = zero
-                if has_lut:
-                    for ch in range(3):
-                        if int(f[x, ch]) > lmax:
-                            out_of_range += 1
-                if b:
-                    share[k, i] = zero
-                    continue
-                for ch in range(3):
-                    v = int(f[x, ch])
-                    if v > lmax:  # clipped (saturation <= max_level): its weight is not used
-                        v = lmax
-                    wk = tk[ch, v, 1]
-                    den[ch, i] += wk
-                    sh = wk if ch == 0 else sh + wk
-                    sv[ch, i] += tk[ch, v, 2]
-                    num[ch, i] += tk[ch, v, 3]
-                    s2[ch, i] += tk[ch, v, 4]
-                share[k, i] = sh
-        _finish_row(
-            y, x0, x1, n, c, order, den, num, s2, sv, share, bad, clip, nbad, me2, thr,
-            rad, wsum_out, shares, clipped_out, under_out, gscore, ghost, mode, pick,
-        )
-        # fallbacks: frame pick[i]'s E_k as the sums saw it (every channel in modes 1 and 3,
-        # the channels without weight in mode 2)
-        for x in range(x0, x1):
-            i = x - x0
-            md = mode[i]
-            if md == 0:
-                continue
-            p = pick[i]
-            fp = frames[p][y]
-            for ch in range(c):
-                if md != 2 or den[ch, i] <= zero:
-                    v = int(fp[x, ch])
-                    if v <= lmax:
-                        rad[y, x, ch] = tab[p, ch, v, 0]
-                    else:  # past the table: clipped levels without a LUT (with one: refused)
-                        rad[y, x, ch] = (np.float32(fp[x, ch]) * inv_max) * inv_t[p]
-    return out_of_range
 
 
 def warm_up() -> float:
@@ -366,14 +153,15 @@ def _finish_block(
     rad, wsum_out, shares, clipped_out, under_out, gscore, ghost, pick, invw, zflag, radf, bb,
     cc, fe, fs,
 ):
-    """:func:`_finish_row` for interleaved sums (``den[3 i + ch]``), every step a straight
-    pass (SIMD), the fallback decisions included: ``fv[i]`` is the first valid frame in exposure
-    order (-1: none), ``lo[i]`` the last one not dropped, ``nbad[i]`` the number dropped.
-    Returns how many pixels need a fallback value (:func:`_finish_row`'s modes): per element
-    ``fe`` is 1 where every channel takes the first valid frame's ``E_k`` (modes 1 and 3; the
-    darkest frame's when none is valid) and ``fs`` 1 where the channels without weight take
-    the last frame not dropped (mode 2), float32 for straight passes; ``pick[i]`` is that
-    frame, which takes the whole share when the pixel has no weight."""
+    """Radiance, ghost score, shares and fallback decisions of one block (the reference's
+    ``_finish``) from interleaved sums (``den[3 i + ch]``), every step a straight pass (SIMD).
+    ``fv[i]`` is the first valid frame in exposure order (-1: none), ``lo[i]`` the last one not
+    dropped, ``nbad[i]`` the number dropped. Returns how many pixels need a fallback value and
+    sets, per element, ``fe`` 1 where every channel takes the first valid frame's ``E_k`` (the
+    pixel is clipped in every valid frame; the darkest frame's when none is valid) and ``fs`` 1
+    where the channels without weight take the last frame not dropped (float32, for straight
+    passes); ``pick[i]`` is that frame, which takes the whole share when the pixel has no
+    weight."""
     zero = np.float32(0.0)
     one = np.float32(1.0)
     nbk = x1 - x0
@@ -447,26 +235,6 @@ def _finish_block(
             one_k = _ONE_F16 if pick[i] == k else np.uint16(0)
             so[i] = one_k if zflag[i] else h
     return nz
-
-
-@_njit
-def _lut_value(v, ch, warped, lut, lut_var, lmax):
-    """Linear value and level-noise variance of value ``v`` of channel ``ch`` through the LUT:
-    resampled frames read it linearly between entries, frames read in place at the level."""
-    if warped:
-        lo = min(int(v), lmax - 1)
-        frac = v - np.float32(lo)
-        l0 = lut[ch, lo]
-        xv = lut[ch, lo + 1] - l0
-        xv = xv * frac
-        xv = xv + l0
-        q0 = lut_var[ch, lo]
-        var = lut_var[ch, lo + 1] - q0
-        var = var * frac
-        var = var + q0
-        return xv, var
-    li = min(int(v), lmax)
-    return lut[ch, li], lut_var[ch, li]
 
 
 @_njit
@@ -572,8 +340,8 @@ def _accumulate_lut_run(
     den, num, s2, sv, wbuf, fa, fb,
 ):
     """The sums of one resampled frame with a LUT over ``nbk`` pixels: each channel's
-    interpolated level read linearly between the entries of its LUT row (as
-    :func:`_lut_value`), one straight loop per channel and weighting; the fallback candidates
+    interpolated level read linearly between the entries of its LUT row (the reference's
+    ``_LUT_MODE`` "levels"), one straight loop per channel and weighting; the fallback candidates
     as :func:`_accumulate_run`."""
     zero = np.float32(0.0)
     one = np.float32(1.0)
@@ -652,6 +420,42 @@ def _accumulate_lut_run(
                 wk = wk * ev
                 num[e] += wk
                 s2[e] += wk * ev
+
+
+@_njit
+def _accumulate_levels_table(src, choff, tk, lmax, has_lut, inv_max, itk, okf, taf, ne, den,
+                             num, s2, sv, wbuf, fa, fb):
+    """The sums of one frame of integer levels read in place through its per-level table
+    ``tk (5, C L)`` (:func:`hdrcore.merge.merge._level_tables`: ``E_k, w, w var(E_k), w E_k,
+    w E_k**2`` of every level, built by the reference itself, the noise floor applied; channel
+    ``ch``'s entry of level ``v`` at ``choff[e] + v``, ``choff[e] = ch L``): five loads and five
+    adds a sample, bit for bit the reference's (the Gaussian weight's ``exp`` included).
+    Without a LUT ``E_k`` is computed (levels past the table are clipped there, and the
+    fallbacks need their value); with one, levels past it are counted (the caller refuses
+    them). The fallback candidates as :func:`_accumulate_run`."""
+    zero = np.float32(0.0)
+    bad = 0
+    for e in range(ne):
+        v = src[e]
+        iv = np.int32(v)
+        bad += np.int32(iv > lmax)
+        li = min(iv, lmax) + choff[e]
+        te = tk[0, li]
+        ea = (np.float32(v) * inv_max) * itk
+        ev = te if has_lut else ea
+        ok = okf[e]
+        ta = taf[e]
+        pa = fa[e]  # loads outside the selects
+        pb = fb[e]
+        fa[e] = ev if ta != zero else pa
+        fb[e] = ev if ok != zero else pb
+        wk = tk[1, li] * ok
+        wbuf[e] = wk
+        den[e] += wk
+        sv[e] += tk[2, li] * ok
+        num[e] += tk[3, li] * ok
+        s2[e] += tk[4, li] * ok
+    return bad if has_lut else 0
 
 
 @_njit
@@ -807,7 +611,7 @@ def merge_rows_warped(
     const_var, floor_norm, inv_max, max_level, hi, has_lut, lut, lut_var, sat, tap_thr, me2,
     thr, r0, r1,
     rad, wsum_out, shares, clip_count, clipped_out, under_out, gscore, ghost, ntap, oor,
-    has_colour, cm, cwb, cneu,
+    has_colour, cm, cwb, cneu, use_tab, tabs,
 ):
     """Rows ``r0:r1`` of the output grid; frame ``k`` with ``has_mat[k]`` is read at
     ``mats[k] @ (x, y, 1)`` (``ntap`` 4: Keys cubic, 4 weights per axis shared by the 3
@@ -816,9 +620,12 @@ def merge_rows_warped(
     is at or above its saturation level (``tap_thr``: :func:`tap_thresholds` in the frames'
     dtype; :func:`_clipped_supports`), and invalid when the support leaves the frame (its
     values read 0 there). ``oor[k]``: frame ``k`` (resampled, with a LUT) holds levels past
-    the LUT, so clipped supports are searched for them. Integer levels with a LUT are
-    interpolated, then read linearly between table entries; integer levels without one and
-    float frames are linear (``level = value * inv_max``). With ``has_colour`` each finished
+    the LUT, so clipped supports are searched for them. Resampled integer levels with a LUT
+    are interpolated, then read linearly between LUT entries; with ``use_tab`` the integer
+    frames read in place go through the per-level tables ``tabs (N, 5, C L)``
+    (:func:`_accumulate_levels_table`: frames with a LUT, and the Gaussian weight, whose
+    ``exp`` is then numpy's); otherwise integer levels and float frames are linear
+    (``level = value * inv_max``). With ``has_colour`` each finished
     block is converted to the working space (:func:`hdrcore.merge.colour.convert_pixels` with
     ``cm``, ``cwb``, ``cneu``) while it is in cache. Returns the number of samples above the
     LUT's last level (the caller refuses the input).
@@ -867,6 +674,11 @@ def merge_rows_warped(
     cc = np.empty(b3, np.float32)
     radf = rad.reshape(h, w * 3)
     row_len = 3 * w
+    tab_len = tabs.shape[2] // 3  # levels a channel of the per-level tables
+    tab_max = tab_len - 1
+    choff = np.empty(b3, np.int32)  # element e's channel row in the flattened tables
+    for e in range(b3):
+        choff[e] = np.int32((e % 3) * tab_len)
     lmax = lut.shape[1] - 1
     out_of_range = 0
     zero = np.float32(0.0)
@@ -988,33 +800,10 @@ def merge_rows_warped(
                 _accumulate_lut_run(xk, okf, taf, nbk, wcode, inv_max, shot, const_var,
                                     floor_norm, itk, it2, t2k, lut, lut_var, den, num, s2, sv,
                                     wbuf, fa, fb)
-            elif has_lut:
-                for e in range(ne):
-                    ch = e % 3
-                    v = np.float32(frf[e])
-                    level = v * inv_max
-                    if int(v) > lmax:
-                        out_of_range += 1
-                    xv, var = _lut_value(v, ch, False, lut, lut_var, lmax)
-                    if shot != zero:
-                        var = var + xv * shot
-                    var = var + const_var
-                    ev = xv * itk
-                    ok = okf[e]
-                    ta = taf[e]
-                    pa = fa[e]  # loads outside the selects: they vectorise
-                    pb = fb[e]
-                    fa[e] = ev if ta != zero else pa
-                    fb[e] = ev if ok != zero else pb
-                    wk = _weight(wcode, level, var, t2k)
-                    wk = wk * (ok if level > floor_norm else zero)
-                    wbuf[e] = wk
-                    den[e] += wk
-                    var = var * wk
-                    sv[e] += var * it2
-                    wk = wk * ev
-                    num[e] += wk
-                    s2[e] += wk * ev
+            elif use_tab:
+                out_of_range += _accumulate_levels_table(
+                    frf, choff, tabs[k], tab_max, has_lut, inv_max, itk, okf, taf, ne, den, num,
+                    s2, sv, wbuf, fa, fb)
             elif warped:
                 _accumulate_run(xk, okf, taf, ne, wcode, inv_max, shot, const_var, floor_norm,
                                 itk, it2, t2k, den, num, s2, sv, wbuf, fa, fb)

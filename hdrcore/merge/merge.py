@@ -875,8 +875,9 @@ def _run_numpy(kernel: _Kernel, spans: list[tuple[int, int]], workers: int, rows
 
 
 def _level_tables(kernel: _Kernel) -> np.ndarray:
-    """float32 ``(N, C, L, 8)``: ``E_k, w, w var(E_k), w E_k, w E_k**2`` of every level
-    ``0..max_level`` (and three zeros, so a level's entry is one aligned 32-byte line).
+    """float32 ``(N, 5, C L)``: ``E_k, w, w var(E_k), w E_k, w E_k**2`` of every level
+    ``0..max_level`` (``L`` levels) of every frame, channel ``ch``'s level ``v`` at
+    ``ch L + v`` (the fused kernel's :func:`~hdrcore.merge._fused._accumulate_levels_table`).
 
     Built with the reference's own linearisation and weight function, in its operation order,
     so a table entry is bit for bit what the reference computes for a sample of that level
@@ -888,25 +889,26 @@ def _level_tables(kernel: _Kernel) -> np.ndarray:
     length = int(p.max_level) + 1
     levels = np.arange(length, dtype=dtype)
     s = _Scratch(n, length, c)
-    tab = np.zeros((n, c, length, 8), np.float32)
+    tab = np.zeros((n, 5, c * length), np.float32)
     for k in range(n):
         t = float(p.times[k])
         inv_t = np.float32(1.0 / t)
         inv_t2 = np.float32(1.0 / (t * t))
         for ch in range(c):
+            row = slice(ch * length, (ch + 1) * length)
             x, level, var = kernel._linearise(levels, ch, s, length)
             e = np.multiply(x, inv_t)
             wk = kernel.weight_fn(level, x, t, var)
             wk *= level > kernel.floor_norm
-            tab[k, ch, :, 0] = e
-            tab[k, ch, :, 1] = wk
+            tab[k, 0, row] = e
+            tab[k, 1, row] = wk
             var *= wk
             var *= inv_t2
-            tab[k, ch, :, 2] = var
+            tab[k, 2, row] = var
             wk *= e
-            tab[k, ch, :, 3] = wk
+            tab[k, 3, row] = wk
             wk *= e
-            tab[k, ch, :, 4] = wk
+            tab[k, 4, row] = wk
     return tab
 
 
@@ -924,10 +926,10 @@ def _fused_supported(plan: _Plan) -> str | None:
 def _run_numba(
     kernel: _Kernel, out: _Outputs, spans: list[tuple[int, int]], workers: int,
     force_tables: bool = False, colour: ColourConversion | None = None,
-) -> bool:
-    """The fused kernel over ``spans`` of rows: per-level tables for integer frames with a LUT,
-    the SIMD kernel for resampled frames and linear ones (float, or integer levels without a
-    LUT) read in place. Returns whether the kernel applied ``colour`` (the SIMD kernel does)."""
+) -> None:
+    """The fused kernel (:func:`hdrcore.merge._fused.merge_rows_warped`) over ``spans`` of
+    rows, ``colour`` applied inside it. Integer frames read in place go through the
+    reference's per-level tables when they have a LUT or ``force_tables``."""
     p = kernel.p
     frames = p.frames
     if p.integer and len({f.dtype for f in frames}) > 1:
@@ -946,50 +948,43 @@ def _run_numba(
         out.underexposed, out.ghost_score.view(np.uint16), out.ghost,
     )
     inv_t = np.array([1.0 / t for t in p.times], np.float32)
-    if p.warped or (p.lut is None and not force_tables):
-        # resampled frames, or linear ones (float, or integer levels without a LUT) read in
-        # place: the SIMD kernel (frames without a transform take its direct path)
-        inv_t2 = np.array([1.0 / (t * t) for t in p.times], np.float32)
-        t2 = np.array([float(t) ** 2 for t in p.times], np.float32)
-        wcode = _fused.WEIGHT_CODES[p.weighting]
-        mats = np.zeros((len(frames), 2, 3))
-        for k, tf in enumerate(p.transforms):
-            mats[k] = _IDENTITY if tf is None else tf
-        has_mat = np.array([tf is not None for tf in p.transforms], np.bool_)
-        has_lut = p.lut is not None
-        lut = p.lut if has_lut else np.zeros((3, 2), np.float32)
-        lut_var = p.lut_var if has_lut else lut
-        max_level = float(p.max_level) if p.integer else 1.0
-        hi = np.float32(max_level)
-        tap_thr = _fused.tap_thresholds(sat, frames_t[0].dtype)
-        ntap = 4 if p.resample == "cubic" else 2
-        # levels past the LUT (refused): only a frame that holds any is searched for them
-        lmax = lut.shape[1] - 1
-        oor = np.array([
-            bool(has_lut and has_mat[k] and np.iinfo(f.dtype).max > lmax and f.max() > lmax)
-            for k, f in enumerate(frames_t)
-        ], np.bool_)
+    use_tab = bool(p.integer and (p.lut is not None or force_tables)
+                   and not all(tf is not None for tf in p.transforms))
+    if use_tab:
+        tabs = _level_tables(kernel)
+    else:
+        tabs = np.zeros((len(frames), 5, 3), np.float32)
+    inv_t2 = np.array([1.0 / (t * t) for t in p.times], np.float32)
+    t2 = np.array([float(t) ** 2 for t in p.times], np.float32)
+    wcode = _fused.WEIGHT_CODES[p.weighting]
+    mats = np.zeros((len(frames), 2, 3))
+    for k, tf in enumerate(p.transforms):
+        mats[k] = _IDENTITY if tf is None else tf
+    has_mat = np.array([tf is not None for tf in p.transforms], np.bool_)
+    has_lut = p.lut is not None
+    lut = p.lut if has_lut else np.zeros((3, 2), np.float32)
+    lut_var = p.lut_var if has_lut else lut
+    max_level = float(p.max_level) if p.integer else 1.0
+    hi = np.float32(max_level)
+    tap_thr = _fused.tap_thresholds(sat, frames_t[0].dtype)
+    ntap = 4 if p.resample == "cubic" else 2
+    # levels past the LUT (refused): only a frame that holds any is searched for them
+    lmax = lut.shape[1] - 1
+    oor = np.array([
+        bool(has_lut and has_mat[k] and np.iinfo(f.dtype).max > lmax and f.max() > lmax)
+        for k, f in enumerate(frames_t)
+    ], np.bool_)
 
-        flats = tuple(f.reshape(f.shape[0], -1) for f in frames_t)
-        converted = colour is not None
-        cm, cwb, cneu = colour if converted else (np.eye(3), np.ones(3), np.ones(3))
+    flats = tuple(f.reshape(f.shape[0], -1) for f in frames_t)
+    cm, cwb, cneu = colour if colour is not None else (np.eye(3), np.ones(3), np.ones(3))
 
-        def work(span: tuple[int, int]) -> int:
-            return _fused.merge_rows_warped(
-                frames_t, flats, masks_t, has_mask, mats, has_mat, order, times, inv_t, inv_t2, t2,
-                wcode, kernel.shot, kernel.const_var, kernel.floor_norm, kernel.inv_max,
-                max_level, hi, has_lut, lut, lut_var, sat, tap_thr, me2, thr, span[0], span[1],
-                *outs, ntap, oor, converted, cm, cwb, cneu,
-            )
-    elif p.lut is not None or force_tables:
-        converted = False
-        tab = _level_tables(kernel)
-
-        def work(span: tuple[int, int]) -> int:
-            return _fused.merge_rows_integer(
-                frames_t, masks_t, has_mask, order, tab, p.lut is not None, kernel.inv_max,
-                inv_t, sat, me2, thr, span[0], span[1], *outs,
-            )
+    def work(span: tuple[int, int]) -> int:
+        return _fused.merge_rows_warped(
+            frames_t, flats, masks_t, has_mask, mats, has_mat, order, times, inv_t, inv_t2, t2,
+            wcode, kernel.shot, kernel.const_var, kernel.floor_norm, kernel.inv_max,
+            max_level, hi, has_lut, lut, lut_var, sat, tap_thr, me2, thr, span[0], span[1],
+            *outs, ntap, oor, colour is not None, cm, cwb, cneu, use_tab, tabs,
+        )
 
     if workers == 1:
         bad_levels = sum(work(sp) for sp in spans)
@@ -1002,7 +997,6 @@ def _run_numba(
             expected=f"levels 0..{p.max_level}",
             found=f"{bad_levels} samples above {p.max_level}",
         )
-    return converted
 
 
 RESAMPLING: dict[str, str] = {
@@ -1198,10 +1192,9 @@ def merge(
     if engine == "numba":
         # exp() of the Gaussian weight is not numpy's to the last bit: integer levels take it
         # from the per-level tables the reference computes, so they stay bit for bit the same
-        converted = _run_numba(kernel, out, spans, workers, force_tables=plan.integer
-                               and plan.weighting == "gaussian", colour=colour)
+        _run_numba(kernel, out, spans, workers, force_tables=plan.integer
+                   and plan.weighting == "gaussian", colour=colour)
     else:
-        converted = False
         try:
             _run_numpy(kernel, spans, workers, rows)
         except IndexError as exc:  # np.take of a level past the end of the LUT
@@ -1209,7 +1202,7 @@ def merge(
                 "levels above max_level have no response LUT entry",
                 expected=f"levels 0..{plan.max_level}", found=str(exc),
             ) from exc
-    if colour is not None and not converted:
+    if colour is not None and engine != "numba":
         apply_colour(out.radiance, colour, clipped=out.clipped, out=out.radiance,
                      workers=workers)
     t2 = time.perf_counter()
