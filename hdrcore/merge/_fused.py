@@ -56,6 +56,12 @@ from .colour import convert_pixels
 
 logger = logging.getLogger(__name__)
 
+TUPLE_SLOTS = 16
+"""The frame tuples handed to the kernel are padded to a multiple of this many entries (with
+the first frame; ``len(order)`` is the frame count): numba compiles one kernel per tuple length,
+so a bracket of 5, 7 or 16 frames reuses the one compiled (and cached) for 3 instead of spending
+seconds compiling its own."""
+
 WEIGHT_CODES = {"hat": 0, "gaussian": 1, "noise-aware": 2, "uniform": 3}
 """Weighting names of :data:`hdrcore.merge.weights.WEIGHTS` -> the kernel's inline code."""
 
@@ -80,7 +86,8 @@ def _f16_bits(v):
 def warm_up() -> float:
     """Compile (or load from the on-disk cache) the kernels for 3 frames of uint16, uint8 and
     float32; returns the seconds it took. Call it on a background thread at start-up to keep
-    the first merge fast; merging other frame counts compiles those on first use."""
+    the first merge fast. The frame tuples are padded to :data:`TUPLE_SLOTS`, so these serve
+    brackets of up to 16 frames."""
     if not AVAILABLE:
         return 0.0
     from .merge import merge
@@ -630,7 +637,7 @@ def merge_rows_warped(
     ``cm``, ``cwb``, ``cneu``) while it is in cache. Returns the number of samples above the
     LUT's last level (the caller refuses the input).
     """
-    n = len(frames)
+    n = len(order)  # the tuples may be padded (TUPLE_SLOTS)
     h = frames[0].shape[0]
     w = frames[0].shape[1]
     bw = min(w, _WBLOCK)

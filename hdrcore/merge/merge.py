@@ -976,6 +976,11 @@ def _run_numba(
     ], np.bool_)
 
     flats = tuple(f.reshape(f.shape[0], -1) for f in frames_t)
+    # padded to a multiple of TUPLE_SLOTS: one compiled kernel serves every frame count
+    pad = -len(frames_t) % _fused.TUPLE_SLOTS
+    frames_t += (frames_t[0],) * pad
+    flats += (flats[0],) * pad
+    masks_t += (masks_t[0],) * pad
     cm, cwb, cneu = colour if colour is not None else (np.eye(3), np.ones(3), np.ones(3))
 
     def work(span: tuple[int, int]) -> int:

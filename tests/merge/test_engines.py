@@ -156,3 +156,20 @@ def test_engine_names_and_unsupported_inputs():
     with pytest.raises(ParameterError, match="numba merge engine cannot run.*1 channels"):
         merge(frames, (1, 2, 4), max_level=4095, engine="numba")
     assert merge(frames, (1, 2, 4), max_level=4095).engine == "numpy"  # grey: the reference
+
+
+def test_one_compiled_kernel_serves_every_frame_count():
+    """The frame tuples are padded (TUPLE_SLOTS): a bracket of 5 or 9 frames runs the kernel
+    compiled for 3 instead of compiling its own (seconds on first use)."""
+    from hdrcore.merge import _fused
+
+    def frames(n):
+        return [np.full((6, 8, 3), 100 * (k + 1), np.uint16) for k in range(n)]
+
+    merge(frames(3), (1.0, 2.0, 4.0), max_level=4095, engine="numba")
+    before = len(_fused.merge_rows_warped.signatures)
+    for n in (2, 5, 9, 16):
+        times = tuple(float(2**k) for k in range(n))
+        ref, fused = both(frames(n), times, max_level=4095)
+        assert fused.shares.shape == (n, 6, 8)
+    assert len(_fused.merge_rows_warped.signatures) == before
