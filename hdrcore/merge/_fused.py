@@ -267,12 +267,11 @@ def _accumulate_run(
     xk, okf, taf, ne, wcode, inv_max, shot, const_var, floor_norm, itk, it2, t2k, den, num, s2,
     sv, wbuf, fa, fb,
 ):
-    """The sums of one frame over ``ne`` interleaved samples of linear data (no LUT): one loop
-    per weighting so that each is a straight SIMD loop. The fallback candidates take this
-    frame's ``E_k``: ``fa`` where ``taf`` (the first valid frame so far), ``fb`` where ``okf``
-    (the frame is not dropped: the last such in exposure order wins)."""
+    """The sums of one frame over ``ne`` interleaved samples of linear data (no LUT): straight
+    SIMD loops, one for the noise-aware weight (RAW data) and one for the others. The fallback
+    candidates take this frame's ``E_k``: ``fa`` where ``taf`` (the first valid frame so far),
+    ``fb`` where ``okf`` (the frame is not dropped: the last such in exposure order wins)."""
     zero = np.float32(0.0)
-    one = np.float32(1.0)
     if wcode == 2:
         for e in range(ne):
             level = np.float32(xk[e]) * inv_max
@@ -286,30 +285,6 @@ def _accumulate_run(
             fa[e] = ev if ta != zero else pa
             fb[e] = ev if ok != zero else pb
             wk = t2k / var
-            wk = wk * (ok if level > floor_norm else zero)
-            wbuf[e] = wk
-            den[e] += wk
-            var = var * wk
-            sv[e] += var * it2
-            wk = wk * ev
-            num[e] += wk
-            s2[e] += wk * ev
-    elif wcode == 0:
-        two = np.float32(2.0)
-        for e in range(ne):
-            level = np.float32(xk[e]) * inv_max
-            var = level * shot
-            var = var + const_var
-            ev = level * itk
-            ok = okf[e]
-            ta = taf[e]
-            pa = fa[e]  # loads outside the selects: they vectorise
-            pb = fb[e]
-            fa[e] = ev if ta != zero else pa
-            fb[e] = ev if ok != zero else pb
-            wk = level * two
-            wk = wk - one
-            wk = one - abs(wk)
             wk = wk * (ok if level > floor_norm else zero)
             wbuf[e] = wk
             den[e] += wk
@@ -348,85 +323,47 @@ def _accumulate_lut_run(
 ):
     """The sums of one resampled frame with a LUT over ``nbk`` pixels: each channel's
     interpolated level read linearly between the entries of its LUT row (the reference's
-    ``_LUT_MODE`` "levels"), one straight loop per channel and weighting; the fallback candidates
-    as :func:`_accumulate_run`."""
+    ``_LUT_MODE`` "levels"), one loop per channel (table loads: scalar code); the fallback
+    candidates as :func:`_accumulate_run`."""
     zero = np.float32(0.0)
-    one = np.float32(1.0)
     lmax1 = lut.shape[1] - 2
     for ch in range(3):
         lr = lut[ch]
         vr = lut_var[ch]
-        if wcode == 0:
-            for i in range(nbk):
-                e = 3 * i + ch
-                v = xk[e]
-                level = v * inv_max
-                # v >= 0 (clamped interpolation): max() only tells the compiler so
-                lo = min(max(int(v), 0), lmax1)
-                frac = v - np.float32(lo)
-                l0 = lr[lo]
-                xv = lr[lo + 1] - l0
-                xv = xv * frac
-                xv = xv + l0
-                q0 = vr[lo]
-                var = vr[lo + 1] - q0
-                var = var * frac
-                var = var + q0
-                if shot != zero:
-                    var = var + xv * shot
-                var = var + const_var
-                ev = xv * itk
-                ok = okf[e]
-                ta = taf[e]
-                pa = fa[e]  # loads outside the selects: they vectorise
-                pb = fb[e]
-                fa[e] = ev if ta != zero else pa
-                fb[e] = ev if ok != zero else pb
-                wk = level * np.float32(2.0)
-                wk = wk - one
-                wk = one - abs(wk)
-                wk = wk * (ok if level > floor_norm else zero)
-                wbuf[e] = wk
-                den[e] += wk
-                var = var * wk
-                sv[e] += var * it2
-                wk = wk * ev
-                num[e] += wk
-                s2[e] += wk * ev
-        else:
-            for i in range(nbk):
-                e = 3 * i + ch
-                v = xk[e]
-                level = v * inv_max
-                lo = min(max(int(v), 0), lmax1)
-                frac = v - np.float32(lo)
-                l0 = lr[lo]
-                xv = lr[lo + 1] - l0
-                xv = xv * frac
-                xv = xv + l0
-                q0 = vr[lo]
-                var = vr[lo + 1] - q0
-                var = var * frac
-                var = var + q0
-                if shot != zero:
-                    var = var + xv * shot
-                var = var + const_var
-                ev = xv * itk
-                ok = okf[e]
-                ta = taf[e]
-                pa = fa[e]  # loads outside the selects: they vectorise
-                pb = fb[e]
-                fa[e] = ev if ta != zero else pa
-                fb[e] = ev if ok != zero else pb
-                wk = _weight(wcode, level, var, t2k)
-                wk = wk * (ok if level > floor_norm else zero)
-                wbuf[e] = wk
-                den[e] += wk
-                var = var * wk
-                sv[e] += var * it2
-                wk = wk * ev
-                num[e] += wk
-                s2[e] += wk * ev
+        for i in range(nbk):
+            e = 3 * i + ch
+            v = xk[e]
+            level = v * inv_max
+            # v >= 0 (clamped interpolation): max() only tells the compiler so
+            lo = min(max(int(v), 0), lmax1)
+            frac = v - np.float32(lo)
+            l0 = lr[lo]
+            xv = lr[lo + 1] - l0
+            xv = xv * frac
+            xv = xv + l0
+            q0 = vr[lo]
+            var = vr[lo + 1] - q0
+            var = var * frac
+            var = var + q0
+            if shot != zero:
+                var = var + xv * shot
+            var = var + const_var
+            ev = xv * itk
+            ok = okf[e]
+            ta = taf[e]
+            pa = fa[e]
+            pb = fb[e]
+            fa[e] = ev if ta != zero else pa
+            fb[e] = ev if ok != zero else pb
+            wk = _weight(wcode, level, var, t2k)
+            wk = wk * (ok if level > floor_norm else zero)
+            wbuf[e] = wk
+            den[e] += wk
+            var = var * wk
+            sv[e] += var * it2
+            wk = wk * ev
+            num[e] += wk
+            s2[e] += wk * ev
 
 
 @_njit
