@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._threads import thread_map
 from ..errors import BracketError, ImageReadError, InputError
 from .frame import Frame
 from .ldr import read_ldr, sniff_format
@@ -281,7 +282,9 @@ def load_bracket(
         else:
             times_map = read_exposure_times(exposure_times)
 
-    frames = [load_frame(p, raw_half_size=raw_half_size) for p in files]
+    # Two files decoded at a time (LibRaw and Pillow release the GIL while they decode; the
+    # first error in file order is the one raised).
+    frames = thread_map(lambda p: load_frame(p, raw_half_size=raw_half_size), files)
     warns: list[BracketWarning] = []
     if times_map is not None:
         missing = [f.name for f in frames if f.name not in times_map]
