@@ -16,7 +16,7 @@ import sys
 import time
 
 from ..errors import OutputError
-from ..io import atomic_write, check_output_path, write_exr, write_png
+from ..io import EXR_COMPRESSIONS, atomic_write, check_output_path, write_exr, write_png
 from ..pipeline import ALIGN_CHOICES, Pipeline, PipelineParams
 from ..tonemap import TONEMAP_OPERATORS
 from ._common import (
@@ -59,6 +59,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--preview-size", type=int, default=2048, metavar="PX",
                    help="longest side of the preview PNG (default 2048; 0 = full resolution)")
     p.add_argument("--float32", action="store_true", help="write float32 instead of half")
+    p.add_argument("--exr-compression", dest="exr_compression", default="piz",
+                   choices=sorted(EXR_COMPRESSIONS),
+                   help="lossless EXR compression (default piz: fast, small for photographs)")
     p.add_argument("--force", action="store_true", help="replace existing output files")
     p.add_argument("--json", action="store_true", help="print the report on stdout")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -122,7 +125,7 @@ def run(args: argparse.Namespace) -> int:
 
     t_write = time.perf_counter()
     write_exr(
-        args.output, result.radiance, half=not args.float32,
+        args.output, result.radiance, half=not args.float32, compression=args.exr_compression,
         exposure_times=result.exposure_times,
         exposure_ratios=result.exposures.ratios,
         transforms=result.to_reference,

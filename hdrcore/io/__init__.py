@@ -6,7 +6,7 @@ Numerical code elsewhere in ``hdrcore`` takes arrays, never paths.
 from .atomic import atomic_write, check_output_path
 from .bracket import Bracket, BracketWarning, expand_paths, load_bracket, load_frame
 from .exif import ExifData, read_exif
-from .exr import read_exr, write_exr
+from .exr import EXR_COMPRESSIONS, read_exr, write_exr
 from .frame import Frame, FrameMetadata, RawCFA, apply_orientation
 from .ldr import read_ldr
 from .preview import encode_png, write_png
@@ -14,6 +14,7 @@ from .raw import RAW_EXTENSIONS, is_raw_path, read_raw
 from .times import parse_seconds, read_exposure_times
 
 __all__ = [
+    "EXR_COMPRESSIONS",
     "RAW_EXTENSIONS",
     "Bracket",
     "BracketWarning",

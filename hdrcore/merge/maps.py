@@ -27,6 +27,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._numba import AVAILABLE
+from .._numba import njit as _njit
+from .._threads import thread_map
+
 __all__ = [
     "DEFAULT_GHOST_THRESHOLD",
     "DEFAULT_MODEL_ERROR",
@@ -110,8 +114,23 @@ def to_float16_nonnegative(
 
 
 def dominant_frame(shares: np.ndarray) -> np.ndarray:
-    """Index of the frame with the largest share at each pixel, uint8 ``(H, W)``."""
-    return np.argmax(np.asarray(shares), axis=0).astype(np.uint8)
+    """Index of the frame with the largest share at each pixel (the first on a tie, as
+    ``argmax``), uint8 ``(H, W)``.
+
+    Frame by frame with element-wise comparisons (``argmax`` over the frame axis of float16
+    maps took 0.23 s at 24 MP); non-negative float16 shares compare as their bit patterns.
+    """
+    s = np.asarray(shares)
+    if s.dtype == np.float16:
+        s = s.view(np.uint16)  # shares are >= 0: the bits order as the values
+    best = s[0].copy()
+    idx = np.zeros(s.shape[1:], np.uint8)
+    better = np.empty(s.shape[1:], bool)
+    for k in range(1, s.shape[0]):
+        np.greater(s[k], best, out=better)
+        np.copyto(idx, np.uint8(k), where=better)
+        np.maximum(best, s[k], out=best)
+    return idx
 
 
 def mean_shares(shares: np.ndarray) -> np.ndarray:
@@ -122,13 +141,55 @@ def mean_shares(shares: np.ndarray) -> np.ndarray:
     return totals / total if total > 0 else totals
 
 
-def provenance_summary(shares: np.ndarray) -> dict:
-    """JSON-ready summary: mean share and fraction of pixels each frame dominates."""
+_HALF_VALUES = np.arange(65536, dtype=np.uint16).view(np.float16).astype(np.float64)
+"""float64 value of every float16 bit pattern (NaN patterns stay NaN; shares never hold them)."""
+
+
+@_njit
+def _provenance_rows(bits, values, r0, r1):  # pragma: no cover - compiled
+    """Per frame: pixels of rows ``r0:r1`` it dominates (largest share, first on a tie) and
+    the sum of its shares, from float16 shares given as their bits (non-negative: the bits
+    order as the values)."""
+    n, _, w = bits.shape
+    counts = np.zeros(n, np.int64)
+    totals = np.zeros(n, np.float64)
+    for y in range(r0, r1):
+        for x in range(w):
+            best = bits[0, y, x]
+            arg = 0
+            for k in range(n):
+                b = bits[k, y, x]
+                totals[k] += values[b]
+                if b > best:
+                    best = b
+                    arg = k
+            counts[arg] += 1
+    return counts, totals
+
+
+def provenance_summary(shares: np.ndarray, workers: int | None = None) -> dict:
+    """JSON-ready summary: mean share and fraction of pixels each frame dominates.
+
+    float16 shares (as :func:`hdrcore.merge.merge` makes them) are read in one compiled pass
+    over row blocks on ``workers`` threads, without full-size temporaries (``argmax`` over
+    the frame axis and float64 sums took 0.34 s at 24 MP, mostly faulting in fresh memory).
+    """
     s = np.asarray(shares)
     n = s.shape[0]
-    dom = dominant_frame(s)
-    counts = np.bincount(dom.ravel(), minlength=n)
+    size = max(int(np.prod(s.shape[1:])), 1)
+    if AVAILABLE and s.dtype == np.float16 and s.ndim == 3 and s.size:
+        bits = np.ascontiguousarray(s).view(np.uint16)
+        h = s.shape[1]
+        step = max(1, -(-h // 16))
+        parts = thread_map(lambda r0: _provenance_rows(bits, _HALF_VALUES, r0, min(h, r0 + step)),
+                           range(0, h, step), workers)
+        counts = sum(p[0] for p in parts)
+        totals = sum(p[1] for p in parts)
+    else:
+        counts = np.bincount(dominant_frame(s).ravel(), minlength=n)[:n]
+        totals = np.array([float(s[k].sum(dtype=np.float64)) for k in range(n)])
+    total = float(np.sum(totals))
     return {
-        "mean_share": [float(v) for v in mean_shares(s)],
-        "dominant_fraction": [float(c) / max(dom.size, 1) for c in counts],
+        "mean_share": [float(v) for v in (totals / total if total > 0 else totals)],
+        "dominant_fraction": [float(c) / size for c in counts],
     }

@@ -44,6 +44,31 @@ def test_exr_half_round_trip_within_half_precision(tmp_path: Path) -> None:
     assert np.max(np.abs(back[ok] / rgb[ok] - 1)) < 1e-3  # 10-bit mantissa
 
 
+@pytest.mark.parametrize("compression", ["piz", "zip", "zstd", "none"])
+@pytest.mark.parametrize("half", [True, False])
+def test_exr_every_compression_lossless_over_many_row_blocks(
+    tmp_path: Path, compression: str, half: bool
+) -> None:
+    """Every compression round-trips exactly, across several conversion blocks (600 rows,
+    blocks of 256) and both threads; NaN and -inf become 0, +inf and values past the half
+    range become 65504 (counted when clipped), negatives 0."""
+    rng = np.random.default_rng(3)
+    rgb = (10.0 ** rng.uniform(-5, 5, (600, 41, 3))).astype(np.float32)
+    rgb[5, 5] = (np.nan, -np.inf, np.inf)
+    rgb[599, 40] = (-2.0, 1e9, 0.0)
+    back, attrs = read_exr(write_exr(tmp_path / f"{compression}.exr", rgb, half=half,
+                                     compression=compression, workers=2))
+    clean = np.nan_to_num(rgb, nan=0.0, posinf=65504.0, neginf=0.0)
+    clean = np.maximum(clean, 0.0)
+    if half:
+        assert attrs["hdrviewClippedHalf"] == int(np.count_nonzero(clean > 65504.0))
+        clean = np.minimum(clean, 65504.0).astype(np.float16).astype(np.float32)
+    np.testing.assert_array_equal(back, clean)
+    with pytest.raises(ParameterError, match="EXR compression"):
+        write_exr(tmp_path / "bad.exr", rgb, compression="jpeg")
+    assert not (tmp_path / "bad.exr").exists()
+
+
 def test_exr_rejects_bad_arrays(tmp_path: Path) -> None:
     with pytest.raises(ParameterError, match=r"\(H, W, 3\)"):
         write_exr(tmp_path / "x.exr", np.zeros((4, 4), np.float32))
