@@ -370,7 +370,7 @@ def _accumulate_lut_run(
 def _accumulate_levels_table(src, choff, tk, lmax, has_lut, inv_max, itk, okf, taf, ne, den,
                              num, s2, sv, wbuf, fa, fb):
     """The sums of one frame of integer levels read in place through its per-level table
-    ``tk (5, C L)`` (:func:`hdrcore.merge.merge._level_tables`: ``E_k, w, w var(E_k), w E_k,
+    ``tk (C L, 8)`` (:func:`hdrcore.merge.merge._level_tables`: ``E_k, w, w var(E_k), w E_k,
     w E_k**2`` of every level, built by the reference itself, the noise floor applied; channel
     ``ch``'s entry of level ``v`` at ``choff[e] + v``, ``choff[e] = ch L``): five loads and five
     adds a sample, bit for bit the reference's (the Gaussian weight's ``exp`` included).
@@ -384,7 +384,7 @@ def _accumulate_levels_table(src, choff, tk, lmax, has_lut, inv_max, itk, okf, t
         iv = np.int32(v)
         bad += np.int32(iv > lmax)
         li = min(iv, lmax) + choff[e]
-        te = tk[0, li]
+        te = tk[li, 0]
         ea = (np.float32(v) * inv_max) * itk
         ev = te if has_lut else ea
         ok = okf[e]
@@ -393,12 +393,12 @@ def _accumulate_levels_table(src, choff, tk, lmax, has_lut, inv_max, itk, okf, t
         pb = fb[e]
         fa[e] = ev if ta != zero else pa
         fb[e] = ev if ok != zero else pb
-        wk = tk[1, li] * ok
+        wk = tk[li, 1] * ok
         wbuf[e] = wk
         den[e] += wk
-        sv[e] += tk[2, li] * ok
-        num[e] += tk[3, li] * ok
-        s2[e] += tk[4, li] * ok
+        sv[e] += tk[li, 2] * ok
+        num[e] += tk[li, 3] * ok
+        s2[e] += tk[li, 4] * ok
     return bad if has_lut else 0
 
 
@@ -566,7 +566,7 @@ def merge_rows_warped(
     values read 0 there). ``oor[k]``: frame ``k`` (resampled, with a LUT) holds levels past
     the LUT, so clipped supports are searched for them. Resampled integer levels with a LUT
     are interpolated, then read linearly between LUT entries; with ``use_tab`` the integer
-    frames read in place go through the per-level tables ``tabs (N, 5, C L)``
+    frames read in place go through the per-level tables ``tabs (N, C L, 8)``
     (:func:`_accumulate_levels_table`: frames with a LUT, and the Gaussian weight, whose
     ``exp`` is then numpy's); otherwise integer levels and float frames are linear
     (``level = value * inv_max``). With ``has_colour`` each finished
@@ -618,7 +618,7 @@ def merge_rows_warped(
     cc = np.empty(b3, np.float32)
     radf = rad.reshape(h, w * 3)
     row_len = 3 * w
-    tab_len = tabs.shape[2] // 3  # levels a channel of the per-level tables
+    tab_len = tabs.shape[1] // 3  # levels a channel of the per-level tables
     tab_max = tab_len - 1
     choff = np.empty(b3, np.int32)  # element e's channel row in the flattened tables
     for e in range(b3):

@@ -875,9 +875,11 @@ def _run_numpy(kernel: _Kernel, spans: list[tuple[int, int]], workers: int, rows
 
 
 def _level_tables(kernel: _Kernel) -> np.ndarray:
-    """float32 ``(N, 5, C L)``: ``E_k, w, w var(E_k), w E_k, w E_k**2`` of every level
-    ``0..max_level`` (``L`` levels) of every frame, channel ``ch``'s level ``v`` at
-    ``ch L + v`` (the fused kernel's :func:`~hdrcore.merge._fused._accumulate_levels_table`).
+    """float32 ``(N, C L, 8)``: ``E_k, w, w var(E_k), w E_k, w E_k**2`` (and three zeros: one
+    aligned 32-byte line a level, so a sample's five values are one cache line even when a
+    16-bit table does not fit the cache) of every level ``0..max_level`` (``L`` levels) of
+    every frame, channel ``ch``'s level ``v`` at row ``ch L + v`` (the fused kernel's
+    :func:`~hdrcore.merge._fused._accumulate_levels_table`).
 
     Built with the reference's own linearisation and weight function, in its operation order,
     so a table entry is bit for bit what the reference computes for a sample of that level
@@ -889,7 +891,7 @@ def _level_tables(kernel: _Kernel) -> np.ndarray:
     length = int(p.max_level) + 1
     levels = np.arange(length, dtype=dtype)
     s = _Scratch(n, length, c)
-    tab = np.zeros((n, 5, c * length), np.float32)
+    tab = np.zeros((n, c * length, 8), np.float32)
     for k in range(n):
         t = float(p.times[k])
         inv_t = np.float32(1.0 / t)
@@ -900,15 +902,15 @@ def _level_tables(kernel: _Kernel) -> np.ndarray:
             e = np.multiply(x, inv_t)
             wk = kernel.weight_fn(level, x, t, var)
             wk *= level > kernel.floor_norm
-            tab[k, 0, row] = e
-            tab[k, 1, row] = wk
+            tab[k, row, 0] = e
+            tab[k, row, 1] = wk
             var *= wk
             var *= inv_t2
-            tab[k, 2, row] = var
+            tab[k, row, 2] = var
             wk *= e
-            tab[k, 3, row] = wk
+            tab[k, row, 3] = wk
             wk *= e
-            tab[k, 4, row] = wk
+            tab[k, row, 4] = wk
     return tab
 
 
@@ -953,7 +955,7 @@ def _run_numba(
     if use_tab:
         tabs = _level_tables(kernel)
     else:
-        tabs = np.zeros((len(frames), 5, 3), np.float32)
+        tabs = np.zeros((len(frames), 3, 8), np.float32)
     inv_t2 = np.array([1.0 / (t * t) for t in p.times], np.float32)
     t2 = np.array([float(t) ** 2 for t in p.times], np.float32)
     wcode = _fused.WEIGHT_CODES[p.weighting]
