@@ -32,7 +32,9 @@ def encode_png(image: np.ndarray) -> bytes:
     import imagecodecs
 
     arr = _as_image(image)
-    return bytes(imagecodecs.png_encode(arr, level=6))
+    # zlib level 1: a 1.5-megapixel tonemapped photograph encoded in 0.15 s instead of 0.41 s
+    # (level 6) for a file 1.5 % larger (photographic noise barely compresses).
+    return bytes(imagecodecs.png_encode(arr, level=1))
 
 
 def write_png(
