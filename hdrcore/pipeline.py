@@ -337,6 +337,10 @@ class Pipeline:
     time at 24 MP. Earlier results, their radiance included, are then overwritten by the next
     run and must not be used after it (a command-line run or a viewer that shows only the
     latest result).
+
+    :meth:`release` is the precise form of the same saving, for a caller that keeps showing
+    the latest result while the next one is computed: it hands back a result the caller no
+    longer uses, and the next merge writes into that one's arrays.
     """
 
     def __init__(
@@ -455,11 +459,31 @@ class Pipeline:
                 self._spare = self._cache["merge"].value[0]
             self._cache.clear()
 
+    def release(self, result: Any) -> None:
+        """The caller no longer uses ``result`` (a :class:`PipelineResult` or its
+        :class:`~hdrcore.merge.MergeResult`): the next merge may write into its arrays instead of
+        allocating new ones. The merge this pipeline holds in its cache is never taken; an
+        earlier released result is simply dropped."""
+        merged = getattr(result, "merge", result)
+        if merged is None or not hasattr(merged, "radiance"):
+            return
+        b = self.bracket
+        if (merged.radiance.shape[:2] != tuple(b.shape)
+                or getattr(merged, "n_frames", len(b)) != len(b)):
+            return  # another bracket's: it does not fit
+        with self._lock:
+            entry = self._cache.get("merge")
+            if entry is not None and entry.value[0] is merged:
+                return
+            self._spare = merged
+
     def _take_spare(self, merge_key: Any) -> Any:
-        """With ``reuse_buffers``: the merge result whose arrays the next merge overwrites (the
-        cached one when its key is stale, else one kept by :meth:`clear_cache`)."""
+        """The merge result whose arrays the next merge overwrites: one given to
+        :meth:`release`, or with ``reuse_buffers`` the cached one when its key is stale, else one
+        kept by :meth:`clear_cache`."""
         if not self.reuse_buffers:
-            return None
+            spare, self._spare = self._spare, None
+            return spare
         entry = self._cache.get("merge")
         if entry is not None and not _same_key(entry.key, merge_key):
             self._cache.pop("merge", None)

@@ -240,3 +240,34 @@ def test_reuse_buffers_writes_the_next_merge_into_the_previous_arrays(demo_resul
     a = plain.run(until="merge")
     plain.clear_cache()
     assert not np.shares_memory(plain.run(until="merge").merge.radiance, a.merge.radiance)
+
+
+def test_release_hands_a_result_no_longer_shown_to_the_next_merge(demo_result) -> None:
+    """A viewer shows the latest result while the next one is computed, and releases the one
+    before it: the next merge writes into the released arrays, never into the shown or the
+    cached result's, and gives the same values as a fresh merge."""
+    b = demo_result[0].bracket
+    pipe = Pipeline(b)
+    shown = pipe.run(until="merge")
+    pipe.release(shown)  # the cached merge: ignored
+    p2 = shown.params.replace(noise_floor=shown.noise_floor + 20)
+    second = pipe.run(p2, until="merge")
+    assert not np.shares_memory(second.merge.radiance, shown.merge.radiance)
+    pipe.release(shown)  # no longer shown: second is
+    p3 = shown.params.replace(noise_floor=shown.noise_floor + 40)
+    third = pipe.run(p3, until="merge")
+    assert np.shares_memory(third.merge.radiance, shown.merge.radiance)
+    assert np.shares_memory(third.merge.shares, shown.merge.shares)
+    assert not np.shares_memory(third.merge.radiance, second.merge.radiance)
+    np.testing.assert_array_equal(third.radiance, Pipeline(b).run(p3, until="merge").radiance)
+    # a released result is used once; a result of another size is ignored
+    fourth = pipe.run(shown.params, until="merge")
+    assert not np.shares_memory(fourth.merge.radiance, third.merge.radiance)
+    from hdrcore.merge import merge
+
+    other = merge([f.levels[:16, :24] for f in b.frames], fourth.exposure_times,
+                  max_level=b.max_level)
+    pipe.release(other)
+    fifth = pipe.run(p2, until="merge")
+    assert not np.shares_memory(fifth.merge.radiance, other.radiance)
+    np.testing.assert_array_equal(fifth.radiance, second.radiance)
