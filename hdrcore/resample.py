@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from ._numba import AVAILABLE
+from ._numba import njit as _njit
+from ._threads import run_row_spans
 from .errors import ParameterError
 
 __all__ = ["downsample_factor", "downsample_area", "bin_channel"]
@@ -18,10 +21,48 @@ def downsample_factor(shape: tuple[int, int], max_side: int | None) -> int:
     return max(1, int(np.ceil(max(shape[0], shape[1]) / float(max_side))))
 
 
-def downsample_area(image: np.ndarray, factor: int) -> np.ndarray:
+@_njit
+def _area_rows(img, f, out, r0, r1):  # pragma: no cover - compiled
+    """Output rows ``r0:r1`` of the ``f x f`` block means of ``img (H, W, C)``: float32 sums in
+    numpy's order (the block's rows first, then its columns), times ``1 / f**2``; a block with
+    NaNs takes the float64 mean of its other values (NaN when none)."""
+    c = img.shape[2]
+    ww = out.shape[1]
+    inv = np.float32(1.0 / (f * f))
+    rows = np.empty(f, np.float32)
+    for y in range(r0, r1):
+        for x in range(ww):
+            for ch in range(c):
+                nan = False
+                for j in range(f):
+                    a = np.float32(img[y * f, x * f + j, ch])
+                    for i in range(1, f):
+                        a += np.float32(img[y * f + i, x * f + j, ch])
+                    rows[j] = a
+                    nan |= a != a
+                t = rows[0]
+                for j in range(1, f):
+                    t += rows[j]
+                if nan:
+                    s = 0.0
+                    n = 0
+                    for i in range(f):
+                        for j in range(f):
+                            v = np.float64(img[y * f + i, x * f + j, ch])
+                            if v == v:
+                                s += v
+                                n += 1
+                    out[y, x, ch] = np.float32(s / n) if n else np.float32(np.nan)
+                else:
+                    out[y, x, ch] = t * inv
+
+
+def downsample_area(image: np.ndarray, factor: int, workers: int | None = None) -> np.ndarray:
     """Mean over ``factor x factor`` blocks (float32); the ragged edge is cropped.
 
-    NaNs are ignored within a block (a block of only NaNs stays NaN).
+    NaNs are ignored within a block (a block of only NaNs stays NaN). With numba one compiled
+    pass over output rows on ``workers`` threads, writing only the output (the numpy version
+    makes full-size temporaries: at 24 MP their first touch took 0.3 s of a 0.4 s preview).
     """
     img = np.asarray(image)
     f = int(factor)
@@ -34,6 +75,11 @@ def downsample_area(image: np.ndarray, factor: int) -> np.ndarray:
     if hh == 0 or ww == 0:
         raise ParameterError("image smaller than the downsampling factor",
                              found=f"{h}x{w} for factor {f}")
+    if AVAILABLE and img.dtype in (np.float32, np.float64):
+        src = img if img.ndim == 3 else img[..., None]
+        out = np.empty((hh, ww, src.shape[2]), np.float32)
+        run_row_spans(hh, workers, lambda r0, r1: _area_rows(src, f, out, r0, r1))
+        return out if img.ndim == 3 else out[..., 0]
     crop = img[: hh * f, : ww * f].astype(np.float32, copy=False)
     if np.isnan(crop).any():
         blocks = crop.reshape(hh, f, ww, f, *img.shape[2:])
