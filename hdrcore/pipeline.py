@@ -134,6 +134,10 @@ class PipelineParams:
         ratio by more than this (stops) uses the EXIF ratio in the merge; the default 0 means
         every not-ok pair with known exposure times uses them (a measurement we do not trust
         is no better than the metadata).
+    deghost : fill each region where the frames disagree beyond their noise (the ghost map)
+        from one frame, the best exposed there (:mod:`hdrcore.merge.deghost`): a moving object
+        comes out whole instead of doubled. Off by default: the weighted average is the
+        estimate with the least noise wherever the scene held still.
     """
 
     saturation: float | None = None
@@ -154,6 +158,7 @@ class PipelineParams:
     registration_previews: bool = True
     registration_max_pixels: int | None = None
     refine_ratios: str = "pixels"
+    deghost: bool = False
 
     def replace(self, **changes: Any) -> PipelineParams:
         return replace(self, **changes)
@@ -594,7 +599,7 @@ class Pipeline:
             times, times_source = self._merge_times(exposures, p)
         if want("merge"):
             merge_key = (ratio_key, None if registration is None else reg_key, tuple(times),
-                         p.working_space)
+                         p.working_space, bool(p.deghost))
             reuse = self._take_spare(merge_key)
             merge_result, radiance, colour_info = self._stage(
                 "merge", merge_key,
@@ -851,6 +856,7 @@ class Pipeline:
             model_error=DEFAULT_MODEL_ERROR if lut is None else NONLINEAR_MODEL_ERROR,
             reuse=reuse,
             colour=colour,  # converted inside the merge's finishing pass
+            deghost=bool(p.deghost),
         )
         return result, result.radiance, colour_info
 

@@ -121,6 +121,10 @@ class InspectorApp:
             )
             self.reference_dropdown = gui.add_dropdown("Reference", ("middle",))
             self.response_dropdown = gui.add_dropdown("Response", ("default",))
+            self.deghost_checkbox = gui.add_checkbox(
+                "Deghost", False,
+                hint="fill each region the ghost layer marks from one frame (moving objects)",
+            )
 
         with gui.add_folder("View"):
             self.pair_dropdown = gui.add_dropdown("Pair", ("—",))
@@ -180,6 +184,7 @@ class InspectorApp:
         control(self.reference_dropdown, "reference", self._reference_value)
         control(self.response_dropdown, "response", self._option_value)
         control(self.tonemap_dropdown, "tonemap", self._option_value)
+        control(self.deghost_checkbox, "deghost", bool)
 
         def view_changed(_: viser.GuiEvent) -> None:
             if not self._syncing:

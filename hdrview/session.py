@@ -58,6 +58,7 @@ class Controls:
     response: str | None = None
     tonemap: str | None = None
     exposure: float | None = None
+    deghost: bool | None = None
 
     def replace(self, **changes: Any) -> Controls:
         return dataclasses.replace(self, **changes)
@@ -73,6 +74,7 @@ _PARAM_NAMES: dict[str, tuple[str, ...]] = {
     "response": ("response", "response_method"),
     "tonemap": ("tonemap", "tonemap_operator", "operator"),
     "exposure": ("exposure", "tonemap_exposure", "exposure_ev"),
+    "deghost": ("deghost",),
 }
 
 

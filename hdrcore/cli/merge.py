@@ -58,6 +58,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    help="preview exposure in stops (default 0, auto key)")
     p.add_argument("--preview-size", type=int, default=2048, metavar="PX",
                    help="longest side of the preview PNG (default 2048; 0 = full resolution)")
+    p.add_argument("--deghost", action="store_true",
+                   help="fill each region where the frames disagree (moving objects) from one "
+                        "frame instead of the weighted average")
     p.add_argument("--float32", action="store_true", help="write float32 instead of half")
     p.add_argument("--exr-compression", dest="exr_compression", default="piz",
                    choices=sorted(EXR_COMPRESSIONS),
@@ -114,6 +117,7 @@ def run(args: argparse.Namespace) -> int:
         preview_max_side=None if args.preview_size <= 0 else args.preview_size,
         exclude_colour=args.exclude_colour,
         registration_previews=False,
+        deghost=args.deghost,
     )
     progress = _Progress(not args.quiet)
     try:

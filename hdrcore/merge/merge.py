@@ -57,6 +57,7 @@ from .._threads import worker_count
 from ..errors import ParameterError, validate_method
 from . import _fused
 from .colour import ColourConversion, apply_colour
+from .deghost import fill_ghost_regions
 from .maps import (
     DEFAULT_GHOST_THRESHOLD,
     DEFAULT_MODEL_ERROR,
@@ -109,6 +110,9 @@ class MergeResult:
         mask ``ghost_score > ghost_threshold``.
     engine
         which implementation ran (a key of :data:`MERGE_ENGINES`).
+    deghosted
+        bool ``(H, W)``: pixels filled from one frame by ``merge(..., deghost=True)`` (``None``
+        without it).
     """
 
     radiance: np.ndarray
@@ -132,6 +136,7 @@ class MergeResult:
     message: str
     timings: dict[str, float] = field(default_factory=dict)
     engine: str = "numpy"
+    deghosted: np.ndarray | None = None
 
     @property
     def n_frames(self) -> int:
@@ -170,6 +175,8 @@ class MergeResult:
             "clipped_fraction": float(np.count_nonzero(self.clipped)) / n_pix,
             "underexposed_fraction": float(np.count_nonzero(self.underexposed)) / n_pix,
             "ghost_fraction": float(np.count_nonzero(self.ghost)) / n_pix,
+            "deghosted_fraction": None if self.deghosted is None
+            else float(np.count_nonzero(self.deghosted)) / n_pix,
             "provenance": provenance_summary(self.shares),
             "timings": dict(self.timings),
             "engine": self.engine,
@@ -1026,6 +1033,39 @@ def default_engine() -> str:
 
 
 
+def _merge_one_frame(plan: _Plan, k: int, y0: int, y1: int, **kw) -> MergeResult:
+    """Frame ``k`` merged alone over output rows ``y0:y1`` with the plan's settings (for
+    :func:`hdrcore.merge.deghost.fill_ghost_regions`). A resampled frame is cut to a band of
+    rows holding both the output rows and the source rows they map to (its transform shifted
+    to the band), so the output grid and the frame share one row offset."""
+    h = plan.shape[0]
+    t = plan.transforms[k] if plan.transforms else None
+    b0, b1 = y0, y1
+    if t is not None:
+        w = plan.shape[1]
+        ys = np.array([y0, y1 - 1], float)
+        xs = np.array([0.0, w - 1.0])
+        sy = [t[1, 0] * x + t[1, 1] * y + t[1, 2] for x in xs for y in ys]
+        b0 = max(0, min(y0, int(np.floor(min(sy))) - 3))
+        b1 = min(h, max(y1, int(np.ceil(max(sy))) + 4))
+        t = np.array(t, float)
+        t[0, 2] += t[0, 1] * b0
+        t[1, 2] += t[1, 1] * b0 - b0
+    mask = plan.masks[k]
+    res = merge(
+        [plan.frames[k][b0:b1]], [float(plan.times[k])], max_level=plan.max_level,
+        masks=None if mask is None else [mask[b0:b1]],
+        saturation_level=tuple(float(v) for v in plan.saturation), noise_floor=plan.floor,
+        weighting=plan.weighting, noise=plan.noise,
+        transforms=None if t is None else [t], resample=plan.resample, **kw,
+    )
+    if (b0, b1) == (y0, y1):
+        return res
+    rows = slice(y0 - b0, y1 - b0)
+    return replace(res, radiance=res.radiance[rows], weight_sum=res.weight_sum[rows],
+                   clipped=res.clipped[rows], underexposed=res.underexposed[rows])
+
+
 def _output_layout(shape: tuple[int, int, int], n: int) -> dict[str, tuple[tuple, type]]:
     """Shape and dtype of every output array of a merge of ``n`` frames of ``shape``."""
     h, w, c = shape
@@ -1079,6 +1119,7 @@ def merge(
     resample: str = "cubic",
     reuse: MergeResult | None = None,
     colour: ColourConversion | None = None,
+    deghost: bool = False,
 ) -> MergeResult:
     """Merge aligned frames into one radiance map ``E = sum(w g(M) / dt) / sum(w)``.
 
@@ -1148,6 +1189,12 @@ def merge(
         pixels clipped in every frame made neutral, exactly as
         :func:`~hdrcore.merge.colour.camera_to_working` would; the fused kernel does it while
         the block is in cache (one pass less over the map).
+    deghost
+        Fill each region where the frames disagree (``ghost``, grown by 2 pixels) from one
+        frame, the one with the largest share there, where that frame is usable
+        (:mod:`hdrcore.merge.deghost`): a moving object comes out whole instead of doubled.
+        Replaced pixels are marked in ``MergeResult.deghosted``; their shares go wholly to
+        that frame and ``ghost`` still shows where the frames disagreed.
 
     Raises
     ------
@@ -1214,6 +1261,14 @@ def merge(
                      workers=workers)
     t2 = time.perf_counter()
     ghost_score, ghost = out.ghost_score, out.ghost
+    deghosted = None
+    if deghost:
+        def single(k: int, y0: int, y1: int) -> MergeResult:
+            return _merge_one_frame(plan, k, y0, y1, response=response, engine=engine,
+                                    workers=workers, ghost_threshold=ghost_threshold,
+                                    model_error=model_error, colour=colour)
+
+        deghosted = fill_ghost_regions(out.radiance, out.weight_sum, out.shares, ghost, single)
     t3 = time.perf_counter()
 
     n_pix = h * w
@@ -1233,6 +1288,9 @@ def merge(
     n_ghost = int(np.count_nonzero(ghost))
     if n_ghost:
         notes.append(f"{100.0 * n_ghost / n_pix:.2f}% of pixels disagree between frames (ghosts)")
+    if deghosted is not None and deghosted.any():
+        notes.append(f"{100.0 * np.count_nonzero(deghosted) / n_pix:.2f}% of pixels filled "
+                     "from one frame (deghost)")
     status = "warning" if notes else "ok"
     message = "; ".join(notes) if notes else f"merged {n} frames"
     logger.debug("merge: %s", message)
@@ -1258,4 +1316,5 @@ def merge(
         message=message,
         timings={"validate": t1 - t0, "merge": t2 - t1, "maps": t3 - t2, "total": t3 - t0},
         engine=engine,
+        deghosted=deghosted,
     )

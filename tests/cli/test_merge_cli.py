@@ -45,6 +45,20 @@ def test_merge_demo_writes_exr_preview_and_report(tmp_path: Path, capsys) -> Non
     assert png.stat().st_size > 1000
 
 
+def test_deghost_and_exr_compression_options(tmp_path: Path, capsys) -> None:
+    exr, rep = tmp_path / "d.exr", tmp_path / "d.json"
+    rc = main(["merge", str(DEMO), "-o", str(exr), "--report", str(rep), "--deghost",
+               "--exr-compression", "zip", "--quiet"])
+    assert rc in (0, 1)
+    report = json.loads(rep.read_text())
+    assert report["parameters"]["deghost"] is True
+    assert 0.0 <= report["merge"]["deghosted_fraction"] <= 1.0
+    plain = tmp_path / "p.json"
+    main(["merge", str(DEMO), "-o", str(tmp_path / "p.exr"), "--report", str(plain), "--quiet"])
+    assert json.loads(plain.read_text())["merge"]["deghosted_fraction"] is None
+    assert read_exr(exr)[0].shape == (432, 648, 3)
+
+
 def test_existing_output_refused_and_kept(tmp_path: Path, capsys) -> None:
     exr = tmp_path / "o.exr"
     exr.write_bytes(b"keep me")

@@ -31,6 +31,18 @@ def test_load_folder_draws_frames_and_status(app: InspectorApp) -> None:
     assert not _errors(app)
 
 
+def test_deghost_checkbox_reaches_the_merge(app: InspectorApp) -> None:
+    assert app.request_path("bracket")
+    assert app.wait_idle(60)
+    assert app.session.result.merge.deghosted is None
+    app.set_control("deghost", True)
+    assert app.wait_idle(60)
+    merged = app.session.result.merge
+    assert merged.deghosted is not None and merged.deghosted.shape == merged.shape
+    assert app.session.params.deghost is True
+    assert not _errors(app)
+
+
 def test_path_outside_root_is_refused(app: InspectorApp, tmp_path: Path) -> None:
     outside = tmp_path / "outside"
     write_png_bracket(outside)

@@ -271,3 +271,21 @@ def test_release_hands_a_result_no_longer_shown_to_the_next_merge(demo_result) -
     fifth = pipe.run(p2, until="merge")
     assert not np.shares_memory(fifth.merge.radiance, other.radiance)
     np.testing.assert_array_equal(fifth.radiance, second.radiance)
+
+
+def test_deghost_parameter_reruns_only_the_merge(demo_result) -> None:
+    pipe = Pipeline(demo_result[0].bracket)
+    r = pipe.run(until="merge")
+    assert r.merge.deghosted is None
+    d = pipe.run(r.params.replace(deghost=True), until="merge")
+    assert d.stages_run == ("merge",)
+    assert d.merge.deghosted is not None and d.merge.deghosted.shape == r.merge.shape
+    assert not (d.merge.deghosted & ~_grown(r.merge.ghost)).any()
+    back = pipe.run(r.params, until="merge")
+    assert back.merge.deghosted is None
+
+
+def _grown(mask: np.ndarray) -> np.ndarray:
+    from scipy import ndimage
+
+    return ndimage.binary_dilation(mask, iterations=2)
