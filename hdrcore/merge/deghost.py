@@ -33,6 +33,8 @@ def fill_ghost_regions(
     ghost: np.ndarray,
     single: Callable[[int, int, int], Any],
     grow: int = 2,
+    min_area: int = 64,
+    row_gap: int = 64,
 ) -> np.ndarray:
     """Fill every ghost region from one frame, in place; returns the bool ``(H, W)`` map of the
     pixels replaced.
@@ -40,7 +42,10 @@ def fill_ghost_regions(
     ``single(k, y0, y1)`` gives frame ``k`` merged alone over output rows ``y0:y1`` (a
     :class:`~hdrcore.merge.MergeResult` of those rows). ``radiance``, ``weight_sum`` and
     ``shares`` (float16, ``(N, H, W)``) are updated where a pixel is replaced: the frame's value,
-    its weight, and all of the share to it.
+    its weight, and all of the share to it. Regions smaller than ``min_area`` pixels (after
+    growing) keep the average: an isolated disagreement is noise or an aliased edge, not an
+    object. A frame is merged alone over bands of the rows its regions cover (bands closer than
+    ``row_gap`` rows joined).
     """
     from scipy import ndimage
 
@@ -50,29 +55,35 @@ def fill_ghost_regions(
         return replaced
     grown = ndimage.binary_dilation(ghost, iterations=int(grow)) if grow > 0 else ghost
     labels, count = ndimage.label(grown, structure=np.ones((3, 3), bool))
-    boxes = ndimage.find_objects(labels)
+    flat = labels.ravel()
+    idx = np.flatnonzero(flat)
+    lab = flat[idx]
+    area = np.bincount(lab, minlength=count + 1)
     n = shares.shape[0]
-    # the frame with the largest share over each region
-    chosen: dict[int, list[int]] = {}
-    for r, box in enumerate(boxes, start=1):
-        if box is None:
-            continue
-        inside = labels[box] == r
-        totals = [float(shares[k][box][inside].sum(dtype=np.float64)) for k in range(n)]
-        chosen.setdefault(int(np.argmax(totals)), []).append(r)
+    # the frame with the largest total share over each region (one pass per frame)
+    totals = np.stack([np.bincount(lab, weights=shares[k].ravel()[idx].astype(np.float64),
+                                   minlength=count + 1) for k in range(n)])
+    best = np.argmax(totals, axis=0)
+    best[area < int(min_area)] = -1  # too small: keep the average
+    frame_of = best[lab]
     bits = shares.view(np.uint16)
-    for k, regions in chosen.items():
-        y0 = min(boxes[r - 1][0].start for r in regions)
-        y1 = max(boxes[r - 1][0].stop for r in regions)
-        alone = single(k, y0, y1)
-        rows = slice(y0, y1)
-        usable = (alone.weight_sum > 0) & ~alone.clipped & ~alone.underexposed
-        take = np.isin(labels[rows], regions) & usable
-        if not take.any():
+    for k in range(n):
+        pix = idx[frame_of == k]
+        if pix.size == 0:
             continue
-        radiance[rows][take] = alone.radiance[take]
-        weight_sum[rows][take] = alone.weight_sum[take]
-        for j in range(n):
-            bits[j, rows][take] = _ONE_F16_BITS if j == k else np.uint16(0)
-        replaced[rows] |= take
+        rows = np.unique(pix // w)
+        cuts = np.flatnonzero(np.diff(rows) > int(row_gap)) + 1
+        for band in np.split(rows, cuts):
+            y0, y1 = int(band[0]), int(band[-1]) + 1
+            alone = single(k, y0, y1)
+            sl = slice(y0, y1)
+            take = (best[labels[sl]] == k) & (labels[sl] > 0)
+            take &= (alone.weight_sum > 0) & ~alone.clipped & ~alone.underexposed
+            if not take.any():
+                continue
+            radiance[sl][take] = alone.radiance[take]
+            weight_sum[sl][take] = alone.weight_sum[take]
+            for j in range(n):
+                bits[j, sl][take] = _ONE_F16_BITS if j == k else np.uint16(0)
+            replaced[sl] |= take
     return replaced
