@@ -20,7 +20,14 @@ from ._draw import DISPLAY_WIDTH, display_step, enlarge, labels_to_rgb, unit_to_
 
 __all__ = ["ResultPanel", "LAYERS", "FRAME_COLOURS", "exr_bytes", "preview_png_bytes"]
 
-LAYERS = ("tonemapped", "provenance", "clipping", "ghosts")
+LAYERS = ("tonemapped", "provenance", "clipping", "ghosts", "deghosted")
+
+_MASK_LAYERS = {  # layer -> (MergeResult attribute, colour, what it shows)
+    "clipping": ("clipped", (255, 0, 0), "clipped in every frame (value is a lower bound)"),
+    "ghosts": ("ghost", (255, 0, 255), "ghosts: aligned frames disagree beyond their noise"),
+    "deghosted": ("deghosted", (0, 200, 255),
+                  "deghosted: filled from one frame (the best exposed in its ghost region)"),
+}
 FRAME_COLOURS = ((31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189),
                  (140, 86, 75), (227, 119, 194), (127, 127, 127), (188, 189, 34), (23, 190, 207))
 
@@ -74,8 +81,14 @@ class ResultPanel:
                 f"clipped {s.get('clipped_fraction', 0):.2%}, under the noise floor "
                 f"{s.get('underexposed_fraction', 0):.2%}, ghosts {s.get('ghost_fraction', 0):.2%}"
                 " of the pixels."
+                + (f" Deghosted {s['deghosted_fraction']:.2%}."
+                   if s.get("deghosted_fraction") is not None else "")
             )
-        if layer != "tonemapped" and merged is not None:
+        if layer == "deghosted" and merged is not None and getattr(
+                merged, "deghosted", None) is None:
+            lines.append("_Layer deghosted: tick Deghost (Parameters) to fill each ghost region "
+                         "from one frame._")
+        elif layer != "tonemapped" and merged is not None:
             step = display_step(merged.shape, DISPLAY_WIDTH)
             backdrop = _dim(shown) if shown is not None else None
             if layer == "provenance":
@@ -89,16 +102,14 @@ class ResultPanel:
                 lines.append("Provenance: the frame with the largest weight at each pixel. "
                              + legend)
             else:
-                mask = merged.clipped if layer == "clipping" else merged.ghost
+                attr, colour, what = _MASK_LAYERS[layer]
+                mask = getattr(merged, attr)
                 small = np.asarray(mask[::step, ::step], bool)
                 if backdrop is None:
                     backdrop = np.full((*small.shape, 3), 40.0, np.float32)
                 small = _fit(small, backdrop.shape)
                 backdrop = _fit(backdrop, small.shape)
-                colour = (255, 0, 0) if layer == "clipping" else (255, 0, 255)
                 layer_img = _paint(backdrop, small, colour)
-                what = ("clipped in every frame (value is a lower bound)" if layer == "clipping"
-                        else "ghosts: aligned frames disagree beyond their noise")
                 lines.append(f"<span style='color:rgb{colour}'>■</span> {what}: "
                              f"{np.count_nonzero(mask) / max(mask.size, 1):.2%} of the pixels")
             images[layer] = layer_img

@@ -94,7 +94,8 @@ def test_pixel_classes_take_the_most_severe_channel() -> None:
     assert pixel_classes(levels, table).tolist() == [[INLIER, OUTLIER, SATURATED]]
 
 
-@pytest.mark.parametrize("layer", ["tonemapped", "provenance", "clipping", "ghosts"])
+@pytest.mark.parametrize("layer", ["tonemapped", "provenance", "clipping", "ghosts",
+                                   "deghosted"])
 @pytest.mark.parametrize("overlay", ["red/cyan", "difference (eq. 7)"])
 def test_every_panel_draws(viewer, stage_result, sim_bracket, layer, overlay) -> None:
     view = {"pair": 1, "layer": layer, "overlay": overlay}
@@ -118,6 +119,28 @@ def test_every_panel_draws(viewer, stage_result, sim_bracket, layer, overlay) ->
     if stage_result.registration is not None:
         assert viewer.registration_panel.before.visible
         assert "dx =" in viewer.registration_panel.summary.content
+
+
+def test_deghosted_layer_paints_the_filled_pixels(viewer, stage_result, sim_bracket) -> None:
+    """Without deghosting the layer says how to get it; with it the filled pixels are painted
+    over the dimmed preview and counted."""
+    import dataclasses
+
+    view = {"pair": 0, "layer": "deghosted", "overlay": "red/cyan"}
+    viewer.result_panel.show(sim_bracket, stage_result, view)
+    assert "tick Deghost" in viewer.result_panel.summary.content
+    merged = stage_result.merge
+    filled = np.zeros(merged.shape, bool)
+    filled[: merged.shape[0] // 2] = True
+    with_deghost = types.SimpleNamespace(**{**vars(stage_result),
+                                            "merge": dataclasses.replace(merged, deghosted=filled)})
+    viewer.result_panel.show(sim_bracket, with_deghost, view)
+    summary = viewer.result_panel.summary.content
+    assert "deghosted: filled from one frame" in summary and "50.00% of the pixels" in summary
+    img = viewer.result_panel._images["deghosted"]
+    top, bottom = img[: img.shape[0] // 4], img[-img.shape[0] // 4:]
+    assert (top == (0, 200, 255)).all(axis=-1).mean() > 0.9
+    assert (bottom == (0, 200, 255)).all(axis=-1).mean() < 0.01
 
 
 def test_exports_and_bundle(viewer, stage_result, sim_bracket) -> None:
