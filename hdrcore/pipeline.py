@@ -487,6 +487,9 @@ class Pipeline:
         :meth:`release`, or with ``reuse_buffers`` the cached one when its key is stale, else one
         kept by :meth:`clear_cache`."""
         if not self.reuse_buffers:
+            entry = self._cache.get("merge")
+            if entry is not None and _same_key(entry.key, merge_key):
+                return None  # the cached merge serves: keep the released arrays for later
             spare, self._spare = self._spare, None
             return spare
         entry = self._cache.get("merge")

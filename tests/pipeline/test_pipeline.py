@@ -254,6 +254,7 @@ def test_release_hands_a_result_no_longer_shown_to_the_next_merge(demo_result) -
     second = pipe.run(p2, until="merge")
     assert not np.shares_memory(second.merge.radiance, shown.merge.radiance)
     pipe.release(shown)  # no longer shown: second is
+    assert pipe.run(p2, until="merge").merge is second.merge  # a cache hit keeps the release
     p3 = shown.params.replace(noise_floor=shown.noise_floor + 40)
     third = pipe.run(p3, until="merge")
     assert np.shares_memory(third.merge.radiance, shown.merge.radiance)
