@@ -552,7 +552,7 @@ class _Kernel:
         var += self.const_var
         return x, level, var
 
-    # ---- resampling of a frame with a transform (reference of _fused.merge_rows_warped) ---------
+    # ---- resampling of a frame with a transform (reference of _fused.merge_rows) ---------
     def _sample(
         self, k: int, r0: int, r1: int
     ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray, np.ndarray]:
@@ -936,7 +936,7 @@ def _run_numba(
     kernel: _Kernel, out: _Outputs, spans: list[tuple[int, int]], workers: int,
     force_tables: bool = False, colour: ColourConversion | None = None,
 ) -> None:
-    """The fused kernel (:func:`hdrcore.merge._fused.merge_rows_warped`) over ``spans`` of
+    """The fused kernel (:func:`hdrcore.merge._fused.merge_rows`) over ``spans`` of
     rows, ``colour`` applied inside it. Integer frames read in place go through the
     reference's per-level tables when they have a LUT or ``force_tables``."""
     p = kernel.p
@@ -993,7 +993,7 @@ def _run_numba(
     cm, cwb, cneu = colour if colour is not None else (np.eye(3), np.ones(3), np.ones(3))
 
     def work(span: tuple[int, int]) -> int:
-        return _fused.merge_rows_warped(
+        return _fused.merge_rows(
             frames_t, flats, masks_t, has_mask, mats, has_mat, order, times, inv_t, inv_t2, t2,
             wcode, kernel.shot, kernel.const_var, kernel.floor_norm, kernel.inv_max,
             max_level, hi, has_lut, lut, lut_var, sat, tap_thr, me2, thr, span[0], span[1],

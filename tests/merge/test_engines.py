@@ -167,9 +167,9 @@ def test_one_compiled_kernel_serves_every_frame_count():
         return [np.full((6, 8, 3), 100 * (k + 1), np.uint16) for k in range(n)]
 
     merge(frames(3), (1.0, 2.0, 4.0), max_level=4095, engine="numba")
-    before = len(_fused.merge_rows_warped.signatures)
+    before = len(_fused.merge_rows.signatures)
     for n in (2, 5, 9, 16):
         times = tuple(float(2**k) for k in range(n))
         ref, fused = both(frames(n), times, max_level=4095)
         assert fused.shares.shape == (n, 6, 8)
-    assert len(_fused.merge_rows_warped.signatures) == before
+    assert len(_fused.merge_rows.signatures) == before

@@ -1,4 +1,4 @@
-"""The SIMD layout of :func:`hdrcore.merge._fused.merge_rows_warped` against the numpy reference.
+"""The SIMD layout of :func:`hdrcore.merge._fused.merge_rows` against the numpy reference.
 
 The kernel cuts each row into blocks of ``_fused._WBLOCK`` pixels and each block into runs of
 pixels whose supports share their source rows and column offset; the suite's usual frames are
