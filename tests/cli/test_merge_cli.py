@@ -68,6 +68,27 @@ def test_existing_output_refused_and_kept(tmp_path: Path, capsys) -> None:
     assert exr.read_bytes() == b"keep me"
 
 
+def test_outputs_are_refused_before_any_decoding(tmp_path: Path, capsys, monkeypatch) -> None:
+    """An existing output, an output over an input and a missing directory are refused before
+    the frames are decoded (seconds at 24 MP)."""
+    import hdrcore.cli.merge as merge_cli
+
+    def no_decoding(*_args, **_kwargs):
+        raise AssertionError("decoded before the outputs were checked")
+
+    monkeypatch.setattr(merge_cli, "load_bracket_from_args", no_decoding)
+    exr = tmp_path / "o.exr"
+    exr.write_bytes(b"keep me")
+    assert main(["merge", str(DEMO), "-o", str(exr), "--quiet"]) == 2
+    assert "output exists" in capsys.readouterr().err and exr.read_bytes() == b"keep me"
+    frame = sorted(DEMO.glob("*.dng"))[0]
+    assert main(["merge", str(DEMO), "-o", str(tmp_path / "x.exr"), "--preview", str(frame),
+                 "--quiet"]) == 2
+    assert "overwrite an input" in capsys.readouterr().err
+    assert main(["merge", str(DEMO), "-o", str(tmp_path / "nope" / "x.exr"), "--quiet"]) == 2
+    assert "directory does not exist" in capsys.readouterr().err
+
+
 def test_refuses_overwriting_an_input(png_bracket: Path, capsys) -> None:
     frame = sorted(png_bracket.glob("*.png"))[0]
     before = frame.read_bytes()
