@@ -165,8 +165,9 @@ def warp_accuracy_table() -> list[tuple[str, float, float]]:
 def deghost_table() -> list[tuple[str, float, float, float]]:
     """An object that moved: a 32 x 32 square 3x brighter than the scene in one frame only, on
     a tripod and on a hand-held bracket (merged with its true motion). Median relative
-    radiance error over the square: the weighted average against ``deghost=True``; and the
-    share of the image that deghosting replaced."""
+    radiance error over the object, to the nearer of the scene behind it and the object as its
+    frame saw it (deghosting may keep either; the weighted average matches neither): the
+    weighted average against ``deghost=True``; and the share of the image replaced."""
     rows = []
     sq = (slice(60, 92), slice(120, 152))
     for label, motion in (("tripod", {}), ("hand-held", {"max_shift": 6.0,
@@ -190,10 +191,17 @@ def deghost_table() -> list[tuple[str, float, float, float]]:
                 where = ((fy >= sq[0].start + 2) & (fy < sq[0].stop - 2)
                          & (fx >= sq[1].start + 2) & (fx < sq[1].stop - 2))
             errs = []
+            # deghosting may keep the object (the frame it chose saw it) or the scene behind:
+            # the error is to the nearer of the two (the weighted average matches neither)
+            scene = sb.radiance * sb.key
+            seen = merge([frames[k]], [sb.exposure_times[k]], max_level=sb.max_level,
+                         transforms=None if tf is None else [tf[k]]).radiance
             for dg in (False, True):
                 res = merge(frames, sb.exposure_times, max_level=sb.max_level, transforms=tf,
                             deghost=dg)
-                err = np.abs(res.radiance / sb.key - sb.radiance) / sb.radiance
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    err = np.fmin(np.abs(res.radiance / scene - 1),
+                                  np.abs(res.radiance / seen - 1))
                 errs.append(float(np.median(err[where])))
             rows.append((f"{label}, object in frame {k}", errs[0], errs[1],
                          float(res.deghosted.mean())))
@@ -425,7 +433,8 @@ def main() -> None:
     for name, err, sharp in warp_accuracy_table():
         print(f"  {name:40s} {100 * err:8.3f} % {sharp:19.3f}")
     print()
-    print("an object in one frame only (32 x 32, 3x the scene): median error over it")
+    print("an object in one frame only (32 x 32, 3x the scene): median error over it, to the "
+          "nearer of scene and object")
     print(f"  {'case':40s} {'average':>9s} {'deghost':>9s} {'replaced':>9s}")
     for name, plain, fixed, frac in deghost_table():
         print(f"  {name:40s} {100 * plain:7.2f} % {100 * fixed:7.3f} % {100 * frac:7.2f} %")

@@ -1191,7 +1191,8 @@ def merge(
         the block is in cache (one pass less over the map).
     deghost
         Fill each region where the frames disagree (``ghost``, grown by 2 pixels) from one
-        frame, the one with the largest share there, where that frame is usable
+        frame, the one with the largest share there (a frame not resampled when its share is at
+        least half of that), where that frame is usable
         (:mod:`hdrcore.merge.deghost`): a moving object comes out whole instead of doubled.
         Replaced pixels are marked in ``MergeResult.deghosted``; their shares go wholly to
         that frame and ``ghost`` still shows where the frames disagreed.
@@ -1268,7 +1269,11 @@ def merge(
                                     workers=workers, ghost_threshold=ghost_threshold,
                                     model_error=model_error, colour=colour)
 
-        deghosted = fill_ghost_regions(out.radiance, out.weight_sum, out.shares, ghost, single)
+        # frames not resampled are preferred where nearly as well exposed (no interpolation
+        # error in their values)
+        prefer = (np.array([t is None for t in plan.transforms]) if plan.warped else None)
+        deghosted = fill_ghost_regions(out.radiance, out.weight_sum, out.shares, ghost, single,
+                                       prefer=prefer)
     t3 = time.perf_counter()
 
     n_pix = h * w

@@ -88,3 +88,37 @@ def test_only_ghost_regions_change():
     np.testing.assert_array_equal(flat.radiance,
                                   merge(still, (1.0, 2.0, 3.0), max_level=4095).radiance)
 
+
+
+@pytest.mark.parametrize("other, prefer, expected", [
+    (0.6, None, 0), (0.6, [False, True], 1), (0.4, [False, True], 0), (0.6, [True, True], 0),
+])
+def test_frame_choice_prefers_frames_not_resampled(other, prefer, expected):
+    """The frame with the largest share of a region fills it, unless a preferred frame (not
+    resampled) has at least half of that share; regions under min_area keep the average."""
+    import types
+
+    from hdrcore.merge.deghost import fill_ghost_regions
+
+    h, w = 20, 30
+    ghost = np.zeros((h, w), bool)
+    ghost[5:15, 5:15] = True
+    ghost[1, 25] = True  # an isolated pixel: too small to fill
+    shares = np.zeros((2, h, w), np.float16)
+    shares[0], shares[1] = 1.0 / (1.0 + other), other / (1.0 + other)
+    radiance = np.full((h, w, 3), -1.0, np.float32)
+    weight_sum = np.ones((h, w), np.float32)
+
+    def single(k, y0, y1):
+        n = y1 - y0
+        return types.SimpleNamespace(radiance=np.full((n, w, 3), float(k), np.float32),
+                                     weight_sum=np.full((n, w), 2.0, np.float32),
+                                     clipped=np.zeros((n, w), bool),
+                                     underexposed=np.zeros((n, w), bool))
+
+    done = fill_ghost_regions(radiance, weight_sum, shares, ghost, single,
+                              prefer=None if prefer is None else np.array(prefer))
+    assert done[10, 10] and not done[1, 25] and not done[0, 0]
+    assert (radiance[done] == expected).all() and (radiance[~done] == -1.0).all()
+    assert (shares[expected][done] == 1.0).all() and (shares[1 - expected][done] == 0.0).all()
+    assert (weight_sum[done] == 2.0).all()
