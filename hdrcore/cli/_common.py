@@ -9,12 +9,14 @@ from typing import Any
 
 import numpy as np
 
-from ..io import Bracket, load_bracket
+from ..errors import HdrError
+from ..io import Bracket, check_output_path, expand_paths, load_bracket
 
 __all__ = [
     "add_bracket_arguments",
     "add_exclude_colour_argument",
     "add_level_arguments",
+    "check_outputs_first",
     "parse_colour",
     "load_bracket_from_args",
     "print_json",
@@ -74,6 +76,18 @@ def add_level_arguments(parser: argparse.ArgumentParser) -> None:
         help="noise floor in levels (default 2%% of the largest level, at least 3, raised "
              "above a black pedestal of the darkest frame)",
     )
+
+
+def check_outputs_first(outputs: list[str], args: argparse.Namespace) -> None:
+    """Refuse an existing (without ``--force``) or impossible output, or one over an input,
+    before any frame is decoded (seconds at 24 MP); unreadable inputs are the loader's to
+    report."""
+    try:
+        named = expand_paths(args.files)
+    except HdrError:
+        named = []
+    for out in outputs:
+        check_output_path(out, force=getattr(args, "force", False), inputs=named)
 
 
 def load_bracket_from_args(args: argparse.Namespace, **kwargs: Any) -> Bracket:

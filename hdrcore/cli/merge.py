@@ -15,21 +15,15 @@ import json
 import sys
 import time
 
-from ..errors import HdrError, OutputError
-from ..io import (
-    EXR_COMPRESSIONS,
-    atomic_write,
-    check_output_path,
-    expand_paths,
-    write_exr,
-    write_png,
-)
+from ..errors import OutputError
+from ..io import EXR_COMPRESSIONS, atomic_write, check_output_path, write_exr, write_png
 from ..pipeline import ALIGN_CHOICES, Pipeline, PipelineParams
 from ..tonemap import TONEMAP_OPERATORS
 from ._common import (
     add_bracket_arguments,
     add_exclude_colour_argument,
     add_level_arguments,
+    check_outputs_first,
     load_bracket_from_args,
     print_json,
     to_jsonable,
@@ -108,14 +102,7 @@ def run(args: argparse.Namespace) -> int:
     if not str(args.output).lower().endswith(".exr"):
         raise OutputError("the HDR output must be an OpenEXR file", path=args.output,
                           expected="a name ending in .exr")
-    # Refuse an existing or impossible output before the (seconds-long) decode; the loader
-    # reports unreadable inputs itself.
-    try:
-        named = expand_paths(args.files)
-    except HdrError:
-        named = []
-    for out in outputs:
-        check_output_path(out, force=args.force, inputs=named)
+    check_outputs_first(outputs, args)
     t_load = time.perf_counter()
     bracket = load_bracket_from_args(args)
     decode_seconds = time.perf_counter() - t_load

@@ -16,7 +16,13 @@ import numpy as np
 from ..errors import ParameterError
 from ..io import check_output_path
 from ..response import DEFAULT_METHOD, RESPONSE_METHODS, recover_response
-from ._common import add_bracket_arguments, load_bracket_from_args, print_json, print_warnings
+from ._common import (
+    add_bracket_arguments,
+    check_outputs_first,
+    load_bracket_from_args,
+    print_json,
+    print_warnings,
+)
 
 __all__ = ["add_parser", "run"]
 
@@ -78,6 +84,7 @@ def run(args: argparse.Namespace) -> int:
     outputs = [p for p in (args.plot, args.save) if p]
     if len(set(outputs)) != len(outputs):
         raise ParameterError("--plot and --save must name different files")
+    check_outputs_first(outputs, args)
     bracket = load_bracket_from_args(args)
     for out in outputs:
         check_output_path(out, force=args.force, inputs=bracket.paths)

@@ -61,6 +61,20 @@ def test_plot_and_save(bracket_dir, capsys) -> None:
     assert "input" in capsys.readouterr().err
 
 
+def test_outputs_checked_before_decoding(bracket_dir, tmp_path, capsys, monkeypatch) -> None:
+    import hdrcore.cli.response as response_cli
+
+    def no_decoding(*_args, **_kwargs):
+        raise AssertionError("decoded before the outputs were checked")
+
+    monkeypatch.setattr(response_cli, "load_bracket_from_args", no_decoding)
+    kept = tmp_path / "curve.json"
+    kept.write_text("keep")
+    assert main(["response", *_files(bracket_dir), "--times", str(bracket_dir / "times.txt"),
+                 "--save", str(kept)]) == 2
+    assert "use --force" in capsys.readouterr().err and kept.read_text() == "keep"
+
+
 def test_errors(bracket_dir, capsys) -> None:
     files = _files(bracket_dir)
     assert main(["response", *files, "--times", str(bracket_dir / "times.txt"),
