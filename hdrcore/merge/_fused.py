@@ -162,8 +162,8 @@ def tap_thresholds(sat: np.ndarray, dtype: np.dtype) -> np.ndarray:
 @_njit
 def _finish_block(
     y, x0, x1, n, order, den, num, s2, sv, share, fv, lo, nbad, me2, thr,
-    rad, wsum_out, shares, clipped_out, under_out, gscore, ghost, pick, invw, zflag, radf, bb,
-    cc, fe, fs,
+    wsum_out, shares, clipped_out, under_out, gscore, ghost, pick, invw, zflag, radf, bb, cc,
+    fe, fs,
 ):
     """Radiance, ghost score, shares and fallback decisions of one block (the reference's
     ``_finish``) from interleaved sums (``den[3 i + ch]``), every step a straight pass (SIMD).
@@ -556,9 +556,8 @@ def _clipped_supports(flat, iy0, c0, m, ntap, t0, t1, t2, cf, out):
 
 @_njit
 def merge_rows(
-    frames, flats, masks, has_mask, mats, has_mat, order, times, inv_t, inv_t2, t2, wcode, shot,
-    const_var, floor_norm, inv_max, max_level, hi, has_lut, lut, lut_var, sat, tap_thr, me2,
-    thr, r0, r1,
+    frames, flats, masks, has_mask, mats, has_mat, order, inv_t, inv_t2, t2, wcode, shot,
+    const_var, floor_norm, inv_max, hi, has_lut, lut, lut_var, tap_thr, me2, thr, r0, r1,
     rad, wsum_out, shares, clip_count, clipped_out, under_out, gscore, ghost, ntap, oor,
     has_colour, cm, cwb, cneu, use_tab, tabs,
 ):
@@ -764,8 +763,8 @@ def merge_rows(
                 share[k, i] = (wbuf[e] + wbuf[e + 1]) + wbuf[e + 2]
         nz = _finish_block(
             y, x0, x1, n, order, den, num, s2, sv, share, fv, lo, nbad, me2, thr,
-            rad, wsum_out, shares, clipped_out, under_out, gscore, ghost, pick, invw, zflag,
-            radf, bb, cc, fa_sel, fb_sel,
+            wsum_out, shares, clipped_out, under_out, gscore, ghost, pick, invw, zflag, radf,
+            bb, cc, fa_sel, fb_sel,
         )
         ro = radf[y, 3 * x0:3 * x1]
         # fallbacks, a straight pass: modes 1 and 3 take candidate A in every channel, mode 2

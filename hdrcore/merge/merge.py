@@ -948,7 +948,6 @@ def _run_numba(
     masks_t = tuple(m if m is not None else dummy for m in p.masks)
     has_mask = np.array([m is not None for m in p.masks], np.bool_)
     order = np.ascontiguousarray(p.order, np.int64)
-    times = np.ascontiguousarray(p.times, np.float64)
     sat = np.ascontiguousarray(p.saturation, np.float64)
     me2 = kernel.model_error2
     thr = kernel.ghost_threshold
@@ -973,8 +972,7 @@ def _run_numba(
     has_lut = p.lut is not None
     lut = p.lut if has_lut else np.zeros((3, 2), np.float32)
     lut_var = p.lut_var if has_lut else lut
-    max_level = float(p.max_level) if p.integer else 1.0
-    hi = np.float32(max_level)
+    hi = np.float32(p.max_level if p.integer else 1.0)
     tap_thr = _fused.tap_thresholds(sat, frames_t[0].dtype)
     ntap = 4 if p.resample == "cubic" else 2
     # levels past the LUT (refused): only a frame that holds any is searched for them
@@ -994,9 +992,9 @@ def _run_numba(
 
     def work(span: tuple[int, int]) -> int:
         return _fused.merge_rows(
-            frames_t, flats, masks_t, has_mask, mats, has_mat, order, times, inv_t, inv_t2, t2,
+            frames_t, flats, masks_t, has_mask, mats, has_mat, order, inv_t, inv_t2, t2,
             wcode, kernel.shot, kernel.const_var, kernel.floor_norm, kernel.inv_max,
-            max_level, hi, has_lut, lut, lut_var, sat, tap_thr, me2, thr, span[0], span[1],
+            hi, has_lut, lut, lut_var, tap_thr, me2, thr, span[0], span[1],
             *outs, ntap, oor, colour is not None, cm, cwb, cneu, use_tab, tabs,
         )
 
