@@ -31,6 +31,18 @@ CalibrationIlluminant1 50778 [SHORT] 21 (D65).
 EXIF IFD: ExposureTime 33434 [RATIONAL]; FNumber 33437 [RATIONAL]; ISOSpeedRatings 34855 [SHORT];
 ExifVersion 36864 [UNDEFINED] "0230"; DateTimeOriginal 36867 [ASCII].
 
+Masked optical-black margins (optional, :func:`add_masked_margins`): real sensors store masked
+pixels around the active area; they hold the black level plus read noise and no light. The
+stored image is then larger than the active area and IFD0 also carries ActiveArea 50829 [LONG]
+top, left, bottom, right and, unless left out, MaskedAreas 50830 [LONG] one top, left, bottom,
+right rectangle per margin. LibRaw (0.22) reads them as a camera's: ``raw.raw_image`` is the
+whole stored image, ``raw.raw_image_visible`` the active area, ``raw.sizes.top_margin`` /
+``left_margin`` its offset. With MaskedAreas, LibRaw also *measures* the black level from the
+masked pixels (per CFA site, the integer part of their mean, so up to 1 DN below the written
+BlackLevel: what ``raw.black_level_per_channel`` then reports); with ActiveArea alone it reports
+the BlackLevel tag. Margins above and left of the active area are even, so the CFA phase is the
+same in stored and active coordinates (LibRaw indexes the masked sites in stored coordinates).
+
 References: Adobe, "Digital Negative (DNG) Specification", version 1.4.0.0, 2012; TIFF 6.0;
 EXIF 2.3. J. Cerman, V. Hlavac, "Exposure time estimation for high dynamic range imaging with
 hand held camera", Computer Vision Winter Workshop, 2006.
@@ -52,8 +64,10 @@ from ..errors import ParameterError
 
 __all__ = [
     "CFA_PATTERNS",
+    "MaskedSensor",
     "SRGB_XYZ_TO_CAMERA",
     "TiffTag",
+    "add_masked_margins",
     "as_rational",
     "cfa_channel_map",
     "default_black_level",
@@ -63,6 +77,7 @@ __all__ = [
     "exif_tags",
     "linear_to_raw",
     "mosaic",
+    "parse_margins",
     "write_dng",
 ]
 
@@ -181,6 +196,142 @@ def linear_to_raw(
     if noise_sigma > 0:
         raw = raw + rng.standard_normal(raw.shape) * noise_sigma
     return np.clip(np.rint(raw), 0, white).astype(np.uint16)
+
+
+
+Rect = tuple[int, int, int, int]
+"""A rectangle as DNG writes it: top, left, bottom, right (bottom and right exclusive)."""
+
+
+def parse_margins(margins: int | Sequence[int]) -> Rect:
+    """``(top, left, bottom, right)`` masked margins in pixels from one value or four.
+
+    Top and left must be even (the CFA phase stays that of the active area); all are >= 0.
+    """
+    if np.ndim(margins) == 0:
+        m = int(margins)  # type: ignore[arg-type]
+        vals: tuple[int, ...] = (m, m, m, m)
+    else:
+        vals = tuple(int(v) for v in margins)  # type: ignore[union-attr]
+    if len(vals) != 4 or min(vals) < 0:
+        raise ParameterError(
+            "masked margins are one value or four (top, left, bottom, right), each >= 0",
+            expected="e.g. 8 or (8, 16, 4, 6)", found=str(margins),
+        )
+    if vals[0] % 2 or vals[1] % 2:
+        raise ParameterError(
+            "top and left masked margins must be even (the CFA pattern is that of the active "
+            "area)", expected="even top and left", found=f"top {vals[0]}, left {vals[1]}",
+        )
+    return vals  # type: ignore[return-value]
+
+
+@dataclass(frozen=True, eq=False)
+class MaskedSensor:
+    """A stored sensor image with masked optical-black margins around its active area.
+
+    ``data`` ``(H + top + bottom, W + left + right)`` uint16 is what the DNG stores;
+    ``active_area`` the DNG ActiveArea (top, left, bottom, right) of the ``(H, W)`` active pixels;
+    ``masked_areas`` the DNG MaskedAreas rectangles (the non-empty margins); ``noise_sigma`` the
+    read noise the margins were filled with (raw units).
+    """
+
+    data: np.ndarray
+    active_area: Rect
+    masked_areas: tuple[Rect, ...]
+    noise_sigma: float
+
+    @property
+    def active(self) -> np.ndarray:
+        """The active area's raw numbers (a view of ``data``)."""
+        t, left, b, r = self.active_area
+        return self.data[t:b, left:r]
+
+    @property
+    def margin_mask(self) -> np.ndarray:
+        """``(H', W')`` bool: True on the masked pixels."""
+        mask = np.zeros(self.data.shape, bool)
+        for t, left, b, r in self.masked_areas:
+            mask[t:b, left:r] = True
+        return mask
+
+
+def add_masked_margins(
+    active_cfa: np.ndarray,
+    margins: int | Sequence[int],
+    *,
+    black_level: int | Sequence[int],
+    white_level: int,
+    noise_sigma: float,
+    rng: np.random.Generator | None = None,
+) -> MaskedSensor:
+    """Surround raw numbers ``active_cfa`` ``(H, W)`` with masked optical-black margins.
+
+    The margins hold what masked pixels record: the (per-site) black level plus Gaussian read
+    noise of ``noise_sigma`` raw units, rounded and clipped to ``[0, white]`` as
+    :func:`linear_to_raw` does; ``margins`` is one value or ``(top, left, bottom, right)``
+    (:func:`parse_margins`). The active area is copied unchanged, so drawing the margins after
+    the active area from the same ``rng`` leaves the active numbers as they were.
+    """
+    data = np.asarray(active_cfa)
+    if data.ndim != 2 or data.dtype.kind not in "ui":
+        raise ParameterError("active CFA data must be integer (H, W)",
+                             found=f"{data.dtype} {data.shape}")
+    top, left, bottom, right = parse_margins(margins)
+    black = _black_per_site(black_level)
+    white = int(white_level)
+    _check_levels(black, white)
+    if noise_sigma < 0:
+        raise ParameterError("noise sigma must be >= 0", found=str(noise_sigma))
+    rng = rng if rng is not None else np.random.default_rng(0)
+    h, w = data.shape
+    hh, ww = h + top + bottom, w + left + right
+    # Even top/left: the stored image's 2x2 sites are those of the active area.
+    b = np.tile(np.array(black, np.float64).reshape(2, 2), ((hh + 1) // 2, (ww + 1) // 2))[:hh, :ww]
+    full = b + (rng.standard_normal((hh, ww)) * noise_sigma if noise_sigma > 0 else 0.0)
+    out = np.clip(np.rint(full), 0, white).astype(np.uint16)
+    out[top:top + h, left:left + w] = data
+    rects = [
+        (0, 0, top, ww),  # above
+        (top + h, 0, hh, ww),  # below
+        (top, 0, top + h, left),  # left of the active area
+        (top, left + w, top + h, ww),  # right of it
+    ]
+    masked = tuple(r for r in rects if r[2] > r[0] and r[3] > r[1])
+    return MaskedSensor(data=out, active_area=(top, left, top + h, left + w),
+                        masked_areas=masked, noise_sigma=float(noise_sigma))
+
+
+def _check_areas(shape: tuple[int, int], active: Rect | None,
+                 masked: Sequence[Rect]) -> tuple[Rect | None, tuple[Rect, ...]]:
+    h, w = shape
+
+    def inside(r: Sequence[int], what: str) -> Rect:
+        vals = tuple(int(v) for v in r)
+        if len(vals) != 4 or not (0 <= vals[0] < vals[2] <= h and 0 <= vals[1] < vals[3] <= w):
+            raise ParameterError(
+                f"{what} must be a non-empty (top, left, bottom, right) inside the stored image",
+                expected=f"within {h}x{w}", found=str(tuple(r)),
+            )
+        return vals  # type: ignore[return-value]
+
+    if active is None:
+        if masked:
+            raise ParameterError("MaskedAreas need an ActiveArea", expected="active_area given",
+                                 found=f"{len(masked)} masked areas")
+        return None, ()
+    act = inside(active, "the active area")
+    if act[0] % 2 or act[1] % 2:
+        raise ParameterError("the active area must start on an even row and column",
+                             found=f"top {act[0]}, left {act[1]}")
+    rects = tuple(inside(r, "a masked area") for r in masked)
+    if len(rects) > 8:
+        raise ParameterError("at most 8 masked areas (what LibRaw reads)", found=str(len(rects)))
+    for r in rects:
+        if r[0] < act[2] and act[0] < r[2] and r[1] < act[3] and act[1] < r[3]:
+            raise ParameterError("a masked area overlaps the active area",
+                                 found=f"masked {r}, active {act}")
+    return act, rects
 
 
 # --- a small TIFF encoder (little-endian, classic TIFF) ----------------------------------------
@@ -367,11 +518,16 @@ def encode_dng(
     model: str = "simulator",
     as_shot_neutral: Sequence[float] = (1.0, 1.0, 1.0),
     color_matrix: Sequence[Sequence[float]] = SRGB_XYZ_TO_CAMERA,
+    active_area: Rect | None = None,
+    masked_areas: Sequence[Rect] = (),
 ) -> bytes:
     """Bytes of a DNG holding the raw CFA numbers ``cfa`` ``(H, W)`` (see the module docstring).
 
     ``black_level`` is one value or four (per 2x2 site, row-major, written with
     BlackLevelRepeatDim 2x2). ``exposure_time`` is written as an exact rational.
+    ``active_area`` (top, left, bottom, right; even top and left) marks ``cfa`` as a stored image
+    larger than the active area and ``masked_areas`` its masked optical-black rectangles (up to
+    8); :func:`add_masked_margins` makes all three. Both default to none: the whole image active.
     """
     data = np.asarray(cfa)
     if data.ndim != 2 or data.shape[0] < 2 or data.shape[1] < 2:
@@ -390,6 +546,7 @@ def encode_dng(
         raise ParameterError("orientation must be an EXIF value", expected="1..8",
                              found=str(orientation))
     h, w = data.shape
+    act, rects = _check_areas((h, w), active_area, masked_areas)
     when = capture_time or _DEFAULT_TIME
     uniform = len(set(black)) == 1
     ifd0 = [
@@ -424,6 +581,10 @@ def encode_dng(
         TiffTag(50728, 5, tuple(as_rational(v, what="AsShotNeutral") for v in as_shot_neutral)),
         TiffTag(50778, 3, (21,)),
     ]
+    if act is not None:
+        ifd0.append(TiffTag(50829, 4, act))
+    if rects:
+        ifd0.append(TiffTag(50830, 4, tuple(v for r in rects for v in r)))
     exif = exif_tags(exposure_time, f_number, iso, when)
     image = np.ascontiguousarray(data, dtype="<u2").tobytes()
     return encode_tiff(ifd0, exif=exif, image=image)

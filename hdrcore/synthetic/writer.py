@@ -16,7 +16,11 @@ Formats (the file holds the frame at its native bit depth unless said otherwise)
     numbers are made from the bracket's noiseless linear frames (``simulate_bracket(...,
     keep_linear=True)``) with the same noise model (shot noise from ``shot_noise_full_well``,
     Gaussian read noise of ``noise_sigma`` raw units), so they are not the same draw as
-    ``sim.frames``. Black-subtracted values are ``x * (white - max(black))``.
+    ``sim.frames``. Black-subtracted values are ``x * (white - max(black))``. With ``margins``
+    the stored image also has masked optical-black margins (black level plus the same read
+    noise) around the active area, with the DNG ActiveArea and MaskedAreas tags
+    (:func:`hdrcore.synthetic.dng.add_masked_margins`); the active area holds the same numbers
+    as without margins.
 
 Every frame carries its exposure time in EXIF (ExposureTime in the EXIF IFD, an exact rational):
 PNG in an ``eXIf`` chunk, JPEG in APP1, TIFF and DNG in an EXIF sub-IFD. ``exposure_times.txt``
@@ -45,6 +49,7 @@ from ..io.atomic import atomic_write, check_output_path
 from .camera import SimulatedBracket
 from .dng import (
     TiffTag,
+    add_masked_margins,
     as_rational,
     default_black_level,
     encode_dng,
@@ -53,6 +58,7 @@ from .dng import (
     exif_tags,
     linear_to_raw,
     mosaic,
+    parse_margins,
 )
 
 __all__ = ["FORMATS", "WrittenBracket", "write_bracket", "frame_file_levels"]
@@ -162,13 +168,19 @@ def write_bracket(
     f_number: float = 8.0,
     iso: int = 100,
     stem: str = "frame",
+    margins: int | tuple[int, int, int, int] | None = None,
+    masked_areas: bool = True,
 ) -> WrittenBracket:
     """Write ``sim`` to ``outdir``: ``{stem}NN.ext`` frames, ``truth.json``, ``exposure_times.txt``.
 
     ``fmt`` is one of :data:`FORMATS`. For ``dng``, ``black_level`` defaults to
     :func:`~hdrcore.synthetic.dng.default_black_level` of ``sim.bits`` (256 at 12 bits) and
-    ``white_level`` to ``2**bits - 1``. Every output path is checked before anything is written:
-    an existing file raises :class:`~hdrcore.errors.OutputError` naming it, unless ``force``.
+    ``white_level`` to ``2**bits - 1``; ``margins`` (one value or top, left, bottom, right; top
+    and left even) adds masked optical-black margins around the active area, with the
+    MaskedAreas tag unless ``masked_areas`` is False (then LibRaw reports the margins but takes
+    the black level from the BlackLevel tag instead of measuring it there). Every output path is
+    checked before anything is written: an existing file raises
+    :class:`~hdrcore.errors.OutputError` naming it, unless ``force``.
     """
     key = str(fmt).lower()
     if key in ("jpg",):
@@ -197,6 +209,12 @@ def write_bracket(
                 "DNG output needs the linear sensor values",
                 expected="simulate_bracket(..., keep_linear=True)", found="no linear frames",
             )
+    margin_rect = None
+    if margins is not None:
+        if key != "dng":
+            raise ParameterError("masked margins are a RAW (DNG) feature",
+                                 expected="fmt 'dng'", found=repr(key))
+        margin_rect = parse_margins(margins)
     out = Path(outdir)
     if out.exists() and not out.is_dir():
         raise OutputError("output directory is a file", path=out, expected="a directory")
@@ -229,6 +247,18 @@ def write_bracket(
             "read_noise_units": "raw numbers (DN)",
             "mapping": "raw = black + clip(x + shot, 0, 1) * (white - max(black)) + read noise",
         }
+        if margin_rect is not None:
+            top, left, bottom, right = margin_rect
+            h, w = sim.frames[0].shape[:2]
+            raw_info["masked_margins"] = {
+                "top": top, "left": left, "bottom": bottom, "right": right,
+                "stored_shape": [h + top + bottom, w + left + right],
+                "active_area": [top, left, top + h, left + w],
+                "masked_areas_tag": bool(masked_areas),
+                "content": "black level + read noise of read_noise_sigma (no light)",
+                "libraw_black": "measured from the masked pixels (integer part of their mean "
+                                "per CFA site)" if masked_areas else "the BlackLevel tag",
+            }
     elif sim.bits == 8:
         file_max = 255
     elif sixteen_bit == "keep" or sim.bits == 16:
@@ -249,9 +279,19 @@ def write_bracket(
                 shot_noise_full_well=sim.shot_noise_full_well,
                 rng=rng,
             )
+            areas: dict = {}
+            if margin_rect is not None:
+                # Drawn after the active area from the same generator: its numbers are unchanged.
+                sensor = add_masked_margins(
+                    cfa, margin_rect, black_level=black_sites,
+                    white_level=raw_info["white_level"], noise_sigma=sim.noise_sigma, rng=rng,
+                )
+                cfa = sensor.data
+                areas = {"active_area": sensor.active_area,
+                         "masked_areas": sensor.masked_areas if masked_areas else ()}
             data = encode_dng(
                 cfa, pattern=cfa_pattern, black_level=black_sites,
-                white_level=raw_info["white_level"], **meta,
+                white_level=raw_info["white_level"], **areas, **meta,
             )
         else:
             image = frame_file_levels(sim.frames[k], sim.bits, key, sixteen_bit)
