@@ -24,6 +24,9 @@ MISMATCH_STOPS = 0.15
 CLIPPED_FRACTION = 0.002
 #: Pixels under the noise floor in every frame above this fraction: the brightest is too dark.
 UNDEREXPOSED_FRACTION = 0.02
+#: A bracket whose registered pairs all moved less than this (pixels) is static (a tripod): a
+#: pair that cannot be registered rightly keeps the identity.
+STATIC_SHIFT_PX = 1.0
 #: Pixels flagged as ghosts above this fraction: something moved.
 GHOST_FRACTION = 0.01
 
@@ -68,11 +71,43 @@ def _names(result: PipelineResult, frames: tuple[int, ...]) -> str:
     return ", ".join(fr[k].name for k in frames if 0 <= k < len(fr))
 
 
+def _frame_list(indices: list[int], names: list[str]) -> str:
+    label = "frame" if len(indices) == 1 else "frames"
+    nums = ", ".join(str(k) for k in indices[:-1])
+    nums = f"{nums} and {indices[-1]}" if nums else str(indices[-1])
+    return f"{label} {nums} ({', '.join(names[k] for k in indices)})"
+
+
+def _unused_frames(result: PipelineResult) -> list[Verdict]:
+    """Frames left out because they carry no signal (black, saturated): one verdict per kind."""
+    unused = getattr(result, "unused_frames", ())
+    if not unused:
+        return []
+    full = result.loaded_bracket
+    all_names = [f.name for f in full.frames]
+    used = [k for k in range(len(full)) if k not in {u.index for u in unused}]
+    out = []
+    for kind, meaning in (("black", "below the noise floor everywhere"),
+                          ("saturated", "clipped everywhere")):
+        ks = [u.index for u in unused if u.status == kind]
+        if not ks:
+            continue
+        verb = "is" if len(ks) == 1 else "are"
+        out.append(Verdict(
+            f"frame-{kind}-unused", "warning",
+            f"{_frame_list(ks, all_names)} {verb} {kind} ({meaning}): not used; the merge uses "
+            f"{_frame_list(used, all_names)}. Ratios across the gap come from the frames on "
+            "either side (or their EXIF times).", tuple(ks),
+        ))
+    return out
+
+
 def diagnose(result: PipelineResult) -> list[Verdict]:
     """Verdicts for one pipeline run, most severe first."""
     out: list[Verdict] = []
     b = result.bracket
     names = [f.name for f in b.frames]
+    out.extend(_unused_frames(result))
 
     for w in b.warnings:
         if w.code in _CAPTURE:
@@ -128,13 +163,27 @@ def diagnose(result: PipelineResult) -> list[Verdict]:
 
     reg = result.registration
     if reg is not None:
-        for p in reg.pairs:
-            if not p.ok:
+        failed = [p for p in reg.pairs if not p.ok]
+        moved = [math.hypot(p.dx, p.dy) for p in reg.pairs if p.ok]
+        static = bool(moved) and max(moved) <= STATIC_SHIFT_PX
+        for p in failed:
+            label = f"frames {p.dark} and {p.bright} ({names[p.dark]}, {names[p.bright]})"
+            if static:
                 out.append(Verdict(
-                    "registration-failed", "error",
-                    f"Registration failed for frames {p.dark} and {p.bright} ({p.status}): "
-                    f"{p.message}. They were merged without alignment and may be blurred or "
-                    "ghosted.", (p.dark, p.bright),
+                    "registration-identity", "info",
+                    f"{label} could not be registered ({p.status}: {p.message}); they keep the "
+                    f"identity. The other pairs moved by at most {max(moved):.2f} px, so the "
+                    "bracket looks static (tripod) and the identity is right.",
+                    (p.dark, p.bright),
+                ))
+            else:
+                out.append(Verdict(
+                    "registration-failed", "warning",
+                    f"Registration failed for {label} ({p.status}): {p.message}. They were "
+                    "merged without alignment (identity) and may be blurred or ghosted; "
+                    + ("the other pairs moved by up to "
+                       f"{max(moved):.1f} px." if moved else "no pair could be registered."),
+                    (p.dark, p.bright),
                 ))
 
     m = result.merge

@@ -48,6 +48,7 @@ from .exposure.registered import bracket_exposures_from_pixels, cfa_planes
 from .io import Bracket
 from .merge import DEFAULT_MODEL_ERROR, MergeResult, NoiseModel, merge
 from .merge.colour import ColourConversion, colour_conversion
+from .noise import BracketNoise, FrameNoise, bracket_noise, frame_noise
 from .registration import (
     MODELS,
     REGISTRATION_METHODS,
@@ -61,6 +62,7 @@ from .registration import (
 from .registration.transform import scale_matrix
 from .resample import bin_channel, downsample_area, downsample_factor
 from .response import RESPONSE_METHODS, ResponseCurve, resolve_response
+from .signal import FrameSignal, frame_signal
 from .tonemap import TONEMAP_OPERATORS, TonemapResult, tonemap
 
 __all__ = [
@@ -184,6 +186,13 @@ class PipelineResult:
     default, see ``PipelineParams.refine_ratios``), else from the whole frames;
     ``exposures_histogram`` always holds the whole-frame estimate (the paper's method, before
     registration). Stages after ``until`` are ``None``.
+
+    ``noise`` is the noise measured from the frames (:mod:`hdrcore.noise`) behind the default
+    noise floor and the merge's noise model; ``frame_signals`` says, per frame of the bracket as
+    loaded, whether it carries signal (:mod:`hdrcore.signal`). A black or saturated frame is left
+    out of every stage: ``bracket`` then holds the frames used (all indices in the stage results
+    refer to it), ``full_bracket`` the bracket as loaded and ``unused_frames`` the frames left out
+    and why.
     """
 
     bracket: Bracket
@@ -207,6 +216,10 @@ class PipelineResult:
     stages_run: tuple[str, ...] = ()
     verdicts: tuple[Verdict, ...] = ()
     until: str = "preview"
+    noise: BracketNoise | None = None
+    frame_signals: tuple[FrameSignal, ...] = ()
+    unused_frames: tuple[FrameSignal, ...] = ()
+    full_bracket: Bracket | None = None
 
     @property
     def ok(self) -> bool:
@@ -229,6 +242,11 @@ class PipelineResult:
             return None
         return registration_json(self.registration)
 
+    @property
+    def loaded_bracket(self) -> Bracket:
+        """The bracket as loaded (``bracket`` minus nothing), unused frames included."""
+        return self.full_bracket if self.full_bracket is not None else self.bracket
+
     def to_report(self) -> dict[str, Any]:
         """JSON-ready report of the run (no arrays)."""
         b = self.bracket
@@ -247,7 +265,10 @@ class PipelineResult:
                 "saturation_used": self.saturation,
                 "noise_floor_used": self.noise_floor,
             },
-            "warnings": [w.to_json() for w in b.warnings],
+            "frames_not_used": [u.to_json() for u in self.unused_frames],
+            "frame_signal": [f.to_json() for f in self.frame_signals],
+            "noise": None if self.noise is None else self.noise.to_json(),
+            "warnings": [w.to_json() for w in self.loaded_bracket.warnings],
             "ratios": self.ratios_json(),
             "ratios_before_registration": ratios_json(self.bracket, self.exposures_histogram),
             "times_source": self.times_source,
@@ -370,6 +391,9 @@ class Pipeline:
         self.last_result: PipelineResult | None = None
         self.reuse_buffers = bool(reuse_buffers)
         self._spare: Any = None  # a previous MergeResult whose arrays a new merge may reuse
+        self._noise: BracketNoise | None = None
+        self._subsets: dict[tuple[int, ...], Pipeline] = {}  # runs without unusable frames
+        self._active_subset: Pipeline | None = None
 
     # -- parameter checks ------------------------------------------------------------------
 
@@ -407,8 +431,36 @@ class Pipeline:
             validate_method(align, MODELS, "motion model")
         return replace(p, saturation=sat, noise_floor=nf, align=align, reference=ref)
 
+    def noise(self) -> BracketNoise:
+        """The noise measured from the frames and the noise floor derived from it
+        (:mod:`hdrcore.noise`): the optical-black read noise of RAW files that have masked
+        pixels, else a robust estimate from each frame's darkest flat regions (RAW: on the CFA
+        mosaic, black level included, so nothing is clipped)."""
+        if self._noise is None:
+            b = self.bracket
+            measured: list[FrameNoise] = []
+            for f in b.frames:
+                rn = getattr(f.meta, "read_noise", None)
+                if rn is not None and math.isfinite(float(rn)) and float(rn) >= 0:
+                    measured.append(FrameNoise(float(rn), "optical-black"))
+                    continue
+                cfa = f.cfa
+                if f.is_linear and cfa is not None:
+                    site = next(((r, c) for r in range(2) for c in range(2)
+                                 if cfa.colors[int(cfa.pattern[r, c])] == "G"), (0, 0))
+                    idx = int(cfa.pattern[site])
+                    measured.append(frame_noise(
+                        cfa.data[site[0]::2, site[1]::2], black=float(cfa.black_level[idx]),
+                        white=float(cfa.white_level)))
+                else:
+                    measured.append(frame_noise(f.levels[..., 1], black=0.0,
+                                                white=float(f.max_level), clipped_low=0.0))
+            self._noise = bracket_noise(measured, max_level=b.max_level, linear=b.is_linear)
+        return self._noise
+
     def auto_noise_floor(self, exclude_colour: tuple[int, int, int] | None = None) -> float:
-        """Default noise floor: 2 % of the largest level (>= 3 levels), raised above a pedestal.
+        """Default noise floor: :data:`hdrcore.noise.K_SIGMA` times the noise measured from the
+        frames (:meth:`noise`), never below a small minimum, raised above a pedestal.
 
         A pedestal is a level the darkest frame never goes below (film base and scanner flare,
         a black offset left in a JPEG): levels just above it carry no signal, yet a response
@@ -426,10 +478,34 @@ class Pipeline:
             # Per channel (film fog and flare differ by colour), the highest one governs.
             self._pedestal = float(np.max(np.percentile(lv, 0.1, axis=0))) if lv.size else 0.0
             self._pedestal_key = key
-        base = default_noise_floor(self.bracket.max_level)
+        base = self.noise().floor
         if self._pedestal > 0.5 * base:
             return float(min(self._pedestal + base, 0.25 * self.bracket.max_level))
         return float(base)
+
+    def frame_signals(self, p: PipelineParams, ran: list[str] | None = None,
+                      timings: dict[str, float] | None = None) -> tuple[FrameSignal, ...]:
+        """Per frame, whether it carries signal between the noise floor and ``Z`` of ``p``
+        (checked parameters), from the cached whole-frame histograms."""
+        hists = self._histograms(p, [] if ran is None else ran, {} if timings is None else timings)
+        return tuple(
+            frame_signal(hists.counts[k], noise_floor=float(p.noise_floor),
+                         saturation=float(p.saturation), index=k, path=f.path)
+            for k, f in enumerate(self.bracket.frames)
+        )
+
+    def _histograms(self, p: PipelineParams, ran: list[str],
+                    timings: dict[str, float]) -> BracketHistograms:
+        if self._excluded_key != (p.exclude_colour,):
+            self._excluded = self._exclusions(p)
+            self._excluded_key = (p.exclude_colour,)
+        excluded = self._excluded
+        use = None if excluded is None else ~excluded[1]
+        levels = [f.levels for f in self.bracket.frames]
+        return self._stage(
+            "histograms", p.exclude_colour,
+            lambda: bracket_histograms(levels, self.bracket.max_level, mask=use), ran, timings,
+        )
 
     # -- cache ------------------------------------------------------------------------------
 
@@ -463,6 +539,8 @@ class Pipeline:
             if self.reuse_buffers and "merge" in self._cache:
                 self._spare = self._cache["merge"].value[0]
             self._cache.clear()
+            self._subsets.clear()
+            self._active_subset = None
 
     def release(self, result: Any) -> None:
         """The caller no longer uses ``result`` (a :class:`PipelineResult` or its
@@ -471,6 +549,10 @@ class Pipeline:
         earlier released result is simply dropped."""
         merged = getattr(result, "merge", result)
         if merged is None or not hasattr(merged, "radiance"):
+            return
+        sub = self._active_subset
+        if sub is not None and getattr(merged, "n_frames", len(sub.bracket)) == len(sub.bracket):
+            sub.release(merged)  # the frames in use are the subset's
             return
         b = self.bracket
         if (merged.radiance.shape[:2] != tuple(b.shape)
@@ -515,17 +597,61 @@ class Pipeline:
             raise ParameterError(f"unknown stage {until!r}", expected=", ".join(STAGES))
         with self._lock:
             p_in = params or self.params
+            reference = p_in.reference
             if p_in.noise_floor is None:
                 p_in = replace(p_in, noise_floor=self.auto_noise_floor(p_in.exclude_colour))
             p = self._check(p_in)
             self.params = p
-            return self._run(p, STAGES.index(until))
+            ran: list[str] = []
+            timings: dict[str, float] = {}
+            t_start = time.perf_counter()
+            signals = self.frame_signals(p, ran, timings)
+            if all(sig.usable for sig in signals):
+                self._active_subset = None
+                return self._run(p, STAGES.index(until), signals, ran, timings, t_start)
+            return self._run_subset(p, reference, signals, until)
 
-    def _run(self, p: PipelineParams, last: int) -> PipelineResult:
+    def _run_subset(self, p: PipelineParams, reference: int | None,
+                    signals: tuple[FrameSignal, ...], until: str) -> PipelineResult:
+        """Run without the frames that carry no signal (black, saturated): they are left out of
+        every stage, the rest of the bracket is merged, and the result says which and why."""
         b = self.bracket
-        ran: list[str] = []
-        timings: dict[str, float] = {}
-        t_start = time.perf_counter()
+        keep = tuple(sig.index for sig in signals if sig.usable)
+        unused = tuple(sig for sig in signals if not sig.usable)
+        if len(keep) < 2:
+            from pathlib import Path
+
+            raise EstimationError(
+                "fewer than two frames of the bracket carry signal between the noise floor "
+                f"({p.noise_floor:g}) and the saturation level ({p.saturation:g}): "
+                + "; ".join(f"{Path(sig.path).name} is {sig.reason}" for sig in unused)
+                + ("" if not keep else
+                   f"; only {Path(b.frames[keep[0]].path).name} is usable"),
+                expected="at least two frames with signal",
+                found=f"{len(keep)} usable of {len(b)}",
+            )
+        sub = self._subsets.get(keep)
+        if sub is None:
+            sub = Pipeline(_sub_bracket(b, keep), progress=self.progress,
+                           reuse_buffers=self.reuse_buffers)
+            sub._noise = self.noise()
+            self._subsets[keep] = sub
+        self._active_subset = sub
+        ref = None
+        if reference is not None:
+            # The kept frame nearest to the one asked for (the darker one on a tie).
+            ref = min(range(len(keep)), key=lambda i: (abs(keep[i] - int(reference)), keep[i]))
+        res = sub.run(replace(p, reference=ref), until=until)
+        res = replace(res, full_bracket=b, unused_frames=unused, frame_signals=signals,
+                      noise=self.noise())
+        res = replace(res, verdicts=tuple(diagnose(res)))
+        if until == STAGES[-1] or self.last_result is None:
+            self.last_result = res
+        return res
+
+    def _run(self, p: PipelineParams, last: int, signals: tuple[FrameSignal, ...],
+             ran: list[str], timings: dict[str, float], t_start: float) -> PipelineResult:
+        b = self.bracket
         levels = [f.levels for f in b.frames]
         m = b.max_level
         upto = STAGES[last]
@@ -533,15 +659,9 @@ class Pipeline:
         def want(stage: str) -> bool:
             return STAGES.index(stage) <= last
 
-        if self._excluded_key != (p.exclude_colour,):
-            self._excluded = self._exclusions(p)
-            self._excluded_key = (p.exclude_colour,)
+        hists = self._histograms(p, ran, timings)
         excluded = self._excluded
         use = None if excluded is None else ~excluded[1]
-        hists = self._stage(
-            "histograms", p.exclude_colour, lambda: bracket_histograms(levels, m, mask=use),
-            ran, timings,
-        )
         resp_key = (_response_key(p.response, b.is_linear), p.exclude_colour)
         response = self._stage(
             "response", resp_key, lambda: self._response(p), ran, timings
@@ -621,7 +741,8 @@ class Pipeline:
             exposures=exposures, exposures_histogram=exposures_hist, exposure_times=times,
             times_source=times_source, registration=registration, merge=merge_result,
             radiance=radiance, colour=colour_info, preview=preview, preview_factor=factor,
-            timings=timings, stages_run=tuple(ran), until=upto,
+            timings=timings, stages_run=tuple(ran), until=upto, noise=self.noise(),
+            frame_signals=signals,
         )
         res = replace(res, verdicts=tuple(diagnose(res)))
         if upto == STAGES[-1] or self.last_result is None:
@@ -662,6 +783,16 @@ class Pipeline:
         excluded = self._excluded
         if excluded is not None and isinstance(spec, str) and spec.lower() in method_names:
             extra["mask"] = ~excluded[1]
+        if times is not None and isinstance(spec, str) and spec.lower() in method_names:
+            # A doubled shot (two frames of one exposure) adds nothing to the response fit,
+            # which needs distinct exposures: one frame of each exposure is used.
+            distinct: list[int] = []
+            for k, t in enumerate(times):
+                if t is None or all(abs(t / times[j] - 1.0) > 1e-3 for j in distinct):
+                    distinct.append(k)
+            if len(distinct) < len(times):
+                levels = [levels[k] for k in distinct]
+                times = tuple(times[k] for k in distinct)
         curve = resolve_response(spec, levels, times, max_level=b.max_level, n_channels=3,
                                  **extra)
         return curve
@@ -847,7 +978,7 @@ class Pipeline:
                     masks.append(~(moved > 0.01))
                 else:
                     masks.append(~gone)
-        noise = _noise_model(b)
+        noise = _noise_model(b, self.noise())
         colour, colour_info = self._colour(p)
         result = merge(
             levels, times, response=lut, max_level=b.max_level, masks=masks,
@@ -892,18 +1023,38 @@ class Pipeline:
         return tonemap(small, p.tonemap, exposure=p.tonemap_exposure), factor
 
 
+def _sub_bracket(b: Bracket, keep: tuple[int, ...]) -> Bracket:
+    """The bracket of frames ``keep`` (indices into ``b``), its warnings re-indexed."""
+    new_index = {k: i for i, k in enumerate(keep)}
+    # What a left-out frame's own warnings said (black, saturated, darker than a shorter
+    # exposure) is said again, better, by the verdict on the frames not used.
+    about_frame = {"frame-black", "frame-saturated", "out-of-order", "times-swapped"}
+    warnings = tuple(
+        replace(w, frames=tuple(new_index[k] for k in w.frames if k in new_index))
+        for w in b.warnings
+        if not (w.code in about_frame and any(k not in new_index for k in w.frames))
+    )
+    return Bracket(frames=tuple(b.frames[k] for k in keep), warnings=warnings,
+                   order_source=b.order_source,
+                   input_order=tuple(b.input_order[k] for k in keep))
+
+
 def colour_masks(levels: list[np.ndarray], colour) -> list[np.ndarray]:
     """Per frame, True where a pixel of ``(H, W, 3)`` levels is exactly ``colour``."""
     c = np.asarray(colour, dtype=np.int64)
     return [(lv[..., 0] == c[0]) & (lv[..., 1] == c[1]) & (lv[..., 2] == c[2]) for lv in levels]
 
 
-def _noise_model(bracket: Bracket) -> NoiseModel:
-    """A noise model for the merge weights: read noise of ~2 levels for RAW, quantisation else."""
+def _noise_model(bracket: Bracket, noise: BracketNoise) -> NoiseModel:
+    """The merge's noise model (weights and ghost test) from the noise measured on the frames:
+    RAW, read noise ``sigma / max_level`` (at least one level: demosaicing and black-level
+    drift add to the measured sigma); non-linear frames, noise in output levels (at least one
+    level, JPEG compression)."""
     m = bracket.max_level
+    sigma = noise.sigma if math.isfinite(noise.sigma) else 0.0
     if bracket.is_linear:
-        return NoiseModel(read_noise=2.0 / m, full_well=None, level_noise=0.0)
-    return NoiseModel(read_noise=0.0, full_well=None, level_noise=1.0)
+        return NoiseModel(read_noise=max(sigma, 1.0) / m, full_well=None, level_noise=0.0)
+    return NoiseModel(read_noise=0.0, full_well=None, level_noise=max(sigma, 1.0))
 
 
 def _response_key(spec: Any, linear: bool) -> Any:

@@ -19,6 +19,7 @@ __all__ = [
     "check_outputs_first",
     "parse_colour",
     "load_bracket_from_args",
+    "print_unused_frames",
     "print_json",
     "print_warnings",
     "to_jsonable",
@@ -119,3 +120,10 @@ def print_json(obj: Any) -> None:
 def print_warnings(bracket: Bracket) -> None:
     for w in bracket.warnings:
         print(f"hdrcore: warning: {w.message}", file=sys.stderr)
+
+
+def print_unused_frames(result: Any) -> None:
+    """One warning line per frame the pipeline left out (black or saturated)."""
+    for u in getattr(result, "unused_frames", ()):
+        name = u.path.replace("\\", "/").rsplit("/", 1)[-1]
+        print(f"hdrcore: warning: {name} is not used: it is {u.reason}", file=sys.stderr)

@@ -19,6 +19,7 @@ from ._common import (
     add_level_arguments,
     load_bracket_from_args,
     print_json,
+    print_unused_frames,
     print_warnings,
 )
 
@@ -60,12 +61,15 @@ def run(args: argparse.Namespace) -> int:
         registration_previews=False,
     )
     result = Pipeline(bracket, params).run(until="registration")
+    print_unused_frames(result)
     reg = result.registration
     assert reg is not None  # align is never "none" here
     out = registration_json(reg)
     out["model"] = reg.model
     out["method"] = reg.method
     out["ratios_source"] = result.times_source
+    out["frames"] = [f.path for f in result.bracket.frames]
+    out["frames_not_used"] = [u.to_json() for u in result.unused_frames]
     extra = ("ratio", "overlap", "iterations", "seconds")
     for d, p in zip(out["pairs"], reg.pairs, strict=True):
         js = p.to_json()

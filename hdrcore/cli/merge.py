@@ -135,7 +135,7 @@ def run(args: argparse.Namespace) -> int:
         exposure_times=result.exposure_times,
         exposure_ratios=result.exposures.ratios,
         transforms=result.to_reference,
-        sources=inputs,
+        sources=list(result.bracket.paths),
         metadata={
             "reference": None if result.registration is None else result.registration.reference,
             "times_source": result.times_source,

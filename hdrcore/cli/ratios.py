@@ -14,6 +14,7 @@ from ._common import (
     add_level_arguments,
     load_bracket_from_args,
     print_json,
+    print_unused_frames,
     print_warnings,
 )
 
@@ -69,15 +70,24 @@ def run(args: argparse.Namespace) -> int:
     if args.registered and args.noise_sigma is not None:
         raise ParameterError("--noise-sigma applies to the histogram estimate, not --registered")
     pres = Pipeline(bracket, params).run(until="overlap_ratios" if args.registered else "ratios")
+    print_unused_frames(pres)
     res = pres.exposures
+    bracket = pres.bracket  # the frames used: a black or saturated frame is left out
     if args.noise_sigma is not None:
+        levels = [f.levels for f in bracket.frames]
+        times = [None if f.meta.exposure_time is None else float(f.meta.exposure_time)
+                 for f in bracket.frames]
+        mask = None if args.exclude_colour is None else colour_mask(levels, args.exclude_colour)
         res = bracket_exposures(
             levels, max_level, method=args.method, exposure_times=times, mask=mask,
             saturation=pres.saturation, noise_floor=pres.noise_floor, lut=pres.lut,
             noise_sigma=args.noise_sigma,
         )
     out = {"masked_fraction": None if mask is None else float(1.0 - mask.mean()),
-           "method": res.method, **ratios_json(bracket, res)}
+           "method": res.method, **ratios_json(bracket, res),
+           "frames_not_used": [u.to_json() for u in pres.unused_frames],
+           "noise": None if pres.noise is None else pres.noise.to_json(),
+           "noise_floor_used": pres.noise_floor, "saturation_used": pres.saturation}
     for d, p in zip(out["pairs"], res.pairs, strict=True):
         d["region_std_error"] = p.to_json()["region_std_error"]
     if args.json:
