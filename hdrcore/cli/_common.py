@@ -74,8 +74,10 @@ def add_level_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--noise-floor", type=float, metavar="N",
-        help="noise floor in levels (default 2%% of the largest level, at least 3, raised "
-             "above a black pedestal of the darkest frame)",
+        help="noise floor in levels (default: 3 x the read noise measured from the frames "
+             "(RAW: optical-black pixels or the darkest flat regions), at least 2 levels; "
+             "JPEG/PNG/TIFF: at least 2%% of the largest level; raised above a black pedestal "
+             "of the darkest frame)",
     )
 
 
