@@ -18,14 +18,37 @@ from .dng import (
     mosaic,
     write_dng,
 )
+from .faults import (
+    DARK_RAW_12BIT,
+    SEED_PROTOCOL,
+    WIDE_RAW_14BIT,
+    BracketSpec,
+    Fault,
+    FaultyBracket,
+    write_black_frames,
+    write_dark_raw_bracket,
+    write_dark_scene,
+    write_duplicate_exposure,
+    write_one_usable_frame,
+    write_saturated_frame,
+    write_swapped_times,
+    write_unregistrable_tripod,
+    write_wide_raw_pair,
+)
 from .scenes import SCENES, fractal_noise, make_scene
 from .writer import FORMATS, WrittenBracket, write_bracket
 
 __all__ = [
     "CFA_PATTERNS",
+    "DARK_RAW_12BIT",
     "FORMATS",
     "RESPONSES",
     "SCENES",
+    "SEED_PROTOCOL",
+    "WIDE_RAW_14BIT",
+    "BracketSpec",
+    "Fault",
+    "FaultyBracket",
     "SimulatedBracket",
     "WrittenBracket",
     "apply_response",
@@ -40,6 +63,15 @@ __all__ = [
     "pair_matrix",
     "rigid_matrix",
     "simulate_bracket",
+    "write_black_frames",
     "write_bracket",
+    "write_dark_raw_bracket",
+    "write_dark_scene",
     "write_dng",
+    "write_duplicate_exposure",
+    "write_one_usable_frame",
+    "write_saturated_frame",
+    "write_swapped_times",
+    "write_unregistrable_tripod",
+    "write_wide_raw_pair",
 ]
