@@ -88,7 +88,9 @@ def _unused_frames(result: PipelineResult) -> list[Verdict]:
     used = [k for k in range(len(full)) if k not in {u.index for u in unused}]
     out = []
     for kind, meaning in (("black", "below the noise floor everywhere"),
-                          ("saturated", "clipped everywhere")):
+                          ("saturated", "clipped everywhere"),
+                          ("unlinked", "no exposure ratio to the other frames could be "
+                           "measured and the files carry no exposure times")):
         ks = [u.index for u in unused if u.status == kind]
         if not ks:
             continue

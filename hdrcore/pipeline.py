@@ -92,6 +92,34 @@ ProgressCallback = Callable[[str, float, str], None]
 NONLINEAR_MODEL_ERROR = 0.10
 
 
+class _Unlinked(Exception):  # noqa: N818 - internal signal, never leaves the pipeline
+    """Raised by the times stage when a pair has neither a measured ratio nor EXIF times: the
+    frames ``keep`` (indices into the bracket run) stay linked, ``drop`` are left out."""
+
+    def __init__(self, keep: tuple[int, ...], drop: tuple[int, ...], why: str) -> None:
+        super().__init__(why)
+        self.keep, self.drop, self.why = keep, drop, why
+
+
+def _raise_unlinked(n: int, broken: list[int], why: str) -> None:
+    """Pairs ``broken`` (consecutive, ``k``-``k + 1``) have neither a measured ratio nor EXIF
+    times: the bracket falls apart into runs of linked frames. The largest run is kept (the
+    brighter one on a tie: it holds the mid-tones), the others are left out with a verdict."""
+    runs, start = [], 0
+    for k in broken:
+        runs.append(tuple(range(start, k + 1)))
+        start = k + 1
+    runs.append(tuple(range(start, n)))
+    keep = max(runs, key=lambda run: (len(run), run[-1]))
+    if len(keep) < 2:
+        raise EstimationError(
+            f"the exposure ratio of frames {broken[0]} and {broken[0] + 1} could not be "
+            f"measured ({why}) and the frames carry no exposure times to fall back on, so no "
+            "two frames are linked; give the times with --times",
+        )
+    raise _Unlinked(keep, tuple(k for k in range(n) if k not in keep), why)
+
+
 class Cancelled(Exception):  # noqa: N818 - reads as "raise Cancelled" at the call site
     """Raised by a progress callback to stop a run early (e.g. a newer request superseded it).
 
@@ -608,7 +636,13 @@ class Pipeline:
             signals = self.frame_signals(p, ran, timings)
             if all(sig.usable for sig in signals):
                 self._active_subset = None
-                return self._run(p, STAGES.index(until), signals, ran, timings, t_start)
+                try:
+                    return self._run(p, STAGES.index(until), signals, ran, timings, t_start)
+                except _Unlinked as gap:
+                    signals = tuple(
+                        replace(sig, status="unlinked") if sig.index in gap.drop else sig
+                        for sig in signals
+                    )
             return self._run_subset(p, reference, signals, until)
 
     def _run_subset(self, p: PipelineParams, reference: int | None,
@@ -772,6 +806,10 @@ class Pipeline:
                 hists, method=p.exposure_method, lut=srgb_lut(b.max_level),
             )
             rel = np.asarray(rough.relative_exposures, float)
+            broken = [k for k, pr in enumerate(rough.pairs)
+                      if not (np.isfinite(pr.ratio) and pr.ratio > 0)]
+            if broken and len(b) > 2:
+                _raise_unlinked(len(b), broken, rough.pairs[broken[0]].message)
             if not np.all(np.isfinite(rel) & (rel > 0)):
                 raise EstimationError(
                     f"response method {spec!r} needs exposure times: the frames carry none "
@@ -836,6 +874,7 @@ class Pipeline:
             else:  # not connected to frame 0 through measured pairs: the pair's own estimate
                 ratios.append(float(exposures.pairs[k].ratio))
         fallback = []
+        broken = []
         for k, pair in enumerate(exposures.pairs):
             r = ratios[k]
             exif_r = None if exif[k] is None or exif[k + 1] is None else exif[k + 1] / exif[k]
@@ -846,11 +885,9 @@ class Pipeline:
                 ratios[k] = float(exif_r)
                 fallback.append(k)
             elif not good:
-                raise EstimationError(
-                    f"the exposure ratio of frames {k} and {k + 1} could not be measured "
-                    f"({pair.message}) and the frames carry no exposure times to fall back on; "
-                    "give them with --times",
-                )
+                broken.append(k)
+        if broken:
+            _raise_unlinked(n, broken, exposures.pairs[broken[0]].message)
         rel = np.concatenate([[1.0], np.cumprod(ratios)])
         if fallback:
             source = "estimated; EXIF for pairs " + ", ".join(f"{k}-{k + 1}" for k in fallback)

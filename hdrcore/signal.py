@@ -29,7 +29,8 @@ MIN_SIGNAL_FRACTION = 1e-4
 
 @dataclass(frozen=True)
 class FrameSignal:
-    """How much of a frame is usable. ``status``: ``"ok"``, ``"black"`` or ``"saturated"``.
+    """How much of a frame is usable. ``status``: ``"ok"``, ``"black"``, ``"saturated"`` or
+    ``"unlinked"`` (set by the pipeline: no ratio links it to the frames merged, no EXIF time).
 
     ``signal_fraction``: pixels strictly between twice the noise floor and ``Z`` (mean over the
     channels); ``black_fraction`` at or below the floor; ``saturated_fraction`` at or above ``Z``.
@@ -52,6 +53,9 @@ class FrameSignal:
         if self.status == "black":
             return (f"black: {self.black_fraction:.1%} of its pixels are at or below the noise "
                     f"floor and only {self.signal_fraction:.3%} carry signal")
+        if self.status == "unlinked":
+            return ("not linked to the other frames: no exposure ratio to them could be "
+                    "measured (no brightness overlap) and the files carry no exposure times")
         if self.status == "saturated":
             return (f"saturated: {self.saturated_fraction:.1%} of its pixels are at or above the "
                     f"saturation level and only {self.signal_fraction:.3%} carry signal")
