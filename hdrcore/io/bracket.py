@@ -9,24 +9,49 @@ different sizes, a mix of RAW and non-linear frames) raise :class:`BracketError`
 
 from __future__ import annotations
 
+import math
 import os
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from fractions import Fraction
+from functools import cmp_to_key
 from pathlib import Path
 
 import numpy as np
 
 from .._threads import thread_map
 from ..errors import BracketError, ImageReadError, InputError
-from .frame import Frame
+from .apex import bracket_sequence, snap_exposure_time, snap_f_number
+from .frame import Frame, FrameMetadata
 from .ldr import read_ldr, sniff_format
 from .raw import is_raw_path, read_raw
 from .times import read_exposure_times
 
-__all__ = ["BracketWarning", "Bracket", "load_frame", "load_bracket", "expand_paths"]
+__all__ = [
+    "BracketWarning",
+    "Bracket",
+    "load_frame",
+    "load_bracket",
+    "expand_paths",
+    "recorded_exposures",
+    "snap_frames",
+    "brightness_order",
+]
 
 IMAGE_EXTENSIONS = frozenset({".jpg", ".jpeg", ".png", ".tif", ".tiff"})
+
+#: Two recorded exposures closer than this (in stops) are the same exposure: 1/24 stop (2.9 %)
+#: covers the rounding of nominal ISO values (ISO 500 is 2^(7/3) x 100 = 504), while the
+#: smallest bracketing step is 1/3 stop.
+DUPLICATE_EXPOSURE_STOPS = 1.0 / 24.0
+#: Frame ``b`` is *clearly* brighter than frame ``a`` when, over the same pixels, it is brighter
+#: at more pixels than it is darker by this fraction of all pixels (and brighter on average).
+#: Correctly ordered pairs of the real brackets of ../shared/data score 0.65-0.98 (1/3-stop phone
+#: pairs of the Xperia bracket: 0.65-0.96); the darkest film scans of memorial, fog and scanner
+#: noise with 1-stop steps, score -0.37 .. 0.28 (they carry no brightness information), so 0.5
+#: separates them.
+CLEAR_ORDER_SCORE = 0.5
+_BRIGHTNESS_SAMPLES = 65536
 
 
 @dataclass(frozen=True)
@@ -82,33 +107,30 @@ class Bracket:
     def has_exposure_times(self) -> bool:
         return all(t is not None for t in self.exposure_times)
 
-    def exif_exposures(self) -> tuple[float | None, ...]:
-        """Recorded exposure ``t * (ISO / ISO_0) / (N / N_0)^2`` relative to frame 0's settings.
+    @property
+    def apex_sequence(self) -> str | None:
+        """The APEX sequence (``"1/3-stop"``, ``"1/2-stop"``) of the frames' nominal EXIF times,
+        ``None`` when no time was snapped (exact times, a times file)."""
+        seqs = {f.meta.exposure_time_sequence for f in self.frames} - {None}
+        if not seqs:
+            return None
+        return next(iter(seqs)) if len(seqs) == 1 else ", ".join(sorted(seqs))  # type: ignore[arg-type]
 
-        ISO and aperture terms are applied only when known for both frames; ``None`` where the
-        exposure time is unknown.
+    def exif_exposures(self, snapped: bool = True) -> tuple[float | None, ...]:
+        """Recorded exposure ``t * (ISO / ISO_0) * (N_0 / N)^2`` relative to frame 0's settings.
+
+        ``snapped`` (default) uses the APEX-snapped time and f-number where the tags are nominal
+        values (:mod:`hdrcore.io.apex`), ``snapped=False`` the tags as read. See
+        :func:`recorded_exposures`; ``None`` where the exposure time is unknown.
         """
-        first = self.frames[0].meta
-        out: list[float | None] = []
-        for f in self.frames:
-            m = f.meta
-            if m.exposure_time is None:
-                out.append(None)
-                continue
-            e = float(m.exposure_time)
-            if m.iso and first.iso:
-                e *= m.iso / first.iso
-            if m.f_number and first.f_number:
-                e *= float(first.f_number / m.f_number) ** 2
-            out.append(e)
-        return tuple(out)
+        return recorded_exposures([f.meta for f in self.frames], snapped=snapped)
 
-    def exif_ratio(self, dark: int, bright: int) -> float | None:
+    def exif_ratio(self, dark: int, bright: int, snapped: bool = True) -> float | None:
         """Exposure ratio the metadata implies for frames ``bright`` over ``dark``, or ``None``."""
-        e = self.exif_exposures()
+        e = self.exif_exposures(snapped)
         if e[dark] is None or e[bright] is None or e[dark] == 0:
             return None
-        return e[bright] / e[dark]
+        return e[bright] / e[dark]  # type: ignore[operator]
 
     def warning_codes(self) -> tuple[str, ...]:
         return tuple(w.code for w in self.warnings)
@@ -133,7 +155,10 @@ def expand_paths(paths: Iterable[str | os.PathLike]) -> list[Path]:
 
 
 def load_frame(path: str | os.PathLike, *, raw_half_size: bool = False) -> Frame:
-    """Read one frame, choosing the reader from the file's content (RAW by extension)."""
+    """Read one frame, choosing the reader from the file's content (RAW by extension).
+
+    A nominal EXIF time (and f-number) also gets its APEX-snapped value (:func:`snap_frames`).
+    """
     p = Path(path)
     if not p.exists():
         raise InputError("file not found", path=p)
@@ -146,13 +171,178 @@ def load_frame(path: str | os.PathLike, *, raw_half_size: bool = False) -> Frame
     except OSError as exc:
         raise InputError(f"cannot read file ({exc.strerror})", path=p) from exc
     if is_raw_path(p):
-        return read_raw(p, half_size=raw_half_size)
+        return snap_frames([read_raw(p, half_size=raw_half_size)])[0]
     if fmt is None:
         raise ImageReadError(
             "not a recognised image", path=p,
             expected="JPEG, PNG, TIFF or a camera RAW file (.dng, .cr2, .nef, ...)",
         )
-    return read_ldr(p, fmt)
+    return snap_frames([read_ldr(p, fmt)])[0]
+
+
+def snap_frames(frames: Sequence[Frame]) -> list[Frame]:
+    """The frames with ``exposure_time_apex`` / ``f_number_apex`` set for one bracket.
+
+    Only EXIF times are snapped (a times file holds exact values, LibRaw's time is already the
+    APEX value); the bracket's sequence (:func:`~hdrcore.io.apex.bracket_sequence`) decides the
+    values nominal in both sequences, and f-numbers are snapped on that sequence only.
+    """
+    exif = [f.meta.exposure_time if f.meta.exposure_time_source == "exif" else None
+            for f in frames]
+    seq = bracket_sequence(exif)
+    out = []
+    for f, t in zip(frames, exif, strict=True):
+        t_apex = t_seq = n_apex = None
+        if t is not None and seq is not None:
+            value, which = snap_exposure_time(t, seq)
+            if which is not None:
+                t_apex, t_seq = value, which
+        if f.meta.f_number is not None and seq is not None:
+            value, which = snap_f_number(f.meta.f_number, seq)
+            if which == seq:
+                n_apex = value
+        out.append(f.with_meta(exposure_time_apex=t_apex, exposure_time_sequence=t_seq,
+                               f_number_apex=n_apex))
+    return out
+
+
+def recorded_exposures(
+    metas: Sequence[FrameMetadata], *, snapped: bool = True
+) -> tuple[float | None, ...]:
+    """Each frame's recorded exposure ``t * (ISO / ISO_0) * (N_0 / N)^2``.
+
+    ``ISO_0`` and ``N_0`` are the first frame's (the values are relative to its settings). The
+    ISO term is applied when every frame with a time records its ISO, the aperture term when
+    every one records its f-number (a term known for some frames only cannot be compared, so it
+    is left out for all). ``snapped`` uses the APEX-snapped time and f-number where the tags are
+    nominal (:attr:`FrameMetadata.exposure_time_actual`). ``None`` where the time is unknown.
+    """
+    timed = [m for m in metas if m.exposure_time is not None]
+    use_iso = bool(timed) and all(m.iso for m in timed)
+    use_n = bool(timed) and all(m.f_number for m in timed)
+    iso0 = timed[0].iso if use_iso else None
+
+    def n_of(m: FrameMetadata) -> float:
+        return float(m.f_number_actual if snapped else m.f_number)  # type: ignore[arg-type]
+
+    n0 = n_of(timed[0]) if use_n else None
+    out: list[float | None] = []
+    for m in metas:
+        if m.exposure_time is None:
+            out.append(None)
+            continue
+        e = float(m.exposure_time_actual if snapped else m.exposure_time)  # type: ignore[arg-type]
+        if use_iso:
+            e *= m.iso / iso0  # type: ignore[operator]
+        if use_n:
+            e *= (n0 / n_of(m)) ** 2  # type: ignore[operator]
+        out.append(e)
+    return tuple(out)
+
+
+def _seconds(t: Fraction | None) -> str:
+    """``1/16 s``, ``1/802.8 s``, ``0.3 s``, ``8 s``."""
+    if t is None:
+        return "unknown time"
+    if t < 1 and t.numerator == 1:
+        return f"1/{t.denominator} s"
+    if t < Fraction(1, 4):
+        return f"1/{1 / float(t):.4g} s"
+    return f"{float(t):g} s"
+
+
+def _brightness_samples(frame: Frame) -> np.ndarray:
+    """The frame's levels summed over channels on a regular grid of about 65k pixels."""
+    step = max(1, int(math.sqrt(frame.levels.shape[0] * frame.levels.shape[1]
+                                / _BRIGHTNESS_SAMPLES)))
+    return frame.levels[::step, ::step].astype(np.int32).sum(axis=-1)
+
+
+def brightness_order(
+    frames: Sequence[Frame], order: Sequence[int]
+) -> tuple[list[int], list[tuple[int, int]]]:
+    """``order`` (frame indices, darkest first by recorded exposure) corrected by the pixels.
+
+    Two frames are compared pixel by pixel on the same grid: ``score(a, b)`` is the fraction of
+    pixels brighter in ``b`` minus the fraction brighter in ``a``. Since every pixel's level
+    grows with exposure (clipping included), ``b`` is *clearly* brighter than ``a`` when the
+    score exceeds :data:`CLEAR_ORDER_SCORE` and its mean level is higher too. Frames that are
+    almost all black or saturated tie at nearly every pixel, so they never contradict anything.
+    Returns the order the pixels support (``order`` itself when nothing is contradicted: only
+    clear pairs move) and the contradicted pairs ``(a, b)``: ``a`` has the shorter recorded
+    exposure but is clearly brighter than ``b``.
+    """
+    samples: dict[int, np.ndarray] = {}
+    means: dict[int, float] = {}
+
+    def sample(k: int) -> np.ndarray:
+        if k not in samples:
+            samples[k] = _brightness_samples(frames[k])
+            means[k] = float(samples[k].mean())
+        return samples[k]
+
+    scores: dict[tuple[int, int], float] = {}
+
+    def brighter(a: int, b: int) -> bool:
+        """Is ``b`` clearly brighter than ``a``?"""
+        if (a, b) not in scores:
+            d = np.sign(sample(b) - sample(a))
+            scores[(a, b)] = float(d.mean())
+            scores[(b, a)] = -scores[(a, b)]
+        return scores[(a, b)] > CLEAR_ORDER_SCORE and means[b] > means[a]
+
+    order = list(order)
+    contradicted = [
+        (order[i], order[j])
+        for i in range(len(order)) for j in range(i + 1, len(order))
+        if brighter(order[j], order[i])
+    ]
+    if not contradicted:
+        return order, []
+    position = {k: i for i, k in enumerate(order)}
+
+    def compare(a: int, b: int) -> int:
+        if brighter(a, b):
+            return -1
+        if brighter(b, a):
+            return 1
+        return position[a] - position[b]
+
+    return sorted(order, key=cmp_to_key(compare)), contradicted
+
+
+def _order_warning(
+    frames: Sequence[Frame], by_exposure: list[int], by_brightness: list[int],
+    contradicted: list[tuple[int, int]], describe: Callable[[int], str],
+) -> BracketWarning:
+    """``times-swapped`` when the pixels' order is the recorded one with two frames exchanged,
+    else ``out-of-order``. ``by_exposure``, ``by_brightness`` and ``contradicted`` hold indices
+    into ``frames``; the warning's ``frames`` are positions in the final (brightness) order."""
+    name = [f.name for f in frames]
+    final = {k: i for i, k in enumerate(by_brightness)}
+    moved = [i for i in range(len(by_exposure)) if by_exposure[i] != by_brightness[i]]
+    if len(moved) == 2:
+        a, b = by_exposure[moved[0]], by_exposure[moved[1]]  # a: shorter exposure, brighter
+        return BracketWarning(
+            "times-swapped",
+            f"{name[a]} ({describe(a)}) is brighter than {name[b]} ({describe(b)}): the times "
+            "look swapped; the frames are ordered by brightness (each keeps the time it was "
+            "given, so their exposure ratio from the times comes out below 1)",
+            tuple(sorted((final[a], final[b]))),
+        )
+    pairs = "; ".join(
+        f"{name[a]} ({describe(a)}) is brighter than {name[b]} ({describe(b)})"
+        for a, b in contradicted[:4]
+    )
+    more = f" and {len(contradicted) - 4} more" if len(contradicted) > 4 else ""
+    involved = sorted({final[k] for pair in contradicted for k in pair})
+    return BracketWarning(
+        "out-of-order",
+        f"brightness contradicts the recorded exposures: {pairs}{more}; the times or the files "
+        "are wrong. The frames are ordered by brightness, darkest first: "
+        + ", ".join(name[k] for k in by_brightness),
+        tuple(involved),
+    )
 
 
 def _check_consistent(frames: list[Frame]) -> None:
@@ -176,7 +366,7 @@ def _check_consistent(frames: list[Frame]) -> None:
             )
 
 
-def _capture_warnings(frames: list[Frame], order_source: str) -> list[BracketWarning]:
+def _capture_warnings(frames: list[Frame]) -> list[BracketWarning]:
     warns: list[BracketWarning] = []
     n = len(frames)
     names = [f.name for f in frames]
@@ -194,19 +384,36 @@ def _capture_warnings(frames: list[Frame], order_source: str) -> list[BracketWar
             "exposure time unknown for " + ", ".join(names[k] for k in missing),
             missing,
         ))
+    timed = [k for k, t in enumerate(times) if t is not None]
 
-    def changed(attr: str, code: str, label: str, fmt: Callable[[object], str]) -> None:
+    def changed(attr: str, code: str, label: str, fmt: Callable[[object], str],
+                term: str) -> None:
         values = [getattr(f.meta, attr) for f in frames]
         known = [(k, v) for k, v in enumerate(values) if v is not None]
-        if len({v for _, v in known}) > 1:
-            desc = ", ".join(f"{names[k]} {fmt(v)}" for k, v in known)
-            warns.append(BracketWarning(
-                code, f"{label} changed between frames ({desc}); brackets should vary only the "
-                "exposure time", tuple(k for k, _ in known),
-            ))
+        if len({v for _, v in known}) <= 1:
+            return
+        desc = ", ".join(f"{names[k]} {fmt(v)}" for k, v in known)
+        if timed and all(values[k] is not None for k in timed):
+            used = (f"the exposure used to order and chain the frames is time x {term}, so it "
+                    f"includes the {label} change")
+        else:
+            used = (f"the {label} is not recorded for every frame, so the exposure used to "
+                    f"order and chain the frames leaves it out")
+        # Frames that share one exposure time differ by this setting alone.
+        shared = []
+        for t in sorted({times[k] for k in timed}):  # type: ignore[type-var]
+            same = [k for k in timed if times[k] == t]
+            if len(same) > 1 and len({values[k] for k in same}) > 1:
+                shared.append(f"{', '.join(names[k] for k in same)} share {_seconds(t)}")
+        also = f" ({'; '.join(shared)}: only their {label} differs)" if shared else ""
+        warns.append(BracketWarning(
+            code, f"{label} changed between frames ({desc}){also}; {used}",
+            tuple(k for k, _ in known),
+        ))
 
-    changed("f_number", "aperture-changed", "aperture", lambda v: f"f/{float(v):g}")
-    changed("iso", "iso-changed", "ISO", lambda v: f"ISO {v}")
+    changed("f_number", "aperture-changed", "aperture", lambda v: f"f/{float(v):g}",
+            "(N_0 / N)^2")
+    changed("iso", "iso-changed", "ISO", lambda v: f"ISO {v}", "ISO / ISO_0")
     cams = [f.meta.camera for f in frames]
     known_cams = {c for c in cams if c}
     if len(known_cams) > 1:
@@ -214,36 +421,56 @@ def _capture_warnings(frames: list[Frame], order_source: str) -> list[BracketWar
             "mixed-cameras", "frames come from different cameras: " + ", ".join(sorted(known_cams)),
             tuple(range(n)),
         ))
-    # Duplicate exposures: same time (and same aperture and ISO when known).
-    seen: dict[tuple, int] = {}
-    for k, f in enumerate(frames):
-        m = f.meta
-        if m.exposure_time is None:
-            continue
-        key = (m.exposure_time, m.f_number, m.iso)
-        if key in seen:
-            j = seen[key]
-            warns.append(BracketWarning(
-                "duplicate-exposure",
-                f"{names[j]} and {names[k]} have the same exposure ({float(m.exposure_time):g} s)",
-                (j, k),
-            ))
-        else:
-            seen[key] = k
-    # Brightness must grow with exposure time; a frame that is darker than a shorter exposure
-    # points to wrong EXIF or a mislabelled file.
-    if order_source == "exposure_time":
-        means = [f.mean_level() for f in frames]
-        for k in range(n - 1):
-            if times[k] == times[k + 1]:
+    # Duplicate exposures: the same recorded exposure (time x ISO x aperture, APEX-snapped).
+    exposures = recorded_exposures([f.meta for f in frames])
+    for k in range(n):
+        for j in range(k):
+            ej, ek = exposures[j], exposures[k]
+            if ej is None or ek is None:
                 continue
-            if means[k + 1] < means[k] - 0.01 and means[k] < 0.95:
+            if abs(math.log2(ek / ej)) < DUPLICATE_EXPOSURE_STOPS:
                 warns.append(BracketWarning(
-                    "out-of-order",
-                    f"{names[k + 1]} ({float(times[k + 1]):g} s) is darker than {names[k]} "
-                    f"({float(times[k]):g} s): its exposure time or its file is wrong",
-                    (k, k + 1),
+                    "duplicate-exposure",
+                    f"{names[j]} and {names[k]} have the same exposure ({_describe(frames[j])}; "
+                    f"{_describe(frames[k])}): a valid pair with ratio 1",
+                    (j, k),
                 ))
+                break
+    return warns
+
+
+def _describe(frame: Frame, *, iso: bool = True, aperture: bool = True) -> str:
+    """``1/15 s, ISO 800, f/1.7`` (the settings that make up the exposure)."""
+    m = frame.meta
+    parts = [_seconds(m.exposure_time)]
+    if iso and m.iso:
+        parts.append(f"ISO {m.iso}")
+    if aperture and m.f_number:
+        parts.append(f"f/{float(m.f_number):g}")
+    return ", ".join(parts)
+
+
+def _white_balance_warnings(frames: list[Frame]) -> list[BracketWarning]:
+    """``no-white-balance``: RAW frames whose file records no usable as-shot white balance."""
+    warns = []
+    for source, what in (
+        ("matrix-neutral", "the colour matrix's D65 neutral"),
+        ("unity", "unity (the file has no colour matrix either)"),
+    ):
+        ks = tuple(k for k, f in enumerate(frames) if f.meta.whitebalance_source == source)
+        if not ks:
+            continue
+        wbs = {tuple(round(v, 3) for v in (frames[k].meta.camera_whitebalance or ())[:3])
+               for k in ks}
+        used = (", ".join(f"{c} x {v:.3g}" for c, v in zip("RGB", next(iter(wbs)), strict=True))
+                if len(wbs) == 1 else "per frame")
+        warns.append(BracketWarning(
+            "no-white-balance",
+            f"{', '.join(frames[k].name for k in ks)} "
+            f"{'records' if len(ks) == 1 else 'record'} no as-shot white balance (LibRaw "
+            f"reports zero multipliers); {what} is used instead ({used})",
+            ks,
+        ))
     return warns
 
 
@@ -257,7 +484,13 @@ def load_bracket(
 
     ``paths`` may include directories (their image files are used). ``exposure_times`` is a
     ``name -> seconds`` mapping or the path of a ``name seconds`` text file; its values replace
-    EXIF times (a disagreement with EXIF becomes a warning).
+    EXIF times (a disagreement with EXIF becomes a warning) and are never APEX-snapped.
+
+    Frames are ordered by their recorded exposure ``t x ISO x 1/N^2`` (APEX-snapped,
+    :func:`recorded_exposures`), equal exposures by brightness. When the pixels clearly
+    contradict that order (:func:`brightness_order`: a frame brighter than one with a longer
+    exposure) the frames are ordered by brightness instead, each keeping the time it was given,
+    with a ``times-swapped`` or ``out-of-order`` warning naming the files.
     """
     files = expand_paths(paths)
     if len(files) < 2:
@@ -307,14 +540,26 @@ def load_bracket(
                     ))
             updated.append(f.with_exposure_time(t, "times-file"))
         frames = updated
+    frames = snap_frames(frames)
 
     _check_consistent(frames)
 
     n = len(frames)
     means = [f.mean_level() for f in frames]
-    if all(f.meta.exposure_time is not None for f in frames):
-        order = sorted(range(n), key=lambda k: (float(frames[k].meta.exposure_time), means[k]))
-        order_source = "exposure_time"
+    exposures = recorded_exposures([f.meta for f in frames])
+    reorder: BracketWarning | None = None
+    if all(e is not None for e in exposures):
+        order = sorted(range(n), key=lambda k: (exposures[k], means[k]))
+        order_source = "exposure"
+        by_brightness, contradicted = brightness_order(frames, order)
+        if contradicted:
+            iso = len({f.meta.iso for f in frames}) > 1
+            aperture = len({f.meta.f_number for f in frames}) > 1
+            reorder = _order_warning(
+                frames, order, by_brightness, contradicted,
+                lambda k: _describe(frames[k], iso=iso, aperture=aperture),
+            )
+            order, order_source = by_brightness, "brightness"
     else:
         order = sorted(range(n), key=lambda k: means[k])
         order_source = "brightness"
@@ -323,10 +568,12 @@ def load_bracket(
             "input-unsorted",
             "files were not given in exposure order; they were sorted darkest first",
         ))
+    if reorder is not None:
+        warns.append(reorder)
     sorted_frames = [frames[k] for k in order]
-    # Indices in warnings refer to the sorted order; remap the exif-times warnings (none carry
-    # indices) and compute the capture warnings on the sorted frames.
-    warns.extend(_capture_warnings(sorted_frames, order_source))
+    # Indices in warnings refer to the sorted order.
+    warns.extend(_capture_warnings(sorted_frames))
+    warns.extend(_white_balance_warnings(sorted_frames))
     for k, f in enumerate(sorted_frames):
         step = max(1, int(np.sqrt(f.levels.size / 3 / 262144)))
         sub = f.levels[::step, ::step]

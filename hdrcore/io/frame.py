@@ -22,6 +22,20 @@ class FrameMetadata:
     ``"times-file"`` (a ``name seconds`` list) or ``None``.
     ``black_level`` is per colour channel in raw units (zeros for JPEG/PNG/TIFF); ``max_level`` is
     the largest level a pixel can take after black subtraction (``white_level - black``).
+
+    ``exposure_time_apex`` is the camera's actual time when the EXIF time is a rounded nominal
+    value of an APEX sequence (1/640 s -> ``2^(-28/3)`` s), named by ``exposure_time_sequence``
+    (``"1/3-stop"`` or ``"1/2-stop"``); both ``None`` when the time is exact (a phone's 1/802.8
+    s, a times file, LibRaw's APEX-derived value). ``f_number_apex`` likewise (f/5.6 -> 5.657).
+    See :mod:`hdrcore.io.apex`; :attr:`exposure_time_actual` is the value to compute with.
+
+    RAW only: ``camera_whitebalance`` holds the multipliers used, ``whitebalance_source`` says
+    where they came from: ``"as-shot"`` (the file's), ``"matrix-neutral"`` (the file had none:
+    the colour matrix's D65 neutral) or ``"unity"`` (neither). ``read_noise`` is the read noise
+    in raw levels (quantisation excluded) measured on the masked optical-black margins
+    (``read_noise_source == "optical-black"``), ``None`` when the file has no margins;
+    ``optical_black_offset`` is those pixels' mean minus ``black_level`` (about 0 when LibRaw's
+    black level is right).
     """
 
     path: str
@@ -45,6 +59,27 @@ class FrameMetadata:
     rgb_xyz_matrix: tuple[tuple[float, ...], ...] | None = None
     cfa_pattern: tuple[tuple[int, ...], ...] | None = None
     cfa_colors: str | None = None
+    exposure_time_apex: float | None = None
+    exposure_time_sequence: str | None = None
+    f_number_apex: float | None = None
+    whitebalance_source: str | None = None
+    read_noise: float | None = None
+    read_noise_source: str | None = None
+    optical_black_offset: float | None = None
+
+    @property
+    def exposure_time_actual(self) -> float | None:
+        """Seconds to compute with: the APEX-snapped time when the tag is nominal, else the tag."""
+        if self.exposure_time_apex is not None:
+            return self.exposure_time_apex
+        return None if self.exposure_time is None else float(self.exposure_time)
+
+    @property
+    def f_number_actual(self) -> float | None:
+        """The APEX-snapped f-number when the tag is nominal, else the tag."""
+        if self.f_number_apex is not None:
+            return self.f_number_apex
+        return None if self.f_number is None else float(self.f_number)
 
     @property
     def camera(self) -> str | None:
@@ -74,6 +109,16 @@ class FrameMetadata:
             "orientation": self.orientation,
             "black_level": list(self.black_level),
             "white_level": self.white_level,
+            "exposure_time_apex": self.exposure_time_apex,
+            "exposure_time_sequence": self.exposure_time_sequence,
+            "f_number_apex": self.f_number_apex,
+            "camera_whitebalance": (
+                None if self.camera_whitebalance is None else list(self.camera_whitebalance)
+            ),
+            "whitebalance_source": self.whitebalance_source,
+            "read_noise": self.read_noise,
+            "read_noise_source": self.read_noise_source,
+            "optical_black_offset": self.optical_black_offset,
         }
 
 
@@ -213,6 +258,12 @@ class Frame:
         return float(self.levels[::step, ::step].mean()) / self.max_level
 
     def with_exposure_time(self, seconds: Fraction | float, source: str) -> Frame:
+        """The frame with its time replaced (e.g. from a times file): such a time is exact, so
+        any APEX-snapped value of the old tag goes."""
         t = seconds if isinstance(seconds, Fraction) else Fraction(str(seconds))
-        meta = replace(self.meta, exposure_time=t, exposure_time_source=source)
-        return Frame(levels=self.levels, meta=meta, cfa=self.cfa)
+        return self.with_meta(exposure_time=t, exposure_time_source=source,
+                              exposure_time_apex=None, exposure_time_sequence=None)
+
+    def with_meta(self, **changes: object) -> Frame:
+        """The same levels with some metadata fields replaced."""
+        return Frame(levels=self.levels, meta=replace(self.meta, **changes), cfa=self.cfa)

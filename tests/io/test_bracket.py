@@ -29,7 +29,7 @@ def test_sorted_darkest_first_by_exposure_time(tmp_path: Path) -> None:
     paths = _frames(tmp_path, [Fraction(1, 100), Fraction(1, 25), Fraction(1, 6)])
     b = load_bracket([paths[2], paths[0], paths[1]])
     assert [Path(p).name for p in b.paths] == ["f0.jpg", "f1.jpg", "f2.jpg"]
-    assert b.order_source == "exposure_time"
+    assert b.order_source == "exposure"
     assert b.input_order == (1, 2, 0)
     assert "input-unsorted" in b.warning_codes()
     assert b.exif_ratio(0, 1) == pytest.approx(4.0)
@@ -55,10 +55,20 @@ def test_capture_mistakes_are_warnings(tmp_path: Path) -> None:
     assert "aperture-changed" in codes
     assert "iso-changed" in codes
     assert "mixed-cameras" in codes
-    # f1 and f2 share 1/25 s but differ in ISO/aperture, so they are not duplicates:
-    assert "duplicate-exposure" not in codes
-    # The EXIF exposure accounts for ISO and aperture.
+    # The EXIF exposure accounts for ISO and aperture (1/100 -> 1/25 s is exactly 2 stops on
+    # the 1/3-stop APEX sequence, ISO 100 -> 200 one more).
     assert b.exif_ratio(0, 1) == pytest.approx(8.0)
+    # f1 (1/25 s, ISO 200, f/8) and f2 (1/25 s, ISO 100, f/5.6 = 2^(5/2)) have the same full
+    # exposure: a duplicate (a warning, not an error).
+    dup = [w for w in b.warnings if w.code == "duplicate-exposure"]
+    assert len(dup) == 1 and dup[0].frames == (1, 2)
+    assert b.exif_ratio(1, 2) == pytest.approx(1.0)
+    assert b.exif_ratio(1, 2, snapped=False) == pytest.approx((8 / 5.6) ** 2 / 2)
+    iso = next(w for w in b.warnings if w.code == "iso-changed")
+    assert "f0.jpg ISO 100, f1.jpg ISO 200, f2.jpg ISO 100" in iso.message
+    assert "time x ISO / ISO_0, so it includes the ISO change" in iso.message
+    ap = next(w for w in b.warnings if w.code == "aperture-changed")
+    assert "includes the aperture change" in ap.message
 
 
 def test_duplicate_exposure_warning(tmp_path: Path) -> None:
@@ -161,7 +171,10 @@ def test_memorial_debevec(memorial_dir: Path) -> None:
     assert Path(b.frames[0].path).name == "memorial0076.png"
     assert all(b.exif_ratio(k, k + 1) == pytest.approx(2.0) for k in range(15))
     assert b.bit_depth == 8 and not b.is_linear
-    assert "out-of-order" not in b.warning_codes()
+    # The darkest scans (fog and scanner noise, 1 stop apart) are not brighter with time, but
+    # they carry no brightness information, so the order by time stands.
+    assert not {"out-of-order", "times-swapped"} & set(b.warning_codes())
+    assert b.order_source == "exposure"
 
 
 @pytest.mark.shared
