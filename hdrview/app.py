@@ -75,6 +75,7 @@ class InspectorApp:
         self._wanted: tuple[tuple[str, ...], str] | None = None  # (paths, label)
         self._loaded: tuple[tuple[str, ...], str] | None = None
         self._drawn_bracket: object | None = None
+        self._pairs_bracket: Any = None
         self._drawn_result: Any = None  # the result every panel shows (last full draw)
         self._upload_dir = Path(tempfile.mkdtemp(prefix="hdrview-upload-"))
         self._upload_set = 0
@@ -429,11 +430,7 @@ class InspectorApp:
             else:
                 self.saturation_slider.value = b.max_level
                 self.noise_slider.value = 0
-            self.pair_dropdown.options = tuple(
-                f"pair {k}: frames {k}-{k + 1}" for k in range(n - 1)
-            )
-            self.pair_dropdown.value = self.pair_dropdown.options[0]
-            self.pair = 0
+            self._set_pair_options(b)
             self.reference_dropdown.options = ("middle",) + tuple(f"frame {k}" for k in range(n))
             self.reference_dropdown.value = "middle"
         finally:
@@ -450,6 +447,28 @@ class InspectorApp:
                     alignment=self.alignment_dropdown.value,
                     exposure=float(self.exposure_slider.value),
                 )
+
+    def _set_pair_options(self, b: Any) -> None:
+        names = [f.name for f in b.frames]
+        self.pair_dropdown.options = tuple(
+            f"pair {k}: frames {k}-{k + 1} ({names[k]}, {names[k + 1]})"
+            for k in range(len(b) - 1)
+        )
+        self.pair_dropdown.value = self.pair_dropdown.options[0]
+        self.pair = 0
+        self._pairs_bracket = b
+
+    def _sync_pairs(self, b: Any) -> None:
+        """The pair dropdown lists the pairs of the frames the result used."""
+        if self._pairs_bracket is not None and len(self._pairs_bracket) == len(b) and all(
+                x is y for x, y in zip(self._pairs_bracket.frames, b.frames, strict=True)):
+            self._pairs_bracket = b
+            return
+        self._syncing = True
+        try:
+            self._set_pair_options(b)
+        finally:
+            self._syncing = False
 
     def _sync_widgets_to_params(self) -> None:
         s = self.session
@@ -470,6 +489,11 @@ class InspectorApp:
         if bracket is not self._drawn_bracket:
             self.frames_panel.show(bracket)
             self._drawn_bracket = bracket
+        # A black or saturated frame is left out by the pipeline: the stage results index the
+        # frames it used (result.bracket); the pair choices follow them.
+        used = getattr(result, "bracket", None) or bracket
+        if used is not None and used is not self._pairs_bracket:
+            self._sync_pairs(used)
         view = {
             "pair": self.pair,
             "layer": self.layer_dropdown.value,
@@ -477,11 +501,12 @@ class InspectorApp:
         }
         self.status.content = self._status_markdown(result)
         panels = {"btf": self.btf_panel, "masks": self.masks_panel,
-                  "registration": self.registration_panel, "result": self.result_panel,
-                  "diagnostics": self.diagnostics_panel}
+                  "registration": self.registration_panel, "result": self.result_panel}
         for name, panel in panels.items():
             if stages is None or name in stages:
-                panel.show(bracket, result, view)
+                panel.show(used, result, view)
+        if stages is None or "diagnostics" in stages:
+            self.diagnostics_panel.show(bracket, result, view)
         if stages is None:
             self.draw_count += 1
             # No panel shows the previous result any more: the next merge may write into its

@@ -12,13 +12,15 @@ from ._access import exposure_of, registration_of, verdicts_of
 from ._draw import fmt, md_table
 from .frames import warnings_markdown
 
-__all__ = ["DiagnosticsPanel", "bundle_files", "pairs_table", "verdicts_markdown"]
+__all__ = ["DiagnosticsPanel", "bundle_files", "frames_table", "pairs_table",
+           "verdicts_markdown"]
 
 
-def pairs_table(exposure: Any, registration: Any) -> str:
+def pairs_table(exposure: Any, registration: Any, bracket: Any = None) -> str:
     header = ["pair", "ratio", "± std err", "EXIF ratio", "mismatch (stops)", "inliers",
               "ratio status", "cost before → after", "dx, dy, angle", "registration status"]
     rows = []
+    names = None if bracket is None else [f.name for f in bracket.frames]
     for k, p in enumerate(exposure.pairs):
         exif = exposure.exif_ratios[k] if k < len(exposure.exif_ratios) else None
         mism = exposure.mismatch_stops[k] if k < len(exposure.mismatch_stops) else None
@@ -28,7 +30,9 @@ def pairs_table(exposure: Any, registration: Any) -> str:
         motion = "—" if r is None else (
             f"{fmt(r.dx, 3)}, {fmt(r.dy, 3)}, {fmt(r.angle_deg, 3)}°")
         rows.append([
-            f"{p.dark}→{p.bright}", fmt(p.ratio, 6), fmt(p.std_error, 2), fmt(exif, 6),
+            f"{p.dark}→{p.bright}" + ("" if names is None else
+                                      f" ({names[p.dark]}, {names[p.bright]})"),
+            fmt(p.ratio, 6), fmt(p.std_error, 2), fmt(exif, 6),
             fmt(mism, 3), f"{p.n_inliers}/{p.n_equations}", p.status, cost, motion,
             "off" if r is None else r.status,
         ])
@@ -36,6 +40,33 @@ def pairs_table(exposure: Any, registration: Any) -> str:
     return (md_table(header, rows)
             + f"\n\nRelative exposures (darkest = 1): {rel}; exposure stage "
             f"**{exposure.status}**: {fmt(exposure.message)}")
+
+
+def frames_table(result: Any) -> str:
+    """Per frame as loaded: used or not (and why), its measured noise; the noise floor used."""
+    loaded = getattr(result, "loaded_bracket", None)
+    signals = {s.index: s for s in getattr(result, "frame_signals", ())}
+    noise = getattr(result, "noise", None)
+    if loaded is None:
+        return ""
+    header = ["frame", "file", "used", "signal", "noise σ (levels)", "noise measured from"]
+    rows = []
+    for k, f in enumerate(loaded.frames):
+        sig = signals.get(k)
+        fn = noise.frames[k] if noise is not None and k < len(noise.frames) else None
+        rows.append([
+            str(k), f.name, "yes" if sig is None or sig.usable else f"**no: {sig.status}**",
+            "—" if sig is None else fmt(sig.reason),
+            "—" if fn is None else fmt(fn.sigma, 3),
+            "—" if fn is None else fn.source,
+        ])
+    text = md_table(header, rows)
+    if noise is not None:
+        floor = getattr(result, "noise_floor", None)
+        text += (f"\n\nNoise floor used: **{fmt(floor, 4)}** levels (default: "
+                 f"{fmt(noise.k_sigma, 2)} × σ = {fmt(noise.k_sigma * noise.sigma, 4)}, at least "
+                 f"{fmt(noise.minimum, 4)}; σ = {fmt(noise.sigma, 3)} from {noise.source}).")
+    return text
 
 
 def _verdict_text(v: Any) -> str:
@@ -58,12 +89,14 @@ class DiagnosticsPanel:
         self._gui = gui
         self.verdicts = gui.add_markdown("No bracket loaded.")
         self.table = gui.add_markdown("")
+        self.frames = gui.add_markdown("")
         self.warnings = gui.add_markdown("")
 
     def show(self, bracket: Any, result: Any, view: dict) -> None:
         if bracket is None:
             self.verdicts.content = "No bracket loaded."
             self.table.content = ""
+            self.frames.content = ""
             self.warnings.content = ""
             return
         self.warnings.content = warnings_markdown(bracket)
@@ -74,7 +107,9 @@ class DiagnosticsPanel:
         self.verdicts.content = verdicts_markdown(result)
         exposure = exposure_of(result)
         self.table.content = ("" if exposure is None else
-                              pairs_table(exposure, registration_of(result)))
+                              pairs_table(exposure, registration_of(result),
+                                          getattr(result, "bracket", None)))
+        self.frames.content = frames_table(result)
 
 
 def bundle_files(bracket: Any, result: Any, *panels: Any) -> list[tuple[str, bytes]]:

@@ -26,7 +26,8 @@ def test_load_folder_draws_frames_and_status(app: InspectorApp) -> None:
     assert "frame0.png" in app.frames_panel.table.content
     assert "3 frames" in app.status.content
     assert len(app.frames_panel._thumbs) == 3
-    assert app.pair_dropdown.options == ("pair 0: frames 0-1", "pair 1: frames 1-2")
+    assert app.pair_dropdown.options == ("pair 0: frames 0-1 (frame0.png, frame1.png)",
+                                         "pair 1: frames 1-2 (frame1.png, frame2.png)")
     assert app.saturation_slider.max == 255
     assert not _errors(app)
 
