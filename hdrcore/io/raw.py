@@ -5,11 +5,27 @@ colour conversion (``output_color=raw``), no gamma, no auto-brightness and no sc
 (``no_auto_scale``), so its 16-bit output is camera RGB in raw units with the per-channel black
 level already subtracted: ``levels / (white - black)`` is linear exposure with 1.0 at clipping.
 The untouched CFA data (sensor orientation) stays available for the estimator and registration.
+
+Two things are measured or repaired while the file is open:
+
+* **White balance.** A file without an as-shot white balance (a DNG without AsShotNeutral: LibRaw
+  reports ``camera_whitebalance == [0, 1, 0, 0]``) gets the colour matrix's neutral instead: the
+  multipliers that make the camera's response to the D65 white equal, ``wb_c = 1 / (M XYZ_D65)_c``
+  normalised to green, with ``M`` rawpy's ``rgb_xyz_matrix`` (camera <- XYZ); for a DNG whose
+  ColorMatrix LibRaw keeps to itself (``rgb_xyz_matrix`` zero, ``color_matrix`` not), LibRaw's
+  ``daylight_whitebalance``, the same quantity computed from that matrix; unity when the file has
+  no matrix. :attr:`FrameMetadata.whitebalance_source` says which (:func:`matrix_neutral`).
+* **Read noise.** The masked optical-black margins (``raw_image`` minus ``raw_image_visible``)
+  record the black level plus read noise and no light; :func:`optical_black_noise` measures the
+  noise there (:attr:`FrameMetadata.read_noise`).
 """
 
 from __future__ import annotations
 
 import logging
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
 from fractions import Fraction
 from pathlib import Path
 
@@ -19,7 +35,15 @@ from ..errors import ImageReadError
 from .exif import read_exif
 from .frame import Frame, FrameMetadata, RawCFA
 
-__all__ = ["RAW_EXTENSIONS", "read_raw", "is_raw_path"]
+__all__ = [
+    "RAW_EXTENSIONS",
+    "D65_XYZ",
+    "OpticalBlack",
+    "read_raw",
+    "is_raw_path",
+    "matrix_neutral",
+    "optical_black_noise",
+]
 
 log = logging.getLogger(__name__)
 
@@ -32,8 +56,189 @@ RAW_EXTENSIONS = frozenset(
 _FLIP_TO_ORIENTATION = {0: 1, 3: 3, 5: 8, 6: 6}
 
 
+#: CIE 1931 2-degree XYZ of the D65 white, Y = 1 (the white of sRGB, whose primaries the
+#: merge's colour conversion normalises the camera matrix to).
+D65_XYZ = (0.95047, 1.0, 1.08883)
+#: Pixels of the optical-black margins next to the active area that are left out: the first
+#: columns and rows beside the image pick up stray light and smear (the Canon CRW files' column
+#: next to the active area sits 1 level above the others).
+OPTICAL_BLACK_GUARD = 4
+#: Fewest optical-black pixels worth a read-noise estimate (its relative error is then about
+#: 1 / sqrt(2 * 400) = 3.5 %).
+OPTICAL_BLACK_MIN_SAMPLES = 400
+
+
 def is_raw_path(path: str | Path) -> bool:
     return Path(path).suffix.lower() in RAW_EXTENSIONS
+
+
+def _valid_multipliers(wb: Sequence[float]) -> bool:
+    v = np.asarray(wb, dtype=np.float64).ravel()[:3]
+    return v.size == 3 and bool(np.all(np.isfinite(v)) and np.all(v > 0))
+
+
+def matrix_neutral(rgb_xyz_matrix: np.ndarray | Sequence[Sequence[float]] | None,
+                   ) -> tuple[float, float, float] | None:
+    """White-balance multipliers (R, G, B; G = 1) that make the camera's D65 response neutral.
+
+    ``rgb_xyz_matrix`` is rawpy's camera <- XYZ matrix (3x3, or the first 3 rows of 4x3); the
+    camera sees the D65 white as ``cam = M @ D65_XYZ`` and ``wb_c = cam_G / cam_c``. ``None`` when
+    the matrix is missing, all zeros, not finite, or gives a non-positive response.
+    """
+    if rgb_xyz_matrix is None:
+        return None
+    m = np.asarray(rgb_xyz_matrix, dtype=np.float64)
+    if m.ndim != 2 or m.shape[1] != 3 or m.shape[0] < 3:
+        return None
+    m = m[:3]
+    if not np.all(np.isfinite(m)) or not np.any(m != 0):
+        return None
+    cam = m @ np.asarray(D65_XYZ)
+    if not np.all(np.isfinite(cam)) or np.any(cam <= 0):
+        return None
+    wb = cam[1] / cam
+    return (float(wb[0]), 1.0, float(wb[2]))
+
+
+@dataclass(frozen=True)
+class OpticalBlack:
+    """Read noise measured on the masked optical-black margins of a RAW file.
+
+    ``sigma``: the read noise in raw levels, quantisation removed (``sqrt(var - 1/12)``, the
+    noise before the ADC rounds it, as the merge's noise model adds quantisation itself).
+    ``offset``: the mean of the margin pixels minus the black level (about 0 when the black
+    level is right). ``samples``: margin pixels used; ``margins``: which margins they came from.
+    """
+
+    sigma: float
+    offset: float
+    samples: int
+    margins: tuple[str, ...]
+
+
+def _strip_residuals(strip: np.ndarray) -> tuple[float, int, float, int]:
+    """Within-row sums over one margin strip (float, black already subtracted): the sum of
+    squared residuals from each row's mean, its degrees of freedom, and the sum and count of the
+    values kept (outliers beyond 5 sigma, i.e. hot or dead pixels, left out)."""
+    # Lines (rows or columns) that never change are filler, not sensor pixels.
+    keep_rows = np.ptp(strip, axis=1) > 0 if strip.shape[1] > 1 else np.ones(len(strip), bool)
+    keep_cols = np.ptp(strip, axis=0) > 0 if strip.shape[0] > 1 else np.ones(strip.shape[1], bool)
+    x = strip[np.ix_(keep_rows, keep_cols)]
+    if x.size < 2:
+        return 0.0, 0, 0.0, 0
+    r = x - np.median(x, axis=1, keepdims=True)
+    # The MAD of integer levels is 0 or 1 when sigma < 1; 0.5 level is the floor of its scale.
+    scale = max(1.4826 * float(np.median(np.abs(r))), 0.5)
+    keep = np.abs(r) <= 6.0 * scale
+    for _ in range(3):
+        n = keep.sum(axis=1)
+        mean = np.where(n > 0, np.where(keep, x, 0.0).sum(axis=1) / np.maximum(n, 1), 0.0)
+        r = x - mean[:, None]
+        ss = float(np.where(keep, r * r, 0.0).sum())
+        dof = int(np.maximum(n - 1, 0).sum())
+        if dof <= 0:
+            return 0.0, 0, 0.0, 0
+        keep = np.abs(r) <= max(5.0 * math.sqrt(ss / dof), 2.5)
+    n = keep.sum(axis=1)
+    mean = np.where(n > 0, np.where(keep, x, 0.0).sum(axis=1) / np.maximum(n, 1), 0.0)
+    r = x - mean[:, None]
+    ss = float(np.where(keep, r * r, 0.0).sum())
+    dof = int(np.maximum(n - 1, 0).sum())
+    return ss, dof, float(np.where(keep, x, 0.0).sum()), int(keep.sum())
+
+
+def optical_black_noise(
+    raw_image: np.ndarray,
+    *,
+    top: int,
+    left: int,
+    height: int,
+    width: int,
+    black_level: float | Sequence[float] = 0.0,
+    pattern: np.ndarray | None = None,
+    guard: int = OPTICAL_BLACK_GUARD,
+    min_samples: int = OPTICAL_BLACK_MIN_SAMPLES,
+) -> OpticalBlack | None:
+    """Read noise of a sensor from its masked margins, or ``None`` without enough of them.
+
+    ``raw_image`` is the whole stored mosaic (rawpy ``raw_image``); the active area is
+    ``height x width`` at ``(top, left)`` (rawpy ``sizes``). The margins are the strips left,
+    right, above and below the active area (its rows or columns only, no corners), ``guard``
+    pixels away from it. ``black_level`` is one value or one per colour index of ``pattern``
+    (the 2x2 CFA of the active area, rawpy ``raw_pattern``).
+
+    Each strip is taken row by row and CFA site by site: the mean of each row's pixels of one
+    column parity (of that strip) is removed, so row banding, an offset between margins or
+    between sites do not count as noise, and the variance is pooled as
+    ``sum(r^2) / sum(n_row - 1)`` (unbiased for the removed means). Pixels beyond 5 sigma are
+    left out, and lines that never change (filler columns) too. The median absolute deviation
+    alone cannot do this: on integer levels with sigma below 1 level it is 0 or 1. The rounding
+    to integer levels adds 1/12 to the variance (Sheppard), which is taken off.
+    """
+    data = np.asarray(raw_image)
+    if data.ndim != 2:
+        return None
+    hh, ww = data.shape
+    bottom, right = top + height, left + width
+    rects = {
+        "left": (top, bottom, 0, left - guard),
+        "right": (top, bottom, right + guard, ww),
+        "top": (0, top - guard, left, right),
+        "bottom": (bottom + guard, hh, left, right),
+    }
+    blacks = np.atleast_1d(np.asarray(black_level, dtype=np.float64))
+    ss = 0.0
+    dof = 0
+    total = 0.0
+    count = 0
+    used = []
+    for name, (r0, r1, c0, c1) in rects.items():
+        r0, c0 = max(r0, 0), max(c0, 0)
+        r1, c1 = min(r1, hh), min(c1, ww)
+        if r1 - r0 < 1 or c1 - c0 < 1:
+            continue
+        strip = data[r0:r1, c0:c1].astype(np.float64)
+        if blacks.size == 1 or pattern is None:
+            strip -= float(blacks.mean())
+        else:
+            pat = np.asarray(pattern, dtype=np.int64)
+            rows = (np.arange(r0, r1) - top) % 2
+            cols = (np.arange(c0, c1) - left) % 2
+            strip -= blacks[pat[rows[:, None], cols[None, :]]]
+        # Each row of a strip crosses two CFA sites, one per column parity: their means are
+        # removed separately, so a per-site offset (a black level off by a fraction, as LibRaw's
+        # integer black measured on MaskedAreas) is not noise either.
+        found = False
+        for sub in (strip[:, 0::2], strip[:, 1::2]):
+            s, d, t, c = _strip_residuals(sub)
+            if d > 0:
+                ss, dof, total, count = ss + s, dof + d, total + t, count + c
+                found = True
+        if found:
+            used.append(name)
+    if count < min_samples or dof <= 0:
+        return None
+    var = ss / dof
+    return OpticalBlack(
+        sigma=math.sqrt(max(var - 1.0 / 12.0, 0.0)),
+        offset=total / count,
+        samples=count,
+        margins=tuple(used),
+    )
+
+
+def _fallback_whitebalance(raw, xyz: np.ndarray) -> tuple[tuple[float, ...], str]:
+    """Multipliers for a file without an as-shot white balance, and their source."""
+    neutral = matrix_neutral(xyz)
+    if neutral is not None:
+        return neutral, "matrix-neutral"
+    # DNG: LibRaw keeps the file's ColorMatrix out of rgb_xyz_matrix but derives color_matrix
+    # and daylight_whitebalance (its pre_mul, 1 / (M XYZ_D65) as above) from it.
+    rgb_cam = np.asarray(raw.color_matrix, dtype=np.float64)
+    daylight = tuple(float(v) for v in raw.daylight_whitebalance)[:3]
+    if np.any(rgb_cam != 0) and np.all(np.isfinite(rgb_cam)) and _valid_multipliers(daylight):
+        return (daylight[0] / daylight[1], 1.0, daylight[2] / daylight[1]), "matrix-neutral"
+    return (1.0, 1.0, 1.0), "unity"
 
 
 def read_raw(path: str | Path, *, half_size: bool = False, keep_cfa: bool = True) -> Frame:
@@ -65,7 +270,18 @@ def read_raw(path: str | Path, *, half_size: bool = False, keep_cfa: bool = True
             pattern = np.array(raw.raw_pattern, dtype=np.int64)
             cam_wb = tuple(float(v) for v in raw.camera_whitebalance)
             xyz = np.asarray(raw.rgb_xyz_matrix, float)[:3]
-            flip = int(raw.sizes.flip)
+            wb_source = "as-shot"
+            if not _valid_multipliers(cam_wb):
+                cam_wb, wb_source = _fallback_whitebalance(raw, xyz)
+                log.info("%s: no as-shot white balance (LibRaw reports %s); using %s %s",
+                         p.name, list(raw.camera_whitebalance), wb_source, cam_wb)
+            sizes = raw.sizes
+            ob = optical_black_noise(
+                raw.raw_image, top=int(sizes.top_margin), left=int(sizes.left_margin),
+                height=int(sizes.height), width=int(sizes.width), black_level=black,
+                pattern=pattern,
+            )
+            flip = int(sizes.flip)
             other = raw.other
             cfa = None
             if keep_cfa:
@@ -146,6 +362,10 @@ def read_raw(path: str | Path, *, half_size: bool = False, keep_cfa: bool = True
         white_level=white,
         channel_max_levels=channel_max,
         camera_whitebalance=cam_wb,
+        whitebalance_source=wb_source,
+        read_noise=None if ob is None else ob.sigma,
+        read_noise_source=None if ob is None else "optical-black",
+        optical_black_offset=None if ob is None else ob.offset,
         rgb_xyz_matrix=tuple(tuple(float(v) for v in row) for row in xyz),
         cfa_pattern=tuple(tuple(int(v) for v in row) for row in pattern),
         cfa_colors=colors,
