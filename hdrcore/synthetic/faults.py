@@ -66,6 +66,7 @@ __all__ = [
     "write_dark_scene",
     "write_duplicate_exposure",
     "write_one_usable_frame",
+    "write_reference_bracket",
     "write_saturated_frame",
     "write_swapped_times",
     "write_unregistrable_tripod",
@@ -391,6 +392,19 @@ def _finish(
 
 # --------------------------------------------------------------------------------------------
 # The cases
+
+
+def write_reference_bracket(
+    outdir: str | os.PathLike,
+    spec: BracketSpec = SEED_PROTOCOL,
+    *,
+    force: bool = False,
+) -> FaultyBracket:
+    """The bracket of ``spec`` without a fault, with the same truth as the faulty cases (the
+    baseline every case is compared with)."""
+    sim = _simulate(spec)
+    return _finish(outdir, spec, sim, case="reference", force=force,
+                   description="no fault")
 
 
 def write_black_frames(

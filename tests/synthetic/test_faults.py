@@ -33,6 +33,7 @@ from hdrcore.synthetic import (
     write_dark_scene,
     write_duplicate_exposure,
     write_one_usable_frame,
+    write_reference_bracket,
     write_saturated_frame,
     write_swapped_times,
     write_unregistrable_tripod,
@@ -64,6 +65,22 @@ def _robust_sigma(x: np.ndarray) -> float:
         m, s = v[keep].mean(), v[keep].std()
         keep = np.abs(v - m) < 4 * s
     return float(np.sqrt(max(v[keep].var() - 1 / 12, 0.0)))
+
+
+# ------------------------------------------------------------------------------ reference
+
+
+def test_reference_bracket_has_no_fault_and_signal_in_every_pair(tmp_path: Path) -> None:
+    c = write_reference_bracket(tmp_path, SMALL.replace(scene="patches"))
+    assert c.faults == () and c.usable_frames == tuple(range(6))
+    assert c.pairs_with_signal() == tuple((k, k + 1) for k in range(5))
+    for k, p in enumerate(c.frames):
+        np.testing.assert_array_equal(_png(p), c.sim.frames[k])
+    truth = json.loads(c.truth_file.read_text())
+    assert truth["case"]["case"] == "reference"
+    assert truth["exposure_times"] == list(c.exposure_times)
+    assert c.relative_exposures == (1.0, 4.0, 16.0, 64.0, 256.0, 1024.0)
+    assert c.index_of(str(c.frames[3])) == 3 and c.true_ratio(1, 3) == 16.0
 
 
 # ------------------------------------------------------------------------------ black frames
