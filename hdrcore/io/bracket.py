@@ -1,10 +1,19 @@
 """A bracket: frames of one scene at different exposures, darkest first, with capture warnings.
 
+A frame's recorded exposure is ``t x ISO / ISO_0 x (N_0 / N)^2`` (:func:`recorded_exposures`):
+phones bracket with exposure compensation and change the ISO, several frames can share one time.
+Nominal EXIF times and f-numbers are taken at their APEX values (1/640 s is ``2^(-28/3)`` s,
+:mod:`hdrcore.io.apex`); times from a times file are exact and used as given. Frames are ordered
+by that exposure, unless their pixels clearly say otherwise (:func:`brightness_order`): then the
+pixels win, each frame keeps the time it was given, and a ``times-swapped`` or ``out-of-order``
+warning names the files.
+
 Capture mistakes (aperture or ISO changed between frames, duplicate exposures, frames whose
-brightness contradicts their exposure times, mixed cameras, missing EXIF) are reported as
-:class:`BracketWarning` objects on the bracket, never as crashes: the estimator can still measure
-the real exposure ratios from the histograms. Things that make a bracket impossible (one frame,
-different sizes, a mix of RAW and non-linear frames) raise :class:`BracketError`.
+brightness contradicts their exposure times, mixed cameras, missing EXIF or white balance) are
+reported as :class:`BracketWarning` objects on the bracket, never as crashes: the estimator can
+still measure the real exposure ratios from the histograms. Things that make a bracket
+impossible (one frame, different sizes, a mix of RAW and non-linear frames) raise
+:class:`BracketError`.
 """
 
 from __future__ import annotations
@@ -68,7 +77,11 @@ class BracketWarning:
 
 @dataclass(frozen=True, eq=False)
 class Bracket:
-    """Frames sorted darkest first; ``input_order[k]`` is frame ``k``'s index in the given list."""
+    """Frames sorted darkest first; ``input_order[k]`` is frame ``k``'s index in the given list.
+
+    ``order_source`` is ``"exposure"`` (the recorded exposure, time x ISO x aperture) or
+    ``"brightness"`` (no times, or times the pixels contradict: see the warnings).
+    """
 
     frames: tuple[Frame, ...]
     warnings: tuple[BracketWarning, ...]
