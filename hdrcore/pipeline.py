@@ -676,6 +676,11 @@ class Pipeline:
             # The kept frame nearest to the one asked for (the darker one on a tie).
             ref = min(range(len(keep)), key=lambda i: (abs(keep[i] - int(reference)), keep[i]))
         res = sub.run(replace(p, reference=ref), until=until)
+        if res.unused_frames:
+            # The subset left more frames out (a ratio gap without EXIF): back to our indices.
+            more = {keep[u.index]: replace(u, index=keep[u.index]) for u in res.unused_frames}
+            signals = tuple(more.get(sig.index, sig) for sig in signals)
+            unused = tuple(sig for sig in signals if not sig.usable)
         res = replace(res, full_bracket=b, unused_frames=unused, frame_signals=signals,
                       noise=self.noise())
         res = replace(res, verdicts=tuple(diagnose(res)))
@@ -703,7 +708,7 @@ class Pipeline:
         lut = None if response is None else response.to_lut(m)
 
         ratio_key = (resp_key, p.saturation, p.noise_floor, p.exposure_method)
-        fit = dict(method=p.exposure_method, exposure_times=b.exposure_times,
+        fit = dict(method=p.exposure_method, exposure_times=b.exif_exposures(),
                    saturation=p.saturation, noise_floor=p.noise_floor, lut=lut)
         exposures_hist = self._stage(
             "ratios", ratio_key, lambda: bracket_exposures_from_histograms(hists, **fit),
@@ -795,7 +800,9 @@ class Pipeline:
         if isinstance(spec, str) and spec.lower() == "linear" and b.is_linear:
             return None
         levels = [f.levels for f in b.frames]
-        times = b.exposure_times if b.has_exposure_times else None
+        exif = self._recorded_exposures()
+        times: tuple[float, ...] | None = (
+            tuple(float(e) for e in exif) if all(e is not None for e in exif) else None)
         method_names = {k.lower() for k in RESPONSE_METHODS}
         if isinstance(spec, str) and spec.lower() in method_names and times is None:
             # No exposure times: the ratios measured on sRGB-linearised histograms stand in for
@@ -853,10 +860,24 @@ class Pipeline:
             )
         return tuple(per_frame), union
 
+    def _recorded_exposures(self) -> tuple[float | None, ...]:
+        """The exposures the metadata records, frame by frame in the bracket's order: time x
+        ISO x aperture (phones bracket with ISO), APEX-snapped (:meth:`Bracket.exif_exposures`).
+
+        Times that contradict the frames' brightness order (two lines of a times file swapped,
+        see the bracket's ``times-swapped`` warning; the loader orders frames by brightness)
+        are taken as the right set of times on the wrong files: sorted, they follow the frames.
+        """
+        exif = self.bracket.exif_exposures()
+        known = [e for e in exif if e is not None]
+        if len(known) == len(exif) and any(
+                t2 < t1 * (1 - 1e-3) for t1, t2 in zip(known, known[1:], strict=False)):
+            return tuple(sorted(float(e) for e in known))
+        return exif
+
     def _merge_times(self, exposures: BracketExposureResult,
                      p: PipelineParams) -> tuple[tuple[float, ...], str]:
-        b = self.bracket
-        exif = b.exif_exposures()
+        exif = self._recorded_exposures()
         exif_known = all(e is not None for e in exif)
         if p.times == "exif":
             if not exif_known:
@@ -906,7 +927,7 @@ class Pipeline:
         excluded = self._excluded
         masks = None if excluded is None else [~mask for mask in excluded[0]]
         common = dict(registered=[q.ok for q in registration.pairs], fallback=fallback,
-                      exposure_times=b.exposure_times, saturation=p.saturation,
+                      exposure_times=b.exif_exposures(), saturation=p.saturation,
                       noise_floor=p.noise_floor)
         matrices = [q.matrix for q in registration.pairs]
         cfa_ok = masks is None and lut is None and all(
