@@ -168,15 +168,25 @@ def frame_noise(plane: np.ndarray, *, black: float = 0.0, white: float,
     out: clipping shrinks the noise.
     """
     low = (black - 1e9) if clipped_low is None else clipped_low
-    d2, mean = _second_differences(plane, low, white)
-    if d2.size < _MIN_SAMPLES // 4:
-        return FrameNoise(float("nan"), "none", int(d2.size), 0.0)
-    n = max(_MIN_SAMPLES, int(_DARK_FRACTION * d2.size))
-    if n < d2.size:
-        idx = np.argpartition(mean, n)[:n]
-        d2, mean = d2[idx], mean[idx]
-    sigma = robust_sigma(d2) / math.sqrt(6.0)
-    return FrameNoise(float(sigma), "dark-regions", int(d2.size), float(np.mean(mean) - black))
+    d2_all, mean_all = _second_differences(plane, low, white)
+    if d2_all.size < _MIN_SAMPLES // 4:
+        return FrameNoise(float("nan"), "none", int(d2_all.size), 0.0)
+
+    def darkest(d2: np.ndarray, mean: np.ndarray) -> tuple[float, np.ndarray]:
+        n = max(_MIN_SAMPLES, int(_DARK_FRACTION * d2.size))
+        if n < d2.size:
+            idx = np.argpartition(mean, n)[:n]
+            d2, mean = d2[idx], mean[idx]
+        return robust_sigma(d2) / math.sqrt(6.0), mean
+
+    sigma, mean = darkest(d2_all, mean_all)
+    if clipped_low is not None:
+        # Near the clip even samples whose taps all lie above it are a truncated draw (their
+        # noise pushed them up): measure again where the mean is 3 sigma clear of the clip.
+        clear = mean_all > clipped_low + 3.0 * max(sigma, 0.5)
+        if np.count_nonzero(clear) >= _MIN_SAMPLES // 4:
+            sigma, mean = darkest(d2_all[clear], mean_all[clear])
+    return FrameNoise(float(sigma), "dark-regions", int(mean.size), float(np.mean(mean) - black))
 
 
 def bracket_noise(
