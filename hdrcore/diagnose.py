@@ -48,18 +48,26 @@ class Verdict:
 
 
 _CAPTURE = {
-    "iso-changed": ("warning", "ISO changed between frames: noise differs between exposures and "
-                    "the EXIF times alone give wrong ratios (the histogram estimate is used)."),
-    "aperture-changed": ("warning", "The aperture changed between frames: depth of field and "
-                         "vignetting differ, which can show as ghosts and wrong ratios."),
-    "duplicate-exposure": ("warning", "Two frames have the same exposure: they add no dynamic "
-                           "range (check the bracketing setting)."),
-    "out-of-order": ("error", "A frame is darker than a shorter exposure: its EXIF time is wrong "
-                     "or the file belongs to another bracket."),
+    "iso-changed": ("info", "ISO changed between frames (a phone bracketing with exposure "
+                    "compensation): the recorded exposure is time x ISO, which is what orders "
+                    "and chains the frames; noise differs between exposures."),
+    "aperture-changed": ("warning", "The aperture changed between frames: the recorded "
+                         "exposure includes it, but depth of field and vignetting differ, which "
+                         "can show as ghosts and wrong ratios."),
+    "duplicate-exposure": ("info", "Two frames have the same exposure: they add no dynamic "
+                           "range, but both are merged (averaging lowers the noise)."),
+    "times-swapped": ("warning", "The exposure times contradict the pixels: a frame is brighter "
+                      "than one with a longer exposure. The frames were ordered by brightness and "
+                      "the ratios measured from the pixels."),
+    "out-of-order": ("warning", "The exposure times contradict the pixels (frames darker than "
+                     "shorter exposures): the frames were ordered by brightness; check the "
+                     "times or whether a file belongs to another bracket."),
     "mixed-cameras": ("error", "The frames come from different cameras: they cannot be one "
                       "bracket."),
     "no-exposure-times": ("info", "No exposure times in the files: the ratios come from the "
                           "histograms alone (the paper's method)."),
+    "no-white-balance": ("warning", "A RAW file records no as-shot white balance: the colour "
+                         "matrix's daylight neutral (or unity) was used; colours may be off."),
     "frame-saturated": ("warning", "A frame is almost entirely saturated and contributes "
                         "little."),
     "frame-black": ("warning", "A frame is almost entirely black and contributes little."),

@@ -470,7 +470,9 @@ class Pipeline:
             for f in b.frames:
                 rn = getattr(f.meta, "read_noise", None)
                 if rn is not None and math.isfinite(float(rn)) and float(rn) >= 0:
-                    measured.append(FrameNoise(float(rn), "optical-black"))
+                    # The reader removes the rounding variance; the levels carry it (1/12).
+                    measured.append(FrameNoise(math.sqrt(float(rn) ** 2 + 1 / 12),
+                                               "optical-black"))
                     continue
                 cfa = f.cfa
                 if f.is_linear and cfa is not None:
