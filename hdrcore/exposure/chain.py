@@ -167,7 +167,7 @@ def chain_bracket(
         for span in range(2, min(max_span, n - 1) + 1):
             for i in range(n - span):
                 r = one(i, i + span)
-                if r.status != "no-overlap":
+                if r.status not in ("no-overlap", "no-signal"):
                     extra.append(r)
     message_suffix = ("; histograms restricted to each pair's common field of view"
                       if hists.overlap_restricted else "")
@@ -241,7 +241,8 @@ def assemble_bracket(
     if np.any(~np.isfinite(exposures)):
         status = "broken-chain"
         message = ("the chain of exposures is broken: "
-                   + "; ".join(p.message for p in bad if p.status == "no-overlap"))
+                   + "; ".join(p.message for p in bad
+                               if p.status in ("no-overlap", "no-signal")))
     elif bad:
         status = "not-ok"
         message = f"{len(bad)} of {len(pairs)} pairs are not ok: " + "; ".join(
