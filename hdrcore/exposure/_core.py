@@ -8,12 +8,13 @@ and the status logic of section 5.2 (not enough overlap, poor confidence).
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from ..btf import BrightnessTransferFunction, brightness_transfer_function
-from ..errors import EstimationError, ParameterError
+from ..errors import ParameterError
+from .interval import OK_TOLERANCE, brightness_band_ratios, model_error_floor, verdict
 from .result import FORWARD, INVERSE, ExposureEquations, ExposureRatioResult
 
 __all__ = [
@@ -126,21 +127,42 @@ def _level_range(n: int, noise_floor: float, saturation: float) -> tuple[int, in
     return min(max(lo, 0), n), min(max(hi, 0), n)
 
 
-def _check_usable(hist: np.ndarray, which: str, saturation: float, noise_floor: float) -> None:
-    """Raise when a whole frame is black or saturated: no ratio can be estimated from it."""
+def _unusable(hist: np.ndarray, saturation: float, noise_floor: float) -> str | None:
+    """Why a whole frame gives no equation (``"no pixels"``, ``"black (at or below the noise
+    floor)"``, ``"saturated"``), or ``None`` when some pixel lies between the floor and ``Z``."""
     total = hist.sum()
     if total <= 0:
-        raise EstimationError(f"the {which} frame has no pixels to count")
+        return "no pixels"
     lo, hi = _level_range(hist.shape[-1], noise_floor, saturation)
-    mid = hist[..., lo:hi].sum()
-    if mid == 0:
-        low = hist[..., :lo].sum()
-        kind = "black (at or below the noise floor)" if low >= total / 2 else "saturated"
-        raise EstimationError(
-            f"the {which} frame is entirely {kind}; no exposure ratio can be estimated from it",
-            expected=f"pixels between noise floor {noise_floor:g} and saturation {saturation:g}",
-            found="none",
-        )
+    if hist[..., lo:hi].sum() > 0:
+        return None
+    low = hist[..., :lo].sum()
+    return "black (at or below the noise floor)" if low >= total / 2 else "saturated"
+
+
+def _no_signal(which: str, kind: str, *, method: str, n_ch: int, saturation: float,
+               noise_floor: float, max_level: int, dark: int, bright: int,
+               tolerance: float) -> ExposureRatioResult:
+    """The result of a pair one of whose frames is black, saturated or empty (no ratio)."""
+    index = dark if which == "darker" else bright
+    if kind == "no pixels":
+        what = f"the {which} frame (frame {index}) has no pixels to count"
+    else:
+        what = (f"the {which} frame is entirely {kind}; no exposure ratio can be estimated "
+                f"from it (expected pixels between noise floor {noise_floor:g} and saturation "
+                f"{saturation:g}, found none)")
+    empty = np.zeros(0)
+    eqs = ExposureEquations(x=empty, y=empty, weights=empty, direction=empty.astype(np.int8),
+                            channel=empty.astype(np.int8), level=empty)
+    return ExposureRatioResult(
+        method=method, ratio=float("nan"), initial_ratio=float("nan"), iterates=(),
+        iterations=0, equations=eqs, inlier_mask=np.zeros(0, bool), residuals=empty,
+        std_error=float("inf"), overlap=0.0, status="no-signal",
+        message=f"frames {dark} and {bright}: {what}",
+        channel_ratios=(float("nan"),) * n_ch, channel_std_errors=(float("inf"),) * n_ch,
+        channels_disagree=False, saturation=saturation, noise_floor=noise_floor,
+        max_level=int(max_level), dark=dark, bright=bright, tolerance=tolerance,
+    )
 
 
 def group_statistics(
@@ -374,7 +396,7 @@ def estimate_pair(
     lut: np.ndarray | None = None,
     precision: float = 1e-7,
     max_iterations: int = 100,
-    max_relative_error: float = 0.004,
+    max_relative_error: float = OK_TOLERANCE,
     min_overlap: float = 0.02,
     min_equations: int = 6,
     disagreement_tolerance: float = 0.01,
@@ -391,13 +413,21 @@ def estimate_pair(
     enter the 3V iteration (their sufficient statistics are summed, so the least-squares fit is
     unchanged; 8-bit frames keep one level per group). ``btfs``: the pair's brightness transfer
     functions when already known (they depend on the histograms only; a re-fit reuses them).
+
+    ``max_relative_error``: the largest relative half-width of the calibrated 95 % interval of
+    an ``"ok"`` pair (:mod:`.interval`; not the standard error). A pair one of whose frames is
+    entirely black or saturated gets status ``"no-signal"`` and no ratio.
     """
     hd, hb = check_histograms(hist_dark, hist_bright)
     n_ch, n = hd.shape
     max_level = n - 1
     z, floor = check_levels(max_level, saturation, noise_floor)
-    _check_usable(hd, "darker", z, floor)
-    _check_usable(hb, "brighter", z, floor)
+    for which, hist in (("darker", hd), ("brighter", hb)):
+        kind = _unusable(hist, z, floor)
+        if kind is not None:
+            return _no_signal(which, kind, method=options.name, n_ch=n_ch, saturation=z,
+                              noise_floor=floor, max_level=max_level, dark=dark,
+                              bright=bright, tolerance=max_relative_error)
     g = None if lut is None else as_lut(lut, n_ch, max_level)
 
     if btfs is None or len(btfs) != n_ch:
@@ -413,7 +443,8 @@ def estimate_pair(
     overlap = _overlap(hd, btfs, z, floor)
 
     common = dict(method=options.name, equations=eqs, overlap=overlap, btfs=btfs, saturation=z,
-                  noise_floor=floor, max_level=max_level, dark=dark, bright=bright)
+                  noise_floor=floor, max_level=max_level, dark=dark, bright=bright,
+                  model_error=model_error_floor(lut is not None), tolerance=max_relative_error)
     if x.size < min_equations or overlap < min_overlap:
         return ExposureRatioResult(
             ratio=float("nan"), initial_ratio=float("nan"), iterates=(), iterations=0,
@@ -458,34 +489,32 @@ def estimate_pair(
     cse = np.array(channel_se)
     disagree = channels_disagree(cr, cse, k, disagreement_tolerance)
 
-    rel = se / k if k > 0 else float("inf")
     n_inliers = int(np.count_nonzero(mask))
+    bands = brightness_band_ratios(eqs, mask, ratio_of_sums=False)
+    result = ExposureRatioResult(
+        ratio=float(k), initial_ratio=float(iterates[0]), iterates=iterates, iterations=iterations,
+        inlier_mask=mask, residuals=residuals, std_error=float(se), status="ok", message="",
+        channel_ratios=tuple(float(v) for v in cr),
+        channel_std_errors=tuple(float(v) for v in cse), channels_disagree=disagree,
+        level_group_size=f, band_ratios=bands, **common,
+    )
     if not np.isfinite(k) or k <= 0:
         status, message = "failed", f"the fit of frames {dark} and {bright} gave no positive ratio"
     elif n_inliers < min_equations:
         status = "few-equations"
         message = (f"only {n_inliers} of {x.size} equations survived the 3V outlier "
                    f"removal for frames {dark} and {bright}")
-    elif rel > max_relative_error:
-        status = "uncertain"
-        message = (f"ratio {k:.4f} of frames {dark} and {bright} has a standard error of "
-                   f"{rel:.2%} (over {max_relative_error:.2%}); the histograms do not match well "
-                   f"(scene change, strong motion or a wrong response)")
     elif disagree:
         status = "channels-disagree"
         message = ("the colour channels give different ratios ("
                    + ", ".join(f"{v:.4f}" for v in cr)
                    + f") for frames {dark} and {bright}: a wrong white level, a colour cast or "
                    "a wrong response")
-    elif overlap < 5 * min_overlap:
-        status, message = "ok", (f"ratio {k:.4f} from a small overlap ({overlap:.1%} of the "
-                                 "darker frame's pixels)")
     else:
-        status, message = "ok", f"ratio {k:.4f} ± {rel:.2%} from {n_inliers} equations"
-    return ExposureRatioResult(
-        ratio=float(k), initial_ratio=float(iterates[0]), iterates=iterates, iterations=iterations,
-        inlier_mask=mask, residuals=residuals, std_error=float(se), status=status,
-        message=message, channel_ratios=tuple(float(v) for v in cr),
-        channel_std_errors=tuple(float(v) for v in cse), channels_disagree=disagree,
-        level_group_size=f, **common,
-    )
+        # The interval rule (ok / uncertain); the region jack-knife, when a bracket function
+        # adds it, widens the interval and the pair is judged again (interval.judge).
+        evidence = (f"from a small overlap ({overlap:.1%} of the darker frame's pixels)"
+                    if overlap < 5 * min_overlap else f"from {n_inliers} equations")
+        result = replace(result, evidence=evidence)
+        status, message = verdict(result, max_relative_error, evidence)
+    return replace(result, status=status, message=message)

@@ -62,9 +62,10 @@ import numpy as np
 
 from .._numba import njit as _njit
 from .._threads import thread_map
-from ..errors import EstimationError, ParameterError
-from ._core import as_lut, channels_disagree, check_levels
+from ..errors import ParameterError
+from ._core import _no_signal, as_lut, channels_disagree, check_levels
 from .chain import assemble_bracket
+from .interval import OK_TOLERANCE, brightness_band_ratios, judge, model_error_floor, verdict
 from .pair_histograms import chain_pair_matrix
 from .result import FORWARD, INVERSE, BracketExposureResult, ExposureEquations, ExposureRatioResult
 from .stability import jackknife_std_error
@@ -235,7 +236,7 @@ def exposure_ratio_registered(
     reject: float = 3.0,
     max_iterations: int = 50,
     regions: tuple[int, int] = (4, 4),
-    max_relative_error: float = 0.004,
+    max_relative_error: float = OK_TOLERANCE,
     disagreement_tolerance: float = 0.01,
     min_pixels: int = 2000,
     min_tiles: int = 8,
@@ -262,6 +263,10 @@ def exposure_ratio_registered(
     site's offset), while ``matrix`` stays in full-frame coordinates; ``channel_groups[c]`` is
     the reported channel of channel ``c`` (e.g. ``(0, 1, 1, 2)`` for R, G1, G2, B: the sums of
     both green sites make one green ratio). See the module docstring for the method.
+
+    ``max_relative_error``: the largest relative half-width of the calibrated 95 % interval of
+    an ``"ok"`` pair (:mod:`.interval`). A frame with no level strictly between the noise floor
+    and ``Z`` gives status ``"no-signal"`` (no ratio), never an exception.
     """
     d = np.asarray(dark)
     b = np.asarray(bright)
@@ -276,6 +281,13 @@ def exposure_ratio_registered(
                              found=str(mat.tolist()))
     z, floor = check_levels(max_level, saturation, noise_floor)
     h, w, nk = d.shape
+    for which, frame in (("darker", d), ("brighter", b)):
+        kind = _frame_unusable(frame, z, floor)
+        if kind is not None:
+            nc0 = nk if channel_groups is None else int(np.max(channel_groups)) + 1
+            return _no_signal(which, kind, method=METHOD, n_ch=nc0, saturation=z,
+                              noise_floor=floor, max_level=max_level, dark=int(dark_index),
+                              bright=int(bright_index), tolerance=max_relative_error)
     g = np.ascontiguousarray(as_lut(lut, nk, max_level), np.float64)
     full = _homogeneous(mat)
     if geometry is None:
@@ -317,7 +329,8 @@ def exposure_ratio_registered(
     n_f, n_i = sf[:, :, 2].sum(axis=1), si[:, :, 2].sum(axis=1)
     pixels = int(min(n_f.sum(), n_i.sum()) / max(nk, 1))
     common = dict(method=METHOD, saturation=z, noise_floor=floor, max_level=int(max_level),
-                  dark=int(dark_index), bright=int(bright_index), overlap_restricted=True)
+                  dark=int(dark_index), bright=int(bright_index), overlap_restricted=True,
+                  model_error=model_error_floor(lut is not None), tolerance=max_relative_error)
     eqs = _equations(sf, si)
     # The fraction of the read pixels (of the sampled tiles) that entered the sums.
     examined = float(np.sum(np.minimum(tile, h - tf[:, 0]) * np.minimum(tile, w - tf[:, 1])))
@@ -375,19 +388,20 @@ def exposure_ratio_registered(
     inlier_mask = np.concatenate([np.repeat(in_f[:, None], nc, 1).ravel(),
                                   np.repeat(in_i[:, None], nc, 1).ravel()])[_eqs_keep(sf, si)]
     residuals = eqs.weights * (eqs.y - k * eqs.x)
-    rel = se / k if k > 0 else float("inf")
     n_in = int(np.count_nonzero(in_f) + np.count_nonzero(in_i))
     n_tiles = int(np.count_nonzero(n_f) + np.count_nonzero(n_i))
     spread = abs(np.log(kf / ki)) if kf > 0 and ki > 0 else float("inf")
+    result = ExposureRatioResult(
+        ratio=k, initial_ratio=k0, iterates=iterates, iterations=n_iter, equations=eqs,
+        inlier_mask=inlier_mask, residuals=residuals, std_error=se, overlap=overlap,
+        status="ok", message="", channel_ratios=tuple(float(v) for v in cr),
+        channel_std_errors=tuple(float(v) for v in cse), channels_disagree=disagree,
+        region_std_error=se, common_fraction=overlap,
+        band_ratios=brightness_band_ratios(eqs, inlier_mask, ratio_of_sums=True), **common,
+    )
     if not np.isfinite(k) or k <= 0:
         status, message = "failed", (f"the registered pixels of frames {dark_index} and "
                                      f"{bright_index} gave no positive ratio")
-    elif rel > max_relative_error:
-        status = "uncertain"
-        message = (f"ratio {k:.4f} of frames {dark_index} and {bright_index} from registered "
-                   f"pixels has a standard error of {rel:.2%} (over {max_relative_error:.2%}): "
-                   "image regions disagree (a moving object, a poor registration or a wrong "
-                   "response)")
     elif disagree:
         status = "channels-disagree"
         message = ("the colour channels give different ratios ("
@@ -395,17 +409,23 @@ def exposure_ratio_registered(
                    + f") for frames {dark_index} and {bright_index}: a wrong white level, a "
                    "colour cast or a wrong response")
     else:
-        status = "ok"
-        message = (f"ratio {k:.4f} ± {rel:.3%} from {pixels} registered pixels ({n_in} of "
-                   f"{n_tiles} tiles kept; the two sampling directions differ by "
-                   f"{spread:.2%})")
-    return ExposureRatioResult(
-        ratio=k, initial_ratio=k0, iterates=iterates, iterations=n_iter, equations=eqs,
-        inlier_mask=inlier_mask, residuals=residuals, std_error=se, overlap=overlap,
-        status=status, message=message, channel_ratios=tuple(float(v) for v in cr),
-        channel_std_errors=tuple(float(v) for v in cse), channels_disagree=disagree,
-        region_std_error=se, common_fraction=overlap, **common,
-    )
+        evidence = (f"from {pixels} registered pixels ({n_in} of {n_tiles} tiles kept; the two "
+                    f"sampling directions differ by {spread:.2%})")
+        result = replace(result, evidence=evidence)
+        status, message = verdict(result, max_relative_error, evidence)
+    return replace(result, status=status, message=message)
+
+
+def _frame_unusable(frame: np.ndarray, saturation: float, noise_floor: float) -> str | None:
+    """``"black (at or below the noise floor)"`` or ``"saturated"`` when no level of ``frame``
+    lies strictly between the floor and ``Z``, else ``None``. Checked on every 4th row and
+    column (a whole-frame pass costs 0.1 s at 24 MP)."""
+    lv = np.asarray(frame)[::4, ::4]
+    if lv.size and np.any((lv > noise_floor) & (lv < saturation)):
+        return None
+    if lv.size == 0:
+        return "no pixels"
+    return "black (at or below the noise floor)" if np.median(lv) <= noise_floor else "saturated"
 
 
 def _eqs_keep(sf: np.ndarray, si: np.ndarray) -> np.ndarray:
@@ -477,15 +497,11 @@ def bracket_exposures_from_pixels(
     z = kwargs.get("saturation")
     floor = kwargs.get("noise_floor")
     zl, fl = check_levels(max_level, z, floor)  # type: ignore[arg-type]
-    for k, f in enumerate(frames):
-        lv = np.asarray(f)[::4, ::4]
-        # A frame with no level strictly between the floor and Z can give no ratio (checked
-        # on every 4th row and column: a whole-frame pass costs 0.1 s at 24 MP).
-        if not np.any((lv > fl) & (lv < zl)):
-            kind = "black (at or below the noise floor)" if np.median(lv) <= fl else "saturated"
-            raise EstimationError(
-                f"frame {k} is entirely {kind}; no exposure ratio can be estimated from it",
-                expected=f"pixels between noise floor {fl:g} and saturation {zl:g}", found="none")
+    # A frame with no level strictly between the floor and Z gives no ratio: its pairs get
+    # status "no-signal" (or keep the fallback's "no-signal" result), never an exception.
+    unusable = [_frame_unusable(f, zl, fl) for f in frames]
+    fallback_no_signal = [fallback is not None and fallback.pairs[i].status == "no-signal"
+                          for i in range(n - 1)]
 
     def one(i: int, j: int) -> ExposureRatioResult:
         extra_kw = {}
@@ -496,22 +512,37 @@ def bracket_exposures_from_pixels(
                                          bright_index=j, **extra_kw,
                                          **kwargs)  # type: ignore[arg-type]
 
-    todo = [(i, i + 1) for i in range(n - 1) if ok_reg[i]]
+    def signal(i: int, j: int) -> bool:
+        return unusable[i] is None and unusable[j] is None
+
+    todo = [(i, i + 1) for i in range(n - 1)
+            if ok_reg[i] and signal(i, i + 1) and not fallback_no_signal[i]]
     if non_consecutive:
         for span in range(2, min(max_span, n - 1) + 1):
-            todo += [(i, i + span) for i in range(n - span) if all(ok_reg[i:i + span])]
+            todo += [(i, i + span) for i in range(n - span)
+                     if all(ok_reg[i:i + span]) and signal(i, i + span)]
     done = dict(zip(todo, thread_map(lambda ij: one(*ij), todo, workers), strict=True))
 
     pairs = []
+    nc = frames[0].shape[-1]
+    tol = kwargs.get("max_relative_error", OK_TOLERANCE)
     for i in range(n - 1):
-        if (i, i + 1) in done:
+        if fallback_no_signal[i]:
+            pairs.append(fallback.pairs[i])  # type: ignore[union-attr]
+        elif (i, i + 1) in done:
             pairs.append(done[(i, i + 1)])
+        elif not signal(i, i + 1):
+            which, kind = (("darker", unusable[i]) if unusable[i] is not None
+                           else ("brighter", unusable[i + 1]))
+            pairs.append(_no_signal(which, kind, method=METHOD, n_ch=nc,  # type: ignore[arg-type]
+                                    saturation=zl, noise_floor=fl, max_level=max_level, dark=i,
+                                    bright=i + 1, tolerance=tol))  # type: ignore[arg-type]
         elif fallback is not None:
-            h = fallback.pairs[i]
+            h = judge(fallback.pairs[i])  # its interval with the region jack-knife
             pairs.append(replace(h, message=f"{h.message} (frames not registered: the "
                                             "histogram estimate)"))
         else:
-            pairs.append(_unregistered(i, frames[i].shape[-1], max_level, zl, fl))
+            pairs.append(_unregistered(i, nc, max_level, zl, fl))
     extra = [r for (i, j), r in done.items() if j - i > 1 and r.status != "no-overlap"]
     return assemble_bracket(n, pairs, extra, method=METHOD, exposure_times=exposure_times,
                             max_level=max_level, consistency_stops=consistency_stops,

@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 
 from ..btf import BrightnessTransferFunction
+from . import interval as _interval
 
 __all__ = ["ExposureEquations", "ExposureRatioResult", "BracketExposureResult", "PairKey"]
 
@@ -57,7 +58,7 @@ class ExposureRatioResult:
     ``k0``. ``inlier_mask`` and ``residuals`` (weighted, ``w * (y - k x)``) run over
     ``equations``. ``std_error`` is the standard error of ``ratio`` from the weighted fit,
     ``overlap`` the fraction of the darker frame's pixels whose levels enter the equations.
-    ``status`` is ``"ok"`` or a short word (``"no-overlap"``, ``"uncertain"``,
+    ``status`` is ``"ok"`` or a short word (``"no-overlap"``, ``"no-signal"``, ``"uncertain"``,
     ``"channels-disagree"``, ``"few-equations"``); ``message`` says what it means.
     ``channel_ratios`` are the same fit per colour channel; ``channels_disagree`` flags a
     spread larger than their errors allow (a white-level or colour-cast problem).
@@ -70,6 +71,16 @@ class ExposureRatioResult:
     status ``"unstable"`` marks a pair whose regions disagree. ``overlap_restricted`` says the
     histograms were counted over the common field of view of the pair only (after
     registration), ``common_fraction`` the fraction of the bright frame's pixels kept.
+
+    The calibrated 95 % interval (:mod:`.interval`): :attr:`interval` and
+    :attr:`ci95_relative` (its relative half-width) follow from ``std_error``,
+    ``region_std_error``, ``band_ratios`` (the ratio fitted on bands of the equations ordered by
+    brightness, darkest first), ``model_error`` (the floor for model error of non-linear input)
+    and the estimator's calibration, so they stay right when a field is replaced (e.g. the
+    jack-knife added). A pair is ``"ok"`` when ``ci95_relative <= tolerance`` and no other
+    check failed, ``"uncertain"`` when only the interval is too wide
+    (:func:`~hdrcore.exposure.interval.judge` decides again after a change); ``evidence`` says
+    what the estimate rests on (the end of an ok pair's message).
     """
 
     method: str
@@ -98,10 +109,36 @@ class ExposureRatioResult:
     region_std_error: float = float("nan")
     overlap_restricted: bool = False
     common_fraction: float = 1.0
+    band_ratios: tuple[float, ...] = ()
+    model_error: float = 0.0
+    tolerance: float = _interval.OK_TOLERANCE
+    evidence: str = ""
 
     @property
     def ok(self) -> bool:
         return self.status == "ok"
+
+    @property
+    def ci95_relative(self) -> float:
+        """Relative half-width ``h`` of the calibrated 95 % interval (``inf`` when unknown)."""
+        return _interval.ci95_relative(
+            self.ratio, self.std_error, self.region_std_error, method=self.method,
+            band_ratios=self.band_ratios, model_error=self.model_error)
+
+    @property
+    def interval(self) -> tuple[float, float]:
+        """The calibrated 95 % interval ``(low, high)`` of ``ratio`` (``nan`` when unknown)."""
+        return _interval.interval(self.ratio, self.ci95_relative)
+
+    @property
+    def ci95_basis(self) -> str:
+        """What the interval's standard error is: ``"jack-knife"`` or ``"fit"``."""
+        return _interval.interval_std_error(self.std_error, self.region_std_error)[1]
+
+    @property
+    def band_spread(self) -> float:
+        """Standard deviation of ``log`` of the ``band_ratios`` (0 with fewer than two)."""
+        return _interval.band_spread(self.band_ratios)
 
     @property
     def honest_std_error(self) -> float:
@@ -134,6 +171,12 @@ class ExposureRatioResult:
             "inliers": self.n_inliers,
             "std_error": float(self.std_error),
             "region_std_error": _finite_or_none(self.region_std_error),
+            "ci95_low": _finite_or_none(self.interval[0]),
+            "ci95_high": _finite_or_none(self.interval[1]),
+            "ci95_relative": _finite_or_none(self.ci95_relative),
+            "ci95_basis": self.ci95_basis,
+            "band_ratios": [_finite_or_none(v) for v in self.band_ratios],
+            "model_error": float(self.model_error),
             "overlap_restricted": bool(self.overlap_restricted),
             "common_fraction": float(self.common_fraction),
             "status": self.status,

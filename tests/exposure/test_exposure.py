@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hdrcore.errors import EstimationError, ParameterError
+from hdrcore.errors import ParameterError
 from hdrcore.exposure import (
     EXPOSURE_METHODS,
     bracket_exposures,
@@ -87,14 +87,19 @@ def test_no_overlap_is_not_ok_with_message() -> None:
     assert np.isnan(r.ratio)
 
 
-def test_all_saturated_or_black_raises() -> None:
+def test_all_saturated_or_black_frame_gives_no_signal() -> None:
+    # A black or saturated frame is a status of its pair (issue 12), not an exception.
     good = simulate_bracket(shape=(32, 48), exposure_times=(1.0,), seed=6).frames[0]
     white = np.full_like(good, 255)
     black = np.zeros_like(good)
-    with pytest.raises(EstimationError, match="brighter frame is entirely saturated"):
-        exposure_ratio_frames(good, white, 255)
-    with pytest.raises(EstimationError, match="darker frame is entirely black"):
-        exposure_ratio_frames(black, good, 255)
+    r = exposure_ratio(histograms(good, 255), histograms(white, 255), dark=2, bright=3)
+    assert r.status == "no-signal" and not r.ok and np.isnan(r.ratio)
+    assert "frames 2 and 3" in r.message
+    assert "brighter frame is entirely saturated" in r.message
+    assert "expected pixels between noise floor 5.1 and saturation 247.35, found none" in r.message
+    r = exposure_ratio_frames(black, good, 255)
+    assert r.status == "no-signal" and "darker frame is entirely black" in r.message
+    assert r.to_json()["ci95_low"] is None
 
 
 def test_bad_parameters() -> None:

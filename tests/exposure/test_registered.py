@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hdrcore.errors import EstimationError, ParameterError
+from hdrcore.errors import ParameterError
 from hdrcore.exposure import bracket_exposures
 from hdrcore.exposure.registered import (
     METHOD,
@@ -68,14 +68,21 @@ def test_no_overlap_gives_a_status_and_a_message() -> None:
     assert "too few registered pixels" in r.message and not np.isfinite(r.ratio)
 
 
-def test_black_or_saturated_frame_is_a_clear_error() -> None:
+def test_black_or_saturated_frame_gives_a_no_signal_pair() -> None:
+    # Never an exception (issue 12): the pair says which frame is black or saturated.
     b = simulate_bracket(scene="window", shape=(100, 150), exposure_times=(1.0, 4.0), bits=8)
     black = np.zeros_like(b.frames[0])
-    with pytest.raises(EstimationError, match="frame 0 is entirely black"):
-        bracket_exposures_from_pixels([black, b.frames[1]], 255, [np.eye(2, 3)])
+    r = bracket_exposures_from_pixels([black, b.frames[1]], 255, [np.eye(2, 3)])
+    p = r.pairs[0]
+    assert p.status == "no-signal" and np.isnan(p.ratio) and not r.ok
+    assert "frames 0 and 1: the darker frame is entirely black" in p.message
     white = np.full_like(b.frames[0], 255)
-    with pytest.raises(EstimationError, match="frame 1 is entirely saturated"):
-        bracket_exposures_from_pixels([b.frames[0], white], 255, [np.eye(2, 3)])
+    r = bracket_exposures_from_pixels([b.frames[0], white], 255, [np.eye(2, 3)])
+    assert r.pairs[0].status == "no-signal"
+    assert "the brighter frame is entirely saturated" in r.pairs[0].message
+    p = exposure_ratio_registered(b.frames[0], white, 255, np.eye(2, 3), dark_index=4,
+                                  bright_index=5)
+    assert p.status == "no-signal" and "frames 4 and 5" in p.message
     with pytest.raises(ParameterError, match="one matrix per consecutive pair"):
         bracket_exposures_from_pixels(b.frames, 255, [])
     with pytest.raises(ParameterError, match="invertible"):
