@@ -452,9 +452,11 @@ def seed_jobs(root: Path, quick: bool) -> list[tuple]:
 
 def print_seed_table(results: list[CaseResult]) -> None:
     print("\n== 1. Seed protocol (6 frames, times 1..1024 x4, linear, sigma 1 level): exit codes "
-          "of ratios/align/merge; ok pairs and |error| % of their ratios (ratios --json, merge "
-          "report); sig = pairs with signal in both frames reported ok by ratios; HDRutils "
-          "pairs estimated and |error| %")
+          "of ratios/align/merge; ok pairs and |error| % of their ratios from 'ratios --json' "
+          "(the histograms alone: hand-held pairs are unstable there by design) and from the "
+          "merge report (registered pixels); sig r/m: of the pairs with signal in both frames "
+          "(truth), how many ratios / the merge reported ok; align: pairs registered ok; "
+          "HDRutils: pairs estimated and |error| %")
     hdr = (f"{'case':34s} {'r a m':>7s} | {'ratios ok':>9s} {'med%':>7s} {'max%':>7s} | "
            f"{'merge ok':>8s} {'med%':>7s} {'max%':>7s} | {'sig r/m':>8s} | {'align':>5s} | "
            f"{'cerman':>6s} {'med%':>6s} {'max%':>7s} | {'mst':>5s} {'med%':>6s} {'max%':>7s}")
@@ -558,14 +560,14 @@ def print_fault_table(results: list[CaseResult]) -> None:
         checks = check_pairs(r.ratios.doc if r.ratios else None, r.case)
         if checks is None:
             err = r.ratios.error if r.ratios else ""
-            print(f"{r.name:30s} {codes:>7s} | {'-':>6s} | {err[:150]}")
+            print(f"{r.name:30s} {codes:>7s} | {'-':>6s} | {err[:600]}")
             continue
         bad = sum(c.ok and c.error > TARGET_MAX_OK for c in checks)
         desc = ", ".join(f"{c.dark}-{c.bright} {c.status} {c.ratio:.4g}/{c.true:.4g}"
                          for c in checks)
         print(f"{r.name:30s} {codes:>7s} | {bad:6d} | {desc}")
         if r.merge and r.merge.code not in (0, None) and r.merge.error:
-            print(f"{'':30s} {'':>7s} | {'':>6s} | merge: {r.merge.error[:150]}")
+            print(f"{'':30s} {'':>7s} | {'':>6s} | merge: {r.merge.error[:600]}")
         doc = r.merge.doc if r.merge else None
         if doc:
             codes_seen = Counter(f"{v.get('code')}({v.get('severity', '')[:4]})"
@@ -650,20 +652,20 @@ def raw_jobs(root: Path, quick: bool) -> list[tuple]:
     d12 = DARK_RAW_12BIT.replace(shape=shape, seed=5)
     d14 = WIDE_RAW_14BIT.replace(shape=shape, seed=5)
     variants = [
-        ("12-bit 2 stops, peak 1.5 %", lambda d: write_dark_raw_bracket(d, d12)),
-        ("  + masked margins (MaskedAreas)", lambda d: write_dark_raw_bracket(
+        ("12-bit 2 stops peak 1.5 %", lambda d: write_dark_raw_bracket(d, d12)),
+        ("  + margins, MaskedAreas", lambda d: write_dark_raw_bracket(
             d, d12.replace(margins=16))),
         ("  + margins, ActiveArea only", lambda d: write_dark_raw_bracket(
             d, d12.replace(margins=16, masked_areas=False))),
         ("14-bit pair 6 stops", lambda d: write_wide_raw_pair(d, d14)),
-        ("  + masked margins (MaskedAreas)", lambda d: write_wide_raw_pair(
+        ("  + margins, MaskedAreas", lambda d: write_wide_raw_pair(
             d, d14.replace(margins=16))),
     ]
     jobs = []
     for k, (name, make) in enumerate(variants):
         jobs.append((f"{name}", make, root / f"raw{k}", {"align": True}))
         if not name.startswith(" "):  # the workaround, beside the defaults
-            jobs.append((f"{name}  [--noise-floor 8]", make, root / f"raw{k}-floor8",
+            jobs.append((f"{name}, --noise-floor 8", make, root / f"raw{k}-floor8",
                          {"align": True, "extra_args": ("--noise-floor", "8"), "peers": ()}))
     return jobs
 
