@@ -88,6 +88,10 @@ REFINE_CHOICES = ("pixels", "histograms", "none")
 
 ProgressCallback = Callable[[str, float, str], None]
 
+#: A not-ok pair whose calibrated 95 % interval holds the EXIF ratio keeps its measured ratio
+#: when the interval's relative half-width is at most this; else the merge uses the EXIF ratio.
+AGREE_HALF_WIDTH = 0.025
+
 #: Relative disagreement between frames tolerated by the ghost test for non-linear input.
 NONLINEAR_MODEL_ERROR = 0.10
 
@@ -99,6 +103,16 @@ class _Unlinked(Exception):  # noqa: N818 - internal signal, never leaves the pi
     def __init__(self, keep: tuple[int, ...], drop: tuple[int, ...], why: str) -> None:
         super().__init__(why)
         self.keep, self.drop, self.why = keep, drop, why
+
+
+def _pair_interval(pair: Any) -> tuple[float, float]:
+    """The calibrated 95 % interval of a pair's ratio (``(nan, nan)`` when it has none)."""
+    iv = getattr(pair, "interval", None)
+    try:
+        lo, hi = (float(v) for v in iv)  # type: ignore[union-attr]
+    except (TypeError, ValueError):
+        return float("nan"), float("nan")
+    return lo, hi
 
 
 def _raise_unlinked(n: int, broken: list[int], why: str) -> None:
@@ -902,9 +916,16 @@ class Pipeline:
             r = ratios[k]
             exif_r = None if exif[k] is None or exif[k + 1] is None else exif[k + 1] / exif[k]
             good = math.isfinite(r) and r > 0
-            if exif_r is not None and (not good or (not pair.ok and abs(
+            lo, hi = _pair_interval(pair)
+            # Within a tight enough interval (half-width <= 2.5 %), a measured ratio that holds
+            # the EXIF ratio is the better of the two; a wider one says little either way.
+            agrees = (exif_r is not None and good and lo <= exif_r <= hi
+                      and hi / lo <= (1 + AGREE_HALF_WIDTH) / (1 - AGREE_HALF_WIDTH))
+            if exif_r is not None and (not good or (not pair.ok and not agrees and abs(
                     math.log2(r / exif_r)) >= p.ratio_fallback_stops)):
-                # An unreliable estimate far from the metadata: trust the metadata here.
+                # An unreliable estimate far from the metadata: trust the metadata here. (An
+                # estimate whose 95 % interval holds the APEX-snapped EXIF ratio agrees with it
+                # and is kept: it measures what the shutter really did.)
                 ratios[k] = float(exif_r)
                 fallback.append(k)
             elif not good:
