@@ -355,6 +355,8 @@ def ratios_json(bracket: Bracket, res: BracketExposureResult) -> dict[str, Any]:
                 "exif_ratio": res.exif_ratios[k],
                 "mismatch_stops": res.mismatch_stops[k],
                 "std_error": p.std_error,
+                **{key: value for key, value in p.to_json().items()
+                   if key.startswith("ci95") or key == "region_std_error"},
                 "status": p.status,
                 "message": p.message,
             }
