@@ -2,7 +2,8 @@
 
 Equations of system S0 (Cerman & Hlavac 2006, eq. 4) from brightness transfer functions, the
 weighted least-squares solution of ``k x = y`` with the seed's 3V outlier iteration (section 5.1),
-and the status logic of section 5.2 (not enough overlap, poor confidence).
+and the status logic of section 5.2 (not enough overlap, poor confidence: a 95 % interval
+wider than the tolerance, :mod:`.interval`; a black or saturated frame: ``"no-signal"``).
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ import numpy as np
 
 from ..btf import BrightnessTransferFunction, brightness_transfer_function
 from ..errors import ParameterError
-from .interval import OK_TOLERANCE, brightness_band_ratios, model_error_floor, verdict
+from .interval import OK_TOLERANCE, brightness_band_ratios, verdict
 from .result import FORWARD, INVERSE, ExposureEquations, ExposureRatioResult
 
 __all__ = [
@@ -444,7 +445,7 @@ def estimate_pair(
 
     common = dict(method=options.name, equations=eqs, overlap=overlap, btfs=btfs, saturation=z,
                   noise_floor=floor, max_level=max_level, dark=dark, bright=bright,
-                  model_error=model_error_floor(lut is not None), tolerance=max_relative_error)
+                  non_linear=lut is not None, tolerance=max_relative_error)
     if x.size < min_equations or overlap < min_overlap:
         return ExposureRatioResult(
             ratio=float("nan"), initial_ratio=float("nan"), iterates=(), iterations=0,

@@ -40,7 +40,9 @@ ratios, each direction about its own ratio: tiles more than ``3`` robust standar
 the inlier set no longer changes. (Applied to the squared error as in eq. 4, iterating "keep
 errors under 3V" on Gaussian-distributed tile errors keeps shrinking the inlier set; the robust
 scale keeps the 3x rule meaningful.) The standard error is a delete-one-region jack-knife over
-a grid of image regions (default 4 x 4), the same honest error the histogram estimator reports.
+a grid of image regions (default 4 x 4), the same honest error the histogram estimator reports;
+the pair's calibrated 95 % interval and its ``"ok"`` / ``"uncertain"`` status follow from it
+(:mod:`.interval`). A black or saturated frame gives status ``"no-signal"``, never an error.
 
 Large frames are sampled: tiles on a regular lattice so that each direction reads at most
 ``max_samples`` pixels (default 1 million; at 24 MP that is every fifth tile in each direction).
@@ -65,7 +67,7 @@ from .._threads import thread_map
 from ..errors import ParameterError
 from ._core import _no_signal, as_lut, channels_disagree, check_levels
 from .chain import assemble_bracket
-from .interval import OK_TOLERANCE, brightness_band_ratios, judge, model_error_floor, verdict
+from .interval import OK_TOLERANCE, brightness_band_ratios, judge, verdict
 from .pair_histograms import chain_pair_matrix
 from .result import FORWARD, INVERSE, BracketExposureResult, ExposureEquations, ExposureRatioResult
 from .stability import jackknife_std_error
@@ -330,7 +332,7 @@ def exposure_ratio_registered(
     pixels = int(min(n_f.sum(), n_i.sum()) / max(nk, 1))
     common = dict(method=METHOD, saturation=z, noise_floor=floor, max_level=int(max_level),
                   dark=int(dark_index), bright=int(bright_index), overlap_restricted=True,
-                  model_error=model_error_floor(lut is not None), tolerance=max_relative_error)
+                  non_linear=lut is not None, tolerance=max_relative_error)
     eqs = _equations(sf, si)
     # The fraction of the read pixels (of the sampled tiles) that entered the sums.
     examined = float(np.sum(np.minimum(tile, h - tf[:, 0]) * np.minimum(tile, w - tf[:, 1])))

@@ -75,8 +75,9 @@ class ExposureRatioResult:
     The calibrated 95 % interval (:mod:`.interval`): :attr:`interval` and
     :attr:`ci95_relative` (its relative half-width) follow from ``std_error``,
     ``region_std_error``, ``band_ratios`` (the ratio fitted on bands of the equations ordered by
-    brightness, darkest first), ``model_error`` (the floor for model error of non-linear input)
-    and the estimator's calibration, so they stay right when a field is replaced (e.g. the
+    brightness, darkest first), :attr:`model_error` (the floor for model error, larger when
+    ``non_linear``: the levels were linearised through a response table) and the estimator's
+    calibration, so they stay right when a field is replaced (e.g. the
     jack-knife added). A pair is ``"ok"`` when ``ci95_relative <= tolerance`` and no other
     check failed, ``"uncertain"`` when only the interval is too wide
     (:func:`~hdrcore.exposure.interval.judge` decides again after a change); ``evidence`` says
@@ -110,13 +111,19 @@ class ExposureRatioResult:
     overlap_restricted: bool = False
     common_fraction: float = 1.0
     band_ratios: tuple[float, ...] = ()
-    model_error: float = 0.0
+    non_linear: bool = False
     tolerance: float = _interval.OK_TOLERANCE
     evidence: str = ""
 
     @property
     def ok(self) -> bool:
         return self.status == "ok"
+
+    @property
+    def model_error(self) -> float:
+        """The model-error floor ``f`` of the interval (relative; grows with the stops)."""
+        return _interval.model_error_floor(self.ratio, non_linear=self.non_linear,
+                                           method=self.method)
 
     @property
     def ci95_relative(self) -> float:
@@ -177,6 +184,7 @@ class ExposureRatioResult:
             "ci95_basis": self.ci95_basis,
             "band_ratios": [_finite_or_none(v) for v in self.band_ratios],
             "model_error": float(self.model_error),
+            "non_linear": bool(self.non_linear),
             "overlap_restricted": bool(self.overlap_restricted),
             "common_fraction": float(self.common_fraction),
             "status": self.status,
