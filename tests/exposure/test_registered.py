@@ -89,6 +89,21 @@ def test_black_or_saturated_frame_gives_a_no_signal_pair() -> None:
         exposure_ratio_registered(b.frames[0], b.frames[1], 255, np.zeros((2, 3)))
 
 
+def test_no_signal_fallback_pair_is_kept_unchanged() -> None:
+    # A pair whose histogram estimate says "no-signal" (a black or saturated frame) keeps that
+    # result; the other pairs are measured from their pixels.
+    b = simulate_bracket(scene="window", shape=(100, 150), exposure_times=(1.0, 4.0, 16.0),
+                         bits=12, noise_sigma=1.0, seed=2)
+    frames = [np.zeros_like(b.frames[0]), b.frames[1], b.frames[2]]
+    fallback = bracket_exposures(frames, b.max_level)
+    assert fallback.pairs[0].status == "no-signal"
+    mats = [np.eye(2, 3)] * 2
+    r = bracket_exposures_from_pixels(frames, b.max_level, mats, fallback=fallback)
+    assert r.pairs[0] is fallback.pairs[0]
+    assert r.pairs[1].method == METHOD and r.pairs[1].ok, r.pairs[1].message
+    assert not r.extra_pairs  # the pair 0-2 has a black frame: not measured
+
+
 def test_moving_object_tiles_are_rejected(handheld12) -> None:
     b = handheld12[1]
     mat = b.pair_matrix(1, 2)
