@@ -21,6 +21,7 @@ from dataclasses import replace
 import numpy as np
 
 from ..errors import ParameterError
+from .interval import judge
 from .pair_histograms import BracketHistograms, PairHistograms, bracket_histograms
 from .result import BracketExposureResult, ExposureRatioResult
 from .stability import region_jackknife
@@ -100,15 +101,15 @@ def _with_diagnostics(
 ) -> ExposureRatioResult:
     """Add the overlap restriction and the region jack-knife to a pair's result."""
     changes: dict = {}
-    if ph.overlap_restricted:
-        changes.update(overlap_restricted=True, common_fraction=ph.common_fraction)
-        if np.isfinite(r.ratio):
-            changes["message"] = (f"{r.message}; histograms restricted to the common field of "
-                                  f"view ({ph.common_fraction:.1%} of the bright frame)")
     sk = ph.jackknife_skeleton(jackknife_groups) if jackknife and np.isfinite(r.ratio) else None
     if sk is not None:
         ks, se = region_jackknife(sk, saturation=r.saturation, noise_floor=r.noise_floor, lut=lut)
-        changes.update(region_ratios=tuple(float(v) for v in ks), region_std_error=se)
+        # The calibrated interval rests on the jack-knife: ok / uncertain decided again on it.
+        judged = judge(replace(r, region_ratios=tuple(float(v) for v in ks),
+                               region_std_error=se))
+        changes.update(region_ratios=judged.region_ratios, region_std_error=se,
+                       status=judged.status, message=judged.message)
+        r = judged
         rel = se / r.ratio if r.ratio > 0 else float("inf")
         # Motion explains disagreeing channels and a poor fit too, and the remedy differs:
         # "unstable" takes precedence over those, not over a missing overlap or a failed fit.
@@ -127,6 +128,12 @@ def _with_diagnostics(
                 f"one of {sk.n_regions} image regions moves it by {rel:.2%} (jack-knife standard "
                 f"error, over {max_region_error:.2%}); {hint}"
                 + ("" if r.ok else f" (the fit alone reported: {r.status})"))
+    if ph.overlap_restricted:
+        changes.update(overlap_restricted=True, common_fraction=ph.common_fraction)
+        if np.isfinite(r.ratio):
+            changes["message"] = (f"{changes.get('message', r.message)}; histograms restricted "
+                                  f"to the common field of view ({ph.common_fraction:.1%} of "
+                                  "the bright frame)")
     return replace(r, **changes) if changes else r
 
 
