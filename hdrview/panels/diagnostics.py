@@ -4,6 +4,7 @@ plain-language verdicts and the capture warnings of the loader."""
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import viser
@@ -17,7 +18,7 @@ __all__ = ["DiagnosticsPanel", "bundle_files", "frames_table", "pairs_table",
 
 
 def pairs_table(exposure: Any, registration: Any, bracket: Any = None) -> str:
-    header = ["pair", "ratio", "± std err", "EXIF ratio", "mismatch (stops)", "inliers",
+    header = ["pair", "ratio", "95 % interval", "EXIF ratio", "mismatch (stops)", "inliers",
               "ratio status", "cost before → after", "dx, dy, angle", "registration status"]
     rows = []
     names = None if bracket is None else [f.name for f in bracket.frames]
@@ -32,7 +33,7 @@ def pairs_table(exposure: Any, registration: Any, bracket: Any = None) -> str:
         rows.append([
             f"{p.dark}→{p.bright}" + ("" if names is None else
                                       f" ({names[p.dark]}, {names[p.bright]})"),
-            fmt(p.ratio, 6), fmt(p.std_error, 2), fmt(exif, 6),
+            fmt(p.ratio, 6), _interval_text(p), fmt(exif, 6),
             fmt(mism, 3), f"{p.n_inliers}/{p.n_equations}", p.status, cost, motion,
             "off" if r is None else r.status,
         ])
@@ -67,6 +68,20 @@ def frames_table(result: Any) -> str:
                  f"{fmt(noise.k_sigma, 2)} × σ = {fmt(noise.k_sigma * noise.sigma, 4)}, at least "
                  f"{fmt(noise.minimum, 4)}; σ = {fmt(noise.sigma, 3)} from {noise.source}).")
     return text
+
+
+def _interval_text(p: Any) -> str:
+    """The pair's calibrated 95 % interval, ``low–high (±h %)``, or a dash."""
+    iv = getattr(p, "interval", None)
+    h = getattr(p, "ci95_relative", None)
+    try:
+        lo, hi = (float(v) for v in iv)  # type: ignore[union-attr]
+        h = float(h)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        return "—"
+    if not all(map(math.isfinite, (lo, hi, h))):
+        return "—"
+    return f"{lo:.4g}–{hi:.4g} (±{100 * h:.2g} %)"
 
 
 def _verdict_text(v: Any) -> str:
