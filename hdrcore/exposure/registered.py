@@ -531,8 +531,17 @@ def bracket_exposures_from_pixels(
     for i in range(n - 1):
         if fallback_no_signal[i]:
             pairs.append(fallback.pairs[i])  # type: ignore[union-attr]
-        elif (i, i + 1) in done:
+        elif (i, i + 1) in done and not (
+                done[(i, i + 1)].status in ("no-overlap", "few-equations")
+                and fallback is not None and np.isfinite(fallback.pairs[i].ratio)):
             pairs.append(done[(i, i + 1)])
+        elif (i, i + 1) in done:
+            # Too few registered pixels to compare, but the histograms (which need no pixel
+            # correspondence) measured the pair: their estimate, with its own interval.
+            h = judge(fallback.pairs[i])  # type: ignore[union-attr]
+            pairs.append(replace(h, message=f"{h.message} (too few registered pixels: "
+                                            f"{done[(i, i + 1)].message}; the histogram "
+                                            "estimate)"))
         elif not signal(i, i + 1):
             which, kind = (("darker", unusable[i]) if unusable[i] is not None
                            else ("brighter", unusable[i + 1]))
