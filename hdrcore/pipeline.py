@@ -12,9 +12,15 @@ JSON report of ``hdrcore merge --report`` with the field names of ``ratios --jso
 ``align --json``.
 
 Units: the saturation level ``Z`` and the noise floor are in the frames' integer levels, as in the
-paper (``None`` picks :func:`hdrcore.exposure.default_saturation` /
-:func:`~hdrcore.exposure.default_noise_floor`); the registration threshold ``t`` is a fraction
-of the saturation level (eq. 7).
+paper (``None`` picks :func:`hdrcore.exposure.default_saturation` and
+:meth:`Pipeline.auto_noise_floor`, 3 sigma of the noise measured from the frames,
+:mod:`hdrcore.noise`); the registration threshold ``t`` is a fraction of the saturation level
+(eq. 7).
+
+Weak frames degrade the run, never fail it: a frame without signal (black, saturated;
+:mod:`hdrcore.signal`) or without a ratio linking it to the rest (no overlap, no EXIF) is left out
+of every stage, the result says which and why, and only a bracket with fewer than two usable
+frames raises.
 """
 
 from __future__ import annotations
