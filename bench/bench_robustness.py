@@ -39,9 +39,10 @@ At the end, every distinct error message (numbers masked) with its count and one
 engineers fixing the pipeline.
 
 Usage: ``python bench/bench_robustness.py [--quick] [--jobs N] [--keep DIR]``.
-``--quick``: 256x384 frames, one seed, dark scenes for two scenes only (about 5 minutes on 2
-cores with ``--jobs 1``). Full run: 512x768 frames, seeds 1 and 2, every scene dark and normal
-(96 seed-protocol cases; about 30-40 minutes with ``--jobs 1``). ``--keep DIR`` keeps the
+``--quick``: 256x384 frames, one seed, dark scenes for two scenes only (32 seed-protocol cases,
+13 faults, 8 dark RAW: 5 minutes on the shared 2-core machine with ``--jobs 1``). Full run:
+512x768 seed-protocol frames, seeds 1 and 2, every scene normal and dark (96 cases): 17 minutes
+with ``--jobs 1``. ``--only seed|faults|raw`` runs some tables. ``--keep DIR`` keeps the
 brackets (one folder per case, with truth.json) to reproduce a row by hand.
 """
 
@@ -327,7 +328,8 @@ def hdrutils_on_dng(case: FaultyBracket, method: str) -> PeerResult:
         return PeerResult([], f"{type(exc).__name__}: {exc}"[:120])
     est = np.asarray(est, float)
     pairs = [(k, k + 1, float(est[k + 1] / est[k])) for k in range(n - 1)]
-    notes = [m for m in cap.messages if "Skipping" in m or "Reverting" in m or "failed" in m]
+    notes = [re.sub(r"\S*/", "", m) for m in cap.messages  # file names, not paths
+             if "Skipping" in m or "Reverting" in m or "failed" in m]
     if np.array_equal(est, np.asarray(exif, float)):
         pairs = []
         notes.insert(0, "not estimated (EXIF returned: it estimates with > 2 usable frames)")
@@ -367,7 +369,7 @@ MESSAGES: dict[str, list[str]] = defaultdict(list)
 def remember(case_name: str, command: str, o: Outcome | None) -> None:
     if o is None or not o.error:
         return
-    key = re.sub(r"\d+(\.\d+)?", "#", o.error)
+    key = re.sub(r"\d+(\.\d+)?", "#", o.error)[:140]  # the same message, whatever the frames
     MESSAGES[f"{command} (exit {code(o)}): {key}"].append(f"{case_name}: {o.error}")
 
 
