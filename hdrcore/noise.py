@@ -45,8 +45,10 @@ __all__ = [
 K_SIGMA = 3.0
 #: Smallest floor for RAW frames, levels (two quantisation steps).
 RAW_MIN_FLOOR = 2.0
-#: Smallest floor for non-linear (JPEG/PNG/TIFF) frames as a fraction of the largest level:
-#: 2 % (5.1 levels at 8 bits). The noise measured in JPEG shadows is tiny (sigma 0.19-0.45
+#: Smallest floor for 8-bit non-linear (JPEG/PNG/TIFF) frames as a fraction of the largest
+#: level: 2 % (5.1 levels). Deeper non-linear files keep :data:`RAW_MIN_FLOOR` (no real 16-bit
+#: bracket in ../shared/data: that rule is checked on simulated 12-bit data in 16-bit PNGs only).
+#: The noise measured in JPEG shadows is tiny (sigma 0.19-0.45
 #: levels in the darkest frames of the two phone brackets of ../shared/data: compression
 #: flattens them), so 3 sigma would put the floor at about one level; measured on the real
 #: brackets (bench/bench_noise.py), a low floor hurts: Pixel 7 (dark room, ISO 1599), median
@@ -182,11 +184,27 @@ def frame_noise(plane: np.ndarray, *, black: float = 0.0, white: float,
     sigma, mean = darkest(d2_all, mean_all)
     if clipped_low is not None:
         # Near the clip even samples whose taps all lie above it are a truncated draw (their
-        # noise pushed them up): measure again where the mean is 3 sigma clear of the clip.
-        clear = mean_all > clipped_low + 3.0 * max(sigma, 0.5)
-        if np.count_nonzero(clear) >= _MIN_SAMPLES // 4:
-            sigma, mean = darkest(d2_all[clear], mean_all[clear])
+        # noise pushed them up): measure again where the mean is 3 sigma clear of the clip
+        # (and 3 quantisation steps: 12-bit data scaled into a 16-bit file moves by 16s).
+        q = _level_step(plane)
+        clear = mean_all > clipped_low + 3.0 * max(sigma, 0.5, float(q))
+        if np.count_nonzero(clear) < _MIN_SAMPLES // 4:
+            return FrameNoise(float("nan"), "none", int(np.count_nonzero(clear)), 0.0)
+        sigma, mean = darkest(d2_all[clear], mean_all[clear])
+    if not sigma > 0:
+        return FrameNoise(float("nan"), "none", int(mean.size), 0.0)
     return FrameNoise(float(sigma), "dark-regions", int(mean.size), float(np.mean(mean) - black))
+
+
+def _level_step(plane: np.ndarray) -> int:
+    """The spacing of the levels a frame uses (1, or 16 for 12-bit data in a 16-bit file)."""
+    a = np.asarray(plane)
+    if not np.issubdtype(a.dtype, np.integer):
+        return 1
+    step = max(1, int(math.sqrt(a.size / 100_000)))
+    v = a[::step, ::step].ravel()
+    v = v[v > 0].astype(np.int64)
+    return int(np.gcd.reduce(v)) if v.size else 1
 
 
 def bracket_noise(
@@ -195,7 +213,11 @@ def bracket_noise(
 ) -> BracketNoise:
     """The bracket's noise and noise floor from its frames' measurements (module docstring)."""
     if minimum is None:
-        minimum = RAW_MIN_FLOOR if linear else NONLINEAR_MIN_FLOOR_FRACTION * max_level
+        # 8-bit files are JPEGs or scans: the measured minimum (see its note). Deeper
+        # non-linear files (16-bit TIFF/PNG from a raw converter) carry no JPEG compression:
+        # their measured noise rules, as for RAW.
+        minimum = (NONLINEAR_MIN_FLOOR_FRACTION * max_level if not linear and max_level <= 255
+                   else RAW_MIN_FLOOR)
     ob = [f.sigma for f in frames if f.source == "optical-black" and math.isfinite(f.sigma)]
     measured = [f for f in frames if f.source == "dark-regions" and math.isfinite(f.sigma)]
     if ob:

@@ -340,9 +340,10 @@ def read_raw(path: str | Path, *, half_size: bool = False, keep_cfa: bool = True
 
     levels = np.ascontiguousarray(rgb, dtype=np.uint16)
     # Demosaicing can overshoot the white level near clipped areas; such values are clipped
-    # (saturated) samples, so they are held at each channel's largest level.
-    for c in range(3):
-        np.minimum(levels[..., c], channel_max[c], out=levels[..., c])
+    # (saturated) samples. Every channel is held at the frame's largest level, the smallest of
+    # the channels' (per-channel black levels differ by a level or so, e.g. when LibRaw measures
+    # them on masked pixels: 255/255/255/256); a channel with a lower black loses that level.
+    np.minimum(levels, np.uint16(max_level), out=levels)
     meta = FrameMetadata(
         path=str(p),
         format="raw",
