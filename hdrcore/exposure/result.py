@@ -114,6 +114,7 @@ class ExposureRatioResult:
     non_linear: bool = False
     tolerance: float = _interval.OK_TOLERANCE
     evidence: str = ""
+    response_error_per_stop: float = 0.0
 
     @property
     def ok(self) -> bool:
@@ -121,9 +122,15 @@ class ExposureRatioResult:
 
     @property
     def model_error(self) -> float:
-        """The model-error floor ``f`` of the interval (relative; grows with the stops)."""
-        return _interval.model_error_floor(self.ratio, non_linear=self.non_linear,
-                                           method=self.method)
+        """The model-error floor ``f`` of the interval (relative; grows with the stops): the
+        estimator's (:func:`~hdrcore.exposure.interval.model_error_floor`), or
+        ``response_error_per_stop`` per stop when the caller knows the linearisation is less
+        certain (a response recovered from a moved bracket), whichever is larger."""
+        table = _interval.model_error_floor(self.ratio, non_linear=self.non_linear,
+                                            method=self.method)
+        if self.response_error_per_stop > 0 and np.isfinite(self.ratio) and self.ratio > 0:
+            return float(max(table, self.response_error_per_stop * abs(np.log2(self.ratio))))
+        return table
 
     @property
     def ci95_relative(self) -> float:
