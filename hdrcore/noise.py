@@ -187,7 +187,7 @@ def frame_noise(plane: np.ndarray, *, black: float = 0.0, white: float,
         # noise pushed them up): measure again where the mean is 3 sigma clear of the clip
         # (and 3 quantisation steps: 12-bit data scaled into a 16-bit file moves by 16s).
         q = _level_step(plane)
-        clear = mean_all > clipped_low + 3.0 * max(sigma, 0.5, float(q))
+        clear = mean_all > clipped_low + 3.0 * max(sigma, 0.5, q)
         if np.count_nonzero(clear) < _MIN_SAMPLES // 4:
             return FrameNoise(float("nan"), "none", int(np.count_nonzero(clear)), 0.0)
         sigma, mean = darkest(d2_all[clear], mean_all[clear])
@@ -196,15 +196,17 @@ def frame_noise(plane: np.ndarray, *, black: float = 0.0, white: float,
     return FrameNoise(float(sigma), "dark-regions", int(mean.size), float(np.mean(mean) - black))
 
 
-def _level_step(plane: np.ndarray) -> int:
-    """The spacing of the levels a frame uses (1, or 16 for 12-bit data in a 16-bit file)."""
+def _level_step(plane: np.ndarray) -> float:
+    """The spacing of the levels a frame uses near black: 1, or about 16 for 12-bit data scaled
+    into a 16-bit file (x 65535/4095: steps of 16 and 17)."""
     a = np.asarray(plane)
     if not np.issubdtype(a.dtype, np.integer):
-        return 1
+        return 1.0
     step = max(1, int(math.sqrt(a.size / 100_000)))
-    v = a[::step, ::step].ravel()
-    v = v[v > 0].astype(np.int64)
-    return int(np.gcd.reduce(v)) if v.size else 1
+    used = np.unique(a[::step, ::step])[:65]
+    if used.size < 3:
+        return 1.0
+    return float(max(1.0, np.median(np.diff(used.astype(np.float64)))))
 
 
 def bracket_noise(
