@@ -51,11 +51,12 @@ RAW_MIN_FLOOR = 2.0
 #: The noise measured in JPEG shadows is tiny (sigma 0.19-0.45
 #: levels in the darkest frames of the two phone brackets of ../shared/data: compression
 #: flattens them), so 3 sigma would put the floor at about one level; measured on the real
-#: brackets (bench/bench_noise.py), a low floor hurts: Pixel 7 (dark room, ISO 1599), median
-#: ratio error against its EXIF times 1.24-1.30 % with floors of 2-3 levels, 0.71 % at 5-8,
-#: 2.6 % at 12; the memorial scans (a film-base pedestal at level 16), ghost pixels 43 % with
-#: the floor 2.55 levels above the pedestal, 5.0 % at 5.1 above it; frobisher (Canon, tripod)
-#: is indifferent (0.52-0.57 % from 2 to 12 levels).
+#: brackets (``python bench/bench_noise.py``), a low floor hurts: Pixel 7 (dark room, ISO 1599,
+#: hand-held), median ratio error against its exact EXIF times 1.33 % with a floor of 3 levels,
+#: 1.02 % at 5, 1.66 % at 8; the memorial scans (a film-base pedestal at level 16), median error
+#: 2.05 % and ghost pixels 43 % with the floor 2.55 levels above the pedestal, 1.45 % and 5.0 %
+#: at 5.1 above it (3.0 % at 8); frobisher (Canon JPEG, tripod): 0.58 % at 3 levels, 0.52 % at
+#: 5, 0.54 % at 8.
 NONLINEAR_MIN_FLOOR_FRACTION = 0.02
 #: Samples (second differences) taken from the darkest part of a frame.
 _DARK_FRACTION = 0.10
