@@ -1212,11 +1212,11 @@ def _with_response_error(res: BracketExposureResult,
     def one(q: ExposureRatioResult) -> ExposureRatioResult:
         return judge(replace(q, response_error_per_stop=per_stop))
 
-    suffix = res.message.split(";", 1)[1] if ";" in res.message else ""
+    tail = "; ratios from the registered pixels of each pair"
     return assemble_bracket(
         len(res.relative_exposures), [one(q) for q in res.pairs],
         [one(q) for q in res.extra_pairs], method=res.method, max_level=res.max_level,
-        exposure_times=res.exif_times, message_suffix=f";{suffix}" if suffix else "",
+        exposure_times=res.exif_times, message_suffix=tail if res.message.endswith(tail) else "",
     )
 
 
