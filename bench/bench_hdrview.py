@@ -51,7 +51,10 @@ def first_page_ready() -> float | None:
         page = b.new_page(viewport={"width": 1600, "height": 1000})
         t0 = time.perf_counter()  # the browser is already running: time the app only
         proc = subprocess.Popen(
-            [sys.executable, "-c", "from hdrview.app import main; main()", "--port", str(port)],
+            # --no-token: the page is opened without the printed address (the Host and
+            # Origin checks stay on).
+            [sys.executable, "-c", "from hdrview.app import main; main()", "--port", str(port),
+             "--no-token"],
             cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
         )
         try:

@@ -33,6 +33,7 @@ import viser
 from hdrcore.errors import HdrError, InputError
 
 from . import security
+from .guard import ConnectionGuard, install_guard
 from .panels import btf as btf_panel
 from .panels import diagnostics as diagnostics_panel
 from .panels import masks as masks_panel
@@ -61,6 +62,8 @@ class InspectorApp:
         demo_dir: str | Path | None = DEMO_DIR,
     ) -> None:
         self.server = server
+        self.guard: ConnectionGuard | None = None  # set by create_app
+        self.url = f"http://127.0.0.1:{server.get_port()}/"
         self.root = Path(root).resolve()
         self.demo_dir = None if demo_dir is None else Path(demo_dir)
         self.session = Session()
@@ -623,17 +626,36 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--port", type=int, default=8080, help="port (default 8080; 0 picks one)")
     p.add_argument("--root", default=".",
                    help="the page may only open paths under this folder (default: current folder)")
+    p.add_argument("--allow-origin", action="append", default=[], metavar="URL",
+                   help="also accept pages from this origin (e.g. https://proxy.example:443); "
+                        "by default only the inspector's own address may use it")
+    p.add_argument("--no-token", action="store_true",
+                   help="do not require the access token printed at start (any local program "
+                        "and any page of an allowed origin can then use the inspector)")
     p.add_argument("--debug", action="store_true", help="debug logging")
     return p
 
 
 def create_app(
     files: Sequence[str] = (), *, host: str = "127.0.0.1", port: int = 8080, root: str = ".",
-    verbose: bool = True, demo_dir: Path | None = DEMO_DIR,
+    verbose: bool = True, demo_dir: Path | None = DEMO_DIR, token: bool = True,
+    allow_origins: Sequence[str] = (),
 ) -> InspectorApp:
-    """Start the server and the app; load ``files`` or the demo bracket."""
-    server = viser.ViserServer(host=host, port=port, label="hdrview", verbose=verbose)
+    """Start the server and the app; load ``files`` or the demo bracket.
+
+    Only the inspector's own address (and ``allow_origins``) may use it, and with ``token`` only
+    a client that brings the access token (:mod:`hdrview.guard`); ``app.url`` is the address to
+    open.
+    """
+    holder: list[viser.ViserServer] = []
+    guard = ConnectionGuard(lambda: holder[0].get_port() if holder else port, bind_host=host,
+                            allow_origins=allow_origins, token="" if token else None)
+    with install_guard(guard):
+        server = viser.ViserServer(host=host, port=port, label="hdrview", verbose=verbose)
+    holder.append(server)
     app = InspectorApp(server, root=root, demo_dir=demo_dir)
+    app.guard = guard
+    app.url = guard.url("127.0.0.1" if host in ("0.0.0.0", "::", "") else host)
     if files:
         app.request_paths([Path(f) for f in files])
     else:
@@ -659,10 +681,16 @@ def main(argv: Sequence[str] | None = None) -> int:
         if not Path(f).exists():
             print(f"hdrview: {f}: file or folder not found", file=sys.stderr)
             return 2
-    app = create_app(args.files, host=args.host, port=args.port, root=str(root))
+    try:
+        app = create_app(args.files, host=args.host, port=args.port, root=str(root),
+                         token=not args.no_token, allow_origins=args.allow_origin)
+    except ValueError as exc:
+        print(f"hdrview: {exc}", file=sys.stderr)
+        return 2
     if args.host not in ("127.0.0.1", "localhost", "::1"):
         log.warning("listening on %s: anyone who can reach this address can read files under %s",
                     args.host, root.resolve())
+    print(f"hdrview: open {app.url}", file=sys.stderr, flush=True)
     try:
         app.server.sleep_forever()
     except KeyboardInterrupt:

@@ -69,7 +69,7 @@ def page(browser: object, inspector: InspectorApp) -> Iterator[object]:
     ARTIFACTS.mkdir(exist_ok=True)
     ctx = browser.new_context(viewport={"width": 1600, "height": 1000}, accept_downloads=True)
     pg = ctx.new_page()
-    pg.goto(f"http://127.0.0.1:{inspector.server.get_port()}")
+    pg.goto(inspector.url)  # with the access token (hdrview.guard)
     deadline = time.monotonic() + 30
     while not inspector.server.get_clients():
         if time.monotonic() > deadline:
