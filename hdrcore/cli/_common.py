@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ..errors import HdrError
+from ..errors import HdrError, OutputError
 from ..io import Bracket, check_output_path, expand_paths, load_bracket
 
 __all__ = [
@@ -18,6 +20,7 @@ __all__ = [
     "add_level_arguments",
     "check_outputs_first",
     "parse_colour",
+    "input_files",
     "load_bracket_from_args",
     "print_unused_frames",
     "print_json",
@@ -81,16 +84,52 @@ def add_level_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def check_outputs_first(outputs: list[str], args: argparse.Namespace) -> None:
-    """Refuse an existing (without ``--force``) or impossible output, or one over an input,
-    before any frame is decoded (seconds at 24 MP); unreadable inputs are the loader's to
-    report."""
+def input_files(args: argparse.Namespace, frames: Any = ()) -> list[Path]:
+    """Every file the command reads: the frames (as named, or ``frames`` once loaded), the
+    ``--times`` list and a ``--response`` curve file. No output may replace any of them, even
+    with ``--force``."""
+    named: list[Path] = [Path(f) for f in frames]
+    if not named:
+        try:
+            named = expand_paths(args.files)
+        except HdrError:
+            named = []
+    for attr in ("times", "response"):
+        value = getattr(args, attr, None)
+        if isinstance(value, str) and value and Path(value).is_file():
+            named.append(Path(value))
+    return named
+
+
+def _same_output(a: Path, b: Path) -> bool:
+    """Two output names for one file: equal once resolved (``./``, ``..``, symbolic links), or
+    one existing file reached by both (hard links)."""
     try:
-        named = expand_paths(args.files)
-    except HdrError:
-        named = []
+        if a.resolve() == b.resolve():
+            return True
+        return a.exists() and b.exists() and os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
+def check_outputs_first(outputs: list[str], args: argparse.Namespace) -> None:
+    """Before any frame is decoded (seconds at 24 MP), refuse: two outputs that are one file,
+    an output over any input (frames, ``--times``, ``--response``; even with ``--force``), an
+    existing output without ``--force``, a missing or unwritable output folder. Unreadable
+    inputs are the loader's to report."""
+    paths = [Path(o) for o in outputs]
+    for i, a in enumerate(paths):
+        for b in paths[i + 1:]:
+            if _same_output(a, b):
+                raise OutputError("the same file is given for two outputs",
+                                  found=f"{outputs[i]} and {b}")
+    inputs = input_files(args)
     for out in outputs:
-        check_output_path(out, force=getattr(args, "force", False), inputs=named)
+        path = check_output_path(out, force=getattr(args, "force", False), inputs=inputs)
+        parent = path.parent if str(path.parent) else Path(".")
+        if not os.access(parent, os.W_OK | os.X_OK):
+            raise OutputError("cannot write in the output folder", path=parent,
+                              expected="a folder you may write in")
 
 
 def load_bracket_from_args(args: argparse.Namespace, **kwargs: Any) -> Bracket:

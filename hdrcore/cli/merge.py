@@ -24,6 +24,7 @@ from ._common import (
     add_exclude_colour_argument,
     add_level_arguments,
     check_outputs_first,
+    input_files,
     load_bracket_from_args,
     print_json,
     to_jsonable,
@@ -97,8 +98,6 @@ class _Progress:
 
 def run(args: argparse.Namespace) -> int:
     outputs = [args.output] + [p for p in (args.preview, args.report) if p]
-    if len(set(outputs)) != len(outputs):
-        raise OutputError("the same path is given for two outputs", found=", ".join(outputs))
     if not str(args.output).lower().endswith(".exr"):
         raise OutputError("the HDR output must be an OpenEXR file", path=args.output,
                           expected="a name ending in .exr")
@@ -106,7 +105,8 @@ def run(args: argparse.Namespace) -> int:
     t_load = time.perf_counter()
     bracket = load_bracket_from_args(args)
     decode_seconds = time.perf_counter() - t_load
-    inputs = list(bracket.paths)
+    # Frames, the times list and a response curve: no output may replace any of them.
+    inputs = input_files(args, bracket.paths)
     for out in outputs:
         check_output_path(out, force=args.force, inputs=inputs)
     for w in bracket.warnings:

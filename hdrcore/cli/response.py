@@ -19,6 +19,7 @@ from ..response import DEFAULT_METHOD, RESPONSE_METHODS, recover_response
 from ._common import (
     add_bracket_arguments,
     check_outputs_first,
+    input_files,
     load_bracket_from_args,
     print_json,
     print_warnings,
@@ -87,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
     check_outputs_first(outputs, args)
     bracket = load_bracket_from_args(args)
     for out in outputs:
-        check_output_path(out, force=args.force, inputs=bracket.paths)
+        check_output_path(out, force=args.force, inputs=input_files(args, bracket.paths))
     frames = [f.levels for f in bracket.frames]
     times = bracket.exposure_times
     times = None if any(t is None for t in times) else [float(t) for t in times]
@@ -100,9 +101,9 @@ def run(args: argparse.Namespace) -> int:
         params["mask"] = _exclusion_mask(frames, args.exclude_colour)
     curve = recover_response(frames, times, method=args.method, **params)
     if args.plot:
-        curve.plot(args.plot, force=args.force, inputs=bracket.paths)
+        curve.plot(args.plot, force=args.force, inputs=input_files(args, bracket.paths))
     if args.save:
-        curve.save(args.save, force=args.force, inputs=bracket.paths)
+        curve.save(args.save, force=args.force, inputs=input_files(args, bracket.paths))
     d = curve.to_json()
     out = {
         "method": curve.method,

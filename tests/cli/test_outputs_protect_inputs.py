@@ -1,0 +1,114 @@
+"""``--force`` never destroys an input (issue 13, point 2): the times list, a response curve and
+the other outputs are protected like the frames, outputs are compared once resolved, and every
+refusal comes before anything is decoded or written."""
+
+from __future__ import annotations
+
+import os
+import shutil
+from pathlib import Path
+
+import pytest
+
+import hdrcore.cli._common as common
+from hdrcore.cli import main
+from hdrcore.synthetic import simulate_bracket, write_bracket
+
+
+@pytest.fixture()
+def bracket(tmp_path: Path) -> Path:
+    sim = simulate_bracket(scene="patches", shape=(64, 96), exposure_times=(1 / 64, 1 / 16, 1 / 4),
+                           bits=8, response="gamma", noise_sigma=1.0, seed=3)
+    out = tmp_path / "br"
+    write_bracket(out, sim, fmt="png")
+    (out / "exposure_times.txt").write_text(
+        "frame00.png 1/64\nframe01.png 1/16\nframe02.png 1/4\n")
+    return out
+
+
+@pytest.fixture()
+def no_decoding(monkeypatch):
+    """Fail the test if a frame is decoded: refusals must come first."""
+    def refuse(*_a, **_k):
+        raise AssertionError("a frame was decoded before the refusal")
+    monkeypatch.setattr(common, "load_bracket", refuse)
+
+
+@pytest.mark.parametrize("force", [False, True])
+def test_report_over_the_times_list_is_refused(bracket, tmp_path, capsys, no_decoding, force):
+    times = bracket / "exposure_times.txt"
+    before = times.read_bytes()
+    args = ["merge", str(bracket / "frame00.png"), str(bracket / "frame01.png"),
+            str(bracket / "frame02.png"), "--times", str(times), "-o", str(tmp_path / "o.exr"),
+            "--report", str(times), "--quiet"] + (["--force"] if force else [])
+    assert main(args) == 2
+    assert "input" in capsys.readouterr().err
+    assert times.read_bytes() == before
+    assert not (tmp_path / "o.exr").exists()
+
+
+@pytest.mark.parametrize("force", [False, True])
+def test_output_over_a_response_curve_is_refused(bracket, tmp_path, capsys, no_decoding, force):
+    curve = tmp_path / "curve.json"
+    curve.write_text('{"not": "read: the refusal comes first"}')
+    before = curve.read_bytes()
+    args = ["merge", *(str(bracket / f"frame0{k}.png") for k in range(3)), "--response",
+            str(curve), "-o", str(tmp_path / "o.exr"), "--report", str(curve), "--quiet"]
+    assert main(args + (["--force"] if force else [])) == 2
+    assert curve.read_bytes() == before
+
+
+@pytest.mark.parametrize("force", [False, True])
+@pytest.mark.parametrize("alias", ["./{name}", "{dir}/../{base}/{name}", "link"])
+def test_two_outputs_that_are_one_file_are_refused(bracket, tmp_path, capsys, no_decoding,
+                                                   force, alias):
+    exr = tmp_path / "f.exr"
+    exr.write_bytes(b"an earlier result")
+    before = exr.read_bytes()
+    if alias == "link":
+        report = tmp_path / "link.json"
+        os.symlink(exr, report)
+    else:
+        report = Path(alias.format(name="f.exr", dir=tmp_path, base=tmp_path.name))
+    cwd = os.getcwd()
+    os.chdir(tmp_path)
+    try:
+        args = ["merge", str(bracket), "-o", str(exr), "--report", str(report), "--quiet"]
+        assert main(args + (["--force"] if force else [])) == 2
+    finally:
+        os.chdir(cwd)
+    assert "two outputs" in capsys.readouterr().err
+    assert exr.read_bytes() == before
+
+
+def test_hard_linked_output_over_a_frame_is_refused(bracket, tmp_path, capsys, no_decoding):
+    frame = bracket / "frame01.png"
+    before = frame.read_bytes()
+    link = tmp_path / "x.exr"
+    os.link(frame, link)
+    assert main(["merge", str(bracket), "-o", str(link), "--force", "--quiet"]) == 2
+    assert frame.read_bytes() == before
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root may write in any folder")
+def test_unwritable_output_folder_is_refused_before_decoding(bracket, tmp_path, capsys,
+                                                             no_decoding):
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o555)
+    try:
+        assert main(["merge", str(bracket), "-o", str(tmp_path / "o.exr"), "--preview",
+                     str(ro / "p.png"), "--quiet"]) == 2
+        assert "cannot write" in capsys.readouterr().err
+        assert not (tmp_path / "o.exr").exists()
+    finally:
+        ro.chmod(0o755)
+        shutil.rmtree(ro)
+
+
+def test_a_normal_merge_still_writes_all_outputs(bracket, tmp_path, capsys):
+    out = tmp_path / "o.exr"
+    rc = main(["merge", str(bracket), "--times", str(bracket / "exposure_times.txt"), "-o",
+               str(out), "--report", str(tmp_path / "o.json"), "--quiet"])
+    assert rc in (0, 1)
+    assert out.stat().st_size > 0 and (tmp_path / "o.json").stat().st_size > 0
