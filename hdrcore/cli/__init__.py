@@ -11,6 +11,7 @@ import argparse
 import importlib
 import importlib.util
 import logging
+import signal
 import sys
 from collections.abc import Sequence
 
@@ -46,11 +47,34 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM or SIGHUP reached the program: unwound like Ctrl-C, so every temporary output
+    file is removed (:func:`hdrcore.io.atomic.atomic_write` cleans up on any exception)."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signum)
+        self.signum = signum
+
+
+def _on_signal(signum: int, _frame: object) -> None:
+    raise Terminated(signum)
+
+
+def catch_termination() -> None:
+    """Turn SIGTERM and SIGHUP into :class:`Terminated` in the main thread (the program only:
+    a library caller keeps its own handlers)."""
+    for name in ("SIGTERM", "SIGHUP"):
+        sig = getattr(signal, name, None)
+        if sig is not None:
+            signal.signal(sig, _on_signal)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     if argv is None:  # run as the program (not called from Python): see hdrcore._memory
         from .._memory import retain_freed_memory
 
         retain_freed_memory()
+        catch_termination()
     parser = build_parser()
     args = parser.parse_args(argv)
     logging.basicConfig(
@@ -64,6 +88,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise
         print(f"hdrcore: error: {exc}", file=sys.stderr)
         return 2
+    except Terminated as exc:
+        print(f"hdrcore: terminated (signal {exc.signum}); no partial output was left",
+              file=sys.stderr)
+        return 128 + exc.signum
     except KeyboardInterrupt:
         print("hdrcore: interrupted", file=sys.stderr)
         return 130

@@ -112,3 +112,43 @@ def test_a_normal_merge_still_writes_all_outputs(bracket, tmp_path, capsys):
                str(out), "--report", str(tmp_path / "o.json"), "--quiet"])
     assert rc in (0, 1)
     assert out.stat().st_size > 0 and (tmp_path / "o.json").stat().st_size > 0
+
+
+def test_sigterm_during_the_write_leaves_no_temporary_file(bracket, tmp_path):
+    """The program is stopped by SIGTERM while its EXR sits in a temporary file: the temporary
+    file is removed, no output appears, the exit status is 128 + 15."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    marker = tmp_path / "writing"
+    script = (
+        "import os, sys, time, pathlib\n"
+        "import hdrcore.io.atomic as a\n"
+        "real = a.os.replace\n"
+        "def slow(src, dst):\n"
+        f"    pathlib.Path({str(marker)!r}).write_text(str(src))\n"
+        "    time.sleep(60)\n"
+        "    real(src, dst)\n"
+        "a.os.replace = slow\n"
+        "from hdrcore.cli import main\n"
+        "sys.argv = ['hdrcore'] + sys.argv[1:]\n"
+        "sys.exit(main())\n"
+    )
+    out_dir = tmp_path / "out"
+    out_dir.mkdir()
+    proc = subprocess.Popen([sys.executable, "-c", script, "merge", str(bracket), "-o",
+                             str(out_dir / "o.exr"), "--quiet"],
+                            stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while not marker.exists():
+        assert proc.poll() is None, proc.stderr.read()
+        assert time.monotonic() < deadline, "the merge never reached its write"
+        time.sleep(0.05)
+    assert Path(marker.read_text()).exists()  # the temporary EXR is there
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 128 + signal.SIGTERM, err
+    assert "terminated" in err
+    assert list(out_dir.iterdir()) == []  # neither the output nor a temporary file
