@@ -452,6 +452,20 @@ def seed_jobs(root: Path, quick: bool) -> list[tuple]:
     return jobs
 
 
+def codes_and_pair_columns(r: CaseResult) -> tuple[str, list[str]]:
+    """Exit codes of ratios/align/merge, and the ok/measured, median and max error columns of
+    the ratios and of the merge report."""
+    codes = f"{code(r.ratios)} {code(r.align)} {code(r.merge)}"
+    cols = []
+    for s in (r.r_stats, r.m_stats):
+        if s is None:
+            cols.append(f"{'-':>9s} {'-':>7s} {'-':>7s}")
+        else:
+            m, x = med_max(s.errors)
+            cols.append(f"{f'{s.ok}/{s.n}':>9s} {pct(m):>7s} {pct(x):>7s}")
+    return codes, cols
+
+
 def print_seed_table(results: list[CaseResult]) -> None:
     print("\n== 1. Seed protocol (6 frames, times 1..1024 x4, linear, sigma 1 level): exit codes "
           "of ratios/align/merge; ok pairs and |error| % of their ratios from 'ratios --json' "
@@ -468,14 +482,7 @@ def print_seed_table(results: list[CaseResult]) -> None:
         if r.case is None:
             print(f"{r.name:34s} bench could not write the bracket: {r.failure}")
             continue
-        codes = f"{code(r.ratios)} {code(r.align)} {code(r.merge)}"
-        cols = []
-        for s in (r.r_stats, r.m_stats):
-            if s is None:
-                cols.append(f"{'-':>9s} {'-':>7s} {'-':>7s}")
-            else:
-                m, x = med_max(s.errors)
-                cols.append(f"{f'{s.ok}/{s.n}':>9s} {pct(m):>7s} {pct(x):>7s}")
+        codes, cols = codes_and_pair_columns(r)
         sig = "/".join("-" if s is None else f"{s.signal_ok}" for s in (r.r_stats, r.m_stats))
         sig += f" of {len(r.case.pairs_with_signal(SIGNAL_MIN))}"
         al = n_ok(r.align.doc if r.align else None)
@@ -689,14 +696,7 @@ def print_raw_table(results: list[CaseResult]) -> None:
         if r.case is None:
             print(f"{r.name:44s} bench could not write the bracket: {r.failure}")
             continue
-        codes = f"{code(r.ratios)} {code(r.align)} {code(r.merge)}"
-        cols = []
-        for s in (r.r_stats, r.m_stats):
-            if s is None:
-                cols.append(f"{'-':>9s} {'-':>7s} {'-':>7s}")
-            else:
-                m, x = med_max(s.errors)
-                cols.append(f"{f'{s.ok}/{s.n}':>9s} {pct(m):>7s} {pct(x):>7s}")
+        codes, cols = codes_and_pair_columns(r)
         rad = r.extra.get("rad")
         prov = "-"
         doc = r.merge.doc if r.merge else None

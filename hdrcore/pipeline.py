@@ -122,16 +122,6 @@ class _Unlinked(Exception):  # noqa: N818 - internal signal, never leaves the pi
         self.keep, self.drop, self.why = keep, drop, why
 
 
-def _pair_interval(pair: Any) -> tuple[float, float]:
-    """The calibrated 95 % interval of a pair's ratio (``(nan, nan)`` when it has none)."""
-    iv = getattr(pair, "interval", None)
-    try:
-        lo, hi = (float(v) for v in iv)  # type: ignore[union-attr]
-    except (TypeError, ValueError):
-        return float("nan"), float("nan")
-    return lo, hi
-
-
 def _raise_unlinked(n: int, broken: list[int], why: str) -> None:
     """Pairs ``broken`` (consecutive, ``k``-``k + 1``) have neither a measured ratio nor EXIF
     times: the bracket falls apart into runs of linked frames. The largest run is kept (the
@@ -792,10 +782,17 @@ class Pipeline:
             # (default, hdrcore.exposure.registered) or from the histograms of that field.
             matrices = tuple(np.asarray(q.matrix) for q in registration.pairs)
             ov_key = (reg_key, tuple(mat.tobytes() for mat in matrices))
+
+            def through(measured: BracketExposureResult) -> BracketExposureResult:
+                # A response recovered from a moved bracket carries a model error of its own.
+                if not moved_response:
+                    return measured
+                return _with_response_error(measured, MOVED_RESPONSE_ERROR_PER_STOP)
+
             if p.refine_ratios == "pixels":
                 exposures = self._stage(
                     "overlap_ratios", (ov_key, ratio_key, "pixels"),
-                    lambda: self._pixel_ratios(p, lut, registration, exposures_hist),
+                    lambda: through(self._pixel_ratios(p, lut, registration, exposures_hist)),
                     ran, timings,
                 )
             else:
@@ -806,10 +803,9 @@ class Pipeline:
                 )
                 exposures = self._stage(
                     "overlap_ratios", (ov_key, ratio_key, "histograms"),
-                    lambda: bracket_exposures_from_histograms(ov_hists, **fit), ran, timings,
+                    lambda: through(bracket_exposures_from_histograms(
+                        ov_hists, **{**fit, "lut": lut})), ran, timings,
                 )
-            if moved_response and exposures is not exposures_hist:
-                exposures = _with_response_error(exposures, MOVED_RESPONSE_ERROR_PER_STOP)
             times, times_source = self._merge_times(exposures, p)
         if want("merge"):
             merge_key = (ratio_key, None if registration is None else reg_key, tuple(times),
@@ -982,7 +978,7 @@ class Pipeline:
             r = ratios[k]
             exif_r = None if exif[k] is None or exif[k + 1] is None else exif[k + 1] / exif[k]
             good = math.isfinite(r) and r > 0
-            lo, hi = _pair_interval(pair)
+            lo, hi = pair.interval
             # Within a tight enough interval (half-width <= 2.5 %), a measured ratio that holds
             # the EXIF ratio is the better of the two; a wider one says little either way.
             agrees = (exif_r is not None and good and lo <= exif_r <= hi

@@ -13,6 +13,7 @@ import numpy as np
 
 from ..errors import HdrError, OutputError
 from ..io import Bracket, check_output_path, expand_paths, load_bracket
+from ..io.atomic import same_file
 
 __all__ = [
     "add_bracket_arguments",
@@ -101,17 +102,6 @@ def input_files(args: argparse.Namespace, frames: Any = ()) -> list[Path]:
     return named
 
 
-def _same_output(a: Path, b: Path) -> bool:
-    """Two output names for one file: equal once resolved (``./``, ``..``, symbolic links), or
-    one existing file reached by both (hard links)."""
-    try:
-        if a.resolve() == b.resolve():
-            return True
-        return a.exists() and b.exists() and os.path.samefile(a, b)
-    except OSError:
-        return False
-
-
 def check_outputs_first(outputs: list[str], args: argparse.Namespace) -> None:
     """Before any frame is decoded (seconds at 24 MP), refuse: two outputs that are one file,
     an output over any input (frames, ``--times``, ``--response``; even with ``--force``), an
@@ -120,7 +110,7 @@ def check_outputs_first(outputs: list[str], args: argparse.Namespace) -> None:
     paths = [Path(o) for o in outputs]
     for i, a in enumerate(paths):
         for b in paths[i + 1:]:
-            if _same_output(a, b):
+            if same_file(a, b):
                 raise OutputError("the same file is given for two outputs",
                                   found=f"{outputs[i]} and {b}")
     inputs = input_files(args)

@@ -152,17 +152,10 @@ def _no_signal(which: str, kind: str, *, method: str, n_ch: int, saturation: flo
         what = (f"the {which} frame is entirely {kind}; no exposure ratio can be estimated "
                 f"from it (expected pixels between noise floor {noise_floor:g} and saturation "
                 f"{saturation:g}, found none)")
-    empty = np.zeros(0)
-    eqs = ExposureEquations(x=empty, y=empty, weights=empty, direction=empty.astype(np.int8),
-                            channel=empty.astype(np.int8), level=empty)
-    return ExposureRatioResult(
-        method=method, ratio=float("nan"), initial_ratio=float("nan"), iterates=(),
-        iterations=0, equations=eqs, inlier_mask=np.zeros(0, bool), residuals=empty,
-        std_error=float("inf"), overlap=0.0, status="no-signal",
-        message=f"frames {dark} and {bright}: {what}",
-        channel_ratios=(float("nan"),) * n_ch, channel_std_errors=(float("inf"),) * n_ch,
-        channels_disagree=False, saturation=saturation, noise_floor=noise_floor,
-        max_level=int(max_level), dark=dark, bright=bright, tolerance=tolerance,
+    return ExposureRatioResult.unmeasured(
+        status="no-signal", message=f"frames {dark} and {bright}: {what}", n_channels=n_ch,
+        method=method, saturation=saturation, noise_floor=noise_floor, max_level=int(max_level),
+        dark=dark, bright=bright, tolerance=tolerance,
     )
 
 
@@ -447,9 +440,7 @@ def estimate_pair(
                   noise_floor=floor, max_level=max_level, dark=dark, bright=bright,
                   non_linear=lut is not None, tolerance=max_relative_error)
     if x.size < min_equations or overlap < min_overlap:
-        return ExposureRatioResult(
-            ratio=float("nan"), initial_ratio=float("nan"), iterates=(), iterations=0,
-            inlier_mask=np.zeros(x.size, bool), residuals=np.zeros(x.size), std_error=float("inf"),
+        return ExposureRatioResult.unmeasured(
             status="no-overlap",
             message=(
                 f"frames {dark} and {bright} do not overlap enough in brightness: "
@@ -457,8 +448,7 @@ def estimate_pair(
                 f"({floor:g}) and stay below saturation ({z:g}) in the brighter frame, "
                 f"{x.size} equations; use frames closer in exposure or lower the noise floor"
             ),
-            channel_ratios=(float("nan"),) * n_ch, channel_std_errors=(float("inf"),) * n_ch,
-            channels_disagree=False, **common,
+            n_channels=n_ch, **common,
         )
 
     # Neighbouring levels of one channel and direction form a group (eq. 4 rows merged).

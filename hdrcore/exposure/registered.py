@@ -339,16 +339,13 @@ def exposure_ratio_registered(
     overlap = pixels / max(examined, 1.0)
     if pixels < min_pixels or np.count_nonzero(n_f) < min_tiles or np.count_nonzero(
             n_i) < min_tiles:
-        return ExposureRatioResult(
-            ratio=float("nan"), initial_ratio=float("nan"), iterates=(), iterations=0,
-            equations=eqs, inlier_mask=np.zeros(len(eqs), bool), residuals=np.zeros(len(eqs)),
-            std_error=float("inf"), overlap=overlap, status="no-overlap",
+        return ExposureRatioResult.unmeasured(
+            status="no-overlap",
             message=(f"frames {dark_index} and {bright_index} share too few registered pixels "
                      f"between the noise floor ({floor:g}) and saturation ({z:g}): {pixels} "
                      f"(at least {min_pixels} needed); use frames closer in exposure or check "
                      "the registration"),
-            channel_ratios=(float("nan"),) * nc, channel_std_errors=(float("inf"),) * nc,
-            channels_disagree=False, common_fraction=overlap, **common,
+            n_channels=nc, equations=eqs, overlap=overlap, common_fraction=overlap, **common,
         )
 
     kf, in_f, it_f = _direction_fit(sf[:, :, 0].sum(1), sf[:, :, 1].sum(1), n_f, True, reject,
@@ -561,17 +558,11 @@ def bracket_exposures_from_pixels(
 
 
 def _unregistered(i: int, nc: int, max_level: int, z: float, floor: float) -> ExposureRatioResult:
-    empty = np.zeros(0)
-    eqs = ExposureEquations(x=empty, y=empty, weights=empty, direction=empty.astype(np.int8),
-                            channel=empty.astype(np.int8), level=empty)
-    return ExposureRatioResult(
-        method=METHOD, ratio=float("nan"), initial_ratio=float("nan"), iterates=(),
-        iterations=0, equations=eqs, inlier_mask=np.zeros(0, bool), residuals=empty,
-        std_error=float("inf"), overlap=0.0, status="unregistered",
+    return ExposureRatioResult.unmeasured(
+        status="unregistered",
         message=(f"frames {i} and {i + 1} are not registered, so their pixels cannot be "
                  "compared"),
-        channel_ratios=(float("nan"),) * nc, channel_std_errors=(float("inf"),) * nc,
-        channels_disagree=False, saturation=z, noise_floor=floor, max_level=int(max_level),
+        n_channels=nc, method=METHOD, saturation=z, noise_floor=floor, max_level=int(max_level),
         dark=i, bright=i + 1,
     )
 

@@ -116,6 +116,26 @@ class ExposureRatioResult:
     evidence: str = ""
     response_error_per_stop: float = 0.0
 
+    @classmethod
+    def unmeasured(cls, *, status: str, message: str, n_channels: int,
+                   equations: ExposureEquations | None = None, overlap: float = 0.0,
+                   **fields: Any) -> ExposureRatioResult:
+        """A pair whose ratio could not be measured (no overlap, no signal, not registered):
+        ratio ``nan``, infinite errors, no inliers; ``fields`` fill the rest (``method``,
+        ``saturation``, ``noise_floor``, ``max_level``, ``dark``, ``bright``, ...)."""
+        if equations is None:
+            empty = np.zeros(0)
+            equations = ExposureEquations(x=empty, y=empty, weights=empty,
+                                          direction=empty.astype(np.int8),
+                                          channel=empty.astype(np.int8), level=empty)
+        n = len(equations)
+        return cls(ratio=float("nan"), initial_ratio=float("nan"), iterates=(), iterations=0,
+                   equations=equations, inlier_mask=np.zeros(n, bool), residuals=np.zeros(n),
+                   std_error=float("inf"), overlap=overlap, status=status, message=message,
+                   channel_ratios=(float("nan"),) * n_channels,
+                   channel_std_errors=(float("inf"),) * n_channels, channels_disagree=False,
+                   **fields)
+
     @property
     def ok(self) -> bool:
         return self.status == "ok"

@@ -13,12 +13,17 @@ from pathlib import Path
 
 from ..errors import OutputError
 
-__all__ = ["atomic_write", "check_output_path"]
+__all__ = ["atomic_write", "check_output_path", "same_file"]
 
 
-def _same_file(a: Path, b: Path) -> bool:
+def same_file(a: str | os.PathLike, b: str | os.PathLike) -> bool:
+    """Whether two names reach one file: equal once resolved (``./``, ``..``, symbolic links),
+    or one existing file reached by both (hard links)."""
+    pa, pb = Path(a), Path(b)
     try:
-        return a.exists() and b.exists() and os.path.samefile(a, b)
+        if pa.resolve() == pb.resolve():
+            return True
+        return pa.exists() and pb.exists() and os.path.samefile(pa, pb)
     except OSError:
         return False
 
@@ -33,8 +38,7 @@ def check_output_path(
     """
     out = Path(path)
     for inp in inputs:
-        p = Path(inp)
-        if _same_file(out, p) or out.resolve() == p.resolve():
+        if same_file(out, inp):
             raise OutputError("refusing to overwrite an input file", path=out)
     if out.is_dir():
         raise OutputError("output path is a directory", path=out, expected="a file name")

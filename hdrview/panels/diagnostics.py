@@ -72,13 +72,7 @@ def frames_table(result: Any) -> str:
 
 def _interval_text(p: Any) -> str:
     """The pair's calibrated 95 % interval, ``low–high (±h %)``, or a dash."""
-    iv = getattr(p, "interval", None)
-    h = getattr(p, "ci95_relative", None)
-    try:
-        lo, hi = (float(v) for v in iv)  # type: ignore[union-attr]
-        h = float(h)  # type: ignore[arg-type]
-    except (TypeError, ValueError):
-        return "—"
+    (lo, hi), h = p.interval, p.ci95_relative
     if not all(map(math.isfinite, (lo, hi, h))):
         return "—"
     return f"{lo:.4g}–{hi:.4g} (±{100 * h:.2g} %)"
