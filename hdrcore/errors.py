@@ -13,6 +13,7 @@ __all__ = [
     "HdrError",
     "InputError",
     "ImageReadError",
+    "FrameTooLargeError",
     "BracketError",
     "OutputError",
     "ParameterError",
@@ -56,6 +57,28 @@ class InputError(HdrError):
 
 class ImageReadError(InputError):
     """A file exists but is not a readable image (not an image, truncated, unsupported)."""
+
+
+class FrameTooLargeError(InputError):
+    """A frame declares more pixels than the limit; read from its header, before any decoding.
+
+    ``hint`` (e.g. the command-line option that raises the limit) ends the message.
+    """
+
+    def __init__(
+        self, path: str | Path, *, width: int, height: int, limit: int, hint: str | None = None
+    ) -> None:
+        self.width = int(width)
+        self.height = int(height)
+        self.limit = int(limit)
+        self.hint = hint
+        message = (
+            f"frame is {self.width * self.height / 1e6:.1f} MP ({self.width}x{self.height}), "
+            f"more than the limit of {self.limit / 1e6:g} MP"
+        )
+        if hint:
+            message += f"; {hint}"
+        super().__init__(message, path=path)
 
 
 class BracketError(HdrError):

@@ -17,6 +17,7 @@ from .bracket import (
 from .exif import ExifData, read_exif
 from .exr import EXR_COMPRESSIONS, read_exr, write_exr
 from .frame import Frame, FrameMetadata, RawCFA, apply_orientation
+from .header import MAX_FRAME_PIXELS, frame_pixels
 from .ldr import read_ldr
 from .preview import encode_png, write_png
 from .raw import (
@@ -31,6 +32,7 @@ from .times import parse_seconds, read_exposure_times
 
 __all__ = [
     "EXR_COMPRESSIONS",
+    "MAX_FRAME_PIXELS",
     "RAW_EXTENSIONS",
     "Bracket",
     "BracketWarning",
@@ -46,6 +48,7 @@ __all__ = [
     "check_output_path",
     "encode_png",
     "expand_paths",
+    "frame_pixels",
     "is_raw_path",
     "load_bracket",
     "load_frame",

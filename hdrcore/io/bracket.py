@@ -21,7 +21,7 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from fractions import Fraction
 from functools import cmp_to_key
 from pathlib import Path
@@ -30,11 +30,13 @@ import numpy as np
 
 from .._threads import thread_map
 from ..errors import BracketError, ImageReadError, InputError
+from ._capture import reading
+from ._paths import input_file, path_problem, resolved
 from .apex import bracket_sequence, snap_exposure_time, snap_f_number
-from .frame import Frame, FrameMetadata
+from .frame import Frame, FrameMetadata, apply_orientation, undo_orientation
 from .ldr import read_ldr, sniff_format
 from .raw import is_raw_path, read_raw
-from .times import read_exposure_times
+from .times import read_exposure_times, times_from_mapping
 
 __all__ = [
     "BracketWarning",
@@ -150,15 +152,32 @@ class Bracket:
 
 
 def expand_paths(paths: Iterable[str | os.PathLike]) -> list[Path]:
-    """Expand directories into their image files (sorted by name); keep files as given."""
+    """Expand directories into their image files (sorted by name); keep files as given.
+
+    A folder's entry named like an image (``.jpg``, ``.png``, ``.tif``, a RAW extension) that is
+    a symbolic link leading nowhere (a loop, a missing target) is an :class:`InputError`: it was
+    meant as a frame. Sub-folders are left out.
+    """
     out: list[Path] = []
     for item in paths:
         p = Path(item)
         if p.is_dir():
-            found = sorted(
-                c for c in p.iterdir()
-                if c.is_file() and (c.suffix.lower() in IMAGE_EXTENSIONS or is_raw_path(c))
-            )
+            try:
+                entries = sorted(p.iterdir())
+            except OSError as exc:
+                raise InputError(f"cannot list the folder: {path_problem(p, exc)}",
+                                 path=p) from None
+            found = []
+            for c in entries:
+                if not (c.suffix.lower() in IMAGE_EXTENSIONS or is_raw_path(c)):
+                    continue
+                try:
+                    if c.is_file():
+                        found.append(c)
+                    elif c.is_symlink() and not c.exists():  # a loop or a broken link
+                        c.stat()
+                except OSError as exc:
+                    raise InputError(path_problem(c, exc), path=c) from None
             if not found:
                 raise InputError("directory holds no JPEG, PNG, TIFF or RAW files", path=p)
             out.extend(found)
@@ -167,30 +186,34 @@ def expand_paths(paths: Iterable[str | os.PathLike]) -> list[Path]:
     return out
 
 
-def load_frame(path: str | os.PathLike, *, raw_half_size: bool = False) -> Frame:
+def load_frame(
+    path: str | os.PathLike, *, raw_half_size: bool = False, max_pixels: int | None = None
+) -> Frame:
     """Read one frame, choosing the reader from the file's content (RAW by extension).
 
     A nominal EXIF time (and f-number) also gets its APEX-snapped value (:func:`snap_frames`).
+    ``max_pixels`` limits the frame's size, read from its header before anything is decoded:
+    ``None`` is :data:`hdrcore.io.MAX_FRAME_PIXELS`, 0 no limit
+    (:class:`~hdrcore.errors.FrameTooLargeError`).
     """
-    p = Path(path)
-    if not p.exists():
-        raise InputError("file not found", path=p)
-    if not p.is_file():
-        raise InputError("not a regular file", path=p)
-    try:
-        if p.stat().st_size == 0:
-            raise ImageReadError("file is empty", path=p)
-        fmt = sniff_format(p)
-    except OSError as exc:
-        raise InputError(f"cannot read file ({exc.strerror})", path=p) from exc
-    if is_raw_path(p):
-        return snap_frames([read_raw(p, half_size=raw_half_size)])[0]
-    if fmt is None:
-        raise ImageReadError(
-            "not a recognised image", path=p,
-            expected="JPEG, PNG, TIFF or a camera RAW file (.dng, .cr2, .nef, ...)",
-        )
-    return snap_frames([read_ldr(p, fmt)])[0]
+    p = input_file(path)
+    with reading(p):
+        try:
+            if p.stat().st_size == 0:
+                raise ImageReadError("file is empty", path=p)
+            fmt = sniff_format(p)
+        except OSError as exc:
+            raise InputError(f"cannot read file: {path_problem(p, exc)}", path=p) from exc
+        if is_raw_path(p):
+            frame = read_raw(p, half_size=raw_half_size, max_pixels=max_pixels)
+        elif fmt is None:
+            raise ImageReadError(
+                "not a recognised image", path=p,
+                expected="JPEG, PNG, TIFF or a camera RAW file (.dng, .cr2, .nef, ...)",
+            )
+        else:
+            frame = read_ldr(p, fmt, max_pixels=max_pixels)
+    return snap_frames([frame])[0]
 
 
 def snap_frames(frames: Sequence[Frame]) -> list[Frame]:
@@ -358,24 +381,117 @@ def _order_warning(
     )
 
 
+_ORIENTATION_WORDS = {
+    1: "as stored", 2: "mirrored", 3: "turned 180°", 4: "flipped upside down",
+    5: "transposed", 6: "turned 90° clockwise", 7: "transverse",
+    8: "turned 90° counter-clockwise",
+}
+
+
+def _orientation_tag(frame: Frame) -> int:
+    """The orientation the frame's levels were turned by (no tag, or an unknown value: 1)."""
+    o = frame.meta.orientation
+    return o if o in _ORIENTATION_WORDS else 1
+
+
+def _stored_shape(frame: Frame) -> tuple[int, int]:
+    """The frame's (height, width) as stored in the file, before its orientation tag."""
+    h, w = frame.shape
+    return (w, h) if _orientation_tag(frame) in (5, 6, 7, 8) else (h, w)
+
+
+def _majority(values: Sequence, key: Callable = lambda v: v) -> object:
+    """The most common ``key`` among ``values``; a tie goes to the one met first."""
+    keys = [key(v) for v in values]
+    return max(dict.fromkeys(keys), key=keys.count)
+
+
+def _names(frames: Sequence[Frame], limit: int = 3) -> str:
+    names = [f.name for f in frames]
+    more = f" and {len(names) - limit} more" if len(names) > limit else ""
+    return ", ".join(names[:limit]) + more
+
+
+def _unify_orientation(frames: list[Frame]) -> tuple[list[Frame], BracketWarning | None]:
+    """One orientation for every frame whose tag differs, when the stored pixels agree.
+
+    A camera writes its pixels in the sensor's orientation and records how it was held in the
+    orientation tag only; when that tag changes within a bracket (the camera tipped, or pointed
+    up or down where the sensor cannot tell), the pixels still line up. So when every frame is
+    stored with the same size but the tags differ, all frames are turned by one tag, the most
+    common one (a tie: the first frame's in file order), and an ``orientation-differs`` warning
+    names the others. Frames stored with different sizes that agree once each is turned by its
+    own tag (pictures rotated losslessly by software) keep their own tags.
+    """
+    tags = [_orientation_tag(f) for f in frames]
+    if len(set(tags)) <= 1 or len({_stored_shape(f) for f in frames}) != 1:
+        return frames, None
+    target = int(_majority(tags))  # type: ignore[call-overload]
+    out = []
+    for f, tag in zip(frames, tags, strict=True):
+        if tag == target:
+            out.append(f)
+            continue
+        levels = apply_orientation(undo_orientation(f.levels, tag), target)
+        out.append(Frame(levels=levels, meta=replace(f.meta, orientation=target), cfa=f.cfa))
+    odd: dict[int, list[str]] = {}
+    for f, t in zip(frames, tags, strict=True):
+        if t != target:
+            odd.setdefault(t, []).append(f.name)
+    shown = "; ".join(
+        f"{', '.join(names)} {'has' if len(names) == 1 else 'have'} orientation tag {t} "
+        f"({_ORIENTATION_WORDS[t]})" for t, names in odd.items())
+    stored_h, stored_w = _stored_shape(frames[0])
+    warning = BracketWarning(
+        "orientation-differs",
+        f"{shown}, the others {target} ({_ORIENTATION_WORDS[target]}); all are stored alike "
+        f"({stored_w}x{stored_h}), so the camera changed its orientation tag, not the picture: "
+        f"every frame is shown {_ORIENTATION_WORDS[target]}",
+        tuple(k for k, t in enumerate(tags) if t != target),
+    )
+    return out, warning
+
+
 def _check_consistent(frames: list[Frame]) -> None:
-    ref = frames[0]
-    for f in frames[1:]:
-        if f.shape != ref.shape:
+    """Same size, same kind (RAW or not) and same bit depth: the frame that differs from the
+    others (from most of them; with a tie, from the first in file order) is the one named."""
+
+    def odd_one(key: Callable[[Frame], object]) -> tuple[Frame, list[Frame]] | None:
+        common = _majority(frames, key)
+        alike = [f for f in frames if key(f) == common]
+        odd = next((f for f in frames if key(f) != common), None)
+        return None if odd is None else (odd, alike)
+
+    found = odd_one(lambda f: f.shape)
+    if found:
+        f, alike = found
+        ref = alike[0]
+        turned = ""
+        if _orientation_tag(f) != _orientation_tag(ref):
+            turned = (f" once turned by its orientation tag {_orientation_tag(f)} "
+                      f"({_ORIENTATION_WORDS[_orientation_tag(f)]})")
+        others = "the first frame" if len(frames) == 2 else "the other frames"
+        raise BracketError(
+            f"frame size differs from {others}{turned}", path=f.path,
+            expected=f"{ref.shape[1]}x{ref.shape[0]} like {_names(alike)}",
+            found=f"{f.shape[1]}x{f.shape[0]}",
+        )
+    found = odd_one(lambda f: f.is_linear)
+    if found:
+        f, alike = found
+        raise BracketError(
+            "cannot mix RAW and non-linear (JPEG/PNG/TIFF) frames in one bracket",
+            path=f.path, expected=f"{alike[0].meta.format} like {_names(alike)}",
+            found=f.meta.format,
+        )
+    if not frames[0].is_linear:
+        found = odd_one(lambda f: f.max_level)
+        if found:
+            f, alike = found
             raise BracketError(
-                "frame size differs from the first frame", path=f.path,
-                expected=f"{ref.shape[1]}x{ref.shape[0]} like {ref.name}",
-                found=f"{f.shape[1]}x{f.shape[0]}",
-            )
-        if f.is_linear != ref.is_linear:
-            raise BracketError(
-                "cannot mix RAW and non-linear (JPEG/PNG/TIFF) frames in one bracket",
-                path=f.path, expected=ref.meta.format, found=f.meta.format,
-            )
-        if f.max_level != ref.max_level and not f.is_linear:
-            raise BracketError(
-                "bit depth differs from the first frame", path=f.path,
-                expected=f"{ref.bit_depth} bits like {ref.name}", found=f"{f.bit_depth} bits",
+                "bit depth differs from the other frames", path=f.path,
+                expected=f"{alike[0].bit_depth} bits like {_names(alike)}",
+                found=f"{f.bit_depth} bits",
             )
 
 
@@ -492,6 +608,7 @@ def load_bracket(
     *,
     exposure_times: Mapping[str, Fraction | float] | str | os.PathLike | None = None,
     raw_half_size: bool = False,
+    max_pixels: int | None = None,
 ) -> Bracket:
     """Load frames into a :class:`Bracket`, darkest first.
 
@@ -504,6 +621,10 @@ def load_bracket(
     contradict that order (:func:`brightness_order`: a frame brighter than one with a longer
     exposure) the frames are ordered by brightness instead, each keeping the time it was given,
     with a ``times-swapped`` or ``out-of-order`` warning naming the files.
+
+    ``max_pixels`` limits each frame's size, read from its header before anything is decoded
+    (``None``: :data:`hdrcore.io.MAX_FRAME_PIXELS`; 0: no limit). Frames whose orientation tags
+    differ while their stored pixels agree are all turned by one tag (``orientation-differs``).
     """
     files = expand_paths(paths)
     if len(files) < 2:
@@ -513,7 +634,8 @@ def load_bracket(
         )
     seen_paths: dict[str, Path] = {}
     for f in files:
-        key = str(f.resolve())
+        input_file(f)
+        key = str(resolved(f))
         if key in seen_paths:
             raise BracketError("the same file is given twice", path=f)
         seen_paths[key] = f
@@ -521,16 +643,14 @@ def load_bracket(
     times_map: dict[str, Fraction] | None = None
     if exposure_times is not None:
         if isinstance(exposure_times, Mapping):
-            times_map = {
-                Path(k).name: (v if isinstance(v, Fraction) else Fraction(str(v)))
-                for k, v in exposure_times.items()
-            }
+            times_map = times_from_mapping(exposure_times)
         else:
             times_map = read_exposure_times(exposure_times)
 
     # Two files decoded at a time (LibRaw and Pillow release the GIL while they decode; the
     # first error in file order is the one raised).
-    frames = thread_map(lambda p: load_frame(p, raw_half_size=raw_half_size), files)
+    frames = thread_map(
+        lambda p: load_frame(p, raw_half_size=raw_half_size, max_pixels=max_pixels), files)
     warns: list[BracketWarning] = []
     if times_map is not None:
         missing = [f.name for f in frames if f.name not in times_map]
@@ -555,6 +675,7 @@ def load_bracket(
         frames = updated
     frames = snap_frames(frames)
 
+    frames, orientation = _unify_orientation(frames)
     _check_consistent(frames)
 
     n = len(frames)
@@ -583,10 +704,22 @@ def load_bracket(
         ))
     if reorder is not None:
         warns.append(reorder)
+    position = {k: i for i, k in enumerate(order)}
+    if orientation is not None:  # its frames are file positions: to the sorted order
+        warns.append(BracketWarning(orientation.code, orientation.message,
+                                    tuple(sorted(position[k] for k in orientation.frames))))
     sorted_frames = [frames[k] for k in order]
     # Indices in warnings refer to the sorted order.
     warns.extend(_capture_warnings(sorted_frames))
     warns.extend(_white_balance_warnings(sorted_frames))
+    for k, f in enumerate(sorted_frames):
+        if f.meta.decoder_messages:
+            warns.append(BracketWarning(
+                "decoder-messages",
+                f"{f.name}: {'; '.join(f.meta.decoder_messages)}; it was decoded anyway, but "
+                "its pixels may be wrong",
+                (k,),
+            ))
     for k, f in enumerate(sorted_frames):
         step = max(1, int(np.sqrt(f.levels.size / 3 / 262144)))
         sub = f.levels[::step, ::step]

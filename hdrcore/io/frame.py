@@ -10,7 +10,7 @@ import numpy as np
 
 from ..errors import ParameterError
 
-__all__ = ["FrameMetadata", "RawCFA", "Frame", "apply_orientation"]
+__all__ = ["FrameMetadata", "RawCFA", "Frame", "apply_orientation", "undo_orientation"]
 
 
 @dataclass(frozen=True)
@@ -36,6 +36,11 @@ class FrameMetadata:
     (``read_noise_source == "optical-black"``), ``None`` when the file has no margins;
     ``optical_black_offset`` is those pixels' mean minus ``black_level`` (about 0 when LibRaw's
     black level is right).
+
+    ``orientation`` is the EXIF orientation the levels were turned by (the file's own tag, or
+    the bracket's when the frames' tags disagree: see :func:`hdrcore.io.load_bracket`).
+    ``decoder_messages``: what the decoder said about the file while decoding it anyway (LibRaw:
+    "its image data is corrupt (from byte 1328385)"), in plain words; empty when it said nothing.
     """
 
     path: str
@@ -66,6 +71,7 @@ class FrameMetadata:
     read_noise: float | None = None
     read_noise_source: str | None = None
     optical_black_offset: float | None = None
+    decoder_messages: tuple[str, ...] = ()
 
     @property
     def exposure_time_actual(self) -> float | None:
@@ -119,6 +125,7 @@ class FrameMetadata:
             "read_noise": self.read_noise,
             "read_noise_source": self.read_noise_source,
             "optical_black_offset": self.optical_black_offset,
+            "decoder_messages": list(self.decoder_messages),
         }
 
 
@@ -190,6 +197,12 @@ def apply_orientation(image: np.ndarray, orientation: int | None) -> np.ndarray:
     else:  # 8
         out = np.swapaxes(image, 0, 1)[::-1]
     return np.ascontiguousarray(out)
+
+
+def undo_orientation(image: np.ndarray, orientation: int | None) -> np.ndarray:
+    """The inverse of :func:`apply_orientation`: the image as stored, before the tag's turn."""
+    inverse = {6: 8, 8: 6}.get(orientation, orientation)  # type: ignore[arg-type]
+    return apply_orientation(image, inverse)
 
 
 @dataclass(frozen=True, eq=False)

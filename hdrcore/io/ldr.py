@@ -3,7 +3,8 @@
 Pillow decodes 8-bit JPEG/PNG; 16-bit PNG goes through imagecodecs (Pillow narrows 16-bit RGB to
 8 bits) and TIFF through tifffile. The EXIF orientation is applied here, once, so every later stage
 sees upright pixels. Values stay integer code values: they are non-linear until a camera response
-is applied.
+is applied. The size the header declares is checked against the pixel limit before any decoder
+runs (:mod:`hdrcore.io.header`).
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ import numpy as np
 from ..errors import ImageReadError
 from .exif import ExifData, read_exif
 from .frame import Frame, FrameMetadata, apply_orientation
+from .header import allow_pillow_pixels, check_frame_pixels, image_size
 
 __all__ = ["read_ldr", "sniff_format"]
 
@@ -58,9 +60,10 @@ def _to_rgb(arr: np.ndarray, path: Path) -> np.ndarray:
     )
 
 
-def _decode_pillow(path: Path) -> np.ndarray:
+def _decode_pillow(path: Path, max_pixels: int | None) -> np.ndarray:
     from PIL import Image, UnidentifiedImageError
 
+    allow_pillow_pixels(max_pixels)
     try:
         with Image.open(path) as im:
             im.load()
@@ -72,6 +75,9 @@ def _decode_pillow(path: Path) -> np.ndarray:
                 arr = np.asarray(im)
     except UnidentifiedImageError as exc:
         raise ImageReadError("not an image Pillow can read", path=path) from exc
+    except Image.DecompressionBombError as exc:  # only if Pillow's limit was lowered meanwhile
+        raise ImageReadError(f"Pillow refuses to decode it as too large ({exc})",
+                             path=path) from exc
     except (OSError, SyntaxError, ValueError) as exc:
         raise ImageReadError(f"image data is damaged or truncated ({exc})", path=path) from exc
     return arr
@@ -100,14 +106,20 @@ def _decode_tiff(path: Path) -> tuple[np.ndarray, int | None]:
     return arr, orientation
 
 
-def read_ldr(path: str | Path, fmt: str | None = None) -> Frame:
-    """Read a JPEG, PNG or TIFF frame as integer levels ``(H, W, 3)`` uint16, upright."""
+def read_ldr(path: str | Path, fmt: str | None = None, *,
+             max_pixels: int | None = None) -> Frame:
+    """Read a JPEG, PNG or TIFF frame as integer levels ``(H, W, 3)`` uint16, upright.
+
+    ``max_pixels``: the pixel limit (:func:`hdrcore.io.header.pixel_limit`; ``None`` the
+    default, 0 none), checked from the header before anything is decoded.
+    """
     p = Path(path)
     fmt = fmt or sniff_format(p)
     if fmt is None:
         raise ImageReadError(
             "not a recognised image", path=p, expected="JPEG, PNG, TIFF or a camera RAW file"
         )
+    check_frame_pixels(p, *image_size(p, fmt), max_pixels)
     exif: ExifData = read_exif(p)
     orientation = exif.orientation
     if fmt == "png" and _png_bit_depth(p) == 16:
@@ -116,7 +128,7 @@ def read_ldr(path: str | Path, fmt: str | None = None) -> Frame:
         arr, tiff_orientation = _decode_tiff(p)
         orientation = orientation if orientation is not None else tiff_orientation
     else:
-        arr = _decode_pillow(p)
+        arr = _decode_pillow(p, max_pixels)
 
     if arr.dtype == np.uint8:
         bit_depth = 8

@@ -18,12 +18,19 @@ Two things are measured or repaired while the file is open:
 * **Read noise.** The masked optical-black margins (``raw_image`` minus ``raw_image_visible``)
   record the black level plus read noise and no light; :func:`optical_black_noise` measures the
   noise there (:attr:`FrameMetadata.read_noise`).
+
+LibRaw writes what it finds wrong with a file straight to the process's stderr (``name:
+Unexpected end of file``); those lines are captured (:func:`hdrcore.io._capture.c_stderr`) and
+said in plain words: in the error when the file cannot be decoded, else in
+:attr:`FrameMetadata.decoder_messages`. The declared size is checked against the pixel limit
+(:mod:`hdrcore.io.header`) after ``open_file``, before anything is unpacked.
 """
 
 from __future__ import annotations
 
 import logging
 import math
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass
 from fractions import Fraction
@@ -32,6 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ImageReadError
+from ._capture import c_stderr
 from .exif import read_exif
 from .frame import Frame, FrameMetadata, RawCFA
 
@@ -41,6 +49,8 @@ __all__ = [
     "OpticalBlack",
     "read_raw",
     "is_raw_path",
+    "libraw_error",
+    "libraw_messages",
     "matrix_neutral",
     "optical_black_noise",
 ]
@@ -52,8 +62,9 @@ RAW_EXTENSIONS = frozenset(
     ".kdc .dcr .mos .mrw .raw .rwl .gpr".split()
 )
 
-# LibRaw flip codes to EXIF orientation values.
-_FLIP_TO_ORIENTATION = {0: 1, 3: 3, 5: 8, 6: 6}
+# LibRaw flip codes to EXIF orientation values (bit 4 transposes, bit 2 flips the rows, bit 1
+# the columns; checked against LibRaw's output for DNGs of every EXIF value).
+_FLIP_TO_ORIENTATION = {0: 1, 1: 2, 2: 4, 3: 3, 4: 5, 5: 8, 6: 6, 7: 7}
 
 
 #: CIE 1931 2-degree XYZ of the D65 white, Y = 1 (the white of sRGB, whose primaries the
@@ -241,58 +252,100 @@ def _fallback_whitebalance(raw, xyz: np.ndarray) -> tuple[tuple[float, ...], str
     return (1.0, 1.0, 1.0), "unity"
 
 
-def read_raw(path: str | Path, *, half_size: bool = False, keep_cfa: bool = True) -> Frame:
+_DATA_CORRUPTED = re.compile(r"data corrupted at (\d+)", re.IGNORECASE)
+
+
+def libraw_messages(said: Sequence[str]) -> list[str]:
+    """LibRaw's stderr lines about a file (name removed) in plain words."""
+    out = []
+    for text in said:
+        m = _DATA_CORRUPTED.search(text)
+        if "unexpected end of file" in text.lower():
+            words = "the file ends before its image data does (truncated)"
+        elif m:
+            words = f"its image data is corrupt (from byte {m.group(1)})"
+        else:
+            words = f"LibRaw says: {text}"
+        if words not in out:
+            out.append(words)
+    return out
+
+
+def _exception_text(exc: BaseException) -> str:
+    arg = exc.args[0] if exc.args else ""
+    if isinstance(arg, bytes):
+        arg = arg.decode("utf-8", "replace")
+    return str(arg) or type(exc).__name__
+
+
+def libraw_error(path: str | Path, exc: BaseException, said: Sequence[str] = ()) -> ImageReadError:
+    """The one-line error for a RAW file LibRaw failed on: what LibRaw printed about the file
+    (``said``, captured from stderr) in plain words, else its exception's text."""
+    import rawpy
+
+    words = libraw_messages(said)
+    if isinstance(exc, rawpy.LibRawFileUnsupportedError):
+        message = "not a camera RAW file LibRaw can read (unknown format, or the header is damaged)"
+    elif isinstance(exc, (rawpy.LibRawTooBigError, rawpy.LibRawUnsufficientMemoryError)):
+        message = f"RAW file is too large to decode ({_exception_text(exc)})"
+    elif words:
+        message = "RAW file is damaged: " + "; ".join(words)
+    else:
+        message = f"RAW file is damaged or truncated (LibRaw: {_exception_text(exc)})"
+    return ImageReadError(message, path=path)
+
+
+def read_raw(path: str | Path, *, half_size: bool = False, keep_cfa: bool = True,
+             max_pixels: int | None = None) -> Frame:
     """Read a camera RAW file as a linear :class:`Frame` (see module docstring).
 
     ``half_size`` demosaics by 2x2 binning (fast, for previews); ``keep_cfa`` keeps the raw mosaic.
+    ``max_pixels``: the pixel limit (:func:`hdrcore.io.header.pixel_limit`; ``None`` the
+    default, 0 none), checked from the header before anything is unpacked.
     """
     import rawpy
 
+    from .header import check_frame_pixels
+
     p = Path(path)
-    try:
-        raw = rawpy.imread(str(p))
-    except (rawpy.LibRawFileUnsupportedError, rawpy.LibRawIOError) as exc:
-        raise ImageReadError(
-            f"LibRaw cannot read it: not a camera RAW file, or truncated ({exc})", path=p
-        ) from exc
-    except rawpy.LibRawError as exc:
-        raise ImageReadError(f"RAW file is damaged or truncated ({exc})", path=p) from exc
-    try:
-        with raw:
-            if raw.num_colors < 3 or raw.raw_type != rawpy.RawType.Flat:
-                raise ImageReadError(
-                    "unsupported RAW layout", path=p, expected="a Bayer CFA sensor",
-                    found=f"{raw.num_colors} colours, {raw.raw_type}",
-                )
-            white = int(raw.white_level)
-            black = tuple(float(b) for b in raw.black_level_per_channel)
-            colors = raw.color_desc.decode("ascii", "replace")
-            pattern = np.array(raw.raw_pattern, dtype=np.int64)
-            cam_wb = tuple(float(v) for v in raw.camera_whitebalance)
-            xyz = np.asarray(raw.rgb_xyz_matrix, float)[:3]
-            wb_source = "as-shot"
-            if not _valid_multipliers(cam_wb):
-                cam_wb, wb_source = _fallback_whitebalance(raw, xyz)
-                log.info("%s: no as-shot white balance (LibRaw reports %s); using %s %s",
-                         p.name, list(raw.camera_whitebalance), wb_source, cam_wb)
-            sizes = raw.sizes
-            ob = optical_black_noise(
-                raw.raw_image, top=int(sizes.top_margin), left=int(sizes.left_margin),
-                height=int(sizes.height), width=int(sizes.width), black_level=black,
-                pattern=pattern,
-            )
-            flip = int(sizes.flip)
-            other = raw.other
-            cfa = None
-            if keep_cfa:
-                cfa = RawCFA(
-                    data=np.array(raw.raw_image_visible, copy=True),
+    failure: rawpy.LibRawError | None = None
+    with c_stderr(p) as said:  # filled when the block ends
+        try:
+            with rawpy.imread(str(p)) as raw:
+                sizes = raw.sizes
+                check_frame_pixels(p, int(sizes.width), int(sizes.height), max_pixels)
+                if raw.num_colors < 3 or raw.raw_type != rawpy.RawType.Flat:
+                    raise ImageReadError(
+                        "unsupported RAW layout", path=p, expected="a Bayer CFA sensor",
+                        found=f"{raw.num_colors} colours, {raw.raw_type}",
+                    )
+                white = int(raw.white_level)
+                black = tuple(float(b) for b in raw.black_level_per_channel)
+                colors = raw.color_desc.decode("ascii", "replace")
+                pattern = np.array(raw.raw_pattern, dtype=np.int64)
+                cam_wb = tuple(float(v) for v in raw.camera_whitebalance)
+                xyz = np.asarray(raw.rgb_xyz_matrix, float)[:3]
+                wb_source = "as-shot"
+                if not _valid_multipliers(cam_wb):
+                    cam_wb, wb_source = _fallback_whitebalance(raw, xyz)
+                    log.info("%s: no as-shot white balance (LibRaw reports %s); using %s %s",
+                             p.name, list(raw.camera_whitebalance), wb_source, cam_wb)
+                ob = optical_black_noise(
+                    raw.raw_image, top=int(sizes.top_margin), left=int(sizes.left_margin),
+                    height=int(sizes.height), width=int(sizes.width), black_level=black,
                     pattern=pattern,
-                    colors=colors,
-                    black_level=black,
-                    white_level=white,
                 )
-            try:
+                flip = int(sizes.flip)
+                other = raw.other
+                cfa = None
+                if keep_cfa:
+                    cfa = RawCFA(
+                        data=np.array(raw.raw_image_visible, copy=True),
+                        pattern=pattern,
+                        colors=colors,
+                        black_level=black,
+                        white_level=white,
+                    )
                 rgb = raw.postprocess(
                     gamma=(1, 1),
                     no_auto_bright=True,
@@ -302,10 +355,11 @@ def read_raw(path: str | Path, *, half_size: bool = False, keep_cfa: bool = True
                     no_auto_scale=True,
                     half_size=half_size,
                 )
-            except rawpy.LibRawError as exc:
-                raise ImageReadError(f"RAW data is damaged or truncated ({exc})", path=p) from exc
-    except rawpy.LibRawError as exc:
-        raise ImageReadError(f"RAW file is damaged or truncated ({exc})", path=p) from exc
+        except rawpy.LibRawError as exc:
+            failure = exc
+    if failure is not None:
+        raise libraw_error(p, failure, said) from failure
+    messages = libraw_messages(said)
 
     # Per output channel (R, G, B) black levels: LibRaw's colour indices follow color_desc.
     def black_of(letter: str) -> float:
@@ -370,5 +424,6 @@ def read_raw(path: str | Path, *, half_size: bool = False, keep_cfa: bool = True
         rgb_xyz_matrix=tuple(tuple(float(v) for v in row) for row in xyz),
         cfa_pattern=tuple(tuple(int(v) for v in row) for row in pattern),
         cfa_colors=colors,
+        decoder_messages=tuple(messages),
     )
     return Frame(levels=levels, meta=meta, cfa=cfa)
