@@ -1,8 +1,9 @@
 """The ``hdrcore`` command: thin subcommands that print JSON built from the result objects.
 
 Each subcommand lives in its own module ``hdrcore/cli/<name>.py`` with ``add_parser(subparsers)``
-and ``run(args) -> int``. Errors of the project's own types print one line and exit with 2; no
-traceback unless ``--debug``.
+and ``run(args) -> int``. Errors of the project's own types and usage errors print one line and
+exit with 2; no traceback unless ``--debug``. What the libraries say on the way (Python warnings,
+log records) is said once in the program's words, or not at all (:mod:`hdrcore.cli._chatter`).
 """
 
 from __future__ import annotations
@@ -10,13 +11,13 @@ from __future__ import annotations
 import argparse
 import importlib
 import importlib.util
-import logging
 import signal
 import sys
 from collections.abc import Sequence
 
 from .. import __version__
 from ..errors import HdrError
+from ._chatter import library_chatter
 
 __all__ = ["main", "build_parser"]
 
@@ -32,8 +33,16 @@ def _modules() -> list:
     return mods
 
 
+class _Parser(argparse.ArgumentParser):
+    """Usage errors on one line, like every other error: ``hdrcore merge: error: ... (see
+    'hdrcore merge --help')``, exit 2 (argparse prints the whole usage first)."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        self.exit(2, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="hdrcore",
         description="Exposure brackets to HDR (Cerman & Hlavac 2006): ratios from histograms, "
         "response recovery, hand-held registration, merge.",
@@ -77,12 +86,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         catch_termination()
     parser = build_parser()
     args = parser.parse_args(argv)
-    logging.basicConfig(
-        level=logging.DEBUG if args.debug else logging.WARNING,
-        format="hdrcore: %(levelname)s: %(message)s",
-    )
     try:
-        return int(args.run(args) or 0)
+        with library_chatter(debug=args.debug):
+            return int(args.run(args) or 0)
     except HdrError as exc:
         if args.debug:
             raise

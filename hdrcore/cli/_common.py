@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import sys
 from pathlib import Path
@@ -11,9 +12,10 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import HdrError, OutputError
-from ..io import Bracket, check_output_path, expand_paths, load_bracket
+from ..errors import FrameTooLargeError, HdrError, OutputError
+from ..io import MAX_FRAME_PIXELS, Bracket, check_output_path, expand_paths, load_bracket
 from ..io.atomic import same_file
+from ._chatter import holding_file_warnings
 
 __all__ = [
     "add_bracket_arguments",
@@ -21,6 +23,7 @@ __all__ = [
     "add_level_arguments",
     "check_outputs_first",
     "parse_colour",
+    "parse_pixel_count",
     "input_files",
     "load_bracket_from_args",
     "print_unused_frames",
@@ -30,8 +33,30 @@ __all__ = [
 ]
 
 
+def parse_pixel_count(text: str) -> int:
+    """``"2e8"`` or ``"200000000"`` -> ``200000000``; 0 means no limit (an argparse ``type``)."""
+    try:
+        value = float(str(text).replace("_", ""))
+    except ValueError:
+        value = float("nan")
+    if not (math.isfinite(value) and value >= 0):
+        raise argparse.ArgumentTypeError(
+            f"expected a number of pixels such as 2e8 (0 for no limit), found {text!r}")
+    return int(round(value))
+
+
+def suggest_pixel_limit(pixels: int) -> str:
+    """A round limit just above ``pixels``, as typed: ``200000000`` -> ``"2e8"``, ``163e6`` ->
+    ``"1.7e8"``."""
+    exponent = max(int(math.floor(math.log10(max(pixels, 1)))), 1)
+    mantissa = math.ceil(pixels / 10 ** (exponent - 1) - 1e-9) / 10
+    if mantissa >= 10:
+        mantissa, exponent = mantissa / 10, exponent + 1
+    return f"{mantissa:g}e{exponent}"
+
+
 def add_bracket_arguments(parser: argparse.ArgumentParser) -> None:
-    """``FILE...`` (files or directories) and ``--times FILE``."""
+    """``FILE...`` (files or directories), ``--times FILE`` and ``--max-pixels N``."""
     parser.add_argument(
         "files", nargs="+", metavar="FILE",
         help="frames of one bracket (JPEG, PNG, TIFF, RAW) or a directory holding them",
@@ -39,6 +64,11 @@ def add_bracket_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--times", metavar="FILE",
         help="exposure times as 'name seconds' lines (replace EXIF)",
+    )
+    parser.add_argument(
+        "--max-pixels", dest="max_pixels", type=parse_pixel_count, metavar="N",
+        help=f"largest frame to decode, in pixels, read from each file's header first "
+             f"(default {MAX_FRAME_PIXELS / 1e6:g} MP; 2e8 is 200 MP; 0: no limit)",
     )
 
 
@@ -123,7 +153,18 @@ def check_outputs_first(outputs: list[str], args: argparse.Namespace) -> None:
 
 
 def load_bracket_from_args(args: argparse.Namespace, **kwargs: Any) -> Bracket:
-    return load_bracket(args.files, exposure_times=getattr(args, "times", None), **kwargs)
+    """The bracket the arguments name; what the decoders say about its files is printed once
+    it has loaded (with an error, only the error is)."""
+    kwargs.setdefault("max_pixels", getattr(args, "max_pixels", None))
+    try:
+        with holding_file_warnings():
+            return load_bracket(args.files, exposure_times=getattr(args, "times", None),
+                                **kwargs)
+    except FrameTooLargeError as exc:
+        raise FrameTooLargeError(
+            exc.path or "", width=exc.width, height=exc.height, limit=exc.limit,
+            hint=f"--max-pixels {suggest_pixel_limit(exc.width * exc.height)} raises it",
+        ) from None
 
 
 def to_jsonable(obj: Any) -> Any:

@@ -12,6 +12,7 @@ import argparse
 from fractions import Fraction
 
 from ..errors import ParameterError
+from ..io.times import EXPOSURE_TIME_RANGE, check_seconds
 from ..synthetic import FORMATS, RESPONSES, SCENES, simulate_bracket, write_bracket
 from ..synthetic.dng import CFA_PATTERNS
 from ._common import print_json
@@ -49,6 +50,11 @@ def parse_times(text: str) -> tuple[Fraction, ...]:
             ) from exc
         if t <= 0:
             raise ParameterError("exposure times must be positive", found=item)
+        try:
+            check_seconds(t)
+        except ValueError as exc:
+            raise ParameterError(f"bad exposure time in --times, {exc}",
+                                 expected=EXPOSURE_TIME_RANGE, found=repr(item)) from None
         out.append(t)
     if not out:
         raise ParameterError("--times lists no exposure times", found=repr(text))
