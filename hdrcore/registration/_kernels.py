@@ -8,10 +8,14 @@ convolution, IEEE TASSP 29(6), 1981), in one pass and without temporaries:
   raw frame (``clip(scale * v, lo, hi)`` averaged over 2x2 blocks, float32, in the order of
   :func:`~hdrcore.registration._sampling.reduce2`), so a 24-megapixel frame is read once and no
   full-resolution clipped copy is made; :func:`reduce2` halves the coarser levels;
-* :func:`gauss_newton_sums` evaluates, at the sample points, the cubic-convolution value and
-  gradient of the bright frame, the eq. 6 validity (raw taps inside the exposure range, no edge
-  steeper than the contrast limit), the eq. 7 residual and its derivative, and accumulates the
-  eq. 6 sum, the number of valid samples and the Gauss-Newton normal equations ``J'J``, ``J'n``.
+* :func:`score_candidates` picks candidate samples of one pyramid level on the dark frame's
+  grid, :func:`support_valid` decides the bright frame's side of their eq. 6 validity once per
+  level (see :mod:`hdrcore.registration._problem`);
+* :func:`gauss_newton_sums` evaluates, at the sample points mapped by a 3x3 homography, the
+  cubic-convolution value and gradient of the bright frame (taps clipped to the shared exposure
+  range), the eq. 7 residual and its derivative, and accumulates the weighted eq. 6 sum, the
+  sum of the weights and the Gauss-Newton normal equations ``J'J``, ``J'n`` of up to eight
+  motion generators.
   Integer frames are read through a linearisation table (``lut``; None means the frame
   already holds linear values).
 
@@ -31,7 +35,8 @@ from .._numba import AVAILABLE
 from .._numba import inline as _inline
 from .._numba import njit as _njit
 
-__all__ = ["AVAILABLE", "bin_clip", "reduce2", "gauss_newton_sums", "score_candidates"]
+__all__ = ["AVAILABLE", "bin_clip", "reduce2", "gauss_newton_sums", "score_candidates",
+           "support_valid"]
 
 
 
@@ -115,6 +120,44 @@ def score_candidates(img, lut, n_cand, margin, phase, lo, hi, eps2, gradient, ys
 
 
 @_njit
+def support_valid(img, lut, xs, ys, m, check_range, lo, hi, max_contrast, reach, out):
+    """``out[k]``: whether the 4x4 interpolation support of ``img`` (the bright frame) at the
+    sample ``(xs[k], ys[k])`` mapped by ``m`` (3x3) lies inside the frame and, widened by
+    ``reach`` pixels on every side (cut at the frame's border), holds raw taps strictly between
+    ``lo`` and ``hi`` (with ``check_range``) spanning at most ``max_contrast`` (when > 0): the
+    eq. 6 validity of the bright frame for every motion that moves the sample by up to
+    ``reach`` pixels from ``m``, decided once per pyramid level."""
+    h, w = img.shape
+    for k in range(xs.size):
+        x = xs[k]
+        y = ys[k]
+        out[k] = False
+        den = m[2, 0] * x + m[2, 1] * y + m[2, 2]
+        if not den > 0:
+            continue
+        qx = (m[0, 0] * x + m[0, 1] * y + m[0, 2]) / den
+        qy = (m[1, 0] * x + m[1, 1] * y + m[1, 2]) / den
+        if not (qx >= 1.0 and qx < w - 2.0 and qy >= 1.0 and qy < h - 2.0):
+            continue
+        ix = int(math.floor(qx))
+        iy = int(math.floor(qy))
+        if ix > w - 3 or iy > h - 3:
+            continue
+        tmin = np.inf
+        tmax = -np.inf
+        for yy in range(max(iy - 1 - reach, 0), min(iy + 3 + reach, h)):
+            for xx in range(max(ix - 1 - reach, 0), min(ix + 3 + reach, w)):
+                v = _linear(img, lut, yy, xx)
+                tmin = min(tmin, v)
+                tmax = max(tmax, v)
+        if check_range and not (tmin > lo and tmax < hi):
+            continue
+        if max_contrast > 0 and not (tmax <= max_contrast * max(tmin, 1e-30)):
+            continue
+        out[k] = True
+
+
+@_njit
 def reduce2(src, out):
     """Mean of 2x2 blocks of a float32 image, as :func:`hdrcore.registration._sampling.reduce2`."""
     h2, w2 = out.shape
@@ -146,32 +189,44 @@ def _dkeys(f, w):
 
 
 @_njit
-def gauss_newton_sums(
-    img, lut, xs, ys, bs, m, check_range, noise_floor, saturation, max_contrast, t,
-    angle, cx, cy, n_par, gradient, hess, grad,
-):
-    """Eq. 6 sum of squared eq. 7 residuals and valid count at the samples; with ``gradient``
-    also the normal equations of the rigid parameters (shift, and the angle when ``n_par`` is
-    3) added into ``hess`` (3x3) and ``grad`` (3).
+def gauss_newton_sums(img, lut, xs, ys, bs, m, frame, n_par, gradient, hess, grad):
+    """Eq. 6 weighted sum of squared eq. 7 residuals and the sum of the weights at the samples;
+    with ``gradient`` also the Gauss-Newton normal equations of the first ``n_par`` motion
+    generators added into ``hess`` (8x8, upper triangle mirrored) and ``grad`` (8).
 
-    ``m`` (2x3, level coordinates) maps the samples ``(xs, ys)`` of the dark frame's grid into
-    ``img`` (the bright frame); ``bs`` is ``k * dark`` there. ``check_range``: the 16 raw taps
-    must lie strictly between ``noise_floor`` and ``saturation`` (full resolution).
-    ``max_contrast`` > 0: the taps' max must not exceed it times their min. ``angle``, ``cx``,
-    ``cy``: the rotation of ``m`` and the level's centre (for d/d angle). Returns
-    ``(sum n^2, count)``.
+    ``m`` (3x3, level coordinates) maps the samples ``(xs, ys)`` of the dark frame's grid into
+    ``img`` (the bright frame); ``bs`` is ``k * dark`` there. ``frame`` holds ``(lo, hi, t,
+    cx, cy, unit, ramp)``: the bright frame's taps are clipped to ``[lo, hi]`` before the
+    cubic interpolation (the pyramid levels are clipped already), ``t`` is eq. 7's threshold,
+    ``(cx, cy)`` the bright level's centre and ``unit`` its half-diagonal (the generators act
+    on ``X = (q - c) / unit``), and a sample's weight falls linearly from 1 to 0 over the last
+    ``ramp`` pixels before its 4x4 support leaves the bright frame. No other test depends on
+    the motion (the samples are valid by selection), so the sums are continuous in ``m``.
+    Generators (columns of the Jacobian, ``d q / d delta = unit * g(X, Y)``): shift x, shift y,
+    rotation ``(-Y, X)``, scale ``(X, Y)``, stretch ``(X, -Y)``, shear ``(Y, X)``, and the two
+    perspective terms ``(-X^2, -XY)``, ``(-XY, -Y^2)``. Returns ``(sum w n^2, sum w)``.
     """
     h, w = img.shape
+    lo = frame[0]
+    hi = frame[1]
+    t = frame[2]
+    cx = frame[3]
+    cy = frame[4]
+    unit = frame[5]
+    ramp = frame[6]
+    inv_unit = 1.0 / unit
+    inv_ramp = 1.0 / ramp
     m00, m01, m02 = m[0, 0], m[0, 1], m[0, 2]
     m10, m11, m12 = m[1, 0], m[1, 1], m[1, 2]
-    cs, sn = math.cos(angle), math.sin(angle)
+    m20, m21, m22 = m[2, 0], m[2, 1], m[2, 2]
     wx = np.empty(4)
     wy = np.empty(4)
     dwx = np.empty(4)
     dwy = np.empty(4)
     rows = np.empty(4)
+    cols = np.zeros(8)
     ssum = 0.0
-    count = 0
+    wsum = 0.0
     inv_t = 1.0 / max(t, 1e-300)
     # Two phases per block of samples: first only the loads of the 16 taps (independent of each
     # other, so the processor overlaps their cache misses), then the arithmetic.
@@ -179,6 +234,9 @@ def gauss_newton_sums(
     buf = np.empty((block, 4, 4))
     fxs = np.empty(block)
     fys = np.empty(block)
+    qxs = np.empty(block)
+    qys = np.empty(block)
+    wts = np.empty(block)
     ks = np.empty(block, np.int64)
     n_all = xs.size
     for start in range(0, n_all, block):
@@ -186,42 +244,36 @@ def gauss_newton_sums(
         for k in range(start, min(start + block, n_all)):
             x = xs[k]
             y = ys[k]
-            qx = m00 * x + m01 * y + m02
-            qy = m10 * x + m11 * y + m12
-            if not (qx >= 1.0 and qx < w - 2.0 and qy >= 1.0 and qy < h - 2.0):
+            den = m20 * x + m21 * y + m22
+            if not den > 0:
+                continue
+            qx = (m00 * x + m01 * y + m02) / den
+            qy = (m10 * x + m11 * y + m12) / den
+            d = min(min(qx - 1.0, w - 2.0 - qx), min(qy - 1.0, h - 2.0 - qy))
+            if not d > 0:
                 continue  # the 4x4 support leaves the bright frame
             ix = int(math.floor(qx))
             iy = int(math.floor(qy))
-            if ix > w - 3 or iy > h - 3:
-                continue
             for j in range(4):
                 for i in range(4):
                     if lut is None:
-                        buf[nb, j, i] = np.float64(img[iy - 1 + j, ix - 1 + i])
+                        v = np.float64(img[iy - 1 + j, ix - 1 + i])
                     else:
-                        buf[nb, j, i] = np.float64(lut[img[iy - 1 + j, ix - 1 + i]])
+                        v = np.float64(lut[img[iy - 1 + j, ix - 1 + i]])
+                    buf[nb, j, i] = min(max(v, lo), hi)
             fxs[nb] = qx - ix
             fys[nb] = qy - iy
+            qxs[nb] = qx
+            qys[nb] = qy
+            wts[nb] = min(1.0, d * inv_ramp)
             ks[nb] = k
             nb += 1
         for q in range(nb):
             taps = buf[q]
-            tmin = np.inf
-            tmax = -np.inf
-            for j in range(4):
-                for i in range(4):
-                    v = taps[j, i]
-                    if v < tmin:
-                        tmin = v
-                    if v > tmax:
-                        tmax = v
-            if check_range and not (tmin > noise_floor and tmax < saturation):
-                continue
-            if max_contrast > 0 and not (tmax <= max_contrast * max(tmin, 1e-30)):
-                continue
             k = ks[q]
             fx = fxs[q]
             fy = fys[q]
+            wt = wts[q]
             _keys(fx, wx)
             _keys(fy, wy)
             for j in range(4):
@@ -238,8 +290,8 @@ def gauss_newton_sums(
             if not denom > 0:
                 denom = 1.0
             n = (a - b) / denom
-            ssum += n * n
-            count += 1
+            ssum += wt * n * n
+            wsum += wt
             if not gradient:
                 continue
             _dkeys(fx, dwx)
@@ -252,21 +304,27 @@ def gauss_newton_sums(
             dn_da = 2.0 * b / (denom * denom) if above else inv_t
             j0 = dn_da * sx
             j1 = dn_da * sy
-            hess[0, 0] += j0 * j0
-            hess[0, 1] += j0 * j1
-            hess[1, 1] += j1 * j1
-            grad[0] += j0 * n
-            grad[1] += j1 * n
-            if n_par == 3:
-                xc = xs[k] - cx
-                yc = ys[k] - cy
-                j2 = j0 * (-sn * xc - cs * yc) + j1 * (cs * xc - sn * yc)
-                hess[0, 2] += j0 * j2
-                hess[1, 2] += j1 * j2
-                hess[2, 2] += j2 * j2
-                grad[2] += j2 * n
+            cols[0] = j0
+            cols[1] = j1
+            if n_par > 2:
+                gx = (qxs[q] - cx) * inv_unit
+                gy = (qys[q] - cy) * inv_unit
+                cols[2] = (j1 * gx - j0 * gy) * unit
+                if n_par > 3:
+                    cols[3] = (j0 * gx + j1 * gy) * unit
+                if n_par > 4:
+                    cols[4] = (j0 * gx - j1 * gy) * unit
+                    cols[5] = (j0 * gy + j1 * gx) * unit
+                    radial = -(j0 * gx + j1 * gy) * unit
+                    cols[6] = radial * gx
+                    cols[7] = radial * gy
+            for i in range(n_par):
+                ci = wt * cols[i]
+                grad[i] += ci * n
+                for jj in range(i, n_par):
+                    hess[i, jj] += ci * cols[jj]
     if gradient:
-        hess[1, 0] = hess[0, 1]
-        hess[2, 0] = hess[0, 2]
-        hess[2, 1] = hess[1, 2]
-    return ssum, count
+        for i in range(n_par):
+            for jj in range(i + 1, n_par):
+                hess[jj, i] = hess[i, jj]
+    return ssum, wsum

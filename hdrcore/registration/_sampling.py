@@ -61,13 +61,14 @@ class Sampled:
 
 def sample(
     image: np.ndarray, x: np.ndarray, y: np.ndarray, *, gradient: bool = True,
-    tap_range: bool = False,
+    tap_range: bool = False, clip: tuple[float, float] | None = None,
 ) -> Sampled:
     """Cubic-convolution value (and d/dx, d/dy) of a 2-D ``image`` at points ``(x, y)``.
 
     ``inside`` is False where the 4x4 support leaves the image (value 0 there).
     ``tap_range`` also returns the minimum and maximum of the 16 raw taps (to discard points
-    whose support touches a saturated or under-exposed pixel).
+    whose support touches a saturated or under-exposed pixel). ``clip``: the taps are clipped
+    to ``(lo, hi)`` before the interpolation.
     """
     h, w = image.shape
     ix = np.floor(x).astype(np.int64)
@@ -81,6 +82,8 @@ def sample(
     # sum below runs over long contiguous rows.
     offsets = _OFFSETS[:, None] * w + _OFFSETS[None, :]
     taps = flat.take(base[None, None, :] + offsets[:, :, None]).astype(np.float64)
+    if clip is not None:
+        np.clip(taps, clip[0], clip[1], out=taps)
     wx = keys_weights(fx)
     wy = keys_weights(fy)
     rows = _dot4(taps.transpose(1, 0, 2), wx)  # (4, N): each row of taps interpolated in x

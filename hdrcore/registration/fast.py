@@ -36,27 +36,43 @@ from ._problem import (
     PairData,
     RefineResult,
     Samples,
-    level_to_full,
+    corner_move,
+    motion_update,
     normal_equations,
     register_with,
-    rigid_to_level,
     select_samples,
+    to_full,
+    to_level,
 )
 from .result import PairRegistration
-from .transform import rigid_matrix
+from .transform import homogeneous
 
 __all__ = ["register_pair_fast", "refine_gauss_newton"]
 
 #: Bounds of the default full-resolution sample budget (see :func:`refine_gauss_newton`).
 MIN_SAMPLES, MAX_SAMPLES = 60_000, 250_000
 
+#: The samples' validity holds for motions within this many pixels (of the level) of the one it
+#: was decided at; a search that moves further decides it again (once).
+REACH = 1
 
-def _level_cost(
-    data: PairData, level: int, p: np.ndarray, shape_l: tuple[int, int], s: Samples
-) -> float:
-    m = rigid_matrix(p[0], p[1], np.rad2deg(p[2]), shape_l)
+
+def _level_cost(data: PairData, level: int, m: np.ndarray, s: Samples) -> float:
     ssum, count, _, _ = normal_equations(data, level, m, s, gradient=False)
-    return ssum / count if count else np.inf
+    return ssum / count if count > 0 else np.inf
+
+
+def _solve(hess: np.ndarray, grad: np.ndarray) -> np.ndarray:
+    """Gauss-Newton step ``-H^-1 g``, with the columns scaled to unit diagonal first (the
+    generators' units differ; an 8-parameter system is badly scaled otherwise)."""
+    d = np.sqrt(np.maximum(np.diag(hess), 1e-300))
+    hs = hess / np.outer(d, d)
+    gs = grad / d
+    try:
+        x = np.linalg.solve(hs, gs)
+    except np.linalg.LinAlgError:
+        x = np.linalg.lstsq(hs, gs, rcond=None)[0]
+    return -x / d
 
 
 def refine_gauss_newton(
@@ -79,9 +95,10 @@ def refine_gauss_newton(
     samples raised the worst 8-bit corner error in the bench), on large frames a budget that
     does not grow with the megapixels.
 
-    ``initial`` and the returned matrix map dark-frame coordinates to the bright frame (the
+    ``initial`` and the returned matrix (3x3) map dark-frame coordinates to the bright frame (the
     inverse of the pair matrix; see :func:`hdrcore.registration._problem.select_samples`), at
-    full resolution.
+    full resolution. Each step updates the estimate on the bright side, ``B <- G(delta) B``,
+    with ``G`` built from the model's generators (:func:`~._problem.motion_update`).
     """
     n_par = MODELS[model]
     if max_samples is None:
@@ -90,66 +107,75 @@ def refine_gauss_newton(
     top = 0
     while top + 1 < len(data.levels) and min(data.level_shape(top + 1)) >= coarsest_size:
         top += 1
-    matrix = np.asarray(initial, float)
+    initial = homogeneous(initial)
+    matrix = initial
     history: list[float] = []
     levels: list[int] = []
-    iterations = 0
     for level in range(top, -1, -1):
-        shape_l = data.level_shape(level)
-        h, w = shape_l
-        cx, cy = (w - 1) / 2.0, (h - 1) / 2.0
-        radius = float(np.hypot(cx, cy))
-        s = select_samples(data, level, max_samples if level == 0 else coarse_samples)
-        if s.b.size < 8:
+        n_samples = max_samples if level == 0 else coarse_samples
+        m = to_level(matrix, level)
+        # The samples and their validity are fixed while the motion changes: a continuous cost.
+        s = select_samples(data, level, n_samples, motion=m, reach=REACH)
+        if s.b.size < 4 * n_par:
             continue
-        p = rigid_to_level(matrix, level, shape_l)
         if level < top:  # a coarse level can mislead (photometric mismatch, little detail):
-            p0 = rigid_to_level(initial, level, shape_l)  # restart if the start is better here
+            m0 = to_level(initial, level)  # restart if the start is better here
             sub = s  # the choice needs a rough cost only: at most ~coarse_samples points
             stride = s.b.size // max(coarse_samples, 1)
             if stride > 1:
                 sub = Samples(*(np.ascontiguousarray(a[::stride]) for a in (s.x, s.y, s.b)))
-            if (_level_cost(data, level, p0, shape_l, sub)
-                    < _level_cost(data, level, p, shape_l, sub)):
-                p = p0
-        prev_p = None
-        prev_cost = np.inf
-        step = None
-        best_c, best_p = np.inf, p
-        for _ in range(max_iterations if level == 0 else coarse_iterations):
-            m = rigid_matrix(p[0], p[1], np.rad2deg(p[2]), shape_l)
-            ssum, count, hess, grad = normal_equations(data, level, m, s, n_par=n_par)
-            c = ssum / count if count else np.inf
-            history.append(c)
-            levels.append(level)
-            iterations += 1
-            if c < best_c:
-                best_c, best_p = c, p
-            if step is not None and c > prev_cost:  # the step went too far: halve it
-                step = step / 2.0
-                if np.abs(step[:2]).max() + abs(step[2]) * radius < tolerance:
-                    p = best_p
-                    break
-                p = prev_p + step
-                continue
-            if step is not None and prev_cost - c < 1e-6 * prev_cost:
-                break  # no further decrease: converged to the noise floor of the cost
-            if count < n_par * 4:
-                break
-            try:
-                delta = -np.linalg.solve(hess, grad)
-            except np.linalg.LinAlgError:
-                delta = -np.linalg.lstsq(hess, grad, rcond=None)[0]
-            if n_par == 2:
-                delta = np.append(delta, 0.0)
-            prev_p, prev_cost, step = p.copy(), c, delta
-            p = p + delta
-            if np.abs(delta[:2]).max() + abs(delta[2]) * radius < tolerance:
-                break  # a tiny move from an evaluated point: keep it
-        else:
-            p = best_p
-        matrix = level_to_full(p, level, shape_l)
-    return RefineResult(matrix, iterations, history, levels)
+            if _level_cost(data, level, m0, sub) < _level_cost(data, level, m, sub):
+                m = m0
+                s = select_samples(data, level, n_samples, motion=m, reach=REACH)
+        budget = max_iterations if level == 0 else coarse_iterations
+        start = m
+        m = _search(data, level, m, s, n_par, budget, tolerance, history, levels)
+        if corner_move(m, start, data.level_shape(level)) > REACH:
+            # the search left the zone where the samples' validity was decided: decide again
+            s = select_samples(data, level, n_samples, motion=m, reach=REACH)
+            m = _search(data, level, m, s, n_par, budget, tolerance, history, levels)
+        matrix = to_full(m, level)
+    return RefineResult(matrix, len(history), history, levels)
+
+
+def _search(
+    data: PairData, level: int, m: np.ndarray, s: Samples, n_par: int, budget: int,
+    tolerance: float, history: list[float], levels: list[int],
+) -> np.ndarray:
+    """Gauss-Newton iterations on one level from ``m`` (3x3, level coordinates), at most
+    ``budget``; appends the costs to ``history`` / ``levels`` and returns the estimate."""
+    shape_l = data.level_shape(level)
+    prev_m = m
+    prev_cost = np.inf
+    step = None
+    best_c, best_m = np.inf, m
+    for _ in range(budget):
+        ssum, count, hess, grad = normal_equations(data, level, m, s, n_par=n_par)
+        c = ssum / count if count > 0 else np.inf
+        history.append(c)
+        levels.append(level)
+        if c < best_c:
+            best_c, best_m = c, m
+        if step is not None and c > prev_cost:  # the step went too far: halve it
+            step = step / 2.0
+            trial = motion_update(step, shape_l) @ prev_m
+            if corner_move(trial, prev_m, shape_l) < tolerance:
+                return best_m
+            m = trial
+            continue
+        if step is not None and prev_cost - c < 1e-6 * prev_cost:
+            return m  # no further decrease: converged to the noise floor of the cost
+        if count < n_par * 4:
+            return m
+        delta = _solve(hess, grad)
+        new_m = motion_update(delta, shape_l) @ m
+        new_m /= new_m[2, 2]
+        prev_m, prev_cost, step = m, c, delta
+        moved = corner_move(new_m, m, shape_l)
+        m = new_m
+        if moved < tolerance:
+            return m  # a tiny move from an evaluated point: keep it
+    return best_m
 
 
 def register_pair_fast(

@@ -6,9 +6,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .transform import affine_part, homogeneous
+
 __all__ = ["PairPreview", "PairRegistration", "BracketRegistration", "FAILED_STATUSES"]
 
-#: Status words of a pair that did not produce a transform (its matrix is the identity then).
+#: Status words of a pair that did not produce a transform (its motion is the identity then).
 FAILED_STATUSES = ("saturated", "flat", "weak-peak", "no-overlap", "diverged")
 
 
@@ -34,22 +36,28 @@ class PairPreview:
 class PairRegistration:
     """Registration of one consecutive pair (dark ``i``, bright ``j = i + 1``).
 
-    ``matrix`` (2x3) maps pixel coordinates of the bright frame to the dark frame (x right, y down,
-    origin at the centre of the top-left pixel); ``dx, dy, angle_deg`` are its rigid parameters
-    (rotation about the image centre, then shift). ``cost_before`` / ``cost_after`` are the eq. 6
+    ``homography`` (3x3, every model) maps pixel coordinates of the bright frame to the dark
+    frame (x right, y down, origin at the centre of the top-left pixel; ``(u, v, s) = H (x, y,
+    1)``, then ``(u / s, v / s)``); ``matrix`` is the same motion as a 2x3 affine matrix for the
+    affine models (shift, euclidean, similarity) and None for ``"homography"``. For an affine
+    model ``matrix`` is authoritative: ``homography`` is derived from it (so
+    ``dataclasses.replace(pair, matrix=m)`` keeps both in step). ``dx, dy`` are the displacement
+    of the image centre, ``angle_deg`` and ``scale`` the rotation and scale of the motion there
+    (exactly the parameters of a similarity: rotation and scaling about the image centre, then
+    shift). ``cost_before`` / ``cost_after`` are the eq. 6
     cost (mean squared eq. 7 normalised difference over pixels well exposed in both frames) at the
-    identity and at ``matrix``. ``overlap`` is the fraction of the bright frame that lands inside
+    identity and at the result. ``overlap`` is the fraction of the bright frame that lands inside
     the dark frame (NaN when the pair failed before a start was found); ``valid_fraction`` the
     fraction of the dark frame's pixels that are well exposed in both frames after alignment.
     ``cost_history`` / ``level_history``: the cost at each iteration and the pyramid level it was
     computed on (0 = full resolution). ``initial_shift`` and ``peak_ncc`` / ``peak_psr`` come from
-    the eq. 5 step. When ``status`` is not ``"ok"`` the matrix is the
+    the eq. 5 step. When ``status`` is not ``"ok"`` the motion is the
     identity and ``message`` says why.
     """
 
     dark: int
     bright: int
-    matrix: np.ndarray
+    matrix: np.ndarray | None
     dx: float
     dy: float
     angle_deg: float
@@ -71,6 +79,17 @@ class PairRegistration:
     shape: tuple[int, int]
     seconds: float = 0.0
     preview: PairPreview | None = field(default=None, repr=False)
+    homography: np.ndarray | None = field(default=None, repr=False)
+    scale: float = 1.0
+
+    def __post_init__(self) -> None:
+        if self.matrix is not None:
+            object.__setattr__(self, "matrix", affine_part(self.matrix))
+            object.__setattr__(self, "homography", homogeneous(self.matrix))
+        elif self.homography is None:
+            raise ValueError("a PairRegistration needs a matrix or a homography")
+        else:
+            object.__setattr__(self, "homography", homogeneous(self.homography))
 
     @property
     def ok(self) -> bool:
@@ -80,10 +99,12 @@ class PairRegistration:
         return {
             "dark": self.dark,
             "bright": self.bright,
-            "matrix": np.asarray(self.matrix).tolist(),
+            "matrix": None if self.matrix is None else np.asarray(self.matrix).tolist(),
+            "homography": np.asarray(self.homography).tolist(),
             "dx": self.dx,
             "dy": self.dy,
             "angle_deg": self.angle_deg,
+            "scale": self.scale,
             "ratio": self.ratio,
             "model": self.model,
             "method": self.method,
@@ -107,15 +128,23 @@ class PairRegistration:
 class BracketRegistration:
     """Registration of a whole bracket: consecutive pairs chained to the ``reference`` frame.
 
-    ``to_reference[k]`` maps pixel coordinates of frame ``k`` to the reference frame. A failed
-    pair contributes the identity to the chain (and ``ok`` is False).
+    ``to_reference_homography[k]`` (3x3) maps pixel coordinates of frame ``k`` to the reference
+    frame; ``to_reference[k]`` is the same as a 2x3 matrix for the affine models (None for
+    ``"homography"``; when given it is authoritative and the homographies are derived from it).
+    A failed pair contributes the identity to the chain (and ``ok`` is False).
     """
 
     reference: int
     pairs: tuple[PairRegistration, ...]
-    to_reference: tuple[np.ndarray, ...]
+    to_reference: tuple[np.ndarray, ...] | None
     model: str
     method: str
+    to_reference_homography: tuple[np.ndarray, ...] = ()
+
+    def __post_init__(self) -> None:
+        if self.to_reference is not None:
+            object.__setattr__(self, "to_reference_homography",
+                               tuple(homogeneous(m) for m in self.to_reference))
 
     @property
     def ok(self) -> bool:
@@ -127,5 +156,8 @@ class BracketRegistration:
             "model": self.model,
             "method": self.method,
             "pairs": [p.to_json() for p in self.pairs],
-            "to_reference": [np.asarray(m).tolist() for m in self.to_reference],
+            "to_reference": None if self.to_reference is None
+            else [np.asarray(m).tolist() for m in self.to_reference],
+            "to_reference_homography": [np.asarray(m).tolist()
+                                        for m in self.to_reference_homography],
         }

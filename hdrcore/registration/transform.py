@@ -1,16 +1,20 @@
-"""2x3 motion matrices: rigid parameters, composition, inversion, chaining pairs to a reference.
+"""Motion matrices: 3x3 homographies (2x3 for affine motion), composition, chaining to a reference.
 
-Convention (the project's, see :mod:`hdrcore.synthetic.camera`): a 2x3 affine matrix ``A`` maps
-pixel coordinates ``(x, y, 1)`` of one frame to pixel coordinates of another; x to the right,
-y down, origin at the centre of the top-left pixel. A *pair* matrix of the consecutive frames
-(dark ``i``, bright ``i + 1``) maps coordinates of the brighter frame to the darker one; a
-*to-reference* matrix maps coordinates of frame ``k`` to the reference frame.
+Convention (the project's, see :mod:`hdrcore.synthetic.camera`): a matrix maps pixel coordinates
+``(x, y, 1)`` of one frame to pixel coordinates of another; x to the right, y down, origin at the
+centre of the top-left pixel. A 2x3 matrix ``A`` is the affine map ``A @ (x, y, 1)``; a 3x3
+homography ``H`` maps ``(x, y)`` to ``(u / s, v / s)`` with ``(u, v, s) = H @ (x, y, 1)``. Both
+forms are accepted everywhere here: a 2x3 matrix is the homography with last row ``(0, 0, 1)``;
+results are 2x3 when every input is 2x3 and 3x3 (scaled to ``H[2, 2] = 1``) otherwise.
 
-Cerman & Hlavac (2006), section 6, register only consecutive frames (their exposures overlap
-most) and chain the pair transforms to the reference frame; :func:`to_reference` does the chaining.
+A *pair* matrix of the consecutive frames (dark ``i``, bright ``i + 1``) maps coordinates of the
+brighter frame to the darker one; a *to-reference* matrix maps coordinates of frame ``k`` to the
+reference frame. Cerman & Hlavac (2006), section 6, register only consecutive frames (their
+exposures overlap most) and chain the pair transforms to the reference frame; :func:`to_reference`
+does the chaining.
 
-The elementary maths (``rigid_matrix``, ``compose``, ``invert``) is the simulator's, re-exported
-here so registration and ground truth can never disagree on a convention.
+``rigid_matrix`` is the simulator's, re-exported here so registration and ground truth can never
+disagree on a convention; :func:`similarity_matrix` adds a scale about the same centre.
 """
 
 from __future__ import annotations
@@ -20,14 +24,19 @@ from collections.abc import Sequence
 import numpy as np
 
 from ..errors import ParameterError
-from ..synthetic.camera import compose, invert, rigid_matrix
+from ..synthetic.camera import rigid_matrix
 
 __all__ = [
     "rigid_matrix",
+    "similarity_matrix",
     "compose",
     "invert",
     "identity",
+    "homogeneous",
+    "affine_part",
+    "is_affine",
     "rigid_parameters",
+    "similarity_parameters",
     "to_reference",
     "pair_from_reference",
     "apply",
@@ -35,37 +44,145 @@ __all__ = [
     "scale_matrix",
 ]
 
+_AFFINE_TOL = 1e-12
+
 
 def identity() -> np.ndarray:
     """The 2x3 identity."""
     return np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
 
 
+def _check(m: np.ndarray) -> np.ndarray:
+    arr = np.asarray(m, float)
+    if arr.shape not in ((2, 3), (3, 3)):
+        raise ParameterError("a motion matrix must be 2x3 (affine) or 3x3 (homography)",
+                             found=f"shape {arr.shape}")
+    return arr
+
+
+def _normalised(h: np.ndarray) -> np.ndarray:
+    s = h[2, 2]
+    return h / s if abs(s) > 1e-300 else h
+
+
+def homogeneous(matrix: np.ndarray) -> np.ndarray:
+    """The 3x3 homography of a 2x3 or 3x3 matrix (a new array, scaled to ``H[2, 2] = 1``)."""
+    m = _check(matrix)
+    if m.shape == (2, 3):
+        return np.vstack([m, [0.0, 0.0, 1.0]])
+    return _normalised(m.copy())
+
+
+def is_affine(matrix: np.ndarray, tol: float = _AFFINE_TOL) -> bool:
+    """Whether ``matrix`` (2x3 or 3x3) is affine: its perspective row is ``(0, 0, 1)``."""
+    m = _check(matrix)
+    if m.shape == (2, 3):
+        return True
+    h = _normalised(m)
+    return bool(abs(h[2, 0]) <= tol and abs(h[2, 1]) <= tol)
+
+
+def affine_part(matrix: np.ndarray, tol: float = _AFFINE_TOL) -> np.ndarray:
+    """The 2x3 form of an affine matrix (2x3 or 3x3 with last row ``(0, 0, 1)``)."""
+    m = _check(matrix)
+    if m.shape == (2, 3):
+        return m.copy()
+    if not is_affine(m, tol):
+        raise ParameterError("the homography has a perspective part; it has no 2x3 form",
+                             found=f"last row {np.round(_normalised(m)[2], 12).tolist()}")
+    return _normalised(m)[:2].copy()
+
+
+def _like(h: np.ndarray, *inputs: np.ndarray) -> np.ndarray:
+    h = _normalised(h)
+    if all(np.shape(m) == (2, 3) for m in inputs):
+        return h[:2].copy()
+    return h
+
+
+def compose(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The matrix of ``a`` applied after ``b`` (``a ∘ b``); 2x3 if both are 2x3, else 3x3."""
+    return _like(homogeneous(a) @ homogeneous(b), _check(a), _check(b))
+
+
+def invert(a: np.ndarray) -> np.ndarray:
+    """Inverse of a 2x3 or 3x3 matrix, in the same form."""
+    return _like(np.linalg.inv(homogeneous(a)), _check(a))
+
+
 def apply(matrix: np.ndarray, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Map point coordinates ``(x, y)`` through the 2x3 ``matrix``."""
-    m = np.asarray(matrix, float)
-    return m[0, 0] * x + m[0, 1] * y + m[0, 2], m[1, 0] * x + m[1, 1] * y + m[1, 2]
+    """Map point coordinates ``(x, y)`` through ``matrix`` (2x3, or 3x3 with the division)."""
+    m = _check(matrix)
+    u = m[0, 0] * x + m[0, 1] * y + m[0, 2]
+    v = m[1, 0] * x + m[1, 1] * y + m[1, 2]
+    if m.shape == (2, 3) or (m[2, 0] == 0 and m[2, 1] == 0 and m[2, 2] == 1):
+        return u, v
+    s = m[2, 0] * x + m[2, 1] * y + m[2, 2]
+    return u / s, v / s
+
+
+def similarity_matrix(
+    dx: float, dy: float, angle_deg: float, scale: float, shape: tuple[int, int]
+) -> np.ndarray:
+    """2x3 matrix of a rotation by ``angle_deg`` and a scaling by ``scale`` about the image centre,
+    then a shift by ``(dx, dy)`` (``scale = 1``: :func:`rigid_matrix`)."""
+    m = rigid_matrix(dx, dy, angle_deg, shape)
+    h, w = shape
+    centre = np.array([(w - 1) / 2.0, (h - 1) / 2.0])
+    m[:, :2] *= float(scale)
+    m[:, 2] = centre - m[:, :2] @ centre + np.array([dx, dy])
+    return m
+
+
+def _local(matrix: np.ndarray, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """The displacement of the image centre and the Jacobian (2x2) of the map there."""
+    m = _check(matrix)
+    h, w = shape
+    cx, cy = (w - 1) / 2.0, (h - 1) / 2.0
+    if m.shape == (2, 3):
+        jac = m[:, :2]
+        d = jac @ np.array([cx, cy]) + m[:, 2] - np.array([cx, cy])
+        return d, jac
+    hm = _normalised(m)
+    u, v, s = hm @ np.array([cx, cy, 1.0])
+    px, py = u / s, v / s
+    jac = (hm[:2, :2] - np.outer([px, py], hm[2, :2])) / s
+    return np.array([px - cx, py - cy]), jac
 
 
 def rigid_parameters(matrix: np.ndarray, shape: tuple[int, int]) -> tuple[float, float, float]:
     """``(dx, dy, angle_deg)`` such that ``rigid_matrix(dx, dy, angle_deg, shape)`` is ``matrix``.
 
     The inverse of :func:`rigid_matrix` (rotation about the image centre, then shift). For a
-    matrix that is not exactly rigid the angle is that of the nearest rotation.
+    matrix that is not exactly rigid, ``(dx, dy)`` is the displacement of the image centre and
+    the angle that of the rotation nearest to the map's Jacobian there.
     """
-    m = np.asarray(matrix, float)
-    h, w = shape
-    angle = float(np.degrees(np.arctan2(m[1, 0] - m[0, 1], m[0, 0] + m[1, 1])))
-    centre = np.array([(w - 1) / 2.0, (h - 1) / 2.0])
-    d = m[:, :2] @ centre + m[:, 2] - centre
+    d, jac = _local(matrix, shape)
+    angle = float(np.degrees(np.arctan2(jac[1, 0] - jac[0, 1], jac[0, 0] + jac[1, 1])))
     return float(d[0]), float(d[1]), angle
+
+
+def similarity_parameters(
+    matrix: np.ndarray, shape: tuple[int, int]
+) -> tuple[float, float, float, float]:
+    """``(dx, dy, angle_deg, scale)``: the inverse of :func:`similarity_matrix`.
+
+    For any other matrix: the displacement of the image centre, and the angle and scale of the
+    similarity nearest to the map's Jacobian there (``scale = |J[:, 0]|`` of its conformal part).
+    """
+    d, jac = _local(matrix, shape)
+    a = 0.5 * (jac[0, 0] + jac[1, 1])
+    b = 0.5 * (jac[1, 0] - jac[0, 1])
+    angle = float(np.degrees(np.arctan2(b, a)))
+    return float(d[0]), float(d[1]), angle, float(np.hypot(a, b))
 
 
 def scale_matrix(matrix: np.ndarray, factor: float) -> np.ndarray:
     """The same motion expressed on an image resampled by ``factor`` (2x2 block means: 0.5).
 
     A pixel centre ``x`` of the resampled image sits at ``(x + 0.5) / factor - 0.5`` in the
-    original, so the matrix is conjugated by that affine change of coordinates.
+    original, so the matrix is conjugated by that affine change of coordinates. 2x3 in, 2x3 out;
+    3x3 in, 3x3 out.
     """
     f = float(factor)
     s = np.array([[1 / f, 0, 0.5 / f - 0.5], [0, 1 / f, 0.5 / f - 0.5]])  # resampled -> original
@@ -77,7 +194,7 @@ def to_reference(pairs: Sequence[np.ndarray], reference: int) -> tuple[np.ndarra
 
     ``pairs[i]`` maps coordinates of frame ``i + 1`` to frame ``i``. Returns ``n = len(pairs) + 1``
     matrices; entry ``k`` maps coordinates of frame ``k`` to the reference frame (identity for the
-    reference itself).
+    reference itself). All 2x3 when every pair is 2x3, all 3x3 otherwise.
     """
     n = len(pairs) + 1
     if not 0 <= int(reference) < n:
@@ -85,13 +202,14 @@ def to_reference(pairs: Sequence[np.ndarray], reference: int) -> tuple[np.ndarra
             "reference frame out of range", expected=f"0..{n - 1}", found=str(reference)
         )
     ref = int(reference)
+    affine = all(np.shape(p) == (2, 3) for p in pairs)
     out: list[np.ndarray | None] = [None] * n
-    out[ref] = identity()
+    out[ref] = identity() if affine else np.eye(3)
     for k in range(ref + 1, n):  # brighter frames: k -> k-1 -> ... -> ref
         out[k] = compose(out[k - 1], pairs[k - 1])
     for k in range(ref - 1, -1, -1):  # darker frames: k -> k+1 -> ... -> ref
         out[k] = compose(out[k + 1], invert(pairs[k]))
-    return tuple(np.asarray(m) for m in out)
+    return tuple(np.asarray(m) if affine else homogeneous(m) for m in out)
 
 
 def pair_from_reference(
@@ -102,7 +220,8 @@ def pair_from_reference(
 
 
 def corner_error(estimate: np.ndarray, truth: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    """Distances (pixels) between the four image corners mapped by ``estimate`` and ``truth``."""
+    """Distances (pixels) between the four image corners mapped by ``estimate`` and ``truth``
+    (each 2x3 or 3x3)."""
     h, w = shape
     x = np.array([0.0, w - 1.0, 0.0, w - 1.0])
     y = np.array([0.0, 0.0, h - 1.0, h - 1.0])

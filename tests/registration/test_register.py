@@ -138,7 +138,7 @@ def test_bad_input_is_rejected():
     with pytest.raises(ParameterError, match="unknown registration method"):
         register_pair(img, img, 2.0, method="sift")
     with pytest.raises(ParameterError, match="unknown motion model"):
-        register_pair(img, img, 2.0, model="homography")
+        register_pair(img, img, 2.0, model="projective")
     with pytest.raises(ParameterError, match="differ in size"):
         register_pair(img, img[:-1], 2.0)
     with pytest.raises(ParameterError, match="single-channel"):
