@@ -264,6 +264,23 @@ def test_file_we_may_not_read(tmp_path, pngs, capfd) -> None:
         pngs[1].chmod(0o644)
 
 
+def test_permission_denied_as_the_system_says_it(pngs, capfd, monkeypatch) -> None:
+    """The same refusal as above, for runs as root: the read fails as it would for a user."""
+    import errno
+
+    import hdrcore.io.bracket as bracket
+
+    real = bracket.sniff_format
+
+    def refuse(path):
+        if path.name == "f1.png":
+            raise PermissionError(errno.EACCES, "Permission denied", str(path))
+        return real(path)
+
+    monkeypatch.setattr(bracket, "sniff_format", refuse)
+    one_line_error(capfd, ["info", *pngs], "f1.png", "cannot read file: permission denied")
+
+
 # --- the rewording itself ------------------------------------------------------------------------
 
 def test_warning_words() -> None:
