@@ -19,7 +19,6 @@ import json
 import logging
 import shutil
 import sys
-import tempfile
 import threading
 import time
 import traceback
@@ -41,6 +40,13 @@ from .panels import registration as registration_panel
 from .panels import result as result_panel
 from .panels.frames import FramesPanel
 from .session import Controls, Session, pipeline_available
+from .uploads import (
+    UploadLimits,
+    UploadStore,
+    install_upload_limits,
+    make_work_dir,
+    remove_stale_work_dirs,
+)
 from .worker import JobContext, LatestWorker
 
 __all__ = ["InspectorApp", "main", "build_parser", "DEMO_DIR"]
@@ -60,12 +66,23 @@ class InspectorApp:
         *,
         root: str | Path = ".",
         demo_dir: str | Path | None = DEMO_DIR,
+        files: Sequence[str | Path] = (),
+        limits: UploadLimits | None = None,
     ) -> None:
+        """``files``: paths the operator named on the command line (readable even outside
+        ``root``); ``limits``: the upload limits (:class:`hdrview.uploads.UploadLimits`)."""
         self.server = server
         self.guard: ConnectionGuard | None = None  # set by create_app
         self.url = f"http://127.0.0.1:{server.get_port()}/"
-        self.root = Path(root).resolve()
         self.demo_dir = None if demo_dir is None else Path(demo_dir)
+        # One private temporary folder: upload sets and export files; removed by stop().
+        self.work_dir = make_work_dir()
+        self.uploads = UploadStore(self.work_dir, limits)
+        # Every path the inspector reads is checked by this one resolver.
+        self.resolver = security.RootResolver(root, folders=[self.uploads.dir], files=files)
+        if self.demo_dir is not None and self.demo_dir.is_dir():
+            self.resolver.allow_folder(self.demo_dir)
+        self.root = self.resolver.root
         self.session = Session()
         self.controls = Controls()
         self.notifications: list[tuple[str, str, str]] = []  # (level, title, body), newest last
@@ -75,18 +92,18 @@ class InspectorApp:
         self.last_registration_seconds: float | None = None  # job start -> overlays drawn
         self._lock = threading.RLock()
         self._syncing = False
-        self._wanted: tuple[tuple[str, ...], str] | None = None  # (paths, label)
-        self._loaded: tuple[tuple[str, ...], str] | None = None
+        # (frame files, times list or None, label): checked by the resolver
+        self._wanted: tuple[tuple[str, ...], str | None, str] | None = None
+        self._loaded: tuple[tuple[str, ...], str | None, str] | None = None
         self._drawn_bracket: object | None = None
         self._pairs_bracket: Any = None
         self._drawn_result: Any = None  # the result every panel shows (last full draw)
-        self._upload_dir = Path(tempfile.mkdtemp(prefix="hdrview-upload-"))
-        self._upload_set = 0
         self.pair = 0
         self.progress_text = ""
         self.worker = LatestWorker(on_progress=self._on_progress, on_busy=self._on_busy)
         self._build_gui()
         server.on_client_connect(self._on_connect)
+        install_upload_limits(server, self.uploads.refuse_transfer, self._upload_refused)
 
     # -- GUI construction ------------------------------------------------------------------
 
@@ -102,7 +119,12 @@ class InspectorApp:
             self.load_button = gui.add_button("Load", icon=viser.Icon.FOLDER_OPEN)
             self.upload_button = gui.add_upload_button(
                 "Upload frame or .zip", icon=viser.Icon.UPLOAD,
-                hint="one image per upload (two or more make a bracket) or a .zip of a bracket",
+                hint="one image per upload (two or more make a bracket) or a .zip of a bracket; "
+                     + (self.uploads.limits.describe()),
+            )
+            self.new_set_button = gui.add_button(
+                "New upload set", icon=viser.Icon.TRASH,
+                hint="the next uploaded frame starts a new bracket",
             )
             self.demo_button = gui.add_button("Demo bracket", icon=viser.Icon.PHOTO)
             self.status = gui.add_markdown("No bracket loaded.")
@@ -167,6 +189,7 @@ class InspectorApp:
     def _wire(self) -> None:
         self.load_button.on_click(lambda e: self.request_path(self.path_text.value, e.client))
         self.demo_button.on_click(lambda e: self.request_demo(e.client))
+        self.new_set_button.on_click(lambda e: self.new_upload_set(e.client))
         self.upload_button.on_upload(
             lambda e: self.handle_upload(self.upload_button.value.name,
                                          self.upload_button.value.content, e.client)
@@ -262,29 +285,32 @@ class InspectorApp:
 
     # -- requests (called from viser's callback threads or tests) ---------------------------
 
-    def request_paths(self, paths: Sequence[str | Path], label: str = "") -> int:
-        """Load these paths (already checked) and bring the page up to date."""
-        key = tuple(str(p) for p in paths)
-        with self._lock:
-            self._wanted = (key, label or ", ".join(Path(p).name for p in key))
-        return self._submit("load")
-
-    def request_path(self, text: str, client: viser.ClientHandle | None = None) -> bool:
-        """The path field: check every path against ``--root`` and existence, then load."""
+    def request_paths(self, paths: Sequence[str | Path], label: str = "",
+                      client: viser.ClientHandle | None = None) -> bool:
+        """Check ``paths`` (files or one folder) with the resolver, then load them."""
         try:
-            parts = security.split_path_field(text)
-            if not parts:
-                raise InputError("type a file or folder path first")
-            paths = [security.resolve_under_root(p, self.root) for p in parts]
-            for p in paths:
-                if not p.exists():
-                    raise InputError("file or folder not found", path=p)
+            inputs = self.resolver.bracket_inputs(list(paths))
         except HdrError as exc:
             self.notify("Cannot load", str(exc), client=client, level="error")
             return False
-        label = paths[0].name if len(paths) == 1 else f"{len(paths)} files"
-        self.request_paths(paths, label)
+        key = tuple(str(p) for p in inputs.files)
+        times = None if inputs.times is None else str(inputs.times)
+        with self._lock:
+            self._wanted = (key, times, label or ", ".join(Path(p).name for p in paths))
+        self._submit("load")
         return True
+
+    def request_path(self, text: str, client: viser.ClientHandle | None = None) -> bool:
+        """The path field: files or a folder, each checked by the resolver, then loaded."""
+        parts = security.split_path_field(text)
+        if not parts:
+            self.notify("Cannot load", "type a file or folder path first", client=client,
+                        level="error")
+            return False
+        self.uploads.close_set()
+        name = Path(parts[0]).name or parts[0]
+        label = name if len(parts) == 1 else f"{len(parts)} files"
+        return self.request_paths(parts, label, client)
 
     def request_demo(self, client: viser.ClientHandle | None = None) -> bool:
         if self.demo_dir is None or not self.demo_dir.is_dir():
@@ -293,46 +319,40 @@ class InspectorApp:
                 client=client, level="warning",
             )
             return False
-        self.request_paths([self.demo_dir], "demo")
-        return True
+        self.uploads.close_set()
+        return self.request_paths([self.demo_dir], "demo", client)
+
+    def new_upload_set(self, client: viser.ClientHandle | None = None) -> None:
+        self.uploads.close_set()
+        self.notify("New upload set", "the next uploaded frame starts a new bracket",
+                    client=client)
+
+    def _upload_refused(self, client: viser.ClientHandle | None, reason: str) -> None:
+        self.uploads.close_set()
+        self.notify("Upload refused", reason, client=client, level="error")
 
     def handle_upload(
         self, name: str, content: bytes, client: viser.ClientHandle | None = None
     ) -> bool:
-        """An uploaded image joins the upload set (two or more load); a .zip loads at once."""
+        """An uploaded image joins the open upload set (two or more load); a .zip loads at once.
+
+        Any refusal closes the set, so the next upload starts afresh (a bad file never keeps
+        later uploads from loading)."""
         try:
-            kind = security.sniff_upload(name, content)
-            if kind is None:
-                raise InputError(
-                    "uploaded file is not an image", path=security.safe_upload_name(name),
-                    expected="PNG, JPEG, TIFF, a camera RAW file or a .zip of them",
-                )
-            if kind == "zip":
-                self._upload_set += 1
-                dest = self._upload_dir / f"set{self._upload_set}"
-                dest.mkdir(parents=True)
-                images = security.extract_zip_images(content, dest)
-                if len(images) < 2:
-                    raise InputError(
-                        "the archive holds fewer than two images", path=name,
-                        found=f"{len(images)} image(s)",
-                    )
-                self.request_paths([dest], security.safe_upload_name(name))
-                return True
-            dest = self._upload_dir / f"set{self._upload_set}"
-            dest.mkdir(parents=True, exist_ok=True)
-            (dest / security.safe_upload_name(name)).write_bytes(content)
-            frames = sorted(p for p in dest.iterdir() if security.is_image_name(p.name))
+            if security.sniff_upload(name, content) == "zip":
+                dest = self.uploads.add_zip(name, content)
+                return self.request_paths([dest], security.safe_upload_name(name), client)
+            frames = self.uploads.add_frame(name, content)
             if len(frames) < 2:
                 self.notify("Frame uploaded", f"{name}: upload one more frame to make a bracket",
                             client=client)
                 return True
-            self.request_paths(frames, f"{len(frames)} uploaded frames")
-            return True
+            return self.request_paths(frames, f"{len(frames)} uploaded frames", client)
         except HdrError as exc:
-            self.notify("Upload refused", str(exc), client=client, level="error")
+            self._upload_refused(client, str(exc))
             return False
         except Exception as exc:  # noqa: BLE001 -- any failure becomes a notification
+            self.uploads.close_set()
             self._report_error(exc, client)
             return False
 
@@ -352,8 +372,9 @@ class InspectorApp:
         return self.worker.wait_idle(timeout)
 
     def stop(self) -> None:
+        """Stop the worker and remove the temporary folder (uploads, exports)."""
         self.worker.stop()
-        shutil.rmtree(self._upload_dir, ignore_errors=True)
+        shutil.rmtree(self.work_dir, ignore_errors=True)
 
     # -- the job -----------------------------------------------------------------------------
 
@@ -375,17 +396,20 @@ class InspectorApp:
         with self._lock:
             wanted = self._wanted
         if wanted is not None and wanted != self._loaded:
-            ctx.progress(0.02, f"loading {wanted[1]}")
+            files, times, label = wanted
+            ctx.progress(0.02, f"loading {label}")
             try:
-                self.session.load(list(wanted[0]), source=wanted[1])
+                self.session.load(list(files), source=label, times=times)
             except BaseException:
                 with self._lock:
                     if self._wanted == wanted:  # do not retry a failed load on the next change
                         self._wanted = self._loaded
+                if any(Path(f).is_relative_to(self.uploads.dir) for f in files):
+                    self.uploads.close_set()  # the next upload starts a new set
                 raise
             self._loaded = wanted
             self._sync_widgets_to_bracket()
-            self.notify("Loaded", f"{wanted[1]}: {len(self.session.bracket)} frames")
+            self.notify("Loaded", f"{label}: {len(self.session.bracket)} frames")
         ctx.check()
         result = None
         if self.session.bracket is not None and pipeline_available():
@@ -550,7 +574,7 @@ class InspectorApp:
         return self.session.result
 
     def export_exr(self, client: viser.ClientHandle | None) -> None:
-        data = result_panel.exr_bytes(self._require_result())
+        data = result_panel.exr_bytes(self._require_result(), work_dir=self.work_dir)
         self._send(client, f"{_stem(self.session.source)}.exr", data)
 
     def export_png(self, client: viser.ClientHandle | None) -> None:
@@ -613,6 +637,13 @@ def _progress_args(args: tuple, kwargs: dict) -> tuple[float, str]:
 # -- command line ------------------------------------------------------------------------------
 
 
+LOOPBACK_HOSTS = ("127.0.0.1", "localhost", "::1", "[::1]")
+
+
+class StartError(Exception):
+    """The inspector cannot start as asked (one line for the user, exit 2)."""
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="hdrview",
@@ -622,8 +653,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("files", nargs="*", metavar="FILE|DIR",
                    help="frames of one bracket or a folder (default: the demo bracket)")
     p.add_argument("--host", default="127.0.0.1",
-                   help="address to listen on (default 127.0.0.1: this machine only)")
-    p.add_argument("--port", type=int, default=8080, help="port (default 8080; 0 picks one)")
+                   help="address to listen on (default 127.0.0.1: this machine only; any other "
+                        "address needs --allow-remote)")
+    p.add_argument("--allow-remote", action="store_true",
+                   help="allow --host to be an address other machines can reach (prefer SSH "
+                        "port forwarding, see the README)")
+    p.add_argument("--port", type=int, default=8080,
+                   help="port (default 8080; a busy port is an error; 0 picks a free one)")
     p.add_argument("--root", default=".",
                    help="the page may only open paths under this folder (default: current folder)")
     p.add_argument("--allow-origin", action="append", default=[], metavar="URL",
@@ -632,28 +668,58 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-token", action="store_true",
                    help="do not require the access token printed at start (any local program "
                         "and any page of an allowed origin can then use the inspector)")
+    d = UploadLimits()
+    p.add_argument("--max-upload-mb", type=float, default=d.file_bytes / 1e6, metavar="MB",
+                   help=f"largest uploaded file (default {d.file_bytes / 1e6:g}; 0: no limit)")
+    p.add_argument("--max-upload-total-mb", type=float, default=d.total_bytes / 1e6,
+                   metavar="MB", help=f"largest upload set, a zip once extracted (default "
+                                      f"{d.total_bytes / 1e6:g}; 0: no limit)")
+    p.add_argument("--max-upload-pixels", type=float, default=float(d.frame_pixels),
+                   metavar="N", help=f"largest uploaded frame in pixels, read from its header "
+                                     f"before decoding (default {d.frame_pixels:.0e}; 0: none)")
     p.add_argument("--debug", action="store_true", help="debug logging")
     return p
+
+
+def _port_free(host: str, port: int) -> bool:
+    import socket
+
+    family = socket.AF_INET6 if ":" in host.strip("[]") else socket.AF_INET
+    with socket.socket(family, socket.SOCK_STREAM) as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            s.bind((host.strip("[]"), port))
+        except OSError:
+            return False
+    return True
 
 
 def create_app(
     files: Sequence[str] = (), *, host: str = "127.0.0.1", port: int = 8080, root: str = ".",
     verbose: bool = True, demo_dir: Path | None = DEMO_DIR, token: bool = True,
-    allow_origins: Sequence[str] = (),
+    allow_origins: Sequence[str] = (), limits: UploadLimits | None = None,
 ) -> InspectorApp:
     """Start the server and the app; load ``files`` or the demo bracket.
 
     Only the inspector's own address (and ``allow_origins``) may use it, and with ``token`` only
     a client that brings the access token (:mod:`hdrview.guard`); ``app.url`` is the address to
-    open.
+    open. A busy ``port`` raises :class:`StartError` (viser itself would move to the next
+    port without a word); ``port=0`` takes a free one.
     """
+    if port and not _port_free(host, port):
+        raise StartError(f"port {port} on {host} is in use (another hdrview?): choose another "
+                         f"with --port N, or --port 0 for any free port")
     holder: list[viser.ViserServer] = []
     guard = ConnectionGuard(lambda: holder[0].get_port() if holder else port, bind_host=host,
                             allow_origins=allow_origins, token="" if token else None)
     with install_guard(guard):
         server = viser.ViserServer(host=host, port=port, label="hdrview", verbose=verbose)
     holder.append(server)
-    app = InspectorApp(server, root=root, demo_dir=demo_dir)
+    if port and server.get_port() != port:  # taken between the check and the start
+        server.stop()
+        raise StartError(f"port {port} on {host} is in use: choose another with --port N, "
+                         f"or --port 0 for any free port")
+    app = InspectorApp(server, root=root, demo_dir=demo_dir, files=files, limits=limits)
     app.guard = guard
     app.url = guard.url("127.0.0.1" if host in ("0.0.0.0", "::", "") else host)
     if files:
@@ -666,8 +732,10 @@ def create_app(
 def main(argv: Sequence[str] | None = None) -> int:
     if argv is None:  # run as the program: large buffers reuse freed memory (hdrcore._memory)
         from hdrcore._memory import retain_freed_memory
+        from hdrcore.cli import catch_termination
 
         retain_freed_memory()
+        catch_termination()  # SIGTERM/SIGHUP unwind like Ctrl-C: the temporary folder goes
     args = build_parser().parse_args(argv)
     logging.basicConfig(
         level=logging.DEBUG if args.debug else logging.INFO,
@@ -681,23 +749,42 @@ def main(argv: Sequence[str] | None = None) -> int:
         if not Path(f).exists():
             print(f"hdrview: {f}: file or folder not found", file=sys.stderr)
             return 2
-    try:
-        app = create_app(args.files, host=args.host, port=args.port, root=str(root),
-                         token=not args.no_token, allow_origins=args.allow_origin)
-    except ValueError as exc:
-        print(f"hdrview: {exc}", file=sys.stderr)
+    remote = args.host not in LOOPBACK_HOSTS
+    if remote and not args.allow_remote:
+        print(f"hdrview: --host {args.host} lets other machines reach the inspector and read "
+              f"files under {root.resolve()}: add --allow-remote if you mean it (safer: SSH "
+              f"port forwarding, see the README)", file=sys.stderr)
         return 2
-    if args.host not in ("127.0.0.1", "localhost", "::1"):
-        log.warning("listening on %s: anyone who can reach this address can read files under %s",
-                    args.host, root.resolve())
-    print(f"hdrview: open {app.url}", file=sys.stderr, flush=True)
+    for opt in ("max_upload_mb", "max_upload_total_mb", "max_upload_pixels"):
+        if not getattr(args, opt) >= 0:
+            print(f"hdrview: --{opt.replace('_', '-')} must be 0 or more", file=sys.stderr)
+            return 2
+    limits = UploadLimits(file_bytes=int(args.max_upload_mb * 1e6),
+                          total_bytes=int(args.max_upload_total_mb * 1e6),
+                          frame_pixels=int(args.max_upload_pixels))
+    for stale in remove_stale_work_dirs():
+        log.info("removed %s, left by an inspector that was killed", stale)
+    app = None
     try:
+        try:
+            app = create_app(args.files, host=args.host, port=args.port, root=str(root),
+                             token=not args.no_token, allow_origins=args.allow_origin,
+                             limits=limits)
+        except (StartError, ValueError, HdrError) as exc:
+            print(f"hdrview: {exc}", file=sys.stderr)
+            return 2
+        if remote:
+            log.warning("listening on %s: anyone who can reach this address and has the token "
+                        "can read files under %s", args.host, root.resolve())
+        print(f"hdrview: open {app.url}", file=sys.stderr, flush=True)
         app.server.sleep_forever()
-    except KeyboardInterrupt:
-        pass
+    except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM/SIGHUP (hdrcore.cli.Terminated)
+        signum = getattr(exc, "signum", None)
+        return 0 if signum is None else 128 + int(signum)
     finally:
-        app.stop()
-        app.server.stop()
+        if app is not None:
+            app.stop()
+            app.server.stop()
     return 0
 
 

@@ -14,17 +14,13 @@ import logging
 import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 from hdrcore.io import Bracket, load_bracket
 
-__all__ = ["Controls", "Session", "TIMES_FILES", "pipeline_available"]
+__all__ = ["Controls", "Session", "pipeline_available"]
 
 log = logging.getLogger(__name__)
-
-#: Exposure-time lists picked up automatically from a bracket's folder.
-TIMES_FILES = ("exposure_times.txt", "times.txt")
 
 
 _PIPELINE_OK = False
@@ -89,15 +85,10 @@ class Session:
     params: Any = None
     timings: dict[str, float] = field(default_factory=dict)
 
-    def load(self, paths: Sequence[str | os.PathLike], *, source: str = "") -> Bracket:
-        """Load frames (files or one folder); a folder's ``exposure_times.txt`` is used."""
-        times = None
-        if len(paths) == 1 and Path(paths[0]).is_dir():
-            for name in TIMES_FILES:
-                cand = Path(paths[0]) / name
-                if cand.is_file():
-                    times = cand
-                    break
+    def load(self, paths: Sequence[str | os.PathLike], *, source: str = "",
+             times: str | os.PathLike | None = None) -> Bracket:
+        """Load these frame files (already checked by :class:`hdrview.security.RootResolver`,
+        which also found the folder's exposure-times list, ``times``)."""
         bracket = load_bracket(list(paths), exposure_times=times)
         self.bracket = bracket
         self.source = source or ", ".join(str(p) for p in paths)

@@ -127,8 +127,9 @@ class ResultPanel:
         return [(f"result-{name}.png", encode_png(img)) for name, img in self._images.items()]
 
 
-def exr_bytes(result: Any) -> bytes:
-    """The merged radiance as OpenEXR (half float) bytes."""
+def exr_bytes(result: Any, work_dir: str | Path | None = None) -> bytes:
+    """The merged radiance as OpenEXR (half float) bytes (written through a temporary file in
+    ``work_dir``, the inspector's own temporary folder, removed when it stops)."""
     merged = merge_of(result)
     radiance = getattr(result, "radiance", None)  # the pipeline's colour-converted radiance
     if radiance is None and merged is not None:
@@ -136,7 +137,7 @@ def exr_bytes(result: Any) -> bytes:
     if radiance is None:
         raise InputError("the merged HDR is not available yet")
     times = getattr(result, "exposure_times", None) or getattr(merged, "exposure_times", None)
-    with tempfile.TemporaryDirectory(prefix="hdrview-exr-") as tmp:
+    with tempfile.TemporaryDirectory(prefix="exr-", dir=work_dir) as tmp:
         path = Path(tmp) / "merged.exr"
         write_exr(path, radiance, exposure_times=times)
         return path.read_bytes()
