@@ -65,7 +65,12 @@ def atomic_write(
     """
     out = check_output_path(path, force=force, inputs=inputs)
     parent = out.parent if str(out.parent) else Path(".")
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{out.name}.", suffix=f".tmp{out.suffix}", dir=parent)
+    try:
+        fd, tmp_name = tempfile.mkstemp(prefix=f".{out.name}.", suffix=f".tmp{out.suffix}",
+                                        dir=parent)
+    except OSError as exc:  # a read-only folder or file system, no space, ...
+        raise OutputError(f"cannot write in the output folder ({exc.strerror or exc})",
+                          path=out) from exc
     os.close(fd)
     tmp = Path(tmp_name)
     try:
@@ -77,6 +82,9 @@ def atomic_write(
         if not force and out.exists():
             raise OutputError("output appeared while writing; use --force to replace it", path=out)
         os.replace(tmp, out)
+    except OSError as exc:  # the disk filled up, the folder went read-only, ...
+        tmp.unlink(missing_ok=True)
+        raise OutputError(f"cannot write the output ({exc.strerror or exc})", path=out) from exc
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise

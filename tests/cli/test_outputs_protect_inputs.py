@@ -106,6 +106,49 @@ def test_unwritable_output_folder_is_refused_before_decoding(bracket, tmp_path, 
         shutil.rmtree(ro)
 
 
+def test_unwritable_preview_folder_is_refused_before_decoding_as_any_user(
+        bracket, tmp_path, capsys, no_decoding, monkeypatch):
+    """The same refusal when the tests run as root: the folder reports no write access (a
+    read-only file system does that even for root)."""
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    real = os.access
+    monkeypatch.setattr(os, "access", lambda p, mode, *a, **k: (
+        False if Path(p).resolve() == ro.resolve() else real(p, mode, *a, **k)))
+    assert main(["merge", str(bracket), "-o", str(tmp_path / "o.exr"), "--preview",
+                 str(ro / "p.png"), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "cannot write in the output folder" in err and "ro" in err
+    assert len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "o.exr").exists()
+
+
+def test_a_write_that_fails_midway_is_one_line_and_leaves_nothing(bracket, tmp_path, capsys,
+                                                                  monkeypatch):
+    """The disk fills up during the EXR write: exit 2, one line naming the output, no
+    temporary file, no output."""
+    import errno
+
+    import hdrcore.io.atomic as atomic
+
+    real = atomic.os.replace
+
+    def full(src, dst):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(atomic.os, "replace", full)
+    out_dir = tmp_path / "out"
+    out_dir.mkdir()
+    rc = main(["merge", str(bracket), "--times", str(bracket / "exposure_times.txt"), "-o",
+               str(out_dir / "o.exr"), "--quiet"])
+    monkeypatch.setattr(atomic.os, "replace", real)
+    err = capsys.readouterr().err
+    assert rc == 2, err
+    assert "o.exr: cannot write the output (No space left on device)" in err
+    assert "internal error" not in err and len(err.strip().splitlines()) == 1
+    assert list(out_dir.iterdir()) == []
+
+
 def test_a_normal_merge_still_writes_all_outputs(bracket, tmp_path, capsys):
     out = tmp_path / "o.exr"
     rc = main(["merge", str(bracket), "--times", str(bracket / "exposure_times.txt"), "-o",
