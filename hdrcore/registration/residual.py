@@ -1,0 +1,967 @@
+"""Residual motion between two aligned frames, measured independently of the motion model.
+
+After registration the bright frame, warped onto the dark frame, should match it everywhere.
+This module measures what is left, tile by tile, with a method that shares nothing with the
+registration (neither its eq. 6/7 cost nor its motion model), so a wrong optimum or a missing
+degree of freedom cannot hide:
+
+1. both frames on a common scale (the dark frame times the exposure ratio ``k``), clipped to the
+   range they share (above the noise floor, below saturation) and taken in log units, so they
+   are the same function of scene radiance (exposure invariant); clipped regions are flat;
+2. gradient magnitude of the log images (3x3 Sobel): edges and texture, not brightness;
+3. per tile (Hann-windowed), the shift by phase correlation (C. D. Kuglin, D. C. Hines, "The
+   phase correlation image alignment method", IEEE Conf. on Cybernetics and Society, 1975):
+   the integer peak of the whitened cross-power spectrum, then sub-pixel by a weighted
+   least-squares fit of the plane of its phase (H. S. Stone, M. T. Orchard, E.-C. Chang,
+   S. A. Martucci, "A fast direct Fourier-based algorithm for subpixel registration of images",
+   IEEE TGRS 39(10), 2001; W. S. Hoge, "A subspace identification extension to the phase
+   correlation method", IEEE TMI 22(2), 2003), iterated three times;
+4. per tile a confidence: the normalised cross-correlation of the two tiles at the peak
+   (1: same structure, near 0: unrelated or noise), the standard error of the phase-plane fit
+   and the fraction of the tile both frames expose well;
+5. the tile field summarised: median and 90th percentile of the shift magnitude over confident
+   tiles; a global pattern fitted by robust least squares (shift, zoom, rotation, anisotropic
+   scale/shear and the two perspective terms of a homography near the identity, each reported
+   as the displacement it makes at the image corners); the local residual left after the
+   pattern (parallax, a moving object) and where it is largest ("lower left"); a status and a
+   one-line message (:meth:`ResidualMotion.describe`).
+
+Large frames are measured on a 2^L block-mean level (at most ``max_pixels`` pixels, 2.5 MP by
+default: a 24 MP pair on level 2, a 9 MP phone frame on level 1); shifts are reported in
+full-resolution pixels.
+
+Convention: the shift ``(dx, dy)`` of a tile says that the content of the aligned bright frame
+at ``x`` lies at ``x + (dx, dy)`` in the dark frame, i.e. composing the pair matrix (bright ->
+dark) after the residual translation would remove it; zero everywhere means aligned.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import fft as sfft
+
+from .._numba import AVAILABLE
+from .._numba import njit as _njit
+from .._threads import run_row_spans, worker_count
+from ..errors import ParameterError
+
+__all__ = ["ResidualMotion", "ResidualPattern", "residual_motion", "region_name",
+           "RESIDUAL_STATUSES"]
+
+#: ``aligned``: nothing above the thresholds; ``misaligned``: a global pattern or a local
+#: residual is left (``kind`` says which); ``unmeasured``: too few textured tiles in the range
+#: both frames expose.
+RESIDUAL_STATUSES = ("aligned", "misaligned", "unmeasured")
+
+#: A tile counts when the normalised cross-correlation of its two structure tiles, re-centred,
+#: is at least this over the tile size (noise alone reaches about 8 / tile: 0.12 for 64 px) and
+#: the standard error of its shift at most ``MAX_SIGMA`` analysed pixels (noise: 0.15-0.2).
+CONFIDENCE_PER_TILE, MAX_SIGMA = 12.0, 0.15
+
+#: Components of the global pattern, in the order they are reported.
+PATTERN_COMPONENTS = ("shift", "zoom", "rotation", "affine", "perspective")
+
+_HINTS = {
+    "shift": "the registration stopped off the optimum",
+    "zoom": "the motion model has no scale, or its scale is wrong",
+    "rotation": "the rotation is off",
+    "affine": "anisotropic scale or shear (rolling shutter, lens), not in the motion model",
+    "perspective": "the motion model has no perspective",
+}
+
+
+# ----------------------------------------------------------------------------- result objects
+@dataclass(frozen=True)
+class ResidualPattern:
+    """The global pattern fitted to the tile shifts (full-resolution pixels).
+
+    Model, with ``u, v`` the tile centre relative to the image centre divided by the half
+    diagonal ``radius`` (the corners are at distance 1)::
+
+        dx = shift_x + a11 u + a12 v + p u^2 + q u v
+        dy = shift_y + a21 u + a22 v + p u v + q v^2
+
+    (an affine map plus the two perspective terms of a homography near the identity).
+    ``zoom`` (a fraction: 0.004 is 0.4 %) and ``rotation_deg`` are the similarity part;
+    ``*_px`` are the displacements each component makes at the corners. ``parameters`` is
+    ``(shift_x, shift_y, a11, a12, a21, a22, p, q)`` (terms not kept are 0); ``rms``
+    the RMS of the tile shifts about the pattern over the tiles the robust fit kept;
+    ``terms`` the number of free parameters kept (2, 4, 6 or 8).
+    """
+
+    shift_x: float
+    shift_y: float
+    zoom: float
+    rotation_deg: float
+    shift_px: float
+    zoom_px: float
+    rotation_px: float
+    affine_px: float
+    perspective_px: float
+    radius: float
+    parameters: tuple[float, ...]
+    rms: float
+    terms: int
+
+    def component_px(self) -> dict[str, float]:
+        """Displacement at the corners of each component, in :data:`PATTERN_COMPONENTS` order."""
+        return {"shift": self.shift_px, "zoom": abs(self.zoom_px),
+                "rotation": abs(self.rotation_px), "affine": self.affine_px,
+                "perspective": self.perspective_px}
+
+    def predict(self, x: np.ndarray, y: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+        """The pattern's shift ``(N, 2)`` at full-resolution points ``(x, y)``."""
+        x, y = np.asarray(x, float), np.asarray(y, float)
+        return _predict(np.asarray(self.parameters, float), x, y, shape, self.radius)
+
+    def to_json(self) -> dict:
+        return {
+            "shift_x": self.shift_x, "shift_y": self.shift_y, "zoom": self.zoom,
+            "rotation_deg": self.rotation_deg, "shift_px": self.shift_px,
+            "zoom_px": self.zoom_px, "rotation_px": self.rotation_px,
+            "affine_px": self.affine_px, "perspective_px": self.perspective_px,
+            "radius": self.radius, "parameters": list(self.parameters), "rms": self.rms,
+            "terms": self.terms,
+        }
+
+
+@dataclass(frozen=True, eq=False)
+class ResidualMotion:
+    """Residual motion of an aligned pair, per tile and summarised (full-resolution pixels).
+
+    ``centres`` ``(N, 2)``: tile centres ``(x, y)``; ``shifts`` ``(N, 2)``: ``(dx, dy)`` per tile
+    (see the module's convention); ``confidence``: the normalised cross-correlation of the two
+    gradient tiles at the peak; ``sigma``: the standard error of the tile's shift (px);
+    ``in_range``: fraction of the tile both frames expose well; ``valid``: the confident tiles
+    (the statistics use only these). ``median`` / ``p90`` / ``max``: of the shift magnitude over
+    valid tiles (NaN without any). ``local``: per tile, the magnitude left after the pattern;
+    ``worst``: index of the valid tile with the largest local residual (-1 without any);
+    ``worst_region``: where the valid tiles off by more than ``local_px`` after the pattern lie
+    (their centroid, in thirds of the frame: "lower left"), or the worst tile's place.
+    ``status`` is one of :data:`RESIDUAL_STATUSES`, ``kind`` what is left (a
+    :data:`PATTERN_COMPONENTS` name, ``"local"``, ``"scattered"``, or ``""``), ``message`` one
+    line for people.
+    ``tile`` is the tile size and ``level`` the pyramid level (``2**level`` full pixels per
+    analysed pixel) the measurement ran on.
+    """
+
+    shape: tuple[int, int]
+    level: int
+    tile: int
+    centres: np.ndarray = field(repr=False)
+    shifts: np.ndarray = field(repr=False)
+    confidence: np.ndarray = field(repr=False)
+    sigma: np.ndarray = field(repr=False)
+    in_range: np.ndarray = field(repr=False)
+    valid: np.ndarray = field(repr=False)
+    local: np.ndarray = field(repr=False)
+    median: float
+    p90: float
+    max: float
+    pattern: ResidualPattern | None
+    worst: int
+    worst_region: str
+    status: str
+    kind: str
+    message: str
+    aligned_px: float
+    local_px: float
+    seconds: float = 0.0
+
+    @property
+    def aligned(self) -> bool:
+        return self.status == "aligned"
+
+    @property
+    def n_valid(self) -> int:
+        return int(np.count_nonzero(self.valid))
+
+    @property
+    def magnitudes(self) -> np.ndarray:
+        """Shift magnitude per tile (px)."""
+        return np.hypot(self.shifts[:, 0], self.shifts[:, 1])
+
+    def describe(self) -> str:
+        """One line: what is left and where (``message``)."""
+        return self.message
+
+    def to_json(self) -> dict:
+        def f(x: float) -> float | None:
+            return None if not np.isfinite(x) else float(x)
+
+        return {
+            "status": self.status,
+            "kind": self.kind,
+            "message": self.message,
+            "median_px": f(self.median),
+            "p90_px": f(self.p90),
+            "max_px": f(self.max),
+            "valid_tiles": self.n_valid,
+            "tiles": int(self.valid.size),
+            "worst_tile": self.worst,
+            "worst_region": self.worst_region,
+            "pattern": None if self.pattern is None else self.pattern.to_json(),
+            "aligned_px": self.aligned_px,
+            "local_px": self.local_px,
+            "shape": list(self.shape),
+            "level": self.level,
+            "tile_size": self.tile,
+            "centres": np.round(self.centres, 2).tolist(),
+            "shifts": [[f(a), f(b)] for a, b in np.round(self.shifts, 4)],
+            "confidence": [f(c) for c in np.round(self.confidence, 4)],
+            "sigma": [f(s) for s in np.round(self.sigma, 4)],
+            "in_range": np.round(self.in_range, 3).tolist(),
+            "valid": self.valid.astype(bool).tolist(),
+            "local": [f(v) for v in np.round(self.local, 4)],
+            "seconds": self.seconds,
+        }
+
+
+# ------------------------------------------------------------------------------ compiled kernels
+@_njit
+def _reduce_float_rows(img, f, out, r0, r1):  # pragma: no cover - compiled
+    """Rows ``r0:r1`` of the ``f x f`` block means of a float image (NaN propagates)."""
+    ww = out.shape[1]
+    acc = np.empty(ww, np.float64)
+    inv = 1.0 / (f * f)
+    for y in range(r0, r1):
+        acc[:] = 0.0
+        for i in range(f):
+            row = y * f + i
+            for x in range(ww):
+                s = 0.0
+                for j in range(f):
+                    s += img[row, x * f + j]
+                acc[x] += s
+        for x in range(ww):
+            out[y, x] = acc[x] * inv
+
+
+@_njit
+def _reduce_lut_rows(img, lut, f, out, r0, r1):  # pragma: no cover - compiled
+    """Rows ``r0:r1`` of the ``f x f`` block means of ``lut[img]`` (integer levels, any strides)."""
+    ww = out.shape[1]
+    acc = np.empty(ww, np.float64)
+    inv = 1.0 / (f * f)
+    for y in range(r0, r1):
+        acc[:] = 0.0
+        for i in range(f):
+            row = y * f + i
+            for x in range(ww):
+                s = 0.0
+                for j in range(f):
+                    s += lut[img[row, x * f + j]]
+                acc[x] += s
+        for x in range(ww):
+            out[y, x] = acc[x] * inv
+
+
+@_njit
+def _warp_rows(src, m, out, r0, r1):  # pragma: no cover - compiled
+    """Rows ``r0:r1`` of ``src`` sampled at ``m @ (x, y, 1)`` (3x3 backward map, Keys cubic);
+    NaN where the source position lies outside the frame."""
+    h, w = src.shape
+    ww = out.shape[1]
+    for y in range(r0, r1):
+        for x in range(ww):
+            zw = m[2, 0] * x + m[2, 1] * y + m[2, 2]
+            sx = (m[0, 0] * x + m[0, 1] * y + m[0, 2]) / zw
+            sy = (m[1, 0] * x + m[1, 1] * y + m[1, 2]) / zw
+            if not (sx >= 0.0 and sx <= w - 1.0 and sy >= 0.0 and sy <= h - 1.0):
+                out[y, x] = np.nan
+                continue
+            ix = int(np.floor(sx))
+            iy = int(np.floor(sy))
+            fx = sx - ix
+            fy = sy - iy
+            wx0 = ((-0.5 * fx + 1.0) * fx - 0.5) * fx
+            wx1 = (1.5 * fx - 2.5) * fx * fx + 1.0
+            wx2 = ((-1.5 * fx + 2.0) * fx + 0.5) * fx
+            wx3 = (0.5 * fx - 0.5) * fx * fx
+            wy0 = ((-0.5 * fy + 1.0) * fy - 0.5) * fy
+            wy1 = (1.5 * fy - 2.5) * fy * fy + 1.0
+            wy2 = ((-1.5 * fy + 2.0) * fy + 0.5) * fy
+            wy3 = (0.5 * fy - 0.5) * fy * fy
+            acc = 0.0
+            for dy in range(4):
+                yy = min(max(iy - 1 + dy, 0), h - 1)
+                wy = wy0 if dy == 0 else (wy1 if dy == 1 else (wy2 if dy == 2 else wy3))
+                x0 = min(max(ix - 1, 0), w - 1)
+                x1 = min(max(ix, 0), w - 1)
+                x2 = min(max(ix + 1, 0), w - 1)
+                x3 = min(max(ix + 2, 0), w - 1)
+                acc += wy * (wx0 * src[yy, x0] + wx1 * src[yy, x1] + wx2 * src[yy, x2]
+                             + wx3 * src[yy, x3])
+            out[y, x] = acc
+
+
+# --------------------------------------------------------------------------- numpy references
+def _reduce_numpy(img: np.ndarray, f: int, lut: np.ndarray | None) -> np.ndarray:
+    """Block means of ``f x f`` (the reference of the compiled reduction)."""
+    a = np.asarray(img)
+    hh, ww = a.shape[0] // f, a.shape[1] // f
+    a = a[: hh * f, : ww * f]
+    a = lut[a] if lut is not None else a
+    return a.astype(np.float64).reshape(hh, f, ww, f).mean(axis=(1, 3)).astype(np.float32)
+
+
+def _warp_numpy(src: np.ndarray, m: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """``src`` at ``m @ (x, y, 1)`` (Keys cubic), NaN outside (the compiled warp's reference)."""
+    h, w = shape
+    hs, ws = src.shape
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    zw = m[2, 0] * xx + m[2, 1] * yy + m[2, 2]
+    sx = (m[0, 0] * xx + m[0, 1] * yy + m[0, 2]) / zw
+    sy = (m[1, 0] * xx + m[1, 1] * yy + m[1, 2]) / zw
+    inside = (sx >= 0) & (sx <= ws - 1) & (sy >= 0) & (sy <= hs - 1)
+    ix, iy = np.floor(sx), np.floor(sy)
+    wx, wy = _keys4(sx - ix), _keys4(sy - iy)
+    ix, iy = ix.astype(np.int64), iy.astype(np.int64)
+    out = np.zeros(shape)
+    for j in range(4):
+        rows = np.clip(iy - 1 + j, 0, hs - 1)
+        for i in range(4):
+            out += wy[j] * wx[i] * src[rows, np.clip(ix - 1 + i, 0, ws - 1)]
+    out[~inside] = np.nan
+    return out.astype(np.float32)
+
+
+# ------------------------------------------------------------------------------------ helpers
+def _homogeneous(matrix: np.ndarray) -> np.ndarray:
+    m = np.asarray(matrix, float)
+    if m.shape == (2, 3):
+        m = np.vstack([m, [0.0, 0.0, 1.0]])
+    if m.shape != (3, 3) or not np.all(np.isfinite(m)) or abs(np.linalg.det(m)) < 1e-12:
+        raise ParameterError("the pair matrix must be a finite, invertible 2x3 or 3x3 matrix",
+                             found=str(np.asarray(matrix).shape))
+    return m / m[2, 2] if m[2, 2] != 0 else m
+
+
+def _reduce(img: np.ndarray, f: int, lut: np.ndarray | None, workers: int | None) -> np.ndarray:
+    a = np.asarray(img)
+    if f == 1 and lut is None:
+        return a.astype(np.float32, copy=False)
+    if not AVAILABLE:
+        return _reduce_numpy(a, f, lut)
+    out = np.empty((a.shape[0] // f, a.shape[1] // f), np.float32)
+    if lut is not None:
+        run_row_spans(out.shape[0], workers,
+                      lambda r0, r1: _reduce_lut_rows(a, lut, f, out, r0, r1))
+    else:
+        src = a if a.dtype in (np.float32, np.float64) else a.astype(np.float32)
+        run_row_spans(out.shape[0], workers,
+                      lambda r0, r1: _reduce_float_rows(src, f, out, r0, r1))
+    return out
+
+
+def _warp(src: np.ndarray, m: np.ndarray, shape: tuple[int, int],
+          workers: int | None) -> np.ndarray:
+    if not AVAILABLE:
+        return _warp_numpy(src, m, shape)
+    out = np.empty(shape, np.float32)
+    m = np.ascontiguousarray(m, np.float64)
+    run_row_spans(shape[0], workers, lambda r0, r1: _warp_rows(src, m, out, r0, r1))
+    return out
+
+
+def _sobel_magnitude(img: np.ndarray) -> np.ndarray:
+    """Gradient magnitude (3x3 Sobel, /8) of ``img``; 0 on the one-pixel border."""
+    a = img
+    sy = a[:-2] + 2.0 * a[1:-1] + a[2:]  # vertical smoothing, for d/dx
+    gx = sy[:, 2:] - sy[:, :-2]
+    sx = a[:, :-2] + 2.0 * a[:, 1:-1] + a[:, 2:]  # horizontal smoothing, for d/dy
+    gy = sx[2:] - sx[:-2]
+    out = np.zeros(a.shape, np.float32)
+    out[1:-1, 1:-1] = np.sqrt(gx * gx + gy * gy) * np.float32(0.125)
+    return out
+
+
+def _smoothstep(z: np.ndarray) -> np.ndarray:
+    z = np.clip(z, 0.0, 1.0)
+    return z * z * (3.0 - 2.0 * z)
+
+
+#: Widths (as brightness factors) over which the structure fades out towards the noise floor
+#: and towards saturation.
+TAPER_LOW, TAPER_HIGH = 4.0, 2.0
+
+
+def _structure(img: np.ndarray, lo: float, hi: float) -> tuple[np.ndarray, np.ndarray]:
+    """Exposure-invariant structure image of a frame on the common scale, and its in-range mask.
+
+    The gradient magnitude of the log of the frame clipped to ``[lo, hi]``, faded out smoothly
+    over the last two stops below the noise floor's end of the range and the last stop below
+    saturation (``TAPER_LOW``, ``TAPER_HIGH``): a hard cut at a clip level would turn the
+    contour where a noisy frame crosses it (far from the scene's edges on a soft gradient) into
+    an edge. Zero next to saturated pixels: a pixel that straddles the edge of a region far
+    above saturation (a window, a lamp) saturates for any coverage, so that edge snaps to whole
+    pixels, differently in each frame, and would pull the tile's shift towards an integer.
+    """
+    with np.errstate(invalid="ignore"):
+        inside = (img > lo) & (img < hi)
+        log = np.log(np.clip(img, lo, hi))
+        g = _sobel_magnitude(log)
+        u = log - np.float32(np.log(lo))
+        g *= _smoothstep(u / np.log(TAPER_LOW)) * _smoothstep(
+            (np.float32(np.log(hi / lo)) - u) / np.log(TAPER_HIGH))
+        saturated = img >= hi
+    if saturated.any():
+        near = saturated.copy()  # 3x3 dilation
+        near[1:] |= saturated[:-1]
+        near[:-1] |= saturated[1:]
+        row = near.copy()
+        near[:, 1:] |= row[:, :-1]
+        near[:, :-1] |= row[:, 1:]
+        g[near] = 0.0
+    return g, inside
+
+
+def _hann(n: int) -> np.ndarray:
+    return 0.5 - 0.5 * np.cos(2.0 * np.pi * (np.arange(n) + 0.5) / n)
+
+
+def region_name(x: float, y: float, shape: tuple[int, int]) -> str:
+    """Where ``(x, y)`` lies in a frame of ``shape``, in thirds: "upper left", "top", "centre"..."""
+    h, w = shape
+    col = min(2, max(0, int(3 * (x + 0.5) / w)))
+    row = min(2, max(0, int(3 * (y + 0.5) / h)))
+    names = (("upper left", "top", "upper right"),
+             ("left", "centre", "right"),
+             ("lower left", "bottom", "lower right"))
+    return names[row][col]
+
+
+def _radius(shape: tuple[int, int]) -> float:
+    h, w = shape
+    return 0.5 * float(np.hypot(w - 1, h - 1))
+
+
+def _design(x: np.ndarray, y: np.ndarray, shape: tuple[int, int], radius: float) -> np.ndarray:
+    """Design matrix ``(2N, 8)`` of the pattern (rows: all dx, then all dy)."""
+    h, w = shape
+    u = (x - (w - 1) / 2.0) / radius
+    v = (y - (h - 1) / 2.0) / radius
+    z, o = np.zeros_like(u), np.ones_like(u)
+    top = np.stack([o, z, u, v, z, z, u * u, u * v], axis=1)
+    bottom = np.stack([z, o, z, z, u, v, u * v, v * v], axis=1)
+    return np.vstack([top, bottom])
+
+
+def _predict(params: np.ndarray, x: np.ndarray, y: np.ndarray, shape: tuple[int, int],
+             radius: float) -> np.ndarray:
+    d = _design(np.atleast_1d(x), np.atleast_1d(y), shape, radius) @ params
+    n = d.size // 2
+    return np.stack([d[:n], d[n:]], axis=1)
+
+
+_PATTERN_TERMS = (2, 4, 6, 8)  # shift; + zoom, rotation; + anisotropic scale, shear; + perspective
+
+
+def _expansion(terms: int) -> np.ndarray:
+    """``(8, p)``: the full parameters from the ``p`` free ones of a nested pattern."""
+    if terms == 4:  # similarity: a11 = a22 = zoom, a21 = -a12 = rotation
+        e = np.zeros((8, 4))
+        e[0, 0] = e[1, 1] = 1.0
+        e[2, 2] = e[5, 2] = 1.0
+        e[4, 3], e[3, 3] = 1.0, -1.0
+        return e
+    return np.eye(8)[:, :terms]
+
+
+def _tukey(res: np.ndarray) -> np.ndarray:
+    """Tukey biweights of residual norms (scale: their MAD, at least 1 whitened unit)."""
+    c = 4.685 * max(1.4826 * float(np.median(res)), 1.0)
+    return np.where(res < c, (1.0 - (res / c) ** 2) ** 2, 0.0)
+
+
+def _robust_lstsq(aw: np.ndarray, bw: np.ndarray, wt: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """IRLS with Tukey biweights on the per-tile whitened residual norm from the weights
+    ``wt``; ``(coef, weights)``. Redescending: tiles of a second plane or a moving object
+    (up to nearly half of them) end with weight 0 instead of bending the pattern."""
+    n = aw.shape[0]
+    coef = np.zeros(aw.shape[2])
+    for _ in range(10):
+        sw = np.sqrt(wt)[:, None, None]
+        coef = np.linalg.lstsq((aw * sw).reshape(2 * n, -1), (bw * sw[..., 0]).ravel(),
+                               rcond=None)[0]
+        new = _tukey(np.linalg.norm(bw - aw @ coef, axis=1))
+        if np.allclose(new, wt, atol=1e-6):
+            break
+        wt = new
+    return coef, wt
+
+
+def _fit_pattern(centres: np.ndarray, shifts: np.ndarray, shape: tuple[int, int],
+                 cov: np.ndarray | None = None, floor: float = 0.02) -> ResidualPattern:
+    """Robust least-squares fit of the pattern to the valid tiles' shifts.
+
+    Each tile's two equations are weighted by the inverse of its covariance (plus ``floor``
+    squared, px): a tile with structure in one direction only constrains that direction. Tukey
+    biweights on the whitened residuals (IRLS, started about the median shift) keep the tiles
+    of a second plane or a moving object from bending the pattern. The terms are nested
+    (shift; + zoom and rotation; + anisotropic scale and shear; + the two perspective terms)
+    and each step is kept only when it lowers the weighted residual significantly (F test at
+    0.1 %, the robust weights of the larger model for both); a model needs 1.5 tiles per free
+    parameter, so the higher terms of a small tile count are held at 0.
+    """
+    from scipy import stats
+
+    n = len(centres)
+    radius = _radius(shape)
+    full = _design(centres[:, 0], centres[:, 1], shape, radius)
+    a3 = np.stack([full[:n], full[n:]], axis=1)  # (n, 2, 8)
+    c = np.eye(2)[None] * floor**2 if cov is None else cov + np.eye(2)[None] * floor**2
+    whiten = np.linalg.cholesky(np.linalg.inv(c)).transpose(0, 2, 1)  # L^T, info = L L^T
+    bw = np.einsum("nij,nj->ni", whiten, shifts)
+    # Start: Tukey weights about the median shift (the dominant motion covers most tiles).
+    start = np.einsum("nij,j->ni", whiten, np.median(shifts, axis=0))
+    wt = _tukey(np.linalg.norm(bw - start, axis=1))
+    fits = {}
+    for terms in _PATTERN_TERMS:
+        if 2 * n < 3 * terms and terms > 2:
+            break
+        e = _expansion(terms)
+        aw = np.einsum("nij,njk->nik", whiten, a3 @ e)
+        coef, wt = _robust_lstsq(aw, bw, wt)
+        fits[terms] = (e @ coef, aw, coef, wt)
+    chosen = 2
+    for terms in _PATTERN_TERMS[1:]:
+        if terms not in fits:
+            break
+        _, aw, coef, wt = fits[terms]
+        _, aw0, coef0, _ = fits[chosen]
+        rss = float(np.sum(wt[:, None] * (bw - aw @ coef) ** 2))
+        rss0 = float(np.sum(wt[:, None] * (bw - aw0 @ coef0) ** 2))
+        dof = 2 * int(np.count_nonzero(wt > 0)) - terms
+        if dof <= 0 or rss <= 0:
+            chosen = terms
+            continue
+        f_stat = ((rss0 - rss) / (terms - chosen)) / (rss / dof)
+        if f_stat > stats.f.ppf(0.999, terms - chosen, dof):
+            chosen = terms
+    params, _, _, wt = fits[chosen]
+    r = shifts - a3 @ params
+    inl = wt > 0
+    rms = float(np.sqrt(np.mean(np.sum(r[inl] ** 2, axis=1)))) if inl.any() else float("nan")
+    tx, ty, a11, a12, a21, a22, p, q = (float(v) for v in params)
+    zoom_px = 0.5 * (a11 + a22)
+    rot_px = 0.5 * (a21 - a12)
+    return ResidualPattern(
+        shift_x=tx, shift_y=ty, zoom=zoom_px / radius,
+        rotation_deg=float(np.degrees(rot_px / radius)),
+        shift_px=float(np.hypot(tx, ty)), zoom_px=zoom_px, rotation_px=rot_px,
+        affine_px=float(np.hypot(0.5 * (a11 - a22), 0.5 * (a12 + a21))),
+        perspective_px=float(np.hypot(p, q)), radius=radius,
+        parameters=tuple(float(v) for v in params), rms=rms, terms=chosen,
+    )
+
+
+# ------------------------------------------------------------------------------- tile shifts
+@dataclass(frozen=True)
+class _TileShifts:
+    shifts: np.ndarray  # (N, 2) analysis pixels
+    ncc: np.ndarray  # normalised cross-correlation of the re-centred tiles
+    cov: np.ndarray  # (N, 2, 2) analysis pixels^2
+
+
+class _PhasePlane:
+    """Weighted least-squares fit of the phase plane of cross-power spectra (Stone et al. 2001).
+
+    For ``dark(x + d) = bright(x)`` the cross-power spectrum ``F_dark conj(F_bright)`` is
+    ``|F|^2 exp(-2 pi i f.d)``: its phase is a plane of slope ``-2 pi d``. Frequencies
+    ``0 < |f| <= f_max`` (cycles/pixel; aliasing and interpolation errors grow above) are
+    fitted, weighted by the cross-power magnitude.
+    """
+
+    def __init__(self, t: int, f_max: float = 0.3) -> None:
+        fy = sfft.fftfreq(t)[:, None] * np.ones((1, t // 2 + 1))
+        fx = sfft.rfftfreq(t)[None, :] * np.ones((t, 1))
+        self.band = (fx * fx + fy * fy <= f_max * f_max) & ((fx != 0) | (fy != 0))
+        self.fx, self.fy = fx[self.band], fy[self.band]
+        # Independent frequencies: the Hann window correlates neighbours (about 1 in 4 free).
+        self.neff = max(self.band.sum() / 4.0, 1.0)
+
+    def fit(self, cross: np.ndarray, d: np.ndarray, iterations: int
+            ) -> tuple[np.ndarray, np.ndarray]:
+        """Shifts ``(N, 2)`` refined from ``d`` and their covariances ``(N, 2, 2)``."""
+        cb = cross[:, self.band]
+        wb = np.abs(cb)
+        gx, gy = self.fx, self.fy
+        sxx = wb @ (gx * gx)
+        sxy = wb @ (gx * gy)
+        syy = wb @ (gy * gy)
+        det = sxx * syy - sxy * sxy
+        det = np.where(det > 0, det, np.inf)
+        dx, dy = d[:, 0].copy(), d[:, 1].copy()
+        for it in range(iterations + 1):
+            rot = np.exp(2j * np.pi * (dx[:, None] * gx[None] + dy[:, None] * gy[None]))
+            phase = np.angle(cb * rot)
+            if it == iterations:
+                break
+            bx = -((wb * phase) @ gx) / (2 * np.pi)  # phase ~ -2 pi (fx ddx + fy ddy)
+            by = -((wb * phase) @ gy) / (2 * np.pi)
+            dx = dx + (syy * bx - sxy * by) / det
+            dy = dy + (sxx * by - sxy * bx) / det
+        scale = np.sum(wb * phase * phase, axis=1) / (4 * np.pi**2 * self.neff)
+        cov = np.empty((len(dx), 2, 2))
+        cov[:, 0, 0] = scale * syy / det
+        cov[:, 1, 1] = scale * sxx / det
+        cov[:, 0, 1] = cov[:, 1, 0] = -scale * sxy / det
+        return np.stack([dx, dy], axis=1), cov
+
+
+def _peak_shifts(cross: np.ndarray, t: int, workers: int) -> np.ndarray:
+    """Integer peak of the phase-correlation surface (whitened cross power), parabolic
+    sub-pixel, ``(N, 2)`` as ``(dx, dy)``."""
+    n = cross.shape[0]
+    mag = np.abs(cross)
+    tiny = 1e-20 + 1e-12 * mag.reshape(n, -1).max(axis=1)[:, None, None]
+    surface = sfft.irfft2(cross / (mag + tiny), s=(t, t), axes=(1, 2), workers=workers)
+    idx = np.argmax(surface.reshape(n, -1), axis=1)
+    iy, ix = np.divmod(idx, t)
+    rows = np.arange(n)
+
+    def at(dy: int, dx: int) -> np.ndarray:
+        return surface[rows, (iy + dy) % t, (ix + dx) % t]
+
+    c, left, right, up, down = at(0, 0), at(0, -1), at(0, 1), at(-1, 0), at(1, 0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cx, cy = left - 2 * c + right, up - 2 * c + down
+        ox = np.where(np.abs(cx) > 1e-12, 0.5 * (left - right) / cx, 0.0)
+        oy = np.where(np.abs(cy) > 1e-12, 0.5 * (up - down) / cy, 0.0)
+    ix = np.where(ix > t // 2, ix - t, ix)
+    iy = np.where(iy > t // 2, iy - t, iy)
+    return np.stack([ix + np.clip(ox, -0.5, 0.5), iy + np.clip(oy, -0.5, 0.5)], axis=1)
+
+
+@_njit
+def _extract_tiles(img, oy, ox, dy, dx, win, out, i0, i1):  # pragma: no cover - compiled
+    """Tiles ``i0:i1``: ``img`` at ``(oy + dy + r, ox + dx + c)`` (Keys cubic, clamped at the
+    edges), minus their window-weighted mean, times the window ``win``."""
+    h, w = img.shape
+    t = win.shape[0]
+    wsum = 0.0
+    for r in range(t):
+        for c in range(t):
+            wsum += win[r, c]
+    tmp = np.empty((t, t + 3), np.float64)
+    for i in range(i0, i1):
+        fy0 = np.floor(dy[i])
+        fx0 = np.floor(dx[i])
+        fy = dy[i] - fy0
+        fx = dx[i] - fx0
+        wy0 = ((-0.5 * fy + 1.0) * fy - 0.5) * fy
+        wy1 = (1.5 * fy - 2.5) * fy * fy + 1.0
+        wy2 = ((-1.5 * fy + 2.0) * fy + 0.5) * fy
+        wy3 = (0.5 * fy - 0.5) * fy * fy
+        wx0 = ((-0.5 * fx + 1.0) * fx - 0.5) * fx
+        wx1 = (1.5 * fx - 2.5) * fx * fx + 1.0
+        wx2 = ((-1.5 * fx + 2.0) * fx + 0.5) * fx
+        wx3 = (0.5 * fx - 0.5) * fx * fx
+        y0 = oy[i] + int(fy0) - 1
+        x0 = ox[i] + int(fx0) - 1
+        for r in range(t):
+            ya = min(max(y0 + r, 0), h - 1)
+            yb = min(max(y0 + r + 1, 0), h - 1)
+            yc = min(max(y0 + r + 2, 0), h - 1)
+            yd = min(max(y0 + r + 3, 0), h - 1)
+            for c in range(t + 3):
+                xx = min(max(x0 + c, 0), w - 1)
+                tmp[r, c] = (wy0 * img[ya, xx] + wy1 * img[yb, xx] + wy2 * img[yc, xx]
+                             + wy3 * img[yd, xx])
+        mean = 0.0
+        for r in range(t):
+            for c in range(t):
+                v = wx0 * tmp[r, c] + wx1 * tmp[r, c + 1] + wx2 * tmp[r, c + 2] \
+                    + wx3 * tmp[r, c + 3]
+                out[i, r, c] = v
+                mean += v * win[r, c]
+        mean /= wsum
+        for r in range(t):
+            for c in range(t):
+                out[i, r, c] = (out[i, r, c] - mean) * win[r, c]
+
+
+def _keys4(f: np.ndarray) -> np.ndarray:
+    """Keys cubic weights ``(4, N)`` of taps -1, 0, 1, 2 at fractional positions ``f``."""
+    return np.stack([((-0.5 * f + 1.0) * f - 0.5) * f, (1.5 * f - 2.5) * f * f + 1.0,
+                     ((-1.5 * f + 2.0) * f + 0.5) * f, (0.5 * f - 0.5) * f * f])
+
+
+def _extract_numpy(img: np.ndarray, oy: np.ndarray, ox: np.ndarray, dy: np.ndarray,
+                   dx: np.ndarray, win: np.ndarray) -> np.ndarray:
+    """The reference of :func:`_extract_tiles` (all tiles)."""
+    h, w = img.shape
+    t = win.shape[0]
+    fy0, fx0 = np.floor(dy), np.floor(dx)
+    wy, wx = _keys4(dy - fy0), _keys4(dx - fx0)
+    iy = (oy + fy0.astype(int))[:, None] + np.arange(-1, t + 2)[None]
+    ix = (ox + fx0.astype(int))[:, None] + np.arange(-1, t + 2)[None]
+    patch = img[np.clip(iy, 0, h - 1)[:, :, None], np.clip(ix, 0, w - 1)[:, None, :]]
+    patch = patch.astype(np.float64)
+    rows = sum(wy[k][:, None, None] * patch[:, k:k + t, :] for k in range(4))
+    tiles = sum(wx[k][:, None, None] * rows[:, :, k:k + t] for k in range(4))
+    mean = np.sum(tiles * win, axis=(1, 2)) / np.sum(win)
+    return ((tiles - mean[:, None, None]) * win).astype(np.float32)
+
+
+def _tiles(img: np.ndarray, oy: np.ndarray, ox: np.ndarray, d: np.ndarray, win: np.ndarray,
+           workers: int) -> np.ndarray:
+    """Windowed, mean-free tiles ``(N, t, t)`` of ``img`` at ``(oy, ox) + d`` (``d``: dx, dy)."""
+    dy = np.ascontiguousarray(d[:, 1], np.float64)
+    dx = np.ascontiguousarray(d[:, 0], np.float64)
+    if not AVAILABLE:
+        return _extract_numpy(img, oy, ox, dy, dx, win)
+    n, t = oy.size, win.shape[0]
+    out = np.empty((n, t, t), np.float32)
+    oy64, ox64 = oy.astype(np.int64), ox.astype(np.int64)
+    win64 = win.astype(np.float64)
+    run_row_spans(n, workers,
+                  lambda i0, i1: _extract_tiles(img, oy64, ox64, dy, dx, win64, out, i0, i1))
+    return out
+
+
+def _tile_shifts(ga: np.ndarray, gb: np.ndarray, oy: np.ndarray, ox: np.ndarray, t: int,
+                 workers: int, *, recentre: int = 2) -> _TileShifts:
+    """Shift per tile between the structure images ``ga`` (dark) and ``gb`` (bright).
+
+    Phase correlation (integer peak, parabolic start, phase-plane fit); then the dark tile is
+    taken again at the estimated shift (Keys cubic) and the remaining shift fitted, ``recentre``
+    times: a window common to both tiles pulls the estimate towards zero by a fraction of the
+    shift, which vanishes once the dark tile is re-centred on the same content.
+    """
+    win = np.outer(_hann(t), _hann(t)).astype(np.float32)
+    zero = np.zeros((oy.size, 2))
+    tb = _tiles(gb, oy, ox, zero, win, workers)
+    fb_conj = np.conj(sfft.rfft2(tb, axes=(1, 2), workers=workers))
+    ta = _tiles(ga, oy, ox, zero, win, workers)
+    cross = sfft.rfft2(ta, axes=(1, 2), workers=workers) * fb_conj
+    plane = _PhasePlane(t)
+    d, cov = plane.fit(cross, _peak_shifts(cross, t, workers), 2)
+    for _ in range(recentre):
+        ok = np.all(np.isfinite(d), axis=1) & (np.abs(d).max(axis=1) < t / 4)
+        base = np.where(ok[:, None], d, 0.0)
+        ta = _tiles(ga, oy, ox, base, win, workers)
+        cross = sfft.rfft2(ta, axes=(1, 2), workers=workers) * fb_conj
+        step, cov = plane.fit(cross, np.zeros_like(d), 1)
+        d = np.where(ok[:, None], base + step, d)
+    na = np.sqrt(np.einsum("nij,nij->n", ta, ta, dtype=np.float64))
+    nb = np.sqrt(np.einsum("nij,nij->n", tb, tb, dtype=np.float64))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ncc = np.einsum("nij,nij->n", ta, tb, dtype=np.float64) / (na * nb)
+    return _TileShifts(d, ncc, cov)
+
+
+# ------------------------------------------------------------------------------- entry point
+def _choose_level(shape: tuple[int, int], max_pixels: float) -> int:
+    h, w = shape
+    level = 0
+    while h * w / 4.0**level > max_pixels and min(h, w) >> (level + 1) >= 64:
+        level += 1
+    return level
+
+
+def _choose_tile(shape: tuple[int, int]) -> int:
+    side = min(shape)
+    for t in (128, 64, 32):
+        if side >= 6 * t:
+            return t
+    return 32
+
+
+def residual_motion(
+    dark: np.ndarray,
+    bright: np.ndarray,
+    ratio: float = 1.0,
+    matrix: np.ndarray | None = None,
+    *,
+    saturation: float = 1.0,
+    noise_floor: float = 0.0,
+    lut: np.ndarray | None = None,
+    tile: int | None = None,
+    max_pixels: float = 2.5e6,
+    aligned_px: float = 0.3,
+    local_px: float = 1.0,
+    min_confidence: float | None = None,
+    min_tiles: int = 4,
+    min_in_range: float = 0.5,
+    workers: int | None = None,
+) -> ResidualMotion:
+    """Measure the residual motion of an aligned pair, tile by tile (see the module docstring).
+
+    Parameters
+    ----------
+    dark, bright : single-channel linear frames ``(H, W)`` of the same size (float, NaN allowed
+        outside the valid area), or integer levels read through ``lut`` (``lut[level]`` is the
+        linear value; any strides, e.g. a channel view of the RGB frame).
+    ratio : exposure ratio ``k = t_bright / t_dark``; the dark frame is compared times ``k``.
+    matrix : the pair matrix (2x3 or 3x3) mapping bright-frame pixel coordinates to the dark
+        frame, as returned by the registration; the bright frame is warped onto the dark frame
+        with it (Keys cubic, on the analysis level). ``None``: the frames are already aligned.
+    saturation, noise_floor : linear levels bounding the range both frames must expose (the
+        dark frame's floor is multiplied by ``k``; at least 0.1 % of ``saturation``).
+    tile : tile size in analysed pixels (default: 128, 64 or 32, at least six tiles across the
+        short side); ``max_pixels``: the analysis level is the first 2x2 block-mean level with
+        at most this many pixels.
+    aligned_px : the pair is ``aligned`` when the median shift is at most this, no pattern
+        component moves the corners by more than twice this, and no tile is off by more than
+        ``local_px`` after the pattern (full-resolution pixels).
+    min_confidence : a tile counts when the normalised cross-correlation of its two structure
+        tiles (re-centred) is at least this (default ``CONFIDENCE_PER_TILE / tile``), the
+        standard error of its shift at most ``MAX_SIGMA`` analysed pixels and at least
+        ``min_in_range`` of it is exposed well in both frames; ``min_tiles``: fewer confident
+        tiles are ``unmeasured``.
+    """
+    t0 = time.perf_counter()
+    a = np.asarray(dark)
+    b = np.asarray(bright)
+    if a.ndim != 2 or a.shape != b.shape:
+        raise ParameterError("residual motion needs two single-channel frames of the same size",
+                             expected="two (H, W) arrays", found=f"{a.shape} and {b.shape}")
+    if not (np.isfinite(ratio) and ratio > 0):
+        raise ParameterError("the exposure ratio must be positive and finite", found=str(ratio))
+    if not (saturation > 0 and 0 <= noise_floor < saturation):
+        raise ParameterError("need 0 <= noise_floor < saturation",
+                             found=f"noise_floor {noise_floor}, saturation {saturation}")
+    if lut is not None:
+        lut = np.ascontiguousarray(lut, np.float32)
+        if a.dtype.kind not in "ui" or b.dtype.kind not in "ui":
+            raise ParameterError("frames read through a lut must be integer levels",
+                                 found=f"{a.dtype} and {b.dtype}")
+        top = max(int(a.max(initial=0)), int(b.max(initial=0)))
+        if top >= lut.size:
+            raise ParameterError("a level is beyond the end of the lut",
+                                 expected=f"levels < {lut.size}", found=str(top))
+    h, w = a.shape
+    if min(h, w) < 64:
+        raise ParameterError("frames too small to measure residual motion",
+                             expected="at least 64 x 64 pixels", found=f"{h}x{w}")
+    nw = worker_count(workers)
+    level = _choose_level((h, w), max_pixels)
+    f = 1 << level
+    al = _reduce(a, f, lut, nw)
+    bl = _reduce(b, f, lut, nw)
+    hl, wl = al.shape
+    if matrix is not None:
+        hm = _homogeneous(matrix)
+        s = np.array([[f, 0.0, (f - 1) / 2.0], [0.0, f, (f - 1) / 2.0], [0.0, 0.0, 1.0]])
+        back = np.linalg.inv(s) @ np.linalg.inv(hm) @ s  # dark level -> bright level
+        bl = _warp(bl, back, (hl, wl), nw)
+
+    k = float(ratio)
+    lo = max(float(noise_floor), 1e-3 * float(saturation))
+    hi = float(saturation)
+    ga, in_a = _structure(al * np.float32(k), k * lo, hi)
+    gb, in_b = _structure(bl, k * lo, hi)
+    nan_a, nan_b = ~np.isfinite(ga), ~np.isfinite(gb)
+
+    t = int(tile) if tile is not None else _choose_tile((hl, wl))
+    if t < 16 or t > min(hl, wl) - 2:
+        raise ParameterError("tile size out of range", expected=f"16..{min(hl, wl) - 2}",
+                             found=str(t))
+    ny, nx = max(1, (hl - 2) // t), max(1, (wl - 2) // t)
+    ys = np.rint(np.linspace(1, hl - 1 - t, ny)).astype(int)
+    xs = np.rint(np.linspace(1, wl - 1 - t, nx)).astype(int)
+    oy, ox = (a.ravel() for a in np.meshgrid(ys, xs, indexing="ij"))
+    n = oy.size
+    both_in = in_a & in_b
+    bad = nan_a | nan_b
+    frac_in = np.array([both_in[y:y + t, x:x + t].mean() for y, x in zip(oy, ox, strict=True)])
+    frac_nan = np.array([bad[y:y + t, x:x + t].mean() for y, x in zip(oy, ox, strict=True)])
+    if bad.any():  # outside the warped frame: the tile's mean gradient (drops tiles > 10 %)
+        ga = np.where(nan_a, np.float32(np.nanmean(ga)), ga)
+        gb = np.where(nan_b, np.float32(np.nanmean(gb)), gb)
+    ts = _tile_shifts(ga, gb, oy, ox, t, nw)
+    min_conf = CONFIDENCE_PER_TILE / t if min_confidence is None else float(min_confidence)
+    conf = np.nan_to_num(ts.ncc, nan=0.0)
+    with np.errstate(invalid="ignore"):  # worst-direction standard error, analysed pixels
+        tr = ts.cov[:, 0, 0] + ts.cov[:, 1, 1]
+        dt = ts.cov[:, 0, 0] * ts.cov[:, 1, 1] - ts.cov[:, 0, 1] ** 2
+        sig_l = np.sqrt(np.maximum(0.5 * tr + np.sqrt(np.maximum(0.25 * tr * tr - dt, 0)), 0))
+    sig_l = np.where(np.isfinite(sig_l), sig_l, np.inf)
+    valid = ((conf >= min_conf) & (sig_l <= MAX_SIGMA) & (frac_in >= min_in_range)
+             & (frac_nan <= 0.1) & np.all(np.isfinite(ts.shifts), axis=1)
+             & (np.abs(ts.shifts).max(axis=1) < t / 4))
+    centres = np.stack([(ox + (t - 1) / 2.0) * f + (f - 1) / 2.0,
+                        (oy + (t - 1) / 2.0) * f + (f - 1) / 2.0], axis=1)
+    shifts = ts.shifts * f
+    sigma = sig_l * f
+    cov = ts.cov * (f * f)
+    mags = np.hypot(shifts[:, 0], shifts[:, 1])
+    nv = int(valid.sum())
+    local = np.full(n, np.nan)
+    pattern = None
+    worst, region = -1, ""
+    if nv >= min_tiles:
+        pattern = _fit_pattern(centres[valid], shifts[valid], (h, w), cov[valid], 0.05 * f)
+        pred = pattern.predict(centres[:, 0], centres[:, 1], (h, w))
+        local = np.hypot(*(shifts - pred).T)
+        lv = np.where(valid, local, -np.inf)
+        worst = int(np.argmax(lv))
+        off = valid & (local > local_px)
+        where = centres[off].mean(axis=0) if off.sum() >= 2 else centres[worst]
+        region = region_name(where[0], where[1], (h, w))
+        med = float(np.median(mags[valid]))
+        p90 = float(np.percentile(mags[valid], 90))
+        mx = float(mags[valid].max())
+        status, kind, message = _verdict(pattern, med, p90, mags, local, valid, worst, region,
+                                         aligned_px, local_px)
+    else:
+        med = p90 = mx = float("nan")
+        status, kind = "unmeasured", ""
+        why = ("no tile is textured" if not np.any(frac_in >= min_in_range) or not np.any(conf > 0)
+               else "no tile matches")
+        message = (f"{nv} of {n} tiles confident ({why} in the exposure range both frames "
+                   f"share): the residual motion cannot be measured")
+    return ResidualMotion(
+        shape=(h, w), level=level, tile=t, centres=centres, shifts=shifts, confidence=conf,
+        sigma=sigma, in_range=frac_in, valid=valid, local=local, median=med, p90=p90, max=mx,
+        pattern=pattern, worst=worst, worst_region=region, status=status, kind=kind,
+        message=message, aligned_px=float(aligned_px), local_px=float(local_px),
+        seconds=time.perf_counter() - t0,
+    )
+
+
+def _verdict(pattern: ResidualPattern, med: float, p90: float, mags: np.ndarray,
+             local: np.ndarray, valid: np.ndarray, worst: int, region: str,
+             aligned_px: float, local_px: float) -> tuple[str, str, str]:
+    """``(status, kind, message)`` from the summarised field (see :func:`residual_motion`).
+
+    A local residual needs two tiles above ``local_px`` (one tile alone may be a false match
+    on sparse structure; it is named in the message but does not decide the status).
+    """
+    comps = pattern.component_px()
+    name = max(comps, key=comps.get)
+    big = comps[name]
+    n_local = int(np.count_nonzero(valid & (local > local_px)))
+    local_worst = float(local[worst]) if n_local >= 2 else 0.0
+    one = (f" (one tile off by {mags[worst]:.1f} px at the {region})" if n_local == 1 else "")
+    if med <= aligned_px and big <= 2 * aligned_px and local_worst <= local_px:
+        return ("aligned", "",
+                f"{med:.2f} px median over {int(valid.sum())} tiles: aligned{one}")
+    if big > 2 * aligned_px and big >= local_worst:
+        if name == "zoom":
+            what = f"a zoom of {100 * pattern.zoom:+.2f} % is left ({big:.1f} px at the corners)"
+        elif name == "rotation":
+            what = (f"a rotation of {pattern.rotation_deg:+.3f} deg is left ({big:.1f} px at "
+                    f"the corners)")
+        elif name == "shift":
+            what = (f"a shift of {big:.1f} px is left (dx {pattern.shift_x:+.2f}, "
+                    f"dy {pattern.shift_y:+.2f})")
+        elif name == "perspective":
+            what = f"a perspective tilt of {big:.1f} px at the corners is left"
+        else:
+            what = f"an anisotropic scale or shear of {big:.1f} px at the corners is left"
+        return "misaligned", name, f"{what}: {_HINTS[name]}"
+    if local_worst > local_px:
+        size = float(np.median(mags[valid & (local > local_px)]))
+        return ("misaligned", "local",
+                f"{size:.1f} px of residual motion at the {region} ({n_local} tiles): "
+                f"parallax or a moving object")
+    return ("misaligned", "scattered",
+            f"{med:.2f} px median residual motion (90 % under {p90:.2f} px), no global pattern: "
+            f"noise, blur or a poor match{one}")

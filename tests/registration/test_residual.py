@@ -1,0 +1,269 @@
+"""Residual motion of aligned pairs (hdrcore.registration.residual) against known synthetic motion.
+
+Pairs are rendered here from the project's procedural scenes: each frame integrates the
+continuous scene (the radiance grid's bilinear interpolant) over its pixels, like the
+simulator's "area" rendering, at positions moved by a known 3x3 map, then exposed (linear
+response, Gaussian noise of 1 level, quantised). The truth of a tile is the known map's
+displacement at its centre.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from scipy import ndimage
+
+from hdrcore.errors import ParameterError
+from hdrcore.registration import residual
+from hdrcore.registration.residual import (
+    RESIDUAL_STATUSES,
+    ResidualMotion,
+    region_name,
+    residual_motion,
+)
+from hdrcore.synthetic import make_scene
+
+SHAPE = (384, 576)
+MARGIN = 40
+CENTRE = np.array([(SHAPE[1] - 1) / 2.0, (SHAPE[0] - 1) / 2.0])
+
+
+def _scene(name: str = "window", seed: int = 0) -> np.ndarray:
+    big = make_scene(name, (SHAPE[0] + 2 * MARGIN, SHAPE[1] + 2 * MARGIN), seed)
+    return big[..., 1].astype(np.float64)
+
+
+def _render(big: np.ndarray, h: np.ndarray) -> np.ndarray:
+    """The scene seen by a frame whose pixel ``p`` looks at ``h p`` (3x3, frame coordinates)."""
+    yy, xx = np.mgrid[0 : SHAPE[0], 0 : SHAPE[1]].astype(np.float64)
+    zw = h[2, 0] * xx + h[2, 1] * yy + h[2, 2]
+    xs = (h[0, 0] * xx + h[0, 1] * yy + h[0, 2]) / zw + MARGIN
+    ys = (h[1, 0] * xx + h[1, 1] * yy + h[1, 2]) / zw + MARGIN
+    return ndimage.map_coordinates(big, [ys, xs], order=2, mode="nearest", prefilter=False)
+
+
+def _expose(radiance: np.ndarray, time: float, key: float, bits: int, rng) -> np.ndarray:
+    ml = (1 << bits) - 1
+    y = np.clip(radiance * time * key, 0, 1) * ml + rng.standard_normal(radiance.shape)
+    return (np.clip(np.rint(y), 0, ml) / ml).astype(np.float32)
+
+
+def _pair(h, *, ratio=4.0, bits=12, scene="window", seed=0, patch=None):
+    """``(dark, bright, saturation, noise_floor)``: the bright frame's pixel ``p`` sees the dark
+    frame's ``h p`` (``h`` is the pair matrix, bright -> dark). ``patch``: ``(slices, h2)``, a
+    region of the bright frame that moves by ``h2`` instead (a second plane)."""
+    big = _scene(scene, seed)
+    dark = _render(big, np.eye(3))
+    bright = _render(big, h)
+    if patch is not None:
+        region, h2 = patch
+        bright[region] = _render(big, h2)[region]
+    key = 0.18 / float(np.median(dark)) / np.sqrt(ratio)
+    rng = np.random.default_rng(seed + 1)
+    ml = (1 << bits) - 1
+    return (_expose(dark, 1.0, key, bits, rng), _expose(bright, ratio, key, bits, rng),
+            0.98, 3.0 / ml)
+
+
+def _similarity(scale=1.0, angle_deg=0.0, shift=(0.0, 0.0)) -> np.ndarray:
+    """3x3: rotation and scaling about the image centre, then ``shift``."""
+    t = np.radians(angle_deg)
+    a = scale * np.array([[np.cos(t), -np.sin(t)], [np.sin(t), np.cos(t)]])
+    h = np.eye(3)
+    h[:2, :2] = a
+    h[:2, 2] = CENTRE - a @ CENTRE + np.asarray(shift)
+    return h
+
+
+def _truth(h: np.ndarray, centres: np.ndarray) -> np.ndarray:
+    x, y = centres[:, 0], centres[:, 1]
+    zw = h[2, 0] * x + h[2, 1] * y + h[2, 2]
+    return np.stack([(h[0, 0] * x + h[0, 1] * y + h[0, 2]) / zw - x,
+                     (h[1, 0] * x + h[1, 1] * y + h[1, 2]) / zw - y], axis=1)
+
+
+def _measure(h, **kw) -> tuple[ResidualMotion, np.ndarray]:
+    pair_kw = {k: kw.pop(k) for k in ("ratio", "bits", "scene", "seed", "patch") if k in kw}
+    dark, bright, sat, nf = _pair(h, **pair_kw)
+    res = residual_motion(dark, bright, pair_kw.get("ratio", 4.0), saturation=sat,
+                          noise_floor=nf, **kw)
+    return res, _truth(h, res.centres)
+
+
+def test_known_subpixel_shift_is_recovered_to_five_hundredths():
+    h = _similarity(shift=(0.3, -0.7))
+    res, truth = _measure(h)
+    v = res.valid
+    assert res.n_valid >= 20
+    err = np.median(res.shifts[v] - truth[v], axis=0)
+    assert np.all(np.abs(err) <= 0.05), err
+    assert abs(res.pattern.shift_x - 0.3) <= 0.05 and abs(res.pattern.shift_y + 0.7) <= 0.05
+    assert abs(res.median - np.hypot(0.3, 0.7)) <= 0.05
+    assert res.status == "misaligned" and res.kind == "shift"
+    assert res.describe().startswith("a shift of 0.8 px is left")
+
+
+@pytest.mark.parametrize("shift", [(2.3, -1.6), (-0.5, 0.25)])
+def test_larger_and_negative_shifts(shift):
+    res, truth = _measure(_similarity(shift=shift))
+    v = res.valid
+    assert np.all(np.abs(np.median(res.shifts[v] - truth[v], axis=0)) <= 0.05)
+
+
+def test_zoom_pattern_is_recovered_and_named():
+    h = _similarity(scale=1.004)
+    res, truth = _measure(h)
+    p = res.pattern
+    assert abs(p.zoom - 0.004) <= 0.0002, p.zoom  # 0.02 % of the radius: 0.07 px at the corners
+    pred = p.predict(res.centres[:, 0], res.centres[:, 1], res.shape)
+    rms = float(np.sqrt(np.mean(np.sum((pred - truth) ** 2, axis=1))))
+    assert rms <= 0.05, rms
+    assert abs(p.rotation_deg) < 0.005 and p.shift_px < 0.05
+    assert res.kind == "zoom"
+    assert res.describe().startswith("a zoom of +0.40 % is left (1.4 px at the corners)")
+    assert "no scale" in res.describe()
+
+
+def test_rotation_pattern_is_named():
+    res, _ = _measure(_similarity(angle_deg=0.15))
+    assert abs(res.pattern.rotation_deg - 0.15) <= 0.01
+    assert res.kind == "rotation" and "rotation of +0.15" in res.describe()
+
+
+def test_true_homography_given_as_matrix_leaves_nothing():
+    h = _similarity(scale=0.997, angle_deg=0.4, shift=(6.2, -3.7))
+    h[2, :2] = (1.5e-5, -1e-5)  # a small perspective
+    dark, bright, sat, nf = _pair(h)
+    res = residual_motion(dark, bright, 4.0, h, saturation=sat, noise_floor=nf)
+    assert res.status == "aligned", res.message
+    assert res.median <= 0.05 and res.pattern.shift_px <= 0.05
+    assert res.describe().endswith("aligned")
+    # the same motion without its perspective: the tilt is what is left
+    affine = h[:2] / h[2, 2]
+    res2 = residual_motion(dark, bright, 4.0, affine, saturation=sat, noise_floor=nf)
+    assert res2.status == "misaligned" and res2.kind in ("perspective", "zoom", "shift")
+    # no matrix at all: the whole motion is left
+    res3 = residual_motion(dark, bright, 4.0, saturation=sat, noise_floor=nf)
+    assert res3.median > 5
+
+
+def test_two_planes_local_residual_is_located():
+    h = _similarity(shift=(1.2, 0.4))
+    lower_left = (slice(200, 384), slice(0, 260))
+    h2 = _similarity(shift=(4.2, 0.4))  # 3 px more parallax in the lower left
+    res, truth = _measure(h, patch=(lower_left, h2))
+    h_only = _similarity(shift=(1.2, 0.4))
+    # given the dominant plane's motion, only the lower left is left
+    dark, bright, sat, nf = _pair(h, patch=(lower_left, h2))
+    aligned = residual_motion(dark, bright, 4.0, h_only, saturation=sat, noise_floor=nf)
+    assert aligned.status == "misaligned" and aligned.kind == "local", aligned.message
+    assert aligned.worst_region == "lower left"
+    assert aligned.describe().startswith("3.0 px of residual motion at the lower left")
+    assert aligned.describe().endswith("parallax or a moving object")
+    assert aligned.median < 0.1  # the dominant plane is aligned
+    # tiles wholly inside the patch measure its motion
+    x, y = res.centres[:, 0], res.centres[:, 1]
+    inside = res.valid & (x < 260 - 40) & (y > 200 + 40)
+    assert inside.sum() >= 3
+    assert np.all(np.abs(res.shifts[inside, 0] - 4.2) <= 0.1)
+
+
+@pytest.mark.parametrize("ratio", [4.0, 8.0, 16.0])
+def test_exposure_gap_8bit_with_noise(ratio):
+    shift = (0.4, -0.25)
+    res, truth = _measure(_similarity(shift=shift), bits=8, ratio=ratio)
+    v = res.valid
+    assert res.n_valid >= 10, res.message
+    err = np.median(res.shifts[v] - truth[v], axis=0)
+    assert np.all(np.abs(err) <= 0.08), err
+    dark, bright, sat, nf = _pair(_similarity(shift=shift), bits=8, ratio=ratio)
+    done = residual_motion(dark, bright, ratio, _similarity(shift=shift), saturation=sat,
+                           noise_floor=nf)
+    assert done.status == "aligned", done.message
+    assert done.median <= (0.1 if ratio < 16 else 0.15)  # the noise of 8-bit frames x16
+
+
+def test_flat_pair_is_unmeasured_never_aligned():
+    rng = np.random.default_rng(3)
+    flat = np.full(SHAPE, 0.2, np.float32)
+    dark = (flat / 4 + rng.standard_normal(SHAPE).astype(np.float32) / 4095).astype(np.float32)
+    bright = (flat + rng.standard_normal(SHAPE).astype(np.float32) / 4095).astype(np.float32)
+    res = residual_motion(dark, bright, 4.0, saturation=0.98, noise_floor=3 / 4095)
+    assert res.status == "unmeasured" and not res.aligned
+    assert res.n_valid == 0 and np.isnan(res.median) and res.pattern is None
+    assert "cannot be measured" in res.describe()
+    # all saturated: nothing in the range both frames share
+    sat = np.ones(SHAPE, np.float32)
+    res2 = residual_motion(sat, sat, 4.0, saturation=0.98, noise_floor=3 / 4095)
+    assert res2.status == "unmeasured" and "no tile is textured" in res2.message
+
+
+def test_json_and_statuses():
+    res, _ = _measure(_similarity(shift=(0.3, -0.7)))
+    doc = json.loads(json.dumps(res.to_json()))
+    assert doc["status"] in RESIDUAL_STATUSES and doc["message"] == res.describe()
+    assert len(doc["shifts"]) == len(doc["centres"]) == doc["tiles"]
+    assert doc["valid_tiles"] == res.n_valid
+    assert doc["pattern"]["terms"] in (2, 4, 6, 8)
+
+
+def test_integer_levels_through_lut_match_float_frames():
+    dark, bright, sat, nf = _pair(_similarity(shift=(0.3, -0.7)))
+    lut = np.arange(4096, dtype=np.float32) / 4095
+    a = np.rint(dark * 4095).astype(np.uint16)
+    b = np.rint(bright * 4095).astype(np.uint16)
+    r1 = residual_motion(dark, bright, 4.0, saturation=sat, noise_floor=nf)
+    r2 = residual_motion(a, b, 4.0, saturation=sat, noise_floor=nf, lut=lut)
+    np.testing.assert_allclose(r2.shifts, r1.shifts, atol=1e-4)
+    np.testing.assert_array_equal(r2.valid, r1.valid)
+
+
+def test_numpy_reference_matches_compiled(monkeypatch):
+    h = _similarity(scale=1.002, shift=(0.6, 0.2))
+    dark, bright, sat, nf = _pair(h)
+    kw = dict(saturation=sat, noise_floor=nf, max_pixels=60_000)  # level 1: reduce + warp
+    compiled = residual_motion(dark, bright, 4.0, h, **kw)
+    monkeypatch.setattr(residual, "AVAILABLE", False)
+    reference = residual_motion(dark, bright, 4.0, h, **kw)
+    assert compiled.level == reference.level == 1
+    np.testing.assert_array_equal(compiled.valid, reference.valid)
+    np.testing.assert_allclose(reference.shifts, compiled.shifts, atol=1e-3)
+    assert reference.status == compiled.status == "aligned"
+
+
+def test_pyramid_level_on_large_frames_reports_full_resolution_pixels():
+    h = _similarity(shift=(1.6, -2.4))
+    res, truth = _measure(h, max_pixels=60_000)
+    assert res.level == 1 and res.tile == 32
+    v = res.valid
+    assert np.all(np.abs(np.median(res.shifts[v] - truth[v], axis=0)) <= 0.05)
+    assert res.centres[:, 0].max() < SHAPE[1] and res.centres[:, 1].max() < SHAPE[0]
+
+
+def test_region_names():
+    assert region_name(10, 370, SHAPE) == "lower left"
+    assert region_name(560, 5, SHAPE) == "upper right"
+    assert region_name(288, 192, SHAPE) == "centre"
+    assert region_name(288, 380, SHAPE) == "bottom"
+
+
+@pytest.mark.parametrize(
+    "args, kwargs, match",
+    [
+        ((np.zeros((100, 100)), np.zeros((100, 90))), {}, "same size"),
+        ((np.zeros((100, 100, 3)), np.zeros((100, 100, 3))), {}, "single-channel"),
+        ((np.zeros((100, 100)), np.zeros((100, 100)), 0.0), {}, "exposure ratio"),
+        ((np.zeros((100, 100)), np.zeros((100, 100))), {"noise_floor": 2.0}, "noise_floor"),
+        ((np.zeros((40, 100)), np.zeros((40, 100))), {}, "too small"),
+        ((np.zeros((100, 100)), np.zeros((100, 100))), {"lut": np.arange(4.0)}, "integer"),
+        ((np.full((100, 100), 9, np.uint8), np.zeros((100, 100), np.uint8)),
+         {"lut": np.arange(4.0)}, "beyond the end of the lut"),
+        ((np.zeros((100, 100)), np.zeros((100, 100)), 1.0, np.zeros((3, 3))), {}, "invertible"),
+        ((np.zeros((100, 100)), np.zeros((100, 100))), {"tile": 8}, "tile size"),
+    ],
+)
+def test_bad_input_says_what_is_wrong(args, kwargs, match):
+    with pytest.raises(ParameterError, match=match):
+        residual_motion(*args, **kwargs)
