@@ -262,9 +262,9 @@ def install_upload_limits(
 
     viser registers its own handler for the ``FileTransferStartUpload`` message; ours runs
     instead: a refused transfer is never registered, so its parts are dropped as they arrive
-    (nothing is stored), the page's progress notification is closed with a final
-    acknowledgement, and ``on_refused(client, reason)`` tells the user. A transfer whose parts
-    add up to more than it declared is dropped as well.
+    (nothing is stored), the page's transfer is ended with a final acknowledgement and its
+    progress toast hidden, and ``on_refused(client, reason)`` tells the user. A transfer whose
+    parts add up to more than it declared is dropped as well.
     """
     from viser import _messages
 
@@ -282,13 +282,18 @@ def install_upload_limits(
         log.warning("upload refused: %s", reason)
         client = server.get_clients().get(client_id)
         if client is not None:
-            try:  # close the page's progress notification
-                client._websock_connection.queue_message(_messages.FileTransferPartAck(
+            try:
+                # End the page's transfer (so its upload button is free again), then hide the
+                # progress toast, which would otherwise say "File uploaded successfully".
+                conn = client._websock_connection
+                conn.queue_message(_messages.FileTransferPartAck(
                     source_component_uuid=message.source_component_uuid,
                     transfer_uuid=message.transfer_uuid,
                     transferred_bytes=int(message.size_bytes),
                     total_bytes=int(message.size_bytes),
                 ))
+                conn.queue_message(_messages.RemoveNotificationMessage(
+                    uuid="upload-" + message.transfer_uuid))
             except Exception:  # noqa: BLE001 -- a page that went away
                 log.debug("closing the refused upload's progress failed", exc_info=True)
         on_refused(client, reason)
