@@ -19,6 +19,10 @@ convolution, IEEE TASSP 29(6), 1981), in one pass and without temporaries:
   Integer frames are read through a linearisation table (``lut``; None means the frame
   already holds linear values).
 
+:func:`warp_rows` resamples a frame through a 3x3 matrix (Keys cubic, 16 taps per pixel) for
+the motions the separable shear passes of :mod:`hdrcore.registration.warp` cannot do (scale,
+shear, perspective).
+
 Sums run sequentially in float64 (numpy sums pairwise), so results agree with the reference to
 rounding. The kernels are compiled with ``nogil`` and ``cache=True`` (machine code cached next
 to this file); without numba the numpy reference runs (``AVAILABLE`` is False).
@@ -36,7 +40,7 @@ from .._numba import inline as _inline
 from .._numba import njit as _njit
 
 __all__ = ["AVAILABLE", "bin_clip", "reduce2", "gauss_newton_sums", "score_candidates",
-           "support_valid"]
+           "support_valid", "warp_rows"]
 
 
 
@@ -122,11 +126,11 @@ def score_candidates(img, lut, n_cand, margin, phase, lo, hi, eps2, gradient, ys
 @_njit
 def support_valid(img, lut, xs, ys, m, check_range, lo, hi, max_contrast, reach, out):
     """``out[k]``: whether the 4x4 interpolation support of ``img`` (the bright frame) at the
-    sample ``(xs[k], ys[k])`` mapped by ``m`` (3x3) lies inside the frame and, widened by
-    ``reach`` pixels on every side (cut at the frame's border), holds raw taps strictly between
-    ``lo`` and ``hi`` (with ``check_range``) spanning at most ``max_contrast`` (when > 0): the
-    eq. 6 validity of the bright frame for every motion that moves the sample by up to
-    ``reach`` pixels from ``m``, decided once per pyramid level."""
+    sample ``(xs[k], ys[k])`` mapped by ``m`` (3x3) lies inside the frame, spans at most
+    ``max_contrast`` (when > 0) and (with ``check_range``) holds raw taps above ``lo`` and,
+    widened by ``reach`` pixels on every side (cut at the frame's border), below ``hi``: the
+    bright frame's side of eq. 6's validity, decided once per pyramid level, such that no motion
+    within ``reach`` pixels of ``m`` brings a saturated tap into the interpolation."""
     h, w = img.shape
     for k in range(xs.size):
         x = xs[k]
@@ -143,14 +147,17 @@ def support_valid(img, lut, xs, ys, m, check_range, lo, hi, max_contrast, reach,
         iy = int(math.floor(qy))
         if ix > w - 3 or iy > h - 3:
             continue
-        tmin = np.inf
+        tmin = np.inf  # the 4x4 support
         tmax = -np.inf
+        wmax = -np.inf
         for yy in range(max(iy - 1 - reach, 0), min(iy + 3 + reach, h)):
             for xx in range(max(ix - 1 - reach, 0), min(ix + 3 + reach, w)):
                 v = _linear(img, lut, yy, xx)
-                tmin = min(tmin, v)
-                tmax = max(tmax, v)
-        if check_range and not (tmin > lo and tmax < hi):
+                wmax = max(wmax, v)
+                if yy >= iy - 1 and yy <= iy + 2 and xx >= ix - 1 and xx <= ix + 2:
+                    tmin = min(tmin, v)
+                    tmax = max(tmax, v)
+        if check_range and not (tmin > lo and wmax < hi):
             continue
         if max_contrast > 0 and not (tmax <= max_contrast * max(tmin, 1e-30)):
             continue
@@ -328,3 +335,52 @@ def gauss_newton_sums(img, lut, xs, ys, bs, m, frame, n_par, gradient, hess, gra
             for jj in range(i + 1, n_par):
                 hess[jj, i] = hess[i, jj]
     return ssum, wsum
+
+
+@_njit
+def warp_rows(src, m, r0, r1, out):
+    """Rows ``r0:r1`` of ``out[y, x, c] = src(m @ (x, y, 1))`` (``m`` 3x3, perspective divide)
+    with Keys cubic convolution, the taps clamped to the frame (the edge repeats, as the
+    shear passes of :mod:`hdrcore.registration.warp` do); ``src`` and ``out`` are ``(H, W, C)``
+    float32."""
+    hs, ws, nc = src.shape
+    w = out.shape[1]
+    wx = np.empty(4)
+    wy = np.empty(4)
+    acc = np.empty(nc)
+    m00, m01, m02 = m[0, 0], m[0, 1], m[0, 2]
+    m10, m11, m12 = m[1, 0], m[1, 1], m[1, 2]
+    m20, m21, m22 = m[2, 0], m[2, 1], m[2, 2]
+    for y in range(r0, r1):
+        for x in range(w):
+            den = m20 * x + m21 * y + m22
+            if not den > 0:
+                for c in range(nc):
+                    out[y, x, c] = np.nan
+                continue
+            sx = (m00 * x + m01 * y + m02) / den
+            sy = (m10 * x + m11 * y + m12) / den
+            if not (sx > -1e6 and sx < 1e6 and sy > -1e6 and sy < 1e6):
+                for c in range(nc):
+                    out[y, x, c] = np.nan
+                continue
+            ix = int(math.floor(sx))
+            iy = int(math.floor(sy))
+            _keys(sx - ix, wx)
+            _keys(sy - iy, wy)
+            for c in range(nc):
+                acc[c] = 0.0
+            inside = ix >= 1 and ix <= ws - 3 and iy >= 1 and iy <= hs - 3
+            for j in range(4):
+                yy = iy - 1 + j
+                if not inside:
+                    yy = min(max(yy, 0), hs - 1)
+                for i in range(4):
+                    xx = ix - 1 + i
+                    if not inside:
+                        xx = min(max(xx, 0), ws - 1)
+                    wt = wx[i] * wy[j]
+                    for c in range(nc):
+                        acc[c] += wt * src[yy, xx, c]
+            for c in range(nc):
+                out[y, x, c] = acc[c]

@@ -14,8 +14,8 @@ transform (eq. 6) are::
 
 summed over pixels ``x`` of the dark frame's grid. ``V``: pixels whose ``b`` lies inside the
 exposure range both frames share, whose bright-frame interpolation support (4x4 raw taps of the
-cubic kernel, widened by a pixel) is neither saturated nor below the noise floor and has no edge
-steeper than ``MAX_CONTRAST``, and which land inside the bright frame. ``t`` (the threshold,
+cubic kernel) is neither saturated nor below the noise floor and has no edge steeper than
+``MAX_CONTRAST``, and which land inside the bright frame. ``t`` (the threshold,
 given as a fraction of the saturation level) keeps the normalisation from amplifying noise in
 the darkest pixels. We take the mean rather than the sum so that costs of different overlaps
 compare. This is our reading of eqs. 6-7: the seed normalises the difference by the pair's
@@ -28,8 +28,10 @@ simulated 8-bit pair (patches scene, ratio 16, noise 3 levels, moved 0.45 px) th
 3.2e-4 between ``dy = -0.01`` and ``0`` where it otherwise changes by 2e-5 per 0.01 px, and the
 search stalled at exactly the eq. 5 start (an identity reported "converged"). So ``V`` is decided
 once per pyramid level, on the dark frame's grid, at the level's starting motion
-(:func:`select_samples`; the widened support keeps every sample valid for motions within a
-pixel of it, and a search that moves further decides it again once). While the motion changes
+(:func:`select_samples`; a search that moves more than half a pixel from there decides it again,
+once, and goes on: samples chosen at a wrong motion pull the minimum towards it, 0.23 px at the
+corners for a Nelder-Mead search kept on the samples of its eq. 5 start, 0.007 px when they are
+chosen again). While the motion changes
 the bright frame's taps are only clipped to their valid range (continuous) and a sample's
 weight falls linearly to 0 over the last ``BORDER_RAMP`` pixels before its support leaves the
 bright frame, so the cost is a continuous (almost everywhere smooth) function of the motion: on
@@ -286,7 +288,7 @@ class Samples:
 def select_samples(
     data: PairData, level: int, max_samples: int, *, motion: np.ndarray | None = None,
     by_gradient: bool = True, seed: int = 0, compiled: bool | None = None,
-    max_contrast: float = MAX_CONTRAST, check_bright: bool = True, reach: int = 1,
+    max_contrast: float = MAX_CONTRAST, check_bright: bool = True, reach: int = 0,
 ) -> Samples:
     """Up to ``max_samples`` valid eq. 6 samples on the dark frame's grid of ``level``, in raster
     order, their validity decided once for the level at ``motion``.
@@ -294,10 +296,11 @@ def select_samples(
     A pixel of the dark frame is a sample when ``k * dark`` lies strictly inside the exposure
     range both frames share and, at ``motion`` (3x3 or 2x3, level coordinates, dark -> bright;
     default the identity), the 4x4 interpolation support of the bright frame lies inside it,
-    and the support widened by ``reach`` pixels holds raw taps strictly between the noise floor
-    and saturation (full resolution; the coarser levels are clipped already) spanning at most
-    ``max_contrast``: the sample stays valid for every motion within ``reach`` pixels of
-    ``motion``. The searches call
+    spans at most ``max_contrast`` and (full resolution; the coarser levels are clipped
+    already) holds raw taps above the noise floor and, widened by ``reach`` pixels, below
+    saturation: no motion within ``reach`` pixels of ``motion`` brings a saturated tap into the
+    sample's interpolation (a clipped highlight biases eq. 6 far more than a tap under the
+    noise floor, which is only noisy). The searches call
     this once per pyramid level with their estimate at the start of the level and keep the
     samples while the motion changes: nothing in the cost then switches on or off but a border
     weight that goes smoothly to 0, so the cost is continuous in the motion (module docstring).
@@ -351,22 +354,22 @@ def select_samples(
         iy = np.floor(np.where(ok, qy, 1.0)).astype(np.int64)
         ok &= (ix <= w - 3) & (iy <= h - 3)
         # the support widened by reach, cut at the border (clipped indices repeat border taps)
-        lo_w = np.empty(x.size)
-        hi_w = np.empty(x.size)
-        lo_w.fill(np.inf)
-        hi_w.fill(-np.inf)
+        hi_w = np.full(x.size, -np.inf)
+        lo_s, hi_s = np.full(x.size, np.inf), np.full(x.size, -np.inf)
         r = int(reach)
         for dy in range(-1 - r, 3 + r):
             yy = np.clip(iy + dy, 0, h - 1)
             for dx in range(-1 - r, 3 + r):
                 xx = np.clip(ix + dx, 0, w - 1)
                 v = src[yy, xx].astype(np.float64)
-                np.minimum(lo_w, v, out=lo_w)
                 np.maximum(hi_w, v, out=hi_w)
+                if -1 <= dy <= 2 and -1 <= dx <= 2:
+                    np.minimum(lo_s, v, out=lo_s)
+                    np.maximum(hi_s, v, out=hi_s)
         if level == 0:
-            ok &= (lo_w > data.noise_floor) & (hi_w < data.saturation)
+            ok &= (lo_s > data.noise_floor) & (hi_w < data.saturation)
         if contrast > 0:
-            ok &= hi_w <= contrast * np.maximum(lo_w, 1e-30)
+            ok &= hi_s <= contrast * np.maximum(lo_s, 1e-30)
         return ok
 
     def candidates(n_cand: int):
@@ -720,21 +723,25 @@ def register_with(
             f"saturation {data.hi:.4g}", **common,
         )
     # Well-exposed pixels in both frames (eq. 6's V): enough to register?
-    dark_ok = select_samples(data, 0, evaluation_samples, by_gradient=False, seed=1,
-                             check_bright=False).well_exposed
-    ev = select_samples(data, 0, evaluation_samples, by_gradient=False, seed=1)
+    shared = select_samples(data, 0, evaluation_samples, by_gradient=False, seed=1,
+                            check_bright=False)
     rng = np.random.default_rng(2)
     h, w = data.shape
-    probe = data.linear(data.bright[rng.integers(0, h, 20_000), rng.integers(0, w, 20_000)])
+    ys, xs = rng.integers(0, h, 20_000), rng.integers(0, w, 20_000)
+    probe = data.linear(data.bright[ys, xs])
     bright_ok = float(np.mean((probe > data.noise_floor) & (probe < data.saturation)))
-    if ev.b.size < 64 or dark_ok * bright_ok < min_valid_fraction:
+    probe = data.linear(data.dark[ys, xs])
+    dark_ok = float(np.mean((probe > data.noise_floor) & (probe < data.saturation)))
+    if shared.b.size < 64 or dark_ok * bright_ok < min_valid_fraction:
         return _failed(
             data, "saturated",
-            f"too few well-exposed pixels: {100 * bright_ok:.2f}% of the bright frame lie "
-            f"between the noise floor and saturation, {100 * dark_ok:.2f}% of the dark frame "
-            f"(times the ratio) in the range both frames expose",
+            f"too few well-exposed pixels: {100 * bright_ok:.2f}% of the bright frame and "
+            f"{100 * dark_ok:.2f}% of the dark frame lie between the noise floor and "
+            f"saturation, {100 * shared.well_exposed:.2f}% of the dark frame (times the ratio) "
+            f"in the range both frames expose",
             valid_fraction=dark_ok * bright_ok, **common,
         )
+    ev = select_samples(data, 0, evaluation_samples, by_gradient=False, seed=1)
     cost_before, n_before = cost(data, 0, identity(), ev)
 
     shift = None

@@ -64,8 +64,9 @@ def refine_nelder_mead(
     iterations, message = 0, "converged"
     for _ in range(2):
         # The samples and their validity are fixed during a search (a continuous cost), decided
-        # at its start; a search that moved by more than a pixel runs again from its result.
-        s = select_samples(data, 0, max_samples, motion=matrix(p), by_gradient=False, seed=3)
+        # at its start; a search that moved by more than half a pixel runs again from its result.
+        s = select_samples(data, 0, max_samples, motion=matrix(p), by_gradient=False, seed=3,
+                           reach=0)
 
         def f(q: np.ndarray, s=s) -> float:
             c, _ = cost(data, 0, matrix(q), s)  # eq. 6
@@ -82,7 +83,7 @@ def refine_nelder_mead(
         message = "converged" if res.success else f"Nelder-Mead: {res.message}"
         moved = float(corner_error(matrix(res.x), matrix(p), shape).max())
         p = res.x
-        if moved <= 1.0:
+        if moved <= 0.5:
             break
         step = step / 4.0
     return RefineResult(matrix(p), iterations, history, [0] * len(history), message)

@@ -52,9 +52,11 @@ __all__ = ["register_pair_fast", "refine_gauss_newton"]
 #: Bounds of the default full-resolution sample budget (see :func:`refine_gauss_newton`).
 MIN_SAMPLES, MAX_SAMPLES = 60_000, 250_000
 
-#: The samples' validity holds for motions within this many pixels (of the level) of the one it
-#: was decided at; a search that moves further decides it again (once).
-REACH = 1
+#: The samples' validity is decided at the level's starting motion with the bright frame's
+#: support widened by REACH pixels against saturation; a search that moves more than RESELECT
+#: pixels (of the level) from its start decides it again (once) and goes on.
+REACH = 0
+RESELECT = 0.5
 
 
 def _level_cost(data: PairData, level: int, m: np.ndarray, s: Samples) -> float:
@@ -130,7 +132,7 @@ def refine_gauss_newton(
         budget = max_iterations if level == 0 else coarse_iterations
         start = m
         m = _search(data, level, m, s, n_par, budget, tolerance, history, levels)
-        if corner_move(m, start, data.level_shape(level)) > REACH:
+        if corner_move(m, start, data.level_shape(level)) > RESELECT:
             # the search left the zone where the samples' validity was decided: decide again
             s = select_samples(data, level, n_samples, motion=m, reach=REACH)
             m = _search(data, level, m, s, n_par, budget, tolerance, history, levels)

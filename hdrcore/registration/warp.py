@@ -11,10 +11,15 @@ Each shear moves whole rows (or columns) by one sub-pixel offset, so it is a 1-D
 Keys' cubic convolution (R. Keys, IEEE TASSP 29(6), 1981) whose four weights are constant along a
 row: a few vectorised multiply-adds over the image, instead of the 16-tap gather of direct 2-D
 cubic interpolation or the full-image prefilter of cubic B-splines. A pure shift needs two
-passes. Other affine matrices fall back to :func:`scipy.ndimage.map_coordinates` (cubic spline).
+passes. Every other matrix (a similarity's scale, an affine shear, a 3x3 homography's
+perspective) is resampled directly with the same Keys kernel, 16 taps per pixel, in a compiled
+kernel on two threads (:func:`hdrcore.registration._kernels.warp_rows`); without numba,
+:func:`scipy.ndimage.map_coordinates` (cubic spline) does it.
 
 The validity mask is analytic: a pixel is valid when its source position lies inside the source
-frame (by ``margin`` pixels), so it never depends on the image content.
+frame (by ``margin`` pixels), so it never depends on the image content. For a homography each
+bound is still linear along a row once multiplied by the (positive) perspective denominator, so
+the valid pixels of a row remain one interval.
 """
 
 from __future__ import annotations
@@ -24,7 +29,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import ndimage
 
+from .._threads import run_row_spans
 from ..errors import ParameterError
+from . import _kernels
 from ._sampling import keys_weights
 from .transform import invert
 
@@ -45,8 +52,9 @@ def _row_intervals(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Per output row, the first and last column whose source lies inside (empty: lo > hi).
 
-    For an affine map the valid pixels of a row form one interval, found from the four linear
-    constraints on the source coordinates.
+    ``m`` is 2x3 or 3x3. With ``s(x) = m[2] . (x, y, 1) > 0`` every bound on the source
+    coordinate ``u(x) / s(x)`` is a linear constraint on ``x``, so the valid pixels of a row form
+    one interval, found from at most five linear constraints.
     """
     h, w = output_shape
     hs, ws = source_shape
@@ -54,17 +62,25 @@ def _row_intervals(
     lo = np.zeros(h)
     hi = np.full(h, w - 1.0)
     eps = 1e-6
+    if m.shape == (3, 3):
+        den_a, den_b = m[2, 0], m[2, 1] * y + m[2, 2]
+    else:
+        den_a, den_b = 0.0, np.ones(h)
+    constraints = [(den_a, den_b - 1e-12)] if m.shape == (3, 3) else []
     for row, limit in ((0, ws - 1 - margin), (1, hs - 1 - margin)):
-        a = m[row, 0]
-        rest = m[row, 1] * y + m[row, 2]  # source coordinate = a x + rest
+        num_a, num_b = m[row, 0], m[row, 1] * y + m[row, 2]
+        constraints.append((num_a - margin * den_a, num_b - margin * den_b + eps * den_b))
+        constraints.append((limit * den_a - num_a, limit * den_b - num_b + eps * den_b))
+    for a, b in constraints:  # a x + b >= 0
+        a = float(a)
         if abs(a) < 1e-12:
-            inside = (rest >= margin - eps) & (rest <= limit + eps)
-            hi = np.where(inside, hi, -1.0)
+            hi = np.where(b >= 0, hi, -1.0)
             continue
-        x1 = (margin - rest) / a
-        x2 = (limit - rest) / a
-        lo = np.maximum(lo, np.minimum(x1, x2))
-        hi = np.minimum(hi, np.maximum(x1, x2))
+        bound = -b / a
+        if a > 0:
+            lo = np.maximum(lo, bound)
+        else:
+            hi = np.minimum(hi, bound)
     return np.ceil(lo - eps).astype(np.int64), np.floor(hi + eps).astype(np.int64)
 
 
@@ -72,8 +88,9 @@ def valid_mask(
     matrix: np.ndarray, output_shape: tuple[int, int], source_shape: tuple[int, int],
     margin: float = 0.0,
 ) -> np.ndarray:
-    """True where ``matrix`` (output -> source coordinates) lands inside the source frame."""
-    lo, hi = _row_intervals(np.asarray(matrix, float), output_shape, source_shape, margin)
+    """True where ``matrix`` (2x3 or 3x3, output -> source coordinates) lands inside the source
+    frame."""
+    lo, hi = _row_intervals(_as_matrix(matrix), output_shape, source_shape, margin)
     x = np.arange(output_shape[1])[None, :]
     return (x >= lo[:, None]) & (x <= hi[:, None])
 
@@ -143,6 +160,30 @@ def _y_pass(src: np.ndarray, cols: np.ndarray, offsets: np.ndarray, out_h: int) 
     return out
 
 
+def _as_matrix(matrix: np.ndarray) -> np.ndarray:
+    """A finite 2x3 matrix, or a 3x3 one when it has a perspective part."""
+    m = np.asarray(matrix, float)
+    if m.shape not in ((2, 3), (3, 3)) or not np.all(np.isfinite(m)):
+        raise ParameterError("warp matrix must be a finite 2x3 (affine) or 3x3 (homography) "
+                             "matrix", found=str(m.shape))
+    if m.shape == (3, 3):
+        if abs(m[2, 2]) < 1e-300:
+            raise ParameterError("warp homography has H[2, 2] = 0", found=str(m.tolist()))
+        m = m / m[2, 2]
+        if abs(m[2, 0]) < 1e-15 and abs(m[2, 1]) < 1e-15:
+            m = m[:2]
+    return m
+
+
+def _resample_direct(src: np.ndarray, m: np.ndarray, h: int, w: int) -> np.ndarray:
+    """Keys cubic at ``m @ (x, y, 1)`` per output pixel (compiled, two threads)."""
+    h3 = m if m.shape == (3, 3) else np.vstack([m, [0.0, 0.0, 1.0]])
+    chans = np.ascontiguousarray(src.reshape(src.shape[0], src.shape[1], -1))
+    out = np.empty((h, w, chans.shape[2]), np.float32)
+    run_row_spans(h, None, lambda r0, r1: _kernels.warp_rows(chans, h3, r0, r1, out))
+    return out[..., 0] if src.ndim == 2 else out
+
+
 def _is_rotation(m: np.ndarray, tol: float = 1e-9) -> bool:
     lin = m[:, :2]
     return bool(np.allclose(lin.T @ lin, np.eye(2), atol=tol) and np.linalg.det(lin) > 0)
@@ -158,22 +199,36 @@ def warp(
 ) -> WarpResult:
     """Resample ``image`` (``(H, W)`` or ``(H, W, C)``) at ``matrix @ (x, y, 1)`` per output pixel.
 
-    ``matrix`` (2x3) maps output pixel coordinates to source pixel coordinates (a backward map).
-    Rigid matrices use the three-shear cubic convolution; other affine matrices cubic splines.
-    Pixels whose source lies outside the frame (by ``margin``) get ``fill`` and ``mask`` False.
+    ``matrix`` (2x3, or 3x3 with the perspective divide) maps output pixel coordinates to source
+    pixel coordinates (a backward map). Shifts and rotations use the separable shear passes
+    (``method`` ``"integer"`` / ``"shear"``); every other matrix direct Keys cubic convolution
+    (``"cubic"``; ``"spline"`` without numba). Pixels whose source lies outside the frame (by
+    ``margin``) get ``fill`` and ``mask`` False.
     """
     img = np.asarray(image)
     if img.ndim not in (2, 3):
         raise ParameterError("warp needs an (H, W) or (H, W, C) image", found=str(img.shape))
-    m = np.asarray(matrix, float)
-    if m.shape != (2, 3) or not np.all(np.isfinite(m)):
-        raise ParameterError("warp matrix must be a finite 2x3 matrix", found=str(m.shape))
+    m = _as_matrix(matrix)
     h0, w0 = img.shape[:2]
     h, w = (h0, w0) if output_shape is None else (int(output_shape[0]), int(output_shape[1]))
     src = img.astype(np.float32, copy=False)
-    lin, (cx, cy) = m[:, :2], m[:, 2]
+    lin, (cx, cy) = m[:2, :2], m[:2, 2]
     method = "shear"
-    if np.allclose(lin, np.eye(2), atol=1e-12):
+    if m.shape == (3, 3) or not (np.allclose(lin, np.eye(2), atol=1e-12) or _is_rotation(m)):
+        if _kernels.AVAILABLE:
+            method = "cubic"
+            out = _resample_direct(src, m, h, w)
+        else:
+            method = "spline"
+            yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+            den = 1.0 if m.shape == (2, 3) else m[2, 0] * xx + m[2, 1] * yy + m[2, 2]
+            coords = [(m[1, 0] * xx + m[1, 1] * yy + m[1, 2]) / den,
+                      (m[0, 0] * xx + m[0, 1] * yy + m[0, 2]) / den]
+            chans = [src] if src.ndim == 2 else [src[..., c] for c in range(src.shape[2])]
+            res = [ndimage.map_coordinates(c, coords, order=3, mode="nearest").astype(
+                np.float32) for c in chans]
+            out = res[0] if src.ndim == 2 else np.stack(res, axis=-1)
+    elif np.allclose(lin, np.eye(2), atol=1e-12):
         if abs(cx - round(cx)) < 1e-9 and abs(cy - round(cy)) < 1e-9:
             method = "integer"
         tmp = _y_pass(src, np.arange(w0), np.full(w0, cy), h)  # rows first: y shift
@@ -198,14 +253,6 @@ def warp(
         i1 = _x_pass(src, y1, x2_0 + alpha * y1 + tx, x2.size)
         i2 = _y_pass(i1, np.arange(x2.size), sy - y1_0, h)
         out = _x_pass(i2, np.arange(h), sx - x2_0, w)
-    else:
-        method = "spline"
-        yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
-        coords = [m[1, 0] * xx + m[1, 1] * yy + m[1, 2], m[0, 0] * xx + m[0, 1] * yy + m[0, 2]]
-        chans = [src] if src.ndim == 2 else [src[..., c] for c in range(src.shape[2])]
-        res = [ndimage.map_coordinates(c, coords, order=3, mode="nearest").astype(np.float32)
-               for c in chans]
-        out = res[0] if src.ndim == 2 else np.stack(res, axis=-1)
     lo, hi = _row_intervals(m, (h, w), (h0, w0), margin)
     for y in np.flatnonzero((lo > 0) | (hi < w - 1)):  # fill outside the valid interval
         if lo[y] > hi[y]:
@@ -221,5 +268,6 @@ def warp(
 def warp_to_reference(
     image: np.ndarray, to_reference: np.ndarray, *, fill: float = np.nan, margin: float = 0.0
 ) -> WarpResult:
-    """Warp a frame onto the reference frame given its ``to_reference`` matrix (frame -> ref)."""
+    """Warp a frame onto the reference frame given its ``to_reference`` matrix (frame -> ref;
+    2x3 or 3x3)."""
     return warp(image, invert(to_reference), fill=fill, margin=margin)

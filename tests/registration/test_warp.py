@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from hdrcore.errors import ParameterError
-from hdrcore.registration import rigid_matrix, valid_mask, warp, warp_to_reference
-from hdrcore.registration.transform import apply, invert
+from hdrcore.registration import _kernels, rigid_matrix, valid_mask, warp, warp_to_reference
+from hdrcore.registration.transform import apply, homogeneous, invert, similarity_matrix
 
 H, W = 96, 144
 
@@ -22,7 +22,8 @@ def _smooth(x, y):
         (rigid_matrix(3.3, -2.7, 0.0, (H, W)), "shear"),
         (rigid_matrix(1.25, 4.5, 1.7, (H, W)), "shear"),
         (rigid_matrix(-10.2, 5.1, -2.0, (H, W)), "shear"),
-        (np.array([[1.01, 0.02, 1.0], [0.0, 0.99, 2.0]]), "spline"),
+        (np.array([[1.01, 0.02, 1.0], [0.0, 0.99, 2.0]]), "cubic"),
+        (np.array([[1.005, -0.02, 1.5], [0.02, 1.005, -2.0], [2e-5, -3e-5, 1.0]]), "cubic"),
     ],
 )
 def test_warp_matches_analytic_image(matrix, method):
@@ -30,7 +31,7 @@ def test_warp_matches_analytic_image(matrix, method):
     res = warp(_smooth(xx, yy), matrix)
     sx, sy = apply(matrix, xx, yy)
     inner = res.mask & (sx > 3) & (sx < W - 4) & (sy > 3) & (sy < H - 4)
-    assert res.method == method
+    assert res.method == (method if _kernels.AVAILABLE or method != "cubic" else "spline")
     assert np.abs(res.image - _smooth(sx, sy))[inner].max() < 1e-3
 
 
@@ -72,6 +73,42 @@ def test_identity_warp_returns_the_image():
 
 def test_warp_rejects_bad_input():
     with pytest.raises(ParameterError, match="2x3"):
-        warp(np.zeros((8, 8)), np.eye(3))
+        warp(np.zeros((8, 8)), np.eye(4))
+    with pytest.raises(ParameterError, match="3x3"):
+        warp(np.zeros((8, 8)), np.full((3, 3), np.nan))
     with pytest.raises(ParameterError, match=r"\(H, W\)"):
         warp(np.zeros(8), np.eye(2, 3))
+
+
+HOMOGRAPHY = np.array([[1.004, -0.015, 2.5], [0.012, 0.996, -1.5], [3e-5, -2e-5, 1.0]])
+
+
+@pytest.mark.parametrize("margin", [0.0, 2.0])
+def test_homography_mask_is_analytic(margin):
+    mask = valid_mask(HOMOGRAPHY, (H, W), (H, W), margin=margin)
+    yy, xx = np.mgrid[0:H, 0:W].astype(float)
+    sx, sy = apply(HOMOGRAPHY, xx, yy)
+    expected = (sx >= margin) & (sx <= W - 1 - margin) & (sy >= margin) & (sy <= H - 1 - margin)
+    assert np.array_equal(mask, expected)
+
+
+def test_affine_homography_takes_the_fast_paths():
+    """A 3x3 matrix with last row (0, 0, 1) is warped exactly as its 2x3 form."""
+    img = np.random.default_rng(2).random((H, W, 2)).astype(np.float32)
+    for m in (rigid_matrix(3.0, -2.0, 0.0, (H, W)), rigid_matrix(1.5, 2.5, 1.2, (H, W)),
+              similarity_matrix(1.5, 2.5, 1.2, 1.01, (H, W))):
+        a, b = warp(img, m), warp(img, homogeneous(m))
+        assert a.method == b.method
+        np.testing.assert_array_equal(a.image, b.image)
+        np.testing.assert_array_equal(a.mask, b.mask)
+
+
+def test_homography_warp_round_trip_and_colour():
+    yy, xx = np.mgrid[0:H, 0:W].astype(float)
+    img = np.stack([_smooth(xx, yy), 2 * _smooth(xx, yy)], axis=-1)
+    there = warp(img, HOMOGRAPHY, fill=0.0)
+    back = warp(there.image, invert(HOMOGRAPHY))
+    inner = back.mask & valid_mask(invert(HOMOGRAPHY), (H, W), (H, W), margin=4.0)
+    assert inner.mean() > 0.7
+    assert np.abs(back.image - img)[inner].max() < 2e-3
+    assert np.allclose(there.image[..., 1], 2 * there.image[..., 0], atol=1e-5)
