@@ -55,6 +55,8 @@ class Controls:
     tonemap: str | None = None
     exposure: float | None = None
     deghost: bool | None = None
+    times: str | None = None
+    exposure_method: str | None = None
 
     def replace(self, **changes: Any) -> Controls:
         return dataclasses.replace(self, **changes)
@@ -71,6 +73,8 @@ _PARAM_NAMES: dict[str, tuple[str, ...]] = {
     "tonemap": ("tonemap", "tonemap_operator", "operator"),
     "exposure": ("exposure", "tonemap_exposure", "exposure_ev"),
     "deghost": ("deghost",),
+    "times": ("times",),
+    "exposure_method": ("exposure_method",),
 }
 
 
@@ -86,10 +90,15 @@ class Session:
     timings: dict[str, float] = field(default_factory=dict)
 
     def load(self, paths: Sequence[str | os.PathLike], *, source: str = "",
-             times: str | os.PathLike | None = None) -> Bracket:
+             times: str | os.PathLike | None = None,
+             loader: Callable[..., Bracket] | None = None) -> Bracket:
         """Load these frame files (already checked by :class:`hdrview.security.RootResolver`,
-        which also found the folder's exposure-times list, ``times``)."""
-        bracket = load_bracket(list(paths), exposure_times=times)
+        which also found the folder's exposure-times list, ``times``); ``loader(files, times)``
+        decodes them (the inspector's shared :class:`hdrview.cache.BracketCache`)."""
+        if loader is None:
+            bracket = load_bracket(list(paths), exposure_times=times)
+        else:
+            bracket = loader(list(paths), times)
         self.bracket = bracket
         self.source = source or ", ".join(str(p) for p in paths)
         self.pipeline = None

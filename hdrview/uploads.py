@@ -255,26 +255,41 @@ def _zip_members(name: str, content: bytes, limits: UploadLimits) -> list[zipfil
 
 
 def install_upload_limits(
-    server: Any, refuse: Callable[[str, int], str | None],
+    gui: Any, server: Any, button: Any, refuse: Callable[[str, int], str | None],
     on_refused: Callable[[Any, str], None],
 ) -> None:
-    """Check each upload's declared size when its transfer starts, before viser buffers it.
+    """Check each upload of ``button`` when its transfer starts, before viser buffers it.
 
+    ``gui``: the GUI the upload button belongs to (a page's ``client.gui``, or the server's).
     viser registers its own handler for the ``FileTransferStartUpload`` message; ours runs
-    instead: a refused transfer is never registered, so its parts are dropped as they arrive
-    (nothing is stored), the page's transfer is ended with a final acknowledgement and its
-    progress toast hidden, and ``on_refused(client, reason)`` tells the user. A transfer whose
-    parts add up to more than it declared is dropped as well.
+    instead (installed once per GUI, routing each transfer to its button's checks): a refused
+    transfer is never registered, so its parts are dropped as they arrive (nothing is stored),
+    the page's transfer is ended with a final acknowledgement and its progress toast hidden,
+    and ``on_refused(client, reason)`` tells the user. A transfer whose parts add up to more
+    than it declared is dropped as well.
     """
+    routes = getattr(gui, "_hdrview_upload_routes", None)
+    if routes is None:
+        routes = {}
+        gui._hdrview_upload_routes = routes
+        _install_handlers(gui, server, routes)
+    routes[button._impl.uuid] = (refuse, on_refused)
+
+
+def _install_handlers(gui: Any, server: Any, routes: dict) -> None:
     from viser import _messages
 
-    gui = server.gui
     ws = gui._websock_interface
     start_msg, part_msg = _messages.FileTransferStartUpload, _messages.FileTransferPart
     viser_start = gui._handle_file_transfer_start
     viser_part = gui._handle_file_transfer_part
 
     def start(client_id: Any, message: Any) -> None:
+        route = routes.get(message.source_component_uuid)
+        if route is None:
+            viser_start(client_id, message)  # not an upload we check (viser ignores unknowns)
+            return
+        refuse, on_refused = route
         reason = refuse(message.filename, int(message.size_bytes))
         if reason is None:
             viser_start(client_id, message)

@@ -79,3 +79,14 @@ def page(browser: object, inspector: InspectorApp) -> Iterator[object]:
         yield pg
     finally:
         ctx.close()
+
+
+@pytest.fixture(scope="module")
+def view(page: object, inspector: InspectorApp):
+    """The page's own view (its bracket, controls and notifications) on the server."""
+    deadline = time.monotonic() + 30
+    while not inspector.page_views():
+        if time.monotonic() > deadline:
+            pytest.fail("no view was built for the page")
+        time.sleep(0.05)
+    return inspector.page_views()[0]

@@ -8,8 +8,8 @@ from collections.abc import Callable
 
 import pytest
 
-from hdrview.app import InspectorApp
 from hdrview.session import pipeline_available
+from hdrview.view import ClientView
 
 from .conftest import ARTIFACTS
 
@@ -51,10 +51,10 @@ def expect_alert(page, text: str) -> None:
         state="visible", timeout=15_000)
 
 
-def test_demo_opens_at_start(page, inspector: InspectorApp) -> None:
-    wait_until(lambda: inspector.session.bracket is not None, what="the demo bracket")
-    assert inspector.wait_idle(TIMEOUT)
-    b = inspector.session.bracket
+def test_demo_opens_at_start(page, view: ClientView) -> None:
+    wait_until(lambda: view.session.bracket is not None, what="the demo bracket")
+    assert view.wait_idle(TIMEOUT)
+    b = view.session.bracket
     open_tab(page, "Frames")
     page.get_by_text(b.frames[0].name).first.wait_for(state="visible", timeout=15_000)
     # One thumbnail per frame.
@@ -69,21 +69,21 @@ def test_demo_opens_at_start(page, inspector: InspectorApp) -> None:
      ("Threshold t", "threshold"), ("Exposure (EV)", "exposure")],
 )
 def test_each_slider_changes_page_and_server(
-    page, inspector: InspectorApp, label: str, control: str
+    page, view: ClientView, label: str, control: str
 ) -> None:
-    assert inspector.wait_idle(TIMEOUT)
-    before = getattr(inspector.controls, control)
-    status_before = inspector.status.content
+    assert view.wait_idle(TIMEOUT)
+    before = getattr(view.controls, control)
+    status_before = view.status.content
     thumb = labelled(page, label).locator("[role=slider]")
     thumb.focus()
     key = "ArrowLeft" if float(thumb.get_attribute("aria-valuenow")) > float(
         thumb.get_attribute("aria-valuemin")) else "ArrowRight"
     page.keyboard.press(key)
     page.keyboard.press(key)
-    wait_until(lambda: getattr(inspector.controls, control) != before, 15, f"{control} to change")
-    assert inspector.wait_idle(TIMEOUT)
-    after = getattr(inspector.controls, control)
-    assert inspector.status.content != status_before
+    wait_until(lambda: getattr(view.controls, control) != before, 15, f"{control} to change")
+    assert view.wait_idle(TIMEOUT)
+    after = getattr(view.controls, control)
+    assert view.status.content != status_before
     # The page shows the new value in the status line.
     page.get_by_text(re.compile(rf"{re.escape(_status_key(control))} = {after:g}\b")).first \
         .wait_for(state="visible", timeout=15_000)
@@ -94,7 +94,7 @@ def _status_key(control: str) -> str:
             "exposure": "exposure"}[control]
 
 
-def test_bad_paths_notify_and_server_stays_up(page, inspector: InspectorApp) -> None:
+def test_bad_paths_notify_and_server_stays_up(page, view: ClientView) -> None:
     path = text_field(page, "Path")
     path.fill("../../etc")
     page.get_by_role("button", name="Load", exact=True).click()
@@ -102,26 +102,26 @@ def test_bad_paths_notify_and_server_stays_up(page, inspector: InspectorApp) -> 
     path.fill("junk")
     page.get_by_role("button", name="Load", exact=True).click()
     expect_alert(page, "not a recognised image")
-    assert inspector.wait_idle(TIMEOUT)
+    assert view.wait_idle(TIMEOUT)
     # Still serving: a good path loads.
     path.fill("small")
     page.get_by_role("button", name="Load", exact=True).click()
-    wait_until(lambda: inspector.session.source == "small", what="the small bracket")
-    assert inspector.wait_idle(TIMEOUT)
+    wait_until(lambda: view.session.source == "small", what="the small bracket")
+    assert view.wait_idle(TIMEOUT)
     page.get_by_text(re.compile(r"small\W+3 frames")).first.wait_for(
         state="visible", timeout=15_000)
 
 
-def test_upload_of_a_non_image_notifies(page, inspector: InspectorApp) -> None:
+def test_upload_of_a_non_image_notifies(page, view: ClientView) -> None:
     page.locator("input[type=file]").first.set_input_files(
         files=[{"name": "notes.txt", "mimeType": "text/plain", "buffer": b"no pixels here"}]
     )
     expect_alert(page, "not an image")
-    assert inspector.server.get_clients()
+    assert view.app.server.get_clients()
 
 
-def test_panels_show_their_results(page, inspector: InspectorApp) -> None:
-    assert inspector.wait_idle(TIMEOUT)
+def test_panels_show_their_results(page, view: ClientView) -> None:
+    assert view.wait_idle(TIMEOUT)
     if not pipeline_available():
         for tab in ("BTF", "Masks", "Registration", "Result", "Diagnostics"):
             open_tab(page, tab)

@@ -9,6 +9,7 @@ import pytest
 import viser
 
 from hdrview.app import InspectorApp
+from hdrview.view import ClientView
 
 from ._brackets import write_png_bracket
 
@@ -21,11 +22,12 @@ def bracket_root(tmp_path: Path) -> Path:
 
 
 @pytest.fixture
-def app(bracket_root: Path) -> Iterator[InspectorApp]:
+def app(bracket_root: Path) -> Iterator[ClientView]:
+    """One page's view (without a browser) of an inspector on a free port."""
     server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
     inspector = InspectorApp(server, root=bracket_root, demo_dir=None)
     try:
-        yield inspector
+        yield inspector.headless_view()
     finally:
         inspector.stop()
         server.stop()

@@ -144,14 +144,30 @@ def test_defaults_bind_localhost() -> None:
     assert args.root == "."
 
 
-def test_create_app_binds_localhost_on_a_free_port(tmp_path: Path) -> None:
+def test_create_app_binds_localhost_on_a_free_port_and_warms_up(tmp_path: Path) -> None:
+    """The command line's bracket is decoded and processed once at start; the first page
+    takes that session over (no second decode, its result at once)."""
+    import time
+
     write_png_bracket(tmp_path / "b")
     app = create_app([str(tmp_path / "b")], port=0, root=str(tmp_path), verbose=False)
     try:
         assert app.server.get_host() == "127.0.0.1"
         assert app.server.get_port() > 0
-        assert app.wait_idle(60)
-        assert app.session.bracket is not None
+        deadline = time.time() + 60
+        while app.ready_seconds is None and time.time() < deadline:
+            time.sleep(0.05)
+        assert app.ready_seconds is not None and app.brackets.loads == 1
+        view = app.headless_view()
+        app._open_default(view)
+        assert view.wait_idle(60)
+        assert view.session.bracket is not None and view.session.result is not None
+        assert app.brackets.loads == 1
+        # A second page decodes nothing either: the bracket comes from the shared cache.
+        other = app.headless_view()
+        app._open_default(other)
+        assert other.wait_idle(60)
+        assert other.session is not view.session and app.brackets.loads == 1
     finally:
         app.stop()
         app.server.stop()

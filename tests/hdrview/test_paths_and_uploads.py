@@ -193,8 +193,9 @@ def test_zip_member_too_large_is_refused_from_the_directory(bracket_root: Path) 
     import viser
 
     server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
-    app = InspectorApp(server, root=bracket_root, demo_dir=None,
-                       limits=UploadLimits(file_bytes=50_000, total_bytes=80_000))
+    inspector = InspectorApp(server, root=bracket_root, demo_dir=None,
+                             limits=UploadLimits(file_bytes=50_000, total_bytes=80_000))
+    app = inspector.headless_view()
     try:
         buf = io.BytesIO()
         with zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED) as zf:
@@ -205,41 +206,55 @@ def test_zip_member_too_large_is_refused_from_the_directory(bracket_root: Path) 
         assert "a.png is 0.1 MB once extracted" in _errors(app)[-1]
         assert not list(app.uploads.dir.rglob("*.png"))
     finally:
-        app.stop()
+        inspector.stop()
         server.stop()
 
 
-def _raw_upload(app: InspectorApp, name: str, content: bytes, declared: int | None = None) -> None:
-    """Upload as the page does (FileTransferStartUpload, then 512 kB parts), over a raw client."""
-    assert app.guard is not None
-    port = app.server.get_port()
-    url = f"ws://127.0.0.1:{port}/?token={app.guard.token}"
-    chunk = 512 * 1024
-    parts = [content[i:i + chunk] for i in range(0, len(content), chunk)]
-    import viser
+class RawPage:
+    """A page as a raw WebSocket client: connects with the token, reports a camera (viser
+    counts a page as connected from then on) and uploads as the page does
+    (FileTransferStartUpload, then 512 kB parts)."""
 
-    with connect(url, origin=f"http://127.0.0.1:{port}",
-                 subprotocols=[f"viser-v{viser.__version__}"], open_timeout=5,
-                 max_size=None) as ws:
-        # viser counts a page as connected once it reports its camera.
-        ws.send(msgspec.msgpack.encode({
+    def __init__(self, app: InspectorApp) -> None:
+        import viser
+
+        assert app.guard is not None
+        port = app.server.get_port()
+        before = set(app.views)
+        self.ws = connect(f"ws://127.0.0.1:{port}/?token={app.guard.token}",
+                          origin=f"http://127.0.0.1:{port}",
+                          subprotocols=[f"viser-v{viser.__version__}"], open_timeout=5,
+                          max_size=None)
+        self.ws.send(msgspec.msgpack.encode({
             "type": "ViewerCameraMessage", "wxyz": [1.0, 0.0, 0.0, 0.0],
             "position": [0.0, 0.0, 1.0], "fov": 1.0, "near": 0.01, "far": 100.0,
             "image_height": 600, "image_width": 800, "look_at": [0.0, 0.0, 0.0],
             "up_direction": [0.0, 1.0, 0.0],
         }))
-        uuid = app.upload_button._impl.uuid
-        ws.send(msgspec.msgpack.encode({
+        deadline = time.time() + 10
+        while not set(app.views) - before and time.time() < deadline:
+            time.sleep(0.02)
+        (cid,) = set(app.views) - before
+        self.view = app.views[cid]
+
+    def upload(self, name: str, content: bytes, declared: int | None = None) -> None:
+        chunk = 512 * 1024
+        parts = [content[i:i + chunk] for i in range(0, len(content), chunk)]
+        uuid = self.view.upload_button._impl.uuid
+        self.ws.send(msgspec.msgpack.encode({
             "type": "FileTransferStartUpload", "source_component_uuid": uuid,
             "transfer_uuid": "t-" + name, "filename": name, "mime_type": "image/png",
             "part_count": len(parts), "size_bytes": len(content) if declared is None else declared,
         }))
         for i, part in enumerate(parts):
-            ws.send(msgspec.msgpack.encode({
+            self.ws.send(msgspec.msgpack.encode({
                 "type": "FileTransferPart", "source_component_uuid": uuid,
                 "transfer_uuid": "t-" + name, "part_index": i, "content": part,
             }))
         time.sleep(0.5)
+
+    def close(self) -> None:
+        self.ws.close()
 
 
 @pytest.fixture
@@ -254,33 +269,70 @@ def served(bracket_root: Path):
 
 
 def test_too_large_upload_is_refused_before_it_is_stored(served: InspectorApp) -> None:
-    _raw_upload(served, "huge.png", b"\x89PNG\r\n\x1a\n" + b"\x00" * 1_200_000)
-    err = _errors(served)[-1]
-    assert "huge.png is 1.2 MB, more than the limit of 1 MB per file" in err
-    assert not served.server.gui._current_file_upload_states  # no part was buffered
-    assert not list(served.uploads.dir.rglob("*"))  # nothing stored
-    # A client that declares less than it sends is dropped as well.
-    _raw_upload(served, "liar.png", b"\x89PNG\r\n\x1a\n" + b"\x00" * 900_000, declared=1000)
-    assert not served.server.gui._current_file_upload_states
-    assert not list(served.uploads.dir.rglob("*"))
+    page = RawPage(served)
+    try:
+        view = page.view
+        page.upload("huge.png", b"\x89PNG\r\n\x1a\n" + b"\x00" * 1_200_000)
+        err = _errors(view)[-1]
+        assert "huge.png is 1.2 MB, more than the limit of 1 MB per file" in err
+        assert not view.gui._current_file_upload_states  # no part was buffered
+        assert not list(view.uploads.dir.rglob("*"))  # nothing stored
+        # A client that declares less than it sends is dropped as well.
+        page.upload("liar.png", b"\x89PNG\r\n\x1a\n" + b"\x00" * 900_000, declared=1000)
+        assert not view.gui._current_file_upload_states
+        assert not list(view.uploads.dir.rglob("*"))
+    finally:
+        page.close()
 
 
 def test_a_normal_upload_still_arrives(served: InspectorApp, bracket_root: Path) -> None:
-    for p in sorted((bracket_root / "bracket").glob("*.png"))[:2]:
-        _raw_upload(served, p.name, p.read_bytes())
-    assert served.wait_idle(60)
-    assert served.session.bracket is not None and len(served.session.bracket) == 2
+    page = RawPage(served)
+    try:
+        for p in sorted((bracket_root / "bracket").glob("*.png"))[:2]:
+            page.upload(p.name, p.read_bytes())
+        assert page.view.wait_idle(60)
+        assert page.view.session.bracket is not None and len(page.view.session.bracket) == 2
+    finally:
+        page.close()
 
 
-def test_total_limit_counts_the_open_set(served: InspectorApp, bracket_root: Path) -> None:
+def test_two_pages_keep_their_own_state(served: InspectorApp, bracket_root: Path) -> None:
+    """Each page has its own uploads, bracket, controls and notifications."""
+    a, b = RawPage(served), RawPage(served)
+    try:
+        frames = sorted((bracket_root / "bracket").glob("*.png"))
+        a.upload(frames[0].name, frames[0].read_bytes())
+        b.upload(frames[1].name, frames[1].read_bytes())
+        # One frame each: neither page has a bracket (they did not join one upload set).
+        assert a.view.session.bracket is None and b.view.session.bracket is None
+        assert a.view.uploads.dir != b.view.uploads.dir
+        a.view.request_path("bracket")
+        a.view.set_control("threshold", 0.3)
+        assert a.view.wait_idle(60) and b.view.wait_idle(60)
+        assert a.view.session.bracket is not None and b.view.session.bracket is None
+        assert a.view.controls.threshold == 0.3 and b.view.controls.threshold is None
+        assert any("Loaded" in t for _, t, _ in a.view.notifications)
+        assert not any("Loaded" in t for _, t, _ in b.view.notifications)
+        # A page that leaves takes its uploads with it; the other keeps working.
+        b.close()
+        deadline = time.time() + 10
+        while b.view.uploads.dir.exists() and time.time() < deadline:
+            time.sleep(0.05)
+        assert not b.view.uploads.dir.exists() and a.view.session.bracket is not None
+    finally:
+        a.close()
+        b.close()
+
+
+def test_total_limit_counts_the_open_set(app, bracket_root: Path) -> None:
     frame = (bracket_root / "bracket" / "frame0.png").read_bytes()
-    served.uploads.limits = UploadLimits(file_bytes=1_000_000, total_bytes=len(frame) + 100)
-    assert served.uploads.refuse_transfer("a.png", len(frame)) is None
-    assert served.handle_upload("a.png", frame)
-    reason = served.uploads.refuse_transfer("b.png", 200) or ""
+    app.uploads.limits = UploadLimits(file_bytes=1_000_000, total_bytes=len(frame) + 100)
+    assert app.uploads.refuse_transfer("a.png", len(frame)) is None
+    assert app.handle_upload("a.png", frame)
+    reason = app.uploads.refuse_transfer("b.png", 200) or ""
     assert "would bring this upload set" in reason and "New upload set" in reason
-    served.new_upload_set()
-    assert served.uploads.refuse_transfer("b.png", 200) is None
+    app.new_upload_set()
+    assert app.uploads.refuse_transfer("b.png", 200) is None
 
 
 def test_work_dir_is_removed_at_stop_and_stale_ones_at_start(
@@ -290,7 +342,7 @@ def test_work_dir_is_removed_at_stop_and_stale_ones_at_start(
     server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
     app = InspectorApp(server, root=bracket_root, demo_dir=None)
     frame = bracket_root / "bracket" / "frame0.png"
-    app.handle_upload(frame.name, frame.read_bytes())
+    app.headless_view().handle_upload(frame.name, frame.read_bytes())
     assert list(app.work_dir.rglob("frame0.png"))
     app.stop()
     server.stop()
@@ -316,7 +368,7 @@ def test_sigterm_removes_uploads(bracket_root: Path, tmp_path: Path) -> None:
         "frame = sys.argv[-1]\n"
         "def create(*args, **kw):\n"
         "    app = orig(*args, **kw)\n"
-        "    app.handle_upload('f.png', open(frame, 'rb').read())\n"
+        "    app.headless_view().handle_upload('f.png', open(frame, 'rb').read())\n"
         "    print('WORK', app.work_dir, flush=True)\n"
         "    return app\n"
         "a.create_app = create\n"

@@ -1,0 +1,761 @@
+"""One page of the inspector: its own bracket, parameters, pipeline, uploads and notifications.
+
+viser gives every browser client its own GUI handles (``client.gui``); a :class:`ClientView` is
+built on them when a page connects and closed when it leaves, so two pages (two tabs, two
+people) never see each other's sliders, path text, toasts or uploads. What they share sits
+underneath in the :class:`~hdrview.app.InspectorApp`: the path resolver, the upload limits and
+the decoded brackets (:class:`~hdrview.cache.BracketCache`).
+
+Layout: a wide panel docked on the left holds the tabs that draw the pipeline's result objects
+(frames, brightness transfer functions, masks, registration, result, diagnostics); the control
+panel on the right holds loading, parameters, view choices and exports.
+
+Every change of a control records the new value and asks the page's background worker to bring
+the page up to date ("reconcile"): load the wanted bracket if it is not the loaded one, re-run
+the pipeline (which re-runs only the stages the change touches) and redraw. Requests that arrive
+while a job runs replace each other, so only the latest is served; viser's callbacks return at
+once. Any error reaches the user as a notification; the server keeps running.
+
+The controls show the values the pipeline used: a control the user has not moved follows the
+pipeline's own choice for the loaded bracket (the measured noise floor, the saturation level in
+the frames' levels), marked "default"; "Reset to defaults" forgets every change.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import logging
+import sys
+import threading
+import time
+import traceback
+import zipfile
+from collections.abc import Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import viser
+
+from hdrcore.errors import HdrError, InputError
+
+from . import security
+from .panels import btf as btf_panel
+from .panels import diagnostics as diagnostics_panel
+from .panels import masks as masks_panel
+from .panels import registration as registration_panel
+from .panels import result as result_panel
+from .panels.frames import FramesPanel
+from .session import Controls, Session, pipeline_available
+from .uploads import UploadStore, install_upload_limits
+from .worker import JobContext, LatestWorker
+
+if TYPE_CHECKING:
+    from .app import InspectorApp
+
+__all__ = ["ClientView", "PANEL_WIDTH", "DEFAULT_MARK"]
+
+log = logging.getLogger(__name__)
+
+PANEL_WIDTH = 900
+DEFAULT_MARK = " · default"
+WEBGL_TOAST = "webgl-software-rendering"  # viser's own notification id (BrowserWarning.tsx)
+
+
+def _registry_names() -> dict[str, tuple[str, ...]]:
+    """The choices of each dropdown, from the library's registries."""
+    from hdrcore.exposure import EXPOSURE_METHODS
+    from hdrcore.registration import MODELS
+    from hdrcore.response import RESPONSE_METHODS, SPECIAL_RESPONSES
+    from hdrcore.tonemap import TONEMAP_OPERATORS
+
+    return {
+        "alignment": ("none", *MODELS),
+        "response": ("auto", *SPECIAL_RESPONSES, *RESPONSE_METHODS),
+        "tonemap": tuple(TONEMAP_OPERATORS),
+        "exposure_method": tuple(EXPOSURE_METHODS),
+        "times": ("estimated", "exif"),
+    }
+
+
+def _option(name: str, default: Any) -> str:
+    return f"{name}{DEFAULT_MARK}" if name == default else name
+
+
+def _unmark(text: str) -> str:
+    return text.split(DEFAULT_MARK)[0]
+
+
+class ClientView:
+    """All state of one page; methods are safe to call from any thread."""
+
+    def __init__(self, app: InspectorApp, gui: viser.GuiApi,
+                 client: viser.ClientHandle | None = None) -> None:
+        self.app = app
+        self.gui = gui
+        self.client = client
+        self.session = Session()
+        self.controls = Controls()
+        self.notifications: list[tuple[str, str, str]] = []  # (level, title, body), newest last
+        self.draw_count = 0
+        self.last_job_seconds: float | None = None
+        self.last_ratios_seconds: float | None = None  # job start -> BTF plot and masks drawn
+        self.last_registration_seconds: float | None = None  # job start -> overlays drawn
+        self.ready_seconds: float | None = None  # view created -> first result drawn
+        self._t_created = time.perf_counter()
+        self._lock = threading.RLock()
+        self._syncing = False
+        # (frame files, times list or None, label): checked by the app's resolver
+        self._wanted: tuple[tuple[str, ...], str | None, str] | None = None
+        self._loaded: tuple[tuple[str, ...], str | None, str] | None = None
+        self._drawn_bracket: object | None = None
+        self._pairs_bracket: Any = None
+        self._drawn_result: Any = None  # the result every panel shows (last full draw)
+        self._closed = False
+        self.pair = 0
+        self.progress_text = ""
+        self.uploads = UploadStore(app.work_dir / f"page{app.next_page_number()}", app.limits)
+        app.resolver.allow_folder(self.uploads.dir)
+        self.worker = LatestWorker(on_progress=self._on_progress, on_busy=self._on_busy)
+        self._build_gui()
+        install_upload_limits(gui, app.server, self.upload_button, self.uploads.refuse_transfer,
+                              self._upload_refused)
+        if client is not None:
+            self._hide_webgl_toast()
+
+    # -- GUI construction ------------------------------------------------------------------
+
+    def _build_gui(self) -> None:
+        gui = self.gui
+        names = _registry_names()
+        defaults = self.app.defaults
+        gui.configure_theme(show_share_button=False, control_width="large", show_logo=False)
+        gui.set_panel_label("hdrview")
+
+        with gui.add_folder("Bracket"):
+            self.path_text = gui.add_text(
+                "Path", "", hint=f"files or a folder under {self.app.root}; separate files with ;"
+            )
+            self.load_button = gui.add_button("Load", icon=viser.Icon.FOLDER_OPEN)
+            self.upload_button = gui.add_upload_button(
+                "Upload frame or .zip", icon=viser.Icon.UPLOAD,
+                hint="one image per upload (two or more make a bracket) or a .zip of a bracket; "
+                     + self.uploads.limits.describe(),
+            )
+            self.new_set_button = gui.add_button(
+                "New upload set", icon=viser.Icon.TRASH,
+                hint="the next uploaded frame starts a new bracket",
+            )
+            self.demo_button = gui.add_button("Demo bracket", icon=viser.Icon.PHOTO)
+            self.status = gui.add_markdown("No bracket loaded.")
+            self.progress = gui.add_progress_bar(0.0, visible=False, animated=True)
+            self.progress_md = gui.add_markdown("", visible=False)
+
+        with gui.add_folder("Parameters"):
+            self.saturation_slider = gui.add_slider(
+                "Saturation Z", 0, 255, 1, 250,
+                hint="levels at or above Z count as clipped (the paper's eq. 4); in the frames' "
+                     "own levels; follows the pipeline's choice until moved",
+            )
+            self.noise_slider = gui.add_slider(
+                "Noise floor", 0, 64, 0.1, 2,
+                hint="levels at or below this are noise and not used (native levels); the "
+                     "default is 3 sigma of the noise measured in the frames",
+            )
+            self.threshold_slider = gui.add_slider(
+                "Threshold t", 0.0, 1.0, 0.01, defaults.threshold,
+                hint="registration: the brightness below which differences stop being "
+                     "normalised (the paper's eq. 7), as a fraction of Z",
+            )
+            self.alignment_dropdown = gui.add_dropdown(
+                "Alignment", tuple(_option(n, defaults.align) for n in names["alignment"]),
+                initial_value=_option(defaults.align, defaults.align),
+                hint="motion model between hand-held frames",
+            )
+            self.reference_dropdown = gui.add_dropdown("Reference", ("middle",))
+            self.response_dropdown = gui.add_dropdown(
+                "Response", tuple(_option(n, defaults.response) for n in names["response"]),
+                initial_value=_option(str(defaults.response), defaults.response),
+                hint="camera response (how levels map to light) for JPEG/PNG/TIFF brackets",
+            )
+            self.times_dropdown = gui.add_dropdown(
+                "Exposure times", tuple(_option(n, defaults.times) for n in names["times"]),
+                initial_value=_option(defaults.times, defaults.times),
+                hint="estimated: measured from the pictures (the paper's method); exif: as "
+                     "recorded by the camera",
+            )
+            self.exposure_method_dropdown = gui.add_dropdown(
+                "Ratio method",
+                tuple(_option(n, defaults.exposure_method) for n in names["exposure_method"]),
+                initial_value=_option(defaults.exposure_method, defaults.exposure_method),
+                hint="how the exposure ratio of a pair is measured from its histograms",
+            )
+            self.deghost_checkbox = gui.add_checkbox(
+                "Deghost", defaults.deghost,
+                hint="fill each region where something moved from one frame",
+            )
+            self.reset_button = gui.add_button("Reset to defaults", icon=viser.Icon.REFRESH)
+
+        with gui.add_folder("View"):
+            self.pair_dropdown = gui.add_dropdown("Pair", ("—",))
+            self.tonemap_dropdown = gui.add_dropdown(
+                "Operator", tuple(_option(n, defaults.tonemap) for n in names["tonemap"]),
+                initial_value=_option(defaults.tonemap, defaults.tonemap),
+                hint="how the HDR result is shown on a normal screen",
+            )
+            self.exposure_slider = gui.add_slider(
+                "Exposure (EV)", -8.0, 8.0, 0.25, defaults.tonemap_exposure)
+            self.layer_dropdown = gui.add_dropdown("Layer", result_panel.LAYERS)
+            self.overlay_dropdown = gui.add_dropdown("Overlay", registration_panel.OVERLAYS)
+
+        with gui.add_folder("Export"):
+            self.export_exr_button = gui.add_button("HDR (.exr)", icon=viser.Icon.DOWNLOAD)
+            self.export_png_button = gui.add_button("Preview (.png)", icon=viser.Icon.DOWNLOAD)
+            self.export_bundle_button = gui.add_button(
+                "Diagnostics bundle (.zip)", icon=viser.Icon.DOWNLOAD
+            )
+
+        self.panel = gui.add_panel()
+        tabs = {}
+        for name in ("Frames", "BTF", "Masks", "Registration", "Result", "Diagnostics"):
+            tabs[name] = self.panel.add_tab(name)
+        with tabs["Frames"]:
+            self.frames_panel = FramesPanel(gui, tabs["Frames"])
+        with tabs["BTF"]:
+            self.btf_panel = btf_panel.BtfPanel(gui)
+        with tabs["Masks"]:
+            self.masks_panel = masks_panel.MasksPanel(gui)
+        with tabs["Registration"]:
+            self.registration_panel = registration_panel.RegistrationPanel(gui)
+        with tabs["Result"]:
+            self.result_panel = result_panel.ResultPanel(gui)
+        with tabs["Diagnostics"]:
+            self.diagnostics_panel = diagnostics_panel.DiagnosticsPanel(gui)
+        self.panel.dock_left()
+        self.panel.set_width(PANEL_WIDTH)
+        self._wire()
+
+    def _wire(self) -> None:
+        self.load_button.on_click(lambda e: self.request_path(self.path_text.value, e.client))
+        self.demo_button.on_click(lambda e: self.request_demo(e.client))
+        self.new_set_button.on_click(lambda e: self.new_upload_set(e.client))
+        self.reset_button.on_click(lambda e: self.reset_controls())
+        self.upload_button.on_upload(
+            lambda e: self.handle_upload(self.upload_button.value.name,
+                                         self.upload_button.value.content, e.client)
+        )
+
+        def control(handle: Any, name: str, cast: Any) -> None:
+            def cb(event: viser.GuiEvent) -> None:
+                if self._syncing:
+                    return
+                self.set_control(name, cast(handle.value), client=event.client)
+
+            handle.on_update(cb)
+
+        control(self.saturation_slider, "saturation", float)
+        control(self.noise_slider, "noise_floor", float)
+        control(self.threshold_slider, "threshold", float)
+        control(self.alignment_dropdown, "alignment", _unmark)
+        control(self.exposure_slider, "exposure", float)
+        control(self.reference_dropdown, "reference", self._reference_value)
+        control(self.response_dropdown, "response", _unmark)
+        control(self.times_dropdown, "times", _unmark)
+        control(self.exposure_method_dropdown, "exposure_method", _unmark)
+        control(self.tonemap_dropdown, "tonemap", _unmark)
+        control(self.deghost_checkbox, "deghost", bool)
+
+        def view_changed(_: viser.GuiEvent) -> None:
+            if not self._syncing:
+                self.set_view(pair=self._pair_value(self.pair_dropdown.value))
+
+        self.pair_dropdown.on_update(view_changed)
+        self.layer_dropdown.on_update(view_changed)
+        self.overlay_dropdown.on_update(view_changed)
+
+        self.export_exr_button.on_click(lambda e: self._guarded(self.export_exr, e.client))
+        self.export_png_button.on_click(lambda e: self._guarded(self.export_png, e.client))
+        self.export_bundle_button.on_click(lambda e: self._guarded(self.export_bundle, e.client))
+
+    def _hide_webgl_toast(self) -> None:
+        """viser warns about software WebGL, which this page does not use (no 3-D scene)."""
+        from viser import _messages
+
+        def hide() -> None:
+            for delay in (0.3, 1.0, 2.5, 5.0):
+                time.sleep(delay)
+                if self._closed or self.client is None:
+                    return
+                try:
+                    self.client._websock_connection.queue_message(
+                        _messages.RemoveNotificationMessage(uuid=WEBGL_TOAST))
+                except Exception:  # noqa: BLE001 -- the page went away
+                    return
+
+        threading.Thread(target=hide, name="hdrview-hide-toast", daemon=True).start()
+
+    @staticmethod
+    def _reference_value(value: str) -> int | None:
+        return None if value == "middle" else int(value.split()[-1])
+
+    @staticmethod
+    def _pair_value(value: str) -> int:
+        try:
+            return int(value.split(":")[0].split()[-1])
+        except (ValueError, IndexError):
+            return 0
+
+    # -- notifications ---------------------------------------------------------------------
+
+    def notify(self, title: str, body: str, *, client: viser.ClientHandle | None = None,
+               level: str = "info") -> None:
+        """Show a notification on this page and keep it in ``notifications``."""
+        self.notifications.append((level, title, body))
+        color = {"error": "red", "warning": "yellow", "info": "blue"}.get(level, "blue")
+        stream = log.warning if level != "info" else log.info
+        stream("%s: %s", title, body)
+        target = client or self.client
+        if target is None:
+            return
+        try:
+            target.add_notification(
+                title, body, color=color,
+                auto_close_seconds=None if level == "error" else 8.0,
+            )
+        except Exception:  # a page that went away
+            log.debug("notification to a closed client failed", exc_info=True)
+
+    def _report_error(self, exc: BaseException, client: viser.ClientHandle | None = None) -> None:
+        if isinstance(exc, HdrError):
+            self.notify("Cannot do that", str(exc), client=client, level="error")
+        else:
+            traceback.print_exception(type(exc), exc, exc.__traceback__, file=sys.stderr)
+            self.notify(
+                "Internal error", f"{type(exc).__name__}: {exc} (details on the server's stderr)",
+                client=client, level="error",
+            )
+
+    def _guarded(self, fn: Any, client: viser.ClientHandle | None) -> None:
+        try:
+            fn(client)
+        except Exception as exc:  # noqa: BLE001 -- shown to the user
+            self._report_error(exc, client)
+
+    # -- requests (called from viser's callback threads or tests) ---------------------------
+
+    def request_paths(self, paths: Sequence[str | Path], label: str = "",
+                      client: viser.ClientHandle | None = None) -> bool:
+        """Check ``paths`` (files or one folder) with the resolver, then load them."""
+        try:
+            inputs = self.app.resolver.bracket_inputs(list(paths))
+        except HdrError as exc:
+            self.notify("Cannot load", str(exc), client=client, level="error")
+            return False
+        key = tuple(str(p) for p in inputs.files)
+        times = None if inputs.times is None else str(inputs.times)
+        with self._lock:
+            wanted = (key, times, label or ", ".join(Path(p).name for p in paths))
+            if wanted != self._wanted:
+                # The levels of another bracket: Z, the floor and the reference start from the
+                # pipeline's choice again (the other choices are the user's and stay).
+                self.controls = self.controls.replace(saturation=None, noise_floor=None,
+                                                      reference=None)
+            self._wanted = wanted
+        self._submit("load")
+        return True
+
+    def request_path(self, text: str, client: viser.ClientHandle | None = None) -> bool:
+        """The path field: files or a folder, each checked by the resolver, then loaded."""
+        parts = security.split_path_field(text)
+        if not parts:
+            self.notify("Cannot load", "type a file or folder path first", client=client,
+                        level="error")
+            return False
+        self.uploads.close_set()
+        name = Path(parts[0]).name or parts[0]
+        label = name if len(parts) == 1 else f"{len(parts)} files"
+        return self.request_paths(parts, label, client)
+
+    def request_demo(self, client: viser.ClientHandle | None = None) -> bool:
+        demo = self.app.demo_dir
+        if demo is None or not demo.is_dir():
+            self.notify("No demo bracket", f"the demo bracket is not installed at {demo}",
+                        client=client, level="warning")
+            return False
+        self.uploads.close_set()
+        return self.request_paths([demo], "demo", client)
+
+    def new_upload_set(self, client: viser.ClientHandle | None = None) -> None:
+        self.uploads.close_set()
+        self.notify("New upload set", "the next uploaded frame starts a new bracket",
+                    client=client)
+
+    def _upload_refused(self, client: viser.ClientHandle | None, reason: str) -> None:
+        self.uploads.close_set()
+        self.notify("Upload refused", reason, client=client, level="error")
+
+    def handle_upload(self, name: str, content: bytes,
+                      client: viser.ClientHandle | None = None) -> bool:
+        """An uploaded image joins the open upload set (two or more load); a .zip loads at once.
+
+        Any refusal closes the set, so the next upload starts afresh (a bad file never keeps
+        later uploads from loading)."""
+        try:
+            if security.sniff_upload(name, content) == "zip":
+                dest = self.uploads.add_zip(name, content)
+                return self.request_paths([dest], security.safe_upload_name(name), client)
+            frames = self.uploads.add_frame(name, content)
+            if len(frames) < 2:
+                self.notify("Frame uploaded", f"{name}: upload one more frame to make a bracket",
+                            client=client)
+                return True
+            return self.request_paths(frames, f"{len(frames)} uploaded frames", client)
+        except HdrError as exc:
+            self._upload_refused(client, str(exc))
+            return False
+        except Exception as exc:  # noqa: BLE001 -- any failure becomes a notification
+            self.uploads.close_set()
+            self._report_error(exc, client)
+            return False
+
+    def set_control(self, name: str, value: Any, client: viser.ClientHandle | None = None) -> int:
+        """Record a parameter change and ask for a re-run (latest request wins)."""
+        with self._lock:
+            self.controls = self.controls.replace(**{name: value})
+        return self._submit(f"control {name}")
+
+    def reset_controls(self) -> int:
+        """Forget every parameter change: the pipeline's defaults again, widgets included."""
+        with self._lock:
+            self.controls = Controls()
+        self._syncing = True
+        try:
+            d = self.app.defaults
+            self.threshold_slider.value = d.threshold
+            self.exposure_slider.value = d.tonemap_exposure
+            self.deghost_checkbox.value = d.deghost
+            self.reference_dropdown.value = "middle"
+            for handle, default in ((self.alignment_dropdown, d.align),
+                                    (self.response_dropdown, d.response),
+                                    (self.times_dropdown, d.times),
+                                    (self.exposure_method_dropdown, d.exposure_method),
+                                    (self.tonemap_dropdown, d.tonemap)):
+                handle.value = _option(str(default), default)
+        finally:
+            self._syncing = False
+        return self._submit("reset")
+
+    def set_view(self, pair: int | None = None) -> int:
+        """A view choice changed (pair, layer, overlay): redraw, nothing to compute."""
+        if pair is not None:
+            self.pair = pair
+        return self._submit("view")
+
+    def wait_idle(self, timeout: float = 60.0) -> bool:
+        return self.worker.wait_idle(timeout)
+
+    def close(self) -> None:
+        """The page left: stop its worker, drop its uploads and its GUI."""
+        self._closed = True
+        self.worker.stop()
+        self.uploads.remove()
+
+    # -- the job -----------------------------------------------------------------------------
+
+    def _submit(self, label: str) -> int:
+        return self.worker.submit(self._reconcile, on_error=self._report_error, label=label)
+
+    def _on_progress(self, fraction: float, text: str) -> None:
+        self.progress.value = round(100.0 * fraction, 1)
+        if text:
+            self.progress_text = text
+            note = " (first run of this installation: compiling kernels)" if (
+                self.app.first_run and fraction < 0.9) else ""
+            self.progress_md.content = f"_{text}{note}_"
+
+    def _on_busy(self, busy: bool) -> None:
+        self.progress.visible = busy
+        self.progress_md.visible = busy
+        if not busy:
+            self.progress.value = 0.0
+            self.progress_md.content = ""
+
+    def _reconcile(self, ctx: JobContext) -> None:
+        t0 = time.perf_counter()
+        with self._lock:
+            wanted = self._wanted
+        if wanted is not None and wanted != self._loaded:
+            files, times, label = wanted
+            ctx.progress(0.02, f"loading {label}")
+            try:
+                warm = self.app.take_warm(files, times)  # decoded and run at start
+                if warm is not None:
+                    self.session = warm
+                else:
+                    self.session.load(list(files), source=label, times=times,
+                                      loader=self.app.brackets.get)
+            except BaseException:
+                with self._lock:
+                    if self._wanted == wanted:  # do not retry a failed load on the next change
+                        self._wanted = self._loaded
+                if any(Path(f).is_relative_to(self.uploads.dir) for f in files):
+                    self.uploads.close_set()  # the next upload starts a new set
+                raise
+            self._loaded = wanted
+            self._sync_widgets_to_bracket()
+            self.notify("Loaded", f"{label}: {len(self.session.bracket)} frames")
+        ctx.check()
+        result = None
+        if self.session.bracket is not None and pipeline_available():
+            def progress(*args: Any, **kwargs: Any) -> None:
+                # A newer request stops this run at the next stage boundary: the pipeline lets
+                # Cancelled through (finished stages stay cached) and the worker drops the job.
+                if ctx.superseded:
+                    from hdrcore.pipeline import Cancelled
+
+                    raise Cancelled(ctx.label)
+                frac, text = _progress_args(args, kwargs)
+                ctx.progress(0.05 + 0.9 * frac, text)
+
+            # Ratios first (a re-fit from cached histograms), drawn at once so the BTF plot and
+            # the masks follow a slider quickly; then the later stages unless superseded.
+            quick = self.session.run(self.controls, progress=progress, until="ratios")
+            ctx.check()
+            self._sync_widgets_to_result(quick)
+            self._draw(quick, stages=("btf", "masks"))
+            self.last_ratios_seconds = time.perf_counter() - t0
+            ctx.check()
+            registered = self.session.run(self.controls, progress=progress,
+                                          until="registration")
+            ctx.check()
+            if getattr(registered, "registration", None) is not None:
+                self._draw(registered, stages=("registration",))
+            self.last_registration_seconds = time.perf_counter() - t0
+            ctx.check()
+            result = self.session.run(self.controls, progress=progress)
+            self.app.first_run = False
+        ctx.check()
+        self._draw(result)
+        self.last_job_seconds = time.perf_counter() - t0
+        if self.ready_seconds is None and result is not None:
+            self.ready_seconds = time.perf_counter() - self._t_created
+
+    def _sync_widgets_to_bracket(self) -> None:
+        """New bracket: slider ranges in its native levels, pair and reference choices."""
+        b = self.session.bracket
+        assert b is not None
+        n = len(b)
+        self._syncing = True
+        try:
+            self.saturation_slider.max = b.max_level
+            self.noise_slider.max = max(16, b.max_level // 16)
+            self.noise_slider.step = 0.1 if b.max_level <= 255 else 1.0
+            self._set_pair_options(b)
+            self.reference_dropdown.options = ("middle",) + tuple(f"frame {k}" for k in range(n))
+            self.reference_dropdown.value = "middle"
+        finally:
+            self._syncing = False
+
+    def _sync_widgets_to_result(self, result: Any) -> None:
+        """Controls the user has not moved show what the pipeline used, marked as default."""
+        if result is None:
+            return
+        c = self.controls
+        self._syncing = True
+        try:
+            for handle, control, used in (
+                (self.saturation_slider, "saturation", getattr(result, "saturation", None)),
+                (self.noise_slider, "noise_floor", getattr(result, "noise_floor", None)),
+            ):
+                if used is None:
+                    continue
+                used = float(used)
+                handle.marks = ((used, "default"),)
+                if getattr(c, control) is None and handle.min <= used <= handle.max:
+                    handle.value = round(used, 2)
+        finally:
+            self._syncing = False
+
+    def _set_pair_options(self, b: Any) -> None:
+        names = [f.name for f in b.frames]
+        self.pair_dropdown.options = tuple(
+            f"pair {k}: frames {k}-{k + 1} ({names[k]}, {names[k + 1]})"
+            for k in range(len(b) - 1)
+        )
+        self.pair_dropdown.value = self.pair_dropdown.options[0]
+        self.pair = 0
+        self._pairs_bracket = b
+
+    def _sync_pairs(self, b: Any) -> None:
+        """The pair dropdown lists the pairs of the frames the result used."""
+        if self._pairs_bracket is not None and len(self._pairs_bracket) == len(b) and all(
+                x is y for x, y in zip(self._pairs_bracket.frames, b.frames, strict=True)):
+            self._pairs_bracket = b
+            return
+        self._syncing = True
+        try:
+            self._set_pair_options(b)
+        finally:
+            self._syncing = False
+
+    # -- drawing -----------------------------------------------------------------------------
+
+    def _draw(self, result: Any, stages: tuple[str, ...] | None = None) -> None:
+        bracket = self.session.bracket
+        if bracket is not self._drawn_bracket:
+            self.frames_panel.show(bracket)
+            self._drawn_bracket = bracket
+        # A black or saturated frame is left out by the pipeline: the stage results index the
+        # frames it used (result.bracket); the pair choices follow them.
+        used = getattr(result, "bracket", None) or bracket
+        if used is not None and used is not self._pairs_bracket:
+            self._sync_pairs(used)
+        view = {
+            "pair": self.pair,
+            "layer": self.layer_dropdown.value,
+            "overlay": self.overlay_dropdown.value,
+        }
+        if stages is None:
+            self.status.content = self.status_markdown(result)
+        panels = {"btf": self.btf_panel, "masks": self.masks_panel,
+                  "registration": self.registration_panel, "result": self.result_panel}
+        for name, panel in panels.items():
+            if stages is None or name in stages:
+                panel.show(used, result, view)
+        if stages is None or "diagnostics" in stages:
+            self.diagnostics_panel.show(bracket, result, view)
+        if stages is None:
+            self.draw_count += 1
+            # No panel shows the previous result any more: the next merge may write into its
+            # arrays (at 24 MP that saves faulting in 0.7 GB of fresh memory, 0.5-1 s here).
+            previous, self._drawn_result = self._drawn_result, result
+            pipeline = self.session.pipeline
+            if (previous is not None and pipeline is not None and hasattr(pipeline, "release")
+                    and getattr(previous, "merge", None) is not getattr(result, "merge", None)):
+                pipeline.release(previous)
+
+    def status_markdown(self, result: Any) -> str:
+        """The loaded bracket and the values the pipeline used (the same the controls show)."""
+        b = self.session.bracket
+        if b is None:
+            return "No bracket loaded."
+        lines = [
+            f"**{self.session.source}**: {len(b)} frames, {b.shape[1]}×{b.shape[0]}, "
+            f"{b.bit_depth}-bit, max level {b.max_level}",
+        ]
+        if result is None:
+            if not pipeline_available():
+                lines.append("_The processing pipeline (hdrcore.pipeline) is not installed._")
+            return "\n\n".join(lines)
+        p = result.params
+        c = self.controls
+
+        def mark(control: str) -> str:
+            return "" if getattr(c, control) is not None else " (default)"
+
+        response = getattr(result.response, "method", None) or str(p.response)
+        lines.append(
+            f"Z = {_num(result.saturation)}{mark('saturation')}, "
+            f"noise floor = {_num(result.noise_floor)}{mark('noise_floor')}, "
+            f"t = {_num(p.threshold)}{mark('threshold')}, alignment = {p.align}"
+            f"{mark('alignment')}, response = {response}{mark('response')}, "
+            f"times = {result.times_source}, operator = {p.tonemap}{mark('tonemap')}, "
+            f"exposure = {_num(p.tonemap_exposure)} EV"
+        )
+        timings = getattr(result, "timings", None) or {}
+        ran = set(getattr(result, "stages_run", ()) or ())
+        if ran:
+            lines.append("Computed: " + ", ".join(
+                f"{k} {1000 * float(v):.0f} ms" for k, v in timings.items() if k in ran))
+        else:
+            lines.append("Everything came from the cache.")
+        return "\n\n".join(lines)
+
+    # -- exports -----------------------------------------------------------------------------
+
+    def _require_result(self) -> Any:
+        if self.session.result is None:
+            raise InputError("nothing to export yet: load a bracket and wait for the result")
+        return self.session.result
+
+    def export_exr(self, client: viser.ClientHandle | None) -> None:
+        data = result_panel.exr_bytes(self._require_result(), work_dir=self.app.work_dir)
+        self._send(client, f"{self.export_stem()}.exr", data)
+
+    def export_png(self, client: viser.ClientHandle | None) -> None:
+        data = result_panel.preview_png_bytes(self._require_result())
+        self._send(client, f"{self.export_stem()}-preview.png", data)
+
+    def export_bundle(self, client: viser.ClientHandle | None) -> None:
+        self._send(client, f"{self.export_stem()}-diagnostics.zip", self.bundle_bytes())
+
+    def export_stem(self) -> str:
+        """A file name for exports: the bracket's folder, or its first frame's name."""
+        b = self.session.bracket
+        if b is None:
+            return "bracket"
+        first = Path(b.frames[0].path)
+        folder = first.parent.name
+        stem = folder if folder and not folder.startswith("set") else first.stem
+        if self.session.source == "demo":
+            stem = "demo"
+        return security.safe_upload_name(stem) or "bracket"
+
+    def bundle_bytes(self) -> bytes:
+        """The report JSON, the plots (plotly JSON) and the masks/overlays (PNG) in one zip."""
+        result = self._require_result()
+        buf = io.BytesIO()
+        with zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED) as zf:
+            zf.writestr("report.json", json.dumps(_to_report(result), indent=2, default=str))
+            for name, data in diagnostics_panel.bundle_files(
+                self.session.bracket, result, self.btf_panel, self.masks_panel,
+                self.registration_panel, self.result_panel,
+            ):
+                zf.writestr(name, data)
+        return buf.getvalue()
+
+    def _send(self, client: viser.ClientHandle | None, name: str, data: bytes) -> None:
+        target = client or self.client
+        if target is None:
+            raise InputError("no page to send the file to")
+        target.send_file_download(name, data, save_immediately=True)
+        self.notify("Export", f"{name} ({len(data) / 1e6:.1f} MB) sent", client=target)
+
+
+def _to_report(result: Any) -> dict:
+    to_report = getattr(result, "to_report", None)
+    return to_report() if callable(to_report) else {"result": repr(result)}
+
+
+def _num(v: float | None) -> str:
+    if v is None:
+        return "default"
+    return f"{float(v):.6g}"
+
+
+_STAGE_TEXT = {
+    "histograms": "histograms of every frame",
+    "response": "camera response",
+    "ratios": "exposure ratios (histograms)",
+    "registration": "registration (hand-held motion)",
+    "response_registered": "camera response on the registered frames",
+    "overlap_histograms": "histograms of the common field of view",
+    "overlap_ratios": "exposure ratios of the registered frames",
+    "merge": "merging to a radiance map",
+    "preview": "preview",
+}
+
+
+def _progress_args(args: tuple, kwargs: dict) -> tuple[float, str]:
+    """Overall fraction and words for the pipeline's ``progress(stage, fraction, message)``."""
+    from hdrcore.pipeline import STAGES
+
+    stage = str(args[0]) if args else str(kwargs.get("stage", ""))
+    frac = float(args[1]) if len(args) > 1 else float(kwargs.get("fraction", 0.0))
+    message = str(args[2]) if len(args) > 2 else str(kwargs.get("message", ""))
+    if stage in STAGES:
+        overall = (STAGES.index(stage) + max(0.0, min(1.0, frac))) / len(STAGES)
+        words = _STAGE_TEXT.get(stage, stage)
+        detail = message if message and not message.startswith(stage) else ""
+        return overall, words + (f": {detail}" if detail else "")
+    return max(0.0, min(1.0, frac)), message or stage
