@@ -132,8 +132,9 @@ class BtfPanel:
         self._gui = gui
         self.summary = gui.add_markdown("No bracket loaded.")
         empty = go.Figure()
-        self.scatter = gui.add_plotly(empty, aspect=1.4, visible=False)
-        self.transfer = gui.add_plotly(empty, aspect=1.6, visible=False)
+        # viser's aspect is height / width: plots wider than tall, so a tab fits one screen.
+        self.scatter = gui.add_plotly(empty, aspect=0.62, visible=False)
+        self.transfer = gui.add_plotly(empty, aspect=0.55, visible=False)
         self._figures: dict[str, go.Figure] = {}
 
     def show(self, bracket: Any, result: Any, view: dict) -> None:

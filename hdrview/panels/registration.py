@@ -29,7 +29,8 @@ def cost_figure(pair: Any) -> go.Figure:
              "text": [f"pyramid level {lv}" for lv in pair.level_history]}]
     layout = {"title": {"text": f"Cost per iteration ({pair.method})", "font": {"size": 14}},
               "xaxis": {"title": {"text": "iteration"}},
-              "yaxis": {"title": {"text": "cost"}, "type": "log"},
+              "yaxis": {"title": {"text": "cost"}, "type": "log", "dtick": 1,
+                        "exponentformat": "power"},
               "margin": {"l": 55, "r": 10, "t": 40, "b": 45}, "template": "plotly_white"}
     return go.Figure({"data": data, "layout": layout}, _validate=False)
 
@@ -55,7 +56,7 @@ class RegistrationPanel:
         blank = np.zeros((4, 4, 3), np.uint8)
         self.before = gui.add_image(blank, label="before alignment", format="png", visible=False)
         self.after = gui.add_image(blank, label="after alignment", format="png", visible=False)
-        self.costs = gui.add_plotly(go.Figure(), aspect=2.2, visible=False)
+        self.costs = gui.add_plotly(go.Figure(), aspect=0.45, visible=False)  # height / width
         self._images: dict[str, np.ndarray] = {}
         self._figure: go.Figure | None = None
 
