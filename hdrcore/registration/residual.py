@@ -58,8 +58,13 @@ RESIDUAL_STATUSES = ("aligned", "misaligned", "unmeasured")
 
 #: A tile counts when the normalised cross-correlation of its two structure tiles, re-centred,
 #: is at least this over the tile size (noise alone reaches about 8 / tile: 0.12 for 64 px) and
-#: the standard error of its shift at most ``MAX_SIGMA`` analysed pixels (noise: 0.15-0.2).
-CONFIDENCE_PER_TILE, MAX_SIGMA = 12.0, 0.15
+#: the standard error of its shift at most ``MAX_SIGMA`` analysed pixels. Noise-only tiles and
+#: the wrong period of a repetitive texture (a phone's view of a bookshelf: 14-46 px off) have
+#: 0.09-0.15; good tiles of real phone pairs mostly under 0.05.
+CONFIDENCE_PER_TILE, MAX_SIGMA = 12.0, 0.09
+#: ... and at least this whatever the tile size: the fixed-pattern noise of a dark phone frame
+#: correlates at 0.1-0.2 (good tiles of the same pairs: 0.45 and more).
+MIN_CONFIDENCE = 0.25
 
 #: Components of the global pattern, in the order they are reported.
 PATTERN_COMPONENTS = ("shift", "zoom", "rotation", "affine", "perspective")
@@ -86,10 +91,10 @@ class ResidualPattern:
 
     (an affine map plus the two perspective terms of a homography near the identity).
     ``zoom`` (a fraction: 0.004 is 0.4 %) and ``rotation_deg`` are the similarity part;
-    ``*_px`` are the displacements each component makes at the corners. ``parameters`` is
-    ``(shift_x, shift_y, a11, a12, a21, a22, p, q)`` (terms not kept are 0); ``rms``
-    the RMS of the tile shifts about the pattern over the tiles the robust fit kept;
-    ``terms`` the number of free parameters kept (2, 4, 6 or 8).
+    ``*_px`` are the largest displacements each component makes at the four image corners
+    (signed for zoom and rotation). ``parameters`` is ``(shift_x, shift_y, a11, a12, a21, a22,
+    p, q)`` (terms not kept are 0); ``rms`` the RMS of the tile shifts about the pattern over
+    the tiles the robust fit kept; ``terms`` the number of free parameters kept (2, 4, 6, 8).
     """
 
     shift_x: float
@@ -145,7 +150,10 @@ class ResidualMotion:
     :data:`PATTERN_COMPONENTS` name, ``"local"``, ``"scattered"``, or ``""``), ``message`` one
     line for people.
     ``tile`` is the tile size and ``level`` the pyramid level (``2**level`` full pixels per
-    analysed pixel) the measurement ran on.
+    analysed pixel) the measurement ran on. ``sensor``: confident tiles left out because
+    their shift is the alignment itself (structure fixed to the sensor: fixed-pattern noise,
+    dust; only when a pair matrix is given); ``ambiguous``: confident tiles left out because
+    they match about as well where the pattern says (a repetitive texture).
     """
 
     shape: tuple[int, int]
@@ -169,6 +177,8 @@ class ResidualMotion:
     message: str
     aligned_px: float
     local_px: float
+    sensor: np.ndarray = field(default=None, repr=False)
+    ambiguous: np.ndarray = field(default=None, repr=False)
     seconds: float = 0.0
 
     @property
@@ -216,6 +226,8 @@ class ResidualMotion:
             "in_range": np.round(self.in_range, 3).tolist(),
             "valid": self.valid.astype(bool).tolist(),
             "local": [f(v) for v in np.round(self.local, 4)],
+            "sensor": [] if self.sensor is None else self.sensor.astype(bool).tolist(),
+            "ambiguous": [] if self.ambiguous is None else self.ambiguous.astype(bool).tolist(),
             "seconds": self.seconds,
         }
 
@@ -389,19 +401,9 @@ def _smoothstep(z: np.ndarray) -> np.ndarray:
 TAPER_LOW, TAPER_HIGH = 4.0, 2.0
 
 
-def _structure(img: np.ndarray, lo: float, hi: float) -> tuple[np.ndarray, np.ndarray]:
-    """Exposure-invariant structure image of a frame on the common scale, and its in-range mask.
-
-    The gradient magnitude of the log of the frame clipped to ``[lo, hi]``, faded out smoothly
-    over the last two stops below the noise floor's end of the range and the last stop below
-    saturation (``TAPER_LOW``, ``TAPER_HIGH``): a hard cut at a clip level would turn the
-    contour where a noisy frame crosses it (far from the scene's edges on a soft gradient) into
-    an edge. Zero next to saturated pixels: a pixel that straddles the edge of a region far
-    above saturation (a window, a lamp) saturates for any coverage, so that edge snaps to whole
-    pixels, differently in each frame, and would pull the tile's shift towards an integer.
-    """
+def _structure_numpy(img: np.ndarray, lo: float, hi: float) -> np.ndarray:
+    """The reference of the compiled structure kernels (see :func:`_structure`)."""
     with np.errstate(invalid="ignore"):
-        inside = (img > lo) & (img < hi)
         log = np.log(np.clip(img, lo, hi))
         g = _sobel_magnitude(log)
         u = log - np.float32(np.log(lo))
@@ -416,6 +418,73 @@ def _structure(img: np.ndarray, lo: float, hi: float) -> tuple[np.ndarray, np.nd
         near[:, 1:] |= row[:, :-1]
         near[:, :-1] |= row[:, 1:]
         g[near] = 0.0
+    return g
+
+
+@_njit
+def _log_rows(img, lo, hi, out, r0, r1):  # pragma: no cover - compiled
+    """Rows ``r0:r1``: ``log(clip(img, lo, hi))`` (NaN stays NaN)."""
+    for y in range(r0, r1):
+        for x in range(img.shape[1]):
+            v = img[y, x]
+            out[y, x] = np.log(min(max(v, lo), hi)) if v == v else np.nan
+
+
+@_njit
+def _gradient_rows(log, llo, lhi, tl, th, out, r0, r1):  # pragma: no cover - compiled
+    """Rows ``r0:r1``: Sobel gradient magnitude / 8 of ``log``, faded by the smoothsteps of
+    ``(log - llo) / tl`` and ``(lhi - log) / th``, zero where a 3x3 neighbour is at ``lhi``
+    (saturated) and on the one-pixel border."""
+    h, w = log.shape
+    for y in range(r0, r1):
+        for x in range(w):
+            if y == 0 or y == h - 1 or x == 0 or x == w - 1:
+                out[y, x] = 0.0
+                continue
+            sat = False
+            for dy in range(-1, 2):
+                for dx in range(-1, 2):
+                    if log[y + dy, x + dx] >= lhi:
+                        sat = True
+            if sat:
+                out[y, x] = 0.0
+                continue
+            gx = (log[y - 1, x + 1] + 2.0 * log[y, x + 1] + log[y + 1, x + 1]
+                  - log[y - 1, x - 1] - 2.0 * log[y, x - 1] - log[y + 1, x - 1])
+            gy = (log[y + 1, x - 1] + 2.0 * log[y + 1, x] + log[y + 1, x + 1]
+                  - log[y - 1, x - 1] - 2.0 * log[y - 1, x] - log[y - 1, x + 1])
+            a = min(max((log[y, x] - llo) / tl, 0.0), 1.0)
+            b = min(max((lhi - log[y, x]) / th, 0.0), 1.0)
+            fade = a * a * (3.0 - 2.0 * a) * b * b * (3.0 - 2.0 * b)
+            out[y, x] = np.sqrt(gx * gx + gy * gy) * 0.125 * fade
+
+
+def _structure(img: np.ndarray, lo: float, hi: float,
+               workers: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Exposure-invariant structure image of a frame on the common scale, and its in-range mask.
+
+    The gradient magnitude (3x3 Sobel) of the log of the frame clipped to ``[lo, hi]``, faded
+    out smoothly over the last two stops above the noise floor's end of the range and the last
+    stop below saturation (``TAPER_LOW``, ``TAPER_HIGH``): a hard cut at a clip level would turn
+    the contour where a noisy frame crosses it (far from the scene's edges on a soft gradient)
+    into an edge. Zero next to saturated pixels: a pixel that straddles the edge of a region
+    far above saturation (a window, a lamp) saturates for any coverage, so that edge snaps to
+    whole pixels, differently in each frame, and would pull the tile's shift towards an integer.
+    NaN (outside a warped frame) stays NaN.
+    """
+    with np.errstate(invalid="ignore"):
+        inside = (img > lo) & (img < hi)
+    if not AVAILABLE:
+        return _structure_numpy(img, lo, hi), inside
+    src = np.ascontiguousarray(img, np.float32)
+    log = np.empty(src.shape, np.float32)
+    g = np.empty(src.shape, np.float32)
+    h = src.shape[0]
+    run_row_spans(h, workers, lambda r0, r1: _log_rows(src, np.float32(lo), np.float32(hi),
+                                                       log, r0, r1))
+    llo, lhi = float(np.log(np.float32(lo))), float(np.log(np.float32(hi)))
+    tl, th = float(np.log(TAPER_LOW)), float(np.log(TAPER_HIGH))
+    run_row_spans(h, workers, lambda r0, r1: _gradient_rows(log, llo, lhi, tl, th, g, r0, r1))
     return g, inside
 
 
@@ -550,12 +619,14 @@ def _fit_pattern(centres: np.ndarray, shifts: np.ndarray, shape: tuple[int, int]
     tx, ty, a11, a12, a21, a22, p, q = (float(v) for v in params)
     zoom_px = 0.5 * (a11 + a22)
     rot_px = 0.5 * (a21 - a12)
+    # the perspective terms move a corner (u, v) by (u, v) (p u + q v): at most this
+    uc, vc = (shape[1] - 1) / 2.0 / radius, (shape[0] - 1) / 2.0 / radius
     return ResidualPattern(
         shift_x=tx, shift_y=ty, zoom=zoom_px / radius,
         rotation_deg=float(np.degrees(rot_px / radius)),
         shift_px=float(np.hypot(tx, ty)), zoom_px=zoom_px, rotation_px=rot_px,
         affine_px=float(np.hypot(0.5 * (a11 - a22), 0.5 * (a12 + a21))),
-        perspective_px=float(np.hypot(p, q)), radius=radius,
+        perspective_px=abs(p) * uc + abs(q) * vc, radius=radius,
         parameters=tuple(float(v) for v in params), rms=rms, terms=chosen,
     )
 
@@ -725,6 +796,18 @@ def _tiles(img: np.ndarray, oy: np.ndarray, ox: np.ndarray, d: np.ndarray, win: 
     return out
 
 
+def _ncc_at(ga: np.ndarray, gb: np.ndarray, oy: np.ndarray, ox: np.ndarray, d: np.ndarray,
+            t: int, workers: int) -> np.ndarray:
+    """Normalised cross-correlation of the bright tiles with the dark tiles taken at ``d``."""
+    win = np.outer(_hann(t), _hann(t)).astype(np.float32)
+    ta = _tiles(ga, oy, ox, d, win, workers)
+    tb = _tiles(gb, oy, ox, np.zeros_like(d), win, workers)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.einsum("nij,nij->n", ta, tb, dtype=np.float64) / np.sqrt(
+            np.einsum("nij,nij->n", ta, ta, dtype=np.float64)
+            * np.einsum("nij,nij->n", tb, tb, dtype=np.float64))
+
+
 def _tile_shifts(ga: np.ndarray, gb: np.ndarray, oy: np.ndarray, ox: np.ndarray, t: int,
                  workers: int, *, recentre: int = 2) -> _TileShifts:
     """Shift per tile between the structure images ``ga`` (dark) and ``gb`` (bright).
@@ -855,8 +938,8 @@ def residual_motion(
     k = float(ratio)
     lo = max(float(noise_floor), 1e-3 * float(saturation))
     hi = float(saturation)
-    ga, in_a = _structure(al * np.float32(k), k * lo, hi)
-    gb, in_b = _structure(bl, k * lo, hi)
+    ga, in_a = _structure(al * np.float32(k), k * lo, hi, nw)
+    gb, in_b = _structure(bl, k * lo, hi, nw)
     nan_a, nan_b = ~np.isfinite(ga), ~np.isfinite(gb)
 
     t = int(tile) if tile is not None else _choose_tile((hl, wl))
@@ -876,7 +959,8 @@ def residual_motion(
         ga = np.where(nan_a, np.float32(np.nanmean(ga)), ga)
         gb = np.where(nan_b, np.float32(np.nanmean(gb)), gb)
     ts = _tile_shifts(ga, gb, oy, ox, t, nw)
-    min_conf = CONFIDENCE_PER_TILE / t if min_confidence is None else float(min_confidence)
+    min_conf = (max(CONFIDENCE_PER_TILE / t, MIN_CONFIDENCE) if min_confidence is None
+                else float(min_confidence))
     conf = np.nan_to_num(ts.ncc, nan=0.0)
     with np.errstate(invalid="ignore"):  # worst-direction standard error, analysed pixels
         tr = ts.cov[:, 0, 0] + ts.cov[:, 1, 1]
@@ -892,24 +976,50 @@ def residual_motion(
     sigma = sig_l * f
     cov = ts.cov * (f * f)
     mags = np.hypot(shifts[:, 0], shifts[:, 1])
-    nv = int(valid.sum())
     local = np.full(n, np.nan)
-    pattern = None
-    worst, region = -1, ""
-    if nv >= min_tiles:
+    sensor = np.zeros(n, bool)
+    ambiguous = np.zeros(n, bool)
+    pattern, pred = None, None
+    if valid.sum() >= min_tiles:
         pattern = _fit_pattern(centres[valid], shifts[valid], (h, w), cov[valid], 0.05 * f)
         pred = pattern.predict(centres[:, 0], centres[:, 1], (h, w))
         local = np.hypot(*(shifts - pred).T)
-        lv = np.where(valid, local, -np.inf)
-        worst = int(np.argmax(lv))
+        if matrix is not None:
+            # Structure fixed to the sensor (fixed-pattern noise, hot pixels, dust, JPEG
+            # blocks) does not move with the scene: after the warp it shows the alignment
+            # itself, H^-1 c - c, and says nothing about the scene's alignment.
+            fixed = _field(np.linalg.inv(hm), centres)
+            apart = np.hypot(*(fixed - pred).T)
+            sensor = valid & (apart > 3.0 * f) & (
+                np.hypot(*(shifts - fixed).T) <= np.maximum(1.0 * f, 0.1 * apart))
+        # A tile far off the pattern that matches about as well where the pattern says is
+        # ambiguous (the wrong period of a repetitive texture), not a local motion.
+        far = np.flatnonzero(valid & ~sensor & (local > 3.0 * f))
+        if far.size:
+            at = _ncc_at(ga, gb, oy[far], ox[far], pred[far] / f, t, nw)
+            ambiguous[far[at >= 0.8 * conf[far]]] = True
+        if (valid & ~sensor & ~ambiguous).sum() >= min_tiles:
+            valid &= ~sensor & ~ambiguous
+        else:  # too few left: keep them rather than say nothing
+            sensor[:] = ambiguous[:] = False
+    nv = int(valid.sum())
+    worst, region = -1, ""
+    if pattern is not None:
         off = valid & (local > local_px)
-        where = centres[off].mean(axis=0) if off.sum() >= 2 else centres[worst]
+        coherent = _coherent(off, shifts - pred, ny, nx, 0.5 * local_px)
+        lv = np.where(coherent if coherent.any() else valid, local, -np.inf)
+        worst = int(np.argmax(lv))
+        where = centres[coherent].mean(axis=0) if coherent.any() else centres[worst]
         region = region_name(where[0], where[1], (h, w))
         med = float(np.median(mags[valid]))
         p90 = float(np.percentile(mags[valid], 90))
         mx = float(mags[valid].max())
-        status, kind, message = _verdict(pattern, med, p90, mags, local, valid, worst, region,
-                                         aligned_px, local_px)
+        status, kind, message = _verdict(pattern, med, p90, mags, local, valid, coherent, off,
+                                         region, aligned_px, local_px)
+        if sensor.any():
+            k = int(sensor.sum())
+            message += (f"; {k} tile{'s follow' if k > 1 else ' follows'} the sensor, not the "
+                        f"scene (fixed-pattern noise or dust), left out")
     else:
         med = p90 = mx = float("nan")
         status, kind = "unmeasured", ""
@@ -922,27 +1032,54 @@ def residual_motion(
         sigma=sigma, in_range=frac_in, valid=valid, local=local, median=med, p90=p90, max=mx,
         pattern=pattern, worst=worst, worst_region=region, status=status, kind=kind,
         message=message, aligned_px=float(aligned_px), local_px=float(local_px),
-        seconds=time.perf_counter() - t0,
+        sensor=sensor, ambiguous=ambiguous, seconds=time.perf_counter() - t0,
     )
 
 
+def _field(m: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Displacement ``m(p) - p`` (3x3) at ``points`` ``(N, 2)``."""
+    x, y = points[:, 0], points[:, 1]
+    zw = m[2, 0] * x + m[2, 1] * y + m[2, 2]
+    return np.stack([(m[0, 0] * x + m[0, 1] * y + m[0, 2]) / zw - x,
+                     (m[1, 0] * x + m[1, 1] * y + m[1, 2]) / zw - y], axis=1)
+
+
+def _coherent(off: np.ndarray, resid: np.ndarray, ny: int, nx: int, tol: float) -> np.ndarray:
+    """Tiles of ``off`` with a neighbour (8-connected on the tile grid) also in ``off`` whose
+    residual after the pattern agrees within ``tol`` px or 30 %: parallax and moving objects
+    span neighbouring tiles the same way, false matches (noise, the wrong period of a
+    repetitive texture) do not."""
+    out = np.zeros_like(off)
+    for i in np.flatnonzero(off):
+        r, c = divmod(int(i), nx)
+        for rr in range(max(r - 1, 0), min(r + 2, ny)):
+            for cc in range(max(c - 1, 0), min(c + 2, nx)):
+                j = rr * nx + cc
+                if j != i and off[j] and np.hypot(*(resid[i] - resid[j])) <= max(
+                        tol, 0.3 * float(max(np.hypot(*resid[i]), np.hypot(*resid[j])))):
+                    out[i] = True
+    return out
+
+
 def _verdict(pattern: ResidualPattern, med: float, p90: float, mags: np.ndarray,
-             local: np.ndarray, valid: np.ndarray, worst: int, region: str,
-             aligned_px: float, local_px: float) -> tuple[str, str, str]:
+             local: np.ndarray, valid: np.ndarray, coherent: np.ndarray, off: np.ndarray,
+             region: str, aligned_px: float, local_px: float) -> tuple[str, str, str]:
     """``(status, kind, message)`` from the summarised field (see :func:`residual_motion`).
 
-    A local residual needs two tiles above ``local_px`` (one tile alone may be a false match
-    on sparse structure; it is named in the message but does not decide the status).
+    A local residual needs neighbouring tiles that agree (:func:`_coherent`); tiles off on their
+    own are counted in the message but do not decide the status.
     """
     comps = pattern.component_px()
     name = max(comps, key=comps.get)
     big = comps[name]
-    n_local = int(np.count_nonzero(valid & (local > local_px)))
-    local_worst = float(local[worst]) if n_local >= 2 else 0.0
-    one = (f" (one tile off by {mags[worst]:.1f} px at the {region})" if n_local == 1 else "")
+    n_local = int(np.count_nonzero(coherent))
+    local_worst = float(local[coherent].max()) if n_local else 0.0
+    n_alone = int(np.count_nonzero(off & ~coherent))
+    alone = (f" ({n_alone} isolated tile{'s' if n_alone > 1 else ''} off by up to "
+             f"{float(mags[off & ~coherent].max()):.1f} px)" if n_alone else "")
     if med <= aligned_px and big <= 2 * aligned_px and local_worst <= local_px:
         return ("aligned", "",
-                f"{med:.2f} px median over {int(valid.sum())} tiles: aligned{one}")
+                f"{med:.2f} px median over {int(valid.sum())} tiles: aligned{alone}")
     if big > 2 * aligned_px and big >= local_worst:
         if name == "zoom":
             what = f"a zoom of {100 * pattern.zoom:+.2f} % is left ({big:.1f} px at the corners)"
@@ -958,10 +1095,10 @@ def _verdict(pattern: ResidualPattern, med: float, p90: float, mags: np.ndarray,
             what = f"an anisotropic scale or shear of {big:.1f} px at the corners is left"
         return "misaligned", name, f"{what}: {_HINTS[name]}"
     if local_worst > local_px:
-        size = float(np.median(mags[valid & (local > local_px)]))
+        size = float(np.median(mags[coherent]))
         return ("misaligned", "local",
                 f"{size:.1f} px of residual motion at the {region} ({n_local} tiles): "
-                f"parallax or a moving object")
+                f"parallax, a moving object or flare")
     return ("misaligned", "scattered",
             f"{med:.2f} px median residual motion (90 % under {p90:.2f} px), no global pattern: "
-            f"noise, blur or a poor match{one}")
+            f"noise, blur or a poor match{alone}")

@@ -161,7 +161,7 @@ def test_two_planes_local_residual_is_located():
     assert aligned.status == "misaligned" and aligned.kind == "local", aligned.message
     assert aligned.worst_region == "lower left"
     assert aligned.describe().startswith("3.0 px of residual motion at the lower left")
-    assert aligned.describe().endswith("parallax or a moving object")
+    assert aligned.describe().endswith("parallax, a moving object or flare")
     assert aligned.median < 0.1  # the dominant plane is aligned
     # tiles wholly inside the patch measure its motion
     x, y = res.centres[:, 0], res.centres[:, 1]
@@ -237,8 +237,8 @@ def test_pyramid_level_on_large_frames_reports_full_resolution_pixels():
     h = _similarity(shift=(1.6, -2.4))
     res, truth = _measure(h, max_pixels=60_000)
     assert res.level == 1 and res.tile == 32
-    v = res.valid
-    assert np.all(np.abs(np.median(res.shifts[v] - truth[v], axis=0)) <= 0.05)
+    v = res.valid  # 0.04 analysed px on level 1
+    assert np.all(np.abs(np.median(res.shifts[v] - truth[v], axis=0)) <= 0.08)
     assert res.centres[:, 0].max() < SHAPE[1] and res.centres[:, 1].max() < SHAPE[0]
 
 
@@ -267,3 +267,22 @@ def test_region_names():
 def test_bad_input_says_what_is_wrong(args, kwargs, match):
     with pytest.raises(ParameterError, match=match):
         residual_motion(*args, **kwargs)
+
+
+def test_structure_fixed_to_the_sensor_is_left_out():
+    """Dust on the sensor (a strong multiplicative stain at the same pixels in both frames)
+    shows the alignment itself once the bright frame is warped: those tiles are left out."""
+    h = _similarity(shift=(6.0, -4.0))
+    dark, bright, sat, nf = _pair(h)
+    rng = np.random.default_rng(5)
+    z = ndimage.gaussian_filter(rng.standard_normal((192, 288)), 2.0)
+    stain = np.exp(0.6 * z / z.std() - 0.6).astype(np.float32)
+    for frame in (dark, bright):
+        frame[:192, :288] *= stain
+    res = residual_motion(dark, bright, 4.0, h, saturation=sat, noise_floor=nf)
+    assert res.sensor.sum() >= 3
+    x, y = res.centres[res.sensor, 0], res.centres[res.sensor, 1]
+    assert np.all(x < 288) and np.all(y < 192)
+    assert not np.any(res.valid & res.sensor)
+    assert res.status == "aligned", res.message
+    assert "follow the sensor" in res.describe()
