@@ -57,7 +57,7 @@ __all__ = ["ClientView", "PANEL_WIDTH", "DEFAULT_MARK"]
 
 log = logging.getLogger(__name__)
 
-PANEL_WIDTH = 1120
+PANEL_WIDTH = 900  # the strip between the panels holds the notifications
 DEFAULT_MARK = " · default"
 WEBGL_TOAST = "webgl-software-rendering"  # viser's own notification id (BrowserWarning.tsx)
 
