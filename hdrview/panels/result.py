@@ -6,6 +6,7 @@ Everything drawn comes from the pipeline's preview and :class:`hdrcore.merge.Mer
 from __future__ import annotations
 
 import tempfile
+import threading
 from pathlib import Path
 from typing import Any
 
@@ -18,9 +19,12 @@ from hdrcore.io import encode_png, write_exr
 from ._access import merge_of, preview_of
 from ._draw import DISPLAY_WIDTH, display_step, enlarge, labels_to_rgb, unit_to_display
 
-__all__ = ["ResultPanel", "LAYERS", "FRAME_COLOURS", "exr_bytes", "preview_png_bytes"]
+__all__ = ["ResultPanel", "LAYERS", "ZOOMS", "FRAME_COLOURS", "exr_bytes", "preview_png_bytes",
+           "loupe", "fit_to_box"]
 
 LAYERS = ("tonemapped", "provenance", "clipping", "ghosts", "deghosted")
+ZOOMS = ("fit", "100 %", "200 %", "400 %")
+BOX = (880, 620)  # (width, height) of the image area: a portrait frame fits without scrolling
 
 _MASK_LAYERS = {  # layer -> (MergeResult attribute, colour, what it shows)
     "clipping": ("clipped", (255, 0, 0), "clipped in every frame (value is a lower bound)"),
@@ -48,17 +52,80 @@ def _fit(a: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
     return a[: shape[0], : shape[1]]
 
 
+def fit_to_box(image: np.ndarray, box: tuple[int, int] = BOX) -> np.ndarray:
+    """The whole image within ``box`` (width, height): a portrait frame is shrunk to the box's
+    height and set on a neutral grey, so it never needs scrolling."""
+    h, w = image.shape[:2]
+    bw, bh = box
+    if h <= bh or w >= h:
+        return image
+    step = int(np.ceil(h / bh))
+    small = image[::step, ::step]
+    out = np.full((small.shape[0], max(small.shape[1], min(bw, w)), 3), 96, np.uint8)
+    x0 = (out.shape[1] - small.shape[1]) // 2
+    out[:, x0:x0 + small.shape[1]] = small
+    return out
+
+
+def loupe(result: Any, zoom: float, cx: float, cy: float,
+          box: tuple[int, int] = BOX) -> tuple[np.ndarray, tuple[int, int, int, int]]:
+    """A crop of the full-resolution radiance map at ``zoom`` screen pixels per image pixel
+    (1 = 100 %), centred at ``(cx, cy)`` (fractions of the width and height), tonemapped with
+    the preview's own operator and scale (so it matches the preview), pixels repeated for zooms
+    above 100 %. Returns the image and the crop ``(x0, y0, x1, y1)`` in image pixels."""
+    from hdrcore.tonemap import tonemap
+
+    radiance = getattr(result, "radiance", None)
+    preview = getattr(result, "preview", None)
+    if radiance is None or preview is None:
+        raise InputError("the merged radiance map is not available yet")
+    h, w = radiance.shape[:2]
+    cw = max(1, min(w, int(box[0] / zoom)))
+    ch = max(1, min(h, int(box[1] / zoom)))
+    x0 = int(round(cx * w - cw / 2))
+    y0 = int(round(cy * h - ch / 2))
+    x0 = min(max(0, x0), w - cw)
+    y0 = min(max(0, y0), h - ch)
+    crop = np.ascontiguousarray(radiance[y0:y0 + ch, x0:x0 + cw])
+    tm = tonemap(crop, preview.method, exposure=float(np.log2(preview.scale)),
+                 auto_exposure=False, white=preview.white)
+    img = tm.image
+    k = int(round(zoom))
+    if k > 1:
+        img = np.repeat(np.repeat(img, k, axis=0), k, axis=1)
+    return np.ascontiguousarray(img), (x0, y0, x0 + cw, y0 + ch)
+
+
 class ResultPanel:
     """The preview or one diagnostic layer, with its legend."""
 
     def __init__(self, gui: viser.GuiApi) -> None:
         self._gui = gui
         self.summary = gui.add_markdown("No bracket loaded.")
+        self.zoom = gui.add_dropdown(
+            "Zoom", ZOOMS, hint="fit: the whole picture; 100 %: one screen pixel per image pixel "
+                                "of the full-resolution result (a loupe)")
+        self.centre_x = gui.add_slider("Centre x (%)", 0.0, 100.0, 1.0, 50.0, visible=False)
+        self.centre_y = gui.add_slider("Centre y (%)", 0.0, 100.0, 1.0, 50.0, visible=False)
         self.image = gui.add_image(np.zeros((4, 4, 3), np.uint8), label="result", format="jpeg",
                                    visible=False)
         self._images: dict[str, np.ndarray] = {}
+        self._last: tuple[Any, Any, dict] | None = None
+        self._lock = threading.Lock()
+        for handle in (self.zoom, self.centre_x, self.centre_y):
+            handle.on_update(lambda _e: self._redraw())
+
+    def _redraw(self) -> None:
+        last = self._last
+        if last is not None:
+            self.show(*last)
 
     def show(self, bracket: Any, result: Any, view: dict) -> None:
+        with self._lock:
+            self._show(bracket, result, view)
+
+    def _show(self, bracket: Any, result: Any, view: dict) -> None:
+        self._last = (bracket, result, view)
         merged = merge_of(result)
         preview = preview_of(result)
         if bracket is None or (merged is None and preview is None):
@@ -116,11 +183,25 @@ class ResultPanel:
             shown = layer_img
         elif layer != "tonemapped":
             lines.append(f"_Layer {layer} needs the merge result._")
-        self.summary.content = "\n\n".join(lines) if lines else "Tonemapped preview."
-        if shown is not None:
-            self.image.image = enlarge(shown)
-            self.image.label = f"{layer}"
+        zoom = self.zoom.value
+        self.centre_x.visible = self.centre_y.visible = zoom != "fit"
+        radiance = getattr(result, "radiance", None)
+        if zoom != "fit" and layer == "tonemapped" and radiance is not None:
+            factor = float(zoom.split()[0]) / 100.0
+            crop, (x0, y0, x1, y1) = loupe(result, factor, self.centre_x.value / 100.0,
+                                           self.centre_y.value / 100.0)
+            images["loupe"] = crop
+            self.image.image = crop
+            self.image.label = (f"{zoom} of the full-resolution result: pixels {x0}-{x1} x "
+                                f"{y0}-{y1} of {result.radiance.shape[1]}x"
+                                f"{result.radiance.shape[0]}")
             self.image.visible = True
+        elif shown is not None:
+            self.image.image = fit_to_box(enlarge(shown))
+            self.image.label = f"{layer}" + ("" if zoom == "fit" else
+                                             " (the loupe shows the tonemapped layer)")
+            self.image.visible = True
+        self.summary.content = "\n\n".join(lines) if lines else "Tonemapped preview."
         self._images = images
 
     def bundle_files(self) -> list[tuple[str, bytes]]:

@@ -1,0 +1,48 @@
+"""Images you can inspect (issue 16): a 100 % loupe on the full-resolution result that matches the
+preview's rendering, and portrait frames that fit the window."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from hdrcore.tonemap import tonemap
+from hdrview.panels.result import BOX, fit_to_box, loupe
+
+
+def test_loupe_is_a_full_resolution_crop_rendered_like_the_preview(app) -> None:
+    assert app.request_path("bracket")
+    assert app.wait_idle(120)
+    result = app.session.result
+    rad = result.radiance
+    h, w = rad.shape[:2]
+    img, (x0, y0, x1, y1) = loupe(result, 1.0, 0.5, 0.5)
+    assert img.shape[:2] == (min(h, BOX[1]), min(w, BOX[0])) == (y1 - y0, x1 - x0)
+    full = tonemap(rad, result.preview.method, exposure=float(np.log2(result.preview.scale)),
+                   auto_exposure=False, white=result.preview.white).image
+    assert np.abs(img.astype(int) - full[y0:y1, x0:x1].astype(int)).max() <= 1
+    # 400 %: a quarter of the pixels each way, each repeated 4 times, clamped inside the image.
+    img4, (a0, b0, a1, b1) = loupe(result, 4.0, 1.0, 0.0)
+    assert (a1, b0) == (w, 0) and img4.shape[1] == 4 * (a1 - a0)
+    assert np.array_equal(img4[::4, ::4], full[b0:b1, a0:a1]) or np.abs(
+        img4[::4, ::4].astype(int) - full[b0:b1, a0:a1].astype(int)).max() <= 1
+
+
+def test_the_panel_switches_to_the_loupe(app) -> None:
+    assert app.request_path("bracket")
+    assert app.wait_idle(120)
+    panel = app.result_panel
+    panel.zoom.value = "200 %"
+    panel._redraw()
+    assert "200 % of the full-resolution result" in panel.image.label
+    assert panel.centre_x.visible
+    panel.zoom.value = "fit"
+    panel._redraw()
+    assert not panel.centre_x.visible and panel.image.label == "tonemapped"
+
+
+def test_portrait_fits_the_window() -> None:
+    portrait = np.zeros((3000, 2000, 3), np.uint8)
+    out = fit_to_box(portrait)
+    assert out.shape[0] <= BOX[1] and out.shape[1] >= out.shape[0] * 2000 // 3000
+    landscape = np.zeros((400, 600, 3), np.uint8)
+    assert fit_to_box(landscape) is landscape
