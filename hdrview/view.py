@@ -62,6 +62,36 @@ DEFAULT_MARK = " · default"
 WEBGL_TOAST = "webgl-software-rendering"  # viser's own notification id (BrowserWarning.tsx)
 
 
+def _term(word: str, paper: str) -> str:
+    """A word a photographer knows, with the paper's term on hover."""
+    return f"<abbr title='{paper}'>{word}</abbr>"
+
+
+#: "What am I looking at", one short note per tab.
+NOTES = {
+    "Frames": "The frames as loaded, darkest first, with what the camera recorded. A capture "
+              "warning means the bracket itself has a problem (settings changed, frames out "
+              "of order).",
+    "BTF": "How much brighter the brighter frame of a pair is. Each dot compares the same "
+           "brightness level in the two frames' histograms; a straight line through the dots "
+           "is the " + _term("exposure ratio", "k of eq. 4, fitted iteratively") + ". Dots "
+           "far off the line are " + _term("ignored", "outliers beyond 3 standard deviations "
+                                           "(3V)") + ". Below: the same comparison level by "
+           "level, with the clipping level Z and the noise floor.",
+    "Masks": "Which pixels of the chosen pair were used: well exposed in both frames (green), "
+             "too dark or clipped in one of them. Only these count for the ratio and the "
+             "alignment.",
+    "Registration": "How the hand-held frames were lined up. The overlay shows the two frames "
+                    "in red and cyan: grey where they agree, coloured fringes where they do "
+                    "not. The " + _term("difference", "normalised difference of eq. 7") +
+                    " view shows what is left after alignment.",
+    "Result": "The merged HDR image shown on a normal screen. Zoom to 100 % to check edges and "
+              "text; the other layers show which frame each pixel came from, what is clipped "
+              "everywhere and where something moved.",
+    "Diagnostics": "What went right and wrong, worst first, with one row per pair of frames.",
+}
+
+
 def _registry_names() -> dict[str, tuple[str, ...]]:
     """The choices of each dropdown, from the library's registries."""
     from hdrcore.exposure import EXPOSURE_METHODS
@@ -220,16 +250,22 @@ class ClientView:
         for name in ("Frames", "BTF", "Masks", "Registration", "Result", "Diagnostics"):
             tabs[name] = self.panel.add_tab(name)
         with tabs["Frames"]:
+            gui.add_markdown(f"_{NOTES['Frames']}_")
             self.frames_panel = FramesPanel(gui, tabs["Frames"])
         with tabs["BTF"]:
+            gui.add_markdown(f"_{NOTES['BTF']}_")
             self.btf_panel = btf_panel.BtfPanel(gui)
         with tabs["Masks"]:
+            gui.add_markdown(f"_{NOTES['Masks']}_")
             self.masks_panel = masks_panel.MasksPanel(gui)
         with tabs["Registration"]:
+            gui.add_markdown(f"_{NOTES['Registration']}_")
             self.registration_panel = registration_panel.RegistrationPanel(gui)
         with tabs["Result"]:
+            gui.add_markdown(f"_{NOTES['Result']}_")
             self.result_panel = result_panel.ResultPanel(gui)
         with tabs["Diagnostics"]:
+            gui.add_markdown(f"_{NOTES['Diagnostics']}_")
             self.diagnostics_panel = diagnostics_panel.DiagnosticsPanel(gui)
         self.panel.dock_left()
         self.panel.set_width(PANEL_WIDTH)

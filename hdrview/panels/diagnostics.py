@@ -14,11 +14,12 @@ from ._draw import fmt, md_table
 from .frames import warnings_markdown
 
 __all__ = ["DiagnosticsPanel", "bundle_files", "frames_table", "pairs_table",
-           "verdicts_markdown"]
+           "summary_line", "verdicts_markdown"]
 
 
 def pairs_table(exposure: Any, registration: Any, bracket: Any = None) -> str:
-    header = ["pair", "ratio", "95 % interval", "EXIF ratio", "mismatch (stops)", "inliers",
+    header = ["pair", "ratio", "95 % interval", "EXIF ratio", "mismatch (stops)",
+              "inlier equations",
               "ratio status", "cost before → after", "dx, dy, angle", "registration status"]
     rows = []
     names = None if bracket is None else [f.name for f in bracket.frames]
@@ -78,19 +79,52 @@ def _interval_text(p: Any) -> str:
     return f"{lo:.4g}–{hi:.4g} (±{100 * h:.2g} %)"
 
 
-def _verdict_text(v: Any) -> str:
-    if isinstance(v, str):
-        return v
-    code = getattr(v, "code", None)
-    msg = getattr(v, "message", None) or str(v)
-    return f"`{code}`: {msg}" if code else msg
+_SEVERITY = (("error", "Problems", "the result is wrong or missing here"),
+             ("warning", "Warnings", "the result may be off; check"),
+             ("info", "Notes", "for information"))
+
+
+def summary_line(result: Any) -> str:
+    """One sentence: what was merged and how many problems, warnings and notes there are."""
+    verdicts = [v for v in verdicts_of(result) if not isinstance(v, str)]
+    counts = {sev: sum(1 for v in verdicts if getattr(v, "severity", "info") == sev)
+              for sev, _, _ in _SEVERITY}
+    loaded = getattr(result, "loaded_bracket", None) or getattr(result, "bracket", None)
+    used = getattr(result, "bracket", None)
+    merged = getattr(result, "merge", None)
+    n_all = len(loaded) if loaded is not None else 0
+    n_used = len(used) if used is not None else n_all
+    head = (f"**Merged {n_used} of {n_all} frames**" if merged is not None
+            else "**Not merged**")
+    source = getattr(result, "times_source", None)
+    if source:
+        head += f" (exposure times: {fmt(source)})"
+    parts = []
+    for sev, _title, _ in _SEVERITY:
+        n = counts[sev]
+        if n:
+            word = {"error": "problem", "warning": "warning", "info": "note"}[sev]
+            parts.append(f"{n} {word}{'s' if n != 1 else ''}")
+    return head + ("; " + ", ".join(parts) if parts else "; no problems found") + "."
 
 
 def verdicts_markdown(result: Any) -> str:
+    """The summary line, then the verdicts grouped by severity, worst first (codes on hover)."""
     verdicts = verdicts_of(result)
+    lines = [summary_line(result)]
     if not verdicts:
-        return "**Verdict:** no problems found."
-    return "**Verdict**\n\n" + "\n".join(f"- {fmt(_verdict_text(v))}" for v in verdicts)
+        return lines[0]
+    for sev, title, what in _SEVERITY:
+        group = [v for v in verdicts if (getattr(v, "severity", "info") if not isinstance(
+            v, str) else "info") == sev]
+        if not group:
+            continue
+        lines.append(f"\n**{title}** ({what})\n")
+        for v in group:
+            code = getattr(v, "code", None)
+            msg = fmt(getattr(v, "message", None) or str(v))
+            lines.append(f"- <span title='{code}'>{msg}</span>" if code else f"- {msg}")
+    return "\n".join(lines)
 
 
 class DiagnosticsPanel:
