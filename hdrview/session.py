@@ -114,8 +114,9 @@ class Session:
         return PipelineParams()
 
     def params_for(self, controls: Controls) -> Any:
-        """The pipeline's parameter object with every control that is set."""
-        base = self.params if self.params is not None else self.default_params()
+        """The pipeline's defaults with every control that is set (a reset control goes back to
+        the default, never to its previous value)."""
+        base = self.default_params()  # a control left at None means the pipeline's default
         names = {f.name for f in dataclasses.fields(base)}
         changes = {}
         for key, candidates in _PARAM_NAMES.items():

@@ -95,12 +95,12 @@ NOTES = {
 def _registry_names() -> dict[str, tuple[str, ...]]:
     """The choices of each dropdown, from the library's registries."""
     from hdrcore.exposure import EXPOSURE_METHODS
-    from hdrcore.registration import MODELS
+    from hdrcore.pipeline import ALIGN_CHOICES
     from hdrcore.response import RESPONSE_METHODS, SPECIAL_RESPONSES
     from hdrcore.tonemap import TONEMAP_OPERATORS
 
     return {
-        "alignment": ("none", *MODELS),
+        "alignment": tuple(ALIGN_CHOICES),
         "response": ("auto", *SPECIAL_RESPONSES, *RESPONSE_METHODS),
         "tonemap": tuple(TONEMAP_OPERATORS),
         "exposure_method": tuple(EXPOSURE_METHODS),
