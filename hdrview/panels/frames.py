@@ -11,9 +11,68 @@ from hdrcore.io import Bracket
 
 from ._draw import fmt, levels_to_display, md_table
 
-__all__ = ["FramesPanel", "frames_table", "warnings_markdown"]
+__all__ = ["FramesPanel", "frames_table", "warnings_markdown", "contact_sheet"]
 
-THUMB_WIDTH = 300
+THUMB_WIDTH = 280
+COLUMNS = 3
+HIST_HEIGHT = 48
+_HIST_COLOURS = ((214, 39, 40), (44, 160, 44), (31, 119, 180))
+
+
+def _histogram_strip(levels: np.ndarray, max_level: int, width: int) -> np.ndarray:
+    """Per-channel histograms of the frame's levels (log counts), ``width`` pixels wide, each
+    channel a translucent area in its colour."""
+    strip = np.full((HIST_HEIGHT, width, 3), 250.0, np.float32)
+    sub = levels[::4, ::4]
+    bins = min(width, int(max_level) + 1)
+    rows = np.arange(HIST_HEIGHT)[:, None]
+    for c in range(min(3, sub.shape[-1] if sub.ndim == 3 else 1)):
+        ch = sub[..., c] if sub.ndim == 3 else sub
+        idx = (ch.astype(np.int64) * bins) // (int(max_level) + 1)
+        counts = np.bincount(idx.ravel(), minlength=bins)[:bins].astype(np.float64)
+        heights = np.log1p(counts) / max(np.log1p(counts.max()), 1e-9) * (HIST_HEIGHT - 2)
+        heights = heights[(np.arange(width) * bins) // width]  # one column per pixel
+        filled = rows >= (HIST_HEIGHT - 1 - heights)[None, :]
+        strip[filled] = strip[filled] * 0.6 + np.array(_HIST_COLOURS[c], np.float32) * 0.4
+    return strip.astype(np.uint8)
+
+
+def _seconds(t: Any) -> str:
+    v = float(t)
+    if v <= 0:
+        return f"{v:g} s"
+    return f"1/{1 / v:.0f} s" if v < 0.4 else f"{v:.3g} s"
+
+
+def contact_sheet(bracket: Bracket, columns: int = COLUMNS,
+                  width: int = THUMB_WIDTH) -> np.ndarray:
+    """The frames as a grid of thumbnails, each with its name, time and a histogram below."""
+    from PIL import Image, ImageDraw
+
+    cells = []
+    for k, f in enumerate(bracket.frames):
+        img = levels_to_display(f.levels, f.max_level, linear=f.is_linear, width=width)
+        if img.shape[0] > img.shape[1]:  # portrait: no taller than a 3:2 landscape cell
+            step = int(np.ceil(img.shape[0] / (width * 2 // 3)))
+            img = img[::step, ::step]
+        t = f.meta.exposure_time
+        label = f"{k}: {f.name}" + ("" if t is None else f"  {_seconds(t)}")
+        text = Image.new("RGB", (width, 18), (255, 255, 255))
+        ImageDraw.Draw(text).text((2, 3), label[:44], fill=(20, 20, 20))
+        pic = np.full((img.shape[0], width, 3), 255, np.uint8)
+        x0 = (width - img.shape[1]) // 2
+        pic[:, x0:x0 + img.shape[1]] = img
+        cells.append(np.concatenate([np.asarray(text), pic,
+                                     _histogram_strip(f.levels, f.max_level, width)], axis=0))
+    ch = max(c.shape[0] for c in cells)
+    pad = 6
+    rows = (len(cells) + columns - 1) // columns
+    sheet = np.full((rows * (ch + pad), columns * (width + pad), 3), 255, np.uint8)
+    for k, cell in enumerate(cells):
+        r, c = divmod(k, columns)
+        sheet[r * (ch + pad):r * (ch + pad) + cell.shape[0],
+              c * (width + pad):c * (width + pad) + width] = cell
+    return sheet
 
 
 def frames_table(bracket: Bracket) -> str:
@@ -52,28 +111,25 @@ def warnings_markdown(bracket: Bracket) -> str:
 
 
 class FramesPanel:
-    """Metadata table, capture warnings and one thumbnail per frame."""
+    """Metadata table, capture warnings and the frames as a grid of thumbnails with their
+    histograms (one image: a 12-frame bracket fits one screen)."""
 
     def __init__(self, gui: viser.GuiApi, container: Any) -> None:
         self._gui = gui
         self._container = container
         self.table = gui.add_markdown("No bracket loaded.")
         self.warnings = gui.add_markdown("")
-        self._thumbs: list[Any] = []
+        self.sheet = gui.add_image(np.zeros((4, 4, 3), np.uint8), label="frames, darkest first: "
+                                   "thumbnail and histogram of the levels (log counts)",
+                                   format="jpeg", visible=False)
 
     def show(self, bracket: Bracket | None) -> None:
-        for h in self._thumbs:
-            h.remove()
-        self._thumbs = []
         if bracket is None:
             self.table.content = "No bracket loaded."
             self.warnings.content = ""
+            self.sheet.visible = False
             return
         self.table.content = frames_table(bracket)
         self.warnings.content = warnings_markdown(bracket)
-        for k, f in enumerate(bracket.frames):
-            img = levels_to_display(f.levels, f.max_level, linear=f.is_linear, width=THUMB_WIDTH)
-            t = f.meta.exposure_time
-            label = f"frame {k}: {f.name}" + ("" if t is None else f" ({t} s)")
-            with self._container:
-                self._thumbs.append(self._gui.add_image(np.ascontiguousarray(img), label=label))
+        self.sheet.image = contact_sheet(bracket)
+        self.sheet.visible = True

@@ -25,7 +25,8 @@ def test_load_folder_draws_frames_and_status(app: InspectorApp) -> None:
     assert b.exposure_times == (1.0, 4.0, 16.0)  # from the folder's exposure_times.txt
     assert "frame0.png" in app.frames_panel.table.content
     assert "3 frames" in app.status.content
-    assert len(app.frames_panel._thumbs) == 3
+    sheet = app.frames_panel.sheet
+    assert sheet.visible and sheet.image.shape[1] >= 3 * 280  # three thumbnails in a row
     assert app.pair_dropdown.options == ("pair 0: frames 0-1 (frame0.png, frame1.png)",
                                          "pair 1: frames 1-2 (frame1.png, frame2.png)")
     assert app.saturation_slider.max == 255
