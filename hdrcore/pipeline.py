@@ -57,6 +57,8 @@ from .exposure.result import ExposureRatioResult
 from .io import Bracket
 from .merge import DEFAULT_MODEL_ERROR, MergeResult, NoiseModel, merge
 from .merge.colour import ColourConversion, colour_conversion
+from .merge.colour_check import check_colour
+from .merge.fusion import exposure_fusion
 from .noise import BracketNoise, FrameNoise, bracket_noise, frame_noise
 from .registration import (
     MODELS,
@@ -156,7 +158,8 @@ class PipelineParams:
     threshold : ``t`` of eq. 7 as a fraction of the saturation level.
     align : ``"none"``, ``"shift"`` or ``"euclidean"`` (shift + rotation).
     reference : frame the others are warped onto (default: the middle one).
-    response : ``"auto"`` (linear for RAW, the histogram Debevec-Malik variant otherwise),
+    response : ``"auto"`` (linear for RAW; otherwise the best of the joint recovery, the
+        parametric families and sRGB on held-back correspondences, :mod:`hdrcore.response.select`),
         ``"linear"``, ``"srgb"``, a method of :data:`hdrcore.response.RESPONSE_METHODS`, a saved
         curve (``.json`` path) or a :class:`~hdrcore.response.ResponseCurve`.
     times : ``"estimated"`` (the histogram ratios, the paper's method) or ``"exif"``.
@@ -189,6 +192,11 @@ class PipelineParams:
         from one frame, the best exposed there (:mod:`hdrcore.merge.deghost`): a moving object
         comes out whole instead of doubled. Off by default: the weighted average is the
         estimate with the least noise wherever the scene held still.
+    colour_anchor : non-linear input (sRGB working space): give the merge the colour of the
+        frames that expose each region best, the reference frame's where it is well exposed
+        (:func:`hdrcore.merge.colour_check.anchor_colour`; the frames decoded with sRGB, as a
+        screen shows them), keeping the merge's luminance. The colour is checked before and
+        after (``result.colour["check"]``).
     """
 
     saturation: float | None = None
@@ -202,7 +210,7 @@ class PipelineParams:
     registration_method: str = "fast"
     tonemap: str = "reinhard"
     tonemap_exposure: float = 0.0
-    preview_max_side: int | None = 1600
+    preview_max_side: int | None = 2048  # the same as `hdrcore merge --preview-size`
     working_space: str = "sRGB"
     exclude_colour: tuple[int, int, int] | None = None
     ratio_fallback_stops: float = 0.0
@@ -210,6 +218,7 @@ class PipelineParams:
     registration_max_pixels: int | None = None
     refine_ratios: str = "pixels"
     deghost: bool = False
+    colour_anchor: bool = True
 
     def replace(self, **changes: Any) -> PipelineParams:
         return replace(self, **changes)
@@ -324,6 +333,9 @@ class PipelineResult:
             "response": None if self.response is None else {
                 "method": self.response.method,
                 "message": getattr(self.response, "message", ""),
+                "status": getattr(self.response, "status", "ok"),
+                "selection": None if getattr(self.response, "selection", None) is None
+                else self.response.selection.to_json(),
             },
             "registration": self.registration_json(),
             "merge": None if self.merge is None else self.merge.summary(),
@@ -809,7 +821,7 @@ class Pipeline:
             times, times_source = self._merge_times(exposures, p)
         if want("merge"):
             merge_key = (ratio_key, None if registration is None else reg_key, tuple(times),
-                         p.working_space, bool(p.deghost))
+                         p.working_space, bool(p.deghost), bool(p.colour_anchor))
             reuse = self._take_spare(merge_key)
             merge_result, radiance, colour_info = self._stage(
                 "merge", merge_key,
@@ -817,9 +829,13 @@ class Pipeline:
                 timings,
             )
             if want("preview"):
-                preview_key = (merge_key, p.tonemap, p.tonemap_exposure, p.preview_max_side)
+                preview_key = (merge_key, p.tonemap, p.tonemap_exposure, p.preview_max_side,
+                               p.colour_anchor)
+                ltm = colour_info.get("check", {}).get("local_tone_mapping") or {}
                 preview, factor = self._stage(
-                    "preview", preview_key, lambda: self._preview(p, radiance), ran, timings
+                    "preview", preview_key,
+                    lambda: self._preview(p, radiance, bool(ltm.get("detected")), registration),
+                    ran, timings,
                 )
         timings["total"] = time.perf_counter() - t_start
         res = PipelineResult(
@@ -868,10 +884,8 @@ class Pipeline:
                   mask: np.ndarray | None = None) -> ResponseCurve | None:
         b = self.bracket
         spec = p.response
-        if isinstance(spec, str) and spec.lower() == "auto":
-            if b.is_linear:
-                return None
-            spec = "debevec-histogram"
+        if isinstance(spec, str) and spec.lower() == "auto" and b.is_linear:
+            return None
         if isinstance(spec, str) and spec.lower() == "linear" and b.is_linear:
             return None
         if levels is None:
@@ -879,7 +893,7 @@ class Pipeline:
         exif = self._recorded_exposures()
         times: tuple[float, ...] | None = (
             tuple(float(e) for e in exif) if all(e is not None for e in exif) else None)
-        method_names = {k.lower() for k in RESPONSE_METHODS}
+        method_names = {k.lower() for k in RESPONSE_METHODS} | {"auto"}
         if isinstance(spec, str) and spec.lower() in method_names and times is None:
             # No exposure times: the ratios measured on sRGB-linearised histograms stand in for
             # them (the response is then fixed up to the usual exponent ambiguity, which the
@@ -1135,6 +1149,18 @@ class Pipeline:
             colour=colour,  # converted inside the merge's finishing pass
             deghost=bool(p.deghost),
         )
+        if lut is not None:
+            # Non-linear input: the merge's colour checked against the frames and (sRGB
+            # working space) anchored to them; local tone mapping tested (issue 15).
+            checked = check_colour(
+                levels, result.radiance, lut, max_level=b.max_level,
+                reference=0 if registration is None else registration.reference,
+                saturation=float(p.saturation), noise_floor=float(p.noise_floor),
+                to_reference=None if registration is None else registration.to_reference,
+                masks=None if excluded is None else [~e for e in excluded[0]],
+                anchor=bool(p.colour_anchor) and colour is None,
+                exposure_times=times, shares=result.shares)
+            colour_info["check"] = checked.to_json()
         return result, result.radiance, colour_info
 
     def _colour(self, p: PipelineParams) -> tuple[ColourConversion | None, dict[str, Any]]:
@@ -1160,8 +1186,21 @@ class Pipeline:
             return colour_conversion(None, None, p.working_space), info
         return None, info
 
-    def _preview(self, p: PipelineParams, radiance: np.ndarray):
+    def _preview(self, p: PipelineParams, radiance: np.ndarray, fusion: bool = False,
+                 registration: BracketRegistration | None = None):
         factor = downsample_factor(radiance.shape[:2], p.preview_max_side)
+        if fusion:
+            # Locally tone-mapped frames: no radiance map is right, so the preview is their
+            # exposure fusion (Mertens et al. 2007), the frames' own colours and contrast.
+            t0 = time.perf_counter()
+            image = exposure_fusion(
+                [f.levels for f in self.bracket.frames], max_level=self.bracket.max_level,
+                to_reference=None if registration is None else registration.to_reference,
+                factor=factor)
+            return TonemapResult(
+                image=image, method="exposure-fusion", exposure=0.0, key=0.0,
+                auto_exposure=False, log_average=float("nan"), scale=1.0, white=None,
+                timings={"total": time.perf_counter() - t0}), factor
         small = downsample_area(radiance, factor) if factor > 1 else radiance
         return tonemap(small, p.tonemap, exposure=p.tonemap_exposure), factor
 
