@@ -494,6 +494,7 @@ class ClientView:
         """The page left: stop its worker, drop its uploads and its GUI."""
         self._closed = True
         self.worker.stop()
+        self.registration_panel.close()
         self.uploads.remove()
 
     # -- the job -----------------------------------------------------------------------------

@@ -38,13 +38,15 @@ def level_classes(pair: Any, which: str) -> np.ndarray:
     n = int(pair.max_level) + 1
     levels = np.arange(n)
     table = np.full((n_ch, n), UNUSED, np.int8)
-    table[:, levels <= pair.noise_floor] = UNDER
-    table[:, levels >= pair.saturation] = SATURATED
     sel = np.asarray(eq.direction) == direction
     idx = np.clip(np.floor(np.asarray(eq.level)[sel]).astype(np.int64), 0, n - 1)
     ch = np.asarray(eq.channel)[sel].astype(np.int64)
     inl = np.asarray(pair.inlier_mask, bool)[sel]
     table[ch, idx] = np.where(inl, INLIER, OUTLIER)
+    # A level at or above Z is clipped and one at or below the floor is noise, whatever
+    # equation ends there (an interpolated level can reach the top bin).
+    table[:, levels <= pair.noise_floor] = UNDER
+    table[:, levels >= pair.saturation] = SATURATED
     return table
 
 

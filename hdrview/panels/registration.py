@@ -6,6 +6,7 @@ iteration. Everything drawn comes from :class:`hdrcore.registration.PairRegistra
 
 from __future__ import annotations
 
+import threading
 from typing import Any
 
 import numpy as np
@@ -17,9 +18,73 @@ from hdrcore.io import encode_png
 from ._access import registration_of
 from ._draw import enlarge, fmt, scalar_to_rgb, unit_to_display
 
-__all__ = ["RegistrationPanel", "OVERLAYS", "cost_figure", "motion_summary"]
+__all__ = ["RegistrationPanel", "OVERLAYS", "SHOWS", "cost_figure", "motion_summary",
+           "overlay_crop"]
 
 OVERLAYS = ("red/cyan", "difference (eq. 7)")
+SHOWS = ("after alignment", "before alignment", "blink before / after")
+ZOOMS = ("fit", "100 %", "200 %", "400 %")
+BOX = (880, 560)  # (width, height) of the overlay on screen
+BLINK_SECONDS = 0.7
+
+
+def _linear_green(frame: Any, lut: Any) -> np.ndarray:
+    """The frame's green channel as linear values in [0, 1] (RAW: levels / max level)."""
+    g = frame.levels[..., 1] if frame.levels.ndim == 3 else frame.levels
+    if lut is None:
+        return g.astype(np.float32) / float(frame.max_level)
+    table = np.asarray(lut)[1 if np.asarray(lut).ndim == 2 else 0]
+    return np.asarray(table, np.float32)[g]
+
+
+def overlay_crop(bracket: Any, result: Any, k: int, *, aligned: bool, zoom: float = 1.0,
+                 cx: float = 0.5, cy: float = 0.5,
+                 box: tuple[int, int] = BOX) -> tuple[np.ndarray, tuple[int, int, int, int]]:
+    """Red/cyan overlay of pair ``k`` at full resolution: red the bright frame, cyan the dark
+    frame times the ratio, grey where they agree; a crop of ``box / zoom`` dark-frame pixels
+    centred at ``(cx, cy)``, the bright frame resampled through the pair's homography
+    (``aligned``) or as shot. Returns the image (pixels repeated for zoom > 1) and the crop."""
+    from scipy.ndimage import map_coordinates
+
+    reg = registration_of(result)
+    pair = reg.pairs[k]
+    dark_f, bright_f = bracket.frames[pair.dark], bracket.frames[pair.bright]
+    lut = getattr(result, "lut", None)
+    h, w = dark_f.levels.shape[:2]
+    if zoom <= 0:  # fit: the whole frame, every n-th pixel
+        step = int(np.ceil(max(w / box[0], h / box[1])))
+        x0, y0, cw, ch = 0, 0, w, h
+    else:
+        step = 1
+        cw, ch = max(1, min(w, int(box[0] / zoom))), max(1, min(h, int(box[1] / zoom)))
+        x0 = min(max(0, int(round(cx * w - cw / 2))), w - cw)
+        y0 = min(max(0, int(round(cy * h - ch / 2))), h - ch)
+    ys, xs = np.mgrid[y0:y0 + ch:step, x0:x0 + cw:step].astype(np.float64)
+    dark = _linear_green(dark_f, lut)[y0:y0 + ch:step, x0:x0 + cw:step] * float(pair.ratio)
+    if aligned:
+        inv = np.linalg.inv(np.asarray(pair.homography, np.float64))
+        den = inv[2, 0] * xs + inv[2, 1] * ys + inv[2, 2]
+        bx = (inv[0, 0] * xs + inv[0, 1] * ys + inv[0, 2]) / den
+        by = (inv[1, 0] * xs + inv[1, 1] * ys + inv[1, 2]) / den
+    else:
+        bx, by = xs, ys
+    # Only the part of the bright frame the crop maps to is linearised.
+    bx0 = int(max(0, np.floor(bx.min()) - 2))
+    by0 = int(max(0, np.floor(by.min()) - 2))
+    bx1 = int(min(w, np.ceil(bx.max()) + 3))
+    by1 = int(min(h, np.ceil(by.max()) + 3))
+    if bx1 <= bx0 or by1 <= by0:
+        bright = np.zeros_like(dark)
+    else:
+        src = _linear_green(bright_f, lut)[by0:by1, bx0:bx1]
+        bright = map_coordinates(src, [by - by0, bx - bx0], order=1, mode="constant", cval=0.0)
+    scale = float(np.percentile(np.concatenate([bright.ravel(), dark.ravel()]), 99.0)) or 1.0
+    rgb = np.stack([bright, dark, dark], axis=-1) / scale
+    img = (np.clip(rgb, 0.0, 1.0) ** (1 / 2.2) * 255.0 + 0.5).astype(np.uint8)
+    kz = int(round(zoom)) if zoom > 1 else 1
+    if kz > 1:
+        img = np.repeat(np.repeat(img, kz, axis=0), kz, axis=1)
+    return np.ascontiguousarray(img), (x0, y0, x0 + cw, y0 + ch)
 
 
 def cost_figure(pair: Any) -> go.Figure:
@@ -53,9 +118,24 @@ class RegistrationPanel:
     def __init__(self, gui: viser.GuiApi) -> None:
         self._gui = gui
         self.summary = gui.add_markdown("No bracket loaded.")
+        self.show_dropdown = gui.add_dropdown(
+            "Show", SHOWS, hint="blink: the image switches between before and after, so a "
+                                "shift of one pixel shows as movement")
+        self.zoom = gui.add_dropdown("Zoom ", ZOOMS, hint="the overlay at full resolution; "
+                                                         "fit: the whole frame")
+        self.centre_x = gui.add_slider("Centre x (%) ", 0.0, 100.0, 1.0, 50.0, visible=False)
+        self.centre_y = gui.add_slider("Centre y (%) ", 0.0, 100.0, 1.0, 50.0, visible=False)
         blank = np.zeros((4, 4, 3), np.uint8)
+        self.full = gui.add_image(blank, label="overlay", format="png", visible=False)
         self.before = gui.add_image(blank, label="before alignment", format="png", visible=False)
         self.after = gui.add_image(blank, label="after alignment", format="png", visible=False)
+        self._last: tuple[Any, Any, dict] | None = None
+        self._frames: dict[bool, np.ndarray] = {}
+        self._lock = threading.Lock()
+        self._blink_stop = threading.Event()
+        self._blink_thread: threading.Thread | None = None
+        for handle in (self.show_dropdown, self.zoom, self.centre_x, self.centre_y):
+            handle.on_update(lambda _e: self._redraw())
         self.costs = gui.add_plotly(go.Figure(), aspect=0.45, visible=False)  # height / width
         self._images: dict[str, np.ndarray] = {}
         self._figure: go.Figure | None = None
@@ -63,10 +143,70 @@ class RegistrationPanel:
     def _hide(self, text: str) -> None:
         self.summary.content = text
         self.before.visible = self.after.visible = self.costs.visible = False
+        self.full.visible = False
         self._images = {}
         self._figure = None
 
+    def _redraw(self) -> None:
+        last = self._last
+        if last is not None:
+            self.show(*last)
+
+    def close(self) -> None:
+        self._blink_stop.set()
+
+    def _blink(self) -> None:
+        """Switch the overlay between before and after until another choice is made."""
+        aligned = True
+        while not self._blink_stop.wait(BLINK_SECONDS):
+            frames = self._frames
+            if not frames:
+                continue
+            aligned = not aligned
+            try:
+                self.full.image = frames[aligned]
+                self.full.label = ("after alignment" if aligned else "before alignment") + \
+                    " (blinking)"
+            except Exception:  # noqa: BLE001 -- the page went away
+                return
+
+    def _set_blink(self, on: bool) -> None:
+        if on and (self._blink_thread is None or not self._blink_thread.is_alive()):
+            self._blink_stop.clear()
+            self._blink_thread = threading.Thread(target=self._blink, daemon=True,
+                                                  name="hdrview-blink")
+            self._blink_thread.start()
+        elif not on:
+            self._blink_stop.set()
+
+    def _show_full(self, bracket: Any, result: Any, k: int) -> str:
+        """The full-resolution overlay (or a fit of the whole frame); returns its label."""
+        zoom_text = self.zoom.value
+        zoom = 0.0 if zoom_text == "fit" else float(zoom_text.split()[0]) / 100.0
+        self.centre_x.visible = self.centre_y.visible = zoom > 0
+        cx, cy = self.centre_x.value / 100.0, self.centre_y.value / 100.0
+        show = self.show_dropdown.value
+        frames = {}
+        crop = (0, 0, 0, 0)
+        for aligned in (True, False):
+            if show.startswith("blink") or show.startswith("after") == aligned:
+                frames[aligned], crop = overlay_crop(bracket, result, k, aligned=aligned,
+                                                     zoom=zoom, cx=cx, cy=cy)
+        self._frames = frames if show.startswith("blink") else {}
+        first = frames[True] if True in frames else frames[False]
+        self.full.image = first
+        self._set_blink(show.startswith("blink"))
+        where = "whole frame" if zoom == 0 else (
+            f"{zoom_text}: pixels {crop[0]}-{crop[2]} x {crop[1]}-{crop[3]}")
+        return (f"{show} — red: bright frame, cyan: dark frame x ratio, grey where they agree "
+                f"({where})")
+
     def show(self, bracket: Any, result: Any, view: dict) -> None:
+        with self._lock:
+            self._last = (bracket, result, view)
+            self._show(bracket, result, view)
+
+    def _show(self, bracket: Any, result: Any, view: dict) -> None:
         if bracket is None:
             self._hide("No bracket loaded.")
             return
@@ -79,11 +219,23 @@ class RegistrationPanel:
         pair = reg.pairs[k]
         self.summary.content = motion_summary(pair)
         prev = pair.preview
-        if prev is None:
+        mode = view.get("overlay", OVERLAYS[0])
+        if not mode.startswith("difference") and bracket is not None and k < len(reg.pairs):
+            # Full resolution from the frames themselves: zoom, before/after and blink.
+            self.before.visible = self.after.visible = False
+            self.full.label = self._show_full(bracket, result, k)
+            self.full.visible = True
+            self._images = {f"registration-pair{k}-{'after' if a else 'before'}": img
+                            for a, img in self._frames.items()} or {
+                f"registration-pair{k}-overlay": self.full.image}
+        elif prev is None:
+            self._set_blink(False)
+            self.full.visible = False
             self.before.visible = self.after.visible = False
             self.summary.content += "\n\n_No preview images were kept for this pair._"
         else:
-            mode = view.get("overlay", OVERLAYS[0])
+            self._set_blink(False)
+            self.full.visible = False
             if mode.startswith("difference"):
                 before = scalar_to_rgb(prev.difference_before, vmin=-1.0, vmax=1.0)
                 after = scalar_to_rgb(prev.difference_after, vmin=-1.0, vmax=1.0)

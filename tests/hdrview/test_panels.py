@@ -1,23 +1,18 @@
-"""Panels draw real stage result objects (synthetic bracket with known truth) without errors.
-
-The stage results come from ``hdrcore``'s public functions; the pipeline result is stood in for by
-a plain namespace holding them, so the panels are checked before and independently of
-``hdrcore.pipeline``.
-"""
+"""Panels draw the pipeline's real result objects (a synthetic RAW bracket with known truth,
+written as DNG and run through :class:`hdrcore.pipeline.Pipeline`) without errors."""
 
 from __future__ import annotations
 
+import dataclasses
 import io
-import types
 import zipfile
 
 import numpy as np
 import pytest
 
-from hdrcore.exposure import bracket_exposures
-from hdrcore.merge import merge
-from hdrcore.synthetic import simulate_bracket
-from hdrview.app import InspectorApp
+from hdrcore.io import load_bracket
+from hdrcore.pipeline import Pipeline, PipelineParams
+from hdrcore.synthetic import simulate_bracket, write_bracket
 from hdrview.panels.masks import (
     INLIER,
     OUTLIER,
@@ -27,52 +22,37 @@ from hdrview.panels.masks import (
     pixel_classes,
 )
 from hdrview.panels.result import exr_bytes, preview_png_bytes
+from hdrview.view import ClientView
 
 
 @pytest.fixture(scope="module")
 def sim():
     return simulate_bracket(scene="window", shape=(128, 192), exposure_times=(1.0, 4.0, 16.0),
-                            bits=12, response="linear", noise_sigma=1.0, seed=2)
+                            bits=12, response="linear", noise_sigma=1.0, seed=2,
+                            max_shift=2.0, max_rotation_deg=0.3, keep_linear=True)
 
 
 @pytest.fixture(scope="module")
-def stage_result(sim):
-    exposure = bracket_exposures(list(sim.frames), sim.max_level,
-                                 exposure_times=list(sim.exposure_times))
-    registration = None
-    try:
-        from hdrcore.registration.fast import register_pair_fast
-        from hdrcore.registration.result import BracketRegistration
-    except ImportError:
-        pass
-    else:
-        pairs = []
-        for p in exposure.pairs:
-            d = sim.frames[p.dark][..., 1].astype(np.float32) / sim.max_level
-            b = sim.frames[p.bright][..., 1].astype(np.float32) / sim.max_level
-            pairs.append(register_pair_fast(d, b, p.ratio, previews=True))
-        registration = BracketRegistration(reference=1, pairs=tuple(pairs), to_reference=(),
-                                           model="euclidean", method="fast")
-    merged = merge(list(sim.frames), sim.exposure_times, max_level=sim.max_level)
-    preview = np.clip(merged.radiance / np.percentile(merged.radiance, 99), 0, 1) ** (1 / 2.2)
-    return types.SimpleNamespace(exposure=exposure, registration=registration, merge=merged,
-                                 preview=preview, verdicts=("frames 0 and 1: fine",),
-                                 timings={"ratios": 0.01}, to_report=lambda: {"ok": True})
+def stage_result(sim, tmp_path_factory):
+    """A real :class:`hdrcore.pipeline.PipelineResult` of the simulated bracket."""
+    out = tmp_path_factory.mktemp("panels") / "dng"
+    write_bracket(out, sim, fmt="dng")
+    bracket = load_bracket([out])
+    return Pipeline(bracket, PipelineParams()).run()
 
 
 @pytest.fixture
-def sim_bracket(sim):
-    frames = [types.SimpleNamespace(levels=f, name=f"f{k}.dng") for k, f in enumerate(sim.frames)]
-    return types.SimpleNamespace(frames=frames, warnings=())
+def sim_bracket(stage_result):
+    return stage_result.bracket
 
 
 @pytest.fixture
-def viewer(app: InspectorApp) -> InspectorApp:
+def viewer(app: ClientView) -> ClientView:
     return app
 
 
 def test_level_classes_follow_the_equations(stage_result) -> None:
-    pair = stage_result.exposure.pairs[0]
+    pair = stage_result.exposures_histogram.pairs[0]
     for which in ("dark", "bright"):
         table = level_classes(pair, which)
         assert table.shape == (3, pair.max_level + 1)
@@ -81,10 +61,11 @@ def test_level_classes_follow_the_equations(stage_result) -> None:
         assert (table == INLIER).any()
     # Every inlier equation from the dark frame marks its level as an inlier.
     eq = pair.equations
-    sel = (eq.direction == 0) & pair.inlier_mask
+    inside = (eq.level > pair.noise_floor + 1) & (eq.level < pair.saturation - 1)
+    sel = (eq.direction == 0) & pair.inlier_mask & inside
     table = level_classes(pair, "dark")
     assert (table[eq.channel[sel], np.floor(eq.level[sel]).astype(int)] == INLIER).all()
-    sel = (eq.direction == 0) & ~pair.inlier_mask
+    sel = (eq.direction == 0) & ~pair.inlier_mask & inside
     assert (table[eq.channel[sel], np.floor(eq.level[sel]).astype(int)] == OUTLIER).all()
 
 
@@ -115,25 +96,26 @@ def test_every_panel_draws(viewer, stage_result, sim_bracket, layer, overlay) ->
     assert viewer.result_panel.image.image.ndim == 3
     table = viewer.diagnostics_panel.table.content
     assert "1→2" in table and "EXIF ratio" in table
-    assert "fine" in viewer.diagnostics_panel.verdicts.content
-    if stage_result.registration is not None:
+    assert "Merged 3 of 3 frames" in viewer.diagnostics_panel.verdicts.content
+    assert "dx =" in viewer.registration_panel.summary.content
+    if overlay == "red/cyan":  # at full resolution, from the frames
+        assert viewer.registration_panel.full.visible
+        assert viewer.registration_panel.full.image.shape[1] >= 128
+    else:
         assert viewer.registration_panel.before.visible
-        assert "dx =" in viewer.registration_panel.summary.content
 
 
 def test_deghosted_layer_paints_the_filled_pixels(viewer, stage_result, sim_bracket) -> None:
     """Without deghosting the layer says how to get it; with it the filled pixels are painted
     over the dimmed preview and counted."""
-    import dataclasses
-
     view = {"pair": 0, "layer": "deghosted", "overlay": "red/cyan"}
     viewer.result_panel.show(sim_bracket, stage_result, view)
     assert "tick Deghost" in viewer.result_panel.summary.content
     merged = stage_result.merge
     filled = np.zeros(merged.shape, bool)
     filled[: merged.shape[0] // 2] = True
-    with_deghost = types.SimpleNamespace(**{**vars(stage_result),
-                                            "merge": dataclasses.replace(merged, deghosted=filled)})
+    with_deghost = dataclasses.replace(stage_result,
+                                       merge=dataclasses.replace(merged, deghosted=filled))
     viewer.result_panel.show(sim_bracket, with_deghost, view)
     summary = viewer.result_panel.summary.content
     assert "deghosted: filled from one frame" in summary and "50.00% of the pixels" in summary
