@@ -66,7 +66,8 @@ class InspectorApp:
         if self.demo_dir is not None and self.demo_dir.is_dir():
             self.resolver.allow_folder(self.demo_dir)
         self.root = self.resolver.root
-        self.files = [Path(f) for f in files]
+        # Relative to the folder the inspector was started in (not to --root).
+        self.files = [Path(f).absolute() for f in files]
         self.brackets = BracketCache()
         self.defaults = _default_params()
         self.first_run = True  # no pipeline has run in this process yet (kernels compile)
