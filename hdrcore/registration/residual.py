@@ -7,24 +7,34 @@ degree of freedom cannot hide:
 
 1. both frames on a common scale (the dark frame times the exposure ratio ``k``), clipped to the
    range they share (above the noise floor, below saturation) and taken in log units, so they
-   are the same function of scene radiance (exposure invariant); clipped regions are flat;
-2. gradient magnitude of the log images (3x3 Sobel): edges and texture, not brightness;
+   are the same function of scene radiance (exposure invariant);
+2. the structure image: gradient magnitude of the log images (3x3 Sobel), faded out towards
+   both clip levels and zero next to saturated pixels (:func:`_structure` says why): edges and
+   texture, not brightness;
 3. per tile (Hann-windowed), the shift by phase correlation (C. D. Kuglin, D. C. Hines, "The
    phase correlation image alignment method", IEEE Conf. on Cybernetics and Society, 1975):
    the integer peak of the whitened cross-power spectrum, then sub-pixel by a weighted
    least-squares fit of the plane of its phase (H. S. Stone, M. T. Orchard, E.-C. Chang,
    S. A. Martucci, "A fast direct Fourier-based algorithm for subpixel registration of images",
    IEEE TGRS 39(10), 2001; W. S. Hoge, "A subspace identification extension to the phase
-   correlation method", IEEE TMI 22(2), 2003), iterated three times;
-4. per tile a confidence: the normalised cross-correlation of the two tiles at the peak
+   correlation method", IEEE TMI 22(2), 2003); the dark tile is then taken again at the
+   estimate and the remainder fitted, twice, which removes the pull of the common window
+   towards zero;
+4. per tile a confidence: the normalised cross-correlation of the two re-centred tiles
    (1: same structure, near 0: unrelated or noise), the standard error of the phase-plane fit
-   and the fraction of the tile both frames expose well;
+   and the fraction of the tile both frames expose well; tiles whose shift is the alignment
+   itself (structure fixed to the sensor) or that match about as well where the global
+   pattern says (a repetitive texture) are left out;
 5. the tile field summarised: median and 90th percentile of the shift magnitude over confident
    tiles; a global pattern fitted by robust least squares (shift, zoom, rotation, anisotropic
    scale/shear and the two perspective terms of a homography near the identity, each reported
    as the displacement it makes at the image corners); the local residual left after the
-   pattern (parallax, a moving object) and where it is largest ("lower left"); a status and a
-   one-line message (:meth:`ResidualMotion.describe`).
+   pattern where neighbouring tiles agree (parallax, a moving object, flare) and where it is
+   ("lower left"); a status and a one-line message (:meth:`ResidualMotion.describe`).
+
+Accuracy (tests/registration/test_residual.py, simulated 12-bit pairs 576x384, 64 px tiles):
+a known shift, zoom or rotation is recovered to 0.05 px; 8-bit pairs 2-4 stops apart to
+about 0.1 px.
 
 Large frames are measured on a 2^L block-mean level (at most ``max_pixels`` pixels, 2.5 MP by
 default: a 24 MP pair on level 2, a 9 MP phone frame on level 1); shifts are reported in
@@ -139,7 +149,8 @@ class ResidualMotion:
 
     ``centres`` ``(N, 2)``: tile centres ``(x, y)``; ``shifts`` ``(N, 2)``: ``(dx, dy)`` per tile
     (see the module's convention); ``confidence``: the normalised cross-correlation of the two
-    gradient tiles at the peak; ``sigma``: the standard error of the tile's shift (px);
+    structure tiles, re-centred on the shift; ``sigma``: the standard error of the tile's shift
+    in its least certain direction (px);
     ``in_range``: fraction of the tile both frames expose well; ``valid``: the confident tiles
     (the statistics use only these). ``median`` / ``p90`` / ``max``: of the shift magnitude over
     valid tiles (NaN without any). ``local``: per tile, the magnitude left after the pattern;
@@ -177,8 +188,8 @@ class ResidualMotion:
     message: str
     aligned_px: float
     local_px: float
-    sensor: np.ndarray = field(default=None, repr=False)
-    ambiguous: np.ndarray = field(default=None, repr=False)
+    sensor: np.ndarray = field(repr=False)
+    ambiguous: np.ndarray = field(repr=False)
     seconds: float = 0.0
 
     @property
@@ -226,8 +237,8 @@ class ResidualMotion:
             "in_range": np.round(self.in_range, 3).tolist(),
             "valid": self.valid.astype(bool).tolist(),
             "local": [f(v) for v in np.round(self.local, 4)],
-            "sensor": [] if self.sensor is None else self.sensor.astype(bool).tolist(),
-            "ambiguous": [] if self.ambiguous is None else self.ambiguous.astype(bool).tolist(),
+            "sensor": self.sensor.astype(bool).tolist(),
+            "ambiguous": self.ambiguous.astype(bool).tolist(),
             "seconds": self.seconds,
         }
 
@@ -891,13 +902,19 @@ def residual_motion(
         short side); ``max_pixels``: the analysis level is the first 2x2 block-mean level with
         at most this many pixels.
     aligned_px : the pair is ``aligned`` when the median shift is at most this, no pattern
-        component moves the corners by more than twice this, and no tile is off by more than
-        ``local_px`` after the pattern (full-resolution pixels).
+        component moves the corners by more than twice this, and no group of neighbouring
+        tiles is off by more than ``local_px`` after the pattern (full-resolution pixels).
     min_confidence : a tile counts when the normalised cross-correlation of its two structure
-        tiles (re-centred) is at least this (default ``CONFIDENCE_PER_TILE / tile``), the
+        tiles (re-centred) is at least this (default the larger of ``CONFIDENCE_PER_TILE /
+        tile`` and ``MIN_CONFIDENCE``), the
         standard error of its shift at most ``MAX_SIGMA`` analysed pixels and at least
         ``min_in_range`` of it is exposed well in both frames; ``min_tiles``: fewer confident
-        tiles are ``unmeasured``.
+        tiles are ``unmeasured``. ``workers``: threads of the compiled passes (default two).
+
+    Returns a :class:`ResidualMotion`; its ``describe()`` is one line such as "0.12 px median
+    over 80 tiles: aligned", "a zoom of +0.40 % is left (1.4 px at the corners): the motion
+    model has no scale, or its scale is wrong" or "3.1 px of residual motion at the lower left
+    (4 tiles): parallax, a moving object or flare".
     """
     t0 = time.perf_counter()
     a = np.asarray(dark)
