@@ -149,18 +149,27 @@ def support_valid(img, lut, xs, ys, m, check_range, lo, hi, max_contrast, reach,
             continue
         tmin = np.inf  # the 4x4 support
         tmax = -np.inf
-        wmax = -np.inf
-        for yy in range(max(iy - 1 - reach, 0), min(iy + 3 + reach, h)):
-            for xx in range(max(ix - 1 - reach, 0), min(ix + 3 + reach, w)):
-                v = _linear(img, lut, yy, xx)
-                wmax = max(wmax, v)
-                if yy >= iy - 1 and yy <= iy + 2 and xx >= ix - 1 and xx <= ix + 2:
-                    tmin = min(tmin, v)
-                    tmax = max(tmax, v)
-        if check_range and not (tmin > lo and wmax < hi):
-            continue
+        for j in range(4):
+            for i in range(4):
+                v = _linear(img, lut, iy - 1 + j, ix - 1 + i)
+                if v < tmin:
+                    tmin = v
+                if v > tmax:
+                    tmax = v
         if max_contrast > 0 and not (tmax <= max_contrast * max(tmin, 1e-30)):
             continue
+        if check_range:
+            if not tmin > lo:
+                continue
+            wmax = tmax  # the support widened by reach, against saturation
+            if reach > 0:
+                for yy in range(max(iy - 1 - reach, 0), min(iy + 3 + reach, h)):
+                    for xx in range(max(ix - 1 - reach, 0), min(ix + 3 + reach, w)):
+                        v = _linear(img, lut, yy, xx)
+                        if v > wmax:
+                            wmax = v
+            if not wmax < hi:
+                continue
         out[k] = True
 
 

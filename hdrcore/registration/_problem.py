@@ -403,6 +403,16 @@ def select_samples(
                 score = (gx * gx + gy * gy) / (v * v + eps2)
         if not check_bright:
             return yy, xx, v, score
+        n_top = int(1.3 * max_samples)
+        if by_gradient and v.size > n_top:
+            # the bright frame's side only for the best-scoring candidates (it is the slower
+            # test): the top 1.3 max_samples, all of them if too few of those pass
+            top = np.argpartition(score, -n_top)[-n_top:]
+            top.sort()
+            ok = bright_ok(xx[top], yy[top])
+            if ok.sum() >= max_samples:
+                top = top[ok]
+                return yy[top], xx[top], v[top], score[top]
         ok = bright_ok(xx, yy)
         return yy[ok], xx[ok], v[ok], score[ok] if by_gradient else score
 
