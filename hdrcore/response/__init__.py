@@ -6,7 +6,15 @@ Methods, chosen by name through :data:`RESPONSE_METHODS` and :func:`recover_resp
 * ``"debevec-histogram"`` -- the seed's histogram variant (BTF correspondences, no
   registration);
 * ``"mitsunaga1999"`` -- Mitsunaga & Nayar 1999 polynomial from pixel samples, ratios iterable;
-* ``"grossberg2003"`` -- Grossberg & Nayar 2003 polynomial constrained by the BTFs.
+* ``"grossberg2003"`` -- Grossberg & Nayar 2003 polynomial constrained by the BTFs;
+* ``"joint-histogram"`` / ``"joint-pixels"`` -- the channels fitted jointly (one shared shape,
+  separate curves only when held-back data support them; :mod:`.joint`).
+
+``"auto"`` (the default, :func:`select_response`) compares the joint recovery, the parametric
+families of :mod:`.parametric` (gamma, sRGB with toe, filmic) and plain sRGB on correspondences
+held back from the fit, keeps the best, and falls back to a safe curve with a warning when the
+recovery is degenerate (:mod:`.degeneracy`); the curve's ``selection`` says which won and by
+how much.
 
 Every method enforces a non-decreasing curve and returns a :class:`ResponseCurve` normalised to
 ``g(0) = 0``, ``g(max_level) = 1``. :func:`resolve_response` turns a command-line ``--response``
@@ -28,10 +36,13 @@ from .curve import ChannelFit, ResponseCurve, normalise_curve
 from .debevec1997 import debevec1997
 from .debevec_histogram import debevec_histogram
 from .grossberg2003 import grossberg2003
+from .joint import joint_histogram, joint_pixels
 from .mitsunaga1999 import mitsunaga1999
 from .plot import plot_curves, render_curves
+from .select import ResponseSelection, select_response
 
 __all__ = [
+    "AUTO",
     "RESPONSE_METHODS",
     "SPECIAL_RESPONSES",
     "DEFAULT_METHOD",
@@ -40,6 +51,8 @@ __all__ = [
     "debevec1997",
     "debevec_histogram",
     "grossberg2003",
+    "joint_histogram",
+    "joint_pixels",
     "linear_response",
     "mitsunaga1999",
     "normalise_curve",
@@ -47,6 +60,8 @@ __all__ = [
     "recover_response",
     "render_curves",
     "resolve_response",
+    "ResponseSelection",
+    "select_response",
     "srgb_response",
 ]
 
@@ -55,11 +70,18 @@ RESPONSE_METHODS: dict[str, Callable[..., ResponseCurve]] = {
     "debevec-histogram": debevec_histogram,
     "mitsunaga1999": mitsunaga1999,
     "grossberg2003": grossberg2003,
+    "joint-histogram": joint_histogram,
+    "joint-pixels": joint_pixels,
 }
 """Response-recovery methods by name. Each takes ``(frames, exposure_times, **parameters)``."""
 
-#: Default for brackets that may be hand-held: histograms only, no registration needed.
-DEFAULT_METHOD = "debevec-histogram"
+#: ``"auto"``: the response chosen on held-back correspondences among the joint recovery, the
+#: parametric families and sRGB, with a fallback when the recovery is degenerate
+#: (:func:`select_response`). Histograms only: no registration needed.
+AUTO = "auto"
+
+#: Default for brackets that may be hand-held.
+DEFAULT_METHOD = AUTO
 
 
 def recover_response(
@@ -76,8 +98,11 @@ def recover_response(
     ``parameters`` go to the method (e.g. ``max_level``, ``mask``, ``cutoff``, ``order``); an
     unknown one raises :class:`ParameterError` listing the accepted names.
     """
-    key = validate_method(method, RESPONSE_METHODS, "response")
-    fn = RESPONSE_METHODS[key]
+    if str(method).strip().lower() == AUTO:
+        key, fn = AUTO, select_response
+    else:
+        key = validate_method(method, {AUTO: None, **RESPONSE_METHODS}, "response")
+        fn = RESPONSE_METHODS[key]
     accepted = [
         name for name, p in inspect.signature(fn).parameters.items()
         if p.kind is inspect.Parameter.KEYWORD_ONLY
@@ -156,7 +181,7 @@ def resolve_response(
                 expected="max_level (e.g. 255 for 8-bit)",
             )
         return SPECIAL_RESPONSES[lowered](max_level, n_channels or 3)
-    methods = {k.lower() for k in RESPONSE_METHODS}
+    methods = {k.lower() for k in RESPONSE_METHODS} | {AUTO}
     if lowered in methods:
         if frames is None:
             raise ParameterError(
@@ -167,7 +192,7 @@ def resolve_response(
         return recover_response(frames, exposure_times, method=text, **parameters)
     if text.lower().endswith(".json") or Path(text).is_file():
         return ResponseCurve.load(text)
-    valid = [*SPECIAL_RESPONSES, *RESPONSE_METHODS]
+    valid = [AUTO, *SPECIAL_RESPONSES, *RESPONSE_METHODS]
     raise ParameterError(
         f"unknown response {text!r}",
         expected=f"one of {', '.join(repr(v) for v in valid)} or a saved curve (.json)",

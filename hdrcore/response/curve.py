@@ -99,7 +99,12 @@ class ResponseCurve:
     """Inverse camera response per channel, sampled at every level, with its diagnostics.
 
     ``g`` has shape ``(C, max_level + 1)``, float64, ``g[:, 0] == 0``, ``g[:, -1] == 1``,
-    non-decreasing along levels.
+    non-decreasing along levels. ``residuals`` (optional, ``(C, max_level + 1)``) is the fit's
+    weighted mean residual of ``ln g`` at every level (NaN where no data touched it; see
+    :func:`hdrcore.response.joint.level_residuals`); ``selection`` the
+    :class:`hdrcore.response.select.ResponseSelection` of ``--response auto`` (candidates, their
+    held-back scores, the winner, the fallback and why), ``None`` for a curve asked for by
+    name.
     """
 
     g: np.ndarray
@@ -110,6 +115,8 @@ class ResponseCurve:
     message: str = ""
     parameters: dict[str, Any] = field(default_factory=dict)
     channel_names: tuple[str, ...] = ()
+    residuals: np.ndarray | None = field(default=None, repr=False)
+    selection: Any = None
 
     def __post_init__(self) -> None:
         g = np.asarray(self.g, dtype=np.float64)
@@ -131,6 +138,13 @@ class ResponseCurve:
         g = g.copy()
         g.setflags(write=False)
         object.__setattr__(self, "g", g)
+        if self.residuals is not None:
+            r = np.array(self.residuals, dtype=np.float64)
+            if r.shape != g.shape:
+                raise ParameterError("residuals must be (channels, levels) like g",
+                                     expected=str(g.shape), found=str(r.shape))
+            r.setflags(write=False)
+            object.__setattr__(self, "residuals", r)
         if not self.channel_names:
             names = ("R", "G", "B") if g.shape[0] == 3 else tuple(f"c{k}" for k in range(len(g)))
             object.__setattr__(self, "channel_names", names)
@@ -272,9 +286,13 @@ class ResponseCurve:
                     "levels": self.levels.tolist(),
                     "g": [float(v) for v in self.g[c]],
                     "fit": self.channels[c].to_json() if c < len(self.channels) else None,
+                    "residuals": None if self.residuals is None else [
+                        None if not np.isfinite(v) else float(v) for v in self.residuals[c]
+                    ],
                 }
                 for c in range(self.n_channels)
             ],
+            "selection": None if self.selection is None else self.selection.to_json(),
         }
 
     @classmethod
@@ -285,6 +303,10 @@ class ResponseCurve:
             fits = tuple(
                 ChannelFit.from_json(c["fit"]) for c in chans if c.get("fit") is not None
             )
+            res = None
+            if all(c.get("residuals") is not None for c in chans):
+                res = np.array([[np.nan if v is None else float(v) for v in c["residuals"]]
+                                for c in chans], dtype=np.float64)
             return cls(
                 g=g,
                 method=str(d.get("method", "unknown")),
@@ -294,6 +316,7 @@ class ResponseCurve:
                 message=str(d.get("message", "")),
                 parameters=dict(d.get("parameters", {})),
                 channel_names=tuple(str(c.get("name", f"c{k}")) for k, c in enumerate(chans)),
+                residuals=res,
             )
         except (KeyError, TypeError, ValueError) as exc:
             if isinstance(exc, ParameterError):

@@ -62,12 +62,38 @@ def _s_curve(x: np.ndarray) -> np.ndarray:
     return g * g * (3.0 - 2.0 * g)
 
 
+def _aces(x: np.ndarray) -> np.ndarray:
+    # K. Narkowicz's fit of the ACES reference rendering and output transforms (2016).
+    return x * (2.51 * x + 0.03) / (x * (2.43 * x + 0.59) + 0.14)
+
+
+#: Linear exposure that the filmic curve maps to 1.0 (sensor saturation one stop into the
+#: shoulder; mid-grey 0.18 lands at level 0.55, sRGB puts it at 0.46).
+FILMIC_WHITE = 2.0
+
+
+def _filmic(x: np.ndarray) -> np.ndarray:
+    # Filmic, ACES-like: a toe (slope 0.47 at black, half a linear curve's, rising to 3.9 in
+    # the toe's end) and a shoulder (log-log slope 0.13 at saturation).
+    return _aces(FILMIC_WHITE * x) / _aces(FILMIC_WHITE)
+
+
+def _toe_shoulder(x: np.ndarray) -> np.ndarray:
+    # A log-logistic (a logistic in log exposure, as film's characteristic curve): toe
+    # f ~ x^1.3 near black, shoulder towards saturation, mid-grey 0.18 at level 0.46.
+    p, m = 1.3, 0.25
+    h = np.power(x, p)
+    return h / (h + m**p) * (1.0 + m**p)
+
+
 RESPONSES: dict[str, Callable[[np.ndarray], np.ndarray]] = {
     "linear": _linear,
     "gamma": _gamma,
     "polynomial3": _poly3,
     "srgb": _srgb,
     "s-curve": _s_curve,
+    "filmic": _filmic,
+    "toe-shoulder": _toe_shoulder,
 }
 
 
@@ -239,6 +265,14 @@ def _render_area(radiance_big: np.ndarray, matrix: np.ndarray, shape: tuple[int,
     return out
 
 
+def _local_gain(x: np.ndarray, strength: float) -> np.ndarray:
+    """Gain of the simulated local tone mapping (see ``simulate_bracket(local_tonemap=)``)."""
+    lum = x @ np.array([0.2126, 0.7152, 0.0722])
+    sigma = 0.04 * min(lum.shape)
+    local = np.exp(ndimage.gaussian_filter(np.log(np.maximum(lum, 1e-6)), sigma, mode="nearest"))
+    return np.clip((0.18 / local) ** float(strength), 0.5, 2.0)
+
+
 RENDERINGS = ("area", "log-cubic")
 """How :func:`simulate_bracket` renders frames from the radiance grid (see the two renderers)."""
 
@@ -261,6 +295,7 @@ def simulate_bracket(
     seed: int = 0,
     keep_linear: bool = False,
     rendering: str = "area",
+    local_tonemap: float = 0.0,
 ) -> SimulatedBracket:
     """Simulate a bracket ``M = q(f(s(E * dt * key)) + n)`` with known truth.
 
@@ -279,6 +314,12 @@ def simulate_bracket(
     reference : index of the frame whose coordinates the radiance truth uses (default: middle).
     key : exposure scale; default puts the median radiance at 0.18 for the geometric-mean time.
     keep_linear : also keep the noiseless linear sensor values (before ``f`` and quantisation).
+    local_tonemap : strength ``a`` of a phone-like local tone mapping applied to each frame
+        before the response: every pixel's exposure is multiplied by
+        ``clip((0.18 / L)^a, 1/2, 2)`` with ``L`` the frame's own local mean exposure (Gaussian
+        of 4 % of the image size; the same gain for every channel, so colours are kept).
+        Inside the clip range the gain is a power law, outside it is constant, so the transfer
+        between two frames varies across the image between ``R^(1 - a)`` and ``R`` (0: off).
     rendering : ``"area"`` (default): when any frame moves, every frame, moved or not,
         integrates the continuous scene over its pixels (:func:`_render_area`), so motion keeps
         the local mean radiance (without motion the frames are the radiance grid itself);
@@ -294,6 +335,8 @@ def simulate_bracket(
         )
     if noise_sigma < 0:
         raise ParameterError("noise sigma must be >= 0", found=str(noise_sigma))
+    if not (np.isfinite(local_tonemap) and 0 <= local_tonemap < 1):
+        raise ParameterError("local_tonemap strength must be in [0, 1)", found=str(local_tonemap))
     validate_method(response, RESPONSES, "response")
     if rendering not in RENDERINGS:
         raise ParameterError("unknown rendering", expected=", ".join(RENDERINGS),
@@ -366,6 +409,8 @@ def simulate_bracket(
             x = x + rng.standard_normal(x.shape) * np.sqrt(electrons) / shot_noise_full_well
         if keep_linear:
             linear_frames.append(np.clip(e * (t * key), 0, 1).astype(np.float32))
+        if local_tonemap > 0:
+            x = x * _local_gain(x, local_tonemap)[..., None]
         y = apply_response(response, np.clip(x, 0.0, 1.0)) * max_level
         if noise_sigma > 0:
             y = y + rng.standard_normal(y.shape) * noise_sigma

@@ -1,0 +1,715 @@
+"""Colour checked, not assumed: the merge's chromaticity against the frames it came from.
+
+For non-linear input (JPEG, scans) the colour of a merged pixel rests on the response: a curve
+whose channels disagree tints the radiance map although every frame shows the right colour
+(issue 15: a phone bracket's facade (0.41, 0.33, 0.26) merged as (0.42, 0.43, 0.15)). Three
+measurements, all as rg-chromaticity ``(r, g) = (R, G) / (R + G + B)`` distances, medians over
+pixels *well exposed* (every channel inside :data:`WELL_EXPOSED` of the level range):
+
+* ``merge_error`` -- the merged radiance against the reference frame linearised with the
+  chosen response, over the pixels well exposed in the reference; ``merge_error_srgb`` the
+  same against the reference decoded with sRGB (what the frame shows on a screen);
+* ``frame_pairs`` -- consecutive frames, both linearised (registered through the merge's
+  motion), over pixels well exposed in both: a right response gives a pixel the same colour in
+  every frame where it is well exposed (``frame_pairs_srgb``: decoded with sRGB instead);
+* ``best_frame_errors`` -- per frame, the same error over the pixels where that frame is the
+  best exposed one (nearest mid-grey): the regions whose colour it should give;
+* ``white_balance`` -- per frame, the median per-channel ratio to the reference frame's
+  linearised values over pixels well exposed in both, normalised to green: a phone that
+  re-balances each shot shows up as a frame whose red or blue ratio differs from 1.
+
+A merge whose ``merge_error`` exceeds :data:`MAX_MERGE_ERROR` is flagged ``"drift"``; a frame
+whose white balance differs by more than :data:`MAX_WB_DIFFERENCE` is named. The check samples
+a grid of at most ``max_samples`` reference pixels (nearest pixel in the other frames).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from .._numba import AVAILABLE
+from .._numba import njit as _njit
+from .._threads import run_row_spans
+from ..errors import ParameterError
+
+__all__ = [
+    "MAX_MERGE_ERROR",
+    "MAX_WB_DIFFERENCE",
+    "WELL_EXPOSED",
+    "ANCHOR_BLUR",
+    "ANCHOR_SIGMA",
+    "ColourAnchor",
+    "ColourCheck",
+    "ColourResult",
+    "anchor_colour",
+    "check_colour",
+    "FramePairColour",
+    "chromaticity",
+    "colour_check",
+    "srgb_decode_lut",
+]
+
+#: Levels (fractions of the range) between which every channel of a pixel must lie for the
+#: pixel to count as well exposed.
+WELL_EXPOSED = (0.10, 0.90)
+#: Median chromaticity error of a merge above which its colours are said to drift.
+MAX_MERGE_ERROR = 0.02
+#: Relative difference of a frame's red/green or blue/green balance that is reported.
+MAX_WB_DIFFERENCE = 0.03
+
+
+def chromaticity(rgb: np.ndarray) -> np.ndarray:
+    """``(..., 2)`` rg-chromaticity of ``(..., 3)`` linear RGB (NaN where the sum is 0)."""
+    rgb = np.asarray(rgb, dtype=np.float64)
+    s = rgb.sum(axis=-1, keepdims=True)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(s > 0, rgb[..., :2] / s, np.nan)
+
+
+def srgb_decode_lut(max_level: int) -> np.ndarray:
+    """``(max_level + 1,)`` sRGB decoding (IEC 61966-2-1) of every level."""
+    v = np.arange(max_level + 1, dtype=np.float64) / max_level
+    return np.where(v <= 0.04045, v / 12.92, ((v + 0.055) / 1.055) ** 2.4)
+
+
+@dataclass(frozen=True)
+class FramePairColour:
+    """Median chromaticity difference of frames ``dark`` and ``bright`` over ``n_pixels``
+    pixels well exposed in both (NaN when there are fewer than 50)."""
+
+    dark: int
+    bright: int
+    median_difference: float
+    n_pixels: int
+
+    def to_json(self) -> dict[str, Any]:
+        return {"dark": self.dark, "bright": self.bright,
+                "median_difference": _num(self.median_difference), "n_pixels": self.n_pixels}
+
+
+@dataclass(frozen=True)
+class ColourCheck:
+    """The colour of a merge checked against its frames (see the module)."""
+
+    reference: int
+    merge_error: float
+    merge_error_srgb: float
+    n_pixels: int
+    frame_pairs: tuple[FramePairColour, ...]
+    frame_pairs_srgb: tuple[FramePairColour, ...]
+    white_balance: tuple[tuple[float, float, float], ...]
+    status: str
+    message: str
+    well_exposed: tuple[float, float] = WELL_EXPOSED
+    best_frame_errors: tuple[tuple[float, float, int], ...] = ()
+
+    @property
+    def frame_consistency(self) -> float:
+        """Median over the consecutive pairs of their chromaticity differences."""
+        v = [p.median_difference for p in self.frame_pairs if np.isfinite(p.median_difference)]
+        return float(np.median(v)) if v else float("nan")
+
+    @property
+    def frame_consistency_srgb(self) -> float:
+        v = [p.median_difference for p in self.frame_pairs_srgb
+             if np.isfinite(p.median_difference)]
+        return float(np.median(v)) if v else float("nan")
+
+    @property
+    def white_balance_differs(self) -> tuple[int, ...]:
+        """Frames whose red/green or blue/green balance differs from the reference's."""
+        return tuple(k for k, (r, _, b) in enumerate(self.white_balance)
+                     if np.isfinite(r) and np.isfinite(b)
+                     and max(abs(r - 1.0), abs(b - 1.0)) > MAX_WB_DIFFERENCE)
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "reference": self.reference,
+            "merge_error": _num(self.merge_error),
+            "merge_error_srgb": _num(self.merge_error_srgb),
+            "n_pixels": self.n_pixels,
+            "frame_consistency": _num(self.frame_consistency),
+            "frame_consistency_srgb": _num(self.frame_consistency_srgb),
+            "frame_pairs": [p.to_json() for p in self.frame_pairs],
+            "frame_pairs_srgb": [p.to_json() for p in self.frame_pairs_srgb],
+            "white_balance": [[_num(v) for v in wb] for wb in self.white_balance],
+            "white_balance_differs": list(self.white_balance_differs),
+            "well_exposed": list(self.well_exposed),
+            "best_frame_errors": [
+                {"frame": k, "median_error": _num(e), "median_error_srgb": _num(es),
+                 "n_pixels": n} for k, (e, es, n) in enumerate(self.best_frame_errors)
+            ],
+            "status": self.status,
+            "message": self.message,
+        }
+
+
+def _num(v: float) -> float | None:
+    return float(v) if np.isfinite(v) else None
+
+
+def _median_distance(a: np.ndarray, b: np.ndarray) -> float:
+    d = np.hypot(a[..., 0] - b[..., 0], a[..., 1] - b[..., 1])
+    d = d[np.isfinite(d)]
+    return float(np.median(d)) if d.size >= 50 else float("nan")
+
+
+def colour_check(
+    frames: Sequence[np.ndarray],
+    radiance: np.ndarray,
+    lut: np.ndarray,
+    *,
+    max_level: int,
+    reference: int,
+    to_reference: Sequence[np.ndarray] | None = None,
+    masks: Sequence[np.ndarray | None] | None = None,
+    max_samples: int = 150_000,
+    well_exposed: tuple[float, float] = WELL_EXPOSED,
+) -> ColourCheck:
+    """Check the colour of ``radiance`` (``(H, W, 3)`` linear, in the frames' primaries)
+    against the integer ``frames`` linearised by ``lut`` (``(3, max_level + 1)``).
+
+    ``to_reference[k]`` maps frame ``k``'s pixel coordinates to the reference frame (2x3 or
+    3x3; ``None``: the frames are aligned); ``masks[k]`` marks frame ``k``'s valid pixels
+    (in its own coordinates).
+    """
+    from ..registration.transform import apply, invert
+
+    n = len(frames)
+    if n < 1 or not 0 <= reference < n:
+        raise ParameterError("reference frame out of range", expected=f"0..{n - 1}",
+                             found=str(reference))
+    rad = np.asarray(radiance)
+    h, w = frames[reference].shape[:2]
+    if rad.shape[:2] != (h, w) or rad.ndim != 3 or rad.shape[2] != 3:
+        raise ParameterError("radiance must be (H, W, 3) like the frames",
+                             expected=str((h, w, 3)), found=str(rad.shape))
+    table = np.asarray(lut, dtype=np.float64)
+    if table.ndim == 1:
+        table = np.tile(table, (3, 1))
+    if table.shape != (3, max_level + 1):
+        raise ParameterError("lut must be (3, max_level + 1)",
+                             expected=str((3, max_level + 1)), found=str(table.shape))
+    step = max(1, int(np.ceil(np.sqrt(h * w / max_samples))))
+    ys, xs = np.mgrid[0:h:step, 0:w:step]
+    ys = ys.ravel()
+    xs = xs.ravel()
+    lo_l, hi_l = well_exposed[0] * max_level, well_exposed[1] * max_level
+    srgb = srgb_decode_lut(max_level)
+
+    levels, valid = [], []
+    for k, f in enumerate(frames):
+        if k == reference or to_reference is None:
+            xk, yk = xs, ys
+            inside = np.ones(xs.size, bool)
+        else:
+            fx, fy = apply(invert(np.asarray(to_reference[k], float)), xs.astype(float),
+                           ys.astype(float))
+            xk = np.rint(fx).astype(np.intp)
+            yk = np.rint(fy).astype(np.intp)
+            inside = (xk >= 0) & (xk < w) & (yk >= 0) & (yk < h)
+            np.clip(xk, 0, w - 1, out=xk)
+            np.clip(yk, 0, h - 1, out=yk)
+        z = np.asarray(f)[yk, xk].astype(np.intp)
+        ok = inside & np.all((z > lo_l) & (z < hi_l), axis=-1)
+        if masks is not None and masks[k] is not None:
+            ok &= np.asarray(masks[k], bool)[yk, xk]
+        levels.append(np.clip(z, 0, max_level))
+        valid.append(ok)
+
+    def linear(k: int, table_c: np.ndarray | None = None) -> np.ndarray:
+        z = levels[k]
+        if table_c is None:
+            return np.stack([table[c][z[:, c]] for c in range(3)], axis=-1)
+        return table_c[z]
+
+    ref_ok = valid[reference]
+    merged = rad[ys, xs].astype(np.float64)
+    ref_ok &= np.all(np.isfinite(merged), axis=-1) & (merged.sum(axis=-1) > 0)
+    cm = chromaticity(merged[ref_ok])
+    err = _median_distance(cm, chromaticity(linear(reference)[ref_ok]))
+    err_srgb = _median_distance(cm, chromaticity(linear(reference, srgb)[ref_ok]))
+
+    # every frame against the merge where it is the best exposed (nearest mid-grey) frame
+    score = np.stack([
+        np.where(valid[k], -np.max(np.abs(levels[k] / max_level - 0.5), axis=-1), -np.inf)
+        for k in range(n)
+    ])
+    best = np.argmax(score, axis=0)
+    mok = np.all(np.isfinite(merged), axis=-1) & (merged.sum(axis=-1) > 0)
+    best_errors = []
+    for k in range(n):
+        sel = (best == k) & valid[k] & mok
+        best_errors.append((
+            _median_distance(chromaticity(merged[sel]), chromaticity(linear(k)[sel])),
+            _median_distance(chromaticity(merged[sel]), chromaticity(linear(k, srgb)[sel])),
+            int(sel.sum()),
+        ))
+
+    pairs, pairs_srgb = [], []
+    for k in range(n - 1):
+        both = valid[k] & valid[k + 1]
+        cnt = int(both.sum())
+        pairs.append(FramePairColour(k, k + 1, _median_distance(
+            chromaticity(linear(k)[both]), chromaticity(linear(k + 1)[both])), cnt))
+        pairs_srgb.append(FramePairColour(k, k + 1, _median_distance(
+            chromaticity(linear(k, srgb)[both]), chromaticity(linear(k + 1, srgb)[both])), cnt))
+
+    wb = []
+    ref_lin = linear(reference)
+    for k in range(n):
+        both = valid[k] & valid[reference]
+        if k == reference:
+            wb.append((1.0, 1.0, 1.0))
+            continue
+        if both.sum() < 50:
+            wb.append((float("nan"),) * 3)
+            continue
+        ratio = linear(k)[both] / np.maximum(ref_lin[both], 1e-12)
+        med = np.median(ratio, axis=0)
+        wb.append(tuple(float(v) for v in med / med[1]))
+
+    status = "ok"
+    parts = [f"merge vs reference frame {reference}: median chromaticity error {err:.4f} "
+             f"(against its sRGB decoding {err_srgb:.4f}) over {int(ref_ok.sum())} pixels"]
+    if np.isfinite(err) and err > MAX_MERGE_ERROR:
+        status = "drift"
+        parts.append(f"the merge's colours drift from the frame's (over {MAX_MERGE_ERROR})")
+    check = ColourCheck(
+        reference=reference, merge_error=err, merge_error_srgb=err_srgb,
+        n_pixels=int(ref_ok.sum()), frame_pairs=tuple(pairs), frame_pairs_srgb=tuple(pairs_srgb),
+        white_balance=tuple(wb), status=status, message="", well_exposed=tuple(well_exposed),
+        best_frame_errors=tuple(best_errors),
+    )
+    cons = check.frame_consistency
+    if np.isfinite(cons):
+        parts.append(f"consecutive frames agree to {cons:.4f} (sRGB-decoded: "
+                     f"{check.frame_consistency_srgb:.4f})")
+    odd = check.white_balance_differs
+    if odd:
+        parts.append("white balance differs from the reference in frame(s) "
+                     + ", ".join(f"{k} (R/G x{wb[k][0]:.3f}, B/G x{wb[k][2]:.3f})" for k in odd))
+    return ColourCheck(**{**check.__dict__, "message": "; ".join(parts)})
+
+
+#: Spread of the well-exposedness weight around mid-grey (Mertens et al. 2007 use 0.2).
+ANCHOR_SIGMA = 0.2
+#: Blur (in grid cells) of the anchoring weights and colours: transitions between frames.
+ANCHOR_BLUR = 2.0
+#: The reference frame's weight is multiplied by this: where it is well exposed, the merge
+#: takes its colour (one rendition wherever possible, as the geometry is the reference's).
+REFERENCE_BOOST = 20.0
+
+
+@dataclass(frozen=True)
+class ColourAnchor:
+    """What :func:`anchor_colour` did: the grid step (pixels), the largest and median change
+    of the chromaticity it applied, and the share of the grid each frame's colour came from."""
+
+    step: int
+    max_shift: float
+    median_shift: float
+    frame_shares: tuple[float, ...]
+    decode: str
+
+    def to_json(self) -> dict[str, Any]:
+        return {"step": self.step, "max_shift": _num(self.max_shift),
+                "median_shift": _num(self.median_shift),
+                "frame_shares": [float(v) for v in self.frame_shares], "decode": self.decode}
+
+
+def _redecode_table(lut: np.ndarray, decode: np.ndarray, size: int = 16384) -> np.ndarray:
+    """``(C, size)`` table of ``decode(g^-1(x))`` for ``x`` on ``[0, 1]``: a value linearised
+    with the merge's response, turned back into its level and decoded the other way."""
+    x = np.linspace(0.0, 1.0, size)
+    out = np.empty((lut.shape[0], size))
+    levels = np.arange(lut.shape[1], dtype=np.float64)
+    for c in range(lut.shape[0]):
+        g = lut[c]
+        keep = np.concatenate([[True], np.diff(g) > 0])
+        z = np.interp(x, g[keep], levels[keep])
+        out[c] = np.interp(z, levels, decode[c])
+    return out
+
+
+def _redecode(values: np.ndarray, log_time: np.ndarray, table: np.ndarray) -> np.ndarray:
+    """Merged radiance ``(..., C)`` re-decoded through ``table`` at the exposure
+    ``exp(log_time)`` (``(...)``) of the frames that made it."""
+    t = np.exp(log_time)[..., None]
+    x = np.clip(values * t, 0.0, 1.0) * (table.shape[1] - 1)
+    i0 = np.minimum(x.astype(np.intp), table.shape[1] - 2)
+    f = x - i0
+    out = np.empty(values.shape, np.float64)
+    for c in range(values.shape[-1]):
+        tc = table[c]
+        out[..., c] = tc[i0[..., c]] * (1 - f[..., c]) + tc[i0[..., c] + 1] * f[..., c]
+    return out / t
+
+
+_LUMA = (0.2126, 0.7152, 0.0722)
+
+
+def _apply_numpy(rad, fields, step, shares, log_t, redecode, ref_frame, table, noise_floor,
+                 saturation, max_level, rows_per_chunk, pixel_log_time) -> None:
+    """The full-resolution pass of :func:`anchor_colour` in numpy (the numba kernel's spec)."""
+    h, w = rad.shape[:2]
+    shape = fields.shape[:2]
+    lum = np.array(_LUMA, np.float32)
+    cy = (np.arange(h) - step // 2) / step
+    cx = np.clip((np.arange(w) - step // 2) / step, 0, shape[1] - 1)
+    x0 = np.minimum(np.floor(cx).astype(np.intp), max(shape[1] - 2, 0))
+    fx = (cx - x0)[:, None]
+    x1 = np.minimum(x0 + 1, shape[1] - 1)
+    table32 = table.astype(np.float32)
+    for r0 in range(0, h, rows_per_chunk):
+        r1 = min(h, r0 + rows_per_chunk)
+        yy = np.clip(cy[r0:r1], 0, shape[0] - 1)
+        y0 = np.minimum(np.floor(yy).astype(np.intp), max(shape[0] - 2, 0))
+        y1 = np.minimum(y0 + 1, shape[0] - 1)
+        fy = (yy - y0)[:, None, None]
+        row0 = fields[y0][:, x0] * (1 - fx) + fields[y0][:, x1] * fx
+        row1 = fields[y1][:, x0] * (1 - fx) + fields[y1][:, x1] * fx
+        fl = (row0 * (1 - fy) + row1 * fy).astype(np.float32)
+        block = rad[r0:r1]
+        y_old = block @ lum
+        if redecode is not None:
+            col = _redecode(block, pixel_log_time(shares[:, r0:r1]), redecode)
+            col = col.astype(np.float32)
+        else:
+            col = block.copy()
+        col *= fl[..., :3]
+        if ref_frame is not None:
+            z = np.clip(ref_frame[r0:r1], 0, max_level).astype(np.intp)
+            a = fl[..., 3] * np.all((z > noise_floor) & (z < saturation), axis=-1)
+            lin = np.stack([table32[c][z[..., c]] for c in range(3)], axis=-1)
+            s_ref = lin.sum(axis=-1, keepdims=True)
+            s_col = col.sum(axis=-1, keepdims=True)
+            a = np.where((s_ref[..., 0] > 0) & (s_col[..., 0] > 0), a, 0.0)[..., None]
+            col = (1 - a) * col / np.where(s_col > 0, s_col, 1) \
+                + a * lin / np.where(s_ref > 0, s_ref, 1)
+        y_new = col @ lum
+        usable = np.isfinite(y_new) & (y_new > 0) & np.isfinite(y_old) & (y_old > 0)
+        scale = np.where(usable, y_old / np.where(usable, y_new, 1.0), 0.0)
+        block[...] = np.where(usable[..., None], col * scale[..., None], block)
+
+
+@_njit
+def _anchor_rows(rad, fields, step, shares, log_t, redecode, ref, table, noise_floor,
+                 saturation, max_level, use_redecode, use_ref, r0, r1, sh_off):  # pragma: no cover
+    w = rad.shape[1]
+    gh, gw = fields.shape[0], fields.shape[1]
+    n = shares.shape[0]
+    size = redecode.shape[1]
+    l0, l1, l2 = 0.2126, 0.7152, 0.0722
+    col = np.empty(3)
+    lin = np.empty(3)
+    lt_min = 0.0
+    if use_redecode:
+        lt_min = log_t[0]
+        for k in range(n):
+            lt_min = min(lt_min, log_t[k])
+    for y in range(r0, r1):
+        gy = (y - step // 2) / step
+        gy = min(max(gy, 0.0), gh - 1.0)
+        y0 = min(int(gy), max(gh - 2, 0))
+        y1 = min(y0 + 1, gh - 1)
+        fy = gy - y0
+        for x in range(w):
+            gx = (x - step // 2) / step
+            gx = min(max(gx, 0.0), gw - 1.0)
+            x0 = min(int(gx), max(gw - 2, 0))
+            x1 = min(x0 + 1, gw - 1)
+            fx = gx - x0
+            r_ = rad[y, x, 0]
+            g_ = rad[y, x, 1]
+            b_ = rad[y, x, 2]
+            y_old = l0 * r_ + l1 * g_ + l2 * b_
+            if not (y_old > 0) or not np.isfinite(y_old):
+                continue
+            fl = np.empty(4)
+            for q in range(4):
+                a0 = fields[y0, x0, q] * (1 - fx) + fields[y0, x1, q] * fx
+                a1 = fields[y1, x0, q] * (1 - fx) + fields[y1, x1, q] * fx
+                fl[q] = a0 * (1 - fy) + a1 * fy
+            if use_redecode:
+                tot = 0.0
+                acc = 0.0
+                for k in range(n):
+                    sk = np.float64(shares[k, y - sh_off, x])
+                    tot += sk
+                    acc += sk * log_t[k]
+                lt = acc / tot if tot > 0 else lt_min
+                t = np.exp(lt)
+                for c in range(3):
+                    v = rad[y, x, c] * t
+                    v = min(max(v, 0.0), 1.0) * (size - 1)
+                    i0 = min(int(v), size - 2)
+                    f = v - i0
+                    col[c] = (redecode[c, i0] * (1 - f) + redecode[c, i0 + 1] * f) / t
+            else:
+                for c in range(3):
+                    col[c] = rad[y, x, c]
+            for c in range(3):
+                col[c] *= fl[c]
+            if use_ref:
+                ok = True
+                for c in range(3):
+                    z = ref[y, x, c]
+                    if not (z > noise_floor and z < saturation):
+                        ok = False
+                if ok and fl[3] > 0:
+                    s_ref = 0.0
+                    for c in range(3):
+                        zc = min(max(int(ref[y, x, c]), 0), max_level)
+                        lin[c] = table[c, zc]
+                        s_ref += lin[c]
+                    s_col = col[0] + col[1] + col[2]
+                    if s_ref > 0 and s_col > 0:
+                        a = fl[3]
+                        for c in range(3):
+                            col[c] = (1 - a) * col[c] / s_col + a * lin[c] / s_ref
+            y_new = l0 * col[0] + l1 * col[1] + l2 * col[2]
+            if y_new > 0 and np.isfinite(y_new):
+                sc = y_old / y_new
+                for c in range(3):
+                    rad[y, x, c] = col[c] * sc
+
+
+def _apply_numba(rad, fields, step, shares, log_t, redecode, ref_frame, table, noise_floor,
+                 saturation, max_level) -> None:
+    """The full-resolution pass of :func:`anchor_colour` with the numba kernel, row spans on
+    up to two threads (it releases the GIL)."""
+    use_redecode = redecode is not None
+    use_ref = ref_frame is not None
+    sh = shares if use_redecode else np.zeros((1, 1, 1), np.float16)
+    lt = np.asarray(log_t, np.float64) if use_redecode else np.zeros(1)
+    rd = np.ascontiguousarray(redecode, np.float64) if use_redecode else np.zeros((3, 2))
+    ref = ref_frame if use_ref else np.zeros((1, 1, 3), np.uint8)
+    tab = np.ascontiguousarray(table, np.float64)
+
+    def rows(r0: int, r1: int) -> None:
+        # numba has no float16: the shares of these rows as float32
+        part = sh[:, r0:r1].astype(np.float32) if use_redecode else sh.astype(np.float32)
+        _anchor_rows(rad, fields, int(step), part, lt, rd, ref, tab, float(noise_floor),
+                     float(saturation), int(max_level), use_redecode, use_ref, r0, r1,
+                     r0 if use_redecode else 0)
+
+    run_row_spans(rad.shape[0], None, rows)
+
+
+def anchor_colour(
+    radiance: np.ndarray,
+    frames: Sequence[np.ndarray],
+    decode: np.ndarray,
+    *,
+    max_level: int,
+    saturation: float,
+    noise_floor: float,
+    to_reference: Sequence[np.ndarray] | None = None,
+    masks: Sequence[np.ndarray | None] | None = None,
+    reference: int | None = None,
+    lut: np.ndarray | None = None,
+    exposure_times: Sequence[float] | None = None,
+    shares: np.ndarray | None = None,
+    max_samples: int = 250_000,
+    decode_name: str = "srgb",
+    rows_per_chunk: int = 256,
+) -> ColourAnchor:
+    """Give the merged ``radiance`` (modified in place) the colour of the frames that expose
+    each region best, keeping its luminance.
+
+    1. With the merge's ``lut``, ``exposure_times`` and per-frame ``shares`` (``(N, H, W)``,
+       :attr:`MergeResult.shares`) every pixel is first re-decoded: its value at the exposure
+       of the frames that made it (the shares' geometric mean of the times) is turned back
+       into levels through the ``lut`` and decoded with ``decode`` (``(3, L)`` or ``(L,)``),
+       which gives the colour of the frames as ``decode`` renders them, pixel by pixel.
+    2. On a grid of at most ``max_samples`` cells every frame's colour (its levels decoded by
+       ``decode``) is weighted by how well exposed it is (a Gaussian of :data:`ANCHOR_SIGMA`
+       around mid-grey in every channel, zero when clipped or under the noise floor: the frame
+       nearest mid-grey counts most; the ``reference`` frame :data:`REFERENCE_BOOST` times
+       more), the weights blurred over :data:`ANCHOR_BLUR` cells for smooth transitions. The
+       ratio of that colour to the merge's own (same weights, same blur) is a smooth
+       per-channel gain: frames that disagree in colour are followed region by region.
+    3. Where the reference frame is well exposed, each pixel takes the reference pixel's own
+       decoded colour (the merge is on its grid), faded in by the reference's share of the
+       blurred weights.
+
+    The pixel's luminance (Rec. 709 weights) is held fixed throughout. Where no frame is well
+    exposed (clipped everywhere) only step 1 applies.
+    """
+    from scipy import ndimage
+
+    from ..registration.transform import apply, invert
+
+    rad = radiance
+    h, w = rad.shape[:2]
+    table = np.asarray(decode, dtype=np.float64)
+    if table.ndim == 1:
+        table = np.tile(table, (3, 1))
+    redecode = None
+    log_t = None
+    if lut is not None and exposure_times is not None and shares is not None:
+        lt = np.asarray(lut, dtype=np.float64)
+        lt = np.tile(lt, (3, 1)) if lt.ndim == 1 else lt
+        redecode = _redecode_table(lt, table)
+        log_t = np.log(np.asarray(exposure_times, dtype=np.float64))
+    step = max(1, int(np.ceil(np.sqrt(h * w / max_samples))))
+    gy = np.arange(step // 2, h, step)
+    gx = np.arange(step // 2, w, step)
+    ys, xs = np.meshgrid(gy, gx, indexing="ij")
+    shape = ys.shape
+    ys = ys.ravel()
+    xs = xs.ravel()
+
+    def pixel_log_time(sh: np.ndarray) -> np.ndarray:
+        s_ = sh.astype(np.float32)
+        tot = s_.sum(axis=0)
+        lt_ = np.tensordot(log_t.astype(np.float32), s_, axes=(0, 0))
+        return np.where(tot > 0, lt_ / np.where(tot > 0, tot, 1), float(log_t.min()))
+
+    merged = rad[ys, xs].astype(np.float64)
+    if redecode is not None:
+        merged = _redecode(merged, pixel_log_time(shares[:, ys, xs]), redecode)
+    msum = merged.sum(axis=-1)
+    okm = np.isfinite(msum) & (msum > 0)
+    qm = np.where(okm[:, None], merged / np.where(okm, msum, 1.0)[:, None], 0.0)
+
+    ref_weight = None
+    num_t = np.zeros((ys.size, 3))
+    num_m = np.zeros((ys.size, 3))
+    den = np.zeros(ys.size)
+    shares_out = []
+    for k, f in enumerate(frames):
+        if to_reference is None or k == reference:
+            xk, yk = xs, ys
+            inside = np.ones(xs.size, bool)
+        else:
+            fx, fy = apply(invert(np.asarray(to_reference[k], float)), xs.astype(float),
+                           ys.astype(float))
+            xk = np.rint(fx).astype(np.intp)
+            yk = np.rint(fy).astype(np.intp)
+            inside = (xk >= 0) & (xk < w) & (yk >= 0) & (yk < h)
+            np.clip(xk, 0, w - 1, out=xk)
+            np.clip(yk, 0, h - 1, out=yk)
+        z = np.clip(np.asarray(f)[yk, xk].astype(np.intp), 0, max_level)
+        x = z / float(max_level)
+        wk = np.exp(-np.sum((x - 0.5) ** 2, axis=-1) / (2.0 * ANCHOR_SIGMA**2))
+        ok = inside & okm & np.all((z < saturation) & (z > noise_floor), axis=-1)
+        if masks is not None and masks[k] is not None:
+            ok &= np.asarray(masks[k], bool)[yk, xk]
+        wk = np.where(ok, wk, 0.0)
+        lin = np.stack([table[c][z[:, c]] for c in range(3)], axis=-1)
+        s = lin.sum(axis=-1)
+        wk = np.where(s > 0, wk, 0.0)
+        if k == reference:
+            wk = wk * REFERENCE_BOOST
+            ref_weight = wk
+        q = lin / np.where(s > 0, s, 1.0)[:, None]
+        num_t += wk[:, None] * q
+        num_m += wk[:, None] * qm
+        den += wk
+        shares_out.append(float(wk.sum()))
+
+    def blur(a: np.ndarray) -> np.ndarray:
+        return ndimage.gaussian_filter(a.reshape(shape), ANCHOR_BLUR, mode="nearest").ravel()
+
+    d = blur(den)
+    target = np.stack([blur(num_t[:, c]) for c in range(3)], axis=-1)
+    own = np.stack([blur(num_m[:, c]) for c in range(3)], axis=-1)
+    good = (d > 1e-6 * max(float(d.max()), 1e-300)) & np.all(own > 0, axis=-1) \
+        & np.all(target > 0, axis=-1)
+    gain = np.ones((ys.size, 3))
+    gain[good] = target[good] / own[good]
+    shift = np.hypot(*(target[good, :2] / d[good, None] - own[good, :2] / d[good, None]).T)
+    alpha = np.zeros(ys.size)
+    if ref_weight is not None:
+        alpha[good] = np.clip(blur(ref_weight)[good] / d[good], 0.0, 1.0)
+    fields = np.concatenate([gain, alpha[:, None]], axis=-1).reshape(*shape, 4)
+
+    ref_frame = None if reference is None else np.asarray(frames[reference])
+    if AVAILABLE:
+        _apply_numba(rad, fields.astype(np.float32), step, shares, log_t, redecode, ref_frame,
+                     table, noise_floor, saturation, max_level)
+    else:  # pragma: no cover - exercised only without numba
+        _apply_numpy(rad, fields, step, shares, log_t, redecode, ref_frame, table,
+                     noise_floor, saturation, max_level, rows_per_chunk, pixel_log_time)
+    total = max(sum(shares_out), 1e-300)
+    return ColourAnchor(
+        step=step,
+        max_shift=float(shift.max()) if shift.size else 0.0,
+        median_shift=float(np.median(shift)) if shift.size else 0.0,
+        frame_shares=tuple(v / total for v in shares_out),
+        decode=decode_name,
+    )
+
+
+@dataclass(frozen=True)
+class ColourResult:
+    """The colour stage of a non-linear merge: the check of the merge as made (``before``),
+    the local tone-mapping test, the anchoring (``None`` when off) and the check of the
+    result (``after``)."""
+
+    before: ColourCheck
+    after: ColourCheck
+    anchor: ColourAnchor | None
+    local_tone_mapping: Any
+    message: str
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "before": self.before.to_json(),
+            "after": self.after.to_json(),
+            "anchor": None if self.anchor is None else self.anchor.to_json(),
+            "local_tone_mapping": None if self.local_tone_mapping is None
+            else self.local_tone_mapping.to_json(),
+            "message": self.message,
+        }
+
+
+def check_colour(
+    frames: Sequence[np.ndarray],
+    radiance: np.ndarray,
+    lut: np.ndarray,
+    *,
+    max_level: int,
+    reference: int,
+    saturation: float,
+    noise_floor: float,
+    to_reference: Sequence[np.ndarray] | None = None,
+    masks: Sequence[np.ndarray | None] | None = None,
+    anchor: bool = True,
+    exposure_times: Sequence[float] | None = None,
+    shares: np.ndarray | None = None,
+) -> ColourResult:
+    """Check a non-linear merge's colour, test for local tone mapping and (``anchor``) give
+    the merge the frames' own colour (:func:`anchor_colour`, frames decoded with sRGB: what
+    they show on a screen), then check it again. ``radiance`` is modified in place."""
+    from ..response.local_tonemap import local_tone_mapping
+
+    kw = dict(max_level=max_level, reference=reference, to_reference=to_reference, masks=masks)
+    before = colour_check(frames, radiance, lut, **kw)
+    ltm = local_tone_mapping(frames, lut, max_level=max_level, to_reference=to_reference,
+                             reference=reference)
+    done = None
+    after = before
+    if anchor:
+        done = anchor_colour(radiance, frames, srgb_decode_lut(max_level), max_level=max_level,
+                             saturation=saturation, noise_floor=noise_floor,
+                             to_reference=to_reference, masks=masks, reference=reference,
+                             lut=lut, exposure_times=exposure_times, shares=shares)
+        after = colour_check(frames, radiance, lut, **kw)
+    parts = []
+    if done is not None:
+        parts.append(
+            f"colour anchored to the frames (sRGB-decoded, reference frame {reference} where "
+            f"well exposed): median error against the reference {before.merge_error_srgb:.4f}"
+            f" -> {after.merge_error_srgb:.4f}")
+    else:
+        parts.append(before.message)
+    parts.append(ltm.message)
+    return ColourResult(before=before, after=after, anchor=done, local_tone_mapping=ltm,
+                        message="; ".join(parts))

@@ -1,0 +1,114 @@
+"""Exposure fusion (Mertens, Kautz & Van Reeth 2007): a preview without a radiance map.
+
+T. Mertens, J. Kautz, F. Van Reeth, "Exposure Fusion", Pacific Graphics 2007,
+DOI: 10.1109/PG.2007.17. Each frame's display values get a weight per pixel, the product of
+contrast (absolute Laplacian of the grey image), saturation (standard deviation over the
+channels) and well-exposedness (a Gaussian of sigma 0.2 around mid-grey in every channel,
+eq. 1-2); the weights are normalised per pixel and the frames blended in a Laplacian pyramid
+(section 3.2) so the transitions are seamless.
+
+For locally tone-mapped brackets (phones, :mod:`hdrcore.response.local_tonemap`) no global
+response holds and a radiance map is a compromise; the fused frames keep each region's colour
+and contrast as the camera rendered it. :func:`exposure_fusion` works at preview size: each
+frame is reduced by block means and warped onto the reference frame by the registration.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+from scipy import ndimage
+
+from ..errors import ParameterError
+
+__all__ = ["exposure_fusion", "fusion_weights"]
+
+WELL_EXPOSED_SIGMA = 0.2
+
+
+def fusion_weights(image: np.ndarray, *, contrast: float = 1.0, saturation: float = 1.0,
+                   exposedness: float = 1.0) -> np.ndarray:
+    """Mertens et al.'s weight map of one display-referred ``(H, W, 3)`` image in [0, 1]."""
+    grey = image.mean(axis=-1)
+    c = np.abs(ndimage.laplace(grey))
+    s = image.std(axis=-1)
+    e = np.exp(-np.sum((image - 0.5) ** 2, axis=-1) / (2 * WELL_EXPOSED_SIGMA**2))
+    return ((c + 1e-6) ** contrast * (s + 1e-6) ** saturation * e**exposedness).astype(
+        np.float32)
+
+
+_KERNEL = np.array([0.25, 0.5, 0.25], np.float32)
+
+
+def _down(a: np.ndarray) -> np.ndarray:
+    """Blur (binomial 1-2-1 twice) and keep every second pixel."""
+    for axis in (0, 1):
+        a = ndimage.correlate1d(a, _KERNEL, axis=axis, mode="nearest")
+        a = ndimage.correlate1d(a, _KERNEL, axis=axis, mode="nearest")
+    return a[::2, ::2]
+
+
+def _up(a: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+    """Twice the size (pixel repetition smoothed by 1-2-1), cut to ``shape``."""
+    out = np.repeat(np.repeat(a, 2, axis=0), 2, axis=1)[: shape[0], : shape[1]]
+    for axis in (0, 1):
+        out = ndimage.correlate1d(out, _KERNEL, axis=axis, mode="nearest")
+    return out
+
+
+def exposure_fusion(
+    frames: Sequence[np.ndarray],
+    *,
+    max_level: int,
+    to_reference: Sequence[np.ndarray] | None = None,
+    factor: int = 1,
+) -> np.ndarray:
+    """Fuse integer ``(H, W, 3)`` frames into an 8-bit ``(H / factor, W / factor, 3)`` image.
+
+    ``to_reference[k]`` maps frame ``k``'s pixel coordinates to the reference frame's (2x3 or
+    3x3; ``None``: aligned); ``factor`` reduces the frames by block means first.
+    """
+    from ..registration.transform import invert, scale_matrix
+    from ..registration.warp import warp
+    from ..resample import downsample_area
+
+    if len(frames) < 1:
+        raise ParameterError("exposure fusion needs at least one frame")
+    f = max(1, int(factor))
+    images, weights = [], []
+    for k, fr in enumerate(frames):
+        a = np.asarray(fr, dtype=np.float32) * np.float32(1.0 / max_level)
+        if f > 1:
+            a = downsample_area(a, f)
+        valid = np.ones(a.shape[:2], bool)
+        if to_reference is not None:
+            back = scale_matrix(invert(np.asarray(to_reference[k], float)), 1.0 / f)
+            if not np.allclose(back, np.eye(3)[: back.shape[0]], atol=1e-6):
+                res = warp(a, back, fill=0.0)
+                a = np.nan_to_num(res.image, nan=0.0)
+                valid = res.mask
+        a = np.clip(a, 0.0, 1.0).astype(np.float32)
+        images.append(a)
+        weights.append(fusion_weights(a) * valid)
+    wsum = np.sum(weights, axis=0)
+    wsum = np.where(wsum > 0, wsum, np.float32(1.0))
+    weights = [wk / wsum for wk in weights]
+    h, w = images[0].shape[:2]
+    levels = max(1, int(np.floor(np.log2(max(min(h, w), 2)))) - 2)
+    result = None
+    for img, wk in zip(images, weights, strict=True):
+        # Laplacian pyramid of the image, Gaussian pyramid of the weight (section 3.2)
+        gi, gw = [img], [wk]
+        for _ in range(levels - 1):
+            gi.append(_down(gi[-1]))
+            gw.append(_down(gw[-1]))
+        lap = [gi[i] - _up(gi[i + 1], gi[i].shape) for i in range(levels - 1)] + [gi[-1]]
+        blended = [lp * g[..., None] for lp, g in zip(lap, gw, strict=True)]
+        result = blended if result is None else [r + b for r, b in zip(result, blended,
+                                                                         strict=True)]
+    assert result is not None
+    out = result[-1]
+    for i in range(levels - 2, -1, -1):
+        out = _up(out, result[i].shape) + result[i]
+    return np.clip(np.rint(out * 255.0), 0, 255).astype(np.uint8)

@@ -1,0 +1,124 @@
+"""The colour of a non-linear merge checked against its frames, anchored to them, and exposure
+fusion for brackets no response can linearise (issue 15)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from hdrcore.errors import ParameterError
+from hdrcore.merge import merge
+from hdrcore.merge.colour_check import (
+    MAX_MERGE_ERROR,
+    anchor_colour,
+    check_colour,
+    chromaticity,
+    colour_check,
+    srgb_decode_lut,
+)
+from hdrcore.merge.fusion import exposure_fusion
+from hdrcore.synthetic import simulate_bracket
+
+TIMES = (1.0, 4.0, 16.0)
+LUT = np.tile(srgb_decode_lut(255), (3, 1))
+LUMA = np.array([0.2126, 0.7152, 0.0722])
+
+
+@pytest.fixture(scope="module")
+def srgb_bracket():
+    sim = simulate_bracket(scene="patches", shape=(120, 180), exposure_times=TIMES, bits=8,
+                           response="srgb", noise_sigma=0.5, seed=4)
+    frames = [f.astype(np.uint8) for f in sim.frames]
+    res = merge(frames, TIMES, response=LUT, max_level=255)
+    return sim, frames, res
+
+
+def test_a_right_merge_passes(srgb_bracket) -> None:
+    sim, frames, res = srgb_bracket
+    cc = colour_check(frames, res.radiance, LUT, max_level=255, reference=1)
+    assert cc.status == "ok" and cc.merge_error < 0.005
+    assert cc.merge_error == pytest.approx(cc.merge_error_srgb)  # the LUT is sRGB here
+    assert cc.frame_consistency < 0.01 and len(cc.frame_pairs) == 2
+    assert cc.white_balance_differs == ()
+    d = json.loads(json.dumps(cc.to_json()))
+    assert d["status"] == "ok" and len(d["best_frame_errors"]) == 3
+
+
+def test_a_tinted_merge_is_flagged(srgb_bracket) -> None:
+    _, frames, res = srgb_bracket
+    tinted = res.radiance * np.array([1.0, 1.0, 0.7], np.float32)
+    cc = colour_check(frames, tinted, LUT, max_level=255, reference=1)
+    assert cc.status == "drift" and cc.merge_error > MAX_MERGE_ERROR
+    assert "drift" in cc.message
+
+
+def test_per_frame_white_balance_is_measured() -> None:
+    sim = simulate_bracket(scene="patches", shape=(120, 180), exposure_times=TIMES, bits=8,
+                           response="linear", noise_sigma=0.0, seed=4)
+    x = [f.astype(np.float64) / 255 for f in sim.frames]
+    x[2] = x[2] * np.array([1.0, 1.0, 0.9])  # the third shot balanced bluer... less blue
+    frames = [np.clip(np.rint(255 * np.where(v <= 0.0031308, 12.92 * v,
+                                             1.055 * np.maximum(v, 0) ** (1 / 2.4) - 0.055)),
+                      0, 255).astype(np.uint8) for v in x]
+    res = merge(frames, TIMES, response=LUT, max_level=255)
+    cc = colour_check(frames, res.radiance, LUT, max_level=255, reference=1)
+    assert cc.white_balance_differs == (2,)
+    assert cc.white_balance[2][2] == pytest.approx(0.9, abs=0.02)
+    assert "white balance differs" in cc.message
+
+
+def test_anchoring_gives_the_frames_colour_and_keeps_luminance(srgb_bracket) -> None:
+    _, frames, res = srgb_bracket
+    tinted = (res.radiance * np.array([1.1, 1.0, 0.75], np.float32)).astype(np.float32)
+    y_before = tinted @ LUMA.astype(np.float32)
+    done = anchor_colour(tinted, frames, srgb_decode_lut(255), max_level=255, saturation=250,
+                         noise_floor=2, reference=1, lut=LUT, exposure_times=TIMES,
+                         shares=res.shares)
+    assert done.max_shift > 0.02 and abs(sum(done.frame_shares) - 1) < 1e-9
+    np.testing.assert_allclose(tinted @ LUMA.astype(np.float32), y_before, rtol=1e-4,
+                               atol=1e-7)
+    cc = colour_check(frames, tinted, LUT, max_level=255, reference=1)
+    assert cc.merge_error < 0.005
+    # where the reference is clipped the darker frame's colour is followed
+    assert cc.best_frame_errors[0][0] < 0.01
+
+
+def test_check_colour_reports_before_and_after(srgb_bracket) -> None:
+    _, frames, res = srgb_bracket
+    rad = (res.radiance * np.array([1.0, 1.0, 0.8], np.float32)).astype(np.float32)
+    out = check_colour(frames, rad, LUT, max_level=255, reference=1, saturation=250,
+                       noise_floor=2, exposure_times=TIMES, shares=res.shares)
+    assert out.before.merge_error > MAX_MERGE_ERROR > out.after.merge_error
+    assert out.anchor is not None and not out.local_tone_mapping.detected
+    assert "anchored" in out.message
+    json.dumps(out.to_json())
+    kept = check_colour(frames, rad.copy(), LUT, max_level=255, reference=1, saturation=250,
+                        noise_floor=2, anchor=False)
+    assert kept.anchor is None and kept.after is kept.before
+
+
+def test_bad_input(srgb_bracket) -> None:
+    _, frames, res = srgb_bracket
+    with pytest.raises(ParameterError, match="reference"):
+        colour_check(frames, res.radiance, LUT, max_level=255, reference=5)
+    with pytest.raises(ParameterError, match="radiance"):
+        colour_check(frames, res.radiance[:10], LUT, max_level=255, reference=1)
+    with pytest.raises(ParameterError, match="lut"):
+        colour_check(frames, res.radiance, LUT[:, :100], max_level=255, reference=1)
+
+
+def test_exposure_fusion() -> None:
+    f = (np.arange(64 * 96 * 3) % 251).reshape(64, 96, 3).astype(np.uint8)
+    same = exposure_fusion([f, f], max_level=255)
+    assert same.shape == f.shape and same.dtype == np.uint8
+    assert np.max(np.abs(same.astype(int) - f.astype(int))) <= 1  # one frame: itself
+    sim = simulate_bracket(scene="window", shape=(96, 144), exposure_times=TIMES, bits=8,
+                           response="srgb", noise_sigma=0.5, seed=1)
+    fused = exposure_fusion([x.astype(np.uint8) for x in sim.frames], max_level=255, factor=2)
+    assert fused.shape == (48, 72, 3)
+    # fewer clipped and black pixels than any single frame
+    bad = [np.mean((x >= 250) | (x <= 5)) for x in sim.frames]
+    assert np.mean((fused >= 250) | (fused <= 5)) < min(bad)
+    assert chromaticity(np.ones((2, 3)))[0] == pytest.approx([1 / 3, 1 / 3])
