@@ -26,6 +26,59 @@ SHOWS = ("after alignment", "before alignment", "blink before / after")
 ZOOMS = ("fit", "100 %", "200 %", "400 %")
 BOX = (880, 560)  # (width, height) of the overlay on screen
 BLINK_SECONDS = 0.7
+ARROW_GAIN = 10.0  # an arrow is this many times longer than the residual it shows
+
+
+def pair_residual(bracket: Any, result: Any, k: int) -> Any:
+    """The model-independent residual motion of pair ``k`` after alignment
+    (:func:`hdrcore.registration.residual.residual_motion`): the registration's own if it
+    measured one, else measured here from the frames (green channel)."""
+    reg = registration_of(result)
+    pair = reg.pairs[k]
+    own = getattr(pair, "residual", None)
+    if own is not None:
+        return own
+    from hdrcore.registration.residual import residual_motion
+
+    dark_f, bright_f = bracket.frames[pair.dark], bracket.frames[pair.bright]
+    lut = getattr(result, "lut", None)
+    scale = float(dark_f.max_level)
+    if lut is None:
+        table = np.arange(int(dark_f.max_level) + 1, dtype=np.float32) / scale
+    else:
+        arr = np.asarray(lut, np.float32)
+        table = arr[1] if arr.ndim == 2 else arr
+    top = float(table[min(int(result.saturation), len(table) - 1)])
+    floor = float(table[min(int(result.noise_floor), len(table) - 1)])
+    return residual_motion(dark_f.levels[..., 1], bright_f.levels[..., 1], float(pair.ratio),
+                           np.asarray(pair.homography), saturation=top, noise_floor=floor,
+                           lut=table)
+
+
+def draw_arrows(image: np.ndarray, residual: Any, step: float, x0: int = 0,
+                y0: int = 0) -> np.ndarray:
+    """Arrows of the residual field on a display image (``step`` image pixels per display pixel,
+    ``(x0, y0)`` the image pixel at its corner): green under 0.3 px, yellow under 1 px, red
+    above; grey crosses where no tile could be measured."""
+    from PIL import Image, ImageDraw
+
+    im = Image.fromarray(image)
+    d = ImageDraw.Draw(im)
+    mags = np.hypot(residual.shifts[:, 0], residual.shifts[:, 1])
+    for (cx, cy), (dx, dy), ok, m in zip(residual.centres, residual.shifts, residual.valid, mags,
+                                         strict=True):
+        px, py = (cx - x0) / step, (cy - y0) / step
+        if not (0 <= px < image.shape[1] and 0 <= py < image.shape[0]):
+            continue
+        if not ok:
+            d.line([(px - 3, py - 3), (px + 3, py + 3)], fill=(150, 150, 150))
+            d.line([(px - 3, py + 3), (px + 3, py - 3)], fill=(150, 150, 150))
+            continue
+        colour = (40, 200, 40) if m < 0.3 else (240, 200, 0) if m < 1.0 else (230, 30, 30)
+        ex, ey = px + dx * ARROW_GAIN, py + dy * ARROW_GAIN
+        d.line([(px, py), (ex, ey)], fill=colour, width=2)
+        d.ellipse([px - 2, py - 2, px + 2, py + 2], fill=colour)
+    return np.asarray(im)
 
 
 def _linear_green(frame: Any, lut: Any) -> np.ndarray:
@@ -125,6 +178,11 @@ class RegistrationPanel:
                                                          "fit: the whole frame")
         self.centre_x = gui.add_slider("Centre x (%) ", 0.0, 100.0, 1.0, 50.0, visible=False)
         self.centre_y = gui.add_slider("Centre y (%) ", 0.0, 100.0, 1.0, 50.0, visible=False)
+        self.arrows = gui.add_checkbox(
+            "Residual arrows", True, hint="what is left after alignment, tile by tile, measured "
+                                          "independently of the motion model (phase correlation)")
+        self.residual_md = gui.add_markdown("")
+        self._residuals: dict[tuple[int, int], Any] = {}
         blank = np.zeros((4, 4, 3), np.uint8)
         self.full = gui.add_image(blank, label="overlay", format="png", visible=False)
         self.before = gui.add_image(blank, label="before alignment", format="png", visible=False)
@@ -134,7 +192,7 @@ class RegistrationPanel:
         self._lock = threading.Lock()
         self._blink_stop = threading.Event()
         self._blink_thread: threading.Thread | None = None
-        for handle in (self.show_dropdown, self.zoom, self.centre_x, self.centre_y):
+        for handle in (self.show_dropdown, self.zoom, self.centre_x, self.centre_y, self.arrows):
             handle.on_update(lambda _e: self._redraw())
         self.costs = gui.add_plotly(go.Figure(), aspect=0.45, visible=False)  # height / width
         self._images: dict[str, np.ndarray] = {}
@@ -192,6 +250,23 @@ class RegistrationPanel:
             if show.startswith("blink") or show.startswith("after") == aligned:
                 frames[aligned], crop = overlay_crop(bracket, result, k, aligned=aligned,
                                                      zoom=zoom, cx=cx, cy=cy)
+        residual = None
+        if self.arrows.value and True in frames:
+            key = (id(result), k)
+            residual = self._residuals.get(key)
+            if residual is None:
+                try:
+                    residual = pair_residual(bracket, result, k)
+                except Exception:  # noqa: BLE001 -- the arrows are extra; the overlay stays
+                    residual = None
+                self._residuals = {key: residual}  # only the shown pair's is kept
+            if residual is not None:
+                h, w = bracket.frames[0].levels.shape[:2]
+                step = w / frames[True].shape[1] if zoom == 0 else 1.0 / zoom
+                frames[True] = draw_arrows(frames[True], residual, step, crop[0], crop[1])
+        self.residual_md.content = "" if residual is None else (
+            f"Residual after alignment: **{residual.status}**: {residual.message} (arrows "
+            f"x{ARROW_GAIN:g}: green < 0.3 px, yellow < 1 px, red above; grey x: no texture)")
         self._frames = frames if show.startswith("blink") else {}
         first = frames[True] if True in frames else frames[False]
         self.full.image = first
