@@ -9,7 +9,13 @@ see :mod:`hdrcore.registration._problem`), same eq. 5 start, a different search:
 * on each level, from coarse to full resolution, Gauss-Newton on the eq. 7 residuals with the
   exact derivative of the normalisation, over a fixed set of well-exposed, high-gradient pixels
   of the dark frame's grid (at most ``max_samples`` at full resolution, ``coarse_samples`` on
-  the coarser levels), spread over the frame and kept in raster order;
+  the coarser levels), spread over the frame and kept in raster order, their validity decided
+  at the level's start so the cost is continuous in the motion (decided again once if the
+  search moves more than ``RESELECT`` pixels; see :mod:`hdrcore.registration._problem`);
+* the motion models nest, one Jacobian column (a generator of the motion, acting on the bright
+  frame: ``B <- G(delta) B``) at a time: shift x, y; + rotation (euclidean); + scale
+  (similarity); + stretch, shear and two perspective terms (homography). The estimate is a 3x3
+  homography throughout; the affine models' updates keep its last row ``(0, 0, 1)`` exactly;
 * the bright frame is sampled with Keys cubic convolution at the transformed points only, with
   its analytic gradient, and the eq. 6 sum and the normal equations are accumulated in one
   compiled pass, so a 24-megapixel pair costs a few hundred thousand interpolations per
