@@ -99,11 +99,19 @@ def test_jacobian_columns_are_derivatives_of_the_residuals(pair):
 
 @pytest.mark.parametrize("level", [0, 1])
 @pytest.mark.parametrize("by_gradient, n", [(True, 4000), (False, 6000), (True, 10**6)])
-def test_select_samples_compiled_matches_numpy(pair, level, by_gradient, n):
+@pytest.mark.parametrize("motion, reach", [("identity", 0), ("truth", 0), ("homography", 1)])
+def test_select_samples_compiled_matches_numpy(pair, level, by_gradient, n, motion, reach):
     dark, bright, ml = pair
     data = prepare(dark, bright, 4.0, saturation=0.98, noise_floor=3 / ml, threshold=0.1)
-    a = select_samples(data, level, n, by_gradient=by_gradient, seed=3, compiled=False)
-    b = select_samples(data, level, n, by_gradient=by_gradient, seed=3, compiled=True)
+    shape_l = data.level_shape(level)
+    m = {"identity": None,
+         "truth": rigid_matrix(-6.3 / 2**level, 4.1 / 2**level, -1.2, shape_l),
+         "homography": homogeneous(similarity_matrix(-6.0 / 2**level, 4.0 / 2**level, -1.0,
+                                                     1.01, shape_l))
+         + np.array([[0, 0, 0], [0, 0, 0], [3e-5 * 2**level, -2e-5 * 2**level, 0]])}[motion]
+    kw = dict(motion=m, by_gradient=by_gradient, seed=3, reach=reach)
+    a = select_samples(data, level, n, compiled=False, **kw)
+    b = select_samples(data, level, n, compiled=True, **kw)
     assert 0 < a.b.size <= n
     np.testing.assert_array_equal(a.x, b.x)
     np.testing.assert_array_equal(a.y, b.y)
