@@ -12,11 +12,12 @@ weighted RMS of
 
     r = ln g_c(T(z)) - ln g_c(z) - rho_k
 
-in natural-log units (0.01 = 1 % of exposure), with the weights of the fit (pixel count and
-the hat weight of both levels). ``rho_k`` is the exposure ratio of the pair: by default one
-free value per pair shared by the channels (its weighted mean over the held-back pairs), so
-wrong metadata does not favour a curve bent to it, while channels that disagree (a colour
-cast) still cost.
+in natural-log units (0.01 = 1 % of exposure), with the weights of the fit
+(:func:`.samples.pair_weight`: pixel count, the hat weight of both levels, less weight near
+black where the log of a level is noise). ``rho_k`` is the exposure ratio of the pair: by
+default one free value per pair shared by the channels (its weighted mean over the held-back
+pairs), so wrong metadata does not favour a curve bent to it, while channels that disagree
+(a colour cast) still cost.
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from .samples import Correspondences, hat_weight
+from .samples import Correspondences, pair_weight
 
 __all__ = [
     "COLOUR_LEVELS",
@@ -69,7 +70,7 @@ def pair_residuals(
     diffs, weights, which = [], [], []
     for c, corr in enumerate(pairs):
         gc = g[min(c, g.shape[0] - 1)]
-        w = corr.weight * np.sqrt(hat_weight(corr.dark, lo, hi) * hat_weight(corr.bright, lo, hi))
+        w = pair_weight(corr, lo, hi, g.shape[1] - 1)
         lg = np.log(np.maximum(gc, 1e-12))
         d = np.interp(corr.bright, x, lg) - np.interp(corr.dark, x, lg)
         # a curve flat at zero (a degenerate toe) gives -27 here: such pairs count fully

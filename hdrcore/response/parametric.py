@@ -28,7 +28,7 @@ from scipy.optimize import least_squares
 
 from ..errors import ParameterError
 from .curve import ResponseCurve, normalise_curve
-from .samples import Correspondences, hat_weight
+from .samples import Correspondences, pair_weight
 
 __all__ = ["FAMILIES", "Family", "family_curve", "fit_family", "srgb_inverse"]
 
@@ -107,10 +107,10 @@ def family_curve(name: str, params: Sequence[float], max_level: int,
     return np.tile(normalise_curve(g)[0], (n_channels, 1))
 
 
-def _stack(pairs: Sequence[Correspondences], lo: float, hi: float):
+def _stack(pairs: Sequence[Correspondences], lo: float, hi: float, max_level: int):
     d, b, r, w = [], [], [], []
     for corr in pairs:
-        wt = corr.weight * np.sqrt(hat_weight(corr.dark, lo, hi) * hat_weight(corr.bright, lo, hi))
+        wt = pair_weight(corr, lo, hi, max_level)
         keep = wt > 0
         d.append(corr.dark[keep])
         b.append(corr.bright[keep])
@@ -135,7 +135,7 @@ def fit_family(
         raise ParameterError(f"unknown response family {name!r}",
                              expected=f"one of {', '.join(FAMILIES)}")
     fam = FAMILIES[name]
-    d, b, p, w = _stack(pairs, lo, hi)
+    d, b, p, w = _stack(pairs, lo, hi, max_level)
     if w.size < 2:
         raise ParameterError("no level pairs to fit a response family to")
     xd, xb = d / max_level, b / max_level

@@ -29,6 +29,8 @@ __all__ = [
     "check_ratios",
     "consecutive_ratios",
     "hat_weight",
+    "log_noise_weight",
+    "pair_weight",
     "pixel_pairs",
     "pixel_samples",
     "valid_range",
@@ -149,6 +151,32 @@ def hat_weight(z: np.ndarray, lo: float, hi: float) -> np.ndarray:
     mid = 0.5 * (lo + hi)
     half = 0.5 * (hi - lo)
     return np.clip(1.0 - np.abs(z - mid) / half, 0.0, 1.0)
+
+
+def log_noise_weight(dark: np.ndarray, bright: np.ndarray, max_level: int) -> np.ndarray:
+    """Down-weighting of level pairs near black in a fit of ``ln g``.
+
+    The residual ``ln g(T) - ln g(z)`` of a pair carries the level noise times ``d ln g / dz``,
+    which goes as ``1 / z`` for power-law curves: a pair a few noise steps above zero is ten
+    times noisier than one in the mid-tones and swamps a fit of linear 8-bit frames, whose dark
+    frames hold most pixels there. The weight is the inverse of that noise, ``z_eff / z_ref``
+    with ``z_eff = 1 / sqrt(1 / dark^2 + 1 / bright^2)``, capped at 1 from ``z_ref =
+    max_level / 16`` (16 levels at 8 bits) up: 1 for a pair at 32 and 128, 0.24 at 4 and 16,
+    0.12 at 2 and 8.
+    """
+    z_ref = max_level / 16.0
+    d = np.maximum(np.asarray(dark, dtype=np.float64), 0.5)
+    b = np.maximum(np.asarray(bright, dtype=np.float64), 0.5)
+    z_eff = 1.0 / np.sqrt(1.0 / d**2 + 1.0 / b**2)
+    return np.minimum(1.0, z_eff / z_ref)
+
+
+def pair_weight(corr: Correspondences, lo: float, hi: float, max_level: int) -> np.ndarray:
+    """The weight of every level pair in the fits and scores of :mod:`.joint`,
+    :mod:`.parametric` and :mod:`.holdout`: its own (pixel count) times the hat weight of both
+    levels (DM eq. 4) times :func:`log_noise_weight`."""
+    return (corr.weight * np.sqrt(hat_weight(corr.dark, lo, hi) * hat_weight(corr.bright, lo, hi))
+            * log_noise_weight(corr.dark, corr.bright, max_level))
 
 
 @dataclass(frozen=True, eq=False)

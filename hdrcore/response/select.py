@@ -59,8 +59,8 @@ __all__ = [
 #: A curve must explain held-back pairs this much better than sRGB (relative) to replace it.
 SRGB_MARGIN = 0.15
 
-#: A curve that gives pixels colours this much less consistent between frames than sRGB does
-#: (relative, :func:`.holdout.colour_consistency`) is not used.
+#: A curve that gives pixels colours this much less consistent between frames than the most
+#: consistent candidate (relative, :func:`.holdout.colour_consistency`) is not used.
 COLOUR_TOLERANCE = 0.20
 
 
@@ -309,17 +309,20 @@ def select_response(
     cands.append(CandidateScore("srgb", s, per, n, "sRGB decoding (IEC 61966-2-1)",
                                 colour=colour["srgb"]))
 
-    srgb_score, srgb_colour = cands[-1].score, cands[-1].colour
+    srgb_score = cands[-1].score
+    finite_colours = [c.colour for c in cands if np.isfinite(c.colour) and np.isfinite(c.score)]
+    best_colour = min(finite_colours) if finite_colours else float("nan")
+    best_by_colour = next((c.name for c in cands if c.colour == best_colour), "")
     if np.isfinite(srgb_score) and cands[0].score > (1.0 + SRGB_MARGIN) * srgb_score:
         signs = (*signs, Degeneracy(
             "worse-than-srgb", f"the recovered curve explains held-back pairs worse than "
             f"sRGB ({100 * cands[0].score:.2f} % against {100 * srgb_score:.2f} %)", None,
             cands[0].score))
-    if _less_consistent(cands[0].colour, srgb_colour, COLOUR_TOLERANCE):
+    if _less_consistent(cands[0].colour, best_colour, COLOUR_TOLERANCE):
         signs = (*signs, Degeneracy(
             "colours-inconsistent", f"the recovered curve gives a pixel different colours in "
-            f"consecutive frames (median chromaticity difference {cands[0].colour:.4f}, sRGB "
-            f"{srgb_colour:.4f})", None, cands[0].colour))
+            f"consecutive frames (median chromaticity difference {cands[0].colour:.4f}, "
+            f"{best_by_colour} {best_colour:.4f})", None, cands[0].colour))
     cands[0] = replace(cands[0], degenerate=signs)
 
     def why_not(c: CandidateScore) -> str:
@@ -327,19 +330,21 @@ def select_response(
             return "could not be fitted"
         if c.name == recovered and signs:
             return "degenerate: " + "; ".join(d.message for d in signs)
-        if c.name != "srgb" and _less_consistent(c.colour, srgb_colour, COLOUR_TOLERANCE):
-            return (f"colours less consistent between frames than with sRGB ({c.colour:.4f} "
-                    f"against {srgb_colour:.4f})")
+        if _less_consistent(c.colour, best_colour, COLOUR_TOLERANCE):
+            return (f"colours less consistent between frames than with {best_by_colour} "
+                    f"({c.colour:.4f} against {best_colour:.4f})")
         return ""
 
     cands = [replace(c, excluded=why_not(c)) for c in cands]
     pool_ok = [c for c in cands if not c.excluded] or [cands[-1]]
     best = min(pool_ok, key=lambda c: c.score)
-    if best.name != "srgb" and np.isfinite(srgb_score) and not (
+    srgb_ok = not cands[-1].excluded
+    if best.name != "srgb" and srgb_ok and np.isfinite(srgb_score) and not (
             best.score < (1.0 - SRGB_MARGIN) * srgb_score):
         best = cands[-1]
     ordered = sorted(cands, key=lambda c: (bool(c.excluded), c.score))
-    others = [c for c in ordered if c.name != best.name and not c.excluded]
+    others = [c for c in ordered if c.name != best.name and not c.excluded] or [
+        c for c in ordered if c.name != best.name and np.isfinite(c.score)]
     runner = others[0] if others else None
     margin = (1.0 - best.score / runner.score) if runner is not None and runner.score > 0 \
         else float("nan")
@@ -356,10 +361,15 @@ def select_response(
     else:
         curve = replace(family_curves[best.name], exposure_ratios=ratios)
     vs = f"; {runner.name} {100 * runner.score:.2f} %" if runner is not None else ""
-    msg = (f"auto: {best.name} explains held-back {source} to {100 * best.score:.2f} %{vs}"
-           + (f" ({100 * margin:.0f} % better)" if np.isfinite(margin) and margin > 0 else ""))
-    if best.name == "srgb" and np.isfinite(margin) and margin <= 0:
+    msg = f"auto: {best.name} explains held-back {source} to {100 * best.score:.2f} %{vs}"
+    if best.name == "srgb" and not (np.isfinite(margin) and margin >= SRGB_MARGIN):
         msg += f" (sRGB kept: no curve explains them {100 * SRGB_MARGIN:.0f} % better)"
+    elif np.isfinite(margin) and margin >= 0.005:
+        msg += f" ({100 * margin:.0f} % better)"
+    n_out = sum(1 for c in cands if c.excluded and c.name != recovered)
+    if n_out:
+        msg += (f"; {n_out} candidate(s) left out for colours less consistent between frames"
+                if any("colours less consistent" in c.excluded for c in cands) else "")
     if fallback:
         msg = ("auto: the recovered curve is degenerate ("
                + "; ".join(d.message for d in signs) + f"); fell back to {best.name} "
