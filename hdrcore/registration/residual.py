@@ -52,6 +52,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import fft as sfft
+from scipy.special import fdtri
 
 from .._numba import AVAILABLE
 from .._numba import njit as _njit
@@ -588,8 +589,6 @@ def _fit_pattern(centres: np.ndarray, shifts: np.ndarray, shape: tuple[int, int]
     0.1 %, the robust weights of the larger model for both); a model needs 1.5 tiles per free
     parameter, so the higher terms of a small tile count are held at 0.
     """
-    from scipy import stats
-
     n = len(centres)
     radius = _radius(shape)
     full = _design(centres[:, 0], centres[:, 1], shape, radius)
@@ -621,7 +620,7 @@ def _fit_pattern(centres: np.ndarray, shifts: np.ndarray, shape: tuple[int, int]
             chosen = terms
             continue
         f_stat = ((rss0 - rss) / (terms - chosen)) / (rss / dof)
-        if f_stat > stats.f.ppf(0.999, terms - chosen, dof):
+        if f_stat > fdtri(terms - chosen, dof, 0.999):
             chosen = terms
     params, _, _, wt = fits[chosen]
     r = shifts - a3 @ params
