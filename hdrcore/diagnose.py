@@ -16,7 +16,8 @@ from typing import TYPE_CHECKING, Any
 if TYPE_CHECKING:  # pragma: no cover
     from .pipeline import PipelineResult
 
-__all__ = ["Verdict", "diagnose", "MISMATCH_STOPS", "CLIPPED_FRACTION", "GHOST_FRACTION"]
+__all__ = ["Verdict", "diagnose", "MISMATCH_STOPS", "CLIPPED_FRACTION", "GHOST_FRACTION",
+           "MAX_COLOUR_ERROR"]
 
 #: EXIF and estimated ratios further apart than this (in stops) give a verdict.
 MISMATCH_STOPS = 0.15
@@ -29,6 +30,9 @@ UNDEREXPOSED_FRACTION = 0.02
 STATIC_SHIFT_PX = 1.0
 #: Pixels flagged as ghosts above this fraction: something moved.
 GHOST_FRACTION = 0.01
+#: Median chromaticity error of a merge against its reference frame above which its colours
+#: are said to drift (non-linear input, :mod:`hdrcore.merge.colour_check`).
+MAX_COLOUR_ERROR = 0.02
 
 
 @dataclass(frozen=True)
@@ -109,6 +113,68 @@ def _unused_frames(result: PipelineResult) -> list[Verdict]:
             f"{_frame_list(used, all_names)}. Ratios across the gap come from the frames on "
             "either side (or their EXIF times).", tuple(ks),
         ))
+    return out
+
+
+def _response_and_colour(result: PipelineResult) -> list[Verdict]:
+    """The response that was used (and why), a degenerate curve, the colour check, per-frame
+    white balance and local tone mapping (issue 15)."""
+    out: list[Verdict] = []
+    resp = result.response
+    sel = getattr(resp, "selection", None)
+    if sel is not None and sel.fallback:
+        out.append(Verdict("response-fallback", "warning", sel.message + ". The merge uses "
+                           f"{sel.chosen}; its colours and ratios are only as right as that "
+                           "curve."))
+    elif sel is not None:
+        out.append(Verdict("response-auto", "info", sel.message + "."))
+    elif resp is not None and resp.method not in ("srgb", "linear"):
+        from .response.degeneracy import degeneracy
+
+        signs = degeneracy(resp.g, active=[c.active_constraints for c in resp.channels] or None,
+                           n_nodes=resp.max_level if resp.channels else None)
+        if signs:
+            out.append(Verdict(
+                "response-degenerate", "warning",
+                f"The {resp.method} response looks degenerate: "
+                + "; ".join(d.message for d in signs)
+                + ". Try --response auto (it falls back to a safe curve) or --response srgb."))
+    check = (result.colour or {}).get("check")
+    if not check:
+        return out
+    before, after = check["before"], check["after"]
+    err = after.get("merge_error_srgb")
+    if check.get("anchor") is not None and before.get("merge_error_srgb") is not None:
+        out.append(Verdict(
+            "colour-anchored", "info",
+            "The merge was given the frames' own colours (as a screen shows them; the "
+            "reference frame's where it is well exposed, elsewhere the frame nearest "
+            f"mid-grey): median chromaticity error {before['merge_error_srgb']:.3f} -> "
+            f"{err:.3f}."))
+    elif err is not None and err > MAX_COLOUR_ERROR:
+        out.append(Verdict(
+            "colour-drift", "warning",
+            f"The merge's colours drift from the frames': median chromaticity error "
+            f"{err:.3f} against the reference frame (over {MAX_COLOUR_ERROR}). The response's "
+            "channels disagree or the frames were rendered differently."))
+    odd = after.get("white_balance_differs") or []
+    if odd:
+        wb = after["white_balance"]
+        out.append(Verdict(
+            "white-balance-differs", "warning",
+            "The white balance changes between frames: "
+            + ", ".join(f"frame {k} red/green x{wb[k][0]:.3f}, blue/green x{wb[k][2]:.3f}"
+                        for k in odd)
+            + " against the reference frame. A phone re-balanced each shot (or the response "
+            "is wrong); colours where those frames dominate follow them.", tuple(odd)))
+    ltm = check.get("local_tone_mapping") or {}
+    if ltm.get("detected"):
+        out.append(Verdict(
+            "locally-tone-mapped", "warning",
+            f"{ltm['message'][0].upper()}{ltm['message'][1:]}. No single response turns such "
+            "frames into radiance: the merged map is a compromise (exposure ratios and "
+            "contrast are approximate), its colours are taken from the frames; the preview is "
+            "an exposure fusion of the frames (Mertens et al. 2007)."))
     return out
 
 
@@ -196,6 +262,7 @@ def diagnose(result: PipelineResult) -> list[Verdict]:
                     (p.dark, p.bright),
                 ))
 
+    out.extend(_response_and_colour(result))
     m = result.merge
     hist = getattr(result, "exposures_histogram", None)
     if hist is not None and hist is not ex:
