@@ -103,8 +103,9 @@ class ResponseCurve:
     weighted mean residual of ``ln g`` at every level (NaN where no data touched it; see
     :func:`hdrcore.response.joint.level_residuals`); ``selection`` the
     :class:`hdrcore.response.select.ResponseSelection` of ``--response auto`` (candidates, their
-    held-back scores, the winner, the fallback and why), ``None`` for a curve asked for by
-    name.
+    held-back scores, the winner, the fallback and why, every candidate's curve and residuals),
+    ``None`` for a curve asked for by name. :meth:`to_json` writes both; :meth:`from_json`
+    reads the residuals back, not the selection (a saved curve is a curve).
     """
 
     g: np.ndarray

@@ -37,7 +37,7 @@ from ..errors import EstimationError, ParameterError
 from .curve import ResponseCurve
 from .degeneracy import Degeneracy, degeneracy
 from .holdout import colour_consistency, fold_masks, pair_residuals, sample_levels
-from .joint import DEFAULT_SMOOTHING, JOINT_MODELS, SEPARATE_GAIN, fit_joint
+from .joint import DEFAULT_SMOOTHING, JOINT_MODELS, SEPARATE_GAIN, fit_joint, level_residuals
 from .parametric import FAMILIES, fit_family
 from .samples import (
     btf_pairs,
@@ -108,6 +108,10 @@ class ResponseSelection:
     safe curve took its place; ``recovered`` names the recovered candidate and ``degenerate``
     its signs of degeneracy. ``source`` says where the correspondences came from
     (``"histograms"`` or ``"pixels"``). ``message`` is one sentence for a report.
+    ``curves[name]`` is every candidate's ``g`` ``(C, L)`` fitted on the whole bracket (the
+    recovered one too when it was degenerate: draw it beside its fallback) and
+    ``residuals[name]`` its weighted mean residual of ``ln g`` at every level
+    (:func:`.joint.level_residuals`, NaN where no pair touches a level).
     """
 
     chosen: str
@@ -120,6 +124,8 @@ class ResponseSelection:
     source: str
     message: str
     parameters: dict[str, Any] = field(default_factory=dict)
+    curves: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
+    residuals: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
 
     def score(self, name: str) -> float:
         for c in self.candidates:
@@ -138,6 +144,10 @@ class ResponseSelection:
             "source": self.source,
             "message": self.message,
             "candidates": [c.to_json() for c in self.candidates],
+            "curves": {k: np.asarray(v, float).tolist() for k, v in self.curves.items()},
+            "residuals": {k: [[None if not np.isfinite(x) else float(x) for x in row]
+                              for row in np.asarray(v, float)]
+                          for k, v in self.residuals.items()},
         }
 
 
@@ -350,6 +360,10 @@ def select_response(
         else float("nan")
     fallback = bool(signs)
 
+    # every candidate's curve and its residual per level, for the report and the inspector
+    curves = {recovered: full.g, **{f: c.g for f, c in family_curves.items()}, "srgb": srgb.g}
+    residuals = {k: level_residuals(g, all_pairs, log_r, lo, hi) for k, g in curves.items()}
+
     # --- the winner, fitted on the whole bracket ---------------------------------------------
     if best.name == recovered:
         from .joint import _fit_to_curve
@@ -380,9 +394,11 @@ def select_response(
         fallback=fallback, recovered=recovered, degenerate=signs, source=source,
         message=msg, parameters={"cutoff": cutoff, "low_cut": low_cut,
                                  "smoothing": smoothing, "channel_model": chosen_model},
+        curves=curves, residuals=residuals,
     )
     status = "fallback" if fallback else curve.status
     message = msg if not curve.message or curve.method == "srgb" else f"{msg}; {curve.message}"
     return replace(curve, selection=selection, status=status, message=message,
                    parameters={**curve.parameters, "auto": True},
-                   exposure_ratios=curve.exposure_ratios or ratios)
+                   exposure_ratios=curve.exposure_ratios or ratios,
+                   residuals=residuals[best.name])

@@ -35,8 +35,15 @@ def test_the_chosen_method_is_reported() -> None:
     assert sel.runner_up is not None and sel.margin > 0.5
     assert sel.runner_up in sel.message and "better" in sel.message
     assert sel.score("srgb") > sel.score("joint-histogram")
+    # every candidate's curve and residuals per level, for the inspector's response panel
+    assert set(sel.curves) == names == set(sel.residuals)
+    assert sel.curves["srgb"].shape == curve.g.shape
+    np.testing.assert_allclose(sel.curves["joint-histogram"], curve.g)
+    assert curve.residuals is not None and curve.residuals.shape == curve.g.shape
     d = json.loads(json.dumps(curve.to_json()))
     assert d["selection"]["chosen"] == "joint-histogram"
+    assert len(d["selection"]["curves"]["srgb"]) == 3
+    assert len(d["selection"]["residuals"]["gamma"][0]) == 256
     assert {c["name"] for c in d["selection"]["candidates"]} == names
     assert all("colour_consistency" in c for c in d["selection"]["candidates"])
 
@@ -66,6 +73,8 @@ def test_wrong_exposure_time_makes_the_recovery_fall_back_with_a_warning() -> No
     assert "degenerate" in sel.message and "fell back to srgb" in sel.message
     rec = next(c for c in sel.candidates if c.name == "joint-histogram")
     assert rec.excluded.startswith("degenerate")
+    # the degenerate curve stays available beside its fallback
+    assert "joint-histogram" in sel.curves and curve.residuals is not None
     # the per-channel fit of the same data is caught by the degeneracy test
     per = recover_response(b.frames, wrong, method="debevec-histogram")
     assert any(d.code == "channels-disagree" for d in degeneracy(per.g))
@@ -128,3 +137,28 @@ def test_folds_and_colour_consistency() -> None:
     srgb = resolve_response("srgb", max_level=255).g
     # the right curve gives a pixel one colour in consecutive frames; sRGB does not
     assert colour_consistency(right, lv) < 0.5 * colour_consistency(srgb, lv)
+
+
+def test_the_pipeline_reports_the_fallback(tmp_path) -> None:
+    """Through the pipeline: a times list with one wrong line gives the response-fallback
+    verdict and the selection in the report."""
+    from hdrcore.io import load_bracket
+    from hdrcore.pipeline import Pipeline, PipelineParams
+    from hdrcore.synthetic import write_bracket
+
+    sim = simulate_bracket(scene="window", shape=(96, 144), exposure_times=SEED_TIMES, bits=8,
+                           response="srgb", noise_sigma=1.0, seed=1)
+    write_bracket(tmp_path, sim, fmt="png")
+    lines = (tmp_path / "exposure_times.txt").read_text().splitlines()
+    name = lines[3].split()[0]
+    lines[3] = f"{name} 24"  # 64 s recorded as 24 s
+    (tmp_path / "exposure_times.txt").write_text("\n".join(lines) + "\n")
+    b = load_bracket(sorted(tmp_path.glob("*.png")),
+                     exposure_times=tmp_path / "exposure_times.txt")
+    r = Pipeline(b, PipelineParams(align="none")).run(until="merge")
+    assert r.response.status == "fallback"
+    v = next(v for v in r.verdicts if v.code == "response-fallback")
+    assert v.severity == "warning" and "fell back" in v.message
+    rep = json.loads(json.dumps(r.to_report()))
+    assert rep["response"]["selection"]["fallback"] is True
+    assert rep["colour"]["check"]["after"]["merge_error_srgb"] < 0.01
