@@ -14,6 +14,8 @@ pixels *well exposed* (every channel inside :data:`WELL_EXPOSED` of the level ra
   every frame where it is well exposed (``frame_pairs_srgb``: decoded with sRGB instead);
 * ``best_frame_errors`` -- per frame, the same error over the pixels where that frame is the
   best exposed one (nearest mid-grey): the regions whose colour it should give;
+* ``frame_pairs_wb`` -- the consecutive frames again with each frame's white balance (below)
+  divided out;
 * ``white_balance`` -- per frame, the median per-channel ratio to the reference frame's
   linearised values over pixels well exposed in both, normalised to green: a phone that
   re-balances each shot shows up as a frame whose red or blue ratio differs from 1.
@@ -106,11 +108,19 @@ class ColourCheck:
     message: str
     well_exposed: tuple[float, float] = WELL_EXPOSED
     best_frame_errors: tuple[tuple[float, float, int], ...] = ()
+    frame_pairs_wb: tuple[FramePairColour, ...] = ()
 
     @property
     def frame_consistency(self) -> float:
         """Median over the consecutive pairs of their chromaticity differences."""
         v = [p.median_difference for p in self.frame_pairs if np.isfinite(p.median_difference)]
+        return float(np.median(v)) if v else float("nan")
+
+    @property
+    def frame_consistency_wb(self) -> float:
+        """:attr:`frame_consistency` with each frame's white balance divided out."""
+        v = [p.median_difference for p in self.frame_pairs_wb
+             if np.isfinite(p.median_difference)]
         return float(np.median(v)) if v else float("nan")
 
     @property
@@ -134,6 +144,7 @@ class ColourCheck:
             "n_pixels": self.n_pixels,
             "frame_consistency": _num(self.frame_consistency),
             "frame_consistency_srgb": _num(self.frame_consistency_srgb),
+            "frame_consistency_wb": _num(self.frame_consistency_wb),
             "frame_pairs": [p.to_json() for p in self.frame_pairs],
             "frame_pairs_srgb": [p.to_json() for p in self.frame_pairs_srgb],
             "white_balance": [[_num(v) for v in wb] for wb in self.white_balance],
@@ -272,6 +283,14 @@ def colour_check(
         ratio = linear(k)[both] / np.maximum(ref_lin[both], 1e-12)
         med = np.median(ratio, axis=0)
         wb.append(tuple(float(v) for v in med / med[1]))
+    # the consecutive frames again with each frame's white balance divided out
+    pairs_wb = []
+    gains = [np.where(np.isfinite(g), g, 1.0) for g in np.asarray(wb, dtype=np.float64)]
+    for k in range(n - 1):
+        both = valid[k] & valid[k + 1]
+        pairs_wb.append(FramePairColour(k, k + 1, _median_distance(
+            chromaticity(linear(k)[both] / gains[k]),
+            chromaticity(linear(k + 1)[both] / gains[k + 1])), int(both.sum())))
 
     status = "ok"
     parts = [f"merge vs reference frame {reference}: median chromaticity error {err:.4f} "
@@ -283,7 +302,7 @@ def colour_check(
         reference=reference, merge_error=err, merge_error_srgb=err_srgb,
         n_pixels=int(ref_ok.sum()), frame_pairs=tuple(pairs), frame_pairs_srgb=tuple(pairs_srgb),
         white_balance=tuple(wb), status=status, message="", well_exposed=tuple(well_exposed),
-        best_frame_errors=tuple(best_errors),
+        best_frame_errors=tuple(best_errors), frame_pairs_wb=tuple(pairs_wb),
     )
     cons = check.frame_consistency
     if np.isfinite(cons):
@@ -308,18 +327,21 @@ REFERENCE_BOOST = 20.0
 @dataclass(frozen=True)
 class ColourAnchor:
     """What :func:`anchor_colour` did: the grid step (pixels), the largest and median change
-    of the chromaticity it applied, and the share of the grid each frame's colour came from."""
+    of the chromaticity it applied, the share of the grid each frame's colour came from and
+    the per-frame white balance (R, G, B gains against the reference) it divided out."""
 
     step: int
     max_shift: float
     median_shift: float
     frame_shares: tuple[float, ...]
     decode: str
+    white_balance: tuple[tuple[float, float, float], ...] = ()
 
     def to_json(self) -> dict[str, Any]:
         return {"step": self.step, "max_shift": _num(self.max_shift),
                 "median_shift": _num(self.median_shift),
-                "frame_shares": [float(v) for v in self.frame_shares], "decode": self.decode}
+                "frame_shares": [float(v) for v in self.frame_shares], "decode": self.decode,
+                "white_balance": [list(g) for g in self.white_balance]}
 
 
 def _redecode_table(lut: np.ndarray, decode: np.ndarray, size: int = 16384) -> np.ndarray:
@@ -517,6 +539,7 @@ def anchor_colour(
     shares: np.ndarray | None = None,
     max_samples: int = 250_000,
     decode_name: str = "srgb",
+    white_balance: bool = True,
     rows_per_chunk: int = 256,
 ) -> ColourAnchor:
     """Give the merged ``radiance`` (modified in place) the colour of the frames that expose
@@ -537,6 +560,10 @@ def anchor_colour(
     3. Where the reference frame is well exposed, each pixel takes the reference pixel's own
        decoded colour (the merge is on its grid), faded in by the reference's share of the
        blurred weights.
+
+    With ``white_balance`` each frame's decoded colours are first divided by its white balance
+    against the reference (median channel ratios over pixels well exposed in both, normalised
+    to green): a phone that re-balanced a shot does not tint the regions that shot gives.
 
     The pixel's luminance (Rec. 709 weights) is held fixed throughout. Where no frame is well
     exposed (clipped everywhere) only step 1 applies.
@@ -578,11 +605,8 @@ def anchor_colour(
     okm = np.isfinite(msum) & (msum > 0)
     qm = np.where(okm[:, None], merged / np.where(okm, msum, 1.0)[:, None], 0.0)
 
-    ref_weight = None
-    num_t = np.zeros((ys.size, 3))
-    num_m = np.zeros((ys.size, 3))
-    den = np.zeros(ys.size)
-    shares_out = []
+    lins, weights, wells = [], [], []
+    lo_w, hi_w = WELL_EXPOSED[0] * max_level, WELL_EXPOSED[1] * max_level
     for k, f in enumerate(frames):
         if to_reference is None or k == reference:
             xk, yk = xs, ys
@@ -601,13 +625,37 @@ def anchor_colour(
         ok = inside & okm & np.all((z < saturation) & (z > noise_floor), axis=-1)
         if masks is not None and masks[k] is not None:
             ok &= np.asarray(masks[k], bool)[yk, xk]
-        wk = np.where(ok, wk, 0.0)
         lin = np.stack([table[c][z[:, c]] for c in range(3)], axis=-1)
-        s = lin.sum(axis=-1)
-        wk = np.where(s > 0, wk, 0.0)
+        wk = np.where(ok & (lin.sum(axis=-1) > 0), wk, 0.0)
+        lins.append(lin)
+        weights.append(wk)
+        wells.append(ok & np.all((z > lo_w) & (z < hi_w), axis=-1))
+
+    # per-frame white balance against the reference (median channel ratios over pixels well
+    # exposed in both, normalised to green), divided out: one rendition of the colours
+    gains = [np.ones(3) for _ in frames]
+    if white_balance and reference is not None:
+        for k in range(len(frames)):
+            both = wells[k] & wells[reference]
+            if k == reference or both.sum() < 500:
+                continue
+            ratio = lins[k][both] / np.maximum(lins[reference][both], 1e-12)
+            med = np.median(ratio, axis=0)
+            if np.all(np.isfinite(med)) and np.all(med > 0):
+                gains[k] = med / med[1]
+
+    ref_weight = None
+    num_t = np.zeros((ys.size, 3))
+    num_m = np.zeros((ys.size, 3))
+    den = np.zeros(ys.size)
+    shares_out = []
+    for k in range(len(frames)):
+        lin = lins[k] / gains[k]
+        wk = weights[k]
         if k == reference:
             wk = wk * REFERENCE_BOOST
             ref_weight = wk
+        s = lin.sum(axis=-1)
         q = lin / np.where(s > 0, s, 1.0)[:, None]
         num_t += wk[:, None] * q
         num_m += wk[:, None] * qm
@@ -644,6 +692,7 @@ def anchor_colour(
         median_shift=float(np.median(shift)) if shift.size else 0.0,
         frame_shares=tuple(v / total for v in shares_out),
         decode=decode_name,
+        white_balance=tuple(tuple(float(v) for v in g) for g in gains),
     )
 
 
