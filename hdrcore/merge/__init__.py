@@ -15,6 +15,7 @@ from .colour import (
     camera_to_working_matrix,
     colour_conversion,
 )
+from .consistency import GhostRegions, GhostTestParams, consistency_regions
 from .maps import (
     DEFAULT_GHOST_THRESHOLD,
     DEFAULT_MODEL_ERROR,
@@ -26,6 +27,7 @@ from .maps import (
 from .merge import (
     DEFAULT_CHUNK_PIXELS,
     DEFAULT_SATURATION,
+    GHOST_TESTS,
     MERGE_ENGINES,
     RESAMPLING,
     MergeResult,
@@ -39,11 +41,14 @@ __all__ = [
     "DEFAULT_GHOST_THRESHOLD",
     "DEFAULT_MODEL_ERROR",
     "DEFAULT_SATURATION",
+    "GHOST_TESTS",
     "MERGE_ENGINES",
     "RESAMPLING",
     "WEIGHTS",
     "WORKING_SPACES",
     "ColourConversion",
+    "GhostRegions",
+    "GhostTestParams",
     "MergeResult",
     "NoiseModel",
     "WeightFunction",
@@ -51,6 +56,7 @@ __all__ = [
     "camera_to_working",
     "camera_to_working_matrix",
     "colour_conversion",
+    "consistency_regions",
     "default_engine",
     "dominant_frame",
     "ghost_score_from_moments",

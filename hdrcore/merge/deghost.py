@@ -2,17 +2,19 @@
 
 The weighted average of frames that saw different things (a person who walked, a branch in the
 wind, a scratch on one scan) is a semi-transparent mix: the ghost. :func:`hdrcore.merge.merge`
-flags such pixels (``ghost``: the frames' spread beyond their noise). With ``deghost=True`` each
-connected region of flagged pixels (grown by a few pixels, so its rim joins it) takes the values
-of a single frame, the one with the largest total share of the weight over the region (the best
-exposed there; a frame not resampled when its share is at least half of that, since its values
-carry no interpolation error), wherever that frame is usable (weighted, not clipped, not below
-the noise floor); elsewhere the region keeps the weighted average. One frame per region keeps a
-moving object whole and sharp instead of doubled, at the noise of one exposure.
+flags such pixels (``ghost``: by default the consistency regions of
+:mod:`hdrcore.merge.consistency`, where blocks of the frames disagree beyond their noise,
+misregistration and the brightness transfer error of each pair). With ``deghost=True`` each
+connected region of flagged pixels (grown by a few pixels, so its rim joins it) takes the
+values of a single frame, the one with the largest total share of the weight over the region
+(the best exposed there; a frame not resampled when its share is at least half of that, since
+its values carry no interpolation error), wherever that frame is usable (weighted, not clipped,
+not below the noise floor); elsewhere the region keeps the weighted average. One frame per
+region keeps a moving object whole and sharp instead of doubled, at the noise of one exposure.
 
 This is the region-wise "reference" selection common to exposure fusion and HDR de-ghosting
 (e.g. Gallo et al., "Artifact-free high dynamic range imaging", ICCP 2009, choose one exposure
-per inconsistent patch); the consistency test is the merge's own noise-normalised spread.
+per inconsistent patch).
 """
 
 from __future__ import annotations

@@ -57,6 +57,7 @@ from .._threads import worker_count
 from ..errors import ParameterError, validate_method
 from . import _fused
 from .colour import ColourConversion, apply_colour
+from .consistency import GhostRegions, GhostTestParams, consistency_regions
 from .deghost import fill_ghost_regions
 from .maps import (
     DEFAULT_GHOST_THRESHOLD,
@@ -74,6 +75,7 @@ __all__ = [
     "DEFAULT_SATURATION",
     "DEFAULT_CHUNK_PIXELS",
     "RESAMPLING",
+    "GHOST_TESTS",
     "default_engine",
 ]
 
@@ -81,6 +83,13 @@ logger = logging.getLogger(__name__)
 
 DEFAULT_SATURATION = 0.98
 """Default saturation level as a fraction of ``max_level`` (integer frames) or of 1.0 (floats)."""
+
+GHOST_TESTS = {
+    "regions": "blocks that disagree beyond noise, misregistration and the response's own "
+               "error, in connected regions (hdrcore.merge.consistency)",
+    "pixels": "every pixel whose score exceeds the threshold (hdrcore.merge.maps)",
+}
+"""How the ``ghost`` map is decided (``merge(..., ghost_test=...)``)."""
 
 DEFAULT_CHUNK_PIXELS = 1 << 16
 """Pixels per chunk: keeps a chunk's temporaries (about 40 bytes per sample) in L2 cache."""
@@ -106,8 +115,10 @@ class MergeResult:
     underexposed
         bool ``(H, W)``: some channel is at or below the noise floor in every usable frame.
     ghost_score, ghost
-        float16 ``(H, W)`` score of :func:`hdrcore.merge.maps.ghost_score_from_moments` and the
-        mask ``ghost_score > ghost_threshold``.
+        float16 ``(H, W)`` per-pixel score of :func:`hdrcore.merge.maps.ghost_score_from_moments`
+        and the ghost mask: with ``ghost_test="pixels"`` ``ghost_score > ghost_threshold``, with
+        ``"regions"`` (the default) the pixels of the regions where blocks of the frames
+        disagree (:func:`hdrcore.merge.consistency.consistency_regions`, in ``ghost_regions``).
     engine
         which implementation ran (a key of :data:`MERGE_ENGINES`).
     deghosted
@@ -137,6 +148,8 @@ class MergeResult:
     timings: dict[str, float] = field(default_factory=dict)
     engine: str = "numpy"
     deghosted: np.ndarray | None = None
+    ghost_test: str = "pixels"
+    ghost_regions: GhostRegions | None = None
 
     @property
     def n_frames(self) -> int:
@@ -174,7 +187,10 @@ class MergeResult:
             "model_error": self.model_error,
             "clipped_fraction": float(np.count_nonzero(self.clipped)) / n_pix,
             "underexposed_fraction": float(np.count_nonzero(self.underexposed)) / n_pix,
+            "ghost_test": self.ghost_test,
             "ghost_fraction": float(np.count_nonzero(self.ghost)) / n_pix,
+            "ghost_regions": None if self.ghost_regions is None
+            else self.ghost_regions.to_json(),
             "deghosted_fraction": None if self.deghosted is None
             else float(np.count_nonzero(self.deghosted)) / n_pix,
             "provenance": provenance_summary(self.shares),
@@ -1118,6 +1134,8 @@ def merge(
     reuse: MergeResult | None = None,
     colour: ColourConversion | None = None,
     deghost: bool = False,
+    ghost_test: str = "regions",
+    ghost_params: GhostTestParams | None = None,
 ) -> MergeResult:
     """Merge aligned frames into one radiance map ``E = sum(w g(M) / dt) / sum(w)``.
 
@@ -1194,6 +1212,12 @@ def merge(
         (:mod:`hdrcore.merge.deghost`): a moving object comes out whole instead of doubled.
         Replaced pixels are marked in ``MergeResult.deghosted``; their shares go wholly to
         that frame and ``ghost`` still shows where the frames disagreed.
+    ghost_test, ghost_params
+        A name in :data:`GHOST_TESTS`: ``"regions"`` (default; the per-pixel test fires on
+        JPEG, demosaicing, misregistration and the response's error of static non-linear
+        brackets: 5 % of the memorial scans, 14 % of a hand-held phone bracket) or ``"pixels"``;
+        ``ghost_params`` the :class:`~hdrcore.merge.consistency.GhostTestParams` of
+        ``"regions"``.
 
     Raises
     ------
@@ -1214,6 +1238,7 @@ def merge(
         raise ParameterError("ghost threshold must be positive", found=str(ghost_threshold))
     if not np.isfinite(model_error) or model_error < 0:
         raise ParameterError("model error must be >= 0", found=str(model_error))
+    ghost_test = validate_method(ghost_test, GHOST_TESTS, "ghost test")
     if workers is None:
         workers = worker_count(None)
     if int(chunk_pixels) < 1 or int(workers) < 1:
@@ -1260,12 +1285,23 @@ def merge(
                      workers=workers)
     t2 = time.perf_counter()
     ghost_score, ghost = out.ghost_score, out.ghost
+    ghost_regions = None
+    if ghost_test == "regions":
+        ghost_regions = consistency_regions(
+            plan.frames, plan.times, saturation=plan.saturation, floor=plan.floor,
+            lut=plan.lut, max_level=plan.max_level, noise=plan.noise, masks=plan.masks,
+            transforms=plan.transforms or None, candidates=ghost, score=ghost_score,
+            params=ghost_params, workers=workers,
+            engine="numba" if engine == "numba" else "numpy")
+        np.copyto(ghost, ghost_regions.ghost)
+    t_ghost = time.perf_counter()
     deghosted = None
     if deghost:
         def single(k: int, y0: int, y1: int) -> MergeResult:
             return _merge_one_frame(plan, k, y0, y1, response=response, engine=engine,
                                     workers=workers, ghost_threshold=ghost_threshold,
-                                    model_error=model_error, colour=colour)
+                                    model_error=model_error, colour=colour,
+                                    ghost_test="pixels")
 
         # frames not resampled are preferred where nearly as well exposed (no interpolation
         # error in their values)
@@ -1317,7 +1353,10 @@ def merge(
         model_error=float(model_error),
         status=status,
         message=message,
-        timings={"validate": t1 - t0, "merge": t2 - t1, "maps": t3 - t2, "total": t3 - t0},
+        timings={"validate": t1 - t0, "merge": t2 - t1, "ghosts": t_ghost - t2,
+                 "maps": t3 - t_ghost, "total": t3 - t0},
         engine=engine,
         deghosted=deghosted,
+        ghost_test=ghost_test,
+        ghost_regions=ghost_regions,
     )
