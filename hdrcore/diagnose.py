@@ -239,8 +239,22 @@ def diagnose(result: PipelineResult) -> list[Verdict]:
 
     reg = result.registration
     if reg is not None:
-        failed = [p for p in reg.pairs if not p.ok]
-        moved = [math.hypot(p.dx, p.dy) for p in reg.pairs if p.ok]
+        failed = [p for p in reg.pairs if not p.usable]
+        moved = [math.hypot(p.dx, p.dy) for p in reg.pairs if p.usable]
+        for p in reg.pairs:
+            if p.status != "weak":
+                continue
+            res = p.residual
+            what = res.message if res is not None else p.message
+            out.append(Verdict(
+                "registration-weak", "warning",
+                f"Frames {p.dark} and {p.bright} ({names[p.dark]}, {names[p.bright]}) were "
+                f"aligned with the {p.model} model, but a check independent of it finds {what}. "
+                "Edges there may be doubled in the merge"
+                + ("; the homography model (perspective) may fit better."
+                   if p.model != "homography" else "; deghosting may help."),
+                (p.dark, p.bright),
+            ))
         static = bool(moved) and max(moved) <= STATIC_SHIFT_PX
         for p in failed:
             label = f"frames {p.dark} and {p.bright} ({names[p.dark]}, {names[p.bright]})"

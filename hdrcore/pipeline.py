@@ -70,6 +70,7 @@ from .registration import (
     to_reference,
     warp_to_reference,
 )
+from .registration.transform import apply as apply_matrix
 from .registration.transform import scale_matrix
 from .resample import bin_channel, downsample_area, downsample_factor
 from .response import RESPONSE_METHODS, ResponseCurve, resolve_response
@@ -94,7 +95,7 @@ STAGES = (
     "histograms", "response", "ratios", "registration", "response_registered",
     "overlap_histograms", "overlap_ratios", "merge", "preview",
 )
-ALIGN_CHOICES = ("none", "shift", "euclidean")
+ALIGN_CHOICES = ("none", *MODELS)  # none, shift, euclidean, similarity, homography
 REFINE_CHOICES = ("pixels", "histograms", "none")
 
 ProgressCallback = Callable[[str, float, str], None]
@@ -156,7 +157,9 @@ class PipelineParams:
 
     saturation, noise_floor : ``Z`` and the noise floor in integer levels (eq. 4 and eq. 6).
     threshold : ``t`` of eq. 7 as a fraction of the saturation level.
-    align : ``"none"``, ``"shift"`` or ``"euclidean"`` (shift + rotation).
+    align : ``"none"`` or a motion model of :data:`hdrcore.registration.MODELS`: ``"shift"``,
+        ``"euclidean"`` (shift + rotation), ``"similarity"`` (+ scale: a hand-held photographer
+        sways and the lens refocuses; the default) or ``"homography"`` (+ perspective).
     reference : frame the others are warped onto (default: the middle one).
     response : ``"auto"`` (linear for RAW; otherwise the best of the joint recovery, the
         parametric families and sRGB on held-back correspondences, :mod:`hdrcore.response.select`),
@@ -202,7 +205,7 @@ class PipelineParams:
     saturation: float | None = None
     noise_floor: float | None = None
     threshold: float = 0.1
-    align: str = "euclidean"
+    align: str = "similarity"
     reference: int | None = None
     response: Any = "auto"
     times: str = "estimated"
@@ -869,9 +872,11 @@ class Pipeline:
         excluded = self._excluded
         sampled = []
         for k, f in enumerate(b.frames):
-            m = invert(registration.to_reference[k])  # reference pixel -> frame k pixel
-            xk = np.rint(m[0, 0] * xs + m[0, 1] * ys + m[0, 2]).astype(np.intp)
-            yk = np.rint(m[1, 0] * xs + m[1, 1] * ys + m[1, 2]).astype(np.intp)
+            # reference pixel -> frame k pixel (3x3: every model, homographies included)
+            m = invert(registration.to_reference_homography[k])
+            fx, fy = apply_matrix(m, xs, ys)
+            xk = np.rint(fx).astype(np.intp)
+            yk = np.rint(fy).astype(np.intp)
             common &= (xk >= 0) & (xk < w) & (yk >= 0) & (yk < h)
             np.clip(xk, 0, w - 1, out=xk)
             np.clip(yk, 0, h - 1, out=yk)
@@ -1025,7 +1030,7 @@ class Pipeline:
         b = self.bracket
         excluded = self._excluded
         masks = None if excluded is None else [~mask for mask in excluded[0]]
-        common = dict(registered=[q.ok for q in registration.pairs], fallback=fallback,
+        common = dict(registered=[q.usable for q in registration.pairs], fallback=fallback,
                       exposure_times=b.exif_exposures(), saturation=p.saturation,
                       noise_floor=p.noise_floor)
         matrices = [q.matrix for q in registration.pairs]
@@ -1091,10 +1096,10 @@ class Pipeline:
             previews=p.registration_previews, **extra,
         )
         if factor == 1:
-            return reg
+            return self._with_residuals(reg, p, lut)
         pairs = []
         for q in reg.pairs:
-            mat = scale_matrix(q.matrix, float(factor)) if q.ok else np.eye(2, 3)
+            mat = scale_matrix(q.matrix, float(factor)) if q.usable else np.eye(2, 3)
             dx, dy, angle = rigid_parameters(mat, (h, w))
             preview = q.preview
             if preview is not None:
@@ -1106,7 +1111,47 @@ class Pipeline:
                 message=q.message + f" (registered on the green channel binned {factor}x{factor})",
             ))
         chain = to_reference([q.matrix for q in pairs], reg.reference)
-        return replace(reg, pairs=tuple(pairs), to_reference=chain)
+        return self._with_residuals(replace(reg, pairs=tuple(pairs), to_reference=chain), p, lut)
+
+    def _with_residuals(self, reg: BracketRegistration, p: PipelineParams,
+                        lut: np.ndarray | None) -> BracketRegistration:
+        """Each registered pair checked by a measurement that shares nothing with the search
+        (:func:`hdrcore.registration.residual.residual_motion`: phase correlation of tiles of
+        the aligned frames' structure): a pair is ``ok`` only when what is left is small and
+        unstructured; otherwise ``weak`` (its motion is still used) with a message saying what
+        is left and where. A pair whose residual cannot be measured (no texture) keeps its
+        status and says so."""
+        from .registration.residual import residual_motion
+
+        b = self.bracket
+        m = b.max_level
+        table = (np.arange(m + 1, dtype=np.float32) * np.float32(1.0 / m) if lut is None
+                 else lut[1].astype(np.float32))
+        sat = self._linear_level(lut, p.saturation)
+        floor = self._linear_level(lut, p.noise_floor)
+        pairs = []
+        for q in reg.pairs:
+            if not q.ok:
+                pairs.append(q)
+                continue
+            try:
+                res = residual_motion(b.frames[q.dark].levels[..., 1],
+                                      b.frames[q.bright].levels[..., 1], float(q.ratio),
+                                      np.asarray(q.homography), saturation=sat,
+                                      noise_floor=floor, lut=table)
+            except (ValueError, ParameterError) as exc:  # too small a frame to tile
+                log.debug("residual of pair %d-%d not measured: %s", q.dark, q.bright, exc)
+                pairs.append(q)
+                continue
+            if res.status == "misaligned":
+                q = replace(q, status="weak", residual=res,
+                            message=f"{res.describe()} (the search itself: {q.message})")
+            elif res.status == "unmeasured":
+                q = replace(q, residual=res, message=q.message + "; " + res.describe())
+            else:
+                q = replace(q, residual=res)
+            pairs.append(q)
+        return replace(reg, pairs=tuple(pairs))
 
     def _merge(self, p: PipelineParams, lut: np.ndarray | None, times: tuple[float, ...],
                registration: BracketRegistration | None, excluded=None, reuse=None):
@@ -1114,6 +1159,12 @@ class Pipeline:
         n = len(b)
         levels = [f.levels for f in b.frames]  # the bracket's own arrays: no copies
         transforms: list[np.ndarray | None] | None = None
+        if registration is not None and registration.to_reference is None:
+            raise ParameterError(
+                "the merge cannot warp with the homography model yet",
+                expected="--align similarity (the default) or euclidean for the merge; "
+                         "'hdrcore align --model homography' measures the perspective",
+                found=f"align {p.align!r}")
         if registration is not None:
             # The merge samples each frame at the reference pixel mapped into it (Keys cubic on
             # the integer levels; a frame whose 4x4 support touches a clipped sample counts as
@@ -1266,8 +1317,8 @@ def _recovered(spec: Any) -> bool:
 def _moved(registration: BracketRegistration, shift_px: float = 0.5,
            angle_deg: float = 0.05) -> bool:
     """Whether any registered pair moved more than ``shift_px`` or turned ``angle_deg``."""
-    return any(q.ok and (math.hypot(q.dx, q.dy) > shift_px or abs(q.angle_deg) > angle_deg)
-               for q in registration.pairs)
+    return any(q.usable and (math.hypot(q.dx, q.dy) > shift_px
+                             or abs(q.angle_deg) > angle_deg) for q in registration.pairs)
 
 
 def _response_key(spec: Any, linear: bool) -> Any:

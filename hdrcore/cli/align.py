@@ -34,7 +34,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     add_bracket_arguments(p)
     add_exclude_colour_argument(p)
     add_level_arguments(p)
-    p.add_argument("--model", default="euclidean", choices=list(MODELS),
+    p.add_argument("--model", default="similarity", choices=list(MODELS),
                    help="motion model (default: %(default)s)")
     p.add_argument("--method", default="fast", choices=list(REGISTRATION_METHODS),
                    help="search (default: %(default)s; 'Cerman 2006' is the seed's simplex)")

@@ -44,8 +44,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("-o", "--output", required=True, metavar="OUT.exr", help="OpenEXR output")
     p.add_argument("--preview", metavar="OUT.png", help="also write a tonemapped 8-bit preview")
     p.add_argument("--report", metavar="OUT.json", help="write the JSON report of every stage")
-    p.add_argument("--align", default="euclidean", choices=ALIGN_CHOICES,
-                   help="motion model for hand-held frames (default: euclidean)")
+    p.add_argument("--align", default="similarity", choices=ALIGN_CHOICES,
+                   help="motion model for hand-held frames (default: similarity, i.e. shift, "
+                        "rotation and scale)")
     p.add_argument("--reference", type=int, metavar="N",
                    help="frame the others are aligned to (default: the middle one)")
     p.add_argument("--threshold", type=float, default=0.1, metavar="t",

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -81,6 +82,9 @@ class PairRegistration:
     preview: PairPreview | None = field(default=None, repr=False)
     homography: np.ndarray | None = field(default=None, repr=False)
     scale: float = 1.0
+    #: the model-independent residual motion after alignment
+    #: (:class:`hdrcore.registration.residual.ResidualMotion`), when it was measured
+    residual: Any = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
         if self.matrix is not None:
@@ -95,8 +99,15 @@ class PairRegistration:
     def ok(self) -> bool:
         return self.status == "ok"
 
+    @property
+    def usable(self) -> bool:
+        """The motion is used (``ok``, or ``weak``: aligned, but the residual measured after
+        alignment is larger than it should be; ``message`` says what is left and where)."""
+        return self.status in ("ok", "weak")
+
     def to_json(self) -> dict:
         return {
+            "residual": None if self.residual is None else self.residual.to_json(),
             "dark": self.dark,
             "bright": self.bright,
             "matrix": None if self.matrix is None else np.asarray(self.matrix).tolist(),
