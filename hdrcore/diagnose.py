@@ -128,6 +128,16 @@ def _response_and_colour(result: PipelineResult) -> list[Verdict]:
                            "curve."))
     elif sel is not None:
         out.append(Verdict("response-auto", "info", sel.message + "."))
+        from .response.degeneracy import degeneracy
+
+        differ = [d for d in degeneracy(resp.g) if d.code == "channels-disagree"]
+        if differ:
+            out.append(Verdict(
+                "response-channels-differ", "info",
+                f"The response's channels differ: {differ[0].message.split(': ', 1)[-1]}. "
+                "Held-back data support separate curves ("
+                + str(sel.parameters.get("channel_model", "separate")) + " model); the "
+                "merge's colours are checked against the frames."))
     elif resp is not None and resp.method not in ("srgb", "linear"):
         from .response.degeneracy import degeneracy
 
@@ -147,10 +157,10 @@ def _response_and_colour(result: PipelineResult) -> list[Verdict]:
     if check.get("anchor") is not None and before.get("merge_error_srgb") is not None:
         out.append(Verdict(
             "colour-anchored", "info",
-            "The merge was given the frames' own colours (as a screen shows them; the "
-            "reference frame's where it is well exposed, elsewhere the frame nearest "
-            f"mid-grey): median chromaticity error {before['merge_error_srgb']:.3f} -> "
-            f"{err:.3f}."))
+            "The merge was given the frames' own colours (as a screen shows them; each "
+            "region those of the frame nearest mid-grey there, with smooth transitions): "
+            f"median chromaticity error against the reference frame "
+            f"{before['merge_error_srgb']:.3f} -> {err:.3f}."))
     elif err is not None and err > MAX_COLOUR_ERROR:
         out.append(Verdict(
             "colour-drift", "warning",
@@ -166,7 +176,8 @@ def _response_and_colour(result: PipelineResult) -> list[Verdict]:
             + ", ".join(f"frame {k} red/green x{wb[k][0]:.3f}, blue/green x{wb[k][2]:.3f}"
                         for k in odd)
             + " against the reference frame. A phone re-balanced each shot (or the response "
-            "is wrong); colours where those frames dominate follow them.", tuple(odd)))
+            "is wrong); the regions those frames expose best keep their colours.",
+            tuple(odd)))
     ltm = check.get("local_tone_mapping") or {}
     if ltm.get("detected"):
         out.append(Verdict(
