@@ -44,6 +44,7 @@ from .panels import btf as btf_panel
 from .panels import diagnostics as diagnostics_panel
 from .panels import masks as masks_panel
 from .panels import registration as registration_panel
+from .panels import response as response_panel
 from .panels import result as result_panel
 from .panels.frames import FramesPanel
 from .session import Controls, Session, pipeline_available
@@ -85,6 +86,9 @@ NOTES = {
                     "in red and cyan: grey where they agree, coloured fringes where they do "
                     "not. The " + _term("difference", "normalised difference of eq. 7") +
                     " view shows what is left after alignment.",
+    "Response": "How the camera turned light into levels (JPEG, PNG and TIFF frames): the curve "
+                "the merge uses per channel, how well it explains the frames level by level, "
+                "and, when chosen automatically, the candidates it beat.",
     "Result": "The merged HDR image shown on a normal screen. Zoom to 100 % to check edges and "
               "text; the other layers show which frame each pixel came from, what is clipped "
               "everywhere and where something moved.",
@@ -247,7 +251,8 @@ class ClientView:
 
         self.panel = gui.add_panel()
         tabs = {}
-        for name in ("Frames", "BTF", "Masks", "Registration", "Result", "Diagnostics"):
+        for name in ("Frames", "BTF", "Masks", "Registration", "Response", "Result",
+                     "Diagnostics"):
             tabs[name] = self.panel.add_tab(name)
         with tabs["Frames"]:
             gui.add_markdown(f"_{NOTES['Frames']}_")
@@ -261,6 +266,9 @@ class ClientView:
         with tabs["Registration"]:
             gui.add_markdown(f"_{NOTES['Registration']}_")
             self.registration_panel = registration_panel.RegistrationPanel(gui)
+        with tabs["Response"]:
+            gui.add_markdown(f"_{NOTES['Response']}_")
+            self.response_panel = response_panel.ResponsePanel(gui)
         with tabs["Result"]:
             gui.add_markdown(f"_{NOTES['Result']}_")
             self.result_panel = result_panel.ResultPanel(gui)
@@ -655,7 +663,8 @@ class ClientView:
         if stages is None:
             self.status.content = self.status_markdown(result)
         panels = {"btf": self.btf_panel, "masks": self.masks_panel,
-                  "registration": self.registration_panel, "result": self.result_panel}
+                  "registration": self.registration_panel, "response": self.response_panel,
+                  "result": self.result_panel}
         for name, panel in panels.items():
             if stages is None or name in stages:
                 panel.show(used, result, view)
@@ -746,7 +755,7 @@ class ClientView:
             zf.writestr("report.json", json.dumps(_to_report(result), indent=2, default=str))
             for name, data in diagnostics_panel.bundle_files(
                 self.session.bracket, result, self.btf_panel, self.masks_panel,
-                self.registration_panel, self.result_panel,
+                self.registration_panel, self.response_panel, self.result_panel,
             ):
                 zf.writestr(name, data)
         return buf.getvalue()

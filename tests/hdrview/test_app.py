@@ -25,6 +25,9 @@ def test_load_folder_draws_frames_and_status(app: InspectorApp) -> None:
     assert b.exposure_times == (1.0, 4.0, 16.0)  # from the folder's exposure_times.txt
     assert "frame0.png" in app.frames_panel.table.content
     assert "3 frames" in app.status.content
+    # A gamma PNG bracket needs a response: its curves per channel and their residuals drawn.
+    assert app.response_panel.curves.visible
+    assert "Response **" in app.response_panel.summary.content
     sheet = app.frames_panel.sheet
     assert sheet.visible and sheet.image.shape[1] >= 3 * 280  # three thumbnails in a row
     assert app.pair_dropdown.options == ("pair 0: frames 0-1 (frame0.png, frame1.png)",
