@@ -182,7 +182,11 @@ class InspectorApp:
             self.views.clear()
         for v in views:
             v.close()
-        shutil.rmtree(self.work_dir, ignore_errors=True)
+        for _ in range(5):  # a page's thread may still be finishing a write in it
+            shutil.rmtree(self.work_dir, ignore_errors=True)
+            if not self.work_dir.exists():
+                break
+            time.sleep(0.1)
 
 
 def _default_params() -> Any:
