@@ -1,21 +1,31 @@
-"""Camera response recovery: our four methods vs OpenCV CalibrateDebevec / CalibrateRobertson.
+"""Camera response recovery and the colour of non-linear merges (issue 15), ours and OpenCV's.
 
 Prints, in one run:
 
-1. The seed's protocol (Cerman & Hlavac 2006, section 4.2): six frames of an HDR scene, times
-   1..1024 (x4 steps), 8-bit, (a) no noise, (b) noise sigma 1 level; responses: the seed's
-   3rd-order polynomial, gamma 2.2 and an S-curve. Per method the RMS error of ``g`` against the
-   truth over all levels (both normalised to ``g(0) = 0``, ``g(max) = 1``; % of the range),
-   averaged over channels and seeds, and a "shape" RMS (levels below 95 % of the range after the
-   best common scale; shows the top-end extrapolation separately from the fit). Naive variants
-   (no 0.98 cut, unconstrained polynomials of order 3 and 10) reproduce the seed's findings.
-2. ``../shared/data/memorial-debevec`` (16 film scans, exact 1-stop times; pure-blue border
-   pixels excluded from our fits via the mask, and OpenCV gets the largest blue-free crop since
-   it takes no mask): our curves vs OpenCV's per channel (shape RMS over levels 5..230 after the
-   best scale, % of g(230)), and a plot of all curves in ``bench/out/memorial_response.png``.
+1. Six response shapes (gamma 2.2, sRGB, poly3, S-curve, filmic ACES-like, toe-shoulder) on
+   the seed's protocol (Cerman & Hlavac 2006, section 4.2): six frames 4x apart, 8 bits, noise
+   sigma 1 level. Per method the RMS error of ``g`` over levels 2..98 % of the range, worst
+   channel, worst of the seeds and scenes, as % of the range, two ways: after one exposure
+   scale shared by the channels (``g`` is known up to that scale; a cast still shows), and
+   normalised at ``g(max) = 1`` (the stricter figure: the top 2 % of the levels carry no data,
+   so it measures an extrapolation). Ours: ``auto`` (the default), the joint fit, the old
+   default (per-channel DM histogram) and the other methods; OpenCV CalibrateDebevec /
+   CalibrateRobertson side by side.
+2. The real brackets in ../shared/data (Canon 5D Mark II JPEGs, Pixel 7 and Xperia phone JPEGs,
+   the Debevec-Malik memorial film scans): through the whole pipeline, before (the old
+   default: per-channel DM histogram, no colour anchoring) and after (``auto`` with the colour
+   anchoring), and with ``--response srgb`` (without and with the anchoring): the curve used,
+   degeneracy signs and whether the run flagged them, the median chromaticity error of the
+   merge against its reference frame decoded with sRGB (pixels well exposed there, every
+   channel within 10..90 % of the range), the median chromaticity difference between
+   consecutive linearised frames over pixels well exposed in both (registered by the run),
+   also for OpenCV's curves, and the local tone mapping test.
+3. ``../shared/data/memorial-debevec``: our curves against OpenCV's (shape RMS over levels
+   5..230 after the best scale) and a plot in ``bench/out/memorial_response.png``.
 
 Timings on a shared 2-core machine are pessimistic. Usage:
-``python bench/bench_response.py [--quick]``.
+``python bench/bench_response.py [--quick] [--skip-synthetic]`` (``--quick``: one seed and
+scene, no phone brackets).
 """
 
 from __future__ import annotations
@@ -28,33 +38,30 @@ import cv2
 import numpy as np
 
 from hdrcore.io import load_bracket
+from hdrcore.merge.colour_check import colour_check
+from hdrcore.pipeline import Pipeline, PipelineParams
 from hdrcore.response import ResponseCurve, recover_response, render_curves
+from hdrcore.response.degeneracy import degeneracy
 from hdrcore.synthetic import apply_response, simulate_bracket
 
 QUICK = "--quick" in sys.argv
 TIMES = (1.0, 4.0, 16.0, 64.0, 256.0, 1024.0)
+SHAPES = ("gamma", "srgb", "polynomial3", "s-curve", "filmic", "toe-shoulder")
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "bench" / "out"
-MEMORIAL = (ROOT / ".." / "shared" / "data" / "memorial-debevec").resolve()
+DATA = (ROOT / ".." / "shared" / "data").resolve()
+MEMORIAL = DATA / "memorial-debevec"
 
 # (label, method, parameters)
 OURS = [
-    ("DM 1997 naive (no cut)", "debevec1997", {"cutoff": 1.0}),
-    ("DM 1997 + 0.98 fix", "debevec1997", {}),
-    ("DM histogram naive", "debevec-histogram", {"cutoff": 1.0}),
-    ("DM histogram + 0.98", "debevec-histogram", {}),
-    ("MN 1999 o3 unconstr. naive", "mitsunaga1999", {"order": 3, "monotone": False,
-                                                     "cutoff": 1.0}),
-    ("MN 1999 o10 unconstr. naive", "mitsunaga1999", {"order": 10, "monotone": False,
-                                                      "cutoff": 1.0}),
-    ("MN 1999 o3 unconstr. + 0.98", "mitsunaga1999", {"order": 3, "monotone": False}),
-    ("MN 1999 o10 unconstr. + 0.98", "mitsunaga1999", {"order": 10, "monotone": False}),
+    ("auto (default)", "auto", {}),
+    ("joint histogram", "joint-histogram", {}),
+    ("DM histogram (old default)", "debevec-histogram", {}),
+    ("DM 1997 pixels", "debevec1997", {}),
     ("MN 1999 monotone auto", "mitsunaga1999", {}),
-    ("MN 1999 monotone auto, ratios iter.", "mitsunaga1999", {"refine_ratios": True}),
-    ("GN 2003 o3 unconstr. + 0.98", "grossberg2003", {"order": 3, "monotone": False}),
-    ("GN 2003 o10 unconstr. + 0.98", "grossberg2003", {"order": 10, "monotone": False}),
     ("GN 2003 monotone auto", "grossberg2003", {}),
 ]
+PEERS = ["OpenCV Debevec", "OpenCV Robertson"]
 
 
 class PeerCurve:
@@ -69,18 +76,19 @@ class PeerCurve:
         self.channel_names = ("R", "G", "B")
 
 
-def opencv_curves(frames, times, **debevec_kw):
-    """OpenCV's calibrations of RGB frames; returns ``{name: (3, 256) linear curve}``."""
-    imgs = [np.ascontiguousarray(f[..., ::-1].astype(np.uint8)) for f in frames]
+def opencv_curves(frames, times, names=PEERS):
+    """OpenCV's calibrations of RGB frames; returns ``{name: ((3, 256) curve, seconds)}``."""
+    imgs = [np.ascontiguousarray(np.asarray(f)[..., ::-1].astype(np.uint8)) for f in frames]
     t = np.asarray(times, np.float32)
+    makers = {
+        "OpenCV Debevec": cv2.createCalibrateDebevec,
+        "OpenCV Debevec samples=500": lambda: cv2.createCalibrateDebevec(samples=500),
+        "OpenCV Robertson": cv2.createCalibrateRobertson,
+    }
     out = {}
-    for name, cal in [
-        ("OpenCV Debevec", cv2.createCalibrateDebevec(**debevec_kw)),
-        ("OpenCV Debevec samples=500", cv2.createCalibrateDebevec(samples=500)),
-        ("OpenCV Robertson", cv2.createCalibrateRobertson()),
-    ]:
+    for name in names:
         t0 = time.perf_counter()
-        c = cal.process(imgs, t)
+        c = makers[name]().process(imgs, t)
         dt = time.perf_counter() - t0
         g = np.asarray(c, float)[:, 0, ::-1].T.copy()
         g[~np.isfinite(g)] = 0.0
@@ -93,69 +101,181 @@ def truth_g(response: str) -> np.ndarray:
     return np.interp(np.arange(256) / 255.0, apply_response(response, x), x)
 
 
-def rms_full(g, truth):
+LEVELS = slice(6, 250)  # levels 2..98 % of 255
+
+
+def err_common_scale(g, truth):
     g = np.asarray(g, float)
-    g = (g - g[:, :1]) / (g[:, -1:] - g[:, :1])
-    return float(np.mean(np.sqrt(np.mean((g - truth[None]) ** 2, axis=1))))
+    g = (g - g[:, :1]) / np.maximum(g[:, -1:] - g[:, :1], 1e-300)
+    gg, tt = g[:, LEVELS], truth[LEVELS]
+    s = np.sum(gg * tt[None]) / np.sum(gg * gg)
+    return float(np.max(np.sqrt(np.mean((s * gg - tt[None]) ** 2, axis=1))))
 
 
-def rms_shape(g, truth, lo=0, hi=243):
-    g = np.asarray(g, float)[:, lo:hi]
-    t = truth[None, lo:hi]
-    s = np.sum(g * t, axis=1) / np.sum(g * g, axis=1)
-    return float(np.mean(np.sqrt(np.mean((g * s[:, None] - t) ** 2, axis=1))))
+def err_max_normalised(g, truth):
+    g = np.asarray(g, float)
+    g = (g - g[:, :1]) / np.maximum(g[:, -1:] - g[:, :1], 1e-300)
+    return float(np.max(np.sqrt(np.mean((g[:, LEVELS] - truth[None, LEVELS]) ** 2, axis=1))))
 
 
-def synthetic_tables() -> None:
-    shape = (128, 192) if QUICK else (192, 288)
-    seeds = (1,) if QUICK else (1, 2, 3)
-    responses = ("polynomial3", "gamma", "s-curve")
-    configs = [(r, s) for r in responses for s in (0.0, 1.0)]
-    labels = [lab for lab, _, _ in OURS] + ["OpenCV Debevec", "OpenCV Debevec samples=500",
-                                            "OpenCV Robertson"]
-    full = {lab: {c: [] for c in configs} for lab in labels}
-    shp = {lab: {c: [] for c in configs} for lab in labels}
+def synthetic_table() -> None:
+    shape = (192, 288)
+    seeds = (1,) if QUICK else (1, 2)
+    scenes = ("window",) if QUICK else ("window", "patches")
+    labels = [lab for lab, _, _ in OURS] + PEERS
+    common = {lab: {s: [] for s in SHAPES} for lab in labels}
+    top = {lab: {s: [] for s in SHAPES} for lab in labels}
     secs = {lab: [] for lab in labels}
-    plot_poly_noise = []
-    for resp, sigma in configs:
+    chosen: dict[str, list[str]] = {s: [] for s in SHAPES}
+    plot = []
+    for resp in SHAPES:
         truth = truth_g(resp)
-        for seed in seeds:
-            b = simulate_bracket(scene="window", shape=shape, exposure_times=TIMES, bits=8,
-                                 response=resp, noise_sigma=sigma, seed=seed)
-            for lab, method, kw in OURS:
-                t0 = time.perf_counter()
-                c = recover_response(b.frames, TIMES, method=method, **kw)
-                secs[lab].append(time.perf_counter() - t0)
-                full[lab][(resp, sigma)].append(rms_full(c.g, truth))
-                shp[lab][(resp, sigma)].append(rms_shape(c.g, truth))
-                if resp == "polynomial3" and sigma == 1.0 and seed == seeds[0]:
-                    plot_poly_noise.append((c, lab))
-            for lab, (g, dt) in opencv_curves(b.frames, TIMES).items():
-                secs[lab].append(dt)
-                full[lab][(resp, sigma)].append(rms_full(g, truth))
-                shp[lab][(resp, sigma)].append(rms_shape(g, truth))
-                if resp == "polynomial3" and sigma == 1.0 and seed == seeds[0]:
-                    plot_poly_noise.append((PeerCurve(g), lab))
+        for scene in scenes:
+            for seed in seeds:
+                b = simulate_bracket(scene=scene, shape=shape, exposure_times=TIMES, bits=8,
+                                     response=resp, noise_sigma=1.0, seed=seed)
+                for lab, method, kw in OURS:
+                    t0 = time.perf_counter()
+                    c = recover_response(b.frames, TIMES, method=method, **kw)
+                    secs[lab].append(time.perf_counter() - t0)
+                    common[lab][resp].append(err_common_scale(c.g, truth))
+                    top[lab][resp].append(err_max_normalised(c.g, truth))
+                    if method == "auto":
+                        chosen[resp].append(c.method)
+                    if resp == "filmic" and seed == seeds[0] and scene == scenes[0]:
+                        plot.append((c, lab))
+                for lab, (g, dt) in opencv_curves(b.frames, TIMES).items():
+                    secs[lab].append(dt)
+                    common[lab][resp].append(err_common_scale(g, truth))
+                    top[lab][resp].append(err_max_normalised(g, truth))
+                    if resp == "filmic" and seed == seeds[0] and scene == scenes[0]:
+                        plot.append((PeerCurve(g), lab))
 
     def table(title, data):
         print(f"\n{title}")
-        print(f"{'method':38}" + "".join(f"{r[:9] + (' n' if s else ' 0'):>12}"
-                                         for r, s in configs) + f"{'s/run':>8}")
+        print(f"{'method':28}" + "".join(f"{s[:12]:>13}" for s in SHAPES) + f"{'s/run':>8}")
         for lab in labels:
-            row = "".join(f"{100 * np.mean(data[lab][c]):11.2f}%" for c in configs)
-            print(f"{lab:38}{row}{np.mean(secs[lab]):8.2f}")
+            row = "".join(f"{100 * max(data[lab][s]):12.2f}%" for s in SHAPES)
+            print(f"{lab:28}{row}{np.mean(secs[lab]):8.2f}")
 
-    print(f"== seed protocol (section 4.2): 6 frames x4, 8-bit, {shape[0]}x{shape[1]}, "
-          f"seeds {list(seeds)}; columns: response, 0 = no noise, n = sigma 1 level ==")
-    table("RMS of g vs truth over all levels (% of range; g(0)=0, g(255)=1)", full)
-    table("shape RMS below 95 % of the levels after the best scale (% of range)", shp)
+    print(f"== six response shapes: 6 frames x4, 8 bits, sigma 1 level, {shape[0]}x{shape[1]}, "
+          f"scenes {list(scenes)}, seeds {list(seeds)}; worst channel, worst run ==")
+    table("RMS of g over levels 2..98 %, after one exposure scale shared by the channels "
+          "(% of range; target <= 1 %)", common)
+    table("RMS of g over levels 2..98 %, normalised at g(max) = 1 (% of range; the top 2 % "
+          "has no data)", top)
+    print("\nauto chose: " + "; ".join(f"{s}: {', '.join(sorted(set(v)))}"
+                                       for s, v in chosen.items()))
     OUT.mkdir(parents=True, exist_ok=True)
-    truth = PeerCurve(np.tile(truth_g("polynomial3"), (3, 1)))
-    keep = [(truth, "truth")] + [x for x in plot_poly_noise if "naive" not in x[1]]
-    img = render_curves(keep[:11], title="seed protocol: polynomial3, noise sigma 1 (all methods)")
-    p = OUT / "synthetic_poly3_noise.png"
+    truth = PeerCurve(np.tile(truth_g("filmic"), (3, 1)))
+    img = render_curves([(truth, "truth")] + plot[:9],
+                        title="filmic (ACES-like), sigma 1: every method")
+    p = OUT / "synthetic_filmic.png"
     img.save(p)
-    print(f"\nplot: {p.relative_to(ROOT)}")
+    print(f"plot: {p.relative_to(ROOT)}")
+
+
+# --- real brackets ---------------------------------------------------------------------------
+
+REAL = [
+    ("Canon 5D II JPEG", "frobisher-colour-hdri", None, False),
+    ("Pixel 7 JPEG", "handheld-pixel7-lab", None, True),
+    ("Xperia 1 IV JPEG", "handheld-xperia-library", None, True),
+    ("memorial film PNG", "memorial-debevec", (0, 0, 255), False),
+]
+RESPONSE_VERDICTS = ("response-fallback", "response-degenerate", "response-channels-differ",
+                     "colour-drift", "locally-tone-mapped", "white-balance-differs")
+
+
+def _load(folder: str):
+    d = DATA / folder
+    kw = {}
+    if (d / "exposure_times.txt").is_file() and folder == "memorial-debevec":
+        kw["exposure_times"] = d / "exposure_times.txt"
+    files = sorted(p for p in d.iterdir() if p.suffix.lower() in (".jpg", ".png"))
+    return load_bracket(files, **kw)
+
+
+def real_tables() -> None:
+    print("\n== real brackets through the pipeline: before (per-channel DM histogram, no colour "
+          "anchoring) and after (auto + anchoring); --response srgb without and with it ==")
+    if not DATA.is_dir():
+        print(f"skipped: {DATA} not available")
+        return
+    runs = [
+        ("before: DM histogram", dict(response="debevec-histogram", colour_anchor=False)),
+        ("srgb, no anchoring", dict(response="srgb", colour_anchor=False)),
+        ("srgb (default anchoring)", dict(response="srgb", colour_anchor=True)),
+        ("after: auto (default)", dict(response="auto", colour_anchor=True)),
+    ]
+    header = (f"{'bracket':19}{'run':27}{'curve':18}{'vs sRGB ref':>12}{'others':>8}"
+              f"{'frames':>8}{'WB out':>8}{'sRGB':>8}{'s':>6}  flags")
+    print("vs sRGB ref: median chromaticity error of the merge against the reference frame "
+          "decoded with sRGB (pixels well exposed there); others: the same against each other "
+          "frame decoded with sRGB where that frame is the best exposed (pixel-weighted mean); "
+          "frames: median difference between consecutive frames linearised with the run's "
+          "curve (WB out: each frame's white balance divided out; sRGB: decoded with sRGB)")
+    print(header)
+    for label, folder, excl, phone in REAL:
+        if QUICK and phone:
+            continue
+        if not (DATA / folder).is_dir():
+            print(f"{label:19}skipped: not available")
+            continue
+        b = _load(folder)
+        pipe = Pipeline(b, PipelineParams(registration_previews=False, exclude_colour=excl))
+        frames = [f.levels for f in b.frames]
+        last = None
+        for run, kw in runs:
+            t0 = time.perf_counter()
+            r = pipe.run(pipe.params.replace(**kw), until="merge")
+            dt = time.perf_counter() - t0
+            chk = r.colour["check"]
+            cons = chk["before"]["frame_consistency"]
+            cons_wb = chk["before"]["frame_consistency_wb"]
+            cons_srgb = chk["before"]["frame_consistency_srgb"]
+            err = chk["after"]["merge_error_srgb"]
+            ref_k = chk["after"]["reference"]
+            parts = [(d["median_error_srgb"], d["n_pixels"])
+                     for d in chk["after"]["best_frame_errors"]
+                     if d["frame"] != ref_k and d["median_error_srgb"] is not None]
+            others = (sum(e * n for e, n in parts) / max(sum(n for _, n in parts), 1)
+                      if parts else float("nan"))
+            resp = r.response
+            signs = degeneracy(resp.g, active=[c.active_constraints for c in resp.channels]
+                               or None, n_nodes=resp.max_level if resp.channels else None)
+            flagged = [v.code for v in r.verdicts if v.code in RESPONSE_VERDICTS]
+            sign_codes = sorted({d.code for d in signs})
+            caught = ("" if not signs else
+                      " (flagged)" if ({"response-fallback", "response-degenerate",
+                                        "response-channels-differ"} & set(flagged))
+                      else " (NOT FLAGGED)")
+            print(f"{label:19}{run:27}{resp.method[:17]:18}{err:12.4f}{others:8.4f}"
+                  f"{cons:8.4f}{cons_wb:8.4f}{cons_srgb:8.4f}{dt:6.0f}  "
+                  f"{','.join(flagged) or '-'}"
+                  + (f"; signs {','.join(sign_codes)}{caught}" if signs else ""))
+            if resp.selection is not None:
+                print(f"{'':19}   {resp.selection.message}")
+            last = r
+        if last is None:
+            continue
+        ltm = last.colour["check"]["local_tone_mapping"]
+        print(f"{'':19}   local tone mapping: {ltm['message']}")
+        # OpenCV's curves on the same registered frames (their own samples, our registration)
+        reg = last.registration
+        ref = 0 if reg is None else reg.reference
+        tr = None if reg is None else reg.to_reference
+        times = [float(t) for t in last.exposure_times]
+        usable = frames if excl is None else frames  # OpenCV takes no mask
+        for name, (g, _) in opencv_curves(usable, times).items():
+            g = np.maximum.accumulate(np.clip(np.asarray(g, float), 0, None), axis=1)
+            g = g / np.maximum(g[:, -1:], 1e-300)
+            cc = colour_check(frames, last.radiance, g, max_level=255, reference=ref,
+                              to_reference=tr)
+            signs = sorted({d.code for d in degeneracy(g)})
+            print(f"{label:19}{name:27}{'(curve only)':18}{'':>20}{cc.frame_consistency:8.4f}"
+                  f"{cc.frame_consistency_wb:8.4f}{cc.frame_consistency_srgb:8.4f}        "
+                  f"signs {','.join(signs) or '-'}")
 
 
 def crop_without(blue: np.ndarray) -> tuple[int, int, int, int]:
@@ -171,7 +291,7 @@ def crop_without(blue: np.ndarray) -> tuple[int, int, int, int]:
 
 
 def memorial_table() -> None:
-    print("\n== memorial-debevec (16 film scans, 1-stop steps) ==")
+    print("\n== memorial-debevec (16 film scans, 1-stop steps): our curves vs OpenCV's ==")
     if not MEMORIAL.is_dir():
         print(f"skipped: {MEMORIAL} not available")
         return
@@ -187,21 +307,17 @@ def memorial_table() -> None:
           f"blue-free crop rows {r0}:{r1}, cols {c0}:{c1}")
     curves: dict[str, np.ndarray] = {}
     secs: dict[str, float] = {}
-    for lab, method in [("DM 1997 + 0.98", "debevec1997"),
-                        ("DM histogram + 0.98", "debevec-histogram"),
-                        ("MN 1999 monotone auto", "mitsunaga1999"),
-                        ("GN 2003 monotone auto", "grossberg2003")]:
+    for lab, method, _ in OURS:
         t0 = time.perf_counter()
         c = recover_response(frames, times, method=method, mask=~blue)
         secs[lab] = time.perf_counter() - t0
         curves[lab] = c.g
-        orders = [f.order for f in c.channels]
-        extra = f" orders {orders}" if orders[0] is not None else ""
-        print(f"  {lab}: {c.status}{extra} {c.message}".rstrip())
-    for lab, (g, dt) in opencv_curves([f[r0:r1, c0:c1] for f in frames], times).items():
+        print(f"  {lab}: {c.method} {c.status} {c.message[:160]}".rstrip())
+    names = ["OpenCV Debevec", "OpenCV Debevec samples=500", "OpenCV Robertson"]
+    for lab, (g, dt) in opencv_curves([f[r0:r1, c0:c1] for f in frames], times,
+                                      names).items():
         curves[lab] = g
         secs[lab] = dt
-    refs = ["OpenCV Debevec", "OpenCV Debevec samples=500", "OpenCV Robertson"]
     sl = slice(5, 231)
 
     def diff(a, b):
@@ -211,22 +327,17 @@ def memorial_table() -> None:
 
     print("\nshape RMS vs each OpenCV curve over levels 5..230 after the best scale "
           "(% of the reference's g(230)), channels R/G/B")
-    print(f"{'method':30}" + "".join(f"{r.replace('OpenCV ', 'vs '):>30}" for r in refs)
+    print(f"{'method':30}" + "".join(f"{r.replace('OpenCV ', 'vs '):>30}" for r in names)
           + f"{'s':>7}")
     for lab, g in curves.items():
         cells = "".join(
-            f"{'/'.join(f'{100 * v:.1f}' for v in diff(g, curves[r])):>30}" for r in refs
+            f"{'/'.join(f'{100 * v:.1f}' for v in diff(g, curves[r])):>30}" for r in names
         )
         print(f"{lab:30}{cells}{secs[lab]:7.2f}")
-    nonmono = {lab: int(np.sum(np.diff(np.asarray(g, float), axis=1) < 0))
-               for lab, g in curves.items()}
-    print("decreasing steps (non-monotone) per curve: "
-          + ", ".join(f"{k}: {v}" for k, v in nonmono.items()))
     items = []
-    anchor = np.asarray(curves["DM histogram + 0.98"], float)
+    anchor = np.asarray(curves["joint histogram"], float)
     for lab, g in curves.items():
         if lab.startswith("OpenCV"):
-            # peers' curves scaled to best fit ours over levels 5..230 (their top is unstable)
             gg = np.asarray(g, float)[:, sl]
             s = np.sum(gg * anchor[:, sl], axis=1) / np.sum(gg * gg, axis=1)
             peer = PeerCurve(g)
@@ -242,6 +353,8 @@ def memorial_table() -> None:
 
 if __name__ == "__main__":
     t0 = time.perf_counter()
-    synthetic_tables()
+    if "--skip-synthetic" not in sys.argv:
+        synthetic_table()
+    real_tables()
     memorial_table()
     print(f"\ntotal {time.perf_counter() - t0:.0f} s (shared 2-core machine: pessimistic)")
