@@ -1,11 +1,16 @@
-"""Tonemapped 8-bit previews of radiance maps: exposure, a global operator, sRGB encoding.
+"""Tonemapped 8-bit previews of radiance maps: exposure, an operator, sRGB encoding.
 
 1. Exposure: the radiance is scaled so that its log-average luminance (Reinhard et al. 2002,
    eq. 1) maps to ``key`` (0.18, "middle grey"; eq. 2), then by ``2**exposure`` stops; with
    ``auto_exposure=False`` only ``2**exposure`` applies.
-2. A global operator from :data:`TONEMAP_OPERATORS` maps the scaled values to display-linear
-   [0, 1]: ``"linear"`` (clip), ``"reinhard"`` (Reinhard et al. 2002, eq. 4 on luminance, colour
-   ratios kept) or ``"reinhard-rgb"`` (eq. 4 per channel, highlights desaturate to white).
+2. An operator from :data:`TONEMAP_OPERATORS` maps the scaled values to display-linear
+   [0, 1]: the global ``"linear"`` (clip), ``"reinhard"`` (Reinhard et al. 2002, eq. 4 on
+   luminance, colour ratios kept) or ``"reinhard-rgb"`` (eq. 4 per channel, highlights
+   desaturate to white); the local ``"durand"`` (Durand & Dorsey 2002 on a bilateral grid,
+   :mod:`hdrcore.tonemap_local`: the window and the room both keep their detail); or
+   ``"auto"``: ``"durand"`` when the scene's dynamic range (1st to 99th percentile of the
+   luminance) exceeds :data:`AUTO_LOCAL_STOPS`, else ``"reinhard"``. The result says which
+   operator ran and why.
 3. sRGB encoding (IEC 61966-2-1) through colour-science's ``cctf_encoding``, applied as a 16-bit
    lookup table so a 24-megapixel preview costs a fraction of a second, then 8-bit quantisation.
 
@@ -25,6 +30,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import lru_cache
+from typing import Any
 
 import numpy as np
 
@@ -37,6 +43,7 @@ except ImportError:  # pragma: no cover - numba is a dependency; numpy does the 
     numba = None
 
 __all__ = [
+    "AUTO_LOCAL_STOPS",
     "TONEMAP_OPERATORS",
     "TonemapResult",
     "tonemap",
@@ -156,12 +163,41 @@ def tonemap_reinhard_rgb(x: np.ndarray, *, white: float | None = None) -> np.nda
     return x
 
 
+def tonemap_durand(x: np.ndarray, *, white: float | None = None, **kw) -> np.ndarray:
+    """Durand & Dorsey's local operator on a bilateral grid on a whole exposed image ``(H, W,
+    3)`` (:func:`hdrcore.tonemap_local.tonemap_durand`; ``white`` does not apply)."""
+    from .tonemap_local import tonemap_durand as local
+
+    return local(x, _luminance_weights(), **kw)[0]
+
+
+def tonemap_auto(x: np.ndarray, *, white: float | None = None) -> np.ndarray:
+    """``"durand"`` for scenes of more than :data:`AUTO_LOCAL_STOPS`, else ``"reinhard"``
+    (see :func:`tonemap`, which decides on the whole radiance map)."""
+    raise ParameterError("'auto' chooses an operator for a whole image: call tonemap()")
+
+
 TONEMAP_OPERATORS: dict[str, Callable[..., np.ndarray]] = {
+    "auto": tonemap_auto,
+    "durand": tonemap_durand,
     "linear": tonemap_linear,
     "reinhard": tonemap_reinhard,
     "reinhard-rgb": tonemap_reinhard_rgb,
 }
-"""Global operators by name: exposed radiance (float32, modified in place) -> [0, 1]."""
+"""Operators by name: exposed radiance (float32) -> display-linear [0, 1]. The global ones
+work on chunks of pixels in place; ``"durand"`` needs the whole image; ``"auto"`` picks."""
+
+LOCAL_OPERATORS = ("durand",)
+"""Operators that need the whole image (and can hand a crop their state)."""
+
+AUTO_LOCAL_STOPS = 8.0
+"""``"auto"`` tonemaps a scene with a local operator when its luminance spans more than this
+many stops between the 1st and 99th percentiles (``bench/bench_tonemap.py``: the frobisher
+window-and-room bracket spans 11.5, the memorial church 9.9, the phone brackets 6.8-7.5; a
+global curve keeps 8 stops of scene in the 5-95 % of the display)."""
+
+AUTO_GLOBAL = "reinhard"
+AUTO_LOCAL = "durand"
 
 
 def _srgb_lut() -> np.ndarray:
@@ -274,7 +310,12 @@ class TonemapResult:
     """An 8-bit sRGB preview and how it was made.
 
     ``image`` is uint8 ``(H, W, 3)``; ``scale`` the factor applied to the radiance before the
-    operator (``key / log_average * 2**exposure``, or ``2**exposure``).
+    operator (``key / log_average * 2**exposure``, or ``2**exposure``). ``method`` is the
+    operator that ran, ``requested`` the one asked for (``"auto"``), ``dynamic_range`` the
+    scene's stops between the 1st and 99th percentiles of luminance when ``"auto"`` measured
+    them and ``reason`` its choice in words; ``state`` a local operator's
+    :class:`~hdrcore.tonemap_local.LocalToneState` (pass it back with a crop of the same map:
+    the crop renders as here).
     """
 
     image: np.ndarray
@@ -286,10 +327,18 @@ class TonemapResult:
     scale: float
     white: float | None
     timings: dict[str, float] = field(default_factory=dict)
+    requested: str | None = None
+    dynamic_range: float | None = None
+    reason: str = ""
+    state: Any = None
 
     def to_json(self) -> dict:
         return {
             "method": self.method,
+            "requested": self.requested or self.method,
+            "dynamic_range_stops": self.dynamic_range,
+            "reason": self.reason,
+            "local": None if self.state is None else self.state.to_json(),
             "exposure": self.exposure,
             "key": self.key,
             "auto_exposure": self.auto_exposure,
@@ -312,6 +361,10 @@ def tonemap(
     chunk_pixels: int = 1 << 18,
     engine: str | None = None,
     workers: int | None = None,
+    state: Any = None,
+    offset: tuple[float, float] = (0.0, 0.0),
+    pixel_size: float = 1.0,
+    local_params: Any = None,
 ) -> TonemapResult:
     """Tonemap a linear radiance map ``(H, W, 3)`` (or ``(H, W)``) to an 8-bit sRGB preview.
 
@@ -320,6 +373,12 @@ def tonemap(
     over row blocks on ``workers`` threads, default up to 2; the default when numba is installed
     and the operator is one of the built-in ones) or ``"numpy"`` (chunks of ``chunk_pixels``;
     the reference, and the path for operators added to :data:`TONEMAP_OPERATORS`).
+
+    Local operators (``"durand"``, or ``"auto"`` choosing it) work on the whole image:
+    ``pixel_size`` is the size of its pixels in full-resolution pixels (a preview made at a
+    quarter of the size: 4); ``state`` (a result's ``state``) with ``offset`` (rows, columns in
+    full-resolution pixels) renders a crop of the same map as the image that made the state;
+    ``local_params`` a :class:`~hdrcore.tonemap_local.LocalToneParams`.
     """
     t0 = time.perf_counter()
     key_m = validate_method(method, TONEMAP_OPERATORS, "tonemap")
@@ -336,16 +395,56 @@ def tonemap(
         raise ParameterError("key must be positive", found=str(key))
     if white is not None and (not np.isfinite(white) or white <= 0):
         raise ParameterError("white must be positive or None", found=str(white))
+    if engine is not None and (engine not in ("numba", "numpy")
+                               or (engine == "numba" and numba is None)):
+        raise ParameterError("tonemap engine must be 'numba' (installed) or 'numpy'",
+                             found=str(engine))
+    if not np.isfinite(pixel_size) or pixel_size <= 0:
+        raise ParameterError("pixel_size must be positive", found=str(pixel_size))
 
     log_avg = log_average_luminance(rad) if auto_exposure else 1.0
     scale = float(2.0**exposure) * (key / log_avg if auto_exposure else 1.0)
+    requested, dr, reason = key_m, None, ""
+    if key_m == "auto":
+        if state is not None:
+            key_m = AUTO_LOCAL  # a crop of an image a local operator rendered
+            reason = "a crop rendered with its image's local state"
+        else:
+            from .tonemap_local import dynamic_range_stops
+
+            dr = dynamic_range_stops(rad, _luminance_weights())
+            key_m = AUTO_LOCAL if dr > AUTO_LOCAL_STOPS else AUTO_GLOBAL
+            reason = (f"the scene spans {dr:.1f} stops (1st-99th percentile of luminance), "
+                      f"{'more' if key_m == AUTO_LOCAL else 'not more'} than "
+                      f"{AUTO_LOCAL_STOPS:g}: {key_m}")
     t1 = time.perf_counter()
     h, w, c = rad.shape
+    if key_m in LOCAL_OPERATORS:
+        from .tonemap_local import render_durand_8bit
+        from .tonemap_local import tonemap_durand as local
+
+        if c == 1:
+            rad = np.repeat(rad, 3, axis=2)
+        if engine == "numpy" or numba is None:
+            x = np.multiply(rad, np.float32(scale), dtype=np.float32)
+            np.nan_to_num(x, copy=False, nan=0.0, posinf=0.0, neginf=0.0)
+            y, st = local(x, _luminance_weights(), state=state, offset=offset,
+                          pixel_size=pixel_size, params=local_params, engine="numpy")
+            image = srgb_encode_8bit(y)
+        else:
+            image, st = render_durand_8bit(rad, _luminance_weights(), _srgb_lut(), scale=scale,
+                                           state=state, offset=offset, pixel_size=pixel_size,
+                                           params=local_params, workers=workers)
+        t2 = time.perf_counter()
+        return TonemapResult(
+            image=image, method=key_m, exposure=float(exposure), key=float(key),
+            auto_exposure=bool(auto_exposure), log_average=float(log_avg), scale=scale,
+            white=None if white is None else float(white),
+            timings={"statistics": t1 - t0, "map": t2 - t1, "total": t2 - t0},
+            requested=requested, dynamic_range=dr, reason=reason, state=st,
+        )
     if engine is None:
         engine = "numba" if numba is not None and key_m in _OPERATOR_CODES else "numpy"
-    elif engine not in ("numba", "numpy") or (engine == "numba" and numba is None):
-        raise ParameterError("tonemap engine must be 'numba' (installed) or 'numpy'",
-                             found=str(engine))
     if engine == "numba":
         image = _tonemap_numba(rad, key_m, scale, white, workers)
         t2 = time.perf_counter()
@@ -354,6 +453,7 @@ def tonemap(
             auto_exposure=bool(auto_exposure), log_average=float(log_avg), scale=scale,
             white=None if white is None else float(white),
             timings={"statistics": t1 - t0, "map": t2 - t1, "total": t2 - t0},
+            requested=requested, dynamic_range=dr, reason=reason,
         )
     flat = rad.reshape(h * w, c)
     out = np.empty((h * w, 3), np.uint8)
@@ -377,4 +477,5 @@ def tonemap(
         scale=scale,
         white=None if white is None else float(white),
         timings={"statistics": t1 - t0, "map": t2 - t1, "total": t2 - t0},
+        requested=requested, dynamic_range=dr, reason=reason,
     )
