@@ -167,7 +167,9 @@ class PipelineParams:
         curve (``.json`` path) or a :class:`~hdrcore.response.ResponseCurve`.
     times : ``"estimated"`` (the histogram ratios, the paper's method) or ``"exif"``.
     exposure_method, registration_method : names in the stages' registries.
-    tonemap, tonemap_exposure : preview operator and exposure in stops.
+    tonemap, tonemap_exposure : preview operator and exposure in stops; ``"auto"`` (default)
+        is the local ``"durand"`` for scenes of more than 8 stops, else ``"reinhard"``
+        (:mod:`hdrcore.tonemap`; the preview says which ran and why).
     preview_max_side : longest side of the preview (``None`` = full resolution).
     working_space : colour space of the radiance map (RAW input).
     registration_previews : keep the small before/after overlays of every pair for the
@@ -211,7 +213,7 @@ class PipelineParams:
     times: str = "estimated"
     exposure_method: str = DEFAULT_EXPOSURE_METHOD
     registration_method: str = "fast"
-    tonemap: str = "reinhard"
+    tonemap: str = "auto"
     tonemap_exposure: float = 0.0
     preview_max_side: int | None = 2048  # the same as `hdrcore merge --preview-size`
     working_space: str = "sRGB"
@@ -1253,7 +1255,8 @@ class Pipeline:
                 auto_exposure=False, log_average=float("nan"), scale=1.0, white=None,
                 timings={"total": time.perf_counter() - t0}), factor
         small = downsample_area(radiance, factor) if factor > 1 else radiance
-        return tonemap(small, p.tonemap, exposure=p.tonemap_exposure), factor
+        return tonemap(small, p.tonemap, exposure=p.tonemap_exposure,
+                       pixel_size=factor), factor
 
 
 def _sub_bracket(b: Bracket, keep: tuple[int, ...]) -> Bracket:
