@@ -55,8 +55,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    choices=("estimated", "exif"),
                    help="exposure times for the merge: estimated from the histograms "
                         "(default) or the EXIF/--times values")
-    p.add_argument("--tonemap", default="reinhard", choices=sorted(TONEMAP_OPERATORS),
-                   help="preview operator (default: reinhard)")
+    p.add_argument("--tonemap", default="auto", choices=sorted(TONEMAP_OPERATORS),
+                   help="preview operator (default: auto, the local durand for scenes of "
+                        "more than 8 stops, else reinhard)")
     p.add_argument("--exposure", type=float, default=0.0, metavar="EV",
                    help="preview exposure in stops (default 0, auto key)")
     p.add_argument("--preview-size", type=int, default=2048, metavar="PX",
