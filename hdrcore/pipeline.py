@@ -293,6 +293,8 @@ class PipelineResult:
         n = len(self.bracket)
         if self.registration is None:
             return tuple(np.eye(2, 3) for _ in range(n))
+        if self.registration.to_reference is None:  # homography: 3x3 matrices
+            return self.registration.to_reference_homography
         return self.registration.to_reference
 
     def ratios_json(self) -> dict[str, Any]:
@@ -408,7 +410,9 @@ def registration_json(reg: BracketRegistration) -> dict[str, Any]:
             }
             for p in reg.pairs
         ],
-        "to_reference": [np.asarray(m).tolist() for m in reg.to_reference],
+        "to_reference": [np.asarray(m).tolist() for m in (
+            reg.to_reference if reg.to_reference is not None else reg.to_reference_homography)],
+        "to_reference_homography": [np.asarray(m).tolist() for m in reg.to_reference_homography],
     }
 
 
@@ -797,7 +801,11 @@ class Pipeline:
             # common field of view only, so content that the hand-held motion moved across the
             # frame borders no longer biases the ratios: from the registered pixels themselves
             # (default, hdrcore.exposure.registered) or from the histograms of that field.
-            matrices = tuple(np.asarray(q.matrix) for q in registration.pairs)
+            # The common field of view: a homography's affine part is within a few pixels of
+            # it at the borders, which is all the overlap fields need.
+            matrices = tuple(np.asarray(q.matrix if q.matrix is not None
+                                        else _affine_near(q.homography, q.shape))
+                             for q in registration.pairs)
             ov_key = (reg_key, tuple(mat.tobytes() for mat in matrices))
 
             def through(measured: BracketExposureResult) -> BracketExposureResult:
@@ -1032,10 +1040,14 @@ class Pipeline:
         b = self.bracket
         excluded = self._excluded
         masks = None if excluded is None else [~mask for mask in excluded[0]]
-        common = dict(registered=[q.usable for q in registration.pairs], fallback=fallback,
+        # The registered-pixel estimator samples through affine matrices: a homography pair
+        # keeps the ratio measured over its common field of view from the histograms.
+        common = dict(registered=[q.usable and q.matrix is not None
+                                  for q in registration.pairs], fallback=fallback,
                       exposure_times=b.exif_exposures(), saturation=p.saturation,
                       noise_floor=p.noise_floor)
-        matrices = [q.matrix for q in registration.pairs]
+        matrices = [q.matrix if q.matrix is not None else _affine_near(q.homography, q.shape)
+                    for q in registration.pairs]
         cfa_ok = masks is None and lut is None and all(
             f.cfa is not None and f.cfa.data.shape == f.levels.shape[:2]
             and (f.meta.orientation in (None, 1)) for f in b.frames)
@@ -1146,8 +1158,13 @@ class Pipeline:
                 pairs.append(q)
                 continue
             if res.status == "misaligned":
+                what = res.describe()
+                if q.model == "homography":  # the words of the residual assume a simpler model
+                    what = what.replace("the motion model has no perspective",
+                                        "the homography did not remove it (parallax or a "
+                                        "poor optimum)")
                 q = replace(q, status="weak", residual=res,
-                            message=f"{res.describe()} (the search itself: {q.message})")
+                            message=f"{what} (the search itself: {q.message})")
             elif res.status == "unmeasured":
                 q = replace(q, residual=res, message=q.message + "; " + res.describe())
             else:
@@ -1161,20 +1178,15 @@ class Pipeline:
         n = len(b)
         levels = [f.levels for f in b.frames]  # the bracket's own arrays: no copies
         transforms: list[np.ndarray | None] | None = None
-        if registration is not None and registration.to_reference is None:
-            raise ParameterError(
-                "the merge cannot warp with the homography model yet",
-                expected="--align similarity (the default) or euclidean for the merge; "
-                         "'hdrcore align --model homography' measures the perspective",
-                found=f"align {p.align!r}")
         if registration is not None:
             # The merge samples each frame at the reference pixel mapped into it (Keys cubic on
             # the integer levels; a frame whose 4x4 support touches a clipped sample counts as
-            # clipped there): no warped copies of the frames.
+            # clipped there): no warped copies of the frames. 3x3: homographies too.
+            chain = registration.to_reference_homography
             transforms = [
                 None if k == registration.reference or np.allclose(
-                    registration.to_reference[k], np.eye(2, 3), atol=1e-9)
-                else invert(registration.to_reference[k])
+                    chain[k], np.eye(3), atol=1e-9)
+                else invert(chain[k])
                 for k in range(n)
             ]
         masks: list[np.ndarray | None] | None = None
@@ -1184,7 +1196,8 @@ class Pipeline:
                 gone = excluded[0][k]
                 if transforms is not None and transforms[k] is not None:
                     moved = warp_to_reference(gone.astype(np.float32),
-                                              registration.to_reference[k], fill=0.0).image
+                                              registration.to_reference_homography[k],
+                                              fill=0.0).image
                     masks.append(~(moved > 0.01))
                 else:
                     masks.append(~gone)
@@ -1209,7 +1222,8 @@ class Pipeline:
                 levels, result.radiance, lut, max_level=b.max_level,
                 reference=0 if registration is None else registration.reference,
                 saturation=float(p.saturation), noise_floor=float(p.noise_floor),
-                to_reference=None if registration is None else registration.to_reference,
+                to_reference=None if registration is None
+                else registration.to_reference_homography,
                 masks=None if excluded is None else [~e for e in excluded[0]],
                 anchor=bool(p.colour_anchor) and colour is None,
                 exposure_times=times, shares=result.shares)
@@ -1248,7 +1262,8 @@ class Pipeline:
             t0 = time.perf_counter()
             image = exposure_fusion(
                 [f.levels for f in self.bracket.frames], max_level=self.bracket.max_level,
-                to_reference=None if registration is None else registration.to_reference,
+                to_reference=None if registration is None
+                else registration.to_reference_homography,
                 factor=factor)
             return TonemapResult(
                 image=image, method="exposure-fusion", exposure=0.0, key=0.0,
@@ -1315,6 +1330,20 @@ def _recovered(spec: Any) -> bool:
         return False
     name = spec.lower()
     return name == "auto" or name in {k.lower() for k in RESPONSE_METHODS}
+
+
+def _affine_near(h: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """The 2x3 affine matrix equal to the homography ``h`` to first order at the image centre
+    (within a few pixels at the borders for a hand-held bracket's small perspective)."""
+    m = np.asarray(h, np.float64) / float(h[2, 2])
+    cy, cx = (shape[0] - 1) / 2.0, (shape[1] - 1) / 2.0
+    s = m[2, 0] * cx + m[2, 1] * cy + 1.0
+    u = (m[0, 0] * cx + m[0, 1] * cy + m[0, 2]) / s
+    v = (m[1, 0] * cx + m[1, 1] * cy + m[1, 2]) / s
+    jac = np.array([[(m[0, 0] - u * m[2, 0]) / s, (m[0, 1] - u * m[2, 1]) / s],
+                    [(m[1, 0] - v * m[2, 0]) / s, (m[1, 1] - v * m[2, 1]) / s]])
+    t = np.array([u, v]) - jac @ np.array([cx, cy])
+    return np.hstack([jac, t[:, None]])
 
 
 def _moved(registration: BracketRegistration, shift_px: float = 0.5,

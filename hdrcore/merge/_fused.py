@@ -476,9 +476,10 @@ def _taps_run(flat, iy0, b, e0, e1, ntap, wxe, wye, acc, xk, hi):
 
 
 @_njit
-def _warp_setup(m00, m01, m02, m10, m11, m12, x0, yf, nbk, ntap, o, wlim, hlim, wxp, wyp, ins,
-                ixs, iys, same):
-    """For pixels ``x0 .. x0 + nbk - 1`` of row ``yf`` mapped by the 2x3 matrix ``m``: the
+def _warp_setup(m00, m01, m02, m10, m11, m12, m20, m21, m22, x0, yf, nbk, ntap, o, wlim, hlim,
+                wxp, wyp, ins, ixs, iys, same):
+    """For pixels ``x0 .. x0 + nbk - 1`` of row ``yf`` mapped by the 3x3 matrix ``m`` (with
+    the perspective divide; affine motions have ``m2 = (0, 0, 1)``): the
     weights ``wxp[j, i]``, ``wyp[j, i]`` of the ``ntap`` taps per axis (Keys cubic in float64,
     as the reference, then float32; or bilinear ``float32(1 - f), float32(f)``), ``ins[i]``
     whether the support lies in the frame (top-left tap ``o`` before the floor, ``<= wlim``,
@@ -488,8 +489,9 @@ def _warp_setup(m00, m01, m02, m10, m11, m12, x0, yf, nbk, ntap, o, wlim, hlim, 
     (SIMD)."""
     for i in range(nbk):
         xf = np.float64(x0 + i)
-        sx = m00 * xf + m01 * yf + m02
-        sy = m10 * xf + m11 * yf + m12
+        sw = m20 * xf + m21 * yf + m22
+        sx = (m00 * xf + m01 * yf + m02) / sw
+        sy = (m10 * xf + m11 * yf + m12) / sw
         fx0 = np.floor(sx)
         fy0 = np.floor(sy)
         if ntap == 4:
@@ -666,7 +668,8 @@ def merge_rows(
                 m10 = mats[k, 1, 0]
                 m11 = mats[k, 1, 1]
                 m12 = mats[k, 1, 2]
-                _warp_setup(m00, m01, m02, m10, m11, m12, x0, yf, nbk, ntap, o,
+                _warp_setup(m00, m01, m02, m10, m11, m12, mats[k, 2, 0], mats[k, 2, 1],
+                            mats[k, 2, 2], x0, yf, nbk, ntap, o,
                             np.float64(w - (ntap - o)), np.float64(h - (ntap - o)), wxp, wyp,
                             ins, ixs, iys, same)
                 _expand3(ntap, nbk, wxp, wxe)

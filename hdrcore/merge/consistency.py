@@ -272,8 +272,9 @@ def _chain_step(f, s, integer, ln_x, rel_var, add_var, lbin, ok_t, sat, floor, s
             sy = y
             sx = x
             if has_t:
-                fx = t[0, 0] * x + t[0, 1] * y + t[0, 2]
-                fy = t[1, 0] * x + t[1, 1] * y + t[1, 2]
+                sw_ = t[2, 0] * x + t[2, 1] * y + t[2, 2]
+                fx = (t[0, 0] * x + t[0, 1] * y + t[0, 2]) / sw_
+                fy = (t[1, 0] * x + t[1, 1] * y + t[1, 2]) / sw_
                 if not (fx > -0.5 and fx < w - 0.5 and fy > -0.5 and fy < h - 0.5):
                     continue
                 sx = int(np.floor(fx + 0.5))
@@ -340,8 +341,9 @@ def _frame_samples(fs, k, ys, xs, t: _Tables, has_t, ts, ms, ln_t):
     sy, sx = ys, xs
     if has_t[k]:
         m = ts[k]
-        fx = m[0, 0] * xs + m[0, 1] * ys + m[0, 2]
-        fy = m[1, 0] * xs + m[1, 1] * ys + m[1, 2]
+        sw_ = m[2, 0] * xs + m[2, 1] * ys + m[2, 2]
+        fx = (m[0, 0] * xs + m[0, 1] * ys + m[0, 2]) / sw_
+        fy = (m[1, 0] * xs + m[1, 1] * ys + m[1, 2]) / sw_
         ok = (fx > -0.5) & (fx < w - 0.5) & (fy > -0.5) & (fy < h - 0.5)
         sx = np.clip(np.floor(fx + 0.5), 0, w - 1).astype(np.int64)
         sy = np.clip(np.floor(fy + 0.5), 0, h - 1).astype(np.int64)
@@ -534,7 +536,7 @@ def pair_residuals(
     """:class:`PairResiduals` of ``frames`` (steps 1-3 of the module docstring).
 
     ``frames``: integer levels (with ``lut``/``max_level``) or float linear values, one shape;
-    ``transforms`` (2x3, output -> frame pixel coordinates, as the merge's) and ``masks`` (bool,
+X
     output grid) as :func:`hdrcore.merge.merge` takes them; ``saturation`` (per channel) and
     ``floor`` in the frames' units. ``engine``: ``"numba"`` (default when installed) or
     ``"numpy"`` (the reference).
@@ -551,12 +553,16 @@ def pair_residuals(
     ln_t = np.log(times)
     t = _tables(fs, c, lut, max_level, noise or NoiseModel(), saturation, floor,
                 p.edge_margin, p.level_bins, p.level_error)
-    ts = np.zeros((n, 2, 3))
+    ts = np.zeros((n, 3, 3))  # homogeneous: affine motions and homographies alike
     has_t = np.zeros(n, bool)
     tf = list(transforms) if transforms is not None else [None] * n
     for k, m in enumerate(tf):
-        ts[k] = np.eye(2, 3) if m is None else np.asarray(m, np.float64)
-        has_t[k] = m is not None and not np.allclose(ts[k], np.eye(2, 3), atol=1e-12)
+        ts[k] = np.eye(3)
+        if m is not None:
+            a = np.asarray(m, np.float64)
+            ts[k][: a.shape[0]] = a
+            ts[k] /= ts[k][2, 2]
+        has_t[k] = m is not None and not np.allclose(ts[k], np.eye(3), atol=1e-12)
     ms = list(masks) if masks is not None else [None] * n
     ms = [None if m is None else np.ascontiguousarray(m, dtype=bool) for m in ms]
     has_mask = np.array([m is not None for m in ms])
@@ -795,7 +801,8 @@ def consistency_regions(
             tested=np.zeros((hb, wb), bool), ghost=np.zeros((h, w), bool), regions=0,
             pairs=(), params=p, candidate_fraction=cand_frac, message="no block to test")
     tf = list(transforms) if transforms is not None else [None] * n
-    resampled = [m is not None and not np.allclose(m, np.eye(2, 3), atol=1e-12) for m in tf]
+    resampled = [m is not None and not np.allclose(
+        np.asarray(m, np.float64), np.eye(3)[: np.asarray(m).shape[0]], atol=1e-12) for m in tf]
     res = pair_residuals(frames, exposure_times, saturation=saturation, floor=floor, lut=lut,
                          max_level=max_level, noise=noise, transforms=tf, masks=masks, params=p,
                          workers=workers, engine=engine)

@@ -430,7 +430,7 @@ def _plan(
     )
 
 
-_IDENTITY = np.eye(2, 3)
+_IDENTITY = np.eye(3)
 
 _LUT_MODE = "levels"
 """How resampled frames with a response LUT are linearised: ``"levels"`` (the default and the
@@ -444,13 +444,14 @@ smoother in the gamma domain than in linear values) and needs one table read, no
 def _as_transforms(
     transforms: Sequence[np.ndarray | None] | None, n: int
 ) -> tuple[np.ndarray | None, ...]:
-    """One float64 2x3 matrix (output -> frame pixel coordinates) or ``None`` per frame;
-    identities (within 1e-9) become ``None`` so they take the direct path."""
+    """One float64 3x3 matrix (output -> frame pixel coordinates: a 2x3 affine matrix or a
+    homography, normalised so ``m[2, 2] = 1``) or ``None`` per frame; identities (within 1e-9)
+    become ``None`` so they take the direct path."""
     if transforms is None:
         return (None,) * n
     if len(transforms) != n:
         raise ParameterError(
-            "one transform (2x3 matrix or None) per frame", expected=str(n),
+            "one transform (2x3 matrix, 3x3 homography or None) per frame", expected=str(n),
             found=str(len(transforms)),
         )
     out: list[np.ndarray | None] = []
@@ -459,14 +460,16 @@ def _as_transforms(
             out.append(None)
             continue
         a = np.asarray(t, dtype=np.float64)
-        if a.shape == (3, 3) and np.allclose(a[2], (0.0, 0.0, 1.0)):
-            a = a[:2]
-        if a.shape != (2, 3) or not np.all(np.isfinite(a)):
+        if a.shape not in ((2, 3), (3, 3)) or not np.all(np.isfinite(a)) or (
+                a.shape == (3, 3) and abs(a[2, 2]) < 1e-12):
             raise ParameterError(
-                f"transform {k} must be a finite 2x3 affine matrix (output -> frame pixels)",
-                expected="(2, 3)", found=str(a.shape),
+                f"transform {k} must be a finite 2x3 affine matrix or 3x3 homography "
+                "(output -> frame pixels)", expected="(2, 3) or (3, 3)", found=str(a.shape),
             )
-        out.append(None if np.max(np.abs(a - _IDENTITY)) <= 1e-9 else np.ascontiguousarray(a))
+        m = np.eye(3)
+        m[: a.shape[0]] = a
+        m /= m[2, 2]
+        out.append(None if np.max(np.abs(m - _IDENTITY)) <= 1e-9 else np.ascontiguousarray(m))
     return tuple(out)
 
 
@@ -599,8 +602,9 @@ class _Kernel:
         pix = np.arange(r0 * w, r1 * w, dtype=np.int64)
         yy = (pix // w).astype(np.float64)
         xx = (pix % w).astype(np.float64)
-        sx = t[0, 0] * xx + t[0, 1] * yy + t[0, 2]
-        sy = t[1, 0] * xx + t[1, 1] * yy + t[1, 2]
+        sw = t[2, 0] * xx + t[2, 1] * yy + t[2, 2]
+        sx = (t[0, 0] * xx + t[0, 1] * yy + t[0, 2]) / sw
+        sy = (t[1, 0] * xx + t[1, 1] * yy + t[1, 2]) / sw
         fx0 = np.floor(sx)
         fy0 = np.floor(sy)
         inside = (fx0 >= o) & (fx0 <= w - (ntap - o)) & (fy0 >= o) & (fy0 <= h - (ntap - o))
@@ -981,7 +985,7 @@ def _run_numba(
     inv_t2 = np.array([1.0 / (t * t) for t in p.times], np.float32)
     t2 = np.array([float(t) ** 2 for t in p.times], np.float32)
     wcode = _fused.WEIGHT_CODES[p.weighting]
-    mats = np.zeros((len(frames), 2, 3))
+    mats = np.zeros((len(frames), 3, 3))
     for k, tf in enumerate(p.transforms):
         mats[k] = _IDENTITY if tf is None else tf
     has_mat = np.array([tf is not None for tf in p.transforms], np.bool_)
@@ -1059,12 +1063,13 @@ def _merge_one_frame(plan: _Plan, k: int, y0: int, y1: int, **kw) -> MergeResult
         w = plan.shape[1]
         ys = np.array([y0, y1 - 1], float)
         xs = np.array([0.0, w - 1.0])
-        sy = [t[1, 0] * x + t[1, 1] * y + t[1, 2] for x in xs for y in ys]
+        sy = [(t[1, 0] * x + t[1, 1] * y + t[1, 2]) / (t[2, 0] * x + t[2, 1] * y + t[2, 2])
+              for x in xs for y in ys]
         b0 = max(0, min(y0, int(np.floor(min(sy))) - 3))
         b1 = min(h, max(y1, int(np.ceil(max(sy))) + 4))
         t = np.array(t, float)
-        t[0, 2] += t[0, 1] * b0
-        t[1, 2] += t[1, 1] * b0 - b0
+        t[:, 2] += t[:, 1] * b0  # output row y of the band is row y + b0 of the grid
+        t[1] -= b0 * t[2]  # ... and the frame's band starts at its row b0
     mask = plan.masks[k]
     res = merge(
         [plan.frames[k][b0:b1]], [float(plan.times[k])], max_level=plan.max_level,
