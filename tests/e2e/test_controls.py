@@ -130,8 +130,8 @@ def test_each_dropdown_option_reaches_the_result(page, view: ClientView, label: 
         r = view.session.result
         assert getattr(r.params, param) == name
         previews[name] = r.preview.image if r.preview is not None else None
-    if control == "tonemap":  # each operator draws a different picture
-        imgs = [p for p in previews.values() if p is not None]
+    if control == "tonemap":  # each operator draws a different picture ("auto" picks one)
+        imgs = [p for n, p in previews.items() if p is not None and n != "auto"]
         assert len({p.tobytes() for p in imgs}) == len(imgs)
     page.get_by_role("button", name="Reset to defaults").click()
     wait_until(lambda: getattr(view.controls, control) is None, 15, "the reset")
