@@ -87,8 +87,14 @@ def loupe(result: Any, zoom: float, cx: float, cy: float,
     x0 = min(max(0, x0), w - cw)
     y0 = min(max(0, y0), h - ch)
     crop = np.ascontiguousarray(radiance[y0:y0 + ch, x0:x0 + cw])
-    tm = tonemap(crop, preview.method, exposure=float(np.log2(preview.scale)),
-                 auto_exposure=False, white=preview.white)
+    from hdrcore.tonemap import TONEMAP_OPERATORS
+
+    method = preview.method if preview.method in TONEMAP_OPERATORS else "reinhard"
+    extra: dict[str, Any] = {}
+    if getattr(preview, "state", None) is not None:  # a local operator: the preview's own state
+        extra = {"state": preview.state, "offset": (float(y0), float(x0))}
+    tm = tonemap(crop, method, exposure=float(np.log2(preview.scale)),
+                 auto_exposure=False, white=preview.white, **extra)
     img = tm.image
     k = int(round(zoom))
     if k > 1:
