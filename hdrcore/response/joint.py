@@ -44,6 +44,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.linalg
 import scipy.sparse
 import scipy.sparse.linalg
 from scipy.optimize import nnls
@@ -182,10 +183,22 @@ def _solve(data: scipy.sparse.spmatrix, target: np.ndarray, smooth: scipy.sparse
     u = np.concatenate([[0.0], u])
     if not monotone or np.all(np.diff(u) >= 0):
         return u, 0
-    # the unconstrained optimum goes down somewhere: non-negative increments d, u = cumsum(d)
+    # the unconstrained optimum goes down somewhere: non-negative increments d, u = cumsum(d).
+    # |A d - b|^2 = |R d - c|^2 + const with R^T R = A^T A (Cholesky) and R^T c = A^T b: the
+    # same non-negative least squares on a k x k system instead of one row per level pair
+    # (a 14-bit bracket has tens of thousands: 2.5 s a solve, now milliseconds).
     to_u = np.tril(np.ones((k, k - 1)), -1)
-    dense = scipy.sparse.vstack([data, smooth]) @ to_u
-    d = nnls(np.asarray(dense), rhs, maxiter=50 * k)[0]
+    stacked = scipy.sparse.vstack([data, smooth]).tocsr()
+    sts = (stacked.T @ stacked).toarray()
+    ata = to_u.T @ sts @ to_u
+    atb = to_u.T @ (stacked.T @ rhs)
+    try:
+        low = np.linalg.cholesky(ata + 1e-12 * np.trace(ata) / len(ata) * np.eye(len(ata)))
+        r = low.T
+        c = scipy.linalg.solve_triangular(low, atb, lower=True)
+        d = nnls(r, c, maxiter=50 * k)[0]
+    except np.linalg.LinAlgError:
+        d = nnls(np.asarray(stacked @ to_u), rhs, maxiter=50 * k)[0]
     active = int(np.sum(d <= 1e-9 * max(1.0, float(np.abs(d).max()))))
     return to_u @ d, active
 
