@@ -165,6 +165,12 @@ class InspectorApp:
         self._warm = (key, thread, box)
         thread.start()
 
+    def warm_pending(self, files: Sequence[str], times: str | None) -> bool:
+        """Whether the start-up run of these inputs is still going."""
+        with self._lock:
+            warm = self._warm
+        return warm is not None and warm[0] == (tuple(files), times) and warm[1].is_alive()
+
     def take_warm(self, files: Sequence[str], times: str | None) -> Session | None:
         """The warmed-up session for these inputs (waiting for it to finish), once."""
         with self._lock:

@@ -533,6 +533,13 @@ class ClientView:
             files, times, label = wanted
             ctx.progress(0.02, f"loading {label}")
             try:
+                if self.app.warm_pending(files, times):
+                    # The start-up run is still going: show the frames (decoded already, or
+                    # soon, in the shared cache) while its stages finish.
+                    early = self.app.brackets.get(list(files), times)
+                    self.frames_panel.show(early)
+                    self._drawn_bracket = early
+                    self.status.content = f"**{label}**: {len(early)} frames; processing..."
                 warm = self.app.take_warm(files, times)  # decoded and run at start
                 if warm is not None:
                     self.session = warm
