@@ -66,6 +66,7 @@ from .registration import (
     BracketRegistration,
     invert,
     register_bracket,
+    register_pair,
     rigid_parameters,
     to_reference,
     warp_to_reference,
@@ -95,7 +96,7 @@ STAGES = (
     "histograms", "response", "ratios", "registration", "response_registered",
     "overlap_histograms", "overlap_ratios", "merge", "preview",
 )
-ALIGN_CHOICES = ("none", *MODELS)  # none, shift, euclidean, similarity, homography
+ALIGN_CHOICES = ("none", *MODELS, "auto")  # shift, euclidean, similarity, homography
 REFINE_CHOICES = ("pixels", "histograms", "none")
 
 ProgressCallback = Callable[[str, float, str], None]
@@ -159,7 +160,9 @@ class PipelineParams:
     threshold : ``t`` of eq. 7 as a fraction of the saturation level.
     align : ``"none"`` or a motion model of :data:`hdrcore.registration.MODELS`: ``"shift"``,
         ``"euclidean"`` (shift + rotation), ``"similarity"`` (+ scale: a hand-held photographer
-        sways and the lens refocuses; the default) or ``"homography"`` (+ perspective).
+        sways and the lens refocuses; the default) or ``"homography"`` (+ perspective);
+        ``"auto"``: similarity, then the homography for each pair whose residual shows
+        perspective (or an affine pattern) left, kept when it leaves less.
     reference : frame the others are warped onto (default: the middle one).
     response : ``"auto"`` (linear for RAW; otherwise the best of the joint recovery, the
         parametric families and sRGB on held-back correspondences, :mod:`hdrcore.response.select`),
@@ -499,7 +502,7 @@ class Pipeline:
         validate_method(p.exposure_method, EXPOSURE_METHODS, "exposure")
         validate_method(p.registration_method, REGISTRATION_METHODS, "registration")
         validate_method(p.tonemap, TONEMAP_OPERATORS, "tonemap")
-        if align != "none":
+        if align not in ("none", "auto"):
             validate_method(align, MODELS, "motion model")
         return replace(p, saturation=sat, noise_floor=nf, align=align, reference=ref)
 
@@ -1102,15 +1105,19 @@ class Pipeline:
         def progress(done: int, total: int) -> None:
             self._report("registration", done / total, f"registered pair {done} of {total}")
 
+        search = dict(method=p.registration_method,
+                      saturation=self._linear_level(lut, p.saturation),
+                      noise_floor=self._linear_level(lut, p.noise_floor),
+                      threshold=p.threshold, previews=p.registration_previews, **extra)
         reg = register_bracket(
-            images, ratios, reference=p.reference, method=p.registration_method,
-            saturation=self._linear_level(lut, p.saturation),
-            noise_floor=self._linear_level(lut, p.noise_floor),
-            threshold=p.threshold, model=p.align, progress=progress,
-            previews=p.registration_previews, **extra,
+            images, ratios, reference=p.reference,
+            model="similarity" if p.align == "auto" else p.align, progress=progress, **search,
         )
         if factor == 1:
-            return self._with_residuals(reg, p, lut)
+            reg = self._with_residuals(reg, p, lut)
+            if p.align == "auto":
+                reg = self._upgrade_to_homography(reg, images, ratios, search, p, lut)
+            return reg
         pairs = []
         for q in reg.pairs:
             mat = scale_matrix(q.matrix, float(factor)) if q.usable else np.eye(2, 3)
@@ -1126,6 +1133,41 @@ class Pipeline:
             ))
         chain = to_reference([q.matrix for q in pairs], reg.reference)
         return self._with_residuals(replace(reg, pairs=tuple(pairs), to_reference=chain), p, lut)
+
+    def _upgrade_to_homography(self, reg: BracketRegistration, images: list, ratios: tuple,
+                               search: dict, p: PipelineParams,
+                               lut: np.ndarray | None) -> BracketRegistration:
+        """``--align auto``: a pair whose residual after the similarity shows perspective (or
+        an affine pattern) is registered again with the homography model, which is kept when
+        its own residual is smaller (median over the tiles, or aligned where the similarity
+        was not). The simplest model that explains the motion stays."""
+        pairs = list(reg.pairs)
+        changed = False
+        for i, q in enumerate(pairs):
+            res = q.residual
+            if q.status != "weak" or res is None or res.kind not in ("perspective", "affine"):
+                continue
+            self._report("registration", 1.0, f"pair {i}: trying the homography model")
+            h = register_pair(images[i], images[i + 1], ratios[i], model="homography",
+                              dark_index=i, bright_index=i + 1, **search)
+            if not h.ok:
+                continue
+            h = self._with_residuals(replace(reg, pairs=(h,)), p, lut).pairs[0]
+            if h.residual is None:
+                continue
+            better = (h.residual.aligned and not res.aligned) or (
+                math.isfinite(h.residual.median) and h.residual.median < 0.8 * res.median)
+            if better:
+                pairs[i] = replace(h, message=h.message + f" (auto: the similarity left "
+                                   f"{res.median:.2f} px median, the homography "
+                                   f"{h.residual.median:.2f} px)")
+                changed = True
+        if not changed:
+            return reg
+        mats = [q.homography if q.usable else np.eye(3) for q in pairs]
+        chain = to_reference(mats, reg.reference)
+        return BracketRegistration(reg.reference, tuple(pairs), None, "auto", reg.method,
+                                   to_reference_homography=tuple(chain))
 
     def _with_residuals(self, reg: BracketRegistration, p: PipelineParams,
                         lut: np.ndarray | None) -> BracketRegistration:

@@ -1,0 +1,34 @@
+"""``align="auto"`` (issue 14): the similarity first, the homography for a pair whose residual
+shows perspective, kept when it leaves less; a pair the similarity explains keeps it."""
+
+from __future__ import annotations
+
+import numpy as np
+import tifffile
+
+from hdrcore.io import load_bracket
+from hdrcore.pipeline import Pipeline, PipelineParams
+
+from ..registration._pairs import perspective, render_frames
+
+
+def test_auto_takes_the_homography_only_where_perspective_is_left(tmp_path) -> None:
+    shape = (256, 384)
+    tilt = perspective(shape, 1.5, -2.0, 0.2, 1.003, 0.012, -0.010)  # frame 2: perspective
+    shift = perspective(shape, 2.0, 1.0, 0.0, 1.0, 0.0, 0.0)  # frame 0: a plain shift
+    times = (1.0, 4.0, 16.0)
+    frames, ml = render_frames([shift, np.eye(3), tilt], times, bits=16, shape=shape,
+                               noise_sigma=2.0, scene="window")
+    for k, g in enumerate(frames):
+        rgb = np.repeat((np.clip(g, 0, 1) * ml + 0.5).astype(np.uint16)[..., None], 3, axis=2)
+        tifffile.imwrite(tmp_path / f"f{k}.tif", rgb)
+    (tmp_path / "exposure_times.txt").write_text(
+        "".join(f"f{k}.tif {t:g}\n" for k, t in enumerate(times)))
+    bracket = load_bracket([tmp_path])
+    auto = Pipeline(bracket, PipelineParams(align="auto", response="linear")).run(
+        PipelineParams(align="auto", response="linear"), until="registration")
+    reg = auto.registration
+    assert reg.pairs[0].model == "similarity"  # a shift: the simplest model that explains it
+    assert reg.pairs[1].model == "homography" and "auto:" in reg.pairs[1].message
+    assert reg.pairs[1].residual.median < 0.3
+    assert len(reg.to_reference_homography) == 3
