@@ -48,8 +48,15 @@ def _paint(backdrop: np.ndarray, mask: np.ndarray, colour: tuple[int, int, int])
     return np.clip(out + 0.5, 0, 255).astype(np.uint8)
 
 
-def _fit(a: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
-    return a[: shape[0], : shape[1]]
+def _fit_width(preview: np.ndarray, width: int = BOX[0]) -> np.ndarray:
+    """The preview resampled (Lanczos, not strided: no aliasing) to the image area's width."""
+    from PIL import Image
+
+    img = unit_to_display(preview, width=10**9)
+    if img.shape[1] <= width:
+        return img
+    h = max(1, round(img.shape[0] * width / img.shape[1]))
+    return np.asarray(Image.fromarray(img).resize((width, h), Image.Resampling.LANCZOS))
 
 
 def fit_to_box(image: np.ndarray, box: tuple[int, int] = BOX) -> np.ndarray:
@@ -142,7 +149,7 @@ class ResultPanel:
             self._images = {}
             return
         layer = view.get("layer", LAYERS[0])
-        shown = unit_to_display(np.asarray(preview)) if preview is not None else None
+        shown = _fit_width(np.asarray(preview)) if preview is not None else None
         images: dict[str, np.ndarray] = {}
         if shown is not None:
             images["preview"] = shown
@@ -177,11 +184,14 @@ class ResultPanel:
             else:
                 attr, colour, what = _MASK_LAYERS[layer]
                 mask = getattr(merged, attr)
-                small = np.asarray(mask[::step, ::step], bool)
                 if backdrop is None:
+                    small = np.asarray(mask[::step, ::step], bool)
                     backdrop = np.full((*small.shape, 3), 40.0, np.float32)
-                small = _fit(small, backdrop.shape)
-                backdrop = _fit(backdrop, small.shape)
+                else:  # the mask sampled on the backdrop's own grid (nearest pixel)
+                    mh, mw = mask.shape[:2]
+                    ys = (np.arange(backdrop.shape[0]) * mh) // backdrop.shape[0]
+                    xs = (np.arange(backdrop.shape[1]) * mw) // backdrop.shape[1]
+                    small = np.asarray(mask, bool)[ys[:, None], xs[None, :]]
                 layer_img = _paint(backdrop, small, colour)
                 lines.append(f"<span style='color:rgb{colour}'>■</span> {what}: "
                              f"{np.count_nonzero(mask) / max(mask.size, 1):.2%} of the pixels")
