@@ -75,6 +75,7 @@ class InspectorApp:
         self._lock = threading.Lock()
         self._pages = 0
         self._warm: tuple[tuple, threading.Thread, list] | None = None
+        self._stopped = False
         self.ready_seconds: float | None = None
         server.on_client_connect(self._on_connect)
         server.on_client_disconnect(self._on_disconnect)
@@ -157,7 +158,7 @@ class InspectorApp:
             except Exception:  # noqa: BLE001 -- the page reports it when it loads
                 log.debug("warm-up failed", exc_info=True)
             self.ready_seconds = time.perf_counter() - t0
-            if announce:
+            if announce and not self._stopped:
                 print(f"hdrview: ready ({label} processed in {self.ready_seconds:.1f} s)",
                       file=sys.stderr, flush=True)
 
@@ -183,6 +184,7 @@ class InspectorApp:
 
     def stop(self) -> None:
         """Close every page and remove the temporary folder (uploads, exports)."""
+        self._stopped = True
         with self._lock:
             views = list(self.views.values())
             self.views.clear()
@@ -351,6 +353,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         if app is not None:
             app.stop()
             app.server.stop()
+        for stream in (sys.stdout, sys.stderr):  # before the interpreter's own exit flush
+            try:
+                stream.flush()
+            except (OSError, ValueError):
+                pass
     return 0
 
 

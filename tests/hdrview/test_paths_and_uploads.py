@@ -389,7 +389,8 @@ def test_sigterm_removes_uploads(bracket_root: Path, tmp_path: Path) -> None:
         work = Path(line.split(None, 1)[1].strip())
         assert list(work.rglob("f.png"))
         proc.send_signal(signal.SIGTERM)
-        assert proc.wait(30) == 128 + signal.SIGTERM
+        _, err = proc.communicate(timeout=30)  # read the pipes to the end while it stops
+        assert proc.returncode == 128 + signal.SIGTERM, err
     finally:
         if proc.poll() is None:
             proc.kill()
