@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import shutil
 import sys
 import threading
@@ -348,17 +349,24 @@ def main(argv: Sequence[str] | None = None) -> int:
         app.server.sleep_forever()
     except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM/SIGHUP (hdrcore.cli.Terminated)
         signum = getattr(exc, "signum", None)
-        return 0 if signum is None else 128 + int(signum)
+        status = 0 if signum is None else 128 + int(signum)
+    else:
+        status = 0
     finally:
         if app is not None:
             app.stop()
             app.server.stop()
-        for stream in (sys.stdout, sys.stderr):  # before the interpreter's own exit flush
+        for stream in (sys.stdout, sys.stderr):
             try:
                 stream.flush()
-            except (OSError, ValueError):
+            except (OSError, ValueError, TypeError):
                 pass
-    return 0
+    if argv is None:
+        # The program ends here, its temporary folder removed: background threads (a start-up
+        # run still compiling kernels) are not waited for, and the interpreter's own shutdown,
+        # which they could disturb (once: exit status 120 instead of 143), is skipped.
+        os._exit(status)
+    return status
 
 
 if __name__ == "__main__":  # pragma: no cover
