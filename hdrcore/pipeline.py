@@ -71,8 +71,7 @@ from .registration import (
     to_reference,
     warp_to_reference,
 )
-from .registration.transform import apply as apply_matrix
-from .registration.transform import scale_matrix
+from .registration.transform import nearest_in_frame, scale_matrix
 from .resample import bin_channel, downsample_area, downsample_factor
 from .response import RESPONSE_METHODS, ResponseCurve, resolve_response
 from .signal import FrameSignal, frame_signal
@@ -886,13 +885,9 @@ class Pipeline:
         sampled = []
         for k, f in enumerate(b.frames):
             # reference pixel -> frame k pixel (3x3: every model, homographies included)
-            m = invert(registration.to_reference_homography[k])
-            fx, fy = apply_matrix(m, xs, ys)
-            xk = np.rint(fx).astype(np.intp)
-            yk = np.rint(fy).astype(np.intp)
-            common &= (xk >= 0) & (xk < w) & (yk >= 0) & (yk < h)
-            np.clip(xk, 0, w - 1, out=xk)
-            np.clip(yk, 0, h - 1, out=yk)
+            xk, yk, inside = nearest_in_frame(registration.to_reference_homography[k], xs, ys,
+                                              (h, w))
+            common &= inside
             sampled.append(np.ascontiguousarray(f.levels[yk, xk]))
             if excluded is not None:
                 common &= ~excluded[0][k][yk, xk]

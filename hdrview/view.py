@@ -250,31 +250,28 @@ class ClientView:
             )
 
         self.panel = gui.add_panel()
-        tabs = {}
-        for name in ("Frames", "BTF", "Masks", "Registration", "Response", "Result",
-                     "Diagnostics"):
-            tabs[name] = self.panel.add_tab(name)
-        with tabs["Frames"]:
-            gui.add_markdown(f"_{NOTES['Frames']}_")
-            self.frames_panel = FramesPanel(gui, tabs["Frames"])
-        with tabs["BTF"]:
-            gui.add_markdown(f"_{NOTES['BTF']}_")
-            self.btf_panel = btf_panel.BtfPanel(gui)
-        with tabs["Masks"]:
-            gui.add_markdown(f"_{NOTES['Masks']}_")
-            self.masks_panel = masks_panel.MasksPanel(gui)
-        with tabs["Registration"]:
-            gui.add_markdown(f"_{NOTES['Registration']}_")
-            self.registration_panel = registration_panel.RegistrationPanel(gui)
-        with tabs["Response"]:
-            gui.add_markdown(f"_{NOTES['Response']}_")
-            self.response_panel = response_panel.ResponsePanel(gui)
-        with tabs["Result"]:
-            gui.add_markdown(f"_{NOTES['Result']}_")
-            self.result_panel = result_panel.ResultPanel(gui)
-        with tabs["Diagnostics"]:
-            gui.add_markdown(f"_{NOTES['Diagnostics']}_")
-            self.diagnostics_panel = diagnostics_panel.DiagnosticsPanel(gui)
+        builders = {
+            "Frames": lambda tab: FramesPanel(gui, tab),
+            "BTF": lambda tab: btf_panel.BtfPanel(gui),
+            "Masks": lambda tab: masks_panel.MasksPanel(gui),
+            "Registration": lambda tab: registration_panel.RegistrationPanel(gui),
+            "Response": lambda tab: response_panel.ResponsePanel(gui),
+            "Result": lambda tab: result_panel.ResultPanel(gui),
+            "Diagnostics": lambda tab: diagnostics_panel.DiagnosticsPanel(gui),
+        }
+        built = {}
+        for name, build in builders.items():
+            tab = self.panel.add_tab(name)
+            with tab:
+                gui.add_markdown(f"_{NOTES[name]}_")
+                built[name] = build(tab)
+        self.frames_panel = built["Frames"]
+        self.btf_panel = built["BTF"]
+        self.masks_panel = built["Masks"]
+        self.registration_panel = built["Registration"]
+        self.response_panel = built["Response"]
+        self.result_panel = built["Result"]
+        self.diagnostics_panel = built["Diagnostics"]
         self.panel.dock_left()
         self.panel.set_width(PANEL_WIDTH)
         self._wire()

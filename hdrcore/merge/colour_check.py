@@ -188,7 +188,7 @@ def colour_check(
     3x3; ``None``: the frames are aligned); ``masks[k]`` marks frame ``k``'s valid pixels
     (in its own coordinates).
     """
-    from ..registration.transform import apply, invert
+    from ..registration.transform import nearest_in_frame
 
     n = len(frames)
     if n < 1 or not 0 <= reference < n:
@@ -218,13 +218,7 @@ def colour_check(
             xk, yk = xs, ys
             inside = np.ones(xs.size, bool)
         else:
-            fx, fy = apply(invert(np.asarray(to_reference[k], float)), xs.astype(float),
-                           ys.astype(float))
-            xk = np.rint(fx).astype(np.intp)
-            yk = np.rint(fy).astype(np.intp)
-            inside = (xk >= 0) & (xk < w) & (yk >= 0) & (yk < h)
-            np.clip(xk, 0, w - 1, out=xk)
-            np.clip(yk, 0, h - 1, out=yk)
+            xk, yk, inside = nearest_in_frame(to_reference[k], xs, ys, (h, w))
         z = np.asarray(f)[yk, xk].astype(np.intp)
         ok = inside & np.all((z > lo_l) & (z < hi_l), axis=-1)
         if masks is not None and masks[k] is not None:
@@ -579,7 +573,7 @@ def anchor_colour(
     """
     from scipy import ndimage
 
-    from ..registration.transform import apply, invert
+    from ..registration.transform import nearest_in_frame
 
     rad = radiance
     h, w = rad.shape[:2]
@@ -621,13 +615,7 @@ def anchor_colour(
             xk, yk = xs, ys
             inside = np.ones(xs.size, bool)
         else:
-            fx, fy = apply(invert(np.asarray(to_reference[k], float)), xs.astype(float),
-                           ys.astype(float))
-            xk = np.rint(fx).astype(np.intp)
-            yk = np.rint(fy).astype(np.intp)
-            inside = (xk >= 0) & (xk < w) & (yk >= 0) & (yk < h)
-            np.clip(xk, 0, w - 1, out=xk)
-            np.clip(yk, 0, h - 1, out=yk)
+            xk, yk, inside = nearest_in_frame(to_reference[k], xs, ys, (h, w))
         z = np.clip(np.asarray(f)[yk, xk].astype(np.intp), 0, max_level)
         x = z / float(max_level)
         wk = np.exp(-np.sum((x - 0.5) ** 2, axis=-1) / (2.0 * ANCHOR_SIGMA**2))

@@ -42,6 +42,7 @@ __all__ = [
     "apply",
     "corner_error",
     "scale_matrix",
+    "nearest_in_frame",
 ]
 
 _AFFINE_TOL = 1e-12
@@ -228,3 +229,23 @@ def corner_error(estimate: np.ndarray, truth: np.ndarray, shape: tuple[int, int]
     ex, ey = apply(estimate, x, y)
     tx, ty = apply(truth, x, y)
     return np.hypot(ex - tx, ey - ty)
+
+
+def nearest_in_frame(
+    to_reference: np.ndarray, xs: np.ndarray, ys: np.ndarray, shape: tuple[int, int]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The nearest pixel of a frame to reference-grid points ``(xs, ys)``.
+
+    ``to_reference`` (2x3 or 3x3) maps the frame's pixel coordinates to the reference frame's.
+    Returns integer ``(xk, yk)`` clipped into the frame of ``shape`` ``(h, w)`` (so they always
+    index it) and ``inside``, whether the point falls in the frame at all.
+    """
+    h, w = int(shape[0]), int(shape[1])
+    fx, fy = apply(invert(np.asarray(to_reference, np.float64)),
+                   np.asarray(xs, np.float64), np.asarray(ys, np.float64))
+    xk = np.rint(fx).astype(np.intp)
+    yk = np.rint(fy).astype(np.intp)
+    inside = (xk >= 0) & (xk < w) & (yk >= 0) & (yk < h)
+    np.clip(xk, 0, w - 1, out=xk)
+    np.clip(yk, 0, h - 1, out=yk)
+    return xk, yk, inside

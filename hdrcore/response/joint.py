@@ -166,6 +166,23 @@ def _smoothness(nodes: np.ndarray, max_level: int) -> scipy.sparse.csr_matrix:
     )
 
 
+def checked_mask(mask: np.ndarray | None, shape: tuple[int, int]) -> np.ndarray | None:
+    """``mask`` as booleans of the frames' ``shape`` (``None``: every pixel)."""
+    base = None if mask is None else np.asarray(mask, bool)
+    if base is not None and base.shape != tuple(shape):
+        raise ParameterError("mask must match the frame size", expected=str(tuple(shape)),
+                             found=str(base.shape))
+    return base
+
+
+def fold_mask(base: np.ndarray | None, fold, shape: tuple[int, int]) -> np.ndarray | None:
+    """``base`` restricted to a cross-validation fold (``fold(shape)``: a boolean image)."""
+    if fold is None:
+        return base
+    f = fold(shape)
+    return f if base is None else (base & f)
+
+
 def _solve(data: scipy.sparse.spmatrix, target: np.ndarray, smooth: scipy.sparse.spmatrix,
            monotone: bool) -> tuple[np.ndarray, int]:
     """Node values ``u`` (``u[0] = 0``) minimising ``|data u - target|^2 + |smooth u|^2``,
@@ -451,16 +468,10 @@ def joint_histogram(
     lo, hi = valid_range(max_level, cutoff, low_cut)
     n_ch = frames[0].shape[2]
     h, w = frames[0].shape[:2]
-    base = None if mask is None else np.asarray(mask, bool)
-    if base is not None and base.shape != (h, w):
-        raise ParameterError("mask must match the frame size", expected=str((h, w)),
-                             found=str(base.shape))
+    base = checked_mask(mask, (h, w))
 
     def make_pairs(fold):
-        m = base
-        if fold is not None:
-            f = fold((h, w))
-            m = f if m is None else (m & f)
+        m = fold_mask(base, fold, (h, w))
         return [btf_pairs(frames, c, max_level, lo, hi, mask=m, stride=stride)
                 for c in range(n_ch)]
 
@@ -499,10 +510,7 @@ def joint_pixels(
     base = None if mask is None else np.asarray(mask, bool)
 
     def make_pairs(fold):
-        m = base
-        if fold is not None:
-            f = fold((h, w))
-            m = f if m is None else (m & f)
+        m = fold_mask(base, fold, (h, w))
         out = []
         for c in range(n_ch):
             z = pixel_samples(frames, c, max_level, n_samples=n_samples, mask=m, seed=seed)

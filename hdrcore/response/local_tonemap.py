@@ -84,7 +84,7 @@ def local_tone_mapping(
     ``(L,)``) linearises them; ``to_reference[k]`` maps frame ``k``'s pixels to the reference
     frame (``None``: aligned).
     """
-    from ..registration.transform import apply, invert
+    from ..registration.transform import nearest_in_frame
 
     n = len(frames)
     if n < 2:
@@ -110,13 +110,7 @@ def local_tone_mapping(
         if to_reference is None or (reference is not None and k == reference):
             xk, yk, inside = xs, ys, np.ones(xs.size, bool)
         else:
-            fx, fy = apply(invert(np.asarray(to_reference[k], float)), xs.astype(float),
-                           ys.astype(float))
-            xk = np.rint(fx).astype(np.intp)
-            yk = np.rint(fy).astype(np.intp)
-            inside = (xk >= 0) & (xk < w) & (yk >= 0) & (yk < h)
-            np.clip(xk, 0, w - 1, out=xk)
-            np.clip(yk, 0, h - 1, out=yk)
+            xk, yk, inside = nearest_in_frame(to_reference[k], xs, ys, (h, w))
         z = a[yk, xk, min(ch, a.shape[2] - 1)].astype(np.intp)
         sampled.append(np.where(inside, z, -1))
 

@@ -37,7 +37,15 @@ from ..errors import EstimationError, ParameterError
 from .curve import ResponseCurve
 from .degeneracy import Degeneracy, degeneracy
 from .holdout import colour_consistency, fold_masks, pair_residuals, sample_levels
-from .joint import DEFAULT_SMOOTHING, JOINT_MODELS, SEPARATE_GAIN, fit_joint, level_residuals
+from .joint import (
+    DEFAULT_SMOOTHING,
+    JOINT_MODELS,
+    SEPARATE_GAIN,
+    checked_mask,
+    fit_joint,
+    fold_mask,
+    level_residuals,
+)
 from .parametric import FAMILIES, fit_family
 from .samples import (
     btf_pairs,
@@ -213,16 +221,10 @@ def select_response(
     lo, hi = valid_range(max_level, cutoff, low_cut)
     n_ch = frames[0].shape[2]
     h, w = frames[0].shape[:2]
-    base = None if mask is None else np.asarray(mask, bool)
-    if base is not None and base.shape != (h, w):
-        raise ParameterError("mask must match the frame size", expected=str((h, w)),
-                             found=str(base.shape))
+    base = checked_mask(mask, (h, w))
 
     def make_pairs(fold):
-        m = base
-        if fold is not None:
-            f = fold((h, w))
-            m = f if m is None else (m & f)
+        m = fold_mask(base, fold, (h, w))
         if source == "pixels":
             return [pixel_pairs(pixel_samples(frames, c, max_level, n_samples=n_samples,
                                               mask=m, seed=seed), lo, hi)
