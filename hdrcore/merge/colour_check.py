@@ -44,6 +44,7 @@ __all__ = [
     "WELL_EXPOSED",
     "ANCHOR_BLUR",
     "ANCHOR_SIGMA",
+    "REFERENCE_BAND",
     "ColourAnchor",
     "ColourCheck",
     "ColourResult",
@@ -323,6 +324,22 @@ ANCHOR_BLUR = 2.0
 #: colour where it is well exposed: no preference.
 REFERENCE_BOOST = 1.0
 
+#: ``(low, high, ramp)``: where every channel of the reference frame lies inside ``low..high``
+#: of the range (the :data:`WELL_EXPOSED` band the colour check measures), the merge takes
+#: the reference pixel's own colour; the weight falls linearly to zero over ``ramp`` outside.
+#: The merge is on the reference's grid and the reference is the rendition the check (and the
+#: user) compares it with; other frames give the colour only where it is not well exposed.
+REFERENCE_BAND = (WELL_EXPOSED[0], WELL_EXPOSED[1], 0.05)
+
+
+def _band_weight(x: np.ndarray, band: tuple[float, float, float] | None) -> np.ndarray:
+    """``(...)`` weight of levels ``x`` ``(..., 3)`` (fractions of the range) in ``band``:
+    1 when every channel is inside ``low..high``, falling linearly over ``ramp`` outside."""
+    if band is None:
+        return np.zeros(x.shape[:-1])
+    lo, hi, ramp = band
+    return np.clip(1.0 - np.maximum(lo - x, x - hi) / ramp, 0.0, 1.0).min(axis=-1)
+
 
 @dataclass(frozen=True)
 class ColourAnchor:
@@ -376,7 +393,7 @@ _LUMA = (0.2126, 0.7152, 0.0722)
 
 
 def _apply_numpy(rad, fields, step, shares, log_t, redecode, ref_frame, table, noise_floor,
-                 saturation, max_level, rows_per_chunk, pixel_log_time) -> None:
+                 saturation, max_level, rows_per_chunk, pixel_log_time, band) -> None:
     """The full-resolution pass of :func:`anchor_colour` in numpy (the numba kernel's spec)."""
     h, w = rad.shape[:2]
     shape = fields.shape[:2]
@@ -406,7 +423,8 @@ def _apply_numpy(rad, fields, step, shares, log_t, redecode, ref_frame, table, n
         col *= fl[..., :3]
         if ref_frame is not None:
             z = np.clip(ref_frame[r0:r1], 0, max_level).astype(np.intp)
-            a = fl[..., 3] * np.all((z > noise_floor) & (z < saturation), axis=-1)
+            a = np.maximum(fl[..., 3], _band_weight(z / float(max_level), band))
+            a = a * np.all((z > noise_floor) & (z < saturation), axis=-1)
             lin = np.stack([table32[c][z[..., c]] for c in range(3)], axis=-1)
             s_ref = lin.sum(axis=-1, keepdims=True)
             s_col = col.sum(axis=-1, keepdims=True)
@@ -421,7 +439,8 @@ def _apply_numpy(rad, fields, step, shares, log_t, redecode, ref_frame, table, n
 
 @_njit
 def _anchor_rows(rad, fields, step, shares, log_t, redecode, ref, table, noise_floor,
-                 saturation, max_level, use_redecode, use_ref, r0, r1, sh_off):  # pragma: no cover
+                 saturation, max_level, use_redecode, use_ref, r0, r1, sh_off,
+                 band):  # pragma: no cover
     w = rad.shape[1]
     gh, gw = fields.shape[0], fields.shape[1]
     n = shares.shape[0]
@@ -483,7 +502,18 @@ def _anchor_rows(rad, fields, step, shares, log_t, redecode, ref, table, noise_f
                     z = ref[y, x, c]
                     if not (z > noise_floor and z < saturation):
                         ok = False
-                if ok and fl[3] > 0:
+                # the reference's own colour where it is well exposed (band), else its share
+                a = fl[3]
+                if ok and band[0] < band[1]:
+                    bw = 1.0
+                    for c in range(3):
+                        v = ref[y, x, c] / max_level
+                        if v < band[0]:
+                            bw = min(bw, max(0.0, 1.0 - (band[0] - v) / band[2]))
+                        elif v > band[1]:
+                            bw = min(bw, max(0.0, 1.0 - (v - band[1]) / band[2]))
+                    a = max(a, bw)
+                if ok and a > 0:
                     s_ref = 0.0
                     for c in range(3):
                         zc = min(max(int(ref[y, x, c]), 0), max_level)
@@ -491,7 +521,6 @@ def _anchor_rows(rad, fields, step, shares, log_t, redecode, ref, table, noise_f
                         s_ref += lin[c]
                     s_col = col[0] + col[1] + col[2]
                     if s_ref > 0 and s_col > 0:
-                        a = fl[3]
                         for c in range(3):
                             col[c] = (1 - a) * col[c] / s_col + a * lin[c] / s_ref
             y_new = l0 * col[0] + l1 * col[1] + l2 * col[2]
@@ -502,7 +531,7 @@ def _anchor_rows(rad, fields, step, shares, log_t, redecode, ref, table, noise_f
 
 
 def _apply_numba(rad, fields, step, shares, log_t, redecode, ref_frame, table, noise_floor,
-                 saturation, max_level) -> None:
+                 saturation, max_level, band) -> None:
     """The full-resolution pass of :func:`anchor_colour` with the numba kernel, row spans on
     up to two threads (it releases the GIL)."""
     use_redecode = redecode is not None
@@ -512,13 +541,14 @@ def _apply_numba(rad, fields, step, shares, log_t, redecode, ref_frame, table, n
     rd = np.ascontiguousarray(redecode, np.float64) if use_redecode else np.zeros((3, 2))
     ref = ref_frame if use_ref else np.zeros((1, 1, 3), np.uint8)
     tab = np.ascontiguousarray(table, np.float64)
+    bands = np.asarray(band if band is not None else (1.0, 0.0, 1.0), np.float64)
 
     def rows(r0: int, r1: int) -> None:
         # numba has no float16: the shares of these rows as float32
         part = sh[:, r0:r1].astype(np.float32) if use_redecode else sh.astype(np.float32)
         _anchor_rows(rad, fields, int(step), part, lt, rd, ref, tab, float(noise_floor),
                      float(saturation), int(max_level), use_redecode, use_ref, r0, r1,
-                     r0 if use_redecode else 0)
+                     r0 if use_redecode else 0, bands)
 
     run_row_spans(rad.shape[0], None, rows)
 
@@ -541,6 +571,7 @@ def anchor_colour(
     decode_name: str = "srgb",
     white_balance: bool = False,
     rows_per_chunk: int = 256,
+    reference_band: tuple[float, float, float] | None = REFERENCE_BAND,
 ) -> ColourAnchor:
     """Give the merged ``radiance`` (modified in place) the colour of the frames that expose
     each region best, keeping its luminance.
@@ -557,9 +588,12 @@ def anchor_colour(
        that), the weights blurred over :data:`ANCHOR_BLUR` cells for smooth transitions. The
        ratio of that colour to the merge's own (same weights, same blur) is a smooth
        per-channel gain: frames that disagree in colour are followed region by region.
-    3. Each pixel takes the reference pixel's own decoded colour (the merge is on its grid) in
-       the proportion of the reference's share of the blurred weights (where it is the best
-       exposed frame, nearly all; where another frame is, little).
+    3. Each pixel takes the reference pixel's own decoded colour (the merge is on its grid):
+       fully where every channel of the reference is inside ``reference_band`` (the band the
+       colour check measures, :data:`REFERENCE_BAND`), fading over its ramp outside, and
+       elsewhere in the proportion of the reference's share of the blurred weights.
+       ``reference_band=None``: the share alone (where the reference is the best exposed frame
+       nearly all; where another frame is, little).
 
     With ``white_balance`` each frame's decoded colours are first divided by its white balance
     against the reference (median channel ratios over pixels well exposed in both, normalised
@@ -678,10 +712,11 @@ def anchor_colour(
     ref_frame = None if reference is None else np.asarray(frames[reference])
     if AVAILABLE:
         _apply_numba(rad, fields.astype(np.float32), step, shares, log_t, redecode, ref_frame,
-                     table, noise_floor, saturation, max_level)
+                     table, noise_floor, saturation, max_level, reference_band)
     else:  # pragma: no cover - exercised only without numba
         _apply_numpy(rad, fields, step, shares, log_t, redecode, ref_frame, table,
-                     noise_floor, saturation, max_level, rows_per_chunk, pixel_log_time)
+                     noise_floor, saturation, max_level, rows_per_chunk, pixel_log_time,
+                     reference_band)
     total = max(sum(shares_out), 1e-300)
     return ColourAnchor(
         step=step,
@@ -730,6 +765,7 @@ def check_colour(
     anchor: bool = True,
     exposure_times: Sequence[float] | None = None,
     shares: np.ndarray | None = None,
+    reference_band: tuple[float, float, float] | None = REFERENCE_BAND,
 ) -> ColourResult:
     """Check a non-linear merge's colour, test for local tone mapping and (``anchor``) give
     the merge the frames' own colour (:func:`anchor_colour`, frames decoded with sRGB: what
@@ -746,7 +782,8 @@ def check_colour(
         done = anchor_colour(radiance, frames, srgb_decode_lut(max_level), max_level=max_level,
                              saturation=saturation, noise_floor=noise_floor,
                              to_reference=to_reference, masks=masks, reference=reference,
-                             lut=lut, exposure_times=exposure_times, shares=shares)
+                             lut=lut, exposure_times=exposure_times, shares=shares,
+                             reference_band=reference_band)
         after = colour_check(frames, radiance, lut, **kw)
     parts = []
     if done is not None:

@@ -122,3 +122,42 @@ def test_exposure_fusion() -> None:
     bad = [np.mean((x >= 250) | (x <= 5)) for x in sim.frames]
     assert np.mean((fused >= 250) | (fused <= 5)) < min(bad)
     assert chromaticity(np.ones((2, 3)))[0] == pytest.approx([1 / 3, 1 / 3])
+
+
+def _rebalanced(frame: np.ndarray, gains: tuple[float, float, float]) -> np.ndarray:
+    """``frame`` (8-bit sRGB) rendered again with another white balance."""
+    lin = srgb_decode_lut(255)[frame] * np.asarray(gains)
+    v = np.clip(lin, 0.0, 1.0)
+    enc = np.where(v <= 0.0031308, 12.92 * v, 1.055 * v ** (1 / 2.4) - 0.055)
+    return np.round(enc * 255).astype(np.uint8)
+
+
+@pytest.mark.parametrize("numba", [True, False])
+def test_anchoring_keeps_the_reference_colour_where_it_is_well_exposed(
+        srgb_bracket, numba, monkeypatch) -> None:
+    """Frames that disagree in colour (a phone re-balancing each shot): where the reference is
+    well exposed the merge takes its colour, elsewhere the frame that exposes it best."""
+    import hdrcore.merge.colour_check as module
+
+    if not numba:
+        monkeypatch.setattr(module, "AVAILABLE", False)
+    _, frames, _ = srgb_bracket
+    frames = [_rebalanced(frames[0], (1.06, 1.0, 0.94)), frames[1],
+              _rebalanced(frames[2], (0.94, 1.0, 1.06))]
+    res = merge(frames, TIMES, response=LUT, max_level=255)
+    kw = dict(max_level=255, reference=1)
+    plain = colour_check(frames, res.radiance, LUT, **kw)
+    rad = res.radiance.copy()
+    anchor_colour(rad, frames, srgb_decode_lut(255), max_level=255, saturation=250,
+                  noise_floor=2, reference=1, lut=LUT, exposure_times=TIMES,
+                  shares=res.shares)
+    banded = colour_check(frames, rad, LUT, **kw)
+    rad_share = res.radiance.copy()
+    anchor_colour(rad_share, frames, srgb_decode_lut(255), max_level=255, saturation=250,
+                  noise_floor=2, reference=1, lut=LUT, exposure_times=TIMES,
+                  shares=res.shares, reference_band=None)
+    shared = colour_check(frames, rad_share, LUT, **kw)
+    assert plain.merge_error > 0.004
+    assert banded.merge_error < 1e-4 < shared.merge_error
+    # where the reference is clipped, the darker frame's own colour
+    assert banded.best_frame_errors[0][0] < 0.004 < plain.best_frame_errors[0][0] + 0.004
