@@ -47,6 +47,7 @@ dark) after the residual translation would remove it; zero everywhere means alig
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 
@@ -663,12 +664,35 @@ class _PhasePlane:
         fx = sfft.rfftfreq(t)[None, :] * np.ones((t, 1))
         self.band = (fx * fx + fy * fy <= f_max * f_max) & ((fx != 0) | (fy != 0))
         self.fx, self.fy = fx[self.band], fy[self.band]
+        self.index = np.flatnonzero(self.band.ravel())  # flat positions of the band
         # Independent frequencies: the Hann window correlates neighbours (about 1 in 4 free).
         self.neff = max(self.band.sum() / 4.0, 1.0)
 
-    def fit(self, cross: np.ndarray, d: np.ndarray, iterations: int
+    def fit(self, cross: np.ndarray, d: np.ndarray, iterations: int, workers: int = 1
             ) -> tuple[np.ndarray, np.ndarray]:
-        """Shifts ``(N, 2)`` refined from ``d`` and their covariances ``(N, 2, 2)``."""
+        """Shifts ``(N, 2)`` refined from ``d`` and their covariances ``(N, 2, 2)``.
+
+        ``iterations`` Gauss-Newton steps on the phase plane (the phase wrapped to
+        ``(-pi, pi]`` about the current shift), then the residual phase's weighted mean square
+        for the covariance. The compiled kernel (:func:`_plane_rows`) reads the band straight
+        from ``cross`` (no complex temporaries of ``N x band``); :meth:`fit_numpy` is its
+        reference.
+        """
+        if not AVAILABLE:
+            return self.fit_numpy(cross, d, iterations)
+        n = cross.shape[0]
+        flat = cross.reshape(n, -1)
+        d0 = np.ascontiguousarray(d, np.float64)
+        out = np.empty((n, 2))
+        cov = np.empty((n, 2, 2))
+        run_row_spans(n, workers, lambda i0, i1: _plane_rows(
+            flat, self.index, self.fx, self.fy, d0, int(iterations), self.neff, out, cov,
+            i0, i1))
+        return out, cov
+
+    def fit_numpy(self, cross: np.ndarray, d: np.ndarray, iterations: int
+                  ) -> tuple[np.ndarray, np.ndarray]:
+        """The reference of :meth:`fit` (whole arrays)."""
         cb = cross[:, self.band]
         wb = np.abs(cb)
         gx, gy = self.fx, self.fy
@@ -693,6 +717,63 @@ class _PhasePlane:
         cov[:, 1, 1] = scale * sxx / det
         cov[:, 0, 1] = cov[:, 1, 0] = -scale * sxy / det
         return np.stack([dx, dy], axis=1), cov
+
+
+@_njit
+def _plane_rows(cross, index, fx, fy, d0, iterations, neff, out, cov, i0, i1
+                ):  # pragma: no cover - compiled
+    """Tiles ``i0:i1`` of :meth:`_PhasePlane.fit`: ``cross`` ``(N, t * (t // 2 + 1))``, the band
+    at flat ``index`` with frequencies ``fx, fy``; shifts into ``out``, covariances ``cov``."""
+    nb = index.size
+    wb = np.empty(nb)
+    ph = np.empty(nb)
+    two_pi = 2.0 * np.pi
+    for i in range(i0, i1):
+        sxx = 0.0
+        sxy = 0.0
+        syy = 0.0
+        for j in range(nb):
+            c = cross[i, index[j]]
+            a = math.hypot(c.real, c.imag)
+            wb[j] = a
+            sxx += a * fx[j] * fx[j]
+            sxy += a * fx[j] * fy[j]
+            syy += a * fy[j] * fy[j]
+        det = sxx * syy - sxy * sxy
+        if not det > 0:
+            det = np.inf
+        dx = d0[i, 0]
+        dy = d0[i, 1]
+        ss = 0.0
+        for it in range(iterations + 1):
+            bx = 0.0
+            by = 0.0
+            ss = 0.0
+            for j in range(nb):
+                c = cross[i, index[j]]
+                ang = two_pi * (dx * fx[j] + dy * fy[j])
+                cr, ci = math.cos(ang), math.sin(ang)
+                p = math.atan2(c.real * ci + c.imag * cr, c.real * cr - c.imag * ci)
+                ph[j] = p
+                wp = wb[j] * p
+                bx += wp * fx[j]
+                by += wp * fy[j]
+                ss += wp * p
+            if it == iterations:
+                break
+            bx = -bx / two_pi
+            by = -by / two_pi
+            ndx = dx + (syy * bx - sxy * by) / det
+            ndy = dy + (sxx * by - sxy * bx) / det
+            dx = ndx
+            dy = ndy
+        scale = ss / (4.0 * np.pi * np.pi * neff)
+        out[i, 0] = dx
+        out[i, 1] = dy
+        cov[i, 0, 0] = scale * syy / det
+        cov[i, 1, 1] = scale * sxx / det
+        cov[i, 0, 1] = -scale * sxy / det
+        cov[i, 1, 0] = -scale * sxy / det
 
 
 def _peak_shifts(cross: np.ndarray, t: int, workers: int) -> np.ndarray:
@@ -818,14 +899,23 @@ def _ncc_at(ga: np.ndarray, gb: np.ndarray, oy: np.ndarray, ox: np.ndarray, d: n
             * np.einsum("nij,nij->n", tb, tb, dtype=np.float64))
 
 
+#: A tile is re-centred again only while its last re-centring moved it by more than this
+#: (analysed pixels): the window's pull is a fraction of the step, so below it the next pass
+#: changes the shift by a few thousandths of a pixel (see :func:`_tile_shifts`).
+RECENTRE_TOL = 0.01
+
+
 def _tile_shifts(ga: np.ndarray, gb: np.ndarray, oy: np.ndarray, ox: np.ndarray, t: int,
                  workers: int, *, recentre: int = 2) -> _TileShifts:
     """Shift per tile between the structure images ``ga`` (dark) and ``gb`` (bright).
 
     Phase correlation (integer peak, parabolic start, phase-plane fit); then the dark tile is
-    taken again at the estimated shift (Keys cubic) and the remaining shift fitted, ``recentre``
-    times: a window common to both tiles pulls the estimate towards zero by a fraction of the
-    shift, which vanishes once the dark tile is re-centred on the same content.
+    taken again at the estimated shift (Keys cubic) and the remaining shift fitted, up to
+    ``recentre`` times: a window common to both tiles pulls the estimate towards zero by a
+    fraction of the shift, which vanishes once the dark tile is re-centred on the same content.
+    Only tiles whose shift is plausible (under a quarter tile) are re-centred, and a tile whose
+    last re-centring moved it by at most ``RECENTRE_TOL`` is not re-centred again (on an
+    aligned real pair most tiles: the second pass is then skipped for them).
     """
     win = np.outer(_hann(t), _hann(t)).astype(np.float32)
     zero = np.zeros((oy.size, 2))
@@ -834,14 +924,18 @@ def _tile_shifts(ga: np.ndarray, gb: np.ndarray, oy: np.ndarray, ox: np.ndarray,
     ta = _tiles(ga, oy, ox, zero, win, workers)
     cross = sfft.rfft2(ta, axes=(1, 2), workers=workers) * fb_conj
     plane = _PhasePlane(t)
-    d, cov = plane.fit(cross, _peak_shifts(cross, t, workers), 2)
+    d, cov = plane.fit(cross, _peak_shifts(cross, t, workers), 2, workers)
+    active = np.flatnonzero(np.all(np.isfinite(d), axis=1) & (np.abs(d).max(axis=1) < t / 4))
     for _ in range(recentre):
-        ok = np.all(np.isfinite(d), axis=1) & (np.abs(d).max(axis=1) < t / 4)
-        base = np.where(ok[:, None], d, 0.0)
-        ta = _tiles(ga, oy, ox, base, win, workers)
-        cross = sfft.rfft2(ta, axes=(1, 2), workers=workers) * fb_conj
-        step, cov = plane.fit(cross, np.zeros_like(d), 1)
-        d = np.where(ok[:, None], base + step, d)
+        if active.size == 0:
+            break
+        base = d[active]
+        sub = _tiles(ga, oy[active], ox[active], base, win, workers)
+        cross = sfft.rfft2(sub, axes=(1, 2), workers=workers) * fb_conj[active]
+        step, c = plane.fit(cross, np.zeros_like(base), 1, workers)
+        d[active], cov[active], ta[active] = base + step, c, sub
+        moved = np.all(np.isfinite(step), axis=1) & (np.abs(step).max(axis=1) > RECENTRE_TOL)
+        active = active[moved & (np.abs(d[active]).max(axis=1) < t / 4)]
     na = np.sqrt(np.einsum("nij,nij->n", ta, ta, dtype=np.float64))
     nb = np.sqrt(np.einsum("nij,nij->n", tb, tb, dtype=np.float64))
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -974,7 +1068,14 @@ def residual_motion(
     if bad.any():  # outside the warped frame: the tile's mean gradient (drops tiles > 10 %)
         ga = np.where(nan_a, np.float32(np.nanmean(ga)), ga)
         gb = np.where(nan_b, np.float32(np.nanmean(gb)), gb)
-    ts = _tile_shifts(ga, gb, oy, ox, t, nw)
+    # Only tiles that can count are measured (a tile mostly outside the range both frames
+    # expose, or outside the warped frame, is never valid): NaN shifts, confidence 0 for others.
+    measurable = np.flatnonzero((frac_in >= min_in_range) & (frac_nan <= 0.1))
+    ts = _TileShifts(np.full((n, 2), np.nan), np.zeros(n), np.full((n, 2, 2), np.nan))
+    if measurable.size:
+        part = _tile_shifts(ga, gb, oy[measurable], ox[measurable], t, nw)
+        ts.shifts[measurable], ts.ncc[measurable], ts.cov[measurable] = (
+            part.shifts, part.ncc, part.cov)
     min_conf = (max(CONFIDENCE_PER_TILE / t, MIN_CONFIDENCE) if min_confidence is None
                 else float(min_confidence))
     conf = np.nan_to_num(ts.ncc, nan=0.0)

@@ -200,6 +200,42 @@ def test_flat_pair_is_unmeasured_never_aligned():
     assert res2.status == "unmeasured" and "no tile is textured" in res2.message
 
 
+def test_tiles_outside_the_shared_range_are_skipped_the_rest_still_measured():
+    # the left third of the bright frame saturated: those tiles cannot count, so they are not
+    # measured at all (NaN shift, confidence 0); the others still recover the shift
+    h = _similarity(shift=(0.3, -0.7))
+    dark, bright, sat, nf = _pair(h)
+    bright[:, : SHAPE[1] // 3] = 1.0
+    res = residual_motion(dark, bright, 4.0, saturation=sat, noise_floor=nf)
+    skipped = res.in_range < 0.5
+    assert skipped.sum() >= 4 and (~skipped).sum() >= 10
+    assert np.all(np.isnan(res.shifts[skipped])) and np.all(res.confidence[skipped] == 0)
+    assert not res.valid[skipped].any() and res.n_valid >= 10
+    truth = _truth(h, res.centres)
+    v = res.valid
+    assert np.all(np.abs(np.median(res.shifts[v] - truth[v], axis=0)) <= 0.05)
+    json.dumps(res.to_json())
+
+
+def test_compiled_phase_plane_fit_matches_numpy():
+    rng = np.random.default_rng(5)
+    t, n = 64, 12
+    plane = residual._PhasePlane(t)
+    fy = np.fft.fftfreq(t)[:, None]
+    fx = np.fft.rfftfreq(t)[None]
+    d = rng.uniform(-3, 3, (n, 2))
+    noise = rng.normal(size=(n, t, t // 2 + 1)) + 1j * rng.normal(size=(n, t, t // 2 + 1))
+    cross = (np.abs(rng.normal(size=(n, t, t // 2 + 1)))
+             * np.exp(-2j * np.pi * (d[:, 0, None, None] * fx + d[:, 1, None, None] * fy))
+             + 0.3 * noise).astype(np.complex64)
+    start = np.round(d)
+    got, cov = plane.fit(cross, start, 2, 2)
+    ref, cov_ref = plane.fit_numpy(cross, start, 2)
+    np.testing.assert_allclose(got, ref, atol=1e-7)
+    np.testing.assert_allclose(cov, cov_ref, rtol=1e-5)
+    assert np.abs(got - d).max() < 0.1  # and it finds the planted shifts
+
+
 def test_json_and_statuses():
     res, _ = _measure(_similarity(shift=(0.3, -0.7)))
     doc = json.loads(json.dumps(res.to_json()))
