@@ -161,3 +161,23 @@ def test_anchoring_keeps_the_reference_colour_where_it_is_well_exposed(
     assert banded.merge_error < 1e-4 < shared.merge_error
     # where the reference is clipped, the darker frame's own colour
     assert banded.best_frame_errors[0][0] < 0.004 < plain.best_frame_errors[0][0] + 0.004
+
+
+def test_block_consistency_averages_the_noise_and_keeps_a_wrong_curve() -> None:
+    """Consecutive frames of a noisy sRGB bracket: per pixel the noise shows as a colour
+    difference; on 4x4 means it is averaged down with the right curve, while a curve whose
+    channels disagree keeps its difference."""
+    from hdrcore.merge.colour_check import block_consistency
+
+    sim = simulate_bracket(scene="patches", shape=(160, 240), exposure_times=TIMES, bits=8,
+                           response="srgb", noise_sigma=2.0, seed=5)
+    frames = [f.astype(np.uint8) for f in sim.frames]
+    res = merge(frames, TIMES, response=LUT, max_level=255)
+    right = colour_check(frames, res.radiance, LUT, max_level=255, reference=1)
+    assert right.frame_consistency_blocks < 0.5 * right.frame_consistency
+    assert len(right.frame_pairs_blocks) == 2
+    assert all(p.n_pixels >= 50 for p in right.frame_pairs_blocks)
+    wrong = LUT ** np.array([[1.15], [1.0], [0.85]])
+    pairs = block_consistency(frames, wrong, max_level=255, reference=1)
+    worse = float(np.median([p.median_difference for p in pairs]))
+    assert worse > 3 * right.frame_consistency_blocks
