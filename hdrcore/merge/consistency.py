@@ -73,7 +73,7 @@ import numpy as np
 
 from .._numba import AVAILABLE
 from .._numba import njit as _njit
-from .._threads import thread_map
+from .._threads import thread_map, worker_count
 from ..errors import ParameterError
 from .weights import NoiseModel
 
@@ -178,6 +178,15 @@ class _Tables:
     const_var: float
     bins: int
 
+    def packed(self) -> np.ndarray:
+        """``(C, L, 4)``: ``ln x``, ``rel_var``, ``add_var`` and the level bin side by side,
+        the bin -1 where the level is not compared (the compiled kernel's one lookup)."""
+        if not self.integer:
+            return np.zeros((1, 1, 4))
+        return np.ascontiguousarray(np.stack(
+            [self.ln_x, self.rel_var, self.add_var,
+             np.where(self.ok, self.lbin, -1).astype(np.float64)], axis=-1))
+
 
 def _tables(frames: Sequence[np.ndarray], c: int, lut: np.ndarray | None, max_level: int | None,
             noise: NoiseModel, saturation: Sequence[float], floor: float, margin: float,
@@ -232,100 +241,114 @@ def _tables(frames: Sequence[np.ndarray], c: int, lut: np.ndarray | None, max_le
 
 
 @_njit
-def _chain_step(f, s, integer, ln_x, rel_var, add_var, lbin, ok_t, sat, floor, shot,
-                const_var, bins, has_t, t, has_mask, mask, ln_t, y0, stride, prev, ln_p, rv_p,
-                ad_p, lb_p, hist, bias, b, swr, sw, sa, la, lb, count
-                ):  # pragma: no cover - compiled
-    """One frame (rank ``s`` in exposure order) over the output pixels
-    ``(y0 + stride // 2 + i * stride, stride // 2 + j * stride)`` of ``prev``'s grid.
+def _chain_rows(fl, ml, integer, tab, sat, floor, shot, const_var, bins, has_t, ts, has_mask,
+                ln_t, y0, gh, gw, stride, hist, bias, b, sums,
+                count):  # pragma: no cover - compiled
+    """Every frame (``fl[s]``, rank ``s`` in exposure order, ``ml[s]`` its mask in output
+    coordinates) over the output pixels ``(y0 + stride // 2 + i * stride, stride // 2 + j *
+    stride)``, ``i < gh``, ``j < gw``: one output row at a time, the frames in exposure order
+    along it, so each pixel's chain (per channel: the previous frame that recorded it, its
+    ``ln E``, relative variances and level bin) lives in one row's state, in cache.
 
-    The frame is read at the nearest source pixel (no data outside the frame or where masked);
-    each channel the tables accept (above the floor, below the saturation level, inside the
-    margins) is compared with the previous frame that recorded that channel of the pixel
-    (``prev``, ``ln_p``, ``rv_p``, ``ad_p``, ``lb_p`` carry each pixel's and channel's chain).
+    Integer frames read ``tab[ch, level] = (ln x, var / x**2, additive var / x**2, level bin)``
+    (the bin -1 where the level is not compared: one lookup a sample); float frames compute
+    them. Each frame is read at the nearest source pixel (no data outside the frame or where
+    masked); each channel compared (above the floor, below the saturation level, inside the
+    margins) is compared with the previous frame that recorded that channel of the pixel.
     With a non-empty ``hist`` the comparison ``ln(E / E_prev)`` of consecutive frames goes to
     the transfer histogram of the earlier frame's slot, the channel and its level bin; else
     the residual, less the slot's transfer error when the frames are consecutive, goes to the
-    slot's sums for the pixel's block. The
+    slot's sums for the pixel's block, ``sums[by, bx, slot, ch] = (sum w r, sum w, sum
+    additive, sum ln E_a, sum ln E_b)`` (one block's sums side by side) and ``count``. The
     sampling is written out here once, not in a helper: a helper's array arguments cost ten
     times the work per pixel. References: :func:`_transfer_hist_numpy`,
     :func:`_residuals_numpy`."""
-    gh, gw = prev.shape[0], prev.shape[1]
-    c = ln_p.shape[2]
+    n = len(fl)
+    c = tab.shape[0] if integer else sat.shape[0]
     to_hist = hist.shape[0] > 0
     hb = hist.shape[3]
     hscale = hb / (2.0 * _HIST_RANGE)
     off = stride // 2
-    h = f.shape[0]
-    w = f.shape[1]
-    ln_c = np.zeros(c)
-    rv_c = np.zeros(c)
-    ad_c = np.zeros(c)
-    lb_c = np.zeros(c, np.int64)
-    ok_c = np.zeros(c, np.bool_)
+    prev = np.empty((gw, c), np.int64)
+    st = np.zeros((gw, c, 4))  # the chain: ln E, rel var, additive rel var, level bin
     for gy in range(gh):
         y = y0 + off + gy * stride
-        for gx in range(gw):
-            x = off + gx * stride
-            if has_mask and not mask[y, x]:
-                continue
-            sy = y
-            sx = x
-            if has_t:
-                sw_ = t[2, 0] * x + t[2, 1] * y + t[2, 2]
-                fx = (t[0, 0] * x + t[0, 1] * y + t[0, 2]) / sw_
-                fy = (t[1, 0] * x + t[1, 1] * y + t[1, 2]) / sw_
-                if not (fx > -0.5 and fx < w - 0.5 and fy > -0.5 and fy < h - 0.5):
+        by = y // b
+        prev[:, :] = -1
+        for s in range(n):
+            f = fl[s]
+            mask = ml[s]
+            hm = has_mask[s]
+            ht = has_t[s]
+            lt = ln_t[s]
+            h = f.shape[0]
+            w = f.shape[1]
+            t00 = ts[s, 0, 0]
+            t01 = ts[s, 0, 1]
+            t02 = ts[s, 0, 2]
+            t10 = ts[s, 1, 0]
+            t11 = ts[s, 1, 1]
+            t12 = ts[s, 1, 2]
+            t20 = ts[s, 2, 0]
+            t21 = ts[s, 2, 1]
+            t22 = ts[s, 2, 2]
+            for gx in range(gw):
+                x = off + gx * stride
+                if hm and not mask[y, x]:
                     continue
-                sx = int(np.floor(fx + 0.5))
-                sy = int(np.floor(fy + 0.5))
-            for ch in range(c):
-                v = f[sy, sx, ch]
-                if integer:
-                    i = np.int64(v)
-                    ok_c[ch] = ok_t[ch, i]
-                    ln_c[ch] = ln_x[ch, i] - ln_t
-                    rv_c[ch] = rel_var[ch, i]
-                    ad_c[ch] = add_var[ch, i]
-                    lb_c[ch] = lbin[ch, i]
-                else:
-                    xl = np.float64(v)
-                    ok_c[ch] = xl < sat[ch] and xl > floor and xl > 0.0
-                    if ok_c[ch]:
-                        ln_c[ch] = np.log(xl) - ln_t
-                        rv_c[ch] = (shot * xl + const_var) / (xl * xl)
-                        ad_c[ch] = 0.0
-                        lb_c[ch] = min(bins - 1, max(0, int(xl * bins)))
-            by = y // b
-            bx = x // b
-            for ch in range(c):
-                if not ok_c[ch]:
-                    continue
-                q = prev[gy, gx, ch]
-                if q >= 0:
-                    if to_hist:
-                        # a frame stepped over is not the pair's transfer (in a static scene
-                        # only a mask or a frame's border steps over one)
-                        if q == s - 1:
-                            j = int(np.floor((ln_c[ch] - ln_p[gy, gx, ch] + _HIST_RANGE)
-                                             * hscale))
-                            hist[q, ch, lb_p[gy, gx, ch], min(hb - 1, max(0, j))] += 1
+                sy = y
+                sx = x
+                if ht:
+                    sw_ = t20 * x + t21 * y + t22
+                    fx = (t00 * x + t01 * y + t02) / sw_
+                    fy = (t10 * x + t11 * y + t12) / sw_
+                    if not (fx > -0.5 and fx < w - 0.5 and fy > -0.5 and fy < h - 0.5):
+                        continue
+                    sx = int(np.floor(fx + 0.5))
+                    sy = int(np.floor(fy + 0.5))
+                bx = x // b
+                for ch in range(c):
+                    if integer:
+                        i = np.int64(f[sy, sx, ch])
+                        lbc = tab[ch, i, 3]
+                        if lbc < 0.0:
+                            continue
+                        lnc = tab[ch, i, 0] - lt
+                        rvc = tab[ch, i, 1]
+                        adc = tab[ch, i, 2]
                     else:
-                        r = ln_c[ch] - ln_p[gy, gx, ch]
-                        if q == s - 1:
-                            r -= bias[q, ch, lb_p[gy, gx, ch]]
-                        wt = 1.0 / (rv_p[gy, gx, ch] + rv_c[ch])
-                        swr[q, ch, by, bx] += wt * r
-                        sw[q, ch, by, bx] += wt
-                        sa[q, ch, by, bx] += ad_p[gy, gx, ch] + ad_c[ch]
-                        la[q, ch, by, bx] += ln_p[gy, gx, ch]
-                        lb[q, ch, by, bx] += ln_c[ch]
-                        count[q, ch, by, bx] += 1
-                ln_p[gy, gx, ch] = ln_c[ch]
-                rv_p[gy, gx, ch] = rv_c[ch]
-                ad_p[gy, gx, ch] = ad_c[ch]
-                lb_p[gy, gx, ch] = lb_c[ch]
-                prev[gy, gx, ch] = s
+                        xl = np.float64(f[sy, sx, ch])
+                        if not (xl < sat[ch] and xl > floor and xl > 0.0):
+                            continue
+                        lnc = np.log(xl) - lt
+                        rvc = (shot * xl + const_var) / (xl * xl)
+                        adc = 0.0
+                        lbc = np.float64(min(bins - 1, max(0, int(xl * bins))))
+                    q = prev[gx, ch]
+                    if q >= 0:
+                        if to_hist:
+                            # a frame stepped over is not the pair's transfer (in a static
+                            # scene only a mask or a frame's border steps over one)
+                            if q == s - 1:
+                                j = int(np.floor((lnc - st[gx, ch, 0] + _HIST_RANGE) * hscale))
+                                hist[q, ch, int(st[gx, ch, 3]), min(hb - 1, max(0, j))] += 1
+                        else:
+                            r = lnc - st[gx, ch, 0]
+                            if q == s - 1:
+                                r -= bias[q, ch, int(st[gx, ch, 3])]
+                            wt = 1.0 / (st[gx, ch, 1] + rvc)
+                            o = sums[by, bx, q, ch]
+                            o[0] += wt * r
+                            o[1] += wt
+                            o[2] += st[gx, ch, 2] + adc
+                            o[3] += st[gx, ch, 0]
+                            o[4] += lnc
+                            count[by, bx, q, ch] += 1
+                    st[gx, ch, 0] = lnc
+                    st[gx, ch, 1] = rvc
+                    st[gx, ch, 2] = adc
+                    st[gx, ch, 3] = lbc
+                    prev[gx, ch] = s
 
 
 # --------------------------------------------------------------------------------------------
@@ -570,56 +593,54 @@ X
     slots = max(n - 1, 0)
     stride = max(1, int(np.sqrt(h * w / float(p.sample_pixels))))
     hist = np.zeros((slots, c, p.level_bins, _HIST_BINS), np.int64)
-    weighted = np.zeros((slots, c, hb, wb))
-    weights = np.zeros_like(weighted)
-    additive = np.zeros_like(weighted)
-    first = np.zeros_like(weighted)
-    second = np.zeros_like(weighted)
-    count = np.zeros((slots, c, hb, wb), np.int32)
     if engine is None:
         engine = "numba" if AVAILABLE else "numpy"
     fast = engine == "numba" and AVAILABLE
-    per_frame = [(np.ascontiguousarray(fs[k]), bool(has_t[k]), ts[k], bool(has_mask[k]),
-                  mask_t[k], float(ln_t[k])) for k in order]
-    tabs = (t.integer, t.ln_x, t.rel_var, t.add_var, t.lbin, t.ok, t.sat, t.floor,
-            t.shot, t.const_var, t.bins)
     no_hist = np.zeros((0, c, 1, 1), np.int64)
     no_bias = np.zeros((1, c, 1))
-    no_sums = np.zeros((1, c, 1, 1))
-    no_count = np.zeros((1, c, 1, 1), np.int32)
+    if fast and slots and hb and wb:
+        from numba.typed import List
+
+        dtype = np.result_type(*fs)
+        fl, ml = List(), List()
+        for k in order:  # in exposure order: the kernel's rank s is the list's index
+            fl.append(np.ascontiguousarray(fs[k], dtype=dtype))
+            ml.append(mask_t[k])
+        per = (fl, ml, t.integer, t.packed(), t.sat, t.floor, t.shot, t.const_var, t.bins,
+               np.ascontiguousarray(has_t[order]), np.ascontiguousarray(ts[order]),
+               np.ascontiguousarray(has_mask[order]), np.ascontiguousarray(ln_t[order]))
     if slots and hb and wb:
         if fast:
             gh, gw = len(range(stride // 2, h, stride)), len(range(stride // 2, w, stride))
-            prev = np.full((gh, gw, c), -1, np.int64)
-            ln_p = np.zeros((gh, gw, c))
-            rv_p = np.zeros((gh, gw, c))
-            ad_p = np.zeros((gh, gw, c))
-            lb_p = np.zeros((gh, gw, c), np.int64)
-            for s, (f, ht, tk, hm, mk, lt) in enumerate(per_frame):
-                _chain_step(f, s, *tabs, ht, tk, hm, mk, lt, 0, stride, prev, ln_p, rv_p, ad_p,
-                            lb_p, hist, no_bias, b, no_sums, no_sums, no_sums, no_sums, no_sums,
-                            no_count)
+            _chain_rows(*per, 0, gh, gw, stride, hist, no_bias, b,
+                        np.zeros((1, 1, 1, c, 5)), np.zeros((1, 1, 1, c), np.int32))
         else:
             _transfer_hist_numpy(fs, order, t, has_t, ts, ms, ln_t, stride, hist)
     bias, source = _transfer_bias(hist, p) if slots else (np.zeros((0, c, p.level_bins)), [])
+    if fast:
+        # one block's sums side by side in the kernel; the fields are views of them
+        sums = np.zeros((hb, wb, slots, c, 5))
+        counts = np.zeros((hb, wb, slots, c), np.int32)
+        weighted, weights, additive, first, second = (
+            np.moveaxis(sums[..., i], (0, 1), (2, 3)) for i in range(5))
+        count = np.moveaxis(counts, (0, 1), (2, 3))
+    else:
+        weighted = np.zeros((slots, c, hb, wb))
+        weights = np.zeros_like(weighted)
+        additive = np.zeros_like(weighted)
+        first = np.zeros_like(weighted)
+        second = np.zeros_like(weighted)
+        count = np.zeros((slots, c, hb, wb), np.int32)
     if slots and hb and wb:
         if fast:
-            # block rows per piece of work: about 64k pixels, so the chains' state stays in
-            # cache and the calls stay few
-            span = max(1, (1 << 16) // (b * b * wb))
+            # block rows per piece of work: a few per worker (load balance); each row's chains
+            # live in the kernel's one-row state
+            span = max(1, -(-hb // (8 * worker_count(workers))))
 
             def work(r0: int) -> None:
                 r1 = min(hb, r0 + span)
-                rows = (r1 - r0) * b
-                prev = np.full((rows, wb * b, c), -1, np.int64)
-                ln_p = np.zeros((rows, wb * b, c))
-                rv_p = np.zeros((rows, wb * b, c))
-                ad_p = np.zeros((rows, wb * b, c))
-                lb_p = np.zeros((rows, wb * b, c), np.int64)
-                for s, (f, ht, tk, hm, mk, lt) in enumerate(per_frame):
-                    _chain_step(f, s, *tabs, ht, tk, hm, mk, lt, r0 * b, 1, prev, ln_p, rv_p,
-                                ad_p, lb_p, no_hist, bias, b, weighted, weights, additive, first,
-                                second, count)
+                _chain_rows(*per, r0 * b, (r1 - r0) * b, wb * b, 1, no_hist, bias, b, sums,
+                            counts)
 
             thread_map(work, range(0, hb, span), workers)
         else:
@@ -761,6 +782,77 @@ def _pixel_map(blocks: np.ndarray, candidates: np.ndarray | None, shape: tuple[i
     return out
 
 
+def _block_test_numpy(res: PairResiduals, q: int, use: np.ndarray, need: int, delta: float,
+                      p: GhostTestParams) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Step 4 for pair slot ``q``: ``(scale per channel, z (C, hb, wb), disagreeing blocks)``
+    (the reference of :func:`_block_test`)."""
+    b = res.block
+    sw = np.where(use, res.weights[q], 1.0)
+    mean = res.weighted[q] / sw
+    # 4 / sum(w): about a quarter of a block's pixels are independent
+    var = 4.0 / sw
+    scale = np.array([1.4826 * float(np.median(np.abs(m[u] - np.median(m[u]))))
+                      if u.any() else 0.0 for m, u in zip(mean, use, strict=True)])
+    nn = np.maximum(res.count[q], 1)
+    la = res.first[q] / nn  # each frame's geometric-mean radiance over the block (ln)
+    lb = res.second[q] / nn
+    reg = delta / b * np.minimum(
+        np.stack([_log_contrast(la[ch], use[ch]) for ch in range(len(la))]),
+        np.stack([_log_contrast(lb[ch], use[ch]) for ch in range(len(lb))]))
+    # an offset of the levels (black level, a scan's film base) is the same over a block:
+    # its variance is the block's mean, not divided by the pixels
+    add = res.additive[q] / nn
+    s2 = scale[:, None, None] ** 2 + var + add + reg**2 + p.scale_floor**2
+    z = np.abs(mean) / np.sqrt(s2)
+    z *= use
+    hit = ((z > p.z) & (np.abs(mean) > p.min_change)).any(axis=0)
+    return scale, z, hit
+
+
+@_njit
+def _block_test(weighted, weights, additive, first, second, count, need, scale, reg_scale,
+                floor2, z_min, min_change, z, hit):  # pragma: no cover - compiled
+    """Step 4 of the module docstring for one pair slot, block by block (``z`` and ``hit``
+    written; reference :func:`_block_test_numpy`, the same arithmetic in the same order)."""
+    c, hb, wb = count.shape
+    la = np.zeros((hb, wb))
+    lb = np.zeros((hb, wb))
+    for ch in range(c):
+        for by in range(hb):
+            for bx in range(wb):
+                nn = max(count[ch, by, bx], 1)
+                la[by, bx] = first[ch, by, bx] / nn
+                lb[by, bx] = second[ch, by, bx] / nn
+        s_ch = scale[ch] ** 2
+        for by in range(hb):
+            for bx in range(wb):
+                if count[ch, by, bx] < need:
+                    continue
+                ca = 0.0
+                cb = 0.0
+                for dy in range(-1, 2):
+                    ny = by + dy
+                    if ny < 0 or ny >= hb:
+                        continue
+                    for dx in range(-1, 2):
+                        nx = bx + dx
+                        if (dy == 0 and dx == 0) or nx < 0 or nx >= wb:
+                            continue
+                        if count[ch, ny, nx] < need:
+                            continue
+                        ca = max(ca, abs(la[ny, nx] - la[by, bx]))
+                        cb = max(cb, abs(lb[ny, nx] - lb[by, bx]))
+                reg = reg_scale * min(ca, cb)
+                sw = weights[ch, by, bx]
+                mean = weighted[ch, by, bx] / sw
+                nn = max(count[ch, by, bx], 1)
+                s2 = s_ch + 4.0 / sw + additive[ch, by, bx] / nn + reg**2 + floor2
+                zz = abs(mean) / np.sqrt(s2)
+                z[ch, by, bx] = zz
+                if zz > z_min and abs(mean) > min_change:
+                    hit[by, bx] = True
+
+
 def consistency_regions(
     frames: Sequence[np.ndarray],
     exposure_times: Sequence[float],
@@ -808,6 +900,7 @@ def consistency_regions(
                          workers=workers, engine=engine)
     t1 = time.perf_counter()
     need = max(1, int(np.ceil(p.min_shared * b * b)))
+    fast = (engine or ("numba" if AVAILABLE else "numpy")) == "numba" and AVAILABLE
     zmax = np.zeros((hb, wb), np.float32)
     flagged = np.zeros((hb, wb), bool)
     tested = np.zeros((hb, wb), bool)
@@ -818,26 +911,19 @@ def consistency_regions(
         if not use.any():
             continue
         tested |= use.any(axis=0)
-        sw = np.where(use, res.weights[q], 1.0)
-        mean = res.weighted[q] / sw
-        # 4 / sum(w): about a quarter of a block's pixels are independent
-        var = 4.0 / sw
-        scale = np.array([1.4826 * float(np.median(np.abs(m[u] - np.median(m[u]))))
-                          if u.any() else 0.0 for m, u in zip(mean, use, strict=True)])
-        nn = np.maximum(res.count[q], 1)
-        la = res.first[q] / nn  # each frame's geometric-mean radiance over the block (ln)
-        lb = res.second[q] / nn
         delta = p.registration_error if (resampled[a] or resampled[k]) else p.direct_error
-        reg = delta / b * np.minimum(
-            np.stack([_log_contrast(la[ch], use[ch]) for ch in range(len(la))]),
-            np.stack([_log_contrast(lb[ch], use[ch]) for ch in range(len(lb))]))
-        # an offset of the levels (black level, a scan's film base) is the same over a block:
-        # its variance is the block's mean, not divided by the pixels
-        add = res.additive[q] / nn
-        s2 = scale[:, None, None] ** 2 + var + add + reg**2 + p.scale_floor**2
-        z = np.abs(mean) / np.sqrt(s2)
-        z *= use
-        hit = ((z > p.z) & (np.abs(mean) > p.min_change)).any(axis=0)
+        if fast:
+            scale = np.array([1.4826 * float(np.median(np.abs(m - np.median(m))))
+                              if m.size else 0.0 for m in (
+                                  res.weighted[q, ch][use[ch]] / res.weights[q, ch][use[ch]]
+                                  for ch in range(use.shape[0]))])
+            z = np.zeros(use.shape)
+            hit = np.zeros((hb, wb), bool)
+            _block_test(res.weighted[q], res.weights[q], res.additive[q], res.first[q],
+                        res.second[q], res.count[q], need, scale, delta / b,
+                        p.scale_floor**2, float(p.z), float(p.min_change), z, hit)
+        else:
+            scale, z, hit = _block_test_numpy(res, q, use, need, delta, p)
         np.maximum(zmax, z.max(axis=0), out=zmax)
         flagged |= hit
         pairs.append(PairConsistency(
