@@ -293,17 +293,18 @@ def select_samples(
     """Up to ``max_samples`` valid eq. 6 samples on the dark frame's grid of ``level``, in raster
     order, their validity decided once for the level at ``motion``.
 
-    A pixel of the dark frame is a sample when ``k * dark`` lies strictly inside the exposure
-    range both frames share and, at ``motion`` (3x3 or 2x3, level coordinates, dark -> bright;
+    A pixel of the dark frame is a sample when ``k * dark``, there and averaged over its four
+    neighbours (see ``_kernels.score_candidates``), lies strictly inside the exposure range
+    both frames share and, at ``motion`` (3x3 or 2x3, level coordinates, dark -> bright;
     default the identity), the 4x4 interpolation support of the bright frame lies inside it,
     spans at most ``max_contrast`` and (full resolution; the coarser levels are clipped
     already) holds raw taps above the noise floor and, widened by ``reach`` pixels, below
     saturation: no motion within ``reach`` pixels of ``motion`` brings a saturated tap into the
     sample's interpolation (a clipped highlight biases eq. 6 far more than a tap under the
-    noise floor, which is only noisy). The searches call
-    this once per pyramid level with their estimate at the start of the level and keep the
-    samples while the motion changes: nothing in the cost then switches on or off but a border
-    weight that goes smoothly to 0, so the cost is continuous in the motion (module docstring).
+    noise floor, which is only noisy). The searches call this once per pyramid level with
+    their estimate at the start of the level and keep the samples while the motion changes:
+    nothing in the cost then switches on or off but a border weight that goes smoothly to 0,
+    so the cost is continuous in the motion (module docstring).
 
     The dark frame stays on its pixel grid and the bright frame is interpolated: after the
     multiplication by ``k`` the dark frame is the noisier one, and interpolating noise lowers its
@@ -393,14 +394,17 @@ def select_samples(
                 val = img[yy + dy, xx + dx]  # 2-D indexing: any strides (a channel of RGB)
                 return (val if lut is None else lut[val]).astype(np.float64)
 
+            # the pixel and its four neighbours' mean in range (see _kernels.score_candidates)
+            right, left, down, up = at(0, 1), at(0, -1), at(1, 0), at(-1, 0)
+            mean = 0.25 * (right + left + down + up)
             v = at(0, 0)
-            ok = (v > lo) & (v < hi)
-            yy, xx, v = yy[ok], xx[ok], v[ok]
+            ok = (mean > lo) & (mean < hi) & (v > lo) & (v < hi)
+            yy, xx, mean, v = yy[ok], xx[ok], mean[ok], v[ok]
             score = None
             if by_gradient:
-                gx = at(0, 1) - at(0, -1)
-                gy = at(1, 0) - at(-1, 0)
-                score = (gx * gx + gy * gy) / (v * v + eps2)
+                gx = (right - left)[ok]
+                gy = (down - up)[ok]
+                score = (gx * gx + gy * gy) / (mean * mean + eps2)
         if not check_bright:
             return yy, xx, v, score
         n_top = int(1.3 * max_samples)
