@@ -1,0 +1,513 @@
+"""Local refinement: a smooth displacement field after the global motion (parallax, lens).
+
+A homography aligns one plane. Objects nearer than it move against it by a few pixels between
+hand-held frames; HDR+ (Hasinoff et al. 2016, section 4) therefore aligns tiles of 16-64 px
+after a coarse global step. We estimate, after the global registration, one displacement per
+node of a grid ``tile`` pixels apart (:class:`~hdrcore.registration.field.DisplacementField`,
+interpolated bilinearly: no seams), by minimising the paper's normalised difference (Cerman &
+Hlavac 2006, eq. 7) over all well-exposed pixels,
+
+    E(u) = sum_x rho( (B(x + u(x)) - A(x)) / max(A(x) + B(x), t) ) + lambda sum_(a~b) |u_a - u_b|^2
+
+with ``A`` the already aligned neighbour frame and ``B`` the frame being refined, both divided
+by their exposure (the ratios), ``u(x)`` the bilinear interpolation of the node displacements,
+``rho`` Huber's function (a moving object is down-weighted, not followed) and a membrane term
+between 4-neighbour nodes that keeps the field smooth and fills nodes without texture from their
+neighbours. Gauss-Newton on two pyramid levels; each step solves one sparse system with two
+unknowns per node.
+
+Frames are refined outwards from the reference along the chain of consecutive pairs (their
+exposures overlap most, as for the global fit): frame ``k`` is compared with its neighbour
+``j`` (one step nearer the reference) already resampled through its own refined motion, so the
+field of ``k`` is relative to the reference. A field is kept only when it pays: the pair's
+residual motion measured independently (:func:`hdrcore.registration.residual.residual_motion`:
+phase correlation of gradient tiles, nothing shared with this estimate) falls by at least
+``min_gain`` of itself, or turns a misaligned pair into an aligned one. Otherwise the frame keeps
+its global motion alone (``kept`` False) and the reason is said.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import ndimage, sparse
+from scipy.sparse.linalg import spsolve
+
+from .._numba import AVAILABLE as _COMPILED
+from .._numba import njit as _njit
+from .._threads import run_row_spans
+from ..errors import ParameterError
+from .field import DisplacementField, map_points
+
+__all__ = ["LocalFrame", "LocalRefinement", "refine_bracket", "choose_tile"]
+
+log = logging.getLogger(__name__)
+
+#: Pixels per level the refinement works on at its finest: at most this many (a 24 MP frame is
+#: refined at a quarter of its size, an 8 MP one at half, small frames at full size).
+MAX_LEVEL_PIXELS = 3.0e6
+
+#: Rounds of measure-and-fit per frame (the tile shifts are measured again through the field).
+ROUNDS = 2
+
+#: Weight of the membrane term relative to the median weight of a tile (see module doc).
+SMOOTHNESS = 0.3
+
+#: Tukey's biweight constant, in units of a tile's standard error (at least ``MIN_SPREAD``).
+TUKEY = 4.685
+MIN_SPREAD = 0.25
+
+#: Passes of the robust fit (1: plain weighted least squares).
+PASSES = 1
+
+#: A field is kept when the independent residual falls by this fraction of itself.
+MIN_GAIN = 0.15
+
+
+@dataclass(frozen=True, eq=False)
+class LocalFrame:
+    """The refinement of one frame against its neighbour ``against`` (one step nearer the
+    reference). ``field``: reference pixel -> extra displacement in frame pixels (None when
+    not kept); ``before`` / ``after``: the pair's independent residual, median over tiles
+    (full-resolution px; NaN when not measured); ``message`` says what happened."""
+
+    frame: int
+    against: int
+    field: DisplacementField | None
+    candidate: DisplacementField | None = field(repr=False)
+    kept: bool
+    before: float
+    after: float
+    before_status: str
+    after_status: str
+    message: str
+    seconds: float
+
+    def to_json(self) -> dict:
+        def f(x: float) -> float | None:
+            return None if not np.isfinite(x) else round(float(x), 4)
+
+        cand = self.candidate
+        return {
+            "frame": self.frame, "against": self.against, "kept": self.kept,
+            "residual_before_px": f(self.before), "residual_after_px": f(self.after),
+            "status_before": self.before_status, "status_after": self.after_status,
+            "field_median_px": None if cand is None else f(cand.median_px),
+            "field_max_px": None if cand is None else f(cand.max_px),
+            "field": None if self.field is None else self.field.to_json(),
+            "message": self.message, "seconds": round(self.seconds, 3),
+        }
+
+
+@dataclass(frozen=True, eq=False)
+class LocalRefinement:
+    """Displacement fields of a bracket: ``fields[k]`` for frame ``k`` (None for the
+    reference and frames whose field was not kept), per-frame details in ``frames``."""
+
+    reference: int
+    tile: int
+    level: int
+    fields: tuple[DisplacementField | None, ...]
+    frames: tuple[LocalFrame, ...]
+    seconds: float
+
+    @property
+    def used(self) -> bool:
+        return any(f is not None for f in self.fields)
+
+    def summary(self) -> str:
+        kept = [f for f in self.frames if f.kept]
+        if not self.frames:
+            return "local refinement: nothing to refine"
+        if not kept:
+            return (f"local refinement: no field kept ({len(self.frames)} frames tried; the "
+                    "global motion alone leaves as little)")
+        parts = ", ".join(f"frame {f.frame} {f.before:.2f} -> {f.after:.2f} px" for f in kept)
+        return f"local refinement ({self.tile} px tiles): {parts}"
+
+    def to_json(self) -> dict:
+        return {"reference": self.reference, "tile": self.tile, "level": self.level,
+                "seconds": round(self.seconds, 3), "summary": self.summary(),
+                "frames": [f.to_json() for f in self.frames]}
+
+
+def choose_tile(shape: tuple[int, int]) -> int:
+    """Node spacing: about a sixteenth of the short side as a power of two, 32-128 px (128 px
+    on phone and camera frames, HDR+'s scale of parallax; 32 px on a 640 x 426 frame)."""
+    s = min(shape) / 16.0
+    return int(min(128, max(32, 2 ** round(np.log2(max(s, 1.0))))))
+
+
+def _level_for(shape: tuple[int, int], tile: int) -> int:
+    level = 0
+    h, w = shape
+    while (h >> level) * (w >> level) > MAX_LEVEL_PIXELS and tile >> (level + 1) >= 8:
+        level += 1
+    return level
+
+
+# ----------------------------------------------------------------------------- images
+def _linear(img: np.ndarray, lut: np.ndarray | None) -> np.ndarray:
+    if lut is not None:
+        return lut[img]
+    return np.asarray(img, np.float32)
+
+
+def _reduce(img: np.ndarray, f: int) -> np.ndarray:
+    """Means of ``f x f`` blocks (the partial last row/column of blocks dropped)."""
+    if f == 1:
+        return np.ascontiguousarray(img, np.float32)
+    h, w = img.shape
+    hh, ww = h // f, w // f
+    return img[: hh * f, : ww * f].reshape(hh, f, ww, f).mean(axis=(1, 3), dtype=np.float32)
+
+
+def _reduce_max(img: np.ndarray, f: int) -> np.ndarray:
+    if f == 1:
+        return img
+    h, w = img.shape
+    hh, ww = h // f, w // f
+    return img[: hh * f, : ww * f].reshape(hh, f, ww, f).max(axis=(1, 3))
+
+
+def _prepare(img: np.ndarray, lut: np.ndarray | None, f: int, saturation: float) -> np.ndarray:
+    """A frame at the working level: block means of the linear values, +inf where a block
+    holds a sample at or above saturation (an interpolation touching it is not finite)."""
+    lin = _linear(img, lut)
+    out = _reduce(lin, f)
+    out[_reduce_max(lin >= saturation, f)] = np.inf
+    return out
+
+
+class _Grid:
+    """The reference grid of one level (``f`` full pixels per level pixel) and the field's
+    nodes on it: node ``(i, j)`` at full-resolution pixel ``(j * tile, i * tile)``."""
+
+    def __init__(self, shape: tuple[int, int], f: int, tile: int) -> None:
+        self.shape = shape
+        self.f = f
+        self.tile = tile
+        h, w = shape
+        self.hl, self.wl = h // f, w // f
+        self.gh, self.gw = DisplacementField.grid(shape, tile)
+        self.c = tile // f  # level pixels per cell
+        # full-resolution coordinates of the level pixels
+        off = (f - 1) / 2.0
+        self.xs = np.arange(self.wl) * float(f) + off
+        self.ys = np.arange(self.hl) * float(f) + off
+        # bilinear weights of each level pixel between its cell's nodes (the same in every cell
+        # but for the last partial one): u = (x_full - node_x) / tile
+        self.cx = np.minimum((self.xs // tile).astype(np.intp), self.gw - 2)
+        self.cy = np.minimum((self.ys // tile).astype(np.intp), self.gh - 2)
+        self.ux = (self.xs - self.cx * tile) / tile
+        self.uy = (self.ys - self.cy * tile) / tile
+
+    def interpolate(self, nodes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The field ``nodes (gh, gw, 2)`` at every level pixel (full-resolution px)."""
+        return DisplacementField(self.tile, nodes).on_grid(self.xs, self.ys)
+
+    def mapped(self, homography: np.ndarray, nodes: np.ndarray | None,
+               inside: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """The level's pixels mapped by ``H(x) + d(x)`` (``inside``: ``H(x + d(x))``)."""
+        xx, yy = np.meshgrid(self.xs, self.ys)
+        if nodes is None:
+            return map_points(homography, None, xx, yy)
+        dx, dy = self.interpolate(nodes)
+        if inside:
+            return map_points(homography, None, xx + dx, yy + dy)
+        sx, sy = map_points(homography, None, xx, yy)
+        return sx + dx, sy + dy
+
+
+def _sample(frame: np.ndarray, sx: np.ndarray, sy: np.ndarray, f: int,
+            order: int = 1) -> np.ndarray:
+    """``frame`` (a level image) at full-resolution positions ``(sx, sy)``: NaN outside the
+    frame, +inf where the interpolation touches a clipped block."""
+    off = (f - 1) / 2.0
+    lx = (sx - off) / f
+    ly = (sy - off) / f
+    h, w = frame.shape
+    out = ndimage.map_coordinates(frame, [ly, lx], order=order, mode="nearest",
+                                  prefilter=False).astype(np.float32)
+    out[~np.isfinite(out)] = np.inf
+    out[~((lx >= 0) & (lx <= w - 1) & (ly >= 0) & (ly <= h - 1))] = np.nan
+    return out
+
+
+@_njit
+def _warp_rows(src, m, nodes, tile, f, inside, out, r0, r1):  # pragma: no cover - compiled
+    """Rows ``r0:r1`` of the level grid: ``src`` (a level frame) read bilinearly at
+    ``H(x) + d(x)`` (``inside``: ``H(x + d(x))``) of each level pixel's full-resolution
+    position ``x = f * p + (f - 1) / 2``, ``d`` the bilinear interpolation of ``nodes``
+    (node ``(i, j)`` at ``(j * tile, i * tile)``); NaN outside the frame, and what the taps
+    hold (inf of a clipped block) inside. The reference: :func:`_sample` of
+    :meth:`_Grid.mapped`."""
+    h, w = src.shape
+    ww = out.shape[1]
+    gh, gw = nodes.shape[0], nodes.shape[1]
+    off = (f - 1) / 2.0
+    for y in range(r0, r1):
+        yf = y * f + off
+        fy = min(max(yf / tile, 0.0), gh - 1.0)
+        i = min(int(fy), gh - 2)
+        v = fy - i
+        for x in range(ww):
+            xf = x * f + off
+            fx = min(max(xf / tile, 0.0), gw - 1.0)
+            j = min(int(fx), gw - 2)
+            u = fx - j
+            dx = ((nodes[i, j, 0] * (1 - u) + nodes[i, j + 1, 0] * u) * (1 - v)
+                  + (nodes[i + 1, j, 0] * (1 - u) + nodes[i + 1, j + 1, 0] * u) * v)
+            dy = ((nodes[i, j, 1] * (1 - u) + nodes[i, j + 1, 1] * u) * (1 - v)
+                  + (nodes[i + 1, j, 1] * (1 - u) + nodes[i + 1, j + 1, 1] * u) * v)
+            px, py = xf, yf
+            if inside:
+                px += dx
+                py += dy
+            zw = m[2, 0] * px + m[2, 1] * py + m[2, 2]
+            sx = (m[0, 0] * px + m[0, 1] * py + m[0, 2]) / zw
+            sy = (m[1, 0] * px + m[1, 1] * py + m[1, 2]) / zw
+            if not inside:
+                sx += dx
+                sy += dy
+            lx = (sx - off) / f
+            ly = (sy - off) / f
+            if not (lx >= 0.0 and lx <= w - 1.0 and ly >= 0.0 and ly <= h - 1.0):
+                out[y, x] = np.nan
+                continue
+            ix = min(int(lx), w - 2)
+            iy = min(int(ly), h - 2)
+            ax = lx - ix
+            ay = ly - iy
+            t0 = src[iy, ix] * (1 - ax) + src[iy, ix + 1] * ax if ax > 0 else src[iy, ix]
+            t1 = src[iy + 1, ix] * (1 - ax) + src[iy + 1, ix + 1] * ax if ax > 0 \
+                else src[iy + 1, ix]
+            val = t0 * (1 - ay) + t1 * ay if ay > 0 else t0
+            out[y, x] = val if np.isfinite(val) else np.inf
+
+
+def _warped(fr: np.ndarray, grid: _Grid, homography: np.ndarray, nodes: np.ndarray | None,
+            inside: bool = False) -> np.ndarray:
+    """A level frame read at ``H(x) + d(x)`` (``inside``: ``H(x + d(x))``) for the level's
+    reference pixels: NaN outside the frame, +inf where the taps touch a clipped block."""
+    if not _COMPILED:
+        sx, sy = grid.mapped(homography, nodes, inside)
+        return _sample(fr, sx, sy, grid.f)
+    out = np.empty((grid.hl, grid.wl), np.float32)
+    nd = (np.zeros((grid.gh, grid.gw, 2)) if nodes is None
+          else np.ascontiguousarray(nodes, np.float64))
+    m = np.ascontiguousarray(homography, np.float64)
+    run_row_spans(grid.hl, None, lambda r0, r1: _warp_rows(
+        fr, m, nd, float(grid.tile), float(grid.f), bool(inside), out, r0, r1))
+    return out
+
+
+def _resampled(fr: np.ndarray, grid: _Grid, homography: np.ndarray,
+               nodes: np.ndarray | None) -> np.ndarray:
+    """A level frame read at ``H(x) + d(x)`` for the level's reference pixels (NaN outside
+    and +inf where clipped)."""
+    return _warped(fr, grid, homography, nodes)
+
+
+# ------------------------------------------------------------------------ the solver
+def _membrane(gh: int, gw: int) -> sparse.csr_matrix:
+    """The graph Laplacian of the 4-neighbour node grid."""
+    n = gh * gw
+    idx = np.arange(n).reshape(gh, gw)
+    a = np.concatenate([idx[:, :-1].ravel(), idx[:-1, :].ravel()])
+    b = np.concatenate([idx[:, 1:].ravel(), idx[1:, :].ravel()])
+    adj = sparse.coo_matrix((np.ones(a.size), (a, b)), shape=(n, n))
+    adj = adj + adj.T
+    deg = np.asarray(adj.sum(axis=1)).ravel()
+    return (sparse.diags(deg) - adj).tocsr()
+
+
+def _interpolation(points: np.ndarray, gh: int, gw: int, tile: int) -> sparse.csr_matrix:
+    """Rows: the bilinear weights of each point ``(x, y)`` (full-resolution px) on the nodes."""
+    fx = np.clip(points[:, 0] / tile, 0.0, gw - 1.0)
+    fy = np.clip(points[:, 1] / tile, 0.0, gh - 1.0)
+    j = np.minimum(fx.astype(np.intp), gw - 2)
+    i = np.minimum(fy.astype(np.intp), gh - 2)
+    u, v = fx - j, fy - i
+    rows = np.repeat(np.arange(len(points)), 4)
+    cols = np.stack([i * gw + j, i * gw + j + 1, (i + 1) * gw + j, (i + 1) * gw + j + 1],
+                    axis=1).ravel()
+    vals = np.stack([(1 - u) * (1 - v), u * (1 - v), (1 - u) * v, u * v], axis=1).ravel()
+    return sparse.csr_matrix((vals, (rows, cols)), shape=(len(points), gh * gw))
+
+
+def _fit_nodes(points: np.ndarray, targets: np.ndarray, sigma: np.ndarray, gh: int, gw: int,
+               tile: int, smoothness: float) -> tuple[np.ndarray, np.ndarray]:
+    """Node displacements ``(gh, gw, 2)`` whose bilinear interpolation meets ``targets``
+    ``(N, 2)`` at ``points`` (weights ``1 / sigma^2``), smooth (membrane, ``smoothness`` times
+    the median weight) and pulled weakly to zero where no point constrains them; Tukey's
+    biweight over three passes leaves out points that disagree with their neighbours (a
+    moving object, a repetitive texture's wrong period). Returns the nodes and each point's
+    final weight (0: left out)."""
+    n = gh * gw
+    interp = _interpolation(points, gh, gw, tile)
+    lap = _membrane(gh, gw)
+    w0 = 1.0 / np.maximum(sigma, 0.02) ** 2
+    scale = float(np.median(w0))
+    reg = lap * (smoothness * scale) + sparse.eye(n) * (1e-2 * smoothness * scale)
+    wt = w0.copy()
+    nodes = np.zeros((n, 2))
+    for _ in range(PASSES):
+        m = (interp.T @ sparse.diags(wt) @ interp + reg).tocsc()
+        for c in range(2):
+            nodes[:, c] = spsolve(m, interp.T @ (wt * targets[:, c]))
+        res = np.hypot(*(interp @ nodes - targets).T)
+        z = res / (TUKEY * np.maximum(sigma, MIN_SPREAD))
+        wt = w0 * np.where(z < 1, (1 - z * z) ** 2, 0.0)
+    return nodes.reshape(gh, gw, 2), wt
+
+
+def _as_source_field(homography: np.ndarray, nodes: np.ndarray, tile: int) -> DisplacementField:
+    """Reference displacement ``u`` at the nodes -> frame displacement
+    ``H(x + u) - H(x)`` (exact at the nodes)."""
+    gh, gw = nodes.shape[:2]
+    xx, yy = np.meshgrid(np.arange(gw) * float(tile), np.arange(gh) * float(tile))
+    x1, y1 = map_points(homography, None, xx + nodes[..., 0], yy + nodes[..., 1])
+    x0, y0 = map_points(homography, None, xx, yy)
+    return DisplacementField(tile, np.stack([x1 - x0, y1 - y0], axis=-1))
+
+
+def refine_bracket(
+    images: Sequence[np.ndarray],
+    exposures: Sequence[float],
+    to_reference_homography: Sequence[np.ndarray],
+    reference: int,
+    *,
+    saturation: float,
+    noise_floor: float,
+    lut: np.ndarray | None = None,
+    threshold: float = 0.02,
+    tile: int | None = None,
+    smoothness: float = SMOOTHNESS,
+    min_gain: float = MIN_GAIN,
+    progress: Callable[[int, int], None] | None = None,
+) -> LocalRefinement:
+    """Displacement fields for every frame of a globally registered bracket.
+
+    Parameters
+    ----------
+    images : single-channel frames ``(H, W)``: linear floats, or integer levels read through
+        ``lut`` (``lut[level]`` linear).
+    exposures : relative exposure of each frame (e.g. the products of the chain's ratios).
+    to_reference_homography : per frame, frame pixel -> reference pixel (3x3 or 2x3), as
+        :class:`~hdrcore.registration.result.BracketRegistration` has them.
+    reference : the reference frame (no field).
+    saturation, noise_floor : linear levels bounding the pixels used (each frame's own).
+    threshold : eq. 7's ``t`` as a fraction of the saturation level of the brighter frame.
+    tile : node spacing in full-resolution pixels (default :func:`choose_tile`).
+    smoothness : weight of the membrane term relative to a node's median data term.
+    min_gain : a field is kept when the independent residual falls by this fraction.
+    """
+    from .residual import residual_motion
+
+    t_start = time.perf_counter()
+    n = len(images)
+    if n != len(exposures) or n != len(to_reference_homography):
+        raise ParameterError("one exposure and one motion per frame",
+                             expected=str(n),
+                             found=f"{len(exposures)} exposures, "
+                                   f"{len(to_reference_homography)} motions")
+    if not 0 <= reference < n:
+        raise ParameterError("reference frame out of range", expected=f"0..{n - 1}",
+                             found=str(reference))
+    shape = tuple(np.asarray(images[0]).shape)
+    if len(shape) != 2 or any(np.asarray(im).shape != shape for im in images):
+        raise ParameterError("local refinement needs single-channel frames of one size",
+                             found=", ".join(str(np.asarray(im).shape) for im in images))
+    lut_arr = None if lut is None else np.ascontiguousarray(lut, np.float32)
+    t = int(tile) if tile is not None else choose_tile(shape)
+    if t < 16 or t & (t - 1) or t > min(shape) // 2:
+        raise ParameterError("local refinement tile out of range",
+                             expected=f"a power of two, 16..{min(shape) // 2}", found=str(t))
+    level = _level_for(shape, t)
+    f = 1 << level
+    mats = []
+    for m in to_reference_homography:
+        h3 = np.eye(3)
+        arr = np.asarray(m, np.float64)
+        h3[: arr.shape[0]] = arr
+        mats.append(np.linalg.inv(h3))  # reference -> frame
+    lo, hi = float(noise_floor), float(saturation)
+    frames: dict[int, np.ndarray] = {}
+
+    def level_frame(k: int) -> np.ndarray:
+        if k not in frames:
+            frames[k] = _prepare(np.asarray(images[k]), lut_arr, f, hi)
+        return frames[k]
+
+    fields: list[DisplacementField | None] = [None] * n
+    order = [(k, k - 1) for k in range(reference + 1, n)] + [
+        (k, k + 1) for k in range(reference - 1, -1, -1)]
+    details: list[LocalFrame] = []
+    grid = _Grid(shape, f, t)
+    est_tile = max(16, t // f)  # analysed pixels: one measured tile per cell of nodes
+    for done, (k, j) in enumerate(order):
+        t0 = time.perf_counter()
+        prev = fields[j]
+        a_raw = _resampled(level_frame(j), grid, mats[j], None if prev is None else prev.offsets)
+        a_m = np.where(np.isinf(a_raw), np.float32(hi), a_raw)  # clipped reads as saturated
+        dark_first = exposures[j] <= exposures[k]
+        ratio = float(exposures[k] / exposures[j] if dark_first else exposures[j] / exposures[k])
+
+        def measure(b: np.ndarray, tile_l: int | None = None):
+            b_m = np.where(np.isinf(b), np.float32(hi), b)
+            d, br = (a_m, b_m) if dark_first else (b_m, a_m)
+            try:
+                return residual_motion(d, br, ratio, None, saturation=hi, noise_floor=lo,
+                                       tile=tile_l, max_pixels=float("inf"),
+                                       aligned_px=0.3 / f, local_px=1.0 / f)
+            except (ParameterError, ValueError) as exc:
+                log.debug("residual of frames %d-%d not measured: %s", j, k, exc)
+                return None
+
+        b = _resampled(level_frame(k), grid, mats[k], None)
+        r0 = measure(b)
+        nodes = np.zeros((grid.gh, grid.gw, 2))
+        # the shift of a tile says where the bright frame's content lies in the dark one:
+        # frame k moves against it when k is the bright one
+        sign = -1.0 if dark_first else 1.0
+        for _ in range(ROUNDS):
+            rt = measure(b, est_tile)
+            if rt is None or rt.n_valid < 4:
+                break
+            v = rt.valid
+            pts = rt.centres[v] * f + (f - 1) / 2.0
+            cur = _interpolation(pts, grid.gh, grid.gw, t) @ nodes.reshape(-1, 2)
+            nodes, _ = _fit_nodes(pts, cur + sign * rt.shifts[v] * f, rt.sigma[v] * f,
+                                  grid.gh, grid.gw, t, smoothness)
+            b = _warped(level_frame(k), grid, mats[k], nodes, inside=True)
+        cand = _as_source_field(mats[k], nodes, t)
+        r1 = measure(_resampled(level_frame(k), grid, mats[k], cand.offsets))
+        med0 = float("nan") if r0 is None else r0.median * f
+        med1 = float("nan") if r1 is None else r1.median * f
+        st0 = "unmeasured" if r0 is None else r0.status
+        st1 = "unmeasured" if r1 is None else r1.status
+        if not (np.isfinite(med0) and np.isfinite(med1)):
+            keep = False
+            why = "the residual cannot be measured on this pair: global motion kept"
+        elif (st1 == "aligned" and st0 != "aligned") or med1 <= (1 - min_gain) * med0:
+            keep = True
+            why = (f"residual {med0:.2f} -> {med1:.2f} px median ({st0} -> {st1}); field "
+                   f"{cand.median_px:.2f} px median, {cand.max_px:.2f} px max")
+        else:
+            keep = False
+            why = (f"the field does not pay: residual {med0:.2f} -> {med1:.2f} px median "
+                   f"({st0} -> {st1})")
+        if keep:
+            fields[k] = cand
+        details.append(LocalFrame(k, j, cand if keep else None, cand, keep, med0, med1, st0,
+                                  st1, why, time.perf_counter() - t0))
+        if progress is not None:
+            progress(done + 1, len(order))
+    details.sort(key=lambda d: d.frame)
+    return LocalRefinement(reference, t, level, tuple(fields), tuple(details),
+                           time.perf_counter() - t_start)
