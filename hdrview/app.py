@@ -70,7 +70,10 @@ class InspectorApp:
         # Relative to the folder the inspector was started in (not to --root).
         self.files = [Path(f).absolute() for f in files]
         self.brackets = BracketCache()
-        self.defaults = _default_params()
+        self._defaults: Any = None  # the pipeline's parameters, imported on first use
+        self._defaults_lock = threading.Lock()
+        # set once a page has shown its first frames: the start-up run waits for it (a while)
+        self.page_shown = threading.Event()
         self.first_run = True  # no pipeline has run in this process yet (kernels compile)
         self.views: dict[int, ClientView] = {}
         self._lock = threading.Lock()
@@ -80,6 +83,16 @@ class InspectorApp:
         self.ready_seconds: float | None = None
         server.on_client_connect(self._on_connect)
         server.on_client_disconnect(self._on_disconnect)
+
+    @property
+    def defaults(self) -> Any:
+        """The pipeline's default parameters (``hdrcore.pipeline`` is imported on first use:
+        at start the start-up run's thread imports it while the browser loads the page)."""
+        if self._defaults is None:
+            with self._defaults_lock:
+                if self._defaults is None:
+                    self._defaults = _default_params()
+        return self._defaults
 
     def next_page_number(self) -> int:
         with self._lock:
@@ -134,7 +147,7 @@ class InspectorApp:
         """Decode the default bracket and run the pipeline once in the background; the first
         page that opens it takes this session over (its result is then drawn at once)."""
         default = self.default_paths()
-        if default is None or not pipeline_available():
+        if default is None:
             return
         paths, label = default
         try:
@@ -148,11 +161,18 @@ class InspectorApp:
 
         def run() -> None:
             session = Session()
+            if not pipeline_available():  # imports it, off the thread that serves pages
+                return
             try:
+                _ = self.defaults
                 session.load(list(inputs.files), source=label, times=inputs.times,
                              loader=self.brackets.get)
                 from .session import Controls
 
+                # The page first: a page that opens now shows its frames before this run
+                # takes the two cores (its controls were built in 0.6 s instead of 2.0 s,
+                # loaded machine); without a page the run waits PAGE_FIRST_SECONDS at most.
+                self.page_shown.wait(PAGE_FIRST_SECONDS)
                 session.run(Controls())
                 self.first_run = False
                 box.append(session)
@@ -186,6 +206,7 @@ class InspectorApp:
     def stop(self) -> None:
         """Close every page and remove the temporary folder (uploads, exports)."""
         self._stopped = True
+        self.page_shown.set()  # a start-up run waiting for a page goes on (and ends)
         with self._lock:
             views = list(self.views.values())
             self.views.clear()
@@ -196,6 +217,10 @@ class InspectorApp:
             if not self.work_dir.exists():
                 break
             time.sleep(0.1)
+
+
+#: The longest the start-up run waits for the first page to show its frames.
+PAGE_FIRST_SECONDS = 2.0
 
 
 def _default_params() -> Any:
