@@ -79,6 +79,7 @@ from .tonemap import TONEMAP_OPERATORS, TonemapResult, tonemap
 
 __all__ = [
     "ALIGN_CHOICES",
+    "LOCAL_CHOICES",
     "REFINE_CHOICES",
     "Cancelled",
     "colour_masks",
@@ -96,6 +97,10 @@ STAGES = (
     "overlap_histograms", "overlap_ratios", "merge", "preview",
 )
 ALIGN_CHOICES = ("none", *MODELS, "auto")  # shift, euclidean, similarity, homography
+#: Local refinement after the global motion (:mod:`hdrcore.registration.local`): ``"auto"``
+#: refines the frames whose pair the independent residual calls misaligned, ``"on"`` every
+#: frame; either keeps a field only where it lowers that residual; ``"off"``.
+LOCAL_CHOICES = ("auto", "on", "off")
 REFINE_CHOICES = ("pixels", "histograms", "none")
 
 ProgressCallback = Callable[[str, float, str], None]
@@ -162,6 +167,8 @@ class PipelineParams:
         sways and the lens refocuses; the default) or ``"homography"`` (+ perspective);
         ``"auto"``: similarity, then the homography for each pair whose residual shows
         perspective (or an affine pattern) left, kept when it leaves less.
+    local : local refinement after the global motion, one of :data:`LOCAL_CHOICES`: a smooth
+        displacement field per frame (parallax of near objects, lens), merged through.
     reference : frame the others are warped onto (default: the middle one).
     response : ``"auto"`` (linear for RAW; otherwise the best of the joint recovery, the
         parametric families and sRGB on held-back correspondences, :mod:`hdrcore.response.select`),
@@ -210,6 +217,7 @@ class PipelineParams:
     noise_floor: float | None = None
     threshold: float = 0.1
     align: str = "similarity"
+    local: str = "auto"
     reference: int | None = None
     response: Any = "auto"
     times: str = "estimated"
@@ -415,6 +423,7 @@ def registration_json(reg: BracketRegistration) -> dict[str, Any]:
         "to_reference": [np.asarray(m).tolist() for m in (
             reg.to_reference if reg.to_reference is not None else reg.to_reference_homography)],
         "to_reference_homography": [np.asarray(m).tolist() for m in reg.to_reference_homography],
+        "local": None if reg.local is None else reg.local.to_json(),
     }
 
 
@@ -488,6 +497,9 @@ class Pipeline:
         if align not in ALIGN_CHOICES:
             raise ParameterError(f"unknown alignment {p.align!r}",
                                  expected=f"one of {', '.join(ALIGN_CHOICES)}")
+        if str(p.local).lower() not in LOCAL_CHOICES:
+            raise ParameterError(f"unknown local refinement {p.local!r}",
+                                 expected=f"one of {', '.join(LOCAL_CHOICES)}")
         ref = len(b) // 2 if p.reference is None else int(p.reference)
         if not 0 <= ref < len(b):
             raise ParameterError("reference frame out of range",
@@ -784,7 +796,7 @@ class Pipeline:
                 ratios = tuple(float(r) for r in exposures_hist.starting_ratios())
             reg_key = (resp_key, ratios, p.saturation, p.noise_floor, p.threshold, p.align,
                        p.reference, p.registration_method, p.registration_previews,
-                       p.registration_max_pixels)
+                       p.registration_max_pixels, p.local)
             registration = self._stage(
                 "registration", reg_key, lambda: self._register(p, lut, ratios), ran, timings
             )
@@ -1112,6 +1124,8 @@ class Pipeline:
             reg = self._with_residuals(reg, p, lut)
             if p.align == "auto":
                 reg = self._upgrade_to_homography(reg, images, ratios, search, p, lut)
+            if p.local != "off":
+                reg = self._refine_locally(reg, images, p, lut, extra["lut"])
             return reg
         pairs = []
         for q in reg.pairs:
@@ -1128,6 +1142,47 @@ class Pipeline:
             ))
         chain = to_reference([q.matrix for q in pairs], reg.reference)
         return self._with_residuals(replace(reg, pairs=tuple(pairs), to_reference=chain), p, lut)
+
+    def _refine_locally(self, reg: BracketRegistration, images: list, p: PipelineParams,
+                        lut: np.ndarray | None, table: np.ndarray) -> BracketRegistration:
+        """Local refinement (:func:`hdrcore.registration.local.refine_bracket`) on the green
+        levels: with ``local="auto"`` only the frames whose pair the independent residual calls
+        misaligned are refined (a tripod bracket costs nothing); a field is kept where it lowers
+        that residual. A weak pair whose residual the field brings under the threshold becomes
+        ``ok``, and says so."""
+        from .registration.local import refine_bracket
+
+        pairs = reg.pairs
+        if not pairs or not all(q.usable for q in pairs):
+            return reg
+        refine = [p.local == "on" or (q.residual is not None and q.residual.status == "misaligned")
+                  for q in pairs]
+        if not any(refine):
+            return reg
+        exposures = np.cumprod([1.0] + [float(q.ratio) for q in pairs])
+
+        def progress(done: int, total: int) -> None:
+            self._report("registration", 1.0, f"local refinement: frame {done} of {total}")
+
+        local = refine_bracket(
+            images, exposures, reg.to_reference_homography, reg.reference,
+            saturation=self._linear_level(lut, p.saturation),
+            noise_floor=self._linear_level(lut, p.noise_floor), lut=table,
+            threshold=p.threshold, refine=refine, progress=progress)
+        out = list(pairs)
+        for fr in local.frames:
+            i = min(fr.frame, fr.against)
+            q = out[i]
+            if not fr.kept:
+                continue
+            if q.status == "weak" and fr.after_status == "aligned":
+                out[i] = replace(q, status="ok", message=(
+                    f"aligned after local refinement ({fr.before:.2f} -> {fr.after:.2f} px "
+                    f"median); the global model alone: {q.message}"))
+            else:
+                out[i] = replace(q, message=q.message + (
+                    f"; local refinement: {fr.before:.2f} -> {fr.after:.2f} px median"))
+        return replace(reg, pairs=tuple(out), local=local)
 
     def _upgrade_to_homography(self, reg: BracketRegistration, images: list, ratios: tuple,
                                search: dict, p: PipelineParams,
@@ -1162,7 +1217,7 @@ class Pipeline:
         mats = [q.homography if q.usable else np.eye(3) for q in pairs]
         chain = to_reference(mats, reg.reference)
         return BracketRegistration(reg.reference, tuple(pairs), None, "auto", reg.method,
-                                   to_reference_homography=tuple(chain))
+                                   to_reference_homography=tuple(chain), local=reg.local)
 
     def _with_residuals(self, reg: BracketRegistration, p: PipelineParams,
                         lut: np.ndarray | None) -> BracketRegistration:
@@ -1245,6 +1300,8 @@ class Pipeline:
             saturation_level=float(p.saturation), noise_floor=float(p.noise_floor),
             weighting="noise-aware" if lut is None else "hat", noise=noise,
             transforms=transforms,
+            fields=None if registration is None or registration.local is None
+            else list(registration.local.fields),
             # A recovered response and 8-bit (often JPEG or scanned) data agree between frames
             # only to a few per cent; RAW data to the noise.
             model_error=DEFAULT_MODEL_ERROR if lut is None else NONLINEAR_MODEL_ERROR,

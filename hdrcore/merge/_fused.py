@@ -477,7 +477,7 @@ def _taps_run(flat, iy0, b, e0, e1, ntap, wxe, wye, acc, xk, hi):
 
 @_njit
 def _warp_setup(m00, m01, m02, m10, m11, m12, m20, m21, m22, x0, yf, nbk, ntap, o, wlim, hlim,
-                wxp, wyp, ins, ixs, iys, same):
+                wxp, wyp, ins, ixs, iys, same, fld, use_fld, fgeo):
     """For pixels ``x0 .. x0 + nbk - 1`` of row ``yf`` mapped by the 3x3 matrix ``m`` (with
     the perspective divide; affine motions have ``m2 = (0, 0, 1)``): the
     weights ``wxp[j, i]``, ``wyp[j, i]`` of the ``ntap`` taps per axis (Keys cubic in float64,
@@ -486,12 +486,28 @@ def _warp_setup(m00, m01, m02, m10, m11, m12, m20, m21, m22, x0, yf, nbk, ntap, 
     ``<= hlim``), ``ixs``/``iys`` the support's top-left tap (clamped so that an outside
     pixel's unused index stays valid) and ``same[i]`` whether pixel ``i`` continues pixel
     ``i - 1``'s run: both inside, the same source rows and the next column. Straight loops
-    (SIMD)."""
+    (SIMD). With ``use_fld`` the displacement field ``fld (gh, gw, 2)`` (node ``(i, j)`` at
+    output pixel ``origin + step (j, i)``; ``fgeo = (1 / step, origin_x, origin_y)``; constant
+    beyond the outer nodes) is interpolated bilinearly at the output pixel and added to the
+    mapped position (local refinement: :meth:`DisplacementField.at`)."""
+    gh = fld.shape[0]
+    gw = fld.shape[1]
+    fy = min(max((yf - fgeo[2]) * fgeo[0], 0.0), gh - 1.0)
+    gi = min(int(fy), gh - 2)
+    gv = fy - gi
     for i in range(nbk):
         xf = np.float64(x0 + i)
         sw = m20 * xf + m21 * yf + m22
         sx = (m00 * xf + m01 * yf + m02) / sw
         sy = (m10 * xf + m11 * yf + m12) / sw
+        if use_fld:
+            fx = min(max((xf - fgeo[1]) * fgeo[0], 0.0), gw - 1.0)
+            gj = min(int(fx), gw - 2)
+            gu = fx - gj
+            sx += ((fld[gi, gj, 0] * (1 - gu) + fld[gi, gj + 1, 0] * gu) * (1 - gv)
+                   + (fld[gi + 1, gj, 0] * (1 - gu) + fld[gi + 1, gj + 1, 0] * gu) * gv)
+            sy += ((fld[gi, gj, 1] * (1 - gu) + fld[gi, gj + 1, 1] * gu) * (1 - gv)
+                   + (fld[gi + 1, gj, 1] * (1 - gu) + fld[gi + 1, gj + 1, 1] * gu) * gv)
         fx0 = np.floor(sx)
         fy0 = np.floor(sy)
         if ntap == 4:
@@ -561,7 +577,7 @@ def merge_rows(
     frames, flats, masks, has_mask, mats, has_mat, order, inv_t, inv_t2, t2, wcode, shot,
     const_var, floor_norm, inv_max, hi, has_lut, lut, lut_var, tap_thr, me2, thr, r0, r1,
     rad, wsum_out, shares, clip_count, clipped_out, under_out, gscore, ghost, ntap, oor,
-    has_colour, cm, cwb, cneu, use_tab, tabs,
+    has_colour, cm, cwb, cneu, use_tab, tabs, flds, has_fld, fgeo,
 ):
     """Rows ``r0:r1`` of the output grid; frame ``k`` with ``has_mat[k]`` is read at
     ``mats[k] @ (x, y, 1)`` (``ntap`` 4: Keys cubic, 4 weights per axis shared by the 3
@@ -671,7 +687,7 @@ def merge_rows(
                 _warp_setup(m00, m01, m02, m10, m11, m12, mats[k, 2, 0], mats[k, 2, 1],
                             mats[k, 2, 2], x0, yf, nbk, ntap, o,
                             np.float64(w - (ntap - o)), np.float64(h - (ntap - o)), wxp, wyp,
-                            ins, ixs, iys, same)
+                            ins, ixs, iys, same, flds[k], has_fld[k], fgeo)
                 _expand3(ntap, nbk, wxp, wxe)
                 _expand3(ntap, nbk, wyp, wye)
                 # runs of pixels whose supports share their rows and column offset: the taps

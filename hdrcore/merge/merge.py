@@ -47,6 +47,7 @@ from __future__ import annotations
 
 import logging
 import time
+from typing import Any
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
@@ -221,6 +222,9 @@ class _Plan:
     noise: NoiseModel
     transforms: tuple[np.ndarray | None, ...] = ()  # per frame: output -> frame coordinates
     resample: str = "cubic"  # a key of RESAMPLING
+    # per frame: a displacement field added to the transform's position (local refinement,
+    # :class:`hdrcore.registration.field.DisplacementField`: ``step``, ``offsets``, ``origin``)
+    fields: tuple[Any, ...] = ()
 
     @property
     def warped(self) -> bool:
@@ -281,6 +285,7 @@ def _plan(
     weighting: str | None,
     noise: NoiseModel | None,
     transforms: Sequence[np.ndarray | None] | None = None,
+    fields: Sequence[Any] | None = None,
 ) -> _Plan:
     arrs, integer = _as_frames(frames)
     n = len(arrs)
@@ -410,6 +415,10 @@ def _plan(
                 )
             mask_list[k] = np.ascontiguousarray(m, dtype=bool)
     tf_list = _as_transforms(transforms, n)
+    fld_list = _as_fields(fields, n)
+    # a frame with a field is resampled even where its transform is the identity
+    tf_list = tuple(_IDENTITY.copy() if t is None and fld is not None else t
+                    for t, fld in zip(tf_list, fld_list, strict=True))
 
     return _Plan(
         frames=arrs,
@@ -427,7 +436,33 @@ def _plan(
         weighting=weighting,
         noise=noise,
         transforms=tf_list,
+        fields=fld_list,
     )
+
+
+def _as_fields(fields: Sequence[Any] | None, n: int) -> tuple[Any, ...]:
+    """One displacement field or ``None`` per frame; every field on the same node grid (one
+    compiled lookup serves them all)."""
+    if fields is None:
+        return (None,) * n
+    if len(fields) != n:
+        raise ParameterError("one displacement field (or None) per frame", expected=str(n),
+                             found=str(len(fields)))
+    grid = None
+    for k, fld in enumerate(fields):
+        if fld is None:
+            continue
+        off = getattr(fld, "offsets", None)
+        if off is None or not hasattr(fld, "step") or not hasattr(fld, "origin"):
+            raise ParameterError(f"field {k} is not a displacement field",
+                                 expected="DisplacementField (step, offsets, origin)",
+                                 found=type(fld).__name__)
+        key = (float(fld.step), tuple(fld.origin), tuple(np.shape(off)))
+        if grid is not None and key != grid:
+            raise ParameterError("the displacement fields of one merge must share their grid",
+                                 expected=str(grid), found=f"field {k}: {key}")
+        grid = key
+    return tuple(fields)
 
 
 _IDENTITY = np.eye(3)
@@ -605,6 +640,11 @@ class _Kernel:
         sw = t[2, 0] * xx + t[2, 1] * yy + t[2, 2]
         sx = (t[0, 0] * xx + t[0, 1] * yy + t[0, 2]) / sw
         sy = (t[1, 0] * xx + t[1, 1] * yy + t[1, 2]) / sw
+        fld = p.fields[k] if p.fields else None
+        if fld is not None:  # local refinement: the field at the output pixel
+            dx, dy = fld.at(xx, yy)
+            sx = sx + dx
+            sy = sy + dy
         fx0 = np.floor(sx)
         fy0 = np.floor(sy)
         inside = (fx0 >= o) & (fx0 <= w - (ntap - o)) & (fy0 >= o) & (fy0 <= h - (ntap - o))
@@ -989,6 +1029,19 @@ def _run_numba(
     for k, tf in enumerate(p.transforms):
         mats[k] = _IDENTITY if tf is None else tf
     has_mat = np.array([tf is not None for tf in p.transforms], np.bool_)
+    # local refinement: the frames' displacement fields on one node grid
+    fl = [f for f in p.fields if f is not None] if p.fields else []
+    if fl:
+        flds = np.zeros((len(frames),) + np.shape(fl[0].offsets), np.float64)
+        for k, f in enumerate(p.fields):
+            if f is not None:
+                flds[k] = f.offsets
+        fgeo = np.array([1.0 / fl[0].step, fl[0].origin[0], fl[0].origin[1]])
+    else:
+        flds = np.zeros((len(frames), 2, 2, 2))
+        fgeo = np.array([1.0, 0.0, 0.0])
+    has_fld = np.array([bool(p.fields) and p.fields[k] is not None
+                        for k in range(len(frames))], np.bool_)
     has_lut = p.lut is not None
     lut = p.lut if has_lut else np.zeros((3, 2), np.float32)
     lut_var = p.lut_var if has_lut else lut
@@ -1016,6 +1069,7 @@ def _run_numba(
             wcode, kernel.shot, kernel.const_var, kernel.floor_norm, kernel.inv_max,
             hi, has_lut, lut, lut_var, tap_thr, me2, thr, span[0], span[1],
             *outs, ntap, oor, colour is not None, cm, cwb, cneu, use_tab, tabs,
+            flds, has_fld, fgeo,
         )
 
     if workers == 1:
@@ -1058,6 +1112,7 @@ def _merge_one_frame(plan: _Plan, k: int, y0: int, y1: int, **kw) -> MergeResult
     to the band), so the output grid and the frame share one row offset."""
     h = plan.shape[0]
     t = plan.transforms[k] if plan.transforms else None
+    fld = plan.fields[k] if plan.fields else None
     b0, b1 = y0, y1
     if t is not None:
         w = plan.shape[1]
@@ -1065,8 +1120,9 @@ def _merge_one_frame(plan: _Plan, k: int, y0: int, y1: int, **kw) -> MergeResult
         xs = np.array([0.0, w - 1.0])
         sy = [(t[1, 0] * x + t[1, 1] * y + t[1, 2]) / (t[2, 0] * x + t[2, 1] * y + t[2, 2])
               for x in xs for y in ys]
-        b0 = max(0, min(y0, int(np.floor(min(sy))) - 3))
-        b1 = min(h, max(y1, int(np.ceil(max(sy))) + 4))
+        pad = 0 if fld is None else int(np.ceil(float(np.abs(fld.offsets[..., 1]).max())))
+        b0 = max(0, min(y0, int(np.floor(min(sy))) - 3 - pad))
+        b1 = min(h, max(y1, int(np.ceil(max(sy))) + 4 + pad))
         t = np.array(t, float)
         t[:, 2] += t[:, 1] * b0  # output row y of the band is row y + b0 of the grid
         t[1] -= b0 * t[2]  # ... and the frame's band starts at its row b0
@@ -1076,7 +1132,9 @@ def _merge_one_frame(plan: _Plan, k: int, y0: int, y1: int, **kw) -> MergeResult
         masks=None if mask is None else [mask[b0:b1]],
         saturation_level=tuple(float(v) for v in plan.saturation), noise_floor=plan.floor,
         weighting=plan.weighting, noise=plan.noise,
-        transforms=None if t is None else [t], resample=plan.resample, **kw,
+        transforms=None if t is None else [t],
+        fields=None if fld is None else [fld.shifted(0.0, float(b0))],
+        resample=plan.resample, **kw,
     )
     if (b0, b1) == (y0, y1):
         return res
@@ -1135,6 +1193,7 @@ def merge(
     workers: int | None = None,
     engine: str | None = None,
     transforms: Sequence[np.ndarray | None] | None = None,
+    fields: Sequence[Any] | None = None,
     resample: str = "cubic",
     reuse: MergeResult | None = None,
     colour: ColourConversion | None = None,
@@ -1234,7 +1293,7 @@ def merge(
     t0 = time.perf_counter()
     plan = _plan(
         frames, exposure_times, response, max_level, masks, saturation_level, noise_floor,
-        weighting, noise, transforms,
+        weighting, noise, transforms, fields,
     )
     resample = validate_method(resample, RESAMPLING, "resampling")
     if resample != plan.resample:

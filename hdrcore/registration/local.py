@@ -389,6 +389,7 @@ def refine_bracket(
     tile: int | None = None,
     smoothness: float = SMOOTHNESS,
     min_gain: float = MIN_GAIN,
+    refine: Sequence[bool] | None = None,
     progress: Callable[[int, int], None] | None = None,
 ) -> LocalRefinement:
     """Displacement fields for every frame of a globally registered bracket.
@@ -406,6 +407,9 @@ def refine_bracket(
     tile : node spacing in full-resolution pixels (default :func:`choose_tile`).
     smoothness : weight of the membrane term relative to a node's median data term.
     min_gain : a field is kept when the independent residual falls by this fraction.
+    refine : per consecutive pair ``(i, i + 1)``, whether to refine it (default all). A frame
+        whose pair is not refined moves with its neighbour's field (the pair is aligned as it
+        is), so the frames beyond a refined one stay consistent with it.
     """
     from .residual import residual_motion
 
@@ -444,7 +448,11 @@ def refine_bracket(
             frames[k] = _prepare(np.asarray(images[k]), lut_arr, f, hi)
         return frames[k]
 
+    if refine is not None and len(refine) != n - 1:
+        raise ParameterError("one refine flag per consecutive pair", expected=str(n - 1),
+                             found=str(len(refine)))
     fields: list[DisplacementField | None] = [None] * n
+    moved: dict[int, np.ndarray] = {}  # per frame with a field: its nodes u (reference px)
     order = [(k, k - 1) for k in range(reference + 1, n)] + [
         (k, k + 1) for k in range(reference - 1, -1, -1)]
     details: list[LocalFrame] = []
@@ -453,6 +461,13 @@ def refine_bracket(
     for done, (k, j) in enumerate(order):
         t0 = time.perf_counter()
         prev = fields[j]
+        if refine is not None and not refine[min(j, k)]:
+            if j in moved:  # carried along with its neighbour
+                moved[k] = moved[j]
+                fields[k] = _as_source_field(mats[k], moved[j], t)
+            if progress is not None:
+                progress(done + 1, len(order))
+            continue
         a_raw = _resampled(level_frame(j), grid, mats[j], None if prev is None else prev.offsets)
         a_m = np.where(np.isinf(a_raw), np.float32(hi), a_raw)  # clipped reads as saturated
         dark_first = exposures[j] <= exposures[k]
@@ -504,6 +519,7 @@ def refine_bracket(
                    f"({st0} -> {st1})")
         if keep:
             fields[k] = cand
+            moved[k] = nodes
         details.append(LocalFrame(k, j, cand if keep else None, cand, keep, med0, med1, st0,
                                   st1, why, time.perf_counter() - t0))
         if progress is not None:

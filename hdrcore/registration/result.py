@@ -151,6 +151,9 @@ class BracketRegistration:
     model: str
     method: str
     to_reference_homography: tuple[np.ndarray, ...] = ()
+    #: local refinement after the global motion
+    #: (:class:`hdrcore.registration.local.LocalRefinement`), None when not run
+    local: Any = None
 
     def __post_init__(self) -> None:
         if self.to_reference is not None:
@@ -171,4 +174,5 @@ class BracketRegistration:
             else [np.asarray(m).tolist() for m in self.to_reference],
             "to_reference_homography": [np.asarray(m).tolist()
                                         for m in self.to_reference_homography],
+            "local": None if self.local is None else self.local.to_json(),
         }
