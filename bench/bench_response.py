@@ -14,12 +14,14 @@ Prints, in one run:
 2. The real brackets in ../shared/data (Canon 5D Mark II JPEGs, Pixel 7 and Xperia phone JPEGs,
    the Debevec-Malik memorial film scans): through the whole pipeline, before (the old
    default: per-channel DM histogram, no colour anchoring) and after (``auto`` with the colour
-   anchoring), and with ``--response srgb`` (without and with the anchoring): the curve used,
+   anchoring), and with the fixed curves ``--response srgb`` and gamma 2.2 (without and with
+   the anchoring): the curve used,
    degeneracy signs and whether the run flagged them, the median chromaticity error of the
    merge against its reference frame decoded with sRGB (pixels well exposed there, every
    channel within 10..90 % of the range), the median chromaticity difference between
    consecutive linearised frames over pixels well exposed in both (registered by the run),
-   also for OpenCV's curves, and the local tone mapping test.
+   per pixel and on 4x4-pixel means (pixel noise averaged down: what is left is the curve's
+   error), also for OpenCV's curves, and the local tone mapping test.
 3. ``../shared/data/memorial-debevec``: our curves against OpenCV's (shape RMS over levels
    5..230 after the best scale) and a plot in ``bench/out/memorial_response.png``.
 
@@ -196,25 +198,35 @@ def _load(folder: str):
     return load_bracket(files, **kw)
 
 
+def gamma_curve(gamma: float = 2.2, max_level: int = 255) -> ResponseCurve:
+    """A fixed power-law decoding ``(z / max) ** gamma`` for every channel."""
+    g = np.tile((np.arange(max_level + 1) / max_level) ** gamma, (3, 1))
+    return ResponseCurve(g=g, method=f"gamma {gamma:g}", message=f"fixed power law {gamma:g}")
+
+
 def real_tables() -> None:
     print("\n== real brackets through the pipeline: before (per-channel DM histogram, no colour "
           "anchoring) and after (auto + anchoring); --response srgb without and with it ==")
     if not DATA.is_dir():
         print(f"skipped: {DATA} not available")
         return
+    gamma = gamma_curve()
     runs = [
         ("before: DM histogram", dict(response="debevec-histogram", colour_anchor=False)),
         ("srgb, no anchoring", dict(response="srgb", colour_anchor=False)),
         ("srgb (default anchoring)", dict(response="srgb", colour_anchor=True)),
+        ("gamma 2.2, no anchoring", dict(response=gamma, colour_anchor=False)),
+        ("gamma 2.2 (def. anchoring)", dict(response=gamma, colour_anchor=True)),
         ("after: auto (default)", dict(response="auto", colour_anchor=True)),
     ]
     header = (f"{'bracket':19}{'run':27}{'curve':18}{'vs sRGB ref':>12}{'others':>8}"
-              f"{'frames':>8}{'WB out':>8}{'sRGB':>8}{'s':>6}  flags")
+              f"{'frames':>8}{'WB out':>8}{'sRGB':>8}{'4x4':>8}{'s':>6}  flags")
     print("vs sRGB ref: median chromaticity error of the merge against the reference frame "
           "decoded with sRGB (pixels well exposed there); others: the same against each other "
           "frame decoded with sRGB where that frame is the best exposed (pixel-weighted mean); "
           "frames: median difference between consecutive frames linearised with the run's "
-          "curve (WB out: each frame's white balance divided out; sRGB: decoded with sRGB)")
+          "curve (WB out: each frame's white balance divided out; sRGB: decoded with sRGB; "
+          "4x4: the same as frames on 4x4-pixel means, pixel noise averaged down)")
     print(header)
     for label, folder, excl, phone in REAL:
         if QUICK and phone:
@@ -250,8 +262,9 @@ def real_tables() -> None:
                       " (flagged)" if ({"response-fallback", "response-degenerate",
                                         "response-channels-differ"} & set(flagged))
                       else " (NOT FLAGGED)")
+            blocks = chk["before"]["frame_consistency_blocks"] or float("nan")
             print(f"{label:19}{run:27}{resp.method[:17]:18}{err:12.4f}{others:8.4f}"
-                  f"{cons:8.4f}{cons_wb:8.4f}{cons_srgb:8.4f}{dt:6.0f}  "
+                  f"{cons:8.4f}{cons_wb:8.4f}{cons_srgb:8.4f}{blocks:8.4f}{dt:6.0f}  "
                   f"{','.join(flagged) or '-'}"
                   + (f"; signs {','.join(sign_codes)}{caught}" if signs else ""))
             if resp.selection is not None:
@@ -264,17 +277,21 @@ def real_tables() -> None:
         # OpenCV's curves on the same registered frames (their own samples, our registration)
         reg = last.registration
         ref = 0 if reg is None else reg.reference
-        tr = None if reg is None else reg.to_reference
+        tr = None if reg is None else reg.to_reference_homography
         times = [float(t) for t in last.exposure_times]
         usable = frames if excl is None else frames  # OpenCV takes no mask
+        masks = None if excl is None else [~np.all(f == np.asarray(excl), axis=-1)
+                                           for f in frames]
         for name, (g, _) in opencv_curves(usable, times).items():
             g = np.maximum.accumulate(np.clip(np.asarray(g, float), 0, None), axis=1)
             g = g / np.maximum(g[:, -1:], 1e-300)
             cc = colour_check(frames, last.radiance, g, max_level=255, reference=ref,
-                              to_reference=tr)
+                              to_reference=tr, masks=masks)
             signs = sorted({d.code for d in degeneracy(g)})
+            blocks = cc.frame_consistency_blocks
             print(f"{label:19}{name:27}{'(curve only)':18}{'':>20}{cc.frame_consistency:8.4f}"
-                  f"{cc.frame_consistency_wb:8.4f}{cc.frame_consistency_srgb:8.4f}        "
+                  f"{cc.frame_consistency_wb:8.4f}{cc.frame_consistency_srgb:8.4f}"
+                  f"{blocks:8.4f}      "
                   f"signs {','.join(signs) or '-'}")
 
 
