@@ -157,8 +157,8 @@ def _response_and_colour(result: PipelineResult) -> list[Verdict]:
     if check.get("anchor") is not None and before.get("merge_error_srgb") is not None:
         out.append(Verdict(
             "colour-anchored", "info",
-            "The merge was given the frames' own colours (as a screen shows them; each "
-            "region those of the frame nearest mid-grey there, with smooth transitions): "
+            "The merge was given the frames' own colours (as a screen shows them: the "
+            "reference frame's where it is well exposed, elsewhere the frame nearest mid-grey): "
             f"median chromaticity error against the reference frame "
             f"{before['merge_error_srgb']:.3f} -> {err:.3f}."))
     elif err is not None and err > MAX_COLOUR_ERROR:

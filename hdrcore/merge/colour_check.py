@@ -862,8 +862,9 @@ def check_colour(
     parts = []
     if done is not None:
         parts.append(
-            f"colour anchored to the frames (sRGB-decoded, each region the frame nearest "
-            f"mid-grey): median error against reference frame {reference} "
+            f"colour anchored to the frames (sRGB-decoded: the reference frame's where it is "
+            f"well exposed, elsewhere the frame nearest mid-grey): median error against "
+            f"reference frame {reference} "
             f"{before.merge_error_srgb:.4f} -> {after.merge_error_srgb:.4f}")
     else:
         parts.append(before.message)
