@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import argparse
 
-from ..pipeline import Pipeline, PipelineParams, registration_json
+from ..pipeline import LOCAL_CHOICES, Pipeline, PipelineParams, registration_json
 from ..registration import MODELS, REGISTRATION_METHODS
 from ._common import (
     add_bracket_arguments,
@@ -36,6 +36,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     add_level_arguments(p)
     p.add_argument("--model", default="similarity", choices=list(MODELS),
                    help="motion model (default: %(default)s)")
+    p.add_argument("--local", default="auto", choices=LOCAL_CHOICES,
+                   help="local refinement after the model (a displacement field per frame; "
+                        "default: %(default)s, the frames left misaligned)")
     p.add_argument("--method", default="fast", choices=list(REGISTRATION_METHODS),
                    help="search (default: %(default)s; 'Cerman 2006' is the seed's simplex)")
     p.add_argument("--threshold", type=float, default=0.1, metavar="T",
@@ -55,7 +58,7 @@ def run(args: argparse.Namespace) -> int:
     print_warnings(bracket)
     params = PipelineParams(
         saturation=args.saturation, noise_floor=args.noise_floor, threshold=args.threshold,
-        align=args.model, reference=args.reference, response=args.response,
+        align=args.model, local=args.local, reference=args.reference, response=args.response,
         times="exif" if args.ratios == "exif" else "estimated",
         registration_method=args.method, exclude_colour=args.exclude_colour,
         registration_previews=False,

@@ -17,7 +17,7 @@ import time
 
 from ..errors import OutputError
 from ..io import EXR_COMPRESSIONS, atomic_write, check_output_path, write_exr, write_png
-from ..pipeline import ALIGN_CHOICES, Pipeline, PipelineParams
+from ..pipeline import ALIGN_CHOICES, LOCAL_CHOICES, Pipeline, PipelineParams
 from ..tonemap import TONEMAP_OPERATORS
 from ._common import (
     add_bracket_arguments,
@@ -47,6 +47,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--align", default="similarity", choices=ALIGN_CHOICES,
                    help="motion model for hand-held frames (default: similarity, i.e. shift, "
                         "rotation and scale)")
+    p.add_argument("--local", default="auto", choices=LOCAL_CHOICES,
+                   help="local refinement after the motion model: a smooth displacement field "
+                        "per frame for parallax (auto: the frames whose pair is left "
+                        "misaligned, kept where it lowers the measured residual; default auto)")
     p.add_argument("--reference", type=int, metavar="N",
                    help="frame the others are aligned to (default: the middle one)")
     p.add_argument("--threshold", type=float, default=0.1, metavar="t",
@@ -116,7 +120,7 @@ def run(args: argparse.Namespace) -> int:
 
     params = PipelineParams(
         saturation=args.saturation, noise_floor=args.noise_floor, threshold=args.threshold,
-        align=args.align, reference=args.reference, response=args.response,
+        align=args.align, local=args.local, reference=args.reference, response=args.response,
         times=args.times_source, tonemap=args.tonemap, tonemap_exposure=args.exposure,
         preview_max_side=None if args.preview_size <= 0 else args.preview_size,
         exclude_colour=args.exclude_colour,

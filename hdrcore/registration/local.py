@@ -21,8 +21,9 @@ exposures overlap most, as for the global fit): frame ``k`` is compared with its
 ``j`` (one step nearer the reference) already resampled through its own refined motion, so the
 field of ``k`` is relative to the reference. A field is kept only when it pays: the pair's
 residual motion measured independently (:func:`hdrcore.registration.residual.residual_motion`:
-phase correlation of gradient tiles, nothing shared with this estimate) falls by at least
-``min_gain`` of itself, or turns a misaligned pair into an aligned one. Otherwise the frame keeps
+phase correlation of gradient tiles on its own tile grid) falls by at least ``min_gain`` of
+itself in its median or its 90th percentile (a near object moves a group of tiles) without the
+median growing, or a misaligned pair becomes aligned. Otherwise the frame keeps
 its global motion alone (``kept`` False) and the reason is said.
 """
 
@@ -57,6 +58,11 @@ ROUNDS = 2
 #: Weight of the membrane term relative to the median weight of a tile (see module doc).
 SMOOTHNESS = 0.3
 
+#: Pull of every node towards zero (the global motion), relative to the membrane: where no tile
+#: is measured the field decays to the global motion within a few nodes instead of carrying a
+#: neighbour's parallax across the frame.
+PULL = 0.1
+
 #: Tukey's biweight constant, in units of a tile's standard error (at least ``MIN_SPREAD``).
 TUKEY = 4.685
 MIN_SPREAD = 0.25
@@ -86,6 +92,8 @@ class LocalFrame:
     after_status: str
     message: str
     seconds: float
+    before_p90: float = float("nan")
+    after_p90: float = float("nan")
 
     def to_json(self) -> dict:
         def f(x: float) -> float | None:
@@ -95,6 +103,8 @@ class LocalFrame:
         return {
             "frame": self.frame, "against": self.against, "kept": self.kept,
             "residual_before_px": f(self.before), "residual_after_px": f(self.after),
+            "residual_p90_before_px": f(self.before_p90),
+            "residual_p90_after_px": f(self.after_p90),
             "status_before": self.before_status, "status_after": self.after_status,
             "field_median_px": None if cand is None else f(cand.median_px),
             "field_max_px": None if cand is None else f(cand.max_px),
@@ -160,7 +170,7 @@ def _linear(img: np.ndarray, lut: np.ndarray | None) -> np.ndarray:
 def _reduce(img: np.ndarray, f: int) -> np.ndarray:
     """Means of ``f x f`` blocks (the partial last row/column of blocks dropped)."""
     if f == 1:
-        return np.ascontiguousarray(img, np.float32)
+        return np.array(img, np.float32)  # a copy: the caller's frame is never written
     h, w = img.shape
     hh, ww = h // f, w // f
     return img[: hh * f, : ww * f].reshape(hh, f, ww, f).mean(axis=(1, 3), dtype=np.float32)
@@ -353,7 +363,7 @@ def _fit_nodes(points: np.ndarray, targets: np.ndarray, sigma: np.ndarray, gh: i
     lap = _membrane(gh, gw)
     w0 = 1.0 / np.maximum(sigma, 0.02) ** 2
     scale = float(np.median(w0))
-    reg = lap * (smoothness * scale) + sparse.eye(n) * (1e-2 * smoothness * scale)
+    reg = lap * (smoothness * scale) + sparse.eye(n) * (PULL * smoothness * scale)
     wt = w0.copy()
     nodes = np.zeros((n, 2))
     for _ in range(PASSES):
@@ -502,26 +512,28 @@ def refine_bracket(
             b = _warped(level_frame(k), grid, mats[k], nodes, inside=True)
         cand = _as_source_field(mats[k], nodes, t)
         r1 = measure(_resampled(level_frame(k), grid, mats[k], cand.offsets))
-        med0 = float("nan") if r0 is None else r0.median * f
-        med1 = float("nan") if r1 is None else r1.median * f
+        med0, p90_0 = (float("nan"),) * 2 if r0 is None else (r0.median * f, r0.p90 * f)
+        med1, p90_1 = (float("nan"),) * 2 if r1 is None else (r1.median * f, r1.p90 * f)
         st0 = "unmeasured" if r0 is None else r0.status
         st1 = "unmeasured" if r1 is None else r1.status
+        said = (f"residual {med0:.2f} -> {med1:.2f} px median, {p90_0:.2f} -> {p90_1:.2f} px "
+                f"90th percentile ({st0} -> {st1})")
         if not (np.isfinite(med0) and np.isfinite(med1)):
             keep = False
             why = "the residual cannot be measured on this pair: global motion kept"
-        elif (st1 == "aligned" and st0 != "aligned") or med1 <= (1 - min_gain) * med0:
-            keep = True
-            why = (f"residual {med0:.2f} -> {med1:.2f} px median ({st0} -> {st1}); field "
-                   f"{cand.median_px:.2f} px median, {cand.max_px:.2f} px max")
         else:
-            keep = False
-            why = (f"the field does not pay: residual {med0:.2f} -> {med1:.2f} px median "
-                   f"({st0} -> {st1})")
+            # a near object moves a group of tiles: it shows in the 90th percentile before
+            # the median; the median must not grow meanwhile
+            gain = max(1 - med1 / max(med0, 1e-6), 1 - p90_1 / max(p90_0, 1e-6))
+            keep = (st1 == "aligned" and st0 != "aligned") or (
+                gain >= min_gain and med1 <= 1.1 * med0 + 0.02 * f)
+            why = (f"{said}; field {cand.median_px:.2f} px median, {cand.max_px:.2f} px max"
+                   if keep else f"the field does not pay: {said}")
         if keep:
             fields[k] = cand
             moved[k] = nodes
         details.append(LocalFrame(k, j, cand if keep else None, cand, keep, med0, med1, st0,
-                                  st1, why, time.perf_counter() - t0))
+                                  st1, why, time.perf_counter() - t0, p90_0, p90_1))
         if progress is not None:
             progress(done + 1, len(order))
     details.sort(key=lambda d: d.frame)
