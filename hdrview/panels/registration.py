@@ -90,15 +90,51 @@ def _linear_green(frame: Any, lut: Any) -> np.ndarray:
     return np.asarray(table, np.float32)[g]
 
 
+def local_fields(reg: Any) -> tuple:
+    """The registration's local-refinement fields per frame (all None without any)."""
+    local = getattr(reg, "local", None)
+    return tuple(local.fields) if local is not None else (None,) * (len(reg.pairs) + 1)
+
+
+def _sample_region(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """``img`` read bilinearly at ``(x, y)`` (0 outside); only the part they cover is read
+    (a linearised copy of a whole 24 MP frame is not needed for a crop)."""
+    from scipy.ndimage import map_coordinates
+
+    h, w = img.shape
+    x0 = int(max(0, np.floor(x.min()) - 2))
+    y0 = int(max(0, np.floor(y.min()) - 2))
+    x1 = int(min(w, np.ceil(x.max()) + 3))
+    y1 = int(min(h, np.ceil(y.max()) + 3))
+    if x1 <= x0 or y1 <= y0:
+        return np.zeros(x.shape, np.float32)
+    return map_coordinates(img[y0:y1, x0:x1], [y - y0, x - x0], order=1, mode="constant",
+                           cval=0.0)
+
+
+def local_summary(reg: Any, k: int) -> str:
+    """One line on the local refinement of pair ``k``'s frames (empty when none ran)."""
+    local = getattr(reg, "local", None)
+    if local is None:
+        return ""
+    pair = reg.pairs[k]
+    for fr in local.frames:
+        if {fr.frame, fr.against} == {pair.dark, pair.bright}:
+            state = "kept" if fr.kept else "not kept"
+            return (f"Local refinement of frame {fr.frame} against {fr.against} ({state}): "
+                    f"{fr.message}")
+    return ""
+
+
 def overlay_crop(bracket: Any, result: Any, k: int, *, aligned: bool, zoom: float = 1.0,
                  cx: float = 0.5, cy: float = 0.5,
                  box: tuple[int, int] = BOX) -> tuple[np.ndarray, tuple[int, int, int, int]]:
     """Red/cyan overlay of pair ``k`` at full resolution: red the bright frame, cyan the dark
     frame times the ratio, grey where they agree; a crop of ``box / zoom`` dark-frame pixels
     centred at ``(cx, cy)``, the bright frame resampled through the pair's homography
-    (``aligned``) or as shot. Returns the image (pixels repeated for zoom > 1) and the crop."""
-    from scipy.ndimage import map_coordinates
-
+    (``aligned``) or as shot; with local refinement both frames are read through their motion
+    and field on the reference grid, as the merge reads them. Returns the image (pixels
+    repeated for zoom > 1) and the crop."""
     reg = registration_of(result)
     pair = reg.pairs[k]
     dark_f, bright_f = bracket.frames[pair.dark], bracket.frames[pair.bright]
@@ -114,23 +150,26 @@ def overlay_crop(bracket: Any, result: Any, k: int, *, aligned: bool, zoom: floa
         y0 = min(max(0, int(round(cy * h - ch / 2))), h - ch)
     ys, xs = np.mgrid[y0:y0 + ch:step, x0:x0 + cw:step].astype(np.float64)
     dark = _linear_green(dark_f, lut)[y0:y0 + ch:step, x0:x0 + cw:step] * float(pair.ratio)
-    if aligned:
+    fields = local_fields(reg)
+    if aligned and (fields[pair.dark] is not None or fields[pair.bright] is not None):
+        # local refinement: both frames read on the reference grid through their motion and
+        # field, as the merge reads them (the crop is then in reference pixels)
+        from hdrcore.registration.field import map_points
+
+        chain = reg.to_reference_homography
+        dx_, dy_ = map_points(np.linalg.inv(np.asarray(chain[pair.dark], np.float64)),
+                              fields[pair.dark], xs, ys)
+        dark = _sample_region(_linear_green(dark_f, lut), dx_, dy_) * float(pair.ratio)
+        bx, by = map_points(np.linalg.inv(np.asarray(chain[pair.bright], np.float64)),
+                            fields[pair.bright], xs, ys)
+    elif aligned:
         inv = np.linalg.inv(np.asarray(pair.homography, np.float64))
         den = inv[2, 0] * xs + inv[2, 1] * ys + inv[2, 2]
         bx = (inv[0, 0] * xs + inv[0, 1] * ys + inv[0, 2]) / den
         by = (inv[1, 0] * xs + inv[1, 1] * ys + inv[1, 2]) / den
     else:
         bx, by = xs, ys
-    # Only the part of the bright frame the crop maps to is linearised.
-    bx0 = int(max(0, np.floor(bx.min()) - 2))
-    by0 = int(max(0, np.floor(by.min()) - 2))
-    bx1 = int(min(w, np.ceil(bx.max()) + 3))
-    by1 = int(min(h, np.ceil(by.max()) + 3))
-    if bx1 <= bx0 or by1 <= by0:
-        bright = np.zeros_like(dark)
-    else:
-        src = _linear_green(bright_f, lut)[by0:by1, bx0:bx1]
-        bright = map_coordinates(src, [by - by0, bx - bx0], order=1, mode="constant", cval=0.0)
+    bright = _sample_region(_linear_green(bright_f, lut), bx, by)
     scale = float(np.percentile(np.concatenate([bright.ravel(), dark.ravel()]), 99.0)) or 1.0
     rgb = np.stack([bright, dark, dark], axis=-1) / scale
     img = (np.clip(rgb, 0.0, 1.0) ** (1 / 2.2) * 255.0 + 0.5).astype(np.uint8)
@@ -264,9 +303,12 @@ class RegistrationPanel:
                 h, w = bracket.frames[0].levels.shape[:2]
                 step = w / frames[True].shape[1] if zoom == 0 else 1.0 / zoom
                 frames[True] = draw_arrows(frames[True], residual, step, crop[0], crop[1])
-        self.residual_md.content = "" if residual is None else (
-            f"Residual after alignment: **{residual.status}**: {residual.message} (arrows "
-            f"x{ARROW_GAIN:g}: green < 0.3 px, yellow < 1 px, red above; grey x: no texture)")
+        loc = local_summary(registration_of(result), k)
+        said = "" if residual is None else (
+            f"Residual after the motion model: **{residual.status}**: {residual.message} "
+            f"(arrows x{ARROW_GAIN:g}: green < 0.3 px, yellow < 1 px, red above; grey x: no "
+            "texture)")
+        self.residual_md.content = "\n\n".join(t for t in (said, loc) if t)
         self._frames = frames if show.startswith("blink") else {}
         first = frames[True] if True in frames else frames[False]
         self.full.image = first
