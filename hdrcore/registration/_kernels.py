@@ -214,7 +214,7 @@ def _dkeys(f, w):
 
 
 @_njit
-def gauss_newton_sums(img, lut, xs, ys, bs, m, frame, n_par, gradient, hess, grad):
+def gauss_newton_sums(img, lut, xs, ys, bs, m, frame, n_par, gradient, hess, grad, gain, n_gain):
     """Eq. 6 weighted sum of squared eq. 7 residuals and the sum of the weights at the samples;
     with ``gradient`` also the Gauss-Newton normal equations of the first ``n_par`` motion
     generators added into ``hess`` (8x8, upper triangle mirrored) and ``grad`` (8).
@@ -229,7 +229,12 @@ def gauss_newton_sums(img, lut, xs, ys, bs, m, frame, n_par, gradient, hess, gra
     the motion (the samples are valid by selection), so the sums are continuous in ``m``.
     Generators (columns of the Jacobian, ``d q / d delta = unit * g(X, Y)``): shift x, shift y,
     rotation ``(-Y, X)``, scale ``(X, Y)``, stretch ``(X, -Y)``, shear ``(Y, X)``, and the two
-    perspective terms ``(-X^2, -XY)``, ``(-XY, -Y^2)``. Returns ``(sum w n^2, sum w)``.
+    perspective terms ``(-X^2, -XY)``, ``(-XY, -Y^2)``. The bright frame is multiplied by the
+    smooth gain ``exp(gain[0] + gain[1] X + gain[2] Y)`` (a correction of the exposure ratio
+    and of its variation across the frame); with ``n_gain`` (0, 1 or 3) its first coefficients
+    are ``n_gain`` more columns after the ``n_par`` of the motion (``d n / d gain_i = dn/da a
+    (1, X, Y)_i``), so ``hess`` is at least ``(n_par + n_gain)`` square. Returns ``(sum w n^2,
+    sum w)``.
     """
     h, w = img.shape
     lo = frame[0]
@@ -249,7 +254,12 @@ def gauss_newton_sums(img, lut, xs, ys, bs, m, frame, n_par, gradient, hess, gra
     dwx = np.empty(4)
     dwy = np.empty(4)
     rows = np.empty(4)
-    cols = np.zeros(8)
+    n_tot = n_par + n_gain
+    cols = np.zeros(n_tot)
+    g0 = gain[0]
+    g1 = gain[1]
+    g2 = gain[2]
+    uses_gain = g1 != 0.0 or g2 != 0.0 or n_gain > 1
     ssum = 0.0
     wsum = 0.0
     inv_t = 1.0 / max(t, 1e-300)
@@ -304,7 +314,10 @@ def gauss_newton_sums(img, lut, xs, ys, bs, m, frame, n_par, gradient, hess, gra
             for j in range(4):
                 rows[j] = taps[j, 0] * wx[0] + taps[j, 1] * wx[1] + taps[j, 2] * wx[2] \
                     + taps[j, 3] * wx[3]
-            a = rows[0] * wy[0] + rows[1] * wy[1] + rows[2] * wy[2] + rows[3] * wy[3]
+            gx = (qxs[q] - cx) * inv_unit
+            gy = (qys[q] - cy) * inv_unit
+            gfac = math.exp(g0 + g1 * gx + g2 * gy) if uses_gain else math.exp(g0)
+            a = (rows[0] * wy[0] + rows[1] * wy[1] + rows[2] * wy[2] + rows[3] * wy[3]) * gfac
             b = bs[k]
             total = a + b
             above = total > t
@@ -327,13 +340,11 @@ def gauss_newton_sums(img, lut, xs, ys, bs, m, frame, n_par, gradient, hess, gra
                        + taps[j, 3] * dwx[3]) * wy[j]
             sy = rows[0] * dwy[0] + rows[1] * dwy[1] + rows[2] * dwy[2] + rows[3] * dwy[3]
             dn_da = 2.0 * b / (denom * denom) if above else inv_t
-            j0 = dn_da * sx
-            j1 = dn_da * sy
+            j0 = dn_da * sx * gfac
+            j1 = dn_da * sy * gfac
             cols[0] = j0
             cols[1] = j1
             if n_par > 2:
-                gx = (qxs[q] - cx) * inv_unit
-                gy = (qys[q] - cy) * inv_unit
                 cols[2] = (j1 * gx - j0 * gy) * unit
                 if n_par > 3:
                     cols[3] = (j0 * gx + j1 * gy) * unit
@@ -343,14 +354,20 @@ def gauss_newton_sums(img, lut, xs, ys, bs, m, frame, n_par, gradient, hess, gra
                     radial = -(j0 * gx + j1 * gy) * unit
                     cols[6] = radial * gx
                     cols[7] = radial * gy
-            for i in range(n_par):
+            if n_gain > 0:
+                ga = dn_da * a
+                cols[n_par] = ga
+                if n_gain > 1:
+                    cols[n_par + 1] = ga * gx
+                    cols[n_par + 2] = ga * gy
+            for i in range(n_tot):
                 ci = wt * cols[i]
                 grad[i] += ci * n
-                for jj in range(i, n_par):
+                for jj in range(i, n_tot):
                     hess[i, jj] += ci * cols[jj]
     if gradient:
-        for i in range(n_par):
-            for jj in range(i + 1, n_par):
+        for i in range(n_tot):
+            for jj in range(i + 1, n_tot):
                 hess[jj, i] = hess[i, jj]
     return ssum, wsum
 

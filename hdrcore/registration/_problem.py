@@ -459,9 +459,17 @@ def _generators(gx: np.ndarray, gy: np.ndarray, n_par: int) -> list[tuple]:
     return gens[:n_par]
 
 
+def _gain_factor(gain: np.ndarray | None, ux: np.ndarray, uy: np.ndarray) -> np.ndarray:
+    """``exp(g0 + g1 X + g2 Y)`` at normalised bright-frame positions (1 without a gain)."""
+    if gain is None:
+        return np.ones_like(ux)
+    g = np.asarray(gain, float)
+    return np.exp(g[0] + g[1] * ux + g[2] * uy)
+
+
 def residuals(
     data: PairData, level: int, inverse: np.ndarray, s: Samples, *, gradient: bool = True,
-    ramp: float = BORDER_RAMP,
+    ramp: float = BORDER_RAMP, gain: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None, np.ndarray, np.ndarray,
            np.ndarray]:
     """Eq. 7 normalised differences at the samples (the numpy reference of the kernel).
@@ -471,7 +479,8 @@ def residuals(
     the residuals ``(a - b) / max(a + b, t)`` with ``a`` the bright frame's taps clipped (see
     :func:`_frame`) and interpolated, their derivatives with respect to the sampling position in
     the bright frame, each sample's weight (0 outside the bright frame, rising to 1 over
-    ``ramp`` pixels from its border) and the sampling positions.
+    ``ramp`` pixels from its border) and the sampling positions. ``gain`` ``(g0, g1, g2)``:
+    the bright frame is multiplied by ``exp(g0 + g1 X + g2 Y)`` (:func:`normal_equations`).
     """
     m = homogeneous(inverse)
     den = m[2, 0] * s.x + m[2, 1] * s.y + m[2, 2]
@@ -483,7 +492,8 @@ def residuals(
     d = np.minimum(np.minimum(qx - 1.0, w - 2.0 - qx), np.minimum(qy - 1.0, h - 2.0 - qy))
     valid = (den > 0) & (d > 0) & sm.inside
     weight = np.where(valid, np.minimum(1.0, np.where(valid, d, 0.0) / ramp), 0.0)
-    a = sm.value
+    gfac = _gain_factor(gain, (qx - frame[3]) / frame[5], (qy - frame[4]) / frame[5])
+    a = sm.value * gfac
     b = s.b
     total = a + b
     t = data.threshold
@@ -494,13 +504,14 @@ def residuals(
     if not gradient:
         return n, None, None, weight, qx, qy
     dn_da = np.where(above, 2.0 * b / (denom * denom), 1.0 / max(t, 1e-300))
-    dn_da = np.where(valid, dn_da, 0.0)
+    dn_da = np.where(valid, dn_da, 0.0) * gfac
     return n, dn_da * sm.gx, dn_da * sm.gy, weight, qx, qy
 
 
 def normal_equations(
     data: PairData, level: int, inverse: np.ndarray, s: Samples, *, n_par: int = 3,
     gradient: bool = True, compiled: bool | None = None, ramp: float = BORDER_RAMP,
+    gain: np.ndarray | None = None, n_gain: int = 0,
 ) -> tuple[float, float, np.ndarray, np.ndarray]:
     """Eq. 6 sum over the samples and its Gauss-Newton normal equations in one pass.
 
@@ -511,32 +522,66 @@ def normal_equations(
     (n_par x n_par), J'Wn (n_par))`` with ``w`` the border weights; with ``gradient=False`` the
     matrices are zeros. ``compiled``: use the numba kernel (default: when available) or the
     numpy reference (:func:`residuals`); both give the same numbers to rounding.
+
+    ``gain`` ``(g0, g1, g2)`` (default 0): the bright frame is compared multiplied by
+    ``exp(g0 + g1 X + g2 Y)`` (``X, Y`` as the generators'): a correction of the exposure
+    ratio and a linear change of it across the frame (a phone's local tone mapping or
+    vignetting correction). With ``n_gain`` (1: ``g0``; 3: all) these are ``n_gain`` more
+    unknowns after the motion's: the matrices are ``n_par + n_gain`` square.
     """
     if compiled is None:
         compiled = _kernels.AVAILABLE
+    if n_gain not in (0, 1, 3):
+        raise ParameterError("the gain has 0, 1 or 3 free coefficients", found=str(n_gain))
     m = homogeneous(inverse)
     frame = _frame(data, level, ramp)
+    g = np.zeros(3) if gain is None else np.asarray(gain, np.float64)
+    n_tot = n_par + n_gain
     if compiled:
-        hess = np.zeros((8, 8))
-        grad = np.zeros(8)
+        hess = np.zeros((n_tot, n_tot))
+        grad = np.zeros(n_tot)
         img = data.bright if level == 0 else data.levels[level][0]
         ssum, wsum = _kernels.gauss_newton_sums(
             img, data.lut if level == 0 else None, s.x, s.y, s.b, m, frame, n_par, gradient,
-            hess, grad,
+            hess, grad, g, n_gain,
         )
-        return float(ssum), float(wsum), hess[:n_par, :n_par], grad[:n_par]
-    n, gx, gy, weight, qx, qy = residuals(data, level, m, s, gradient=gradient, ramp=ramp)
+        return float(ssum), float(wsum), hess, grad
+    n, gx, gy, weight, qx, qy = residuals(data, level, m, s, gradient=gradient, ramp=ramp,
+                                          gain=g)
     wsum = float(weight.sum())
     ssum = float(np.sum(weight * n * n))
     if not gradient:
-        return ssum, wsum, np.zeros((n_par, n_par)), np.zeros(n_par)
+        return ssum, wsum, np.zeros((n_tot, n_tot)), np.zeros(n_tot)
     cx, cy, unit = frame[3], frame[4], frame[5]
     ux, uy = (qx - cx) / unit, (qy - cy) / unit
     cols = [gx * ex + gy * ey for ex, ey in _generators(ux, uy, n_par)]
+    if n_gain:
+        sm_a = _gained_values(data, level, qx, qy, g, frame)
+        dn_da = _dn_da(sm_a, s.b, data.threshold) * (weight > 0)
+        ga = dn_da * sm_a
+        cols += [ga, ga * ux, ga * uy][:n_gain]
     jac = np.stack(cols, axis=1)
-    jac[:, 2:] *= unit
+    jac[:, 2:n_par] *= unit
     wj = jac * weight[:, None]
     return ssum, wsum, wj.T @ jac, wj.T @ n
+
+
+def _gained_values(data: PairData, level: int, qx: np.ndarray, qy: np.ndarray, gain: np.ndarray,
+                   frame: np.ndarray) -> np.ndarray:
+    """The bright frame's clipped, interpolated values times the gain (numpy reference)."""
+    img = data.linear(data.bright) if level == 0 else data.levels[level][0]
+    sm = sample(img, qx, qy, gradient=False, clip=(frame[0], frame[1]))
+    v = np.where(sm.inside, sm.value, 0.0)
+    return v * _gain_factor(gain, (qx - frame[3]) / frame[5], (qy - frame[4]) / frame[5])
+
+
+def _dn_da(a: np.ndarray, b: np.ndarray, t: float) -> np.ndarray:
+    """``d n / d a`` of eq. 7 (``n = (a - b) / max(a + b, t)``)."""
+    total = a + b
+    above = total > t
+    denom = np.where(above, total, t) if t > 0 else total
+    denom = np.where(denom > 0, denom, 1.0)
+    return np.where(above, 2.0 * b / (denom * denom), 1.0 / max(t, 1e-300))
 
 
 def motion_update(delta: np.ndarray, shape_l: tuple[int, int]) -> np.ndarray:
@@ -579,13 +624,14 @@ def corner_move(a: np.ndarray, b: np.ndarray, shape_l: tuple[int, int]) -> float
     return float(corner_error(a, b, shape_l).max())
 
 
-def cost(data: PairData, level: int, inverse: np.ndarray, s: Samples) -> tuple[float, float]:
+def cost(data: PairData, level: int, inverse: np.ndarray, s: Samples,
+         gain: np.ndarray | None = None) -> tuple[float, float]:
     """Eq. 6 cost (weighted mean squared eq. 7 difference) and the sum of the sample weights
     (the number of samples that the motion keeps inside the bright frame).
 
     ``inverse`` maps dark-frame coordinates to the bright frame (see :func:`residuals`).
     """
-    ssum, count, _, _ = normal_equations(data, level, inverse, s, gradient=False)
+    ssum, count, _, _ = normal_equations(data, level, inverse, s, gradient=False, gain=gain)
     if count <= 0:
         return float("inf"), 0.0
     return ssum / count, count
@@ -611,6 +657,7 @@ class RefineResult:
     cost_history: list[float]
     level_history: list[int]
     message: str = ""
+    gain: tuple[float, ...] = ()  # (g0, g1, g2) of the gain refined with the motion, if any
 
 
 Refiner = Callable[..., RefineResult]

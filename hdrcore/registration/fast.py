@@ -64,9 +64,16 @@ MIN_SAMPLES, MAX_SAMPLES = 60_000, 250_000
 REACH = 0
 RESELECT = 0.5
 
+#: Free coefficients of the gain refined with the motion (:func:`refine_gauss_newton`): the
+#: exposure ratio and its linear change across the frame. The real Pixel 7 bracket needs
+#: them: its frames differ from the listed ratio by a factor 1.14-1.35 and by up to 17 % across
+#: the frame, which eq. 6 otherwise takes for perspective (see bench/bench_models_real.py).
+GAIN_TERMS = 3
 
-def _level_cost(data: PairData, level: int, m: np.ndarray, s: Samples) -> float:
-    ssum, count, _, _ = normal_equations(data, level, m, s, gradient=False)
+
+def _level_cost(data: PairData, level: int, m: np.ndarray, s: Samples,
+                gain: np.ndarray | None = None) -> float:
+    ssum, count, _, _ = normal_equations(data, level, m, s, gradient=False, gain=gain)
     return ssum / count if count > 0 else np.inf
 
 
@@ -94,6 +101,7 @@ def refine_gauss_newton(
     coarse_iterations: int = 12,
     tolerance: float = 2e-3,
     coarsest_size: int = 40,
+    gain_terms: int = GAIN_TERMS,
 ) -> RefineResult:
     """Coarse-to-fine Gauss-Newton from ``initial`` (``coarse_iterations`` per coarse level,
     ``max_iterations`` at full resolution).
@@ -107,6 +115,10 @@ def refine_gauss_newton(
     inverse of the pair matrix; see :func:`hdrcore.registration._problem.select_samples`), at
     full resolution. Each step updates the estimate on the bright side, ``B <- G(delta) B``,
     with ``G`` built from the model's generators (:func:`~._problem.motion_update`).
+
+    ``gain_terms`` (0, 1 or 3): the exposure ratio is refined with the motion, as a gain
+    ``exp(g0 + g1 X + g2 Y)`` on the bright frame (3: with a linear change across the frame;
+    see :data:`GAIN_TERMS`). The gain found is in the result's ``gain``.
     """
     n_par = MODELS[model]
     if max_samples is None:
@@ -119,6 +131,7 @@ def refine_gauss_newton(
     matrix = initial
     history: list[float] = []
     levels: list[int] = []
+    gain = np.zeros(3)  # level-independent: X, Y are normalised by each level's half-diagonal
     for level in range(top, -1, -1):
         n_samples = max_samples if level == 0 else coarse_samples
         m = to_level(matrix, level)
@@ -132,58 +145,68 @@ def refine_gauss_newton(
             stride = s.b.size // max(coarse_samples, 1)
             if stride > 1:
                 sub = Samples(*(np.ascontiguousarray(a[::stride]) for a in (s.x, s.y, s.b)))
-            if _level_cost(data, level, m0, sub) < _level_cost(data, level, m, sub):
+            if _level_cost(data, level, m0, sub, gain) < _level_cost(data, level, m, sub, gain):
                 m = m0
                 s = select_samples(data, level, n_samples, motion=m, reach=REACH)
         budget = max_iterations if level == 0 else coarse_iterations
         start = m
-        m = _search(data, level, m, s, n_par, budget, tolerance, history, levels)
+        m, gain = _search(data, level, m, gain, s, n_par, gain_terms, budget, tolerance,
+                          history, levels)
         if corner_move(m, start, data.level_shape(level)) > RESELECT:
             # the search left the zone where the samples' validity was decided: decide again
             s = select_samples(data, level, n_samples, motion=m, reach=REACH)
-            m = _search(data, level, m, s, n_par, budget, tolerance, history, levels)
+            m, gain = _search(data, level, m, gain, s, n_par, gain_terms, budget, tolerance,
+                              history, levels)
         matrix = to_full(m, level)
-    return RefineResult(matrix, len(history), history, levels)
+    return RefineResult(matrix, len(history), history, levels, gain=tuple(float(g) for g in gain))
 
 
 def _search(
-    data: PairData, level: int, m: np.ndarray, s: Samples, n_par: int, budget: int,
-    tolerance: float, history: list[float], levels: list[int],
-) -> np.ndarray:
-    """Gauss-Newton iterations on one level from ``m`` (3x3, level coordinates), at most
-    ``budget``; appends the costs to ``history`` / ``levels`` and returns the estimate."""
+    data: PairData, level: int, m: np.ndarray, gain: np.ndarray, s: Samples, n_par: int,
+    n_gain: int, budget: int, tolerance: float, history: list[float], levels: list[int],
+) -> tuple[np.ndarray, np.ndarray]:
+    """Gauss-Newton iterations on one level from ``m`` (3x3, level coordinates) and ``gain``,
+    at most ``budget``; appends the costs to ``history`` / ``levels`` and returns the
+    estimate (motion, gain)."""
     shape_l = data.level_shape(level)
-    prev_m = m
+    prev_m, prev_g = m, gain
     prev_cost = np.inf
     step = None
-    best_c, best_m = np.inf, m
+    best_c, best_m, best_g = np.inf, m, gain
     for _ in range(budget):
-        ssum, count, hess, grad = normal_equations(data, level, m, s, n_par=n_par)
+        ssum, count, hess, grad = normal_equations(data, level, m, s, n_par=n_par, gain=gain,
+                                                   n_gain=n_gain)
         c = ssum / count if count > 0 else np.inf
         history.append(c)
         levels.append(level)
         if c < best_c:
-            best_c, best_m = c, m
+            best_c, best_m, best_g = c, m, gain
         if step is not None and c > prev_cost:  # the step went too far: halve it
             step = step / 2.0
-            trial = motion_update(step, shape_l) @ prev_m
+            trial = motion_update(step[:n_par], shape_l) @ prev_m
             if corner_move(trial, prev_m, shape_l) < tolerance:
-                return best_m
-            m = trial
+                return best_m, best_g
+            m, gain = trial, _gain_step(prev_g, step[n_par:])
             continue
         if step is not None and prev_cost - c < 1e-6 * prev_cost:
-            return m  # no further decrease: converged to the noise floor of the cost
-        if count < n_par * 4:
-            return m
+            return m, gain  # no further decrease: converged to the noise floor of the cost
+        if count < (n_par + n_gain) * 4:
+            return m, gain
         delta = _solve(hess, grad)
-        new_m = motion_update(delta, shape_l) @ m
+        new_m = motion_update(delta[:n_par], shape_l) @ m
         new_m /= new_m[2, 2]
-        prev_m, prev_cost, step = m, c, delta
+        prev_m, prev_g, prev_cost, step = m, gain, c, delta
         moved = corner_move(new_m, m, shape_l)
-        m = new_m
+        m, gain = new_m, _gain_step(gain, delta[n_par:])
         if moved < tolerance:
-            return m  # a tiny move from an evaluated point: keep it
-    return best_m
+            return m, gain  # a tiny move from an evaluated point: keep it
+    return best_m, best_g
+
+
+def _gain_step(gain: np.ndarray, delta: np.ndarray) -> np.ndarray:
+    out = np.array(gain, float)
+    out[: delta.size] += delta
+    return out
 
 
 def register_pair_fast(

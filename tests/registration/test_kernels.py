@@ -98,6 +98,46 @@ def test_jacobian_columns_are_derivatives_of_the_residuals(pair):
 
 
 @pytest.mark.parametrize("level", [0, 1])
+@pytest.mark.parametrize(("n_par", "n_gain"), [(2, 1), (4, 3), (8, 3)])
+def test_normal_equations_with_gain_match_numpy_reference(pair, level, n_par, n_gain):
+    dark, bright, ml = pair
+    data = prepare(dark, bright, 4.0, saturation=0.98, noise_floor=3 / ml, threshold=0.1)
+    s = select_samples(data, level, 5000)
+    shape_l = data.level_shape(level)
+    m = rigid_matrix(-6.3 / 2**level, 4.1 / 2**level, -1.1, shape_l)
+    gain = np.array([0.12, -0.05, 0.08])
+    c_ref = normal_equations(data, level, m, s, n_par=n_par, compiled=False, gain=gain,
+                             n_gain=n_gain)
+    c_jit = normal_equations(data, level, m, s, n_par=n_par, compiled=True, gain=gain,
+                             n_gain=n_gain)
+    n = n_par + n_gain
+    assert c_jit[2].shape == (n, n) and c_jit[3].shape == (n,)
+    np.testing.assert_allclose(c_jit[0], c_ref[0], rtol=1e-10)
+    np.testing.assert_allclose(c_jit[2], c_ref[2], rtol=1e-9, atol=1e-12 * abs(c_ref[2]).max())
+    np.testing.assert_allclose(c_jit[3], c_ref[3], rtol=1e-9, atol=1e-12 * abs(c_ref[3]).max())
+    # the gain changes the cost (it is applied, not only differentiated)
+    assert normal_equations(data, level, m, s, n_par=n_par)[0] != pytest.approx(c_jit[0])
+
+
+def test_gain_columns_are_derivatives_of_the_residuals(pair):
+    dark, bright, ml = pair
+    data = prepare(dark, bright, 4.0, saturation=0.98, noise_floor=3 / ml, threshold=0.1)
+    s = select_samples(data, 1, 3000)
+    m = homogeneous(similarity_matrix(-3.0, 2.0, -1.0, 1.004, data.level_shape(1)))
+    gain = np.array([0.05, 0.02, -0.03])
+    _, _, _, grad = normal_equations(data, 1, m, s, n_par=4, ramp=1e-9, gain=gain, n_gain=3)
+    for i in range(3):
+        d = np.zeros(3)
+        d[i] = 1e-6
+        up = normal_equations(data, 1, m, s, n_par=4, gradient=False, ramp=1e-9,
+                              gain=gain + d)[0]
+        down = normal_equations(data, 1, m, s, n_par=4, gradient=False, ramp=1e-9,
+                                gain=gain - d)[0]
+        numeric = (up - down) / 2e-6 / 2
+        assert numeric == pytest.approx(grad[4 + i], rel=2e-3, abs=1e-6 * abs(grad).max()), i
+
+
+@pytest.mark.parametrize("level", [0, 1])
 @pytest.mark.parametrize("by_gradient, n", [(True, 4000), (False, 6000), (True, 10**6)])
 @pytest.mark.parametrize("motion, reach", [("identity", 0), ("truth", 0), ("homography", 1)])
 def test_select_samples_compiled_matches_numpy(pair, level, by_gradient, n, motion, reach):
