@@ -23,7 +23,9 @@ see :mod:`hdrcore.registration._problem`), same eq. 5 start, a different search:
   version (up to 250 000 instead of 60 000) cost little in raster order and lower the worst
   corner error (``bench/bench_registration.py``, large-frame section);
 * a step that raises the cost is halved (a simple line search); a level ends when the update
-  moves the image corners by less than ``tolerance`` pixels of that level;
+  moves the image corners by less than ``tolerance`` pixels of that level (0.01: on the
+  real Pixel 7 pairs 0.002 took 39-63 iterations a pair for a result that moves by at most
+  0.016 px, 0.01 takes 28-45; the simulated accuracy is the same to 0.001 px);
 * on each finer level the estimate carried from the coarser one competes with the eq. 5 start,
   so a coarse level misled by a photometric mismatch or too little detail cannot drag the
   search away.
@@ -99,7 +101,7 @@ def refine_gauss_newton(
     coarse_samples: int = 20_000,
     max_iterations: int = 30,
     coarse_iterations: int = 12,
-    tolerance: float = 2e-3,
+    tolerance: float = 1e-2,
     coarsest_size: int = 40,
     gain_terms: int = GAIN_TERMS,
 ) -> RefineResult:
