@@ -8,9 +8,13 @@ Prints, in one run:
    channel, worst of the seeds and scenes, as % of the range, two ways: after one exposure
    scale shared by the channels (``g`` is known up to that scale; a cast still shows), and
    normalised at ``g(max) = 1`` (the stricter figure: the top 2 % of the levels carry no data,
-   so it measures an extrapolation). Ours: ``auto`` (the default), the joint fit, the old
+   so it measures an extrapolation), and scaled to the truth at level 250 (the top of the
+   fitted range: level 255 is the clip bin, whose ``g`` no data fixes; the S-curve's last
+   level alone is 7.2 % of its range). Ours: ``auto`` (the default), the joint fit, the old
    default (per-channel DM histogram) and the other methods; OpenCV CalibrateDebevec /
    CalibrateRobertson side by side.
+1b. The same six shapes on real scenes: the radiance merged from the Canon and memorial
+   brackets, imaged by the simulated camera (real content and dynamic range, known truth).
 2. The real brackets in ../shared/data (Canon 5D Mark II JPEGs, Pixel 7 and Xperia phone JPEGs,
    the Debevec-Malik memorial film scans): through the whole pipeline, before (the old
    default: per-channel DM histogram, no colour anchoring) and after (``auto`` with the colour
@@ -26,8 +30,8 @@ Prints, in one run:
    5..230 after the best scale) and a plot in ``bench/out/memorial_response.png``.
 
 Timings on a shared 2-core machine are pessimistic. Usage:
-``python bench/bench_response.py [--quick] [--skip-synthetic]`` (``--quick``: one seed and
-scene, no phone brackets).
+``python bench/bench_response.py [--quick] [--skip-synthetic] [--shapes-only]`` (``--quick``:
+one seed and scene, no phone brackets; ``--shapes-only``: sections 1 and 1b).
 """
 
 from __future__ import annotations
@@ -120,6 +124,25 @@ def err_max_normalised(g, truth):
     return float(np.max(np.sqrt(np.mean((g[:, LEVELS] - truth[None, LEVELS]) ** 2, axis=1))))
 
 
+#: The top of the fitted range: levels above the response's cutoff (98 %) carry no pairs.
+TOP_OF_DATA = 250
+
+
+def err_at_top_of_data(g, truth, level=TOP_OF_DATA):
+    """RMS of ``g`` over levels 2..98 % with each channel scaled to the truth at ``level``
+    (the highest level the fit sees; level 255 is the clip bin, whose ``g`` no data fixes)."""
+    g = np.asarray(g, float)
+    g = (g - g[:, :1]) / np.maximum(g[:, level:level + 1] - g[:, :1], 1e-300) * truth[level]
+    return float(np.max(np.sqrt(np.mean((g[:, LEVELS] - truth[None, LEVELS]) ** 2, axis=1))))
+
+
+def top_levels_note() -> None:
+    """How much of each shape's range lies above the fitted levels (the truth, no fit)."""
+    print("\ntruth above the fitted range (% of the range): g(255) - g(250) / g(255) - g(254)")
+    print("  " + "; ".join(f"{s}: {100 * (1 - truth_g(s)[TOP_OF_DATA]):.1f} / "
+                           f"{100 * (1 - truth_g(s)[254]):.1f}" for s in SHAPES))
+
+
 def synthetic_table() -> None:
     shape = (192, 288)
     seeds = (1,) if QUICK else (1, 2)
@@ -127,6 +150,7 @@ def synthetic_table() -> None:
     labels = [lab for lab, _, _ in OURS] + PEERS
     common = {lab: {s: [] for s in SHAPES} for lab in labels}
     top = {lab: {s: [] for s in SHAPES} for lab in labels}
+    fitted = {lab: {s: [] for s in SHAPES} for lab in labels}
     secs = {lab: [] for lab in labels}
     chosen: dict[str, list[str]] = {s: [] for s in SHAPES}
     plot = []
@@ -142,6 +166,7 @@ def synthetic_table() -> None:
                     secs[lab].append(time.perf_counter() - t0)
                     common[lab][resp].append(err_common_scale(c.g, truth))
                     top[lab][resp].append(err_max_normalised(c.g, truth))
+                    fitted[lab][resp].append(err_at_top_of_data(c.g, truth))
                     if method == "auto":
                         chosen[resp].append(c.method)
                     if resp == "filmic" and seed == seeds[0] and scene == scenes[0]:
@@ -150,6 +175,7 @@ def synthetic_table() -> None:
                     secs[lab].append(dt)
                     common[lab][resp].append(err_common_scale(g, truth))
                     top[lab][resp].append(err_max_normalised(g, truth))
+                    fitted[lab][resp].append(err_at_top_of_data(g, truth))
                     if resp == "filmic" and seed == seeds[0] and scene == scenes[0]:
                         plot.append((PeerCurve(g), lab))
 
@@ -166,6 +192,9 @@ def synthetic_table() -> None:
           "(% of range; target <= 1 %)", common)
     table("RMS of g over levels 2..98 %, normalised at g(max) = 1 (% of range; the top 2 % "
           "has no data)", top)
+    table(f"RMS of g over levels 2..98 %, each channel scaled to the truth at level "
+          f"{TOP_OF_DATA}, the top of the fitted range (% of range)", fitted)
+    top_levels_note()
     print("\nauto chose: " + "; ".join(f"{s}: {', '.join(sorted(set(v)))}"
                                        for s, v in chosen.items()))
     OUT.mkdir(parents=True, exist_ok=True)
@@ -175,6 +204,67 @@ def synthetic_table() -> None:
     p = OUT / "synthetic_filmic.png"
     img.save(p)
     print(f"plot: {p.relative_to(ROOT)}")
+
+
+def real_scene_shapes() -> None:
+    """The six shapes again on real scenes: the radiance merged (default pipeline) from the
+    Canon and memorial brackets, downsampled to at most 300 px, imaged by the simulated camera
+    (six frames 4x apart, 8 bits, sigma 1 level): real content and dynamic range, known truth."""
+    print("\n== six response shapes on real scenes (radiance merged from real brackets, "
+          "simulated camera: 6 frames x4, 8 bits, sigma 1 level, seeds 1 and 2) ==")
+    if not DATA.is_dir():
+        print(f"skipped: {DATA} not available")
+        return
+    methods = [("auto (default)", "auto")]
+    cols = ("common scale", f"at g({TOP_OF_DATA})", "g(max)=1")
+    print(f"{'scene':22}{'method':18}{'shape':14}" + "".join(f"{c:>14}" for c in cols)
+          + "  auto chose")
+    for label, folder, excl, _ in REAL:
+        if folder not in ("frobisher-colour-hdri", "memorial-debevec"):
+            continue
+        if not (DATA / folder).is_dir():
+            continue
+        b = _load(folder)
+        r = Pipeline(b, PipelineParams(registration_previews=False, exclude_colour=excl)).run(
+            until="merge")
+        rad = np.maximum(np.asarray(r.radiance, np.float64), 0.0)
+        if excl is not None:
+            blue = np.zeros(rad.shape[:2], bool)
+            for f in b.frames:
+                blue |= np.all(f.levels == np.asarray(excl), axis=-1)
+            r0, r1, c0, c1 = crop_without(blue)
+            rad = rad[r0:r1, c0:c1]
+        f = max(1, int(np.ceil(max(rad.shape[:2]) / 300)))
+        h, w = (rad.shape[0] // f) * f, (rad.shape[1] // f) * f
+        rad = rad[:h, :w].reshape(h // f, f, w // f, f, 3).mean(axis=(1, 3))
+        lum = rad @ np.array([0.2126, 0.7152, 0.0722])
+        pos = lum[lum > 0]
+        stops = float(np.log2(np.percentile(pos, 99) / np.percentile(pos, 1)))
+        scene = f"{label[:13]} {rad.shape[0]}x{rad.shape[1]}"
+        for resp in SHAPES:
+            truth = truth_g(resp)
+            errs: dict[str, list[list[float]]] = {}
+            chose = set()
+            for seed in (1, 2):
+                sim = simulate_bracket(rad, exposure_times=TIMES, bits=8, response=resp,
+                                       noise_sigma=1.0, seed=seed)
+                curves = {}
+                for lab, method in methods:
+                    c = recover_response(sim.frames, TIMES, method=method)
+                    curves[lab] = c.g
+                    chose.add(c.method)
+                for lab, (g, _) in opencv_curves(sim.frames, TIMES).items():
+                    curves[lab] = g
+                for lab, g in curves.items():
+                    errs.setdefault(lab, []).append([err_common_scale(g, truth),
+                                                     err_at_top_of_data(g, truth),
+                                                     err_max_normalised(g, truth)])
+            for lab, rows in errs.items():
+                worst = np.max(np.asarray(rows), axis=0)
+                print(f"{scene:22}{lab[:17]:18}{resp:14}"
+                      + "".join(f"{100 * v:13.2f}%" for v in worst)
+                      + (f"  {', '.join(sorted(chose))}" if lab.startswith("auto") else ""))
+        print(f"{'':22}(scene spans {stops:.1f} stops, 1st-99th percentile)")
 
 
 # --- real brackets ---------------------------------------------------------------------------
@@ -372,6 +462,8 @@ if __name__ == "__main__":
     t0 = time.perf_counter()
     if "--skip-synthetic" not in sys.argv:
         synthetic_table()
-    real_tables()
-    memorial_table()
+        real_scene_shapes()
+    if "--shapes-only" not in sys.argv:
+        real_tables()
+        memorial_table()
     print(f"\ntotal {time.perf_counter() - t0:.0f} s (shared 2-core machine: pessimistic)")
