@@ -240,12 +240,22 @@ def _tables(frames: Sequence[np.ndarray], c: int, lut: np.ndarray | None, max_le
                    int(bins))
 
 
+#: Most frames the compiled ghost test takes (more: the numpy reference).
+MAX_KERNEL_FRAMES = 32
+
+
+def _read_only(a: np.ndarray, dtype) -> np.ndarray:
+    v = np.ascontiguousarray(a, dtype=dtype).view()
+    v.flags.writeable = False
+    return v
+
+
 @_njit
-def _chain_rows(fl, ml, integer, tab, sat, floor, shot, const_var, bins, has_t, ts, has_mask,
+def _chain_rows(n, fl, ml, integer, tab, sat, floor, shot, const_var, bins, has_t, ts, has_mask,
                 ln_t, y0, gh, gw, stride, hist, bias, b, sums,
                 count):  # pragma: no cover - compiled
-    """Every frame (``fl[s]``, rank ``s`` in exposure order, ``ml[s]`` its mask in output
-    coordinates) over the output pixels ``(y0 + stride // 2 + i * stride, stride // 2 + j *
+    """Every frame (``fl[s]``, ``s < n``, rank ``s`` in exposure order, ``ml[s]`` its mask in
+    output coordinates) over the output pixels ``(y0 + stride // 2 + i * stride, stride // 2 + j *
     stride)``, ``i < gh``, ``j < gw``: one output row at a time, the frames in exposure order
     along it, so each pixel's chain (per channel: the previous frame that recorded it, its
     ``ln E``, relative variances and level bin) lives in one row's state, in cache.
@@ -263,7 +273,6 @@ def _chain_rows(fl, ml, integer, tab, sat, floor, shot, const_var, bins, has_t, 
     sampling is written out here once, not in a helper: a helper's array arguments cost ten
     times the work per pixel. References: :func:`_transfer_hist_numpy`,
     :func:`_residuals_numpy`."""
-    n = len(fl)
     c = tab.shape[0] if integer else sat.shape[0]
     to_hist = hist.shape[0] > 0
     hb = hist.shape[3]
@@ -598,15 +607,18 @@ X
     fast = engine == "numba" and AVAILABLE
     no_hist = np.zeros((0, c, 1, 1), np.int64)
     no_bias = np.zeros((1, c, 1))
+    if fast and n > MAX_KERNEL_FRAMES:
+        fast = False  # the numpy reference takes any number of frames
     if fast and slots and hb and wb:
-        from numba.typed import List
-
+        # The kernel takes the frames (and masks) as tuples of MAX_KERNEL_FRAMES read-only
+        # arrays, padded with placeholders: one compiled specialisation for every bracket
+        # length (numba's typed lists compile their own methods in every new process: 10 s).
         dtype = np.result_type(*fs)
-        fl, ml = List(), List()
-        for k in order:  # in exposure order: the kernel's rank s is the list's index
-            fl.append(np.ascontiguousarray(fs[k], dtype=dtype))
-            ml.append(mask_t[k])
-        per = (fl, ml, t.integer, t.packed(), t.sat, t.floor, t.shot, t.const_var, t.bins,
+        fl = tuple(_read_only(fs[k], dtype) for k in order)  # rank s in exposure order
+        ml = tuple(_read_only(mask_t[k], bool) for k in order)
+        fl += (_read_only(np.zeros((1, 1, c), dtype), dtype),) * (MAX_KERNEL_FRAMES - n)
+        ml += (_read_only(np.ones((1, 1), bool), bool),) * (MAX_KERNEL_FRAMES - n)
+        per = (n, fl, ml, t.integer, t.packed(), t.sat, t.floor, t.shot, t.const_var, t.bins,
                np.ascontiguousarray(has_t[order]), np.ascontiguousarray(ts[order]),
                np.ascontiguousarray(has_mask[order]), np.ascontiguousarray(ln_t[order]))
     if slots and hb and wb:

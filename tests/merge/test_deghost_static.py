@@ -147,8 +147,9 @@ def test_bad_parameters_are_refused():
 
 def test_real_tripod_brackets_flag_almost_nothing(frobisher_dir, memorial_dir):
     """Nothing moves in the tripod brackets of ../shared/data: frobisher flags nothing; the
-    memorial scans flag one region only, the bottom band where scan 0073's film base sits
-    7 levels above the others' (a defect of that scan the merge shows as an orange band)."""
+    memorial scans flag one region only (1.9 %), the bottom band where scan 0073's film base
+    sits 5-10 levels above the others' (a defect of that scan the merge shows as an orange
+    band: flagging it is right, and deghost repairs it)."""
     from hdrcore.io import load_bracket
     from hdrcore.pipeline import Pipeline, PipelineParams
 
@@ -161,8 +162,26 @@ def test_real_tripod_brackets_flag_almost_nothing(frobisher_dir, memorial_dir):
     b = load_bracket([memorial_dir], exposure_times=memorial_dir / "exposure_times.txt")
     r = Pipeline(b, PipelineParams(exclude_colour=(0, 0, 255), align="none")).run(until="merge")
     ghost = r.merge.ghost
-    assert ghost.mean() < 0.025
+    assert 0.005 < ghost.mean() < 0.025
     assert ghost[:700].mean() < 0.005
+    # That region is no false alarm: without scan 0073 the merge there is 2-8x darker (its
+    # fogged band, 5-10 levels above the film base the other scans show, carries hat weight),
+    # elsewhere it is the same; deghost repairs it.
+    levels = [f.levels for f in b.frames]
+    masks = [~np.all(lv == (0, 0, 255), axis=-1) for lv in levels]
+    keep = [k for k, f in enumerate(b.frames) if f.name != "memorial0073.png"]
+    assert len(keep) == len(b) - 1
+    kw = dict(response=r.lut, saturation_level=r.saturation, noise_floor=r.noise_floor)
+    full = merge(levels, r.exposure_times, masks=masks, ghost_test="pixels", **kw)
+    without = merge([levels[k] for k in keep], [r.exposure_times[k] for k in keep],
+                    masks=[masks[k] for k in keep], ghost_test="pixels", **kw)
+    ratio = full.radiance / without.radiance
+    assert np.median(ratio[ghost].max(axis=-1)) > 2.0  # visible where flagged
+    away = ~ndimage.binary_dilation(ghost, iterations=16)
+    away[700:] = False
+    assert abs(np.median(ratio[away]) - 1.0) < 0.01  # the same elsewhere
+    filled = merge(levels, r.exposure_times, masks=masks, deghost=True, **kw)
+    assert abs(np.median((filled.radiance / without.radiance)[ghost]) - 1.0) < 0.1
 
 
 @pytest.mark.parametrize("case", ["lut", "warped"])
@@ -186,3 +205,25 @@ def test_compiled_block_test_matches_the_numpy_reference(case):
     for pa, pb in zip(a.pairs, b.pairs, strict=True):
         assert pa.flagged == pb.flagged and pa.blocks == pb.blocks
         np.testing.assert_allclose(pa.scale, pb.scale, rtol=1e-12)
+
+
+def test_read_only_frames_and_long_brackets_run():
+    """The kernel takes read-only frames (a bracket's arrays); a bracket longer than it takes
+    goes to the numpy reference, with the same sums."""
+    from hdrcore.merge.consistency import MAX_KERNEL_FRAMES
+
+    rng = np.random.default_rng(5)
+    n = MAX_KERNEL_FRAMES + 2
+    frames = [rng.integers(0, 256, (24, 32, 3)).astype(np.uint16) for _ in range(n)]
+    for f in frames[::2]:
+        f.flags.writeable = False
+    times = [1.1**k for k in range(n)]
+    kw = dict(saturation=[250] * 3, floor=5, lut=inverse_gamma_lut(255),
+              params=GhostTestParams(sample_pixels=500, min_bin_samples=3))
+    for m in (3, n):
+        a = pair_residuals(frames[:m], times[:m], engine="numba", **kw)
+        b = pair_residuals(frames[:m], times[:m], engine="numpy", **kw)
+        assert a.count.sum() > 0
+        for name in ("weighted", "weights", "count"):
+            np.testing.assert_allclose(getattr(a, name), getattr(b, name), rtol=1e-9,
+                                       atol=1e-12, err_msg=name)
