@@ -135,6 +135,11 @@ class ClientView:
         self.last_job_seconds: float | None = None
         self.last_ratios_seconds: float | None = None  # job start -> BTF plot and masks drawn
         self.last_registration_seconds: float | None = None  # job start -> overlays drawn
+        # the same spans in CPU seconds of the whole process (every thread): a shared machine's
+        # load stretches wall times, not these
+        self.last_ratios_cpu: float | None = None
+        self.last_registration_cpu: float | None = None
+        self.last_job_cpu: float | None = None
         self.ready_seconds: float | None = None  # view created -> first result drawn
         self._t_created = time.perf_counter()
         self._lock = threading.RLock()
@@ -524,6 +529,7 @@ class ClientView:
 
     def _reconcile(self, ctx: JobContext) -> None:
         t0 = time.perf_counter()
+        c0 = time.process_time()
         with self._lock:
             wanted = self._wanted
         if wanted is not None and wanted != self._loaded:
@@ -574,6 +580,7 @@ class ClientView:
             self._sync_widgets_to_result(quick)
             self._draw(quick, stages=("btf", "masks"))
             self.last_ratios_seconds = time.perf_counter() - t0
+            self.last_ratios_cpu = time.process_time() - c0
             ctx.check()
             registered = self.session.run(self.controls, progress=progress,
                                           until="registration")
@@ -581,12 +588,14 @@ class ClientView:
             if getattr(registered, "registration", None) is not None:
                 self._draw(registered, stages=("registration",))
             self.last_registration_seconds = time.perf_counter() - t0
+            self.last_registration_cpu = time.process_time() - c0
             ctx.check()
             result = self.session.run(self.controls, progress=progress)
             self.app.first_run = False
         ctx.check()
         self._draw(result)
         self.last_job_seconds = time.perf_counter() - t0
+        self.last_job_cpu = time.process_time() - c0
         if self.ready_seconds is None and result is not None:
             self.ready_seconds = time.perf_counter() - self._t_created
 
