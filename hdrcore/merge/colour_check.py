@@ -197,7 +197,7 @@ def block_consistency(
     to_reference: Sequence[np.ndarray] | None = None,
     masks: Sequence[np.ndarray | None] | None = None,
     block: int = CONSISTENCY_BLOCK,
-    max_blocks: int = 60_000,
+    max_blocks: int = 20_000,
     well_exposed: tuple[float, float] = WELL_EXPOSED,
 ) -> tuple[FramePairColour, ...]:
     """Consecutive frames' colour agreement on ``block x block`` means of the linearised frames:
@@ -251,13 +251,15 @@ def colour_check(
     masks: Sequence[np.ndarray | None] | None = None,
     max_samples: int = 150_000,
     well_exposed: tuple[float, float] = WELL_EXPOSED,
+    frame_pairs_blocks: tuple[FramePairColour, ...] | None = None,
 ) -> ColourCheck:
     """Check the colour of ``radiance`` (``(H, W, 3)`` linear, in the frames' primaries)
     against the integer ``frames`` linearised by ``lut`` (``(3, max_level + 1)``).
 
     ``to_reference[k]`` maps frame ``k``'s pixel coordinates to the reference frame (2x3 or
     3x3; ``None``: the frames are aligned); ``masks[k]`` marks frame ``k``'s valid pixels
-    (in its own coordinates).
+    (in its own coordinates). ``frame_pairs_blocks``: the frames' :func:`block_consistency`
+    when already measured (it does not depend on ``radiance``).
     """
     from ..registration.transform import nearest_in_frame
 
@@ -368,9 +370,10 @@ def colour_check(
         n_pixels=int(ref_ok.sum()), frame_pairs=tuple(pairs), frame_pairs_srgb=tuple(pairs_srgb),
         white_balance=tuple(wb), status=status, message="", well_exposed=tuple(well_exposed),
         best_frame_errors=tuple(best_errors), frame_pairs_wb=tuple(pairs_wb),
-        frame_pairs_blocks=block_consistency(
-            frames, table, max_level=max_level, reference=reference,
-            to_reference=to_reference, masks=masks, well_exposed=well_exposed),
+        frame_pairs_blocks=frame_pairs_blocks if frame_pairs_blocks is not None
+        else block_consistency(frames, table, max_level=max_level, reference=reference,
+                               to_reference=to_reference, masks=masks,
+                               well_exposed=well_exposed),
     )
     cons = check.frame_consistency
     if np.isfinite(cons):
@@ -858,7 +861,8 @@ def check_colour(
                              to_reference=to_reference, masks=masks, reference=reference,
                              lut=lut, exposure_times=exposure_times, shares=shares,
                              reference_band=reference_band)
-        after = colour_check(frames, radiance, lut, **kw)
+        after = colour_check(frames, radiance, lut, **kw,
+                             frame_pairs_blocks=before.frame_pairs_blocks)
     parts = []
     if done is not None:
         parts.append(
