@@ -25,7 +25,7 @@ darkest memorial scans moves the measured film-base pedestal from 21.1 to 12.1 l
 pedestal's own disagreement between scans then floods every test), then the merge is run with
 each test.
 
-    python bench/bench_ghost.py [--quick] [--sets memorial,frobisher,pixel7,xperia]
+    python bench/bench_ghost.py [--quick] [--sets memorial,frobisher,pixel7,xperia] [--skip-static]
 """
 
 from __future__ import annotations
@@ -171,16 +171,20 @@ def moving_object_bracket(b: Bracket, inputs: dict, radiance: np.ndarray, *, con
         t = tfs[k]
         fwd = np.eye(3)
         if t is not None:
-            fwd[:2] = t  # output -> frame
+            a = np.asarray(t, np.float64)  # output -> frame: 2x3 affine or 3x3
+            fwd[:a.shape[0]] = a
+            fwd /= fwd[2, 2]
         back = np.linalg.inv(fwd)  # frame -> output
         box = np.array([[cx - rx - 3, cy - ry - 3, 1], [cx + rx + 3, cy - ry - 3, 1],
                         [cx - rx - 3, cy + ry + 3, 1], [cx + rx + 3, cy + ry + 3, 1]]).T
         fb = fwd @ box
+        fb = fb[:2] / fb[2]
         y0, y1 = max(0, int(fb[1].min()) - 2), min(h, int(fb[1].max()) + 3)
         x0, x1 = max(0, int(fb[0].min()) - 2), min(w, int(fb[0].max()) + 3)
         fy, fx = np.mgrid[y0:y1, x0:x1].astype(np.float64)
-        oy = back[1, 0] * fx + back[1, 1] * fy + back[1, 2]
-        ox = back[0, 0] * fx + back[0, 1] * fy + back[0, 2]
+        ow = back[2, 0] * fx + back[2, 1] * fy + back[2, 2]
+        oy = (back[1, 0] * fx + back[1, 1] * fy + back[1, 2]) / ow
+        ox = (back[0, 0] * fx + back[0, 1] * fy + back[0, 2]) / ow
         alpha = _ellipse_alpha((h, w), cy, cx, ry, rx, oy, ox)
         ty = np.clip(oy - (cy - ry), 0, tex.shape[0] - 1)
         tx = np.clip(ox - (cx - rx), 0, tex.shape[1] - 1)
@@ -242,8 +246,10 @@ def moving_area(inputs: dict, cover: np.ndarray) -> np.ndarray:
         if t is None:
             v = frames[k]
         else:
-            sx = np.clip(np.floor(t[0, 0] * gx + t[0, 1] * gy + t[0, 2] + 0.5), 0, w - 1)
-            sy = np.clip(np.floor(t[1, 0] * gx + t[1, 1] * gy + t[1, 2] + 0.5), 0, h - 1)
+            t = np.asarray(t, np.float64)
+            tw = (t[2, 0] * gx + t[2, 1] * gy + t[2, 2]) if t.shape[0] == 3 else 1.0
+            sx = np.clip(np.floor((t[0, 0] * gx + t[0, 1] * gy + t[0, 2]) / tw + 0.5), 0, w - 1)
+            sy = np.clip(np.floor((t[1, 0] * gx + t[1, 1] * gy + t[1, 2]) / tw + 0.5), 0, h - 1)
             v = frames[k][sy.astype(int), sx.astype(int)]
         ok = np.all((v < sat) & (v > floor), axis=-1)
         if masks[k] is not None:
@@ -325,6 +331,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="tripod brackets only")
     ap.add_argument("--sets", default=None, help="comma-separated subset of " + ",".join(REAL))
+    ap.add_argument("--skip-static", action="store_true", help="the moving-object table only")
     args = ap.parse_args()
     if not DATA.is_dir():
         print(f"{DATA} not found: nothing to measure")
@@ -332,7 +339,8 @@ def main() -> None:
     names = list(TRIPOD) if args.quick else list(REAL)
     if args.sets:
         names = [s for s in args.sets.split(",") if s in REAL]
-    static_table(names)
+    if not args.skip_static:
+        static_table(names)
     moving_table(names, (4.0, 0.25))
 
 
