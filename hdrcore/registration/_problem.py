@@ -750,11 +750,17 @@ def register_with(
     lut: np.ndarray | None = None,
     dark_index: int = 0,
     bright_index: int = 1,
+    check_residual: bool = False,
     **refine_options,
 ) -> PairRegistration:
     """The common driver: checks, eq. 5 integer shift, ``refine``, costs, status, previews.
 
     ``models``: the motion models ``refine`` supports (default: all of :data:`MODELS`).
+    ``check_residual``: a registered pair is then also measured by
+    :func:`hdrcore.registration.residual.residual_motion` (shares nothing with the search) and
+    is ``ok`` only if that finds it aligned; otherwise ``weak`` with what is left and where
+    (its motion is still usable), the measurement in ``residual`` (0.3-0.4 s of CPU for a
+    9-24 MP pair).
     """
     t0 = time.perf_counter()
     accepted = [n for n, prm in inspect.signature(refine).parameters.items()
@@ -871,6 +877,9 @@ def register_with(
     if status != "ok":
         return _failed(data, status, message, shift=shift, cost_before=cost_before,
                        previews=previews, overlap=overlap, **common)
+    residual = None
+    if check_residual:
+        status, message, residual = _checked(data, homography, model, message)
     return PairRegistration(
         dark=dark_index, bright=bright_index,
         matrix=affine_part(homography) if model in AFFINE_MODELS else None,
@@ -886,7 +895,30 @@ def register_with(
         status=status, message=message, shape=data.shape,
         seconds=time.perf_counter() - t0,
         preview=make_preview(data, homography) if previews else None,
+        residual=residual,
     )
+
+
+def _checked(data: PairData, homography: np.ndarray, model: str, message: str):
+    """``(status, message, residual)`` of a registered pair after the independent residual
+    check (see :func:`register_with`); the words are the pipeline's."""
+    from .residual import residual_motion
+
+    try:
+        res = residual_motion(data.dark, data.bright, data.ratio, homography,
+                              saturation=data.saturation, noise_floor=data.noise_floor,
+                              lut=data.lut)
+    except ParameterError as exc:  # too small a frame to tile
+        return "ok", f"{message}; residual not measured: {exc}", None
+    if res.status == "misaligned":
+        what = res.describe()
+        if model == "homography":  # the words of the residual assume a simpler model
+            what = what.replace("the motion model has no perspective",
+                                "the homography did not remove it (parallax or a poor optimum)")
+        return "weak", f"{what} (the search itself: {message})", res
+    if res.status == "unmeasured":
+        return "ok", f"{message}; {res.describe()}", res
+    return "ok", message, res
 
 
 def to_level(matrix: np.ndarray, level: int) -> np.ndarray:

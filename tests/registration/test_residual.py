@@ -322,3 +322,22 @@ def test_structure_fixed_to_the_sensor_is_left_out():
     assert not np.any(res.valid & res.sensor)
     assert res.status == "aligned", res.message
     assert "follow the sensor" in res.describe()
+
+
+def test_register_pair_with_check_residual_is_ok_only_when_aligned():
+    # a zoom of 0.6 % (1.7 px at the corners): the euclidean model cannot hold it and its pair
+    # is 'weak', the residual saying what is left; the similarity's pair is 'ok'
+    from hdrcore.registration import register_pair
+
+    h = _similarity(scale=1.006, shift=(2.0, -1.0))
+    dark, bright, sat, nf = _pair(h)
+    kw = dict(saturation=sat, noise_floor=nf, previews=False, check_residual=True)
+    eu = register_pair(dark, bright, 4.0, model="euclidean", **kw)
+    assert eu.status == "weak" and eu.usable and eu.residual is not None
+    assert eu.residual.kind == "zoom" and "zoom" in eu.message
+    sim = register_pair(dark, bright, 4.0, model="similarity", **kw)
+    assert sim.ok and sim.residual is not None and sim.residual.aligned
+    assert sim.residual.median < 0.3
+    # without the check the euclidean pair says 'ok' (the search's own status)
+    assert register_pair(dark, bright, 4.0, model="euclidean", saturation=sat,
+                         noise_floor=nf, previews=False).ok
