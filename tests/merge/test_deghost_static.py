@@ -111,17 +111,18 @@ def _kernel_inputs(seed: int = 0):
     return frames, [None, t, None, t * 0.999], masks
 
 
-@pytest.mark.parametrize("case", ["lut", "linear", "warped", "float"])
+@pytest.mark.parametrize("case", ["lut", "linear", "warped", "float", "step"])
 def test_compiled_chains_match_the_numpy_reference(case):
     frames, tfs, masks = _kernel_inputs()
-    params = GhostTestParams(sample_pixels=500, min_bin_samples=3)
+    params = GhostTestParams(sample_pixels=500, min_bin_samples=3,
+                             pixel_step=2 if case == "step" else 1)
     kw = dict(saturation=[250] * 3, floor=5, noise=NoiseModel(level_noise=2.0), params=params)
     times = [1.0, 4.0, 2.0, 8.0]
     if case == "lut":
         kw["lut"] = inverse_gamma_lut(255)
     elif case == "linear":
         kw["max_level"] = 255
-    elif case == "warped":
+    elif case in ("warped", "step"):
         kw.update(lut=inverse_gamma_lut(255), transforms=tfs, masks=masks)
     else:
         frames = [f.astype(np.float32) / 255 for f in frames[:3]]
@@ -138,6 +139,8 @@ def test_compiled_chains_match_the_numpy_reference(case):
 def test_bad_parameters_are_refused():
     with pytest.raises(ParameterError, match="block must be >= 1"):
         GhostTestParams(block=0)
+    with pytest.raises(ParameterError, match="pixel_step"):
+        GhostTestParams(pixel_step=3)
     with pytest.raises(ParameterError, match="edge_margin"):
         GhostTestParams(edge_margin=0.6)
     frames, times, _ = _bracket()
@@ -184,13 +187,15 @@ def test_real_tripod_brackets_flag_almost_nothing(frobisher_dir, memorial_dir):
     assert abs(np.median((filled.radiance / without.radiance)[ghost]) - 1.0) < 0.1
 
 
-@pytest.mark.parametrize("case", ["lut", "warped"])
+@pytest.mark.parametrize("case", ["lut", "warped", "step"])
 def test_compiled_block_test_matches_the_numpy_reference(case):
     """The whole test (sums, transfer error, block z, regions) through the kernels and through
     the numpy reference: the same blocks, z and pixel map."""
     frames, times, _ = _bracket("gamma", 4.0)
     kw = dict(saturation=[247.35] * 3, floor=5.1, lut=inverse_gamma_lut(255),
               noise=NoiseModel(level_noise=2.0))
+    if case == "step":
+        kw["params"] = GhostTestParams(pixel_step=2)
     if case == "warped":
         t = np.array([[1.0, 0.002, 0.6], [-0.002, 1.0, -0.4]])
         kw.update(transforms=[None, t, None],
