@@ -58,7 +58,7 @@ def _log8(v: np.ndarray, lo: float, hi: float) -> np.ndarray:
     return np.clip(np.rint(t * 255), 0, 255).astype(np.uint8)
 
 
-def run(name: str) -> None:
+def run(name: str, tile: int | None = None) -> None:
     folder = DATA / name
     if not folder.is_dir():
         print(f"\n{name}: not available, skipped")
@@ -77,13 +77,15 @@ def run(name: str) -> None:
     t0 = time.process_time()
     w0 = time.perf_counter()
     loc = refine_bracket(green, exposures, reg.to_reference_homography, reg.reference,
-                         saturation=sat, noise_floor=nf, lut=table, threshold=pl.params.threshold)
+                         saturation=sat, noise_floor=nf, lut=table, threshold=pl.params.threshold,
+                         tile=tile)
     cpu, wall = time.process_time() - t0, time.perf_counter() - w0
     lin = [table[g] for g in green]
     inv = [np.linalg.inv(np.asarray(m, float) if np.shape(m) == (3, 3)
                          else np.vstack([m, [0, 0, 1]])) for m in reg.to_reference_homography]
     print(f"\n### {name}: {b.shape[1]}x{b.shape[0]}, {len(b)} frames, reference {reg.reference}; "
-          f"refinement {wall:.1f} s wall, {cpu:.1f} s CPU for {len(loc.frames)} frames")
+          f"refinement ({loc.tile} px nodes) {wall:.1f} s wall, {cpu:.1f} s CPU for "
+          f"{len(loc.frames)} frames")
     print("\n| frame vs | global: median / p90 | + our field | + DIS flow | field kept | "
           "field median / max px |")
     print("|---|---|---|---|---|---|")
@@ -95,7 +97,7 @@ def run(name: str) -> None:
         dark_first = exposures[j] <= exposures[k]
         ratio = exposures[k] / exposures[j] if dark_first else exposures[j] / exposures[k]
 
-        def measure(bk: np.ndarray):
+        def measure(bk: np.ndarray, a=a, dark_first=dark_first, ratio=ratio):
             d, br = (a, bk) if dark_first else (bk, a)
             r = residual_motion(np.where(np.isnan(d), np.nan, d), br, float(ratio), None,
                                 saturation=sat, noise_floor=nf)
@@ -126,9 +128,11 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--brackets", nargs="*",
                     default=["handheld-pixel7-lab", "handheld-xperia-library"])
+    ap.add_argument("--tile", type=int, default=None,
+                    help="node spacing of the field (default: the library's choice)")
     args = ap.parse_args()
     for name in args.brackets:
-        run(name)
+        run(name, args.tile)
 
 
 if __name__ == "__main__":
