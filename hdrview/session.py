@@ -50,6 +50,7 @@ class Controls:
     noise_floor: float | None = None
     threshold: float | None = None
     alignment: str | None = None
+    local: str | None = None
     reference: int | None = None
     response: str | None = None
     tonemap: str | None = None
@@ -68,6 +69,7 @@ _PARAM_NAMES: dict[str, tuple[str, ...]] = {
     "noise_floor": ("noise_floor",),
     "threshold": ("threshold", "normalisation_threshold", "threshold_t"),
     "alignment": ("alignment", "align", "alignment_model", "model"),
+    "local": ("local",),
     "reference": ("reference", "reference_frame"),
     "response": ("response", "response_method"),
     "tonemap": ("tonemap", "tonemap_operator", "operator"),

@@ -99,12 +99,13 @@ NOTES = {
 def _registry_names() -> dict[str, tuple[str, ...]]:
     """The choices of each dropdown, from the library's registries."""
     from hdrcore.exposure import EXPOSURE_METHODS
-    from hdrcore.pipeline import ALIGN_CHOICES
+    from hdrcore.pipeline import ALIGN_CHOICES, LOCAL_CHOICES
     from hdrcore.response import RESPONSE_METHODS, SPECIAL_RESPONSES
     from hdrcore.tonemap import TONEMAP_OPERATORS
 
     return {
         "alignment": tuple(ALIGN_CHOICES),
+        "local": tuple(LOCAL_CHOICES),
         "response": ("auto", *SPECIAL_RESPONSES, *RESPONSE_METHODS),
         "tonemap": tuple(TONEMAP_OPERATORS),
         "exposure_method": tuple(EXPOSURE_METHODS),
@@ -211,6 +212,13 @@ class ClientView:
                 initial_value=_option(defaults.align, defaults.align),
                 hint="motion model between hand-held frames",
             )
+            self.local_dropdown = gui.add_dropdown(
+                "Local refinement", tuple(_option(n, defaults.local) for n in names["local"]),
+                initial_value=_option(defaults.local, defaults.local),
+                hint="after the motion model, a smooth displacement field per frame for "
+                     "parallax (auto: the frames left misaligned; kept where it lowers the "
+                     "measured residual)",
+            )
             self.reference_dropdown = gui.add_dropdown("Reference", ("middle",))
             self.response_dropdown = gui.add_dropdown(
                 "Response", tuple(_option(n, defaults.response) for n in names["response"]),
@@ -303,6 +311,7 @@ class ClientView:
         control(self.noise_slider, "noise_floor", float)
         control(self.threshold_slider, "threshold", float)
         control(self.alignment_dropdown, "alignment", _unmark)
+        control(self.local_dropdown, "local", _unmark)
         control(self.exposure_slider, "exposure", float)
         control(self.reference_dropdown, "reference", self._reference_value)
         control(self.response_dropdown, "response", _unmark)
@@ -482,6 +491,7 @@ class ClientView:
             self.deghost_checkbox.value = d.deghost
             self.reference_dropdown.value = "middle"
             for handle, default in ((self.alignment_dropdown, d.align),
+                                    (self.local_dropdown, d.local),
                                     (self.response_dropdown, d.response),
                                     (self.times_dropdown, d.times),
                                     (self.exposure_method_dropdown, d.exposure_method),
@@ -718,7 +728,8 @@ class ClientView:
             f"Z = {_num(result.saturation)}{mark('saturation')}, "
             f"noise floor = {_num(result.noise_floor)}{mark('noise_floor')}, "
             f"t = {_num(p.threshold)}{mark('threshold')}, alignment = {p.align}"
-            f"{mark('alignment')}, response = {response}{mark('response')}, "
+            f"{mark('alignment')}, local refinement = {getattr(p, 'local', 'off')}"
+            f"{mark('local')}, response = {response}{mark('response')}, "
             f"times = {result.times_source}, operator = {p.tonemap}{mark('tonemap')}, "
             f"exposure = {_num(p.tonemap_exposure)} EV"
         )
