@@ -214,7 +214,8 @@ def _dkeys(f, w):
 
 
 @_njit
-def gauss_newton_sums(img, lut, xs, ys, bs, m, frame, n_par, gradient, hess, grad, gain, n_gain):
+def gauss_newton_sums(img, lut, xs, ys, bs, m, frame, n_par, gradient, hess, grad, gain, n_gain,
+                      robust):
     """Eq. 6 weighted sum of squared eq. 7 residuals and the sum of the weights at the samples;
     with ``gradient`` also the Gauss-Newton normal equations of the first ``n_par`` motion
     generators added into ``hess`` (8x8, upper triangle mirrored) and ``grad`` (8).
@@ -233,8 +234,10 @@ def gauss_newton_sums(img, lut, xs, ys, bs, m, frame, n_par, gradient, hess, gra
     smooth gain ``exp(gain[0] + gain[1] X + gain[2] Y)`` (a correction of the exposure ratio
     and of its variation across the frame); with ``n_gain`` (0, 1 or 3) its first coefficients
     are ``n_gain`` more columns after the ``n_par`` of the motion (``d n / d gain_i = dn/da a
-    (1, X, Y)_i``), so ``hess`` is at least ``(n_par + n_gain)`` square. Returns ``(sum w n^2,
-    sum w)``.
+    (1, X, Y)_i``), so ``hess`` is at least ``(n_par + n_gain)`` square. With ``robust = c >
+    0`` each sample's ``n^2`` becomes Cauchy's ``c^2 log(1 + n^2 / c^2)`` and its normal
+    equations are weighted by ``1 / (1 + n^2 / c^2)`` (the Gauss-Newton step of that loss).
+    Returns ``(sum w n^2, sum w)`` (the robust sum with ``robust``).
     """
     h, w = img.shape
     lo = frame[0]
@@ -328,10 +331,18 @@ def gauss_newton_sums(img, lut, xs, ys, bs, m, frame, n_par, gradient, hess, gra
             if not denom > 0:
                 denom = 1.0
             n = (a - b) / denom
-            ssum += wt * n * n
-            wsum += wt
-            if not gradient:
-                continue
+            if robust > 0:
+                r2 = (n / robust) ** 2
+                ssum += wt * robust * robust * math.log1p(r2)
+                wsum += wt
+                if not gradient:
+                    continue
+                wt = wt / (1.0 + r2)
+            else:
+                ssum += wt * n * n
+                wsum += wt
+                if not gradient:
+                    continue
             _dkeys(fx, dwx)
             _dkeys(fy, dwy)
             sx = 0.0

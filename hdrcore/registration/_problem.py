@@ -511,7 +511,7 @@ def residuals(
 def normal_equations(
     data: PairData, level: int, inverse: np.ndarray, s: Samples, *, n_par: int = 3,
     gradient: bool = True, compiled: bool | None = None, ramp: float = BORDER_RAMP,
-    gain: np.ndarray | None = None, n_gain: int = 0,
+    gain: np.ndarray | None = None, n_gain: int = 0, robust: float = 0.0,
 ) -> tuple[float, float, np.ndarray, np.ndarray]:
     """Eq. 6 sum over the samples and its Gauss-Newton normal equations in one pass.
 
@@ -527,7 +527,9 @@ def normal_equations(
     ``exp(g0 + g1 X + g2 Y)`` (``X, Y`` as the generators'): a correction of the exposure
     ratio and a linear change of it across the frame (a phone's local tone mapping or
     vignetting correction). With ``n_gain`` (1: ``g0``; 3: all) these are ``n_gain`` more
-    unknowns after the motion's: the matrices are ``n_par + n_gain`` square.
+    unknowns after the motion's: the matrices are ``n_par + n_gain`` square. ``robust`` (``c``
+    > 0): Cauchy's loss ``c^2 log(1 + n^2 / c^2)`` instead of ``n^2`` (samples far off the
+    fit, a second plane or a moving object, weigh less); the first value is then its sum.
     """
     if compiled is None:
         compiled = _kernels.AVAILABLE
@@ -543,15 +545,21 @@ def normal_equations(
         img = data.bright if level == 0 else data.levels[level][0]
         ssum, wsum = _kernels.gauss_newton_sums(
             img, data.lut if level == 0 else None, s.x, s.y, s.b, m, frame, n_par, gradient,
-            hess, grad, g, n_gain,
+            hess, grad, g, n_gain, float(robust),
         )
         return float(ssum), float(wsum), hess, grad
     n, gx, gy, weight, qx, qy = residuals(data, level, m, s, gradient=gradient, ramp=ramp,
                                           gain=g)
     wsum = float(weight.sum())
-    ssum = float(np.sum(weight * n * n))
+    if robust > 0:
+        r2 = (n / robust) ** 2
+        ssum = float(np.sum(weight * robust * robust * np.log1p(r2)))
+    else:
+        ssum = float(np.sum(weight * n * n))
     if not gradient:
         return ssum, wsum, np.zeros((n_tot, n_tot)), np.zeros(n_tot)
+    if robust > 0:
+        weight = weight / (1.0 + r2)
     cx, cy, unit = frame[3], frame[4], frame[5]
     ux, uy = (qx - cx) / unit, (qy - cy) / unit
     cols = [gx * ex + gy * ey for ex, ey in _generators(ux, uy, n_par)]

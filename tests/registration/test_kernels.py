@@ -119,6 +119,31 @@ def test_normal_equations_with_gain_match_numpy_reference(pair, level, n_par, n_
     assert normal_equations(data, level, m, s, n_par=n_par)[0] != pytest.approx(c_jit[0])
 
 
+@pytest.mark.parametrize("level", [0, 1])
+def test_robust_normal_equations_match_numpy_reference(pair, level):
+    dark, bright, ml = pair
+    data = prepare(dark, bright, 4.0, saturation=0.98, noise_floor=3 / ml, threshold=0.1)
+    s = select_samples(data, level, 5000)
+    m = homogeneous(rigid_matrix(-6.0 / 2**level, 4.0 / 2**level, -1.0, data.level_shape(level)))
+    kw = dict(n_par=8, gain=np.array([0.05, 0.0, 0.02]), n_gain=3, robust=0.02, ramp=1e-9)
+    c_ref = normal_equations(data, level, m, s, compiled=False, **kw)
+    c_jit = normal_equations(data, level, m, s, compiled=True, **kw)
+    np.testing.assert_allclose(c_jit[0], c_ref[0], rtol=1e-10)
+    np.testing.assert_allclose(c_jit[2], c_ref[2], rtol=1e-9, atol=1e-12 * abs(c_ref[2]).max())
+    np.testing.assert_allclose(c_jit[3], c_ref[3], rtol=1e-9, atol=1e-12 * abs(c_ref[3]).max())
+    # Cauchy's loss is below the sum of squares, and the step's gradient is its derivative
+    plain = normal_equations(data, level, m, s, compiled=True, n_par=8)
+    assert c_jit[0] < plain[0]
+    d = np.zeros(11)
+    d[0] = 1e-4
+    up = normal_equations(data, level, motion_update(d[:8], data.level_shape(level)) @ m, s,
+                          gradient=False, **kw)[0]
+    down = normal_equations(data, level, motion_update(-d[:8], data.level_shape(level)) @ m, s,
+                            gradient=False, **kw)[0]
+    numeric = (up - down) / 2e-4 / 2
+    assert numeric == pytest.approx(c_jit[3][0], rel=5e-3, abs=1e-6 * abs(c_jit[3]).max())
+
+
 def test_gain_columns_are_derivatives_of_the_residuals(pair):
     dark, bright, ml = pair
     data = prepare(dark, bright, 4.0, saturation=0.98, noise_floor=3 / ml, threshold=0.1)
