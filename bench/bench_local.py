@@ -14,8 +14,12 @@ frame warped beforehand by a cubic spline: median and 90th percentile of the til
   MEDIUM, on the exposure-equalised log images at 8 bits, the frame pair as our refinement
   sees it): a dense local aligner, the peer that refines per pixel.
 
-and the seconds of our refinement per frame (CPU-shared 2-core machine: pessimistic). cv2 is
-used only here, never in ``hdrcore``.
+and the seconds of our refinement per frame (CPU-shared 2-core machine: pessimistic).
+
+``--speed``: the rendered 24-megapixel pair of ``bench_models_real.py --speed`` (cached in
+``bench/out``), its true motion as the global one: the refinement's wall and CPU seconds (best
+of 3) beside OpenCV's AlignMTB on the same pair in the same run, as a ratio. cv2 is used only
+here, never in ``hdrcore``.
 """
 
 from __future__ import annotations
@@ -124,13 +128,58 @@ def run(name: str, tile: int | None = None) -> None:
               f"{'yes' if fr.kept else 'no'} | {cand.median_px:.2f} / {cand.max_px:.2f} |")
 
 
+def speed() -> None:
+    import os
+
+    cache = ROOT / "bench" / "out" / "models_24mp_pair.npz"
+    if not cache.exists():
+        print("\n(speed: run bench/bench_models_real.py --speed first to render the pair)")
+        return
+    z = np.load(cache)
+    dark, bright, ml = z["dark"], z["bright"], int(z["ml"])
+    sys.path.insert(0, str(ROOT))
+    from tests.registration._pairs import perspective
+
+    truth = perspective(dark.shape, 7.3, -4.2, 0.35, 0.995, 0.0, 0.0)
+
+    def best(fn):
+        walls, cpus = [], []
+        for _ in range(3):
+            t0, c0 = time.perf_counter(), time.process_time()
+            out = fn()
+            walls.append(time.perf_counter() - t0)
+            cpus.append(time.process_time() - c0)
+        return min(walls), min(cpus), out
+
+    w1, c1, loc = best(lambda: refine_bracket([dark, bright], [1.0, 4.0], [np.eye(3), truth], 0,
+                                              saturation=0.98, noise_floor=3 / ml))
+    d8 = np.clip(np.rint(np.sqrt(np.clip(dark * 4.0, 0, 1)) * 255), 0, 255).astype(np.uint8)
+    b8 = np.clip(np.rint(np.sqrt(np.clip(bright, 0, 1)) * 255), 0, 255).astype(np.uint8)
+    mtb = cv2.createAlignMTB()
+    w2, c2, _ = best(lambda: mtb.calculateShift(d8, b8))
+    fr = loc.frames[0]
+    print(f"\n## Speed: 24 MP pair (6000x4000), best of 3; load {os.getloadavg()[0]:.1f} "
+          "on 2 cores\n")
+    print("| | wall s | CPU s | vs AlignMTB (wall) |")
+    print("|---|---|---|---|")
+    print(f"| local refinement ({loc.tile} px nodes, level {loc.level}) | {w1:.2f} | {c1:.2f} | "
+          f"{w1 / w2:.2f}x |")
+    print(f"| AlignMTB (cv2) | {w2:.2f} | {c2:.2f} | 1 |")
+    print(f"\nfield on the exact global motion: {fr.candidate.median_px:.3f} px median, "
+          f"{fr.candidate.max_px:.3f} px max; {fr.message}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--brackets", nargs="*",
                     default=["handheld-pixel7-lab", "handheld-xperia-library"])
     ap.add_argument("--tile", type=int, default=None,
                     help="node spacing of the field (default: the library's choice)")
+    ap.add_argument("--speed", action="store_true", help="the 24 MP speed section only")
     args = ap.parse_args()
+    if args.speed:
+        speed()
+        return
     for name in args.brackets:
         run(name, args.tile)
 
