@@ -72,8 +72,6 @@ class InspectorApp:
         self.brackets = BracketCache()
         self._defaults: Any = None  # the pipeline's parameters, imported on first use
         self._defaults_lock = threading.Lock()
-        # set once a page has shown its first frames: the start-up run waits for it (a while)
-        self.page_shown = threading.Event()
         self.first_run = True  # no pipeline has run in this process yet (kernels compile)
         self.views: dict[int, ClientView] = {}
         self._lock = threading.Lock()
@@ -169,10 +167,6 @@ class InspectorApp:
                              loader=self.brackets.get)
                 from .session import Controls
 
-                # The page first: a page that opens now shows its frames before this run
-                # takes the two cores (its controls were built in 0.6 s instead of 2.0 s,
-                # loaded machine); without a page the run waits PAGE_FIRST_SECONDS at most.
-                self.page_shown.wait(PAGE_FIRST_SECONDS)
                 session.run(Controls())
                 self.first_run = False
                 box.append(session)
@@ -206,7 +200,6 @@ class InspectorApp:
     def stop(self) -> None:
         """Close every page and remove the temporary folder (uploads, exports)."""
         self._stopped = True
-        self.page_shown.set()  # a start-up run waiting for a page goes on (and ends)
         with self._lock:
             views = list(self.views.values())
             self.views.clear()
@@ -217,10 +210,6 @@ class InspectorApp:
             if not self.work_dir.exists():
                 break
             time.sleep(0.1)
-
-
-#: The longest the start-up run waits for the first page to show its frames.
-PAGE_FIRST_SECONDS = 2.0
 
 
 def _default_params() -> Any:

@@ -551,7 +551,6 @@ class ClientView:
                     # soon, in the shared cache) while its stages finish.
                     early = self.app.brackets.get(list(files), times)
                     self.frames_panel.show(early)
-                    self.app.page_shown.set()  # the start-up run may take the cores now
                     self._drawn_bracket = early
                     self.status.content = f"**{label}**: {len(early)} frames; processing..."
                 warm = self.app.take_warm(files, times)  # decoded and run at start
