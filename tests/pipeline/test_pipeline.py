@@ -77,7 +77,10 @@ def test_report_is_json_with_command_field_names(demo_result) -> None:
                 "inliers", "exif_ratio", "mismatch_stops", "std_error", "status", "message"):
         assert key in pair
     reg = rep["registration"]
-    assert set(reg) == {"reference", "pairs", "to_reference", "to_reference_homography"}
+    assert set(reg) == {"reference", "pairs", "to_reference", "to_reference_homography",
+                        "local"}
+    # local refinement: null when it did not run (no pair left misaligned), else its frames
+    assert reg["local"] is None or {"tile", "frames", "summary"} <= set(reg["local"])
     for key in ("dark", "bright", "matrix", "dx", "dy", "angle_deg", "cost_before",
                 "cost_after", "status", "message"):
         assert key in reg["pairs"][0]
