@@ -95,7 +95,9 @@ def run(name: str, tile: int | None = None) -> None:
     print("|---|---|---|---|---|---|")
     fields_used = {}
     dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
-    for fr in loc.frames:
+    # outwards from the reference, as the refinement ran: a frame is compared with its
+    # neighbour already read through that neighbour's field
+    for fr in sorted(loc.frames, key=lambda fr: abs(fr.frame - reg.reference)):
         k, j = fr.frame, fr.against
         a = _warp(lin[j], inv[j], fields_used.get(j))
         dark_first = exposures[j] <= exposures[k]

@@ -34,8 +34,10 @@ median growing, or a misaligned pair becomes aligned, and as many tiles stay mea
 that scrambles part of the frame makes its tiles unmeasurable, which flatters the rest).
 Otherwise the frame keeps its global motion alone (``kept`` False) and the reason is said.
 
-The check runs on the working level, the field's own resolution; ``bench/bench_local.py``
-measures the same residual at full resolution, beside OpenCV's DIS optical flow.
+The check runs on the full-resolution frames up to ``CHECK_FULL_PIXELS`` (as
+``bench/bench_local.py`` measures the result, beside OpenCV's DIS optical flow; a check on the
+working level kept a Pixel 7 field that full resolution found worse, 0.45 -> 0.61 px median),
+on the working level beyond.
 """
 
 from __future__ import annotations
@@ -62,6 +64,10 @@ log = logging.getLogger(__name__)
 #: Pixels per level the refinement works on at its finest: at most this many (a 24 MP frame is
 #: refined at a quarter of its size, an 8 MP one at half, small frames at full size).
 MAX_LEVEL_PIXELS = 3.0e6
+
+#: Frames up to this many pixels are checked at full resolution (the residual measurement then
+#: picks its own level, as bench/bench_local.py does); larger ones on the working level.
+CHECK_FULL_PIXELS = 16e6
 
 #: Rounds of measure-and-fit per frame (the tile shifts are measured again through the field).
 ROUNDS = 2
@@ -260,7 +266,7 @@ def _sample(frame: np.ndarray, sx: np.ndarray, sy: np.ndarray, f: int,
 
 
 @_njit
-def _warp_rows(src, m, nodes, tile, f, inside, out, r0, r1):  # pragma: no cover - compiled
+def _warp_rows(src, m, nodes, tile, f, inside, cubic, out, r0, r1):  # pragma: no cover
     """Rows ``r0:r1`` of the level grid: ``src`` (a level frame) read bilinearly at
     ``H(x) + d(x)`` (``inside``: ``H(x + d(x))``) of each level pixel's full-resolution
     position ``x = f * p + (f - 1) / 2``, ``d`` the bilinear interpolation of ``nodes``
@@ -300,6 +306,9 @@ def _warp_rows(src, m, nodes, tile, f, inside, out, r0, r1):  # pragma: no cover
             if not (lx >= 0.0 and lx <= w - 1.0 and ly >= 0.0 and ly <= h - 1.0):
                 out[y, x] = np.nan
                 continue
+            if cubic:
+                out[y, x] = _keys_at(src, lx, ly)
+                continue
             ix = min(int(lx), w - 2)
             iy = min(int(ly), h - 2)
             ax = lx - ix
@@ -311,8 +320,43 @@ def _warp_rows(src, m, nodes, tile, f, inside, out, r0, r1):  # pragma: no cover
             out[y, x] = val if np.isfinite(val) else np.inf
 
 
+@_njit
+def _keys_at(src, lx, ly):  # pragma: no cover - compiled
+    """Keys cubic (a = -1/2) of ``src`` at ``(lx, ly)``, taps clamped to the frame; inf when
+    a tap is not finite (a clipped block)."""
+    h, w = src.shape
+    ix = int(np.floor(lx))
+    iy = int(np.floor(ly))
+    fx = lx - ix
+    fy = ly - iy
+    wx0 = ((-0.5 * fx + 1.0) * fx - 0.5) * fx
+    wx1 = (1.5 * fx - 2.5) * fx * fx + 1.0
+    wx2 = ((-1.5 * fx + 2.0) * fx + 0.5) * fx
+    wx3 = (0.5 * fx - 0.5) * fx * fx
+    wy0 = ((-0.5 * fy + 1.0) * fy - 0.5) * fy
+    wy1 = (1.5 * fy - 2.5) * fy * fy + 1.0
+    wy2 = ((-1.5 * fy + 2.0) * fy + 0.5) * fy
+    wy3 = (0.5 * fy - 0.5) * fy * fy
+    x0 = min(max(ix - 1, 0), w - 1)
+    x1 = min(max(ix, 0), w - 1)
+    x2 = min(max(ix + 1, 0), w - 1)
+    x3 = min(max(ix + 2, 0), w - 1)
+    val = 0.0
+    for dy in range(4):
+        yy = min(max(iy - 1 + dy, 0), h - 1)
+        wy = wy0 if dy == 0 else (wy1 if dy == 1 else (wy2 if dy == 2 else wy3))
+        a0 = src[yy, x0]
+        a1 = src[yy, x1]
+        a2 = src[yy, x2]
+        a3 = src[yy, x3]
+        if not (np.isfinite(a0) and np.isfinite(a1) and np.isfinite(a2) and np.isfinite(a3)):
+            return np.inf
+        val += wy * (wx0 * a0 + wx1 * a1 + wx2 * a2 + wx3 * a3)
+    return val
+
+
 def _warped(fr: np.ndarray, grid: _Grid, homography: np.ndarray, nodes: np.ndarray | None,
-            inside: bool = False) -> np.ndarray:
+            inside: bool = False, cubic: bool = False) -> np.ndarray:
     """A level frame read at ``H(x) + d(x)`` (``inside``: ``H(x + d(x))``) for the level's
     reference pixels: NaN outside the frame, +inf where the taps touch a clipped block."""
     if not _COMPILED:
@@ -323,15 +367,17 @@ def _warped(fr: np.ndarray, grid: _Grid, homography: np.ndarray, nodes: np.ndarr
           else np.ascontiguousarray(nodes, np.float64))
     m = np.ascontiguousarray(homography, np.float64)
     run_row_spans(grid.hl, None, lambda r0, r1: _warp_rows(
-        fr, m, nd, float(grid.tile), float(grid.f), bool(inside), out, r0, r1))
+        fr, m, nd, float(grid.tile), float(grid.f), bool(inside), bool(cubic), out, r0, r1))
     return out
 
 
 def _resampled(fr: np.ndarray, grid: _Grid, homography: np.ndarray,
-               nodes: np.ndarray | None) -> np.ndarray:
+               nodes: np.ndarray | None, cubic: bool = False) -> np.ndarray:
     """A level frame read at ``H(x) + d(x)`` for the level's reference pixels (NaN outside
-    and +inf where clipped)."""
-    return _warped(fr, grid, homography, nodes)
+    and +inf where clipped); ``cubic``: Keys, as the merge reads it (the checks: bilinear
+    interpolation shifts fine structure by an amount that depends on the sub-pixel phase,
+    which the phase correlation of the check sees as 0.05-0.1 px of residual)."""
+    return _warped(fr, grid, homography, nodes, cubic=cubic)
 
 
 # ------------------------------------------------------------------------ the solver
@@ -464,6 +510,15 @@ def refine_bracket(
     lo, hi = float(noise_floor), float(saturation)
     frames: dict[int, np.ndarray] = {}
 
+    check_full = level > 0 and shape[0] * shape[1] <= CHECK_FULL_PIXELS
+    grid_full = _Grid(shape, 1, t) if check_full else None
+    full: dict[int, np.ndarray] = {}
+
+    def full_frame(k: int) -> np.ndarray:
+        if k not in full:
+            full[k] = _prepare(np.asarray(images[k]), lut_arr, 1, hi)
+        return full[k]
+
     def level_frame(k: int) -> np.ndarray:
         if k not in frames:
             frames[k] = _prepare(np.asarray(images[k]), lut_arr, f, hi)
@@ -508,7 +563,28 @@ def refine_bracket(
                 return None
 
         b = _resampled(level_frame(k), grid, mats[k], None)
-        r0 = measure(b)
+        if check_full:
+            # the check on full-resolution frames, as bench_local measures the result: a
+            # working-level check kept fields that full resolution found worse
+            a_full = _resampled(full_frame(j), grid_full, mats[j],
+                                None if prev is None else prev.offsets, cubic=True)
+
+            def check(offsets: np.ndarray | None, a_full: np.ndarray = a_full,
+                      dark_first: bool = dark_first, ratio: float = ratio, j: int = j,
+                      k: int = k):
+                bf = _resampled(full_frame(k), grid_full, mats[k], offsets, cubic=True)
+                am = np.where(np.isinf(a_full), np.float32(hi), a_full)
+                bm = np.where(np.isinf(bf), np.float32(hi), bf)
+                d, br = (am, bm) if dark_first else (bm, am)
+                try:
+                    return residual_motion(d, br, ratio, None, saturation=hi, noise_floor=lo)
+                except (ParameterError, ValueError) as exc:
+                    log.debug("residual of frames %d-%d not measured: %s", j, k, exc)
+                    return None
+
+            r0 = check(None)
+        else:
+            r0 = measure(b)
         nodes = np.zeros((grid.gh, grid.gw, 2))
         # the shift of a tile says where the bright frame's content lies in the dark one:
         # frame k moves against it when k is the bright one
@@ -524,9 +600,14 @@ def refine_bracket(
                                   grid.gh, grid.gw, t, smoothness)
             b = _warped(level_frame(k), grid, mats[k], nodes, inside=True)
         cand = _as_source_field(mats[k], nodes, t)
-        r1 = measure(_resampled(level_frame(k), grid, mats[k], cand.offsets))
-        med0, p90_0 = (float("nan"),) * 2 if r0 is None else (r0.median * f, r0.p90 * f)
-        med1, p90_1 = (float("nan"),) * 2 if r1 is None else (r1.median * f, r1.p90 * f)
+        if check_full:
+            r1 = check(cand.offsets)
+            fc = 1
+        else:
+            r1 = measure(_resampled(level_frame(k), grid, mats[k], cand.offsets))
+            fc = f
+        med0, p90_0 = (float("nan"),) * 2 if r0 is None else (r0.median * fc, r0.p90 * fc)
+        med1, p90_1 = (float("nan"),) * 2 if r1 is None else (r1.median * fc, r1.p90 * fc)
         st0 = "unmeasured" if r0 is None else r0.status
         st1 = "unmeasured" if r1 is None else r1.status
         said = (f"residual {med0:.2f} -> {med1:.2f} px median, {p90_0:.2f} -> {p90_1:.2f} px "
@@ -542,7 +623,7 @@ def refine_bracket(
             # flatters the statistics of the rest: the measured tiles must not drop
             lost = r1.n_valid < 0.95 * r0.n_valid
             keep = not lost and ((st1 == "aligned" and st0 != "aligned") or (
-                gain >= min_gain and med1 <= 1.1 * med0 + 0.02 * f))
+                gain >= min_gain and med1 <= 1.1 * med0 + 0.02 * fc))
             if lost:
                 said += f"; {r0.n_valid} -> {r1.n_valid} tiles measurable"
             why = (f"{said}; field {cand.median_px:.2f} px median, {cand.max_px:.2f} px max"
