@@ -34,10 +34,9 @@ median growing, or a misaligned pair becomes aligned, and as many tiles stay mea
 that scrambles part of the frame makes its tiles unmeasurable, which flatters the rest).
 Otherwise the frame keeps its global motion alone (``kept`` False) and the reason is said.
 
-The check runs on the full-resolution frames up to ``CHECK_FULL_PIXELS`` (as
-``bench/bench_local.py`` measures the result, beside OpenCV's DIS optical flow; a check on the
-working level kept a Pixel 7 field that full resolution found worse, 0.45 -> 0.61 px median),
-on the working level beyond.
+The check runs on the full-resolution frames read with Keys cubic up to ``CHECK_FULL_PIXELS``
+(as the merge reads them and as ``bench/bench_local.py`` measures the result, beside OpenCV's
+DIS optical flow), on the working level beyond.
 """
 
 from __future__ import annotations
