@@ -266,9 +266,10 @@ def _sample(frame: np.ndarray, sx: np.ndarray, sy: np.ndarray, f: int,
 
 @_njit
 def _warp_rows(src, m, nodes, tile, f, inside, cubic, out, r0, r1):  # pragma: no cover
-    """Rows ``r0:r1`` of the level grid: ``src`` (a level frame) read bilinearly at
-    ``H(x) + d(x)`` (``inside``: ``H(x + d(x))``) of each level pixel's full-resolution
-    position ``x = f * p + (f - 1) / 2``, ``d`` the bilinear interpolation of ``nodes``
+    """Rows ``r0:r1`` of the level grid: ``src`` (a level frame) read bilinearly (with
+    ``cubic``: Keys) at ``H(x) + d(x)`` (``inside``: ``H(x + d(x))``) of each level pixel's
+    full-resolution position ``x = f * p + (f - 1) / 2``, ``d`` the bilinear interpolation of
+    ``nodes``
     (node ``(i, j)`` at ``(j * tile, i * tile)``); NaN outside the frame, and what the taps
     hold (inf of a clipped block) inside. The reference: :func:`_sample` of
     :meth:`_Grid.mapped`."""
