@@ -16,8 +16,8 @@ from typing import TYPE_CHECKING, Any
 if TYPE_CHECKING:  # pragma: no cover
     from .pipeline import PipelineResult
 
-__all__ = ["Verdict", "diagnose", "MISMATCH_STOPS", "CLIPPED_FRACTION", "GHOST_FRACTION",
-           "MAX_COLOUR_ERROR"]
+__all__ = ["Verdict", "diagnose", "exif_pairs", "MISMATCH_STOPS", "CLIPPED_FRACTION",
+           "GHOST_FRACTION", "MAX_COLOUR_ERROR"]
 
 #: EXIF and estimated ratios further apart than this (in stops) give a verdict.
 MISMATCH_STOPS = 0.15
@@ -189,6 +189,16 @@ def _response_and_colour(result: PipelineResult) -> list[Verdict]:
     return out
 
 
+
+def exif_pairs(times_source: str) -> set[str]:
+    """The pairs ("3-4") a merge took from EXIF, as :class:`~hdrcore.pipeline.Pipeline` lists
+    them in ``times_source`` ("estimated; EXIF for pairs 1-2, 11-12"): whole names, so pair
+    1-2 is not found inside 11-12."""
+    if "EXIF for pairs" not in times_source:
+        return set()
+    tail = times_source.split("EXIF for pairs", 1)[1]
+    return {part.strip() for part in tail.split(",") if part.strip()}
+
 def diagnose(result: PipelineResult) -> list[Verdict]:
     """Verdicts for one pipeline run, most severe first."""
     out: list[Verdict] = []
@@ -209,7 +219,7 @@ def diagnose(result: PipelineResult) -> list[Verdict]:
         if p.status == "no-overlap":
             exif = ex.exif_ratios[k] if k < len(ex.exif_ratios) else None
             gap = f" ({math.log2(exif):.1f} stops apart)" if exif and exif > 0 else ""
-            covered = f"{p.dark}-{p.bright}" in result.times_source.split("EXIF for pairs")[-1]
+            covered = f"{p.dark}-{p.bright}" in exif_pairs(result.times_source)
             out.append(Verdict(
                 "no-overlap", "warning" if covered else "error",
                 f"No brightness overlap between {label}{gap}: no level is well exposed in both, "
