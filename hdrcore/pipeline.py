@@ -761,7 +761,11 @@ class Pipeline:
         hists = self._histograms(p, ran, timings)
         excluded = self._excluded
         use = None if excluded is None else ~excluded[1]
-        resp_key = (_response_key(p.response, b.is_linear), p.exclude_colour)
+        # The response reads the exposure method (and the histograms) when the bracket has no
+        # exposure times: the key says so, or a method switch kept a curve from the other one.
+        no_times = not all(e is not None for e in self._recorded_exposures())
+        resp_key = (_response_key(p.response, b.is_linear), p.exclude_colour,
+                    p.exposure_method if no_times else None)
         response = self._stage(
             "response", resp_key, lambda: self._response(p), ran, timings
         )
