@@ -54,6 +54,7 @@ from .._numba import AVAILABLE as _COMPILED
 from .._numba import njit as _njit
 from .._threads import run_row_spans
 from ..errors import ParameterError
+from ._kernels import keys_at
 from .field import DisplacementField, map_points
 
 __all__ = ["LocalFrame", "LocalRefinement", "refine_bracket", "choose_tile"]
@@ -99,7 +100,6 @@ class LocalFrame:
 
     frame: int
     against: int
-    field: DisplacementField | None
     candidate: DisplacementField | None = field(repr=False)
     kept: bool
     before: float
@@ -110,6 +110,11 @@ class LocalFrame:
     seconds: float
     before_p90: float = float("nan")
     after_p90: float = float("nan")
+
+    @property
+    def field(self) -> DisplacementField | None:
+        """The field in use: the candidate when kept."""
+        return self.candidate if self.kept else None
 
     def to_json(self) -> dict:
         def f(x: float) -> float | None:
@@ -307,7 +312,8 @@ def _warp_rows(src, m, nodes, tile, f, inside, cubic, out, r0, r1):  # pragma: n
                 out[y, x] = np.nan
                 continue
             if cubic:
-                out[y, x] = _keys_at(src, lx, ly)
+                val = keys_at(src, lx, ly)  # not finite where a tap is clipped (inf)
+                out[y, x] = val if np.isfinite(val) else np.inf
                 continue
             ix = min(int(lx), w - 2)
             iy = min(int(ly), h - 2)
@@ -320,45 +326,13 @@ def _warp_rows(src, m, nodes, tile, f, inside, cubic, out, r0, r1):  # pragma: n
             out[y, x] = val if np.isfinite(val) else np.inf
 
 
-@_njit
-def _keys_at(src, lx, ly):  # pragma: no cover - compiled
-    """Keys cubic (a = -1/2) of ``src`` at ``(lx, ly)``, taps clamped to the frame; inf when
-    a tap is not finite (a clipped block)."""
-    h, w = src.shape
-    ix = int(np.floor(lx))
-    iy = int(np.floor(ly))
-    fx = lx - ix
-    fy = ly - iy
-    wx0 = ((-0.5 * fx + 1.0) * fx - 0.5) * fx
-    wx1 = (1.5 * fx - 2.5) * fx * fx + 1.0
-    wx2 = ((-1.5 * fx + 2.0) * fx + 0.5) * fx
-    wx3 = (0.5 * fx - 0.5) * fx * fx
-    wy0 = ((-0.5 * fy + 1.0) * fy - 0.5) * fy
-    wy1 = (1.5 * fy - 2.5) * fy * fy + 1.0
-    wy2 = ((-1.5 * fy + 2.0) * fy + 0.5) * fy
-    wy3 = (0.5 * fy - 0.5) * fy * fy
-    x0 = min(max(ix - 1, 0), w - 1)
-    x1 = min(max(ix, 0), w - 1)
-    x2 = min(max(ix + 1, 0), w - 1)
-    x3 = min(max(ix + 2, 0), w - 1)
-    val = 0.0
-    for dy in range(4):
-        yy = min(max(iy - 1 + dy, 0), h - 1)
-        wy = wy0 if dy == 0 else (wy1 if dy == 1 else (wy2 if dy == 2 else wy3))
-        a0 = src[yy, x0]
-        a1 = src[yy, x1]
-        a2 = src[yy, x2]
-        a3 = src[yy, x3]
-        if not (np.isfinite(a0) and np.isfinite(a1) and np.isfinite(a2) and np.isfinite(a3)):
-            return np.inf
-        val += wy * (wx0 * a0 + wx1 * a1 + wx2 * a2 + wx3 * a3)
-    return val
-
-
 def _warped(fr: np.ndarray, grid: _Grid, homography: np.ndarray, nodes: np.ndarray | None,
             inside: bool = False, cubic: bool = False) -> np.ndarray:
     """A level frame read at ``H(x) + d(x)`` (``inside``: ``H(x + d(x))``) for the level's
-    reference pixels: NaN outside the frame, +inf where the taps touch a clipped block."""
+    reference pixels: NaN outside the frame, +inf where the taps touch a clipped block.
+    ``cubic``: Keys, as the merge reads frames (the checks: bilinear reads shift fine
+    structure by an amount that depends on the sub-pixel phase, which the tiles' phase
+    correlation sees)."""
     if not _COMPILED:
         sx, sy = grid.mapped(homography, nodes, inside)
         return _sample(fr, sx, sy, grid.f)
@@ -371,13 +345,21 @@ def _warped(fr: np.ndarray, grid: _Grid, homography: np.ndarray, nodes: np.ndarr
     return out
 
 
-def _resampled(fr: np.ndarray, grid: _Grid, homography: np.ndarray,
-               nodes: np.ndarray | None, cubic: bool = False) -> np.ndarray:
-    """A level frame read at ``H(x) + d(x)`` for the level's reference pixels (NaN outside
-    and +inf where clipped); ``cubic``: Keys, as the merge reads it (the checks: bilinear
-    interpolation shifts fine structure by an amount that depends on the sub-pixel phase,
-    which the phase correlation of the check sees as 0.05-0.1 px of residual)."""
-    return _warped(fr, grid, homography, nodes, cubic=cubic)
+def _pair_residual(a: np.ndarray, b: np.ndarray, a_is_dark: bool, ratio: float, lo: float,
+                   hi: float, pair: tuple[int, int], **kw):
+    """The residual motion between two frames read onto the reference grid (a clipped read,
+    +inf, counts as saturated; NaN outside the frame stays out), or None where the pair
+    cannot be measured (too small to tile)."""
+    from .residual import residual_motion
+
+    a_m = np.where(np.isinf(a), np.float32(hi), a)
+    b_m = np.where(np.isinf(b), np.float32(hi), b)
+    dark, bright = (a_m, b_m) if a_is_dark else (b_m, a_m)
+    try:
+        return residual_motion(dark, bright, ratio, None, saturation=hi, noise_floor=lo, **kw)
+    except (ParameterError, ValueError) as exc:
+        log.debug("residual of frames %d-%d not measured: %s", *pair, exc)
+        return None
 
 
 # ------------------------------------------------------------------------ the solver
@@ -478,8 +460,6 @@ def refine_bracket(
         whose pair is not refined moves with its neighbour's field (the pair is aligned as it
         is), so the frames beyond a refined one stay consistent with it.
     """
-    from .residual import residual_motion
-
     t_start = time.perf_counter()
     n = len(images)
     if n != len(exposures) or n != len(to_reference_homography):
@@ -544,53 +524,35 @@ def refine_bracket(
             if progress is not None:
                 progress(done + 1, len(order))
             continue
-        a_raw = _resampled(level_frame(j), grid, mats[j], None if prev is None else prev.offsets)
-        a_m = np.where(np.isinf(a_raw), np.float32(hi), a_raw)  # clipped reads as saturated
+        prev_off = None if prev is None else prev.offsets
         dark_first = exposures[j] <= exposures[k]
         ratio = float(exposures[k] / exposures[j] if dark_first else exposures[j] / exposures[k])
-
-        def measure(b: np.ndarray, tile_l: int | None = None, a_m: np.ndarray = a_m,
-                    dark_first: bool = dark_first, ratio: float = ratio, j: int = j,
-                    k: int = k):
-            b_m = np.where(np.isinf(b), np.float32(hi), b)
-            d, br = (a_m, b_m) if dark_first else (b_m, a_m)
-            try:
-                return residual_motion(d, br, ratio, None, saturation=hi, noise_floor=lo,
-                                       tile=tile_l, max_pixels=float("inf"),
-                                       aligned_px=0.3 / f, local_px=1.0 / f)
-            except (ParameterError, ValueError) as exc:
-                log.debug("residual of frames %d-%d not measured: %s", j, k, exc)
-                return None
-
-        b = _resampled(level_frame(k), grid, mats[k], None)
+        on_level = dict(max_pixels=float("inf"), aligned_px=0.3 / f, local_px=1.0 / f)
+        a_lev = _warped(level_frame(j), grid, mats[j], prev_off)
+        b = _warped(level_frame(k), grid, mats[k], None)
+        # the check: on full-resolution frames read with Keys (as the merge reads them and as
+        # bench_local measures the result), else on the working level
         if check_full:
-            # the check on full-resolution frames, as bench_local measures the result: a
-            # working-level check kept fields that full resolution found worse
-            a_full = _resampled(full_frame(j), grid_full, mats[j],
-                                None if prev is None else prev.offsets, cubic=True)
-
-            def check(offsets: np.ndarray | None, a_full: np.ndarray = a_full,
-                      dark_first: bool = dark_first, ratio: float = ratio, j: int = j,
-                      k: int = k):
-                bf = _resampled(full_frame(k), grid_full, mats[k], offsets, cubic=True)
-                am = np.where(np.isinf(a_full), np.float32(hi), a_full)
-                bm = np.where(np.isinf(bf), np.float32(hi), bf)
-                d, br = (am, bm) if dark_first else (bm, am)
-                try:
-                    return residual_motion(d, br, ratio, None, saturation=hi, noise_floor=lo)
-                except (ParameterError, ValueError) as exc:
-                    log.debug("residual of frames %d-%d not measured: %s", j, k, exc)
-                    return None
-
-            r0 = check(None)
+            chk_frame, chk_grid, cubic, fc, chk_kw = full_frame, grid_full, True, 1, {}
         else:
-            r0 = measure(b)
+            chk_frame, chk_grid, cubic, fc, chk_kw = level_frame, grid, False, f, on_level
+        a_chk = _warped(chk_frame(j), chk_grid, mats[j], prev_off, cubic=cubic)
+
+        def check(offsets: np.ndarray | None, a_chk: np.ndarray = a_chk, j: int = j,
+                  k: int = k, dark_first: bool = dark_first, ratio: float = ratio,
+                  chk_kw: dict = chk_kw, cubic: bool = cubic, chk_frame=chk_frame,
+                  chk_grid: _Grid = chk_grid):
+            bk = _warped(chk_frame(k), chk_grid, mats[k], offsets, cubic=cubic)
+            return _pair_residual(a_chk, bk, dark_first, ratio, lo, hi, (j, k), **chk_kw)
+
+        r0 = check(None)
         nodes = np.zeros((grid.gh, grid.gw, 2))
         # the shift of a tile says where the bright frame's content lies in the dark one:
         # frame k moves against it when k is the bright one
         sign = -1.0 if dark_first else 1.0
         for _ in range(ROUNDS):
-            rt = measure(b, est_tile)
+            rt = _pair_residual(a_lev, b, dark_first, ratio, lo, hi, (j, k), tile=est_tile,
+                                **on_level)
             if rt is None or rt.n_valid < 4:
                 break
             v = rt.valid
@@ -600,12 +562,7 @@ def refine_bracket(
                                   grid.gh, grid.gw, t, smoothness)
             b = _warped(level_frame(k), grid, mats[k], nodes, inside=True)
         cand = _as_source_field(mats[k], nodes, t)
-        if check_full:
-            r1 = check(cand.offsets)
-            fc = 1
-        else:
-            r1 = measure(_resampled(level_frame(k), grid, mats[k], cand.offsets))
-            fc = f
+        r1 = check(cand.offsets)
         med0, p90_0 = (float("nan"),) * 2 if r0 is None else (r0.median * fc, r0.p90 * fc)
         med1, p90_1 = (float("nan"),) * 2 if r1 is None else (r1.median * fc, r1.p90 * fc)
         st0 = "unmeasured" if r0 is None else r0.status
@@ -631,7 +588,7 @@ def refine_bracket(
         if keep:
             fields[k] = cand
             moved[k] = nodes
-        details.append(LocalFrame(k, j, cand if keep else None, cand, keep, med0, med1, st0,
+        details.append(LocalFrame(k, j, cand, keep, med0, med1, st0,
                                   st1, why, time.perf_counter() - t0, p90_0, p90_1))
         if progress is not None:
             progress(done + 1, len(order))

@@ -59,6 +59,7 @@ from .._numba import AVAILABLE
 from .._numba import njit as _njit
 from .._threads import run_row_spans, worker_count
 from ..errors import ParameterError
+from ._kernels import keys_at
 
 __all__ = ["ResidualMotion", "ResidualPattern", "residual_motion", "region_name",
            "RESIDUAL_STATUSES"]
@@ -298,29 +299,7 @@ def _warp_rows(src, m, out, r0, r1):  # pragma: no cover - compiled
             if not (sx >= 0.0 and sx <= w - 1.0 and sy >= 0.0 and sy <= h - 1.0):
                 out[y, x] = np.nan
                 continue
-            ix = int(np.floor(sx))
-            iy = int(np.floor(sy))
-            fx = sx - ix
-            fy = sy - iy
-            wx0 = ((-0.5 * fx + 1.0) * fx - 0.5) * fx
-            wx1 = (1.5 * fx - 2.5) * fx * fx + 1.0
-            wx2 = ((-1.5 * fx + 2.0) * fx + 0.5) * fx
-            wx3 = (0.5 * fx - 0.5) * fx * fx
-            wy0 = ((-0.5 * fy + 1.0) * fy - 0.5) * fy
-            wy1 = (1.5 * fy - 2.5) * fy * fy + 1.0
-            wy2 = ((-1.5 * fy + 2.0) * fy + 0.5) * fy
-            wy3 = (0.5 * fy - 0.5) * fy * fy
-            acc = 0.0
-            for dy in range(4):
-                yy = min(max(iy - 1 + dy, 0), h - 1)
-                wy = wy0 if dy == 0 else (wy1 if dy == 1 else (wy2 if dy == 2 else wy3))
-                x0 = min(max(ix - 1, 0), w - 1)
-                x1 = min(max(ix, 0), w - 1)
-                x2 = min(max(ix + 1, 0), w - 1)
-                x3 = min(max(ix + 2, 0), w - 1)
-                acc += wy * (wx0 * src[yy, x0] + wx1 * src[yy, x1] + wx2 * src[yy, x2]
-                             + wx3 * src[yy, x3])
-            out[y, x] = acc
+            out[y, x] = keys_at(src, sx, sy)
 
 
 # --------------------------------------------------------------------------- numpy references

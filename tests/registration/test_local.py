@@ -20,6 +20,8 @@ from hdrcore.registration.field import DisplacementField, map_points
 from hdrcore.registration.local import choose_tile, refine_bracket
 from hdrcore.synthetic.scenes import make_scene
 
+from ._pairs import perspective
+
 SHAPE = (384, 576)
 MARGIN = 40
 PARALLAX = np.array([3.2, -1.6])  # extra motion of the near patch in the bright frame (px)
@@ -33,23 +35,12 @@ def _render(big: np.ndarray, m: np.ndarray) -> np.ndarray:
     return ndimage.map_coordinates(big, [sy + MARGIN, sx + MARGIN], order=3, mode="nearest")
 
 
-def _similarity(dx: float, dy: float, deg: float, scale: float) -> np.ndarray:
-    h, w = SHAPE
-    c = np.array([(w - 1) / 2, (h - 1) / 2])
-    t = np.radians(deg)
-    a = scale * np.array([[np.cos(t), -np.sin(t)], [np.sin(t), np.cos(t)]])
-    m = np.eye(3)
-    m[:2, :2] = a
-    m[:2, 2] = c - a @ c + np.array([dx, dy])
-    return m
-
-
 def _pair(parallax: bool, seed: int = 0):
     """(dark, bright, motion bright -> dark, patch centre and half sizes, ratio)."""
     h, w = SHAPE
     rng = np.random.default_rng(seed)
     big = make_scene("window", (h + 2 * MARGIN, w + 2 * MARGIN), seed)[..., 1].astype(float)
-    motion = _similarity(4.0, -2.5, 0.3, 1.004)
+    motion = perspective(SHAPE, 4.0, -2.5, 0.3, 1.004, 0.0, 0.0)  # a similarity
     dark = _render(big, np.eye(3))
     bright = _render(big, motion)
     centre = np.array([0.6 * w, 0.45 * h])
