@@ -121,15 +121,21 @@ def test_a_pair_the_global_motion_aligns_gets_no_field() -> None:
     assert fr.before_status == "aligned"
 
 
-def test_unrefined_pairs_follow_their_neighbour(two_planes) -> None:
-    res, motion, *_ = two_planes
-    fld = res.fields[1]
-    # a third frame, aligned with frame 1 by the same motion, not refined: it moves with it
-    dark = np.zeros(SHAPE, np.float32) + 0.2
-    out = refine_bracket([dark, dark, dark], [1.0, 4.0, 16.0], [np.eye(3), motion, motion], 0,
-                         saturation=0.97, noise_floor=0.001, refine=[False, False])
-    assert out.fields == (None, None, None) and not out.used
-    assert fld is not None
+def test_unrefined_pairs_follow_their_neighbour() -> None:
+    """A third frame that matches frame 1 exactly (the same shot, same motion) is not refined
+    (its pair is aligned): it moves with frame 1's field; with nothing refined, no field."""
+    dark, bright, motion, *_, ratio = _pair(parallax=True)
+    res = refine_bracket([dark, bright, bright], [1.0, ratio, ratio],
+                         [np.eye(3), motion, motion], 0, saturation=0.97,
+                         noise_floor=5 / 4095, refine=[True, False])
+    assert res.fields[1] is not None, res.frames[0].message
+    assert res.fields[2] is not None
+    assert np.allclose(res.fields[2].offsets, res.fields[1].offsets, atol=1e-6)
+    assert [f.frame for f in res.frames] == [1]  # frame 2 was carried, not measured
+    none = refine_bracket([dark, bright, bright], [1.0, ratio, ratio],
+                          [np.eye(3), motion, motion], 0, saturation=0.97,
+                          noise_floor=5 / 4095, refine=[False, False])
+    assert none.fields == (None, None, None) and not none.used
 
 
 def test_bad_input_is_refused() -> None:
