@@ -360,7 +360,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             log.warning("listening on %s: anyone who can reach this address and has the token "
                         "can read files under %s", args.host, root.resolve())
         print(f"hdrview: open {app.url}", file=sys.stderr, flush=True)
-        app.server.sleep_forever()
+        # Short sleeps, not viser's sleep_forever (time.sleep(3600)): a SIGTERM that the kernel
+        # delivers to another thread does not interrupt the main thread's sleep, and Python
+        # runs the handler only when that sleep ends (CI once waited 30 s for it).
+        while True:
+            time.sleep(0.2)
     except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM/SIGHUP (hdrcore.cli.Terminated)
         signum = getattr(exc, "signum", None)
         status = 0 if signum is None else 128 + int(signum)

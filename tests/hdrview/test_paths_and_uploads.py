@@ -424,3 +424,37 @@ def test_non_loopback_address_needs_allow_remote(
 def test_negative_limits_are_refused(opt: str, capsys: pytest.CaptureFixture[str]) -> None:
     assert main([opt, "-1"]) == 2
     assert "must be 0 or more" in capsys.readouterr().err
+
+
+def test_sigterm_to_another_thread_stops_the_program(bracket_root: Path, tmp_path: Path) -> None:
+    """A SIGTERM the kernel hands to a background thread still stops the program at once: the
+    main thread must not be asleep in one long time.sleep, which the signal does not interrupt."""
+    code = (
+        "import signal, sys, threading, hdrview.app as a\n"
+        "def kill_from_a_thread():\n"
+        "    sys.stdin.readline()\n"
+        "    signal.pthread_kill(threading.get_ident(), signal.SIGTERM)\n"
+        "threading.Thread(target=kill_from_a_thread, daemon=True).start()\n"
+        "sys.exit(a.main())\n"
+    )
+    env = dict(os.environ, TMPDIR=str(tmp_path))
+    proc = subprocess.Popen(
+        [sys.executable, "-c", code, "--port", "0", "--root", str(bracket_root),
+         str(bracket_root / "bracket")],
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        env=env,
+    )
+    try:
+        line = ""
+        while "open http" not in line:
+            line = proc.stderr.readline()
+            assert line, proc.stdout.read()
+        time.sleep(0.5)  # the main thread is asleep by now
+        proc.stdin.write("go\n")
+        proc.stdin.flush()
+        _, err = proc.communicate(timeout=30)
+        assert proc.returncode == 128 + signal.SIGTERM, err
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert not list(tmp_path.glob("hdrview-*"))
