@@ -31,6 +31,8 @@ class ExifData:
     model: str | None = None
     capture_time: datetime | None = None
     orientation: int | None = None
+    #: fraction of a second of ``capture_time`` (``SubSecTimeOriginal``: "123" -> 0.123)
+    capture_subsec: float | None = None
 
 
 def _first(tag: Any) -> Any:
@@ -87,6 +89,13 @@ def _time(tag: Any) -> datetime | None:
     return None
 
 
+def _subsec(tag: Any) -> float | None:
+    s = _str(tag)
+    if not s or not s.isdigit():
+        return None
+    return int(s) / 10 ** len(s)
+
+
 def parse_exif_tags(tags: dict[str, Any]) -> ExifData:
     """Build :class:`ExifData` from an ExifRead tag dictionary."""
 
@@ -118,6 +127,7 @@ def parse_exif_tags(tags: dict[str, Any]) -> ExifData:
             get("EXIF DateTimeOriginal", "Image DateTimeOriginal", "Image DateTime")
         ),
         orientation=_int(get("Image Orientation")),
+        capture_subsec=_subsec(get("EXIF SubSecTimeOriginal", "EXIF SubSecTime")),
     )
 
 

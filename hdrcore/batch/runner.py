@@ -1,0 +1,232 @@
+"""Running a batch's tasks: skip the brackets already done, run the rest in this process, in
+worker processes (``workers``) or on a Dask cluster (``scheduler``), report each as it ends.
+
+A bracket is *done* when its sidecar holds the key its frames and options give now
+(:func:`up_to_date`): frames are re-hashed only when their size or modification time differ
+from the sidecar's (as ``make`` and git decide), so a restart reads no frame it need not.
+Ctrl-C stops the run: brackets in progress lose their temporary files (atomic writers) and
+write no sidecar; everything finished is kept, and the next run skips it.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+import uuid
+from collections.abc import Callable, Sequence
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass, replace
+from multiprocessing import get_context
+from pathlib import Path
+from typing import Any
+
+from .plan import Plan
+from .task import SIDECAR_VERSION, BracketRecord, BracketTask, bracket_key, file_digest, run_task
+
+__all__ = ["BatchRun", "tasks_from_plan", "up_to_date", "remove_temporaries", "run_batch"]
+
+Progress = Callable[[int, int, BracketRecord], None]
+
+
+@dataclass(frozen=True)
+class BatchRun:
+    """Records in task order; ``interrupted``: stopped before every task ended."""
+
+    records: tuple[BracketRecord, ...]
+    interrupted: bool = False
+    seconds: float = 0.0
+
+    @property
+    def merged(self) -> int:
+        return sum(r.merged for r in self.records)
+
+    @property
+    def failed(self) -> int:
+        return sum(r.failed for r in self.records)
+
+
+def tasks_from_plan(plan: Plan, outdir: str | os.PathLike, options: dict[str, Any] | None = None,
+                    *, preview: bool = False) -> list[BracketTask]:
+    out = str(Path(outdir).absolute())
+    return [BracketTask(b.name, tuple(b.files), out, dict(options or {}), preview)
+            for b in plan.brackets]
+
+
+def up_to_date(task: BracketTask, *, retry_failed: bool = False) -> BracketRecord | None:
+    """The sidecar's record (``merged=False``) when the bracket needs no merge, else ``None``."""
+    try:
+        doc = json.loads(task.sidecar.read_text())
+        rec = BracketRecord.from_json(doc["batch"])
+        frames = doc["frames"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    if doc.get("version") != SIDECAR_VERSION or not rec.key:
+        return None
+    if [f.get("path") for f in frames] != list(task.files):
+        return None
+    if rec.status == "failed" and retry_failed:
+        return None
+    digests = []
+    for f in frames:
+        try:
+            st = os.stat(f["path"])
+        except OSError:
+            return None
+        same = st.st_size == f.get("size") and st.st_mtime_ns == f.get("mtime_ns")
+        digests.append(f["sha256"] if same else file_digest(f["path"]))
+    if bracket_key(digests, task.options, task.preview) != rec.key:
+        return None
+    for kind in ("exr", "preview"):
+        path = rec.outputs.get(kind)
+        if path and not Path(path).is_file():
+            return None
+    if rec.status != "failed" and task.preview and not task.png.is_file():
+        return None
+    return replace(rec, merged=False)
+
+
+def remove_temporaries(outdir: str | os.PathLike, names: Sequence[str]) -> int:
+    """Remove what a killed worker left of these brackets (``.NAME.exr.*.tmp.exr`` and the
+    like from :func:`hdrcore.io.atomic_write`, ``.NAME.report.json``); returns how many."""
+    out = Path(outdir)
+    wanted = set(names)
+    n = 0
+    try:
+        entries = list(out.iterdir())
+    except OSError:
+        return 0
+    for p in entries:
+        s = p.name
+        if not s.startswith(".") or ".tmp" not in s and not s.endswith(".report.json"):
+            continue
+        for suffix in (".exr.", ".png.", ".json.", ".report.json"):
+            cut = s.find(suffix, 1)
+            if cut > 0 and s[1:cut] in wanted:
+                p.unlink(missing_ok=True)
+                n += 1
+                break
+    return n
+
+
+def _limit_memory(limit_bytes: int | None) -> None:
+    """Process-pool initializer: the worker's address space is capped (``RLIMIT_AS``), so one
+    bracket too large fails with MemoryError (recorded) instead of swapping the machine."""
+    if limit_bytes:
+        import resource
+
+        resource.setrlimit(resource.RLIMIT_AS, (int(limit_bytes), int(limit_bytes)))
+
+
+def _lost(task: BracketTask, exc: BaseException) -> BracketRecord:
+    return BracketRecord(task.name, task.files, "failed",
+                         reason=f"worker lost: {type(exc).__name__}: {exc}",
+                         quality={"score": 0.0}, outputs={"sidecar": None})
+
+
+def _run_local(todo: list[BracketTask], workers: int, memory_limit: int | None,
+               done: Callable[[BracketTask, BracketRecord], None]) -> None:
+    if workers <= 1:
+        _limit_memory(memory_limit)
+        for t in todo:
+            done(t, run_task(t))
+        return
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn"),
+                               initializer=_limit_memory, initargs=(memory_limit,))
+    try:
+        futures = {pool.submit(run_task, t): t for t in todo}
+        for fut in as_completed(futures):
+            t = futures[fut]
+            try:
+                rec = fut.result()
+            except Exception as exc:  # BrokenProcessPool: a worker was killed (OOM killer)
+                rec = _lost(t, exc)
+            done(t, rec)
+    except BaseException:
+        pool.shutdown(wait=False, cancel_futures=True)
+        raise
+    pool.shutdown(wait=True)
+
+
+def _run_dask(todo: list[BracketTask], client: Any,
+              done: Callable[[BracketTask, BracketRecord], None]) -> None:
+    from distributed import as_completed as dask_completed
+
+    run = uuid.uuid4().hex[:8]
+    futures = client.map(run_task, todo, key=[f"hdrcore-merge-{t.name}-{run}" for t in todo],
+                         pure=False)
+    by_key = {f.key: t for f, t in zip(futures, todo, strict=False)}
+    try:
+        for fut in dask_completed(futures):
+            t = by_key[fut.key]
+            try:
+                rec = fut.result()
+            except Exception as exc:  # a worker died, the scheduler gave up on the task
+                rec = _lost(t, exc)
+            done(t, rec)
+    except BaseException:
+        client.cancel(futures)
+        raise
+
+
+def run_batch(
+    tasks: Sequence[BracketTask], *, workers: int = 1, scheduler: str | None = None,
+    client: Any = None, progress: Progress | None = None, retry_failed: bool = False,
+    force: bool = False, memory_limit: int | None = None,
+) -> BatchRun:
+    """Run ``tasks`` (brackets whose sidecar is up to date are skipped unless ``force``).
+
+    ``workers``: processes on this machine (1: this process). ``client``: a
+    ``distributed.Client`` to run on; ``scheduler``: its address (``tcp://host:8786``), or
+    ``"local"`` for a ``LocalCluster`` of ``workers`` processes started here. ``progress(done,
+    total, record)`` is called as each bracket ends (skipped ones first).
+    """
+    t0 = time.perf_counter()
+    results: dict[str, BracketRecord] = {}
+    total = len(tasks)
+    todo: list[BracketTask] = []
+    for t in tasks:
+        rec = None if force else up_to_date(t, retry_failed=retry_failed)
+        if rec is None:
+            todo.append(t)
+        else:
+            results[t.name] = rec
+            if progress:
+                progress(len(results), total, rec)
+    if todo:
+        remove_temporaries(todo[0].outdir, [t.name for t in todo])
+
+    def done(t: BracketTask, rec: BracketRecord) -> None:
+        results[t.name] = rec
+        if progress:
+            progress(len(results), total, rec)
+
+    interrupted = False
+    try:
+        if not todo:
+            pass
+        elif client is not None or scheduler is not None:
+            own = None
+            if client is None:
+                from distributed import Client, LocalCluster
+
+                if scheduler == "local":
+                    own = LocalCluster(n_workers=max(1, workers), threads_per_worker=1,
+                                       processes=True, dashboard_address=None)
+                    client = Client(own)
+                else:
+                    client = Client(scheduler)
+            try:
+                _run_dask(todo, client, done)
+            finally:
+                if own is not None:
+                    client.close()
+                    own.close()
+                elif scheduler is not None:
+                    client.close()
+        else:
+            _run_local(todo, workers, memory_limit, done)
+    except KeyboardInterrupt:
+        interrupted = True
+    records = tuple(results[t.name] for t in tasks if t.name in results)
+    return BatchRun(records, interrupted or len(records) < total, time.perf_counter() - t0)
