@@ -1,0 +1,269 @@
+"""Demosaicing of a Bayer colour filter array: our own compiled kernel, linear in the exposure.
+
+Method ``"malvar2004"``: H. S. Malvar, L.-W. He, R. Cutler, "High-quality linear interpolation
+for demosaicing of Bayer-patterned color images", IEEE ICASSP 2004, vol. 3, pp. 485-488,
+doi:10.1109/ICASSP.2004.1326587. Each missing colour is the bilinear estimate plus a gain times
+the Laplacian of the colour the site samples (the paper's figure 2 filters, 5x5, sums of 8):
+
+* G at an R or B site: ``(4 v + 2 (N + S + E + W) - (NN + SS + EE + WW)) / 8``;
+* R (B) at a G site whose row neighbours are R (B): ``(5 v + 4 (E + W) - (EE + WW) - (NE + NW +
+  SE + SW) + (NN + SS) / 2) / 8``, and transposed when its column neighbours are;
+* B at an R site (and R at B): ``(6 v + 2 (NE + NW + SE + SW) - 3/2 (NN + SS + EE + WW)) / 8``.
+
+Every output is a fixed linear combination of the input, so scaling the exposure by ``k`` scales
+the demosaiced frame by exactly ``k`` (before clipping): the R/B ratios of a bracket do not
+depend on the demosaic, which LibRaw's AHD (a choice between interpolation directions by a
+non-linear homogeneity test) does not give. Borders are mirrored without repeating the edge
+(index ``-1`` reads ``1``), which keeps the CFA phase.
+
+:func:`demosaic` is the compiled kernel (numba, GIL released, rows on two threads);
+:func:`demosaic_reference` the same filters as whole-image NumPy convolutions, used only by the
+tests. ``DEMOSAIC_METHODS`` lists the methods (:func:`validate_method` names them in its error).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from ._numba import njit
+from ._threads import run_row_spans
+from .errors import ParameterError
+
+__all__ = [
+    "DEMOSAIC_METHODS",
+    "bayer_channels",
+    "demosaic",
+    "demosaic_reference",
+    "validate_method",
+]
+
+#: Demosaic methods of :func:`demosaic` (the file readers add LibRaw's, see
+#: :mod:`hdrcore.io.raw`).
+DEMOSAIC_METHODS: dict[str, str] = {
+    "malvar2004": "Malvar, He & Cutler 2004: bilinear + gradient correction, 5x5, linear",
+    "bilinear": "bilinear interpolation of each colour plane, 3x3, linear",
+}
+
+_LETTERS = {"R": 0, "G": 1, "B": 2}
+
+
+def validate_method(method: str) -> str:
+    """``method`` if it is a key of :data:`DEMOSAIC_METHODS`, else a ParameterError naming them."""
+    if method not in DEMOSAIC_METHODS:
+        raise ParameterError(f"unknown demosaic method {method!r}",
+                             expected=", ".join(DEMOSAIC_METHODS), found=repr(method))
+    return method
+
+
+def bayer_channels(pattern: np.ndarray | Sequence[Sequence[int]], colors: str) -> np.ndarray:
+    """The 2x2 channel map (0 R, 1 G, 2 B) of a Bayer CFA from rawpy's ``raw_pattern`` and
+    ``color_desc`` (``"RGBG"``: index 3 is the second green); a ParameterError for anything that
+    is not a Bayer cell (one R, one B, two G on a diagonal)."""
+    pat = np.asarray(pattern, dtype=np.int64)
+    if pat.shape != (2, 2):
+        raise ParameterError("demosaic needs a 2x2 colour filter array", expected="(2, 2)",
+                             found=str(pat.shape))
+    try:
+        ch = np.array([[_LETTERS[colors[int(i)]] for i in row] for row in pat], np.int64)
+    except (KeyError, IndexError):
+        raise ParameterError("colour filter array site is not R, G or B",
+                             found=f"pattern {pat.tolist()}, colours {colors!r}") from None
+    if not (ch[0, 0] == ch[1, 1] == 1 or ch[0, 1] == ch[1, 0] == 1) or sorted(
+            ch.ravel().tolist()) != [0, 1, 1, 2]:
+        raise ParameterError("demosaic needs a Bayer pattern (one R, one B, two G on a diagonal)",
+                             found=str(ch.tolist()))
+    return ch
+
+
+@njit
+def _reflect_index(n, pad):  # pragma: no cover - numba
+    """Indices ``-pad .. n + pad - 1`` mirrored into ``0 .. n - 1`` without repeating the edge."""
+    out = np.empty(n + 2 * pad, np.int64)
+    for i in range(n + 2 * pad):
+        j = i - pad
+        while j < 0 or j >= n:
+            if j < 0:
+                j = -j
+            if j >= n:
+                j = 2 * (n - 1) - j
+        out[i] = j
+    return out
+
+
+@njit
+def _malvar_rows(cfa, offset, chan, method, lo, hi, rounding, out, r0, r1):  # pragma: no cover
+    h, w = cfa.shape
+    ry = _reflect_index(h, 2)
+    rx = _reflect_index(w, 2)
+    half = np.float32(0.5)
+    quarter = np.float32(0.25)
+    for y in range(r0, r1):
+        ym2, ym1, yp1, yp2 = ry[y], ry[y + 1], ry[y + 3], ry[y + 4]
+        p = y & 1
+        q = 1 - p
+        for x in range(w):
+            xm2, xm1, xp1, xp2 = rx[x], rx[x + 1], rx[x + 3], rx[x + 4]
+            i = x & 1
+            j = 1 - i
+            # Mirroring keeps the CFA phase: a tap's site is (row parity, column parity).
+            cen = np.float32(cfa[y, x]) - offset[p, i]
+            n = np.float32(cfa[ym1, x]) - offset[q, i]
+            s = np.float32(cfa[yp1, x]) - offset[q, i]
+            e = np.float32(cfa[y, xp1]) - offset[p, j]
+            wv = np.float32(cfa[y, xm1]) - offset[p, j]
+            diag = (np.float32(cfa[ym1, xm1]) + np.float32(cfa[ym1, xp1])
+                    + np.float32(cfa[yp1, xm1]) + np.float32(cfa[yp1, xp1])) - 4 * offset[q, j]
+            c = chan[p, i]
+            if method == 0:
+                far_v = np.float32(cfa[ym2, x]) + np.float32(cfa[yp2, x]) - 2 * offset[p, i]
+                far_h = np.float32(cfa[y, xm2]) + np.float32(cfa[y, xp2]) - 2 * offset[p, i]
+            else:
+                far_v = np.float32(0.0)
+                far_h = np.float32(0.0)
+            if c == 1:
+                row = e + wv
+                col = n + s
+                if method == 0:
+                    a_h = (5 * cen + 4 * row - far_h - diag + half * far_v) / 8
+                    a_v = (5 * cen + 4 * col - far_v - diag + half * far_h) / 8
+                else:
+                    a_h = half * row
+                    a_v = half * col
+                g = cen
+                if chan[p, j] == 0:  # red row neighbours
+                    r = a_h
+                    b = a_v
+                else:
+                    r = a_v
+                    b = a_h
+            else:
+                cross = n + s + e + wv
+                if method == 0:
+                    far = far_v + far_h
+                    g = (4 * cen + 2 * cross - far) / 8
+                    oo = (6 * cen + 2 * diag - np.float32(1.5) * far) / 8
+                else:
+                    g = quarter * cross
+                    oo = quarter * diag
+                if c == 0:
+                    r = cen
+                    b = oo
+                else:
+                    r = oo
+                    b = cen
+            r = min(max(r, lo), hi)
+            g = min(max(g, lo), hi)
+            b = min(max(b, lo), hi)
+            if rounding:
+                r = np.floor(r + half)
+                g = np.floor(g + half)
+                b = np.floor(b + half)
+            out[y, x, 0] = r
+            out[y, x, 1] = g
+            out[y, x, 2] = b
+
+
+def _prepare(mosaic: np.ndarray, pattern, colors: str, black_level):
+    cfa = np.asarray(mosaic)
+    if cfa.ndim != 2 or cfa.shape[0] < 3 or cfa.shape[1] < 3:
+        raise ParameterError("demosaic needs a 2-D mosaic of at least 3x3", found=str(cfa.shape))
+    chan = bayer_channels(pattern, colors)
+    pat = np.asarray(pattern, dtype=np.int64)
+    blacks = np.atleast_1d(np.asarray(black_level, dtype=np.float64))
+    if blacks.size == 1:
+        offset = np.full((2, 2), float(blacks[0]), np.float32)
+    else:
+        offset = np.array([[blacks[int(i)] for i in row] for row in pat], np.float32)
+    return cfa, chan, offset
+
+
+def demosaic(
+    mosaic: np.ndarray,
+    pattern: np.ndarray | Sequence[Sequence[int]],
+    colors: str = "RGBG",
+    *,
+    method: str = "malvar2004",
+    black_level: float | Sequence[float] = 0.0,
+    max_level: float | None = None,
+    dtype: type = np.float32,
+    out: np.ndarray | None = None,
+    workers: int | None = None,
+) -> np.ndarray:
+    """Demosaic a Bayer mosaic ``(H, W)`` into ``(H, W, 3)`` R, G, B.
+
+    ``pattern`` / ``colors``: rawpy's ``raw_pattern`` and ``color_desc``; ``black_level`` one
+    value or one per colour index (rawpy's ``black_level_per_channel``), subtracted first.
+    The result is held in ``[0, max_level]`` (``max_level`` None: only below at 0) and, for an
+    integer ``dtype`` (``np.uint16``: the frame's levels), rounded to the nearest level.
+    ``out`` is written when given (its dtype wins).
+    """
+    method = validate_method(method)
+    cfa, chan, offset = _prepare(mosaic, pattern, colors, black_level)
+    h, w = cfa.shape
+    if out is None:
+        out = np.empty((h, w, 3), dtype=dtype)
+    elif out.shape != (h, w, 3):
+        raise ParameterError("demosaic output has the wrong shape", expected=str((h, w, 3)),
+                             found=str(out.shape))
+    integer = np.issubdtype(out.dtype, np.integer)
+    hi = float(np.iinfo(out.dtype).max) if integer else float(np.inf)
+    if max_level is not None:
+        hi = min(hi, float(max_level))
+    code = 0 if method == "malvar2004" else 1
+    cfa = np.ascontiguousarray(cfa)
+    run_row_spans(h, workers, lambda r0, r1: _malvar_rows(
+        cfa, offset, chan, code, np.float32(0.0), np.float32(hi), integer, out, r0, r1))
+    return out
+
+
+#: The paper's filters (figure 2), sums of 8, as (name, 5x5) for the NumPy reference.
+_K_G_AT_RB = np.array([[0, 0, -1, 0, 0], [0, 0, 2, 0, 0], [-1, 2, 4, 2, -1], [0, 0, 2, 0, 0],
+                       [0, 0, -1, 0, 0]], np.float64) / 8
+_K_ROW = np.array([[0, 0, 0.5, 0, 0], [0, -1, 0, -1, 0], [-1, 4, 5, 4, -1], [0, -1, 0, -1, 0],
+                   [0, 0, 0.5, 0, 0]], np.float64) / 8
+_K_COL = _K_ROW.T
+_K_DIAG = np.array([[0, 0, -1.5, 0, 0], [0, 2, 0, 2, 0], [-1.5, 0, 6, 0, -1.5], [0, 2, 0, 2, 0],
+                    [0, 0, -1.5, 0, 0]], np.float64) / 8
+_B_CROSS = np.array([[0, 1, 0], [1, 0, 1], [0, 1, 0]], np.float64) / 4
+_B_DIAG = np.array([[1, 0, 1], [0, 0, 0], [1, 0, 1]], np.float64) / 4
+_B_ROW = np.array([[0, 0, 0], [1, 0, 1], [0, 0, 0]], np.float64) / 2
+
+
+def demosaic_reference(
+    mosaic: np.ndarray,
+    pattern: np.ndarray | Sequence[Sequence[int]],
+    colors: str = "RGBG",
+    *,
+    method: str = "malvar2004",
+    black_level: float | Sequence[float] = 0.0,
+) -> np.ndarray:
+    """:func:`demosaic` as whole-image convolutions (float64, no clipping): the tests' spec."""
+    from scipy.ndimage import convolve
+
+    method = validate_method(method)
+    cfa, chan, offset = _prepare(mosaic, pattern, colors, black_level)
+    h, w = cfa.shape
+    site = (np.arange(h)[:, None] % 2, np.arange(w)[None, :] % 2)
+    x = cfa.astype(np.float64) - offset.astype(np.float64)[site]
+    if method == "malvar2004":
+        k = {"cross": _K_G_AT_RB, "row": _K_ROW, "col": _K_COL, "diag": _K_DIAG}
+    else:
+        k = {"cross": _B_CROSS, "row": _B_ROW, "col": _B_ROW.T, "diag": _B_DIAG}
+    f = {name: convolve(x, kern, mode="mirror") for name, kern in k.items()}
+    out = np.zeros((h, w, 3))
+    c = chan[site]
+    c_h = chan[site[0], (site[1] + 1) % 2]
+    c_v = chan[(site[0] + 1) % 2, site[1]]
+    for ch in range(3):
+        own = c == ch
+        g_site = c == 1
+        out[..., ch] = np.where(
+            own, x,
+            np.where(g_site, np.where(c_h == ch, f["row"], f["col"]),
+                     f["cross"] if ch == 1 else f["diag"]))
+        del g_site
+    # c_v is implied (a G site's column neighbours are the colour its row neighbours are not).
+    del c_v
+    return out
