@@ -47,9 +47,9 @@ class BatchRun:
 
 
 def tasks_from_plan(plan: Plan, outdir: str | os.PathLike, options: dict[str, Any] | None = None,
-                    *, preview: bool = False) -> list[BracketTask]:
+                    *, preview: bool = False, extra_key: str = "") -> list[BracketTask]:
     out = str(Path(outdir).absolute())
-    return [BracketTask(b.name, tuple(b.files), out, dict(options or {}), preview)
+    return [BracketTask(b.name, tuple(b.files), out, dict(options or {}), preview, extra_key)
             for b in plan.brackets]
 
 
@@ -75,7 +75,7 @@ def up_to_date(task: BracketTask, *, retry_failed: bool = False) -> BracketRecor
             return None
         same = st.st_size == f.get("size") and st.st_mtime_ns == f.get("mtime_ns")
         digests.append(f["sha256"] if same else file_digest(f["path"]))
-    if bracket_key(digests, task.options, task.preview) != rec.key:
+    if bracket_key(digests, task.options, task.preview, task.extra_key) != rec.key:
         return None
     for kind in ("exr", "preview"):
         path = rec.outputs.get(kind)

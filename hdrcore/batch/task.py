@@ -44,10 +44,12 @@ def file_digest(path: str | os.PathLike) -> str:
     return h.hexdigest()
 
 
-def bracket_key(digests: list[str], options: dict[str, Any], preview: bool) -> str:
-    """The bracket's content key: frames' digests in order, merge options, outputs, version."""
+def bracket_key(digests: list[str], options: dict[str, Any], preview: bool,
+                extra: str = "") -> str:
+    """The bracket's content key: frames' digests in order, merge options, outputs, version
+    and ``extra`` (the digests of the option files: ``--times``, a ``--response`` curve)."""
     doc = {"frames": digests, "options": options, "preview": bool(preview),
-           "hdrcore": __version__, "sidecar": SIDECAR_VERSION}
+           "hdrcore": __version__, "sidecar": SIDECAR_VERSION, "extra": extra}
     return hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()
 
 
@@ -64,6 +66,7 @@ class BracketTask:
     outdir: str
     options: dict[str, Any] = field(default_factory=dict)
     preview: bool = False
+    extra_key: str = ""
 
     @property
     def exr(self) -> Path:
@@ -240,7 +243,7 @@ def run_task(task: BracketTask) -> BracketRecord:
     merged = status != "failed"
     record = BracketRecord(
         name=task.name, files=task.files, status=status, reason=reason,
-        key=bracket_key(digests, task.options, task.preview) if digests else "",
+        key=bracket_key(digests, task.options, task.preview, task.extra_key) if digests else "",
         quality=quality_from_report(report) if merged else {"score": 0.0},
         verdicts=tuple({k: v.get(k) for k in ("code", "severity", "message")}
                        for v in (report or {}).get("verdicts", [])

@@ -21,7 +21,7 @@ from ._chatter import library_chatter
 
 __all__ = ["main", "build_parser"]
 
-SUBCOMMANDS = ("info", "simulate", "ratios", "response", "align", "merge")
+SUBCOMMANDS = ("info", "simulate", "ratios", "response", "align", "merge", "batch")
 
 
 def _modules() -> list:
