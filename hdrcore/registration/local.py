@@ -205,9 +205,58 @@ def _reduce_max(img: np.ndarray, f: int) -> np.ndarray:
     return img[: hh * f, : ww * f].reshape(hh, f, ww, f).max(axis=(1, 3))
 
 
+@_njit
+def _prepare_rows(img, f, saturation, out, r0, r1):  # pragma: no cover
+    """Rows ``r0:r1`` of :func:`_prepare` on linear frames (one pass, no full-size
+    temporary)."""
+    ww = out.shape[1]
+    inv = 1.0 / (f * f)
+    for y in range(r0, r1):
+        for x in range(ww):
+            acc = 0.0
+            clipped = False
+            for r in range(y * f, y * f + f):
+                for c in range(x * f, x * f + f):
+                    v = img[r, c]
+                    if v >= saturation:
+                        clipped = True
+                    acc += v
+            out[y, x] = np.inf if clipped else acc * inv
+
+
+@_njit
+def _prepare_rows_lut(img, lut, f, saturation, out, r0, r1):  # pragma: no cover
+    """:func:`_prepare_rows` on integer levels read through ``lut``."""
+    ww = out.shape[1]
+    inv = 1.0 / (f * f)
+    for y in range(r0, r1):
+        for x in range(ww):
+            acc = 0.0
+            clipped = False
+            for r in range(y * f, y * f + f):
+                for c in range(x * f, x * f + f):
+                    v = lut[img[r, c]]
+                    if v >= saturation:
+                        clipped = True
+                    acc += v
+            out[y, x] = np.inf if clipped else acc * inv
+
+
 def _prepare(img: np.ndarray, lut: np.ndarray | None, f: int, saturation: float) -> np.ndarray:
     """A frame at the working level: block means of the linear values, +inf where a block
     holds a sample at or above saturation (an interpolation touching it is not finite)."""
+    if _COMPILED and img.dtype.kind in ("uif" if lut is None else "ui"):
+        h, w = img.shape
+        out = np.empty((h // f, w // f), np.float32)
+        sat = np.float32(saturation)  # the comparison of the float32 reference
+        if lut is None:
+            src = np.asarray(img, np.float32)
+            run_row_spans(out.shape[0], None,
+                          lambda r0, r1: _prepare_rows(src, f, sat, out, r0, r1))
+        else:
+            run_row_spans(out.shape[0], None,
+                          lambda r0, r1: _prepare_rows_lut(img, lut, f, sat, out, r0, r1))
+        return out
     lin = _linear(img, lut)
     out = _reduce(lin, f)
     out[_reduce_max(lin >= saturation, f)] = np.inf
@@ -282,6 +331,14 @@ def _warp_rows(src, m, nodes, tile, f, inside, cubic, out, r0, r1):  # pragma: n
     ww = out.shape[1]
     gh, gw = nodes.shape[0], nodes.shape[1]
     off = (f - 1) / 2.0
+    inv_f = 1.0 / f
+    cj = np.empty(ww, np.int64)  # per column: its cell of nodes and the weight across it
+    cu = np.empty(ww)
+    for x in range(ww):
+        fx = min(max((x * f + off) / tile, 0.0), gw - 1.0)
+        cj[x] = min(int(fx), gw - 2)
+        cu[x] = fx - cj[x]
+    affine = m[2, 0] == 0.0 and m[2, 1] == 0.0
     for y in range(r0, r1):
         yf = y * f + off
         fy = min(max(yf / tile, 0.0), gh - 1.0)
@@ -289,25 +346,28 @@ def _warp_rows(src, m, nodes, tile, f, inside, cubic, out, r0, r1):  # pragma: n
         v = fy - i
         for x in range(ww):
             xf = x * f + off
-            fx = min(max(xf / tile, 0.0), gw - 1.0)
-            j = min(int(fx), gw - 2)
-            u = fx - j
-            dx = ((nodes[i, j, 0] * (1 - u) + nodes[i, j + 1, 0] * u) * (1 - v)
-                  + (nodes[i + 1, j, 0] * (1 - u) + nodes[i + 1, j + 1, 0] * u) * v)
-            dy = ((nodes[i, j, 1] * (1 - u) + nodes[i, j + 1, 1] * u) * (1 - v)
-                  + (nodes[i + 1, j, 1] * (1 - u) + nodes[i + 1, j + 1, 1] * u) * v)
+            j = cj[x]
+            u = cu[x]
+            a00, a01, a10, a11 = (1 - u) * (1 - v), u * (1 - v), (1 - u) * v, u * v
+            dx = (nodes[i, j, 0] * a00 + nodes[i, j + 1, 0] * a01
+                  + nodes[i + 1, j, 0] * a10 + nodes[i + 1, j + 1, 0] * a11)
+            dy = (nodes[i, j, 1] * a00 + nodes[i, j + 1, 1] * a01
+                  + nodes[i + 1, j, 1] * a10 + nodes[i + 1, j + 1, 1] * a11)
             px, py = xf, yf
             if inside:
                 px += dx
                 py += dy
-            zw = m[2, 0] * px + m[2, 1] * py + m[2, 2]
-            sx = (m[0, 0] * px + m[0, 1] * py + m[0, 2]) / zw
-            sy = (m[1, 0] * px + m[1, 1] * py + m[1, 2]) / zw
+            sx = m[0, 0] * px + m[0, 1] * py + m[0, 2]
+            sy = m[1, 0] * px + m[1, 1] * py + m[1, 2]
+            if not affine:
+                zw = m[2, 0] * px + m[2, 1] * py + m[2, 2]
+                sx /= zw
+                sy /= zw
             if not inside:
                 sx += dx
                 sy += dy
-            lx = (sx - off) / f
-            ly = (sy - off) / f
+            lx = (sx - off) * inv_f
+            ly = (sy - off) * inv_f
             if not (lx >= 0.0 and lx <= w - 1.0 and ly >= 0.0 and ly <= h - 1.0):
                 out[y, x] = np.nan
                 continue
@@ -346,20 +406,36 @@ def _warped(fr: np.ndarray, grid: _Grid, homography: np.ndarray, nodes: np.ndarr
 
 
 def _pair_residual(a: np.ndarray, b: np.ndarray, a_is_dark: bool, ratio: float, lo: float,
-                   hi: float, pair: tuple[int, int], **kw):
+                   hi: float, pair: tuple[int, int], memo: dict | None = None,
+                   keep_b: bool = False, **kw):
     """The residual motion between two frames read onto the reference grid (a clipped read,
     +inf, counts as saturated; NaN outside the frame stays out), or None where the pair
-    cannot be measured (too small to tile)."""
+    cannot be measured (too small to tile). ``memo``: the residual's memo of structure images,
+    left holding ``a``'s (the pair's fixed frame, measured against every version of the other)
+    and, with ``keep_b``, ``b``'s."""
     from .residual import residual_motion
 
-    a_m = np.where(np.isinf(a), np.float32(hi), a)
-    b_m = np.where(np.isinf(b), np.float32(hi), b)
+    def clipped_as_saturated(x: np.ndarray) -> np.ndarray:
+        if memo is None:
+            return np.where(np.isinf(x), np.float32(hi), x)
+        key = ("saturated", id(x), hi)
+        if key not in memo:
+            memo[key] = (x, np.where(np.isinf(x), np.float32(hi), x))
+        return memo[key][1]
+
+    a_m, b_m = clipped_as_saturated(a), clipped_as_saturated(b)
     dark, bright = (a_m, b_m) if a_is_dark else (b_m, a_m)
     try:
-        return residual_motion(dark, bright, ratio, None, saturation=hi, noise_floor=lo, **kw)
+        return residual_motion(dark, bright, ratio, None, saturation=hi, noise_floor=lo,
+                               memo=memo, **kw)
     except (ParameterError, ValueError) as exc:
         log.debug("residual of frames %d-%d not measured: %s", *pair, exc)
         return None
+    finally:
+        if memo is not None:
+            keep = {id(a), id(a_m)} | ({id(b), id(b_m)} if keep_b else set())
+            for key in [key for key, v in memo.items() if id(v[0]) not in keep]:
+                del memo[key]
 
 
 # ------------------------------------------------------------------------ the solver
@@ -536,14 +612,26 @@ def refine_bracket(
             chk_frame, chk_grid, cubic, fc, chk_kw = full_frame, grid_full, True, 1, {}
         else:
             chk_frame, chk_grid, cubic, fc, chk_kw = level_frame, grid, False, f, on_level
-        a_chk = _warped(chk_frame(j), chk_grid, mats[j], prev_off, cubic=cubic)
+        a_chk = (_warped(chk_frame(j), chk_grid, mats[j], prev_off, cubic=cubic)
+                 if check_full else a_lev)
+        # frame j's structure is computed once for the pair (and frame k's unrefined one once
+        # when the check runs on the working level): the residual's memo, pruned to frame j
+        # after each measurement
+        memo: dict = {}
 
-        def check(offsets: np.ndarray | None, a_chk: np.ndarray = a_chk, j: int = j,
-                  k: int = k, dark_first: bool = dark_first, ratio: float = ratio,
+        def measure(a: np.ndarray, bk: np.ndarray, memo: dict = memo, j: int = j, k: int = k,
+                    dark_first: bool = dark_first, ratio: float = ratio, b_first=b, **kw):
+            return _pair_residual(a, bk, dark_first, ratio, lo, hi, (j, k), memo=memo,
+                                  keep_b=bk is b_first, **kw)
+
+        def check(offsets: np.ndarray | None, a_chk: np.ndarray = a_chk, k: int = k,
                   chk_kw: dict = chk_kw, cubic: bool = cubic, chk_frame=chk_frame,
-                  chk_grid: _Grid = chk_grid):
-            bk = _warped(chk_frame(k), chk_grid, mats[k], offsets, cubic=cubic)
-            return _pair_residual(a_chk, bk, dark_first, ratio, lo, hi, (j, k), **chk_kw)
+                  chk_grid: _Grid = chk_grid, b_lev: np.ndarray = b, measure=measure):
+            if offsets is None and not check_full:
+                bk = b_lev
+            else:
+                bk = _warped(chk_frame(k), chk_grid, mats[k], offsets, cubic=cubic)
+            return measure(a_chk, bk, **chk_kw)
 
         r0 = check(None)
         nodes = np.zeros((grid.gh, grid.gw, 2))
@@ -551,8 +639,7 @@ def refine_bracket(
         # frame k moves against it when k is the bright one
         sign = -1.0 if dark_first else 1.0
         for _ in range(ROUNDS):
-            rt = _pair_residual(a_lev, b, dark_first, ratio, lo, hi, (j, k), tile=est_tile,
-                                **on_level)
+            rt = measure(a_lev, b, tile=est_tile, **on_level)
             if rt is None or rt.n_valid < 4:
                 break
             v = rt.valid

@@ -923,6 +923,32 @@ def _tile_shifts(ga: np.ndarray, gb: np.ndarray, oy: np.ndarray, ox: np.ndarray,
 
 
 # ------------------------------------------------------------------------------- entry point
+@_njit
+def _box_counts(mask, oy, ox, t, out):  # pragma: no cover - compiled
+    """The number of set samples of ``mask`` in each ``t x t`` box at ``(oy, ox)``."""
+    for i in range(oy.size):
+        n = 0
+        for r in range(oy[i], oy[i] + t):
+            for c in range(ox[i], ox[i] + t):
+                if mask[r, c]:
+                    n += 1
+        out[i] = n
+
+
+def _box_fraction(mask: np.ndarray, oy: np.ndarray, ox: np.ndarray, t: int) -> np.ndarray:
+    """The fraction of ``mask`` set in each ``t x t`` box at ``(oy, ox)`` (exact: counted per
+    box, or from a summed-area table without numba)."""
+    if AVAILABLE:
+        counts = np.empty(oy.size, np.int64)
+        _box_counts(mask, oy.astype(np.int64), ox.astype(np.int64), int(t), counts)
+        return counts / float(t * t)
+    sat = np.zeros((mask.shape[0] + 1, mask.shape[1] + 1), np.int64)
+    np.cumsum(mask, axis=0, out=sat[1:, 1:])
+    np.cumsum(sat[1:, 1:], axis=1, out=sat[1:, 1:])
+    total = sat[oy + t, ox + t] - sat[oy, ox + t] - sat[oy + t, ox] + sat[oy, ox]
+    return total / float(t * t)
+
+
 def _choose_level(shape: tuple[int, int], max_pixels: float) -> int:
     h, w = shape
     level = 0
@@ -956,6 +982,7 @@ def residual_motion(
     min_tiles: int = 4,
     min_in_range: float = 0.5,
     workers: int | None = None,
+    memo: dict | None = None,
 ) -> ResidualMotion:
     """Measure the residual motion of an aligned pair, tile by tile (see the module docstring).
 
@@ -982,6 +1009,10 @@ def residual_motion(
         standard error of its shift at most ``MAX_SIGMA`` analysed pixels and at least
         ``min_in_range`` of it is exposed well in both frames; ``min_tiles``: fewer confident
         tiles are ``unmeasured``. ``workers``: threads of the compiled passes (default two).
+    memo : a dict kept by a caller that measures one frame against several others (local
+        refinement): each frame's structure image is computed once and looked up by the frame
+        object (which the memo keeps alive); the frames must not be changed while it is used.
+        Frames warped by ``matrix`` are not memoised.
 
     Returns a :class:`ResidualMotion`; its ``describe()`` is one line such as "0.12 px median
     over 80 tiles: aligned", "a zoom of +0.40 % is left (1.4 px at the corners): the motion
@@ -1027,8 +1058,18 @@ def residual_motion(
     k = float(ratio)
     lo = max(float(noise_floor), 1e-3 * float(saturation))
     hi = float(saturation)
-    ga, in_a = _structure(al * np.float32(k), k * lo, hi, nw)
-    gb, in_b = _structure(bl, k * lo, hi, nw)
+    def structure(src: np.ndarray, level: np.ndarray, scale: float | None,
+                  warped: bool) -> tuple[np.ndarray, np.ndarray]:
+        key = (id(src), scale, k * lo, hi, f, id(lut))
+        if memo is not None and not warped and key in memo:
+            return memo[key][1]
+        out = _structure(level if scale is None else level * np.float32(scale), k * lo, hi, nw)
+        if memo is not None and not warped:
+            memo[key] = (src, out, lut)  # the frame and lut kept alive: ids stay unique
+        return out
+
+    ga, in_a = structure(a, al, k, False)
+    gb, in_b = structure(b, bl, None, matrix is not None)
     nan_a, nan_b = ~np.isfinite(ga), ~np.isfinite(gb)
 
     t = int(tile) if tile is not None else _choose_tile((hl, wl))
@@ -1042,8 +1083,8 @@ def residual_motion(
     n = oy.size
     both_in = in_a & in_b
     bad = nan_a | nan_b
-    frac_in = np.array([both_in[y:y + t, x:x + t].mean() for y, x in zip(oy, ox, strict=True)])
-    frac_nan = np.array([bad[y:y + t, x:x + t].mean() for y, x in zip(oy, ox, strict=True)])
+    frac_in = _box_fraction(both_in, oy, ox, t)
+    frac_nan = _box_fraction(bad, oy, ox, t)
     if bad.any():  # outside the warped frame: the tile's mean gradient (drops tiles > 10 %)
         ga = np.where(nan_a, np.float32(np.nanmean(ga)), ga)
         gb = np.where(nan_b, np.float32(np.nanmean(gb)), gb)

@@ -341,3 +341,34 @@ def test_register_pair_with_check_residual_is_ok_only_when_aligned():
     # without the check the euclidean pair says 'ok' (the search's own status)
     assert register_pair(dark, bright, 4.0, model="euclidean", saturation=sat,
                          noise_floor=nf, previews=False).ok
+
+
+def test_memo_computes_each_frame_once_and_changes_nothing(monkeypatch):
+    """Measured against two versions of the bright frame with one memo, the dark frame's
+    structure is computed once, and both results equal fresh measurements."""
+    h = _similarity(scale=1.002, shift=(0.6, 0.2))
+    dark, bright, sat, nf = _pair(h)
+    moved = np.roll(bright, 1, axis=1)
+    kw = dict(saturation=sat, noise_floor=nf)
+    fresh = [residual_motion(dark, b, 4.0, **kw) for b in (bright, moved)]
+    calls = []
+    real = residual._structure
+    monkeypatch.setattr(residual, "_structure",
+                        lambda img, *a, **k: calls.append(img.shape) or real(img, *a, **k))
+    memo: dict = {}
+    memoised = [residual_motion(dark, b, 4.0, memo=memo, **kw) for b in (bright, moved)]
+    assert len(calls) == 3  # dark once, each bright frame once
+    for a, b in zip(fresh, memoised, strict=True):
+        np.testing.assert_array_equal(a.shifts, b.shifts)
+        assert a.status == b.status
+    assert fresh[0].median != fresh[1].median  # the second frame did move
+
+
+def test_tile_fractions_compiled_and_summed_area_agree(monkeypatch):
+    rng = np.random.default_rng(5)
+    mask = rng.uniform(size=(130, 171)) < 0.3
+    oy, ox = rng.integers(0, 130 - 32, 40), rng.integers(0, 171 - 32, 40)
+    truth = np.array([mask[y:y + 32, x:x + 32].mean() for y, x in zip(oy, ox, strict=True)])
+    np.testing.assert_array_equal(residual._box_fraction(mask, oy, ox, 32), truth)
+    monkeypatch.setattr(residual, "AVAILABLE", False)
+    np.testing.assert_array_equal(residual._box_fraction(mask, oy, ox, 32), truth)
