@@ -16,11 +16,14 @@ Methods (:data:`GROUPING_METHODS`, chosen by name through :func:`group_shots`):
     * at most ``max_frames`` frames.
 
     Among the groupings with that smallest cost, time gaps and thumbnails decide: leaving a
-    gap inside a group costs ``log2`` of how much longer it is than the stream's typical
-    in-bracket gap (its lower quartile), so a long pause is where a bracket ends; two
+    pause inside a group costs ``log2`` of how much longer it is than twice the stream's
+    median pause (most pauses are inside brackets; the clock's resolution, 1 s without
+    subseconds, is taken off first), so a long pause is where a bracket ends; two
     thumbnails that do not look alike (rank correlation below 0.5) add a little; a two-frame
     group costs half a group more (a lone shot next to a bracket would otherwise pair with
-    one of its frames). Shots that carry no exposure at all are grouped by time gap
+    one of its frames); a group whose steps differ, with an even number of frames, or not
+    centred on the metered exposure (the median of the neighbouring shots') costs a little
+    more. Shots that carry no exposure at all are grouped by time gap
     (HDRMerge's rule) when they carry times, else the stream is one group.
 
 ``"gap"``
@@ -54,6 +57,17 @@ MIN_STEP_STOPS = 1.0 / 6.0
 MAX_FRAMES = 15
 #: Extra cost of a two-frame group, in groups.
 PAIR_COST = 0.5
+#: Cost of unequal steps inside a group (per stop of difference, at most one stop), and of a
+#: group of an even number of frames (four or more): tie-breakers only.
+STEP_COST = 0.3
+EVEN_COST = 0.25
+#: Cost of a group whose middle exposure is off the metered one (median of the exposures of
+#: the METERED_WINDOW shots either side), per stop, at most one stop: a tie-breaker.
+CENTRE_COST = 0.2
+METERED_WINDOW = 10
+#: Below the gap threshold a pause still costs up to this much (proportionally), so that of
+#: two otherwise equal groupings the one that cuts at the longer pause wins.
+PAUSE_TIE_COST = 0.1
 #: Cost of keeping two shots together whose thumbnails do not look alike (at correlation -1;
 #: nothing at 0.5 and above).
 THUMB_COST = 0.3
@@ -106,6 +120,19 @@ def _order_is_bracketing(ev: Sequence[float]) -> str | None:
     return None
 
 
+def _shape_cost(ev: Sequence[float], order: str) -> float:
+    """Tie-breakers between groupings of equal count: a camera brackets in equal steps and
+    around the metered exposure, so with an odd number of frames (3, 5, 7, 9: the AEB counts
+    of most cameras). :data:`STEP_COST` per stop by which the steps differ (at most 1),
+    :data:`EVEN_COST` for an even group of four or more."""
+    srt = sorted(ev)
+    steps = [b - a for a, b in zip(srt, srt[1:], strict=False)]
+    cost = STEP_COST * min(1.0, max(steps) - min(steps)) if len(steps) > 1 else 0.0
+    if len(ev) >= 4 and len(ev) % 2 == 0:
+        cost += EVEN_COST
+    return cost
+
+
 def bracket_order(ev: Sequence[float]) -> str | None:
     """Public form of the order test: the order's name or ``None`` (see the module doc)."""
     return _order_is_bracketing(list(ev))
@@ -129,16 +156,20 @@ def _shot_ev(s: Shot) -> float | None:
 
 def _boundary_costs(shots: Sequence[Shot], thumbnails: bool) -> list[float]:
     """Cost of keeping shot k and k+1 in one group (time gap, then thumbnail likeness)."""
-    gaps = _gaps(shots)
-    known = [g for g in gaps if g is not None]
     fine = all(s.subsec for s in shots)
     resolution = 0.05 if fine else 1.0  # whole-second clocks: a gap is known to a second
-    typical = float(np.percentile(known, 25)) if known else 0.0
+    # the shortest pause the clock allows: a 1 s tick on a whole-second clock may be 0 s
+    gaps = [None if g is None else max(0.0, g - resolution) for g in _gaps(shots)]
+    known = [g for g in gaps if g is not None]
+    # most pauses of a stream are inside brackets (3 to 9 frames each): a pause costs nothing
+    # up to twice the median, then log2 of how much longer it is
+    typical = 2.0 * (float(np.median(known)) + resolution) if known else 1.0
     costs = []
     for k, g in enumerate(gaps):
         c = 0.0
         if g is not None:
-            c += max(0.0, math.log2((g + resolution) / (typical + resolution)))
+            c += max(0.0, math.log2((g + resolution) / typical))
+            c += PAUSE_TIE_COST * min(1.0, (g + resolution) / typical)
         if thumbnails:
             sim = thumbnail_similarity(shots[k].thumbnail, shots[k + 1].thumbnail)
             if sim is not None and sim < 0.5:
@@ -152,6 +183,12 @@ def _segment_stream(shots: Sequence[Shot], max_frames: int, thumbnails: bool) ->
     evs = [_shot_ev(s) for s in shots]
     costs = _boundary_costs(shots, thumbnails)
     inner = np.concatenate([[0.0], np.cumsum(costs)]) if costs else np.zeros(1)
+    # the metered exposure near each shot: the median of its neighbours' (a bracket is
+    # centred on it, single shots are taken at it)
+    known_ev = np.array([np.nan if v is None else v for v in evs], dtype=float)
+    metered_at = [float(np.nanmedian(known_ev[max(0, k - METERED_WINDOW):k + METERED_WINDOW + 1]))
+                  if np.isfinite(known_ev[max(0, k - METERED_WINDOW):k + METERED_WINDOW + 1]).any()
+                  else 0.0 for k in range(n)]
     best = [0.0] + [math.inf] * n
     back = [0] * (n + 1)
     orders: dict[tuple[int, int], str] = {}
@@ -168,7 +205,11 @@ def _segment_stream(shots: Sequence[Shot], max_frames: int, thumbnails: bool) ->
                 if order is None:
                     continue
                 orders[(i, j)] = order
-                cost = 1.0 + (PAIR_COST if size == 2 else 0.0) + float(inner[j - 1] - inner[i])
+                centre = 0.5 * (max(ev) + min(ev))  # type: ignore[type-var,operator]
+                metered = metered_at[(i + j - 1) // 2]
+                cost = (1.0 + (PAIR_COST if size == 2 else 0.0) + _shape_cost(ev, order)
+                        + CENTRE_COST * min(1.0, abs(centre - metered))
+                        + float(inner[j - 1] - inner[i]))
             if best[i] + cost < best[j] - 1e-12:
                 best[j], back[j] = best[i] + cost, i
     groups: list[Group] = []
