@@ -44,6 +44,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("-o", "--output", required=True, metavar="OUT.exr", help="OpenEXR output")
     p.add_argument("--preview", metavar="OUT.png", help="also write a tonemapped 8-bit preview")
     p.add_argument("--report", metavar="OUT.json", help="write the JSON report of every stage")
+    p.add_argument("--dng", metavar="OUT.dng",
+                   help="also write the radiance map as a floating-point DNG 1.4 (LinearRaw "
+                        "camera RGB, black 0 / white 1) for a raw editor")
+    p.add_argument("--dng-bits", dest="dng_bits", type=int, default=32, choices=(16, 32),
+                   help="float sample size of the DNG (default 32)")
     p.add_argument("--align", default="similarity", choices=ALIGN_CHOICES,
                    help="motion model for hand-held frames (default: similarity, i.e. shift, "
                         "rotation and scale)")
@@ -103,7 +108,10 @@ class _Progress:
 
 
 def run(args: argparse.Namespace) -> int:
-    outputs = [args.output] + [p for p in (args.preview, args.report) if p]
+    outputs = [args.output] + [p for p in (args.preview, args.report, args.dng) if p]
+    if args.dng and not str(args.dng).lower().endswith(".dng"):
+        raise OutputError("the DNG output must be a .dng file", path=args.dng,
+                          expected="a name ending in .dng")
     if not str(args.output).lower().endswith(".exr"):
         raise OutputError("the HDR output must be an OpenEXR file", path=args.output,
                           expected="a name ending in .exr")
@@ -150,12 +158,17 @@ def run(args: argparse.Namespace) -> int:
         },
         force=args.force, inputs=inputs,
     )
+    if args.dng:
+        from ._dng import write_result_dng
+
+        write_result_dng(args.dng, result, bits=args.dng_bits, force=args.force, inputs=inputs)
     if args.preview and result.preview is not None:
         write_png(args.preview, result.preview.image, force=args.force, inputs=inputs)
     report = result.to_report()
     report["timings"]["decode"] = decode_seconds
     report["timings"]["write"] = time.perf_counter() - t_write
-    report["outputs"] = {"exr": args.output, "preview": args.preview, "report": args.report}
+    report["outputs"] = {"exr": args.output, "preview": args.preview, "report": args.report,
+                         "dng": args.dng}
     if args.report:
         text = json.dumps(to_jsonable(report), indent=2)
         atomic_write(args.report, lambda tmp: tmp.write_text(text), force=args.force,
