@@ -21,8 +21,8 @@ __all__ = ["write_index", "read_index", "worst_first", "INDEX_JSON", "INDEX_CSV"
 INDEX_JSON = "index.json"
 INDEX_CSV = "index.csv"
 CSV_COLUMNS = ("name", "status", "score", "ratio", "registration", "clipping", "ghost",
-               "frames", "merged", "seconds", "reason", "verdicts", "exr", "preview", "sidecar",
-               "files")
+               "frames", "merged", "seconds", "reason", "verdicts", "exr", "preview", "dng",
+               "sidecar", "files")
 _STATUS_RANK = {"failed": 0, "error": 1, "warning": 2, "ok": 3}
 
 
@@ -35,6 +35,7 @@ def _row(r: BracketRecord) -> dict[str, Any]:
         "merged": r.merged, "seconds": round(r.seconds, 3), "reason": r.reason,
         "verdicts": ";".join(str(v.get("code")) for v in r.verdicts),
         "exr": (r.outputs or {}).get("exr"), "preview": (r.outputs or {}).get("preview"),
+        "dng": (r.outputs or {}).get("dng"),
         "sidecar": (r.outputs or {}).get("sidecar"), "files": ";".join(r.files),
     }
 

@@ -47,10 +47,11 @@ class BatchRun:
 
 
 def tasks_from_plan(plan: Plan, outdir: str | os.PathLike, options: dict[str, Any] | None = None,
-                    *, preview: bool = False, extra_key: str = "") -> list[BracketTask]:
+                    *, preview: bool = False, dng: bool = False,
+                    extra_key: str = "") -> list[BracketTask]:
     out = str(Path(outdir).absolute())
-    return [BracketTask(b.name, tuple(b.files), out, dict(options or {}), preview, extra_key)
-            for b in plan.brackets]
+    return [BracketTask(b.name, tuple(b.files), out, dict(options or {}), preview, extra_key,
+                        dng) for b in plan.brackets]
 
 
 def up_to_date(task: BracketTask, *, retry_failed: bool = False) -> BracketRecord | None:
@@ -75,13 +76,14 @@ def up_to_date(task: BracketTask, *, retry_failed: bool = False) -> BracketRecor
             return None
         same = st.st_size == f.get("size") and st.st_mtime_ns == f.get("mtime_ns")
         digests.append(f["sha256"] if same else file_digest(f["path"]))
-    if bracket_key(digests, task.options, task.preview, task.extra_key) != rec.key:
+    if bracket_key(digests, *task.key_args) != rec.key:
         return None
-    for kind in ("exr", "preview"):
+    for kind in ("exr", "preview", "dng"):
         path = rec.outputs.get(kind)
         if path and not Path(path).is_file():
             return None
-    if rec.status != "failed" and task.preview and not task.png.is_file():
+    if rec.status != "failed" and (task.preview and not task.png.is_file()
+                                   or task.dng and not task.dng_path.is_file()):
         return None
     return replace(rec, merged=False)
 
@@ -100,7 +102,7 @@ def remove_temporaries(outdir: str | os.PathLike, names: Sequence[str]) -> int:
         s = p.name
         if not s.startswith(".") or ".tmp" not in s and not s.endswith(".report.json"):
             continue
-        for suffix in (".exr.", ".png.", ".json.", ".report.json"):
+        for suffix in (".exr.", ".png.", ".dng.", ".json.", ".report.json"):
             cut = s.find(suffix, 1)
             if cut > 0 and s[1:cut] in wanted:
                 p.unlink(missing_ok=True)

@@ -45,11 +45,13 @@ def file_digest(path: str | os.PathLike) -> str:
 
 
 def bracket_key(digests: list[str], options: dict[str, Any], preview: bool,
-                extra: str = "") -> str:
+                extra: str = "", dng: bool = False) -> str:
     """The bracket's content key: frames' digests in order, merge options, outputs, version
     and ``extra`` (the digests of the option files: ``--times``, a ``--response`` curve)."""
     doc = {"frames": digests, "options": options, "preview": bool(preview),
            "hdrcore": __version__, "sidecar": SIDECAR_VERSION, "extra": extra}
+    if dng:  # keys of runs without a DNG stay as they were
+        doc["dng"] = True
     return hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()
 
 
@@ -67,6 +69,12 @@ class BracketTask:
     options: dict[str, Any] = field(default_factory=dict)
     preview: bool = False
     extra_key: str = ""
+    dng: bool = False
+
+    @property
+    def key_args(self) -> tuple:
+        """What :func:`bracket_key` takes besides the frames' digests."""
+        return (self.options, self.preview, self.extra_key, self.dng)
 
     @property
     def exr(self) -> Path:
@@ -75,6 +83,10 @@ class BracketTask:
     @property
     def png(self) -> Path:
         return Path(self.outdir) / f"{self.name}.png"
+
+    @property
+    def dng_path(self) -> Path:
+        return Path(self.outdir) / f"{self.name}.dng"
 
     @property
     def sidecar(self) -> Path:
@@ -199,6 +211,7 @@ def _merge_namespace(task: BracketTask, report_path: Path) -> Any:
             raise HdrError(f"unknown merge option {k!r}")
         setattr(ns, k, tuple(v) if k == "exclude_colour" and v is not None else v)
     ns.preview = str(task.png) if task.preview else None
+    ns.dng = str(task.dng_path) if task.dng else None
     ns.report = str(report_path)
     ns.force, ns.quiet, ns.json = True, True, False
     return ns
@@ -243,13 +256,14 @@ def run_task(task: BracketTask) -> BracketRecord:
     merged = status != "failed"
     record = BracketRecord(
         name=task.name, files=task.files, status=status, reason=reason,
-        key=bracket_key(digests, task.options, task.preview, task.extra_key) if digests else "",
+        key=bracket_key(digests, *task.key_args) if digests else "",
         quality=quality_from_report(report) if merged else {"score": 0.0},
         verdicts=tuple({k: v.get(k) for k in ("code", "severity", "message")}
                        for v in (report or {}).get("verdicts", [])
                        if v.get("severity") in ("warning", "error")),
         outputs={"exr": str(task.exr) if merged else None,
                  "preview": str(task.png) if merged and task.preview else None,
+                 "dng": str(task.dng_path) if merged and task.dng else None,
                  "sidecar": str(task.sidecar)},
         merged=True, seconds=time.perf_counter() - t0, cpu_seconds=time.process_time() - c0,
         peak_rss_mb=_peak_rss_mb(), worker=f"{os.uname().nodename}:{os.getpid()}",
@@ -274,7 +288,7 @@ def write_sidecar(task: BracketTask, record: BracketRecord, report: dict[str, An
         except OSError:
             frames.append({"path": f, "sha256": d})
     doc = {"version": SIDECAR_VERSION, "batch": record.to_json(), "frames": frames,
-           "options": task.options, "preview": task.preview, "report": report}
+           "options": task.options, "preview": task.preview, "dng": task.dng, "report": report}
     text = json.dumps(doc, indent=1, default=str)
     try:
         atomic_write(task.sidecar, lambda tmp: tmp.write_text(text), force=True,

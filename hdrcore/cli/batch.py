@@ -4,8 +4,9 @@ Finds the images (``--recursive`` for sub-folders), groups them into brackets fr
 EXIF says (capture time with subseconds, exposure time, ISO, aperture, bias, camera, size; a
 thumbnail as tie-breaker: see :mod:`hdrcore.batch.group`), and merges each with ``hdrcore
 merge`` (every merge option below applies to each bracket). Per bracket: ``NAME.exr``,
-``NAME.png`` with ``--preview``, and ``NAME.json`` (the merge report and a content key); for the
-run: ``index.json`` and ``index.csv`` (status, verdicts, quality score per bracket).
+``NAME.png`` with ``--preview``, ``NAME.dng`` with ``--dng``, and ``NAME.json`` (the merge
+report and a content key); for the run: ``index.json`` and ``index.csv`` (status, verdicts,
+quality score per bracket).
 
 A bracket whose outputs exist and whose frames and options are unchanged is skipped, so an
 interrupted run is restarted with the same command. One bad bracket is recorded with its
@@ -33,7 +34,7 @@ from ._common import print_json, to_jsonable
 __all__ = ["add_parser", "run"]
 
 #: merge options a batch sets per bracket itself (or means otherwise)
-_OWN = {"help", "files", "output", "preview", "report", "json", "quiet", "force"}
+_OWN = {"help", "files", "output", "preview", "dng", "report", "json", "quiet", "force"}
 
 
 def _merge_actions() -> list[argparse.Action]:
@@ -110,6 +111,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                         "fails with 'out of memory' instead of swapping); not for Dask, whose "
                         "workers have their own memory_limit")
     r.add_argument("--preview", action="store_true", help="also write NAME.png per bracket")
+    r.add_argument("--dng", action="store_true",
+                   help="also write NAME.dng per bracket (hdrcore merge --dng: float linear DNG)")
     r.add_argument("--force", action="store_true",
                    help="merge every bracket again, even those up to date")
     r.add_argument("--retry-failed", dest="retry_failed", action="store_true",
@@ -212,7 +215,8 @@ def run(args: argparse.Namespace) -> int:
         raise OutputError(f"cannot create the output folder ({exc.strerror or exc})",
                           path=outdir) from None
     options, extra = _options(args)
-    tasks = tasks_from_plan(plan, outdir, options, preview=args.preview, extra_key=extra)
+    tasks = tasks_from_plan(plan, outdir, options, preview=args.preview, dng=args.dng,
+                            extra_key=extra)
     progress = _Progress(not args.quiet)
     scheduler = args.scheduler or ("local" if args.dask else None)
     try:
