@@ -2,7 +2,8 @@
 
 For each file: the capture time (with ``SubSecTimeOriginal`` where the camera writes it), the
 exposure time, ISO, f-number and exposure bias, the camera and the stored size
-(:func:`hdrcore.io.read_exif`, :func:`hdrcore.io.frame_pixels`: no pixel is decoded), and a tiny
+(:func:`hdrcore.io.read_exif`, :func:`hdrcore.io.frame_pixels`; LibRaw's header fields for a
+RAW file without TIFF EXIF: no pixel is decoded), and a tiny
 grey thumbnail for the similarity tie-breaker (JPEG decoded at 1/8 scale by libjpeg's DCT
 scaling; RAW files have none).
 """
@@ -122,6 +123,21 @@ def _thumbnail(path: Path) -> np.ndarray | None:
     return arr.mean(axis=2)
 
 
+def _libraw_other(path: Path):  # noqa: ANN202
+    """LibRaw's capture fields (time, shutter, ISO, aperture) from the header, no unpack (what
+    :func:`hdrcore.io.read_raw` falls back on for files without TIFF EXIF); ``None`` if
+    LibRaw cannot open the file."""
+    import rawpy
+
+    from ..io._capture import c_stderr
+
+    try:
+        with c_stderr(path), rawpy.imread(str(path)) as raw:
+            return raw.other
+    except (rawpy.LibRawError, OSError):
+        return None
+
+
 def read_shot(path: str | os.PathLike, *, thumbnail: bool = True) -> Shot:
     """The grouping signals of one file (headers only, plus the thumbnail)."""
     p = Path(path)
@@ -134,11 +150,20 @@ def read_shot(path: str | os.PathLike, *, thumbnail: bool = True) -> Shot:
     except InputError:
         size = None
     camera = " ".join(x for x in (exif.make, exif.model) if x) or None
+    et = None if exif.exposure_time is None else float(exif.exposure_time)
+    iso = None if exif.iso is None else float(exif.iso)
+    fnum = None if exif.f_number is None else float(exif.f_number)
+    if is_raw_path(p) and (t is None or et is None):  # a RAW without TIFF EXIF (Canon CRW)
+        other = _libraw_other(p)
+        if other is not None:
+            if t is None and isinstance(other.timestamp, datetime):
+                t = other.timestamp.timestamp()
+            et = et or (float(other.shutter_speed) if other.shutter_speed > 0 else None)
+            iso = iso or (float(other.iso_speed) if other.iso_speed > 0 else None)
+            fnum = fnum or (float(other.aperture) if other.aperture > 0 else None)
     return Shot(
         path=str(p), folder=str(p.parent), time=t, subsec=exif.capture_subsec is not None,
-        exposure_time=None if exif.exposure_time is None else float(exif.exposure_time),
-        iso=None if exif.iso is None else float(exif.iso),
-        f_number=None if exif.f_number is None else float(exif.f_number),
+        exposure_time=et, iso=iso, f_number=fnum,
         exposure_bias=None if exif.exposure_bias is None else float(exif.exposure_bias),
         camera=camera, size=size, thumbnail=_thumbnail(p) if thumbnail else None,
     )
