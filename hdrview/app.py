@@ -52,6 +52,7 @@ class InspectorApp:
         demo_dir: str | Path | None = DEMO_DIR,
         files: Sequence[str | Path] = (),
         limits: UploadLimits | None = None,
+        batch: Sequence[Any] = (),
     ) -> None:
         """``files``: paths the operator named on the command line (readable even outside
         ``root``; every page opens them first, else the demo); ``limits``: the upload limits."""
@@ -63,7 +64,11 @@ class InspectorApp:
         # One private temporary folder: upload sets and export files; removed by stop().
         self.work_dir = make_work_dir()
         # Every path the inspector reads is checked by this one resolver.
-        self.resolver = security.RootResolver(root, files=files)
+        # ``batch``: an hdrcore batch's brackets, worst first (hdrview.batch); their frames may
+        # be opened like the files named on the command line, the worst first.
+        self.batch = list(batch)
+        batch_files = [f for r in self.batch for f in r.files]
+        self.resolver = security.RootResolver(root, files=[*files, *batch_files])
         if self.demo_dir is not None and self.demo_dir.is_dir():
             self.resolver.allow_folder(self.demo_dir)
         self.root = self.resolver.root
@@ -100,6 +105,8 @@ class InspectorApp:
     # -- pages -----------------------------------------------------------------------------
 
     def default_paths(self) -> tuple[list[Path], str] | None:
+        if self.batch and not self.files:
+            return [Path(f) for f in self.batch[0].files], self.batch[0].name
         if self.files:
             label = self.files[0].name if len(self.files) == 1 else f"{len(self.files)} files"
             return list(self.files), label
@@ -111,6 +118,10 @@ class InspectorApp:
         view = ClientView(self, client.gui, client)
         with self._lock:
             self.views[client.client_id] = view
+        if self.batch:
+            from .batch import add_batch_panel
+
+            add_batch_panel(view, self.batch)
         self._open_default(view)
 
     def _on_disconnect(self, client: viser.ClientHandle) -> None:
@@ -260,6 +271,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-upload-pixels", type=float, default=float(d.frame_pixels),
                    metavar="N", help=f"largest uploaded frame in pixels, read from its header "
                                      f"before decoding (default {d.frame_pixels:.0e}; 0: none)")
+    p.add_argument("--batch", metavar="OUTDIR",
+                   help="the output folder of 'hdrcore batch': list its brackets worst first "
+                        "and open them (the worst first)")
     p.add_argument("--debug", action="store_true", help="debug logging")
     return p
 
@@ -281,7 +295,7 @@ def create_app(
     files: Sequence[str] = (), *, host: str = "127.0.0.1", port: int = 8080, root: str = ".",
     verbose: bool = True, demo_dir: Path | None = DEMO_DIR, token: bool = True,
     allow_origins: Sequence[str] = (), limits: UploadLimits | None = None,
-    announce: bool = False,
+    announce: bool = False, batch: Sequence[Any] = (),
 ) -> InspectorApp:
     """Start the server and the app; load ``files`` or the demo bracket.
 
@@ -305,7 +319,8 @@ def create_app(
         server.stop()
         raise StartError(f"port {port} on {host} is in use: choose another with --port N, "
                          f"or --port 0 for any free port")
-    app = InspectorApp(server, root=root, demo_dir=demo_dir, files=files, limits=limits)
+    app = InspectorApp(server, root=root, demo_dir=demo_dir, files=files, limits=limits,
+                       batch=batch)
     app.guard = guard
     app.url = guard.url("127.0.0.1" if host in ("0.0.0.0", "::", "") else host)
     app.warm_up(announce=announce)
@@ -332,6 +347,19 @@ def main(argv: Sequence[str] | None = None) -> int:
         if not Path(f).exists():
             print(f"hdrview: {f}: file or folder not found", file=sys.stderr)
             return 2
+    batch: list = []
+    if args.batch:
+        from .batch import batch_listing, load_batch
+
+        try:
+            batch = load_batch(args.batch)
+        except HdrError as exc:
+            print(f"hdrview: {exc}", file=sys.stderr)
+            return 2
+        if not batch:
+            print(f"hdrview: {args.batch}: the batch has no brackets", file=sys.stderr)
+            return 2
+        print(batch_listing(batch), file=sys.stderr)
     remote = args.host not in LOOPBACK_HOSTS
     if remote and not args.allow_remote:
         print(f"hdrview: --host {args.host} lets other machines reach the inspector and read "
@@ -352,7 +380,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         try:
             app = create_app(args.files, host=args.host, port=args.port, root=str(root),
                              token=not args.no_token, allow_origins=args.allow_origin,
-                             limits=limits, announce=True)
+                             limits=limits, announce=True, batch=batch)
         except (StartError, ValueError, HdrError) as exc:
             print(f"hdrview: {exc}", file=sys.stderr)
             return 2
