@@ -44,6 +44,9 @@ __all__ = [
 DEMOSAIC_METHODS: dict[str, str] = {
     "malvar2004": "Malvar, He & Cutler 2004: bilinear + gradient correction, 5x5, linear",
     "bilinear": "bilinear interpolation of each colour plane, 3x3, linear",
+    "malvar2004-clamped": "malvar2004, each interpolated value held within the range of the "
+                          "nearest samples of its colour (no overshoot at high-contrast edges; "
+                          "scale-equivariant)",
 }
 
 _LETTERS = {"R": 0, "G": 1, "B": 2}
@@ -93,7 +96,8 @@ def _reflect_index(n, pad):  # pragma: no cover - numba
 
 
 @njit
-def _malvar_rows(cfa, offset, chan, method, lo, hi, rounding, out, r0, r1):  # pragma: no cover
+def _malvar_rows(cfa, offset, chan, method, lo, hi, rounding, out, r0, r1,
+                 ceiling, capped):  # pragma: no cover
     h, w = cfa.shape
     ry = _reflect_index(h, 2)
     rx = _reflect_index(w, 2)
@@ -108,26 +112,39 @@ def _malvar_rows(cfa, offset, chan, method, lo, hi, rounding, out, r0, r1):  # p
             i = x & 1
             j = 1 - i
             # Mirroring keeps the CFA phase: a tap's site is (row parity, column parity).
-            cen = np.float32(cfa[y, x]) - offset[p, i]
-            n = np.float32(cfa[ym1, x]) - offset[q, i]
-            s = np.float32(cfa[yp1, x]) - offset[q, i]
-            e = np.float32(cfa[y, xp1]) - offset[p, j]
-            wv = np.float32(cfa[y, xm1]) - offset[p, j]
-            diag = (np.float32(cfa[ym1, xm1]) + np.float32(cfa[ym1, xp1])
-                    + np.float32(cfa[yp1, xm1]) + np.float32(cfa[yp1, xp1])) - 4 * offset[q, j]
+            # ``capped``: every tap is held at the centre's ceiling (see demosaic()).
+            cap = ceiling[y, x] if capped else np.float32(np.inf)
+            cen = min(np.float32(cfa[y, x]) - offset[p, i], cap)
+            n = min(np.float32(cfa[ym1, x]) - offset[q, i], cap)
+            s = min(np.float32(cfa[yp1, x]) - offset[q, i], cap)
+            e = min(np.float32(cfa[y, xp1]) - offset[p, j], cap)
+            wv = min(np.float32(cfa[y, xm1]) - offset[p, j], cap)
+            od = offset[q, j]
+            d1 = min(np.float32(cfa[ym1, xm1]) - od, cap)
+            d2 = min(np.float32(cfa[ym1, xp1]) - od, cap)
+            d3 = min(np.float32(cfa[yp1, xm1]) - od, cap)
+            d4 = min(np.float32(cfa[yp1, xp1]) - od, cap)
+            diag = d1 + d2 + d3 + d4
             c = chan[p, i]
-            if method == 0:
-                far_v = np.float32(cfa[ym2, x]) + np.float32(cfa[yp2, x]) - 2 * offset[p, i]
-                far_h = np.float32(cfa[y, xm2]) + np.float32(cfa[y, xp2]) - 2 * offset[p, i]
+            clamp = method == 2
+            if method != 1:
+                op = offset[p, i]
+                far_v = (min(np.float32(cfa[ym2, x]) - op, cap)
+                         + min(np.float32(cfa[yp2, x]) - op, cap))
+                far_h = (min(np.float32(cfa[y, xm2]) - op, cap)
+                         + min(np.float32(cfa[y, xp2]) - op, cap))
             else:
                 far_v = np.float32(0.0)
                 far_h = np.float32(0.0)
             if c == 1:
                 row = e + wv
                 col = n + s
-                if method == 0:
+                if method != 1:
                     a_h = (5 * cen + 4 * row - far_h - diag + half * far_v) / 8
                     a_v = (5 * cen + 4 * col - far_v - diag + half * far_h) / 8
+                    if clamp:
+                        a_h = min(max(a_h, min(e, wv)), max(e, wv))
+                        a_v = min(max(a_v, min(n, s)), max(n, s))
                 else:
                     a_h = half * row
                     a_v = half * col
@@ -140,10 +157,14 @@ def _malvar_rows(cfa, offset, chan, method, lo, hi, rounding, out, r0, r1):  # p
                     b = a_h
             else:
                 cross = n + s + e + wv
-                if method == 0:
+                if method != 1:
                     far = far_v + far_h
                     g = (4 * cen + 2 * cross - far) / 8
                     oo = (6 * cen + 2 * diag - np.float32(1.5) * far) / 8
+                    if clamp:
+                        g = min(max(g, min(min(n, s), min(e, wv))), max(max(n, s), max(e, wv)))
+                        oo = min(max(oo, min(min(d1, d2), min(d3, d4))),
+                                 max(max(d1, d2), max(d3, d4)))
                 else:
                     g = quarter * cross
                     oo = quarter * diag
@@ -190,8 +211,17 @@ def demosaic(
     dtype: type = np.float32,
     out: np.ndarray | None = None,
     workers: int | None = None,
+    ceiling: np.ndarray | None = None,
 ) -> np.ndarray:
     """Demosaic a Bayer mosaic ``(H, W)`` into ``(H, W, 3)`` R, G, B.
+
+    ``ceiling`` (float32 ``(H, W)``, same units as the black-subtracted mosaic): for an HDR
+    mosaic (:mod:`hdrcore.merge.mosaic`), every value read for the output pixel ``(y, x)`` is
+    held at ``ceiling[y, x]``, the clipping level of the longest frame in which that site is
+    unclipped. A pixel next to something far brighter then sees it as the frame that measured
+    the pixel saw it (clipped), as in the per-frame path, instead of the full merged contrast
+    leaking into it through the filter's taps. Scaling the mosaic and the ceiling by ``k``
+    scales the result by ``k``.
 
     ``pattern`` / ``colors``: rawpy's ``raw_pattern`` and ``color_desc``; ``black_level`` one
     value or one per colour index (rawpy's ``black_level_per_channel``), subtracted first.
@@ -211,10 +241,19 @@ def demosaic(
     hi = float(np.iinfo(out.dtype).max) if integer else float(np.inf)
     if max_level is not None:
         hi = min(hi, float(max_level))
-    code = 0 if method == "malvar2004" else 1
+    code = {"malvar2004": 0, "bilinear": 1, "malvar2004-clamped": 2}[method]
     cfa = np.ascontiguousarray(cfa)
+    if ceiling is None:
+        cap = np.full((1, 1), np.inf, np.float32)
+    else:
+        cap = np.ascontiguousarray(ceiling, dtype=np.float32)
+        if cap.shape != (h, w):
+            raise ParameterError("demosaic ceiling has the wrong shape", expected=str((h, w)),
+                                 found=str(cap.shape))
+    capped = ceiling is not None
     run_row_spans(h, workers, lambda r0, r1: _malvar_rows(
-        cfa, offset, chan, code, np.float32(0.0), np.float32(hi), integer, out, r0, r1))
+        cfa, offset, chan, code, np.float32(0.0), np.float32(hi), integer, out, r0, r1,
+        cap, capped))
     return out
 
 
@@ -238,32 +277,44 @@ def demosaic_reference(
     *,
     method: str = "malvar2004",
     black_level: float | Sequence[float] = 0.0,
+    ceiling: np.ndarray | None = None,
 ) -> np.ndarray:
-    """:func:`demosaic` as whole-image convolutions (float64, no clipping): the tests' spec."""
-    from scipy.ndimage import convolve
-
+    """:func:`demosaic` as whole-image filters (float64, no clipping): the tests' spec."""
     method = validate_method(method)
     cfa, chan, offset = _prepare(mosaic, pattern, colors, black_level)
     h, w = cfa.shape
     site = (np.arange(h)[:, None] % 2, np.arange(w)[None, :] % 2)
     x = cfa.astype(np.float64) - offset.astype(np.float64)[site]
-    if method == "malvar2004":
+    if method.startswith("malvar2004"):
         k = {"cross": _K_G_AT_RB, "row": _K_ROW, "col": _K_COL, "diag": _K_DIAG}
     else:
         k = {"cross": _B_CROSS, "row": _B_ROW, "col": _B_ROW.T, "diag": _B_DIAG}
-    f = {name: convolve(x, kern, mode="mirror") for name, kern in k.items()}
+    padded = np.pad(x, 2, mode="reflect")  # mirrored without repeating the edge
+    cap = np.inf if ceiling is None else np.asarray(ceiling, np.float64)
+
+    def at(dy: int, dx: int) -> np.ndarray:
+        return np.minimum(padded[2 + dy:2 + dy + h, 2 + dx:2 + dx + w], cap)
+
+    def filt(kern: np.ndarray) -> np.ndarray:
+        r = kern.shape[0] // 2  # symmetric kernels: correlation = convolution
+        return sum(kern[dy + r, dx + r] * at(dy, dx) for dy in range(-r, r + 1)
+                   for dx in range(-r, r + 1) if kern[dy + r, dx + r] != 0)
+
+    f = {name: filt(kern) for name, kern in k.items()}
+    x = at(0, 0)
+    if method == "malvar2004-clamped":
+
+        sets = {"row": (at(0, -1), at(0, 1)), "col": (at(-1, 0), at(1, 0)),
+                "cross": (at(-1, 0), at(1, 0), at(0, -1), at(0, 1)),
+                "diag": (at(-1, -1), at(-1, 1), at(1, -1), at(1, 1))}
+        f = {name: np.clip(v, np.minimum.reduce(sets[name]), np.maximum.reduce(sets[name]))
+             for name, v in f.items()}
     out = np.zeros((h, w, 3))
     c = chan[site]
-    c_h = chan[site[0], (site[1] + 1) % 2]
-    c_v = chan[(site[0] + 1) % 2, site[1]]
+    c_h = chan[site[0], (site[1] + 1) % 2]  # the colour of a site's row neighbours
     for ch in range(3):
-        own = c == ch
-        g_site = c == 1
         out[..., ch] = np.where(
-            own, x,
-            np.where(g_site, np.where(c_h == ch, f["row"], f["col"]),
+            c == ch, x,
+            np.where(c == 1, np.where(c_h == ch, f["row"], f["col"]),
                      f["cross"] if ch == 1 else f["diag"]))
-        del g_site
-    # c_v is implied (a G site's column neighbours are the colour its row neighbours are not).
-    del c_v
     return out

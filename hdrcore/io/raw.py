@@ -73,7 +73,7 @@ RAW_EXTENSIONS = frozenset(
 
 #: Demosaic methods of :func:`read_raw`: ours (:data:`hdrcore.demosaic.DEMOSAIC_METHODS`) and
 #: LibRaw's AHD through ``postprocess``.
-RAW_DEMOSAIC_METHODS = ("malvar2004", "bilinear", "libraw-ahd")
+RAW_DEMOSAIC_METHODS = ("malvar2004", "malvar2004-clamped", "bilinear", "libraw-ahd")
 DEFAULT_RAW_DEMOSAIC = "malvar2004"
 
 # LibRaw flip codes to EXIF orientation values (bit 4 transposes, bit 2 flips the rows, bit 1

@@ -128,3 +128,20 @@ def test_bad_inputs_are_named() -> None:
         demosaic(np.zeros((4, 4), np.uint16), PATTERNS["RGGB"], method="ahd")
     with pytest.raises(ParameterError, match="at least 3x3"):
         demosaic(np.zeros((2, 4), np.uint16), PATTERNS["RGGB"])
+
+
+@pytest.mark.parametrize("method", sorted(DEMOSAIC_METHODS))
+def test_ceiling_compiled_equals_spec_and_scales(method: str) -> None:
+    """With a ceiling every tap read for a pixel is held at that pixel's ceiling; scaling the
+    mosaic and the ceiling by k scales the result by k."""
+    rng = np.random.default_rng(5)
+    m = rng.uniform(0, 3000, (23, 30)).astype(np.float32)
+    cap = rng.uniform(500, 2500, m.shape).astype(np.float32)
+    got = demosaic(m, PATTERNS["GBRG"], method=method, ceiling=cap, max_level=np.inf)
+    want = np.maximum(demosaic_reference(m, PATTERNS["GBRG"], method=method, ceiling=cap), 0)
+    np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-2)
+    assert not np.allclose(got, demosaic(m, PATTERNS["GBRG"], method=method, max_level=np.inf))
+    k = np.float32(4.0)
+    scaled = demosaic(m * k, PATTERNS["GBRG"], method=method, ceiling=cap * k,
+                      max_level=np.inf)
+    np.testing.assert_allclose(scaled, got * k, rtol=1e-5, atol=1e-2)
