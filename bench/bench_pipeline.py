@@ -11,11 +11,22 @@ Prints, in one run, side by side:
   under which most of MergeDebevec's time is the first touch of its fresh buffers;
 * HDRutils: ``HDRutils.merge`` on the same DNG files (its time includes its own decode).
 
+The whole command, decode INCLUDED (issue 18), side by side in the same run:
+
+* ``hdrcore merge FRAMES -o OUT.exr --preview OUT.png --report OUT.json`` in a new process
+  (our mosaic decode and compiled demosaic; the same with ``HDRCORE_RAW_DEMOSAIC=libraw-ahd``
+  for LibRaw's postprocess), wall, CPU and peak memory of that process;
+* the peer: rawpy ``postprocess`` (LibRaw AHD, sRGB, 8-bit: what OpenCV's Debevec merge takes)
+  of every frame on two threads, OpenCV AlignMTB + MergeDebevec, and the EXR written with the
+  OpenEXR module (half, PIZ, as ours), in a new process.
+
 Each contender runs in its own child process so that peak memory (``ru_maxrss``) is its own.
 Targets (issue 6): ours <= 4 s end to end without decode, peak <= 3 GB; the merge step alone
-<= 0.3x MergeDebevec.
+<= 0.3x MergeDebevec. Issue 18: the whole command <= 2.5 s wall and <= 0.45x the peer, peak
+<= 1.5 GB (3 x 24 MP 12-bit); a 5 x 45 MP 14-bit bracket (``--size 5760x8640 --frames 5
+--bits 14``) printed, peak <= 3 GB.
 
-    python bench/bench_pipeline.py [--size 4000x6000] [--frames 3] [--keep]
+    python bench/bench_pipeline.py [--size 4000x6000] [--frames 3] [--bits 12] [--skip ...]
 
 The synthetic bracket is cached under ``bench/out/`` (gitignored) between runs.
 """
@@ -34,14 +45,15 @@ from pathlib import Path
 import numpy as np
 
 HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE.parent))
 OUT = HERE / "out"
 
 
-def make_bracket(size: tuple[int, int], frames: int) -> Path:
+def make_bracket(size: tuple[int, int], frames: int, bits: int = 12) -> Path:
     from hdrcore.synthetic import simulate_bracket, write_bracket
 
     h, w = size
-    d = OUT / f"pipeline_{h}x{w}_{frames}"
+    d = OUT / (f"pipeline_{h}x{w}_{frames}" + ("" if bits == 12 else f"_{bits}bit"))
     if (d / "truth.json").exists() and json.loads(
             (d / "truth.json").read_text()).get("rendering") == "area":
         return d  # (a bracket from the earlier log-cubic renderer is made again)
@@ -49,7 +61,7 @@ def make_bracket(size: tuple[int, int], frames: int) -> Path:
     t0 = time.perf_counter()
     times = tuple(2.0 ** (2 * k) / 256 for k in range(frames))
     sim = simulate_bracket(
-        scene="window", shape=(h, w), exposure_times=times, bits=12, response="linear",
+        scene="window", shape=(h, w), exposure_times=times, bits=bits, response="linear",
         noise_sigma=2.0, shot_noise_full_well=20000, max_shift=20, max_rotation_deg=1.0,
         key=0.24, seed=11, keep_linear=True,
     )
@@ -203,11 +215,86 @@ def child_hdrutils(d: Path) -> dict:
             "note": "includes its own decode"}
 
 
-CHILDREN = {"ours": child_ours, "opencv": child_opencv, "hdrutils": child_hdrutils}
+def _child_rusage() -> tuple[float, float]:
+    """CPU seconds and peak MB of the finished child processes (the command run)."""
+    r = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return r.ru_utime + r.ru_stime, r.ru_maxrss / 1024.0
 
 
-def run_child(name: str, d: Path, retain: bool = True) -> dict:
-    env = dict(os.environ, HDRCORE_RETAIN_MEMORY="1" if retain else "0")
+def child_command(d: Path) -> dict:
+    """``hdrcore merge`` as a user runs it: a new process, decode, EXR, preview and report."""
+    import tempfile
+
+    frames = sorted(str(p) for p in d.glob("*.dng"))
+    with tempfile.TemporaryDirectory(dir=OUT) as tmp:
+        cmd = [sys.executable, "-m", "hdrcore", "merge", *frames, "-o", f"{tmp}/m.exr",
+               "--preview", f"{tmp}/m.png", "--report", f"{tmp}/m.json", "--quiet", "--force"]
+        t0 = time.perf_counter()
+        proc = subprocess.run(cmd, capture_output=True, text=True, cwd=HERE.parent)
+        wall = time.perf_counter() - t0
+        if proc.returncode not in (0, 1):
+            raise RuntimeError(proc.stderr.strip().splitlines()[-1])
+        report = json.loads(Path(f"{tmp}/m.json").read_text())
+    cpu, peak = _child_rusage()
+    return {"wall_s": wall, "cpu_s": cpu, "peak_mb": peak,
+            "decode_s": report["timings"].get("decode"),
+            "write_s": report["timings"].get("write"),
+            "stages": {k: v for k, v in report["timings"].items()
+                       if k not in ("decode", "write", "total")}}
+
+
+def child_peer(d: Path) -> dict:
+    """rawpy decode (2 threads) + AlignMTB + MergeDebevec + EXR write, in this new process."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    import cv2
+    import OpenEXR
+    import rawpy
+
+    from hdrcore._memory import retain_freed_memory
+
+    retain_freed_memory()
+    files = sorted(str(p) for p in d.glob("*.dng"))
+    times = np.array(json.loads((d / "truth.json").read_text())["exposure_times"], np.float32)
+    r0 = resource.getrusage(resource.RUSAGE_SELF)
+    t0 = time.perf_counter()
+
+    def decode(f: str) -> np.ndarray:
+        with rawpy.imread(f) as raw:
+            # LibRaw's AHD to 8-bit sRGB, linear (gamma 1): what MergeDebevec takes.
+            return raw.postprocess(gamma=(1, 1), no_auto_bright=True, output_bps=8)[..., ::-1]
+
+    with ThreadPoolExecutor(2) as pool:
+        imgs = [np.ascontiguousarray(x) for x in pool.map(decode, files)]
+    t_dec = time.perf_counter()
+    cv2.createAlignMTB().process(imgs, imgs)
+    t_al = time.perf_counter()
+    hdr = cv2.createMergeDebevec().process(imgs, times)
+    t_me = time.perf_counter()
+    with tempfile_dir() as tmp:
+        rgb = np.ascontiguousarray(hdr[..., ::-1])
+        header = {"compression": OpenEXR.PIZ_COMPRESSION, "type": OpenEXR.scanlineimage}
+        OpenEXR.File(header, {"RGB": rgb.astype(np.float16)}).write(f"{tmp}/peer.exr")
+    t_wr = time.perf_counter()
+    r1 = resource.getrusage(resource.RUSAGE_SELF)
+    return {"wall_s": t_wr - t0, "cpu_s": (r1.ru_utime + r1.ru_stime) - (r0.ru_utime
+                                                                          + r0.ru_stime),
+            "peak_mb": _peak_mb(), "decode_s": t_dec - t0, "align_s": t_al - t_dec,
+            "merge_s": t_me - t_al, "write_s": t_wr - t_me}
+
+
+def tempfile_dir():
+    import tempfile
+
+    return tempfile.TemporaryDirectory(dir=OUT)
+
+
+CHILDREN = {"ours": child_ours, "opencv": child_opencv, "hdrutils": child_hdrutils,
+            "command": child_command, "peer": child_peer}
+
+
+def run_child(name: str, d: Path, retain: bool = True, **extra_env: str) -> dict:
+    env = dict(os.environ, HDRCORE_RETAIN_MEMORY="1" if retain else "0", **extra_env)
     proc = subprocess.run(
         [sys.executable, __file__, "--child", name, "--dir", str(d)],
         capture_output=True, text=True, timeout=1800, env=env,
@@ -218,11 +305,53 @@ def run_child(name: str, d: Path, retain: bool = True) -> dict:
     return json.loads(proc.stdout.strip().splitlines()[-1])
 
 
+def whole_command(d: Path, repeat: int, skip: set[str]) -> None:
+    """The issue-18 table: the whole command, decode included, beside the peer."""
+    runs: dict[str, list[dict]] = {}
+    contenders = [("hdrcore merge (ours: mosaic + our demosaic)", "command", {}),
+                  ("hdrcore merge, LibRaw AHD decode", "command",
+                   {"HDRCORE_RAW_DEMOSAIC": "libraw-ahd"}),
+                  ("rawpy + AlignMTB + MergeDebevec + EXR", "peer", {})]
+    contenders = [c for c in contenders if c[1] not in skip]
+    for _ in range(repeat):
+        for label, child, env in contenders:
+            runs.setdefault(label, []).append(run_child(child, d, **env))
+    print("\n## the whole command, decode INCLUDED (each in a new process; best of "
+          f"{repeat} by wall, alternated; load average now {os.getloadavg()[0]:.2f})")
+    print(f"{'contender':<46}{'wall s':>8}{'CPU s':>8}{'decode':>8}{'write':>8}"
+          f"{'peak MB':>9}{'x peer':>8}")
+    best = {}
+    for label, rs in runs.items():
+        ok = [r for r in rs if "error" not in r]
+        if not ok:
+            print(f"{label:<46} failed: {rs[0].get('error')}")
+            continue
+        best[label] = min(ok, key=lambda r: r["wall_s"])
+    peer = best.get("rawpy + AlignMTB + MergeDebevec + EXR")
+    for label, r in best.items():
+        ratio = "-" if peer is None else f"{r['wall_s'] / peer['wall_s']:.2f}"
+        dec = "-" if r.get("decode_s") is None else f"{r['decode_s']:.2f}"
+        wr = "-" if r.get("write_s") is None else f"{r['write_s']:.2f}"
+        print(f"{label:<46}{r['wall_s']:>8.2f}{r['cpu_s']:>8.2f}{dec:>8}{wr:>8}"
+              f"{r['peak_mb']:>9.0f}{ratio:>8}")
+    for label, rs in runs.items():
+        walls = ", ".join(f"{r['wall_s']:.2f}" for r in rs if "error" not in r)
+        print(f"#   {label}: every run {walls} s")
+    ours = best.get("hdrcore merge (ours: mosaic + our demosaic)")
+    if ours:
+        print("#   ours per stage (s): " + ", ".join(
+            f"{k} {v:.2f}" for k, v in ours["stages"].items() if isinstance(v, float)))
+    print("#   targets (3 x 24 MP): ours <= 2.5 s wall, <= 0.45x the peer, peak <= 1.5 GB")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--size", default="4000x6000")
     ap.add_argument("--frames", type=int, default=3)
+    ap.add_argument("--bits", type=int, default=12)
+    ap.add_argument("--repeat", type=int, default=2,
+                    help="runs of the whole-command contenders, alternated (best reported)")
     ap.add_argument("--child", choices=sorted(CHILDREN))
     ap.add_argument("--dir")
     ap.add_argument("--skip", default="", help="comma list of contenders to skip")
@@ -231,10 +360,12 @@ def main() -> None:
         print(json.dumps(CHILDREN[args.child](Path(args.dir))))
         return
     h, w = (int(v) for v in args.size.lower().split("x"))
-    d = make_bracket((h, w), args.frames)
+    d = make_bracket((h, w), args.frames, args.bits)
     skip = {s for s in args.skip.split(",") if s}
-    print(f"# 3-frame {w}x{h} ({h * w / 1e6:.0f} MP) 12-bit DNG hand-held bracket, 2 stops; "
-          f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores")
+    print(f"# {args.frames}-frame {w}x{h} ({h * w / 1e6:.0f} MP) {args.bits}-bit DNG hand-held "
+          f"bracket, 2 stops; load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores")
+    if "command" not in skip:
+        whole_command(d, args.repeat, skip)
     res = {n: run_child(n, d) for n in ("ours", "opencv", "hdrutils") if n not in skip}
     if "opencv" not in skip:
         res["opencv-default"] = run_child("opencv", d, retain=False)
