@@ -120,9 +120,10 @@ def _limit_memory(limit_bytes: int | None) -> None:
         resource.setrlimit(resource.RLIMIT_AS, (int(limit_bytes), int(limit_bytes)))
 
 
-def _lost(task: BracketTask, exc: BaseException) -> BracketRecord:
+def _lost(task: BracketTask, exc: BaseException, hint: str = "") -> BracketRecord:
     return BracketRecord(task.name, task.files, "failed",
-                         reason=f"worker lost: {type(exc).__name__}: {exc}",
+                         reason=f"the worker failed: {type(exc).__name__}: "
+                                f"{str(exc).splitlines()[0] if str(exc) else ''}{hint}",
                          quality={"score": 0.0}, outputs={"sidecar": None})
 
 
@@ -142,7 +143,8 @@ def _run_local(todo: list[BracketTask], workers: int, memory_limit: int | None,
             try:
                 rec = fut.result()
             except Exception as exc:  # BrokenProcessPool: a worker was killed (OOM killer)
-                rec = _lost(t, exc)
+                rec = _lost(t, exc, f" (each worker is limited to {memory_limit / 1e9:g} GB: "
+                                    f"a higher --worker-memory may help)" if memory_limit else "")
             done(t, rec)
     except BaseException:
         pool.shutdown(wait=False, cancel_futures=True)

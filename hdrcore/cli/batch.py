@@ -69,8 +69,10 @@ def _gigabytes(text: str) -> int:
         value = float(text)
     except ValueError:
         value = math.nan
-    if not (math.isfinite(value) and value > 0.1):
-        raise argparse.ArgumentTypeError(f"expected gigabytes (e.g. 4), found {text!r}")
+    if not (math.isfinite(value) and value >= 1.0):
+        raise argparse.ArgumentTypeError(
+            f"expected gigabytes, at least 1 (a worker limited to 0.3 GB of address space "
+            f"cannot even load its libraries), found {text!r}")
     return int(value * 1e9)
 
 
