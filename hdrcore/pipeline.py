@@ -1054,10 +1054,9 @@ class Pipeline:
         b = self.bracket
         excluded = self._excluded
         masks = None if excluded is None else [~mask for mask in excluded[0]]
-        # The registered-pixel estimator samples through affine matrices: a homography pair
-        # keeps the ratio measured over its common field of view from the histograms.
-        common = dict(registered=[q.usable and q.matrix is not None
-                                  for q in registration.pairs], fallback=fallback,
+        # The registered-pixel estimator samples each pair through its matrix: affine, or
+        # the homography of a pair registered with perspective.
+        common = dict(registered=[q.usable for q in registration.pairs], fallback=fallback,
                       exposure_times=b.exif_exposures(), saturation=p.saturation,
                       noise_floor=p.noise_floor)
         matrices = [q.matrix if q.matrix is not None else _affine_near(q.homography, q.shape)

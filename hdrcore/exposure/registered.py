@@ -68,7 +68,6 @@ from ..errors import ParameterError
 from ._core import _no_signal, as_lut, channels_disagree, check_levels
 from .chain import assemble_bracket
 from .interval import OK_TOLERANCE, brightness_band_ratios, judge, verdict
-from .pair_histograms import chain_pair_matrix
 from .result import FORWARD, INVERSE, BracketExposureResult, ExposureEquations, ExposureRatioResult
 from .stability import jackknife_std_error
 
@@ -81,7 +80,7 @@ METHOD = "registered pixels"
 def _tile_sums(grid, other, use_g, use_o, has_mask, lut_g, lut_o, mat, lo, hi, tiles,
                tile):  # pragma: no cover - numba
     """Per tile and channel: sum of grid values, sum of bilinear samples of ``other`` at
-    ``mat[c] @ p`` (one matrix per channel), pixel count. Pixels enter when their 3x3 grid
+    ``mat[c] @ p`` (one 3x3 matrix per channel, a homography or an affine map), pixel count. Pixels enter when their 3x3 grid
     neighbourhood and the 3x3 neighbourhood of the nearest pixel in ``other`` (which holds the
     four bilinear taps) lie strictly between ``lo`` and ``hi``: the pixels within 1.5 px of the
     point in both frames.
@@ -97,8 +96,11 @@ def _tile_sums(grid, other, use_g, use_o, has_mask, lut_g, lut_o, mat, lo, hi, t
         for y in range(max(y0, 1), min(y0 + tile, h - 1)):
             for x in range(max(x0, 1), min(x0 + tile, w - 1)):
                 for c in range(nc):
-                    xs = mat[c, 0, 0] * x + mat[c, 0, 1] * y + mat[c, 0, 2]
-                    ys = mat[c, 1, 0] * x + mat[c, 1, 1] * y + mat[c, 1, 2]
+                    zw = mat[c, 2, 0] * x + mat[c, 2, 1] * y + mat[c, 2, 2]
+                    if not zw > 0.0:
+                        continue
+                    xs = (mat[c, 0, 0] * x + mat[c, 0, 1] * y + mat[c, 0, 2]) / zw
+                    ys = (mat[c, 1, 0] * x + mat[c, 1, 1] * y + mat[c, 1, 2]) / zw
                     if xs < 1.0 or ys < 1.0:
                         continue
                     ix = int(xs)
@@ -159,7 +161,19 @@ def _mask(m: np.ndarray | None, shape: tuple[int, int]) -> np.ndarray:
 
 
 def _homogeneous(m: np.ndarray) -> np.ndarray:
-    return np.vstack([np.asarray(m, np.float64).reshape(2, 3), [0.0, 0.0, 1.0]])
+    """A 2x3 affine matrix or a 3x3 homography as 3x3 (normalised to ``[2, 2] = 1``)."""
+    a = np.asarray(m, np.float64)
+    if a.shape == (3, 3):
+        return a / a[2, 2] if a[2, 2] not in (0.0, 1.0) else a.copy()
+    return np.vstack([a.reshape(2, 3), [0.0, 0.0, 1.0]])
+
+
+def _chain(consecutive: Sequence[np.ndarray], dark: int, bright: int) -> np.ndarray:
+    """3x3 map from frame ``bright`` to frame ``dark`` (``consecutive[i]``: ``i + 1 -> i``)."""
+    m = np.eye(3)
+    for i in range(dark, bright):
+        m = m @ _homogeneous(consecutive[i])
+    return m / m[2, 2]
 
 
 def _tile_lattice(shape: tuple[int, int], tile: int, max_samples: int | None) -> np.ndarray:
@@ -253,8 +267,8 @@ def exposure_ratio_registered(
     """Exposure ratio ``t_bright / t_dark`` of a registered pair from its pixels.
 
     ``dark``/``bright``: integer ``(H, W, C)`` frames of one shape (levels ``0..max_level``);
-    ``matrix`` (2x3) maps bright-frame pixel coordinates to the dark frame (as
-    ``BracketRegistration.pairs[i].matrix``). ``saturation``/``noise_floor`` in levels (defaults
+    ``matrix`` (2x3 affine, or a 3x3 homography) maps bright-frame pixel coordinates to the
+    dark frame (as ``BracketRegistration.pairs[i].matrix`` or ``.homography``). ``saturation``/``noise_floor`` in levels (defaults
     as the histogram estimator), ``lut`` a ``(C, max_level + 1)`` or ``(max_level + 1,)``
     linearisation (``None``: linear levels). ``mask_dark``/``mask_bright``: optional ``(H, W)``
     booleans, ``True`` where a pixel may be used (e.g. not of an excluded colour). ``tiles``
@@ -277,10 +291,14 @@ def exposure_ratio_registered(
                              found=f"{d.shape} and {b.shape}")
     if not (np.issubdtype(d.dtype, np.integer) and np.issubdtype(b.dtype, np.integer)):
         raise ParameterError("frames must hold integer levels", found=f"{d.dtype}, {b.dtype}")
-    mat = np.asarray(matrix, np.float64).reshape(2, 3)
-    if not np.all(np.isfinite(mat)) or abs(np.linalg.det(mat[:, :2])) < 1e-6:
-        raise ParameterError("pair matrix must be a finite invertible 2x3 affine matrix",
-                             found=str(mat.tolist()))
+    raw = np.asarray(matrix, np.float64)
+    if raw.shape not in ((2, 3), (3, 3), (6,)) or not np.all(np.isfinite(raw)) or (
+            raw.shape == (3, 3) and raw[2, 2] == 0):
+        raise ParameterError("pair matrix must be a finite 2x3 affine matrix or 3x3 homography",
+                             found=str(raw.tolist()))
+    full = _homogeneous(raw.reshape(2, 3) if raw.shape == (6,) else raw)
+    if abs(np.linalg.det(full)) < 1e-6:
+        raise ParameterError("pair matrix must be invertible", found=str(full.tolist()))
     z, floor = check_levels(max_level, saturation, noise_floor)
     h, w, nk = d.shape
     for which, frame in (("darker", d), ("brighter", b)):
@@ -291,20 +309,19 @@ def exposure_ratio_registered(
                               noise_floor=floor, max_level=max_level, dark=int(dark_index),
                               bright=int(bright_index), tolerance=max_relative_error)
     g = np.ascontiguousarray(as_lut(lut, nk, max_level), np.float64)
-    full = _homogeneous(mat)
     if geometry is None:
-        mats = np.repeat(full[None, :2], nk, axis=0)
+        mats = np.repeat(full[None], nk, axis=0)
     else:
         scale, offsets = float(geometry[0]), np.asarray(geometry[1], np.float64).reshape(-1, 2)
         if offsets.shape[0] != nk or not scale > 0:
             raise ParameterError("one (x, y) offset per channel and a positive scale",
                                  expected=f"({nk}, 2)", found=str(offsets.shape))
-        mats = np.empty((nk, 2, 3))
+        mats = np.empty((nk, 3, 3))
         for c in range(nk):
             sc = np.array([[scale, 0.0, offsets[c, 0]], [0.0, scale, offsets[c, 1]],
                            [0.0, 0.0, 1.0]])
-            mats[c] = (np.linalg.inv(sc) @ full @ sc)[:2]
-    invs = np.stack([np.linalg.inv(_homogeneous(m_))[:2] for m_ in mats])
+            mats[c] = np.linalg.inv(sc) @ full @ sc
+    invs = np.stack([_homogeneous(np.linalg.inv(m_)) for m_ in mats])
     groups = np.arange(nk) if channel_groups is None else np.asarray(channel_groups, np.int64)
     if groups.shape != (nk,) or groups.min() < 0:
         raise ParameterError("one channel group per channel", expected=str(nk),
@@ -492,7 +509,7 @@ def bracket_exposures_from_pixels(
                              found=str(len(ok_reg)))
     if masks is not None and len(masks) != n:
         raise ParameterError("one mask per frame", expected=str(n), found=str(len(masks)))
-    mats = [np.asarray(m, np.float64).reshape(2, 3) for m in pair_matrices]
+    mats = [_homogeneous(m) for m in pair_matrices]
     z = kwargs.get("saturation")
     floor = kwargs.get("noise_floor")
     zl, fl = check_levels(max_level, z, floor)  # type: ignore[arg-type]
@@ -507,7 +524,7 @@ def bracket_exposures_from_pixels(
         if masks is not None:
             extra_kw = dict(mask_dark=masks[i], mask_bright=masks[j])
         return exposure_ratio_registered(frames[i], frames[j], max_level,
-                                         chain_pair_matrix(mats, i, j), dark_index=i,
+                                         _chain(mats, i, j), dark_index=i,
                                          bright_index=j, **extra_kw,
                                          **kwargs)  # type: ignore[arg-type]
 
