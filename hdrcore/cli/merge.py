@@ -49,6 +49,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                         "camera RGB, black 0 / white 1) for a raw editor")
     p.add_argument("--dng-bits", dest="dng_bits", type=int, default=32, choices=(16, 32),
                    help="float sample size of the DNG (default 32)")
+    p.add_argument("--dng-layout", dest="dng_layout", default="auto",
+                   choices=("auto", "linear", "cfa"),
+                   help="DNG samples: cfa = the frames' mosaics merged before demosaicing "
+                        "(tripod RAW brackets), linear = demosaiced camera RGB (any bracket); "
+                        "auto picks cfa when it can (default)")
     p.add_argument("--align", default="similarity", choices=ALIGN_CHOICES,
                    help="motion model for hand-held frames (default: similarity, i.e. shift, "
                         "rotation and scale)")
@@ -161,14 +166,16 @@ def run(args: argparse.Namespace) -> int:
     if args.dng:
         from ._dng import write_result_dng
 
-        write_result_dng(args.dng, result, bits=args.dng_bits, force=args.force, inputs=inputs)
+        _, dng_layout = write_result_dng(args.dng, result, bits=args.dng_bits,
+                                         layout=args.dng_layout, force=args.force,
+                                         inputs=inputs)
     if args.preview and result.preview is not None:
         write_png(args.preview, result.preview.image, force=args.force, inputs=inputs)
     report = result.to_report()
     report["timings"]["decode"] = decode_seconds
     report["timings"]["write"] = time.perf_counter() - t_write
     report["outputs"] = {"exr": args.output, "preview": args.preview, "report": args.report,
-                         "dng": args.dng}
+                         "dng": args.dng, "dng_layout": dng_layout if args.dng else None}
     if args.report:
         text = json.dumps(to_jsonable(report), indent=2)
         atomic_write(args.report, lambda tmp: tmp.write_text(text), force=args.force,

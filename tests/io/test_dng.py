@@ -150,10 +150,55 @@ def merged(tmp_path_factory) -> dict[str, Path]:
     out = {"dir": d / "in", "exr": d / "m.exr", "dng": d / "m.dng", "png": d / "m.png",
            "json": d / "m.json"}
     code = main(["merge", str(d / "in"), "-o", str(out["exr"]), "--dng", str(out["dng"]),
-                 "--preview", str(out["png"]), "--report", str(out["json"]), "--float32",
-                 "--quiet"])
+                 "--dng-layout", "linear", "--preview", str(out["png"]), "--report",
+                 str(out["json"]), "--float32", "--quiet"])
     assert code in (0, 1)
     return out
+
+
+@pytest.fixture(scope="module")
+def merged_cfa(merged: dict[str, Path]) -> dict[str, Path]:
+    """The same tripod bracket with --dng-layout auto: a CFA DNG of the merged mosaic."""
+    d = merged["dir"].parent
+    out = {"dir": merged["dir"], "dng": d / "c.dng", "png": d / "c.png", "json": d / "c.json"}
+    code = main(["merge", str(merged["dir"]), "-o", str(d / "c.exr"), "--dng", str(out["dng"]),
+                 "--preview", str(out["png"]), "--report", str(out["json"]), "--quiet"])
+    assert code in (0, 1)
+    return out
+
+
+def test_tripod_raw_bracket_gets_the_merged_mosaic(merged_cfa: dict[str, Path]) -> None:
+    """auto picks the CFA layout for a tripod RAW bracket; sample / scale is the reference
+    frame's black-subtracted level / max_level at its well-exposed sites, and LibRaw reads
+    the mosaic with its pattern."""
+    report = json.loads(merged_cfa["json"].read_text())
+    assert report["outputs"]["dng_layout"] == "cfa"
+    dng = read_float_dng(merged_cfa["dng"])
+    assert dng.kind == "cfa"
+    b = load_bracket([merged_cfa["dir"]])
+    cfa = b.frames[1].cfa
+    lin = (cfa.data.astype(np.float64) - 256) / b.max_level
+    ok = (lin > 0.05) & (lin < 0.9)
+    assert np.median(dng.image[ok] / _scale(dng) / lin[ok]) == pytest.approx(1.0, abs=2e-3)
+    with rawpy.imread(str(merged_cfa["dng"])) as raw:
+        letters = [raw.color_desc.decode()[i] for i in raw.raw_pattern.ravel()]
+        assert letters == ["R", "G", "G", "B"]
+        got = raw.raw_image.astype(np.float64) / raw.white_level
+        assert np.abs(got - dng.image).max() <= 1.0 / 16383
+
+
+def test_hand_held_bracket_gets_linear_and_refuses_cfa(tmp_path: Path) -> None:
+    sim = simulate_bracket(scene="window", shape=(160, 240), exposure_times=(1 / 64, 1 / 16),
+                           bits=12, response="linear", noise_sigma=1.0, max_shift=4, seed=5,
+                           keep_linear=True)
+    write_bracket(tmp_path / "in", sim, "dng")
+    rep = tmp_path / "r.json"
+    assert main(["merge", str(tmp_path / "in"), "-o", str(tmp_path / "m.exr"), "--dng",
+                 str(tmp_path / "m.dng"), "--report", str(rep), "--quiet"]) in (0, 1)
+    assert json.loads(rep.read_text())["outputs"]["dng_layout"] == "linear"
+    assert main(["merge", str(tmp_path / "in"), "-o", str(tmp_path / "n.exr"), "--dng",
+                 str(tmp_path / "n.dng"), "--dng-layout", "cfa", "--quiet"]) == 2
+    assert not (tmp_path / "n.dng").exists()
 
 
 def test_merge_dng_holds_the_merged_values(merged: dict[str, Path]) -> None:
@@ -193,11 +238,14 @@ def test_merge_refuses_a_dng_name_without_the_extension(tmp_path: Path,
 
 
 @pytest.mark.skipif(DARKTABLE is None, reason="darktable-cli (Debian's darktable) not installed")
-def test_darktable_renders_it_like_our_preview(tmp_path: Path, merged: dict[str, Path]) -> None:
+@pytest.mark.parametrize("layout", ["linear", "cfa"])
+def test_darktable_renders_it_like_our_preview(tmp_path: Path, request, layout: str) -> None:
     """A real raw editor opens the DNG: darktable-cli's default rendering against our preview,
-    per 8x8 block, after matching each image's mean (tone curves differ): their log
-    luminances correlate (0.97 measured) and the colours agree in hue."""
+    per 8x8 block (tone curves differ): their log luminances correlate and the colours of the
+    blocks neither clips agree."""
     from PIL import Image
+
+    merged = request.getfixturevalue("merged" if layout == "linear" else "merged_cfa")
 
     jpg = tmp_path / "dt.jpg"
     proc = subprocess.run(
