@@ -903,7 +903,7 @@ def register_with(
         status=status, message=message, shape=data.shape,
         seconds=time.perf_counter() - t0,
         preview=make_preview(data, homography) if previews else None,
-        residual=residual,
+        residual=residual, gain=tuple(float(g) for g in getattr(res, "gain", ())),
     )
 
 

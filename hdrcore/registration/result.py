@@ -85,6 +85,25 @@ class PairRegistration:
     #: the model-independent residual motion after alignment
     #: (:class:`hdrcore.registration.residual.ResidualMotion`), when it was measured
     residual: Any = field(default=None, repr=False)
+    #: ``(g0, g1, g2)``: the smooth gain found with the motion (empty when the search had
+    #: none): the bright frame matched ``exp(g0 + g1 X + g2 Y)`` times ``ratio`` times the
+    #: dark one, ``X, Y`` the offset from the centre over the half-diagonal (see
+    #: :attr:`ratio_found`, :attr:`gain_spread`)
+    gain: tuple[float, ...] = ()
+
+    @property
+    def ratio_found(self) -> float:
+        """The exposure ratio at the image centre the search found with the motion
+        (``ratio * exp(-g0)``; ``ratio`` when no gain was fitted)."""
+        return float(self.ratio * np.exp(-self.gain[0])) if self.gain else float(self.ratio)
+
+    @property
+    def gain_spread(self) -> float:
+        """How much the brightness ratio of the pair changes from the centre to the corners,
+        as a factor (``exp(|(g1, g2)|)``; 1 for a uniform ratio): a phone's local tone
+        mapping or vignetting that differs between the frames."""
+        return float(np.exp(np.hypot(self.gain[1], self.gain[2]))) if len(self.gain) == 3 \
+            else 1.0
 
     def __post_init__(self) -> None:
         if self.matrix is not None:
@@ -132,6 +151,9 @@ class PairRegistration:
             "status": self.status,
             "message": self.message,
             "seconds": self.seconds,
+            "gain": list(self.gain),
+            "ratio_found": self.ratio_found,
+            "gain_spread": self.gain_spread,
         }
 
 

@@ -259,6 +259,18 @@ def test_exposure_gain_and_its_gradient_are_not_taken_for_perspective():
     assert with_gain.ok
     assert corner_error(with_gain.homography, truth, SHAPE).max() < 0.1
     assert corner_error(without.homography, truth, SHAPE).max() > 0.2
+    # the gain found is reported: the ratio at the centre 15 % above the one given, growing
+    # towards the bottom (Y down) by 0.09 per half height
+    assert with_gain.ratio_found == pytest.approx(with_gain.ratio * np.exp(0.14), rel=0.01)
+    half_diag = 0.5 * np.hypot(SHAPE[0] - 1, SHAPE[1] - 1)
+    g0, g1, g2 = with_gain.gain
+    assert g2 == pytest.approx(-0.09 * half_diag / (0.5 * SHAPE[0]), rel=0.15)  # bright / gain
+    assert abs(g1) < 0.1 * abs(g2)
+    assert with_gain.gain_spread == pytest.approx(np.exp(abs(g2)), rel=0.01)
+    doc = json.loads(json.dumps(with_gain.to_json()))
+    assert doc["ratio_found"] == pytest.approx(with_gain.ratio_found)
+    assert doc["gain"] == list(with_gain.gain)
+    assert without.gain == (0.0, 0.0, 0.0) and without.ratio_found == without.ratio
 
 
 def test_a_near_plane_does_not_bend_the_dominant_plane():
