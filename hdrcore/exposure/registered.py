@@ -80,7 +80,8 @@ METHOD = "registered pixels"
 def _tile_sums(grid, other, use_g, use_o, has_mask, lut_g, lut_o, mat, lo, hi, tiles,
                tile):  # pragma: no cover - numba
     """Per tile and channel: sum of grid values, sum of bilinear samples of ``other`` at
-    ``mat[c] @ p`` (one 3x3 matrix per channel, a homography or an affine map), pixel count. Pixels enter when their 3x3 grid
+    ``mat[c] @ p`` (one 3x3 matrix per channel, a homography or an affine map), pixel count.
+    Pixels enter when their 3x3 grid
     neighbourhood and the 3x3 neighbourhood of the nearest pixel in ``other`` (which holds the
     four bilinear taps) lie strictly between ``lo`` and ``hi``: the pixels within 1.5 px of the
     point in both frames.
@@ -268,7 +269,8 @@ def exposure_ratio_registered(
 
     ``dark``/``bright``: integer ``(H, W, C)`` frames of one shape (levels ``0..max_level``);
     ``matrix`` (2x3 affine, or a 3x3 homography) maps bright-frame pixel coordinates to the
-    dark frame (as ``BracketRegistration.pairs[i].matrix`` or ``.homography``). ``saturation``/``noise_floor`` in levels (defaults
+    dark frame (as ``BracketRegistration.pairs[i].matrix`` or ``.homography``).
+    ``saturation``/``noise_floor`` in levels (defaults
     as the histogram estimator), ``lut`` a ``(C, max_level + 1)`` or ``(max_level + 1,)``
     linearisation (``None``: linear levels). ``mask_dark``/``mask_bright``: optional ``(H, W)``
     booleans, ``True`` where a pixel may be used (e.g. not of an excluded colour). ``tiles``
