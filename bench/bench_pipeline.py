@@ -308,7 +308,7 @@ def run_child(name: str, d: Path, retain: bool = True, **extra_env: str) -> dict
 def whole_command(d: Path, repeat: int, skip: set[str]) -> None:
     """The issue-18 table: the whole command, decode included, beside the peer."""
     runs: dict[str, list[dict]] = {}
-    contenders = [("hdrcore merge (ours: mosaic + our demosaic)", "command", {}),
+    contenders = [("hdrcore merge (ours: mosaic read + demosaic)", "command", {}),
                   ("hdrcore merge, LibRaw AHD decode", "command",
                    {"HDRCORE_RAW_DEMOSAIC": "libraw-ahd"}),
                   ("rawpy + AlignMTB + MergeDebevec + EXR", "peer", {})]
@@ -337,7 +337,7 @@ def whole_command(d: Path, repeat: int, skip: set[str]) -> None:
     for label, rs in runs.items():
         walls = ", ".join(f"{r['wall_s']:.2f}" for r in rs if "error" not in r)
         print(f"#   {label}: every run {walls} s")
-    ours = best.get("hdrcore merge (ours: mosaic + our demosaic)")
+    ours = best.get("hdrcore merge (ours: mosaic read + demosaic)")
     if ours:
         print("#   ours per stage (s): " + ", ".join(
             f"{k} {v:.2f}" for k, v in ours["stages"].items() if isinstance(v, float)))
