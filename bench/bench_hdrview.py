@@ -162,6 +162,8 @@ def bench_pipeline(sim, repeat: int) -> list[tuple]:
             app.request_path("big")
             app.wait_idle(600)
             rows.append(("load + full pipeline + draw (once)", time.perf_counter() - t, "app"))
+            rows.append(("load: draft preview drawn", app.last_draft_seconds or float("nan"),
+                         "app", app.last_draft_cpu or float("nan")))
             top = app.saturation_slider.max
             for label, control, values in (
                 ("saturation change", "saturation", [0.95 * top - r for r in range(repeat)]),
@@ -169,11 +171,15 @@ def bench_pipeline(sim, repeat: int) -> list[tuple]:
                 ("threshold-t change", "threshold", [0.05 + 0.01 * r for r in range(repeat)]),
             ):
                 times, quick, reg, cpu = [], [], [], {"quick": [], "reg": [], "all": []}
+                draft, cpu["draft"] = [], []
                 for v in values:
+                    app.last_draft_seconds = app.last_draft_cpu = None
                     t = time.perf_counter()
                     app.set_control(control, float(v))
                     app.wait_idle(600)
                     times.append(time.perf_counter() - t)
+                    draft.append(app.last_draft_seconds or float("nan"))
+                    cpu["draft"].append(app.last_draft_cpu or float("nan"))
                     quick.append(app.last_ratios_seconds or float("nan"))
                     reg.append(app.last_registration_seconds or float("nan"))
                     cpu["quick"].append(getattr(app, "last_ratios_cpu", None) or float("nan"))
@@ -184,6 +190,8 @@ def bench_pipeline(sim, repeat: int) -> list[tuple]:
                 reg_target = " (target < 1.5 s)" if control == "threshold" else ""
                 rows.append((f"{label}: ratios + BTF drawn{quick_target}",
                              float(np.median(quick)), "app", float(np.median(cpu["quick"]))))
+                rows.append((f"{label}: draft preview drawn (target < 2 s)",
+                             float(np.median(draft)), "app", float(np.median(cpu["draft"]))))
                 rows.append((f"{label}: re-registered + overlays drawn{reg_target}",
                              float(np.median(reg)), "app", float(np.median(cpu["reg"]))))
                 rows.append((f"{label}: every stage re-run and drawn",
@@ -197,12 +205,118 @@ def bench_pipeline(sim, repeat: int) -> list[tuple]:
     return rows
 
 
+DATA = (ROOT / ".." / "shared" / "data").resolve()
+# name: (folder, exposure-times file, parameters beyond the inspector's defaults)
+REAL = {
+    "frobisher": ("frobisher-colour-hdri", None, {}),
+    "memorial": ("memorial-debevec", "exposure_times.txt", {"exclude_colour": (0, 0, 255)}),
+    "pixel7": ("handheld-pixel7-lab", None, {}),
+    "xperia": ("handheld-xperia-library", "iso100_equivalent_times.txt", {}),
+}
+
+
+def _timed(fn):
+    t, c = time.perf_counter(), time.process_time()
+    out = fn()
+    return out, time.perf_counter() - t, time.process_time() - c
+
+
+def _difference(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Per pixel, the largest |difference| over RGB of two 8-bit images (cropped alike)."""
+    h, w = min(a.shape[0], b.shape[0]), min(a.shape[1], b.shape[1])
+    return np.abs(np.asarray(a, np.float32)[:h, :w] - np.asarray(b, np.float32)[:h, :w]).max(2)
+
+
+def draft_agreement(bracket, extra: dict, max_side: int) -> dict:
+    """A saturation change (-1 level from the default) as the inspector runs it: the draft
+    (hdrcore.draft) with the previous full run's response and times, then the full re-run.
+    The draft's preview is compared with the full merge's own preview made at the draft's size
+    (the same operator on the full radiance map area-reduced: what the draft approximates) and
+    with the full preview area-reduced in display values (what the page swaps)."""
+    from hdrcore.draft import run_draft
+    from hdrcore.pipeline import Pipeline, PipelineParams
+    from hdrcore.resample import downsample_area
+
+    pipe = Pipeline(bracket, PipelineParams(**extra))
+    first = pipe.run()
+    p = first.params.replace(saturation=first.params.saturation - 1)
+    draft, t_draft, c_draft = _timed(lambda: run_draft(
+        bracket, p.replace(response=first.response if first.response is not None
+                           else p.response), max_side=max_side,
+        exposure_times=first.exposure_times))
+    full, t_full, c_full = _timed(lambda: pipe.run(p))
+    a = np.asarray(draft.preview.image)
+    same_size = pipe.run(p.replace(preview_max_side=max(a.shape[:2]))).preview.image
+    d = _difference(a, same_size)
+    f = draft.preview_factor // full.preview_factor
+    shown = _difference(a, downsample_area(np.asarray(full.preview.image, np.float32), f))
+    return {"full_s": t_full, "full_cpu": c_full, "draft_s": t_draft, "draft_cpu": c_draft,
+            "mean": float(d.mean()), "p99": float(np.percentile(d, 99)),
+            "over10": float(np.mean(d > 10)), "shown": float(shown.mean()),
+            "size": f"{a.shape[1]}x{a.shape[0]}",
+            "ops": f"{full.preview.method}/{draft.preview.method}"}
+
+
+def bench_draft(names: list[str], max_side: int, sim=None) -> None:
+    from hdrcore.io import load_bracket
+
+    print(f"\ndraft preview (hdrcore.draft, longer side <= {max_side}) against the full "
+          "re-merge after a saturation change: |difference| of 8-bit previews, max over RGB, "
+          "against the full merge's preview made at the draft's size (mean, 99th percentile, "
+          "share over 10 levels) and against the full preview area-reduced ('shown', mean); "
+          f"times wall / CPU s, load average {os.getloadavg()[0]:.1f}")
+    print(f"{'bracket':<22} {'draft':>10} {'full s':>7} {'cpu':>6} {'draft s':>7} {'cpu':>6} "
+          f"{'mean':>6} {'p99':>5} {'>10':>7} {'shown':>6}  tonemap full/draft")
+    rows = []
+    if sim is not None:
+        rows.append(("simulated 24 MP", sim, {}))
+    for name in names:
+        folder, times, extra = REAL[name]
+        d = DATA / folder
+        if not d.is_dir():
+            print(f"{name:<22} skipped: {d} absent")
+            continue
+        files = sorted(q for q in d.iterdir() if q.suffix.lower() in (".jpg", ".png"))
+        rows.append((name, load_bracket(files, exposure_times=None if times is None
+                                        else d / times), extra))
+    for label, b, extra in rows:
+        r = draft_agreement(b, extra, max_side)
+        print(f"{label:<22} {r['size']:>10} {r['full_s']:>7.2f} {r['full_cpu']:>6.2f} "
+              f"{r['draft_s']:>7.2f} {r['draft_cpu']:>6.2f} {r['mean']:>6.2f} {r['p99']:>5.0f} "
+              f"{100 * r['over10']:>6.2f}% {r['shown']:>6.2f}  {r['ops']}")
+
+
+def _sim_bracket(sim):
+    """The simulated frames as a Bracket (linear 14-bit TIFF-like levels, the times known)."""
+    import tifffile
+
+    from hdrcore.io import load_bracket
+
+    tmp = Path(tempfile.mkdtemp(prefix="bench_hdrview_"))
+    names = []
+    for k, f in enumerate(sim.frames):
+        tifffile.imwrite(tmp / f"frame{k}.tif", f.astype(np.uint16))
+        names.append(f"frame{k}.tif")
+    (tmp / "exposure_times.txt").write_text(
+        "".join(f"{n} {t:g}\n" for n, t in zip(names, sim.exposure_times, strict=True)))
+    return load_bracket([tmp / n for n in names], exposure_times=tmp / "exposure_times.txt")
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--megapixels", type=float, default=24.0)
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--skip-browser", action="store_true")
+    ap.add_argument("--draft", default=None, metavar="NAMES",
+                    help="only the draft preview's agreement and speed: 'sim' and/or real "
+                    f"brackets ({','.join(REAL)}), comma-separated, or 'all'")
+    ap.add_argument("--draft-side", type=int, default=1024)
     args = ap.parse_args()
+    if args.draft is not None:
+        names = list(REAL) + ["sim"] if args.draft == "all" else args.draft.split(",")
+        sim = _sim_bracket(large_bracket(args.megapixels)) if "sim" in names else None
+        bench_draft([n for n in names if n != "sim"], args.draft_side, sim)
+        return 0
     os.environ.setdefault("PYTHONPATH", str(ROOT))
     rows: list[tuple] = []
     if not args.skip_browser:

@@ -459,6 +459,7 @@ class Pipeline:
         *,
         progress: ProgressCallback | None = None,
         reuse_buffers: bool = False,
+        pixel_size: float = 1.0,
     ) -> None:
         if len(bracket) < 2:
             raise ParameterError("a bracket needs at least two frames", found=str(len(bracket)))
@@ -473,6 +474,9 @@ class Pipeline:
         self._lock = threading.Lock()
         self.last_result: PipelineResult | None = None
         self.reuse_buffers = bool(reuse_buffers)
+        # Size of the bracket's pixels in the camera's (a binned draft, hdrcore.draft): the
+        # local tone operator's scale is in the camera's pixels.
+        self.pixel_size = float(pixel_size)
         self._spare: Any = None  # a previous MergeResult whose arrays a new merge may reuse
         self._noise: BracketNoise | None = None
         self._subsets: dict[tuple[int, ...], Pipeline] = {}  # runs without unusable frames
@@ -727,7 +731,7 @@ class Pipeline:
         sub = self._subsets.get(keep)
         if sub is None:
             sub = Pipeline(_sub_bracket(b, keep), progress=self.progress,
-                           reuse_buffers=self.reuse_buffers)
+                           reuse_buffers=self.reuse_buffers, pixel_size=self.pixel_size)
             sub._noise = self.noise()
             self._subsets[keep] = sub
         self._active_subset = sub
@@ -1371,7 +1375,7 @@ class Pipeline:
                 timings={"total": time.perf_counter() - t0}), factor
         small = downsample_area(radiance, factor) if factor > 1 else radiance
         return tonemap(small, p.tonemap, exposure=p.tonemap_exposure,
-                       pixel_size=factor), factor
+                       pixel_size=factor * self.pixel_size), factor
 
 
 def _sub_bracket(b: Bracket, keep: tuple[int, ...]) -> Bracket:

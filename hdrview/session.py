@@ -90,6 +90,7 @@ class Session:
     result: Any = None
     params: Any = None
     timings: dict[str, float] = field(default_factory=dict)
+    full_params: Any = None  # the parameters of the last run through every stage
 
     def load(self, paths: Sequence[str | os.PathLike], *, source: str = "",
              times: str | os.PathLike | None = None,
@@ -106,6 +107,7 @@ class Session:
         self.pipeline = None
         self.result = None
         self.params = None
+        self.full_params = None
         return bracket
 
     # -- pipeline ---------------------------------------------------------------------------
@@ -155,4 +157,50 @@ class Session:
             params, until=until)
         self.params = params
         self.result = result
+        if until is None:
+            self.full_params = params
         return result
+
+    def draft_wanted(self, controls: Controls, max_side: int | None = None,
+                     min_factor: int = 2) -> bool:
+        """Whether a draft (:mod:`hdrcore.draft`) shows anything sooner: the bracket is at least
+        ``min_factor`` times the draft's size (longer side ``max_side``) and a parameter the
+        merge reads changed since the last full run (the operator and the exposure re-run the
+        preview only)."""
+        if self.bracket is None:
+            return False
+        from hdrcore.draft import DRAFT_MAX_SIDE, draft_factor
+
+        if draft_factor(self.bracket.shape, max_side or DRAFT_MAX_SIDE) < min_factor:
+            return False
+        if self.full_params is None:
+            return True
+        preview_only = ("tonemap", "tonemap_exposure")
+        new = dataclasses.replace(self.params_for(controls),
+                                  **{k: getattr(self.full_params, k) for k in preview_only})
+        return new != self.full_params
+
+    def run_draft(self, quick: Any, progress: Callable[..., None] | None = None,
+                  max_side: int | None = None) -> Any:
+        """The draft of the preview (:func:`hdrcore.draft.run_draft`) for the parameters of
+        ``quick``, a run until the ratios (its saturation and noise floor): with the response
+        and exposure times the last full run ended with (a hand-held bracket's response is
+        recovered again after registration, its ratios measured on the registered pixels;
+        the response only when its control is unchanged), else those of ``quick``."""
+        from hdrcore.draft import DRAFT_MAX_SIDE, run_draft
+
+        p = quick.params
+        last = self.pipeline.last_result if self.pipeline is not None else None
+        curve, times = quick.response, quick.exposure_times
+        if (last is not None and self.full_params is not None and last.until == "preview"
+                and self.full_params.response == p.response and last.response is not None):
+            curve = last.response
+        if (last is not None and self.full_params is not None and last.until == "preview"
+                and len(last.exposure_times) == len(self.bracket)):
+            times = last.exposure_times  # measured on the registered pixels
+        if len(times) != len(self.bracket):
+            times = None  # a run without unusable frames: the draft measures its own
+        if curve is not None:
+            p = p.replace(response=curve)
+        return run_draft(self.bracket, p, progress=progress, exposure_times=times,
+                         max_side=max_side or DRAFT_MAX_SIDE)

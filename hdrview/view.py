@@ -142,6 +142,10 @@ class ClientView:
         self.last_registration_cpu: float | None = None
         self.last_job_cpu: float | None = None
         self.ready_seconds: float | None = None  # view created -> first result drawn
+        self.drafts = True  # a large bracket's preview drawn from a binned draft first
+        self.draft_max_side: int | None = None  # the draft's longer side (None: hdrcore's)
+        self.last_draft_seconds: float | None = None  # job start -> draft preview drawn
+        self.last_draft_cpu: float | None = None
         self._t_created = time.perf_counter()
         self._lock = threading.RLock()
         self._syncing = False
@@ -590,6 +594,16 @@ class ClientView:
             self._draw(quick, stages=("btf", "masks"))
             self.last_ratios_seconds = time.perf_counter() - t0
             self.last_ratios_cpu = time.process_time() - c0
+            ctx.check()
+            if self.drafts and self.session.draft_wanted(self.controls, self.draft_max_side):
+                # A large bracket: the preview of a binned copy (hdrcore.draft) first, so the
+                # page follows a slider in a fraction of the full re-merge's time.
+                draft = self.session.run_draft(quick, progress=progress,
+                                               max_side=self.draft_max_side)
+                ctx.check()
+                self.result_panel.show_draft(draft)
+                self.last_draft_seconds = time.perf_counter() - t0
+                self.last_draft_cpu = time.process_time() - c0
             ctx.check()
             registered = self.session.run(self.controls, progress=progress,
                                           until="registration")

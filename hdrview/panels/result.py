@@ -220,6 +220,22 @@ class ResultPanel:
         self.summary.content = "\n\n".join(lines) if lines else "Tonemapped preview."
         self._images = images
 
+    def show_draft(self, draft: Any) -> None:
+        """The preview of a draft (:func:`hdrcore.draft.run_draft`, the bracket binned) while
+        the full-resolution merge runs; the next :meth:`show` replaces it."""
+        preview = preview_of(draft)
+        if preview is None:
+            return
+        with self._lock:
+            self.image.image = fit_to_box(enlarge(_fit_width(np.asarray(preview))))
+            self.image.label = "tonemapped (draft)"
+            self.image.visible = True
+            f = getattr(draft, "preview_factor", 1)
+            self.summary.content = (
+                f"_Draft: the bracket binned {f}x{f}, merged with the same parameters; the "
+                "full-resolution merge follows._")
+            self._images = {}
+
     def bundle_files(self) -> list[tuple[str, bytes]]:
         return [(f"result-{name}.png", encode_png(img)) for name, img in self._images.items()]
 

@@ -1,0 +1,82 @@
+"""The inspector draws a large bracket's preview from a binned draft first, then the full one."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+import viser
+
+from hdrview.app import InspectorApp
+from hdrview.session import Controls, Session
+from hdrview.view import ClientView
+
+from ._brackets import write_png_bracket
+
+
+@pytest.fixture
+def large(tmp_path: Path) -> Iterator[ClientView]:
+    """A view whose drafts are 96 px long: the 240x360 bracket counts as large."""
+    root = tmp_path / "root"
+    write_png_bracket(root / "bracket", shape=(240, 360))
+    server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+    inspector = InspectorApp(server, root=root, demo_dir=None)
+    try:
+        view = inspector.headless_view()
+        view.draft_max_side = 96
+        yield view
+    finally:
+        inspector.stop()
+        server.stop()
+
+
+def _errors(view: ClientView) -> list[str]:
+    return [f"{t}: {b}" for level, t, b in view.notifications if level == "error"]
+
+
+def test_draft_first_then_the_full_result(large: ClientView, monkeypatch) -> None:
+    shown: list[tuple[str, tuple[int, ...]]] = []
+    panel = large.result_panel
+    original = panel.show_draft
+
+    def spy(draft):
+        original(draft)
+        shown.append((panel.image.label, np.asarray(draft.preview.image).shape))
+
+    monkeypatch.setattr(panel, "show_draft", spy)
+    assert large.request_path("bracket")
+    assert large.wait_idle(120)
+    assert not _errors(large)
+    # the load drew a draft binned 4x4 (360 / 96 -> 4), then the full result replaced it
+    assert shown == [("tonemapped (draft)", (60, 90, 3))]
+    assert large.last_draft_seconds is not None
+    assert panel.image.label == "tonemapped"
+    assert "Draft" not in panel.summary.content
+
+    large.last_draft_seconds = None
+    large.set_control("saturation", 240.0)
+    assert large.wait_idle(120)
+    assert len(shown) == 2 and large.last_draft_seconds is not None
+    assert panel.image.label == "tonemapped"
+
+    # the exposure re-runs the preview only: no draft
+    large.last_draft_seconds = None
+    large.set_control("exposure", 1.0)
+    assert large.wait_idle(120)
+    assert len(shown) == 2 and large.last_draft_seconds is None
+    assert not _errors(large)
+
+
+def test_draft_wanted(tmp_path: Path) -> None:
+    s = Session()
+    assert not s.draft_wanted(Controls())  # nothing loaded
+    s.load(write_png_bracket(tmp_path / "b", shape=(96, 144)))
+    assert not s.draft_wanted(Controls())  # 144 px: no larger than a draft
+    assert s.draft_wanted(Controls(), max_side=64)  # no full run yet
+    s.run(Controls())
+    assert not s.draft_wanted(Controls(), max_side=64)  # the full run is current
+    assert not s.draft_wanted(Controls(exposure=1.0, tonemap="reinhard"), max_side=64)
+    assert s.draft_wanted(Controls(saturation=240.0), max_side=64)
+    assert s.draft_wanted(Controls(threshold=0.2), max_side=64)
