@@ -34,9 +34,9 @@ median growing, or a misaligned pair becomes aligned, and as many tiles stay mea
 that scrambles part of the frame makes its tiles unmeasurable, which flatters the rest).
 Otherwise the frame keeps its global motion alone (``kept`` False) and the reason is said.
 
-The check runs on the full-resolution frames read with Keys cubic up to ``CHECK_FULL_PIXELS``
-(as the merge reads them and as ``bench/bench_local.py`` measures the result, beside OpenCV's
-DIS optical flow), on the working level beyond.
+The check reads the working level (see ``CHECK_CUBIC_FACTORS`` for how);
+``bench/bench_local.py`` measures the result independently at full resolution, beside OpenCV's
+DIS optical flow.
 """
 
 from __future__ import annotations
@@ -65,9 +65,14 @@ log = logging.getLogger(__name__)
 #: refined at a quarter of its size, an 8 MP one at half, small frames at full size).
 MAX_LEVEL_PIXELS = 3.0e6
 
-#: Frames up to this many pixels are checked at full resolution (the residual measurement then
-#: picks its own level, as bench/bench_local.py does); larger ones on the working level.
-CHECK_FULL_PIXELS = 16e6
+#: Level factors at which the keep-check reads both frames with Keys cubic, as the merge reads
+#: them (elsewhere bilinear). Measured: at half size (8 MP phone brackets) Keys gives the same
+#: fields, decisions and full-resolution residuals as a Keys check on the full-resolution frames
+#: (which cost 19.6 against 12.0 s CPU on the Xperia); at full size its wider taps drop more tiles
+#: next to clipped areas (a rendered near object went unseen); on the 4x4 block means of a
+#: 24 MP pair it reads their aliasing: an exactly aligned pair measures 0.35 / 0.99 px (median /
+#: 90th percentile) with Keys, 0.24 / 0.52 bilinear, 0.12 / 0.29 px on the full frames.
+CHECK_CUBIC_FACTORS = (2,)
 
 #: Rounds of measure-and-fit per frame (the tile shifts are measured again through the field).
 ROUNDS = 2
@@ -566,15 +571,6 @@ def refine_bracket(
     lo, hi = float(noise_floor), float(saturation)
     frames: dict[int, np.ndarray] = {}
 
-    check_full = level > 0 and shape[0] * shape[1] <= CHECK_FULL_PIXELS
-    grid_full = _Grid(shape, 1, t) if check_full else None
-    full: dict[int, np.ndarray] = {}
-
-    def full_frame(k: int) -> np.ndarray:
-        if k not in full:
-            full[k] = _prepare(np.asarray(images[k]), lut_arr, 1, hi)
-        return full[k]
-
     def level_frame(k: int) -> np.ndarray:
         if k not in frames:
             frames[k] = _prepare(np.asarray(images[k]), lut_arr, f, hi)
@@ -606,32 +602,26 @@ def refine_bracket(
         on_level = dict(max_pixels=float("inf"), aligned_px=0.3 / f, local_px=1.0 / f)
         a_lev = _warped(level_frame(j), grid, mats[j], prev_off)
         b = _warped(level_frame(k), grid, mats[k], None)
-        # the check: on full-resolution frames read with Keys (as the merge reads them and as
-        # bench_local measures the result), else on the working level
-        if check_full:
-            chk_frame, chk_grid, cubic, fc, chk_kw = full_frame, grid_full, True, 1, {}
-        else:
-            chk_frame, chk_grid, cubic, fc, chk_kw = level_frame, grid, False, f, on_level
-        a_chk = (_warped(chk_frame(j), chk_grid, mats[j], prev_off, cubic=cubic)
-                 if check_full else a_lev)
-        # frame j's structure is computed once for the pair (and frame k's unrefined one once
-        # when the check runs on the working level): the residual's memo, pruned to frame j
-        # after each measurement
+        # How the check reads the level (measured against the full-resolution Keys check of
+        # the first version, see CHECK_CUBIC_FACTORS): Keys at half size, bilinear otherwise.
+        cubic = f in CHECK_CUBIC_FACTORS
+        a_chk = _warped(level_frame(j), grid, mats[j], prev_off, cubic=True) if cubic else a_lev
+        # frame j's structure is computed once per read, and with a bilinear check frame k's
+        # unrefined one is shared by the first check and the first round (the residual's memo)
         memo: dict = {}
 
         def measure(a: np.ndarray, bk: np.ndarray, memo: dict = memo, j: int = j, k: int = k,
-                    dark_first: bool = dark_first, ratio: float = ratio, b_first=b, **kw):
+                    dark_first: bool = dark_first, ratio: float = ratio,
+                    b_first: np.ndarray = b, on_level: dict = on_level, **kw):
             return _pair_residual(a, bk, dark_first, ratio, lo, hi, (j, k), memo=memo,
-                                  keep_b=bk is b_first, **kw)
+                                  keep_b=bk is b_first, **on_level, **kw)
 
-        def check(offsets: np.ndarray | None, a_chk: np.ndarray = a_chk, k: int = k,
-                  chk_kw: dict = chk_kw, cubic: bool = cubic, chk_frame=chk_frame,
-                  chk_grid: _Grid = chk_grid, b_lev: np.ndarray = b, measure=measure):
-            if offsets is None and not check_full:
-                bk = b_lev
-            else:
-                bk = _warped(chk_frame(k), chk_grid, mats[k], offsets, cubic=cubic)
-            return measure(a_chk, bk, **chk_kw)
+        def check(offsets: np.ndarray | None, k: int = k, b_first: np.ndarray = b,
+                  a_chk: np.ndarray = a_chk, cubic: bool = cubic, measure=measure):
+            if offsets is None and not cubic:
+                return measure(a_chk, b_first)
+            return measure(a_chk, _warped(level_frame(k), grid, mats[k], offsets,
+                                          cubic=cubic))
 
         r0 = check(None)
         nodes = np.zeros((grid.gh, grid.gw, 2))
@@ -639,7 +629,7 @@ def refine_bracket(
         # frame k moves against it when k is the bright one
         sign = -1.0 if dark_first else 1.0
         for _ in range(ROUNDS):
-            rt = measure(a_lev, b, tile=est_tile, **on_level)
+            rt = measure(a_lev, b, tile=est_tile)
             if rt is None or rt.n_valid < 4:
                 break
             v = rt.valid
@@ -650,8 +640,8 @@ def refine_bracket(
             b = _warped(level_frame(k), grid, mats[k], nodes, inside=True)
         cand = _as_source_field(mats[k], nodes, t)
         r1 = check(cand.offsets)
-        med0, p90_0 = (float("nan"),) * 2 if r0 is None else (r0.median * fc, r0.p90 * fc)
-        med1, p90_1 = (float("nan"),) * 2 if r1 is None else (r1.median * fc, r1.p90 * fc)
+        med0, p90_0 = (float("nan"),) * 2 if r0 is None else (r0.median * f, r0.p90 * f)
+        med1, p90_1 = (float("nan"),) * 2 if r1 is None else (r1.median * f, r1.p90 * f)
         st0 = "unmeasured" if r0 is None else r0.status
         st1 = "unmeasured" if r1 is None else r1.status
         said = (f"residual {med0:.2f} -> {med1:.2f} px median, {p90_0:.2f} -> {p90_1:.2f} px "
@@ -667,7 +657,7 @@ def refine_bracket(
             # flatters the statistics of the rest: the measured tiles must not drop
             lost = r1.n_valid < 0.95 * r0.n_valid
             keep = not lost and ((st1 == "aligned" and st0 != "aligned") or (
-                gain >= min_gain and med1 <= 1.1 * med0 + 0.02 * fc))
+                gain >= min_gain and med1 <= 1.1 * med0 + 0.02 * f))
             if lost:
                 said += f"; {r0.n_valid} -> {r1.n_valid} tiles measurable"
             why = (f"{said}; field {cand.median_px:.2f} px median, {cand.max_px:.2f} px max"
