@@ -598,12 +598,21 @@ class ClientView:
             if self.drafts and self.session.draft_wanted(self.controls, self.draft_max_side):
                 # A large bracket: the preview of a binned copy (hdrcore.draft) first, so the
                 # page follows a slider in a fraction of the full re-merge's time.
-                draft = self.session.run_draft(quick, progress=progress,
-                                               max_side=self.draft_max_side)
+                from hdrcore.pipeline import Cancelled
+
+                try:
+                    draft = self.session.run_draft(quick, progress=progress,
+                                                   max_side=self.draft_max_side)
+                except Cancelled:
+                    raise
+                except Exception:  # the draft never stands in the full run's way
+                    log.warning("the draft preview failed; the full run goes on", exc_info=True)
+                    draft = None
                 ctx.check()
-                self.result_panel.show_draft(draft)
-                self.last_draft_seconds = time.perf_counter() - t0
-                self.last_draft_cpu = time.process_time() - c0
+                if draft is not None:
+                    self.result_panel.show_draft(draft)
+                    self.last_draft_seconds = time.perf_counter() - t0
+                    self.last_draft_cpu = time.process_time() - c0
             ctx.check()
             registered = self.session.run(self.controls, progress=progress,
                                           until="registration")

@@ -64,7 +64,7 @@ def test_binning_rules() -> None:
     assert tuple(out[1, 0]) == (100, 100, 100)
     # A block at the saturation level is clipped even though its mean is below it.
     assert bin_levels(lv, 2, saturation=250, max_level=255)[0, 0, 0] == 255
-    assert bin_levels(lv, 2, saturation=251, max_level=255)[0, 0, 0] == 138  # (250 + 3 * 100) / 4 = 137.5
+    assert bin_levels(lv, 2, saturation=251, max_level=255)[0, 0, 0] == 138  # 137.5 rounds up
 
 
 def test_bad_input_is_a_clear_error() -> None:

@@ -80,3 +80,16 @@ def test_draft_wanted(tmp_path: Path) -> None:
     assert not s.draft_wanted(Controls(exposure=1.0, tonemap="reinhard"), max_side=64)
     assert s.draft_wanted(Controls(saturation=240.0), max_side=64)
     assert s.draft_wanted(Controls(threshold=0.2), max_side=64)
+
+
+def test_a_failed_draft_does_not_stop_the_full_run(large: ClientView, monkeypatch) -> None:
+    def boom(self, *args, **kwargs):
+        raise RuntimeError("draft broken")
+
+    monkeypatch.setattr(Session, "run_draft", boom)
+    assert large.request_path("bracket")
+    assert large.wait_idle(120)
+    assert not _errors(large)
+    assert large.last_draft_seconds is None
+    assert large.result_panel.image.label == "tonemapped"
+    assert large.session.result is not None and large.session.result.preview is not None
