@@ -13,8 +13,9 @@ reference frame. Cerman & Hlavac (2006), section 6, register only consecutive fr
 exposures overlap most) and chain the pair transforms to the reference frame; :func:`to_reference`
 does the chaining.
 
-``rigid_matrix`` is the simulator's, re-exported here so registration and ground truth can never
-disagree on a convention; :func:`similarity_matrix` adds a scale about the same centre.
+:func:`rigid_matrix` is defined here and used by the simulator too, so registration and ground
+truth can never disagree on a convention; :func:`similarity_matrix` adds a scale about the same
+centre.
 """
 
 from __future__ import annotations
@@ -24,7 +25,6 @@ from collections.abc import Sequence
 import numpy as np
 
 from ..errors import ParameterError
-from ..synthetic.camera import rigid_matrix
 
 __all__ = [
     "rigid_matrix",
@@ -46,6 +46,23 @@ __all__ = [
 ]
 
 _AFFINE_TOL = 1e-12
+
+
+def rigid_matrix(
+    dx: float, dy: float, angle_deg: float, shape: tuple[int, int]
+) -> np.ndarray:
+    """2x3 matrix of a rotation by ``angle_deg`` about the image centre followed by a shift.
+
+    ``shape`` is ``(H, W)``; positive angles turn the x axis towards y (clockwise on screen).
+    """
+    h, w = shape
+    cx, cy = (w - 1) / 2.0, (h - 1) / 2.0
+    a = np.deg2rad(angle_deg)
+    c, s = np.cos(a), np.sin(a)
+    rot = np.array([[c, -s], [s, c]])
+    centre = np.array([cx, cy])
+    t = centre - rot @ centre + np.array([dx, dy])
+    return np.hstack([rot, t[:, None]])
 
 
 def identity() -> np.ndarray:

@@ -24,6 +24,7 @@ import numpy as np
 from scipy import ndimage
 
 from ..errors import ParameterError, validate_method
+from ..registration.transform import compose, invert, rigid_matrix
 from .scenes import make_scene
 
 __all__ = [
@@ -101,37 +102,6 @@ def apply_response(name: str, x: np.ndarray) -> np.ndarray:
     """The named simulated response ``f`` applied to linear values ``x`` in [0, 1]."""
     key = validate_method(name, RESPONSES, "response")
     return RESPONSES[key](np.clip(x, 0.0, 1.0))
-
-
-def rigid_matrix(
-    dx: float, dy: float, angle_deg: float, shape: tuple[int, int]
-) -> np.ndarray:
-    """2x3 matrix of a rotation by ``angle_deg`` about the image centre followed by a shift.
-
-    ``shape`` is ``(H, W)``; positive angles turn the x axis towards y (clockwise on screen).
-    """
-    h, w = shape
-    cx, cy = (w - 1) / 2.0, (h - 1) / 2.0
-    a = np.deg2rad(angle_deg)
-    c, s = np.cos(a), np.sin(a)
-    rot = np.array([[c, -s], [s, c]])
-    centre = np.array([cx, cy])
-    t = centre - rot @ centre + np.array([dx, dy])
-    return np.hstack([rot, t[:, None]])
-
-
-def _h(m: np.ndarray) -> np.ndarray:
-    return np.vstack([np.asarray(m, float), [0.0, 0.0, 1.0]])
-
-
-def compose(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """The 2x3 matrix of ``a`` applied after ``b`` (``a ∘ b``)."""
-    return (_h(a) @ _h(b))[:2]
-
-
-def invert(a: np.ndarray) -> np.ndarray:
-    """Inverse of a 2x3 affine matrix."""
-    return np.linalg.inv(_h(a))[:2]
 
 
 def pair_matrix(to_reference: Sequence[np.ndarray], dark: int, bright: int) -> np.ndarray:
