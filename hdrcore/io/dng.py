@@ -55,6 +55,7 @@ from xml.sax.saxutils import escape
 
 import numpy as np
 
+from .._numba import njit
 from ..errors import ImageReadError, ParameterError
 
 # One TIFF encoder for the project (the simulator's DNGs use it too).
@@ -207,6 +208,48 @@ def _ifd0(h: int, w: int, kind: str, bits: int, meta: DngMetadata,
     return tags
 
 
+@njit
+def _clean(v):  # pragma: no cover - numba
+    """A sample as written: NaN, infinities and negative values as 0."""
+    if not (v > 0) or v == np.inf:
+        return np.float32(0.0)
+    return v
+
+
+@njit
+def _largest(src, mat, apply):  # pragma: no cover - numba
+    """The largest clean sample of ``src`` (rows, W, C), through ``mat`` when ``apply``."""
+    top = np.float32(0.0)
+    h, w, c = src.shape
+    for y in range(h):
+        for x in range(w):
+            for k in range(c):
+                if apply:
+                    v = (mat[k, 0] * src[y, x, 0] + mat[k, 1] * src[y, x, 1]
+                         + mat[k, 2] * src[y, x, 2])
+                else:
+                    v = src[y, x, k]
+                v = _clean(np.float32(v))
+                if v > top:
+                    top = v
+    return top
+
+
+@njit
+def _samples(src, mat, apply, scale, out):  # pragma: no cover - numba
+    """``out = clean(mat @ src) * scale`` (``src`` as is without ``apply``), one pass."""
+    h, w, c = src.shape
+    for y in range(h):
+        for x in range(w):
+            for k in range(c):
+                if apply:
+                    v = (mat[k, 0] * src[y, x, 0] + mat[k, 1] * src[y, x, 1]
+                         + mat[k, 2] * src[y, x, 2])
+                else:
+                    v = src[y, x, k]
+                out[y, x, k] = _clean(np.float32(v)) * scale
+
+
 def _stored_view(image: np.ndarray, orientation: int) -> np.ndarray:
     """A view of an upright image as the sensor stored it (the inverse of the EXIF tag's turn,
     :func:`hdrcore.io.frame.undo_orientation` without its copy)."""
@@ -272,14 +315,17 @@ def write_float_dng(
     rows = max(1, min(h, _STRIP_BYTES // row_bytes))
     strips = [(r, min(h, r + rows)) for r in range(0, h, rows)]
 
-    def values(r0: int, r1: int) -> np.ndarray:
-        block = arr[r0:r1].astype(np.float32)
-        if m is not None:
-            block = block @ m.T
-        block = np.nan_to_num(block, nan=0.0, posinf=0.0, neginf=0.0)
-        return np.maximum(block, 0.0, out=block)
+    mat = np.eye(3, dtype=np.float32) if m is None else m
+    src = arr if arr.ndim == 3 else arr[..., None]
+    apply = m is not None
+    buf = np.empty((rows, w, src.shape[2]), np.float32)
 
-    top = max(float(values(r0, r1).max()) for r0, r1 in strips)
+    def values(r0: int, r1: int, scale: float) -> np.ndarray:
+        out = buf[: r1 - r0]
+        _samples(src[r0:r1], mat, apply, np.float32(scale), out)
+        return out
+
+    top = max(float(_largest(src[r0:r1], mat, apply)) for r0, r1 in strips)
     if not top > 0:
         raise ParameterError("the image holds no positive finite value", found=str(top))
     scale = 1.0 / top
@@ -311,9 +357,9 @@ def write_float_dng(
         with open(tmp, "wb") as fh:
             fh.write(head)
             for r0, r1 in strips:
-                block = values(r0, r1)
-                block *= np.float32(scale)
-                fh.write(np.ascontiguousarray(block, dtype=dtype).tobytes())
+                block = values(r0, r1, scale)
+                fh.write(block.tobytes() if dtype == np.float32 else
+                         block.astype(dtype).tobytes())
 
     return atomic_write(path, writer, force=force, inputs=inputs)
 
