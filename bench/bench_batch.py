@@ -265,9 +265,10 @@ def throughput(folder: Path, label: str, repeat: int, extra: list[str]) -> None:
 
 
 def part_throughput(args: argparse.Namespace) -> None:
-    folder = sim_brackets(args.size, 40)
-    throughput(folder, f"simulated, 40 x 3 frames {args.size[0]}x{args.size[1]} JPEG",
-               args.repeat, [])
+    if args.sim:
+        folder = sim_brackets(args.size, 40)
+        throughput(folder, f"simulated 40 x 3 frames {args.size[0]}x{args.size[1]} JPEG",
+                   args.repeat, [])
     if args.real and SHARED.is_dir():
         with tempfile.TemporaryDirectory() as tmp:
             d = real_folder(Path(tmp))
@@ -315,8 +316,8 @@ def resume(folder: Path, label: str, n_total: int) -> None:
 
 
 def part_resume(args: argparse.Namespace) -> None:
-    folder = sim_brackets(args.size, 40)
-    resume(folder, "simulated 40 brackets", 40)
+    if args.sim:
+        resume(sim_brackets(args.size, 40), "simulated 40 brackets", 40)
     if args.real and SHARED.is_dir():
         with tempfile.TemporaryDirectory() as tmp:
             d = real_folder(Path(tmp))
@@ -334,6 +335,8 @@ def main() -> None:
     ap.add_argument("--size", default="120x160",
                     type=lambda s: tuple(int(v) for v in s.split("x")))
     ap.add_argument("--no-real", dest="real", action="store_false")
+    ap.add_argument("--no-sim", dest="sim", action="store_false",
+                    help="throughput and resume: only the real folder")
     args = ap.parse_args()
     print(f"# bench_batch ({_load()}, {os.cpu_count()} cores)")
     if args.part in ("grouping", "all"):

@@ -148,9 +148,9 @@ def test_processes_and_dask_give_identical_outputs(sim_folder, tmp_path):
     assert res.merged == 5 and len({r.worker for r in res.records}) == 2
     dask_tasks = _tasks(folder, tmp_path / "dask")
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                                  dashboard_address=None) as cluster, \
-            distributed.Client(cluster) as client:
-        res = run_batch(dask_tasks, client=client)
+                                  dashboard_address=None) as cluster:
+        # as --scheduler tcp://host:port does: a client of that address, closed at the end
+        res = run_batch(dask_tasks, scheduler=cluster.scheduler_address)
     assert res.merged == 5 and res.failed == 1
     ref = _pixels(tmp_path / "serial")
     for other in ("pool", "dask"):
