@@ -161,3 +161,19 @@ def test_hamilton_adams_no_zipper_on_a_sharp_line() -> None:
         g = demosaic(m, PATTERNS["RGGB"], method=method, max_level=np.inf)[8, 4:-4, 1]
         spread[method] = float(g.max() - g.min())
     assert spread["hamilton-adams"] < 1.0 < spread["malvar2004"]
+
+
+@pytest.mark.parametrize("scene", ["window", "night", "patches"])
+def test_hamilton_adams_at_least_libraw_ahd(tmp_path: Path, scene: str) -> None:
+    """Noise-free 12-bit mosaics of the simulator's scenes (192x288): Hamilton-Adams' PSNR
+    against the truth is at least AHD's on every channel (measured +0.1 to +1.1 dB; on the
+    'landscape' scene it is 1.4-1.7 dB below AHD on R and B, not tested here)."""
+    img = make_scene(scene, (192, 288), seed=3).astype(np.float64)
+    lin = np.clip(img * 0.36 / np.median(img), 0, 1)
+    raw = linear_to_raw(mosaic(lin, "RGGB"), black_level=256, white_level=4095)
+    p = tmp_path / "f.dng"
+    write_dng(p, raw, exposure_time=0.01, black_level=256, white_level=4095)
+    truth = lin * 3839
+    ours = _psnr(read_raw(p, demosaic="hamilton-adams").levels.astype(float), truth, 3839)
+    ahd = _psnr(read_raw(p, demosaic="libraw-ahd").levels.astype(float), truth, 3839)
+    assert np.all(ours >= ahd - 0.2), (ours, ahd)
