@@ -222,13 +222,16 @@ def _child_rusage() -> tuple[float, float]:
 
 
 def child_command(d: Path) -> dict:
-    """``hdrcore merge`` as a user runs it: a new process, decode, EXR, preview and report."""
+    """``hdrcore merge`` as a user runs it: a new process, decode, EXR, preview and report
+    (and a float DNG when ``HDRCORE_BENCH_DNG`` is set)."""
     import tempfile
 
     frames = sorted(str(p) for p in d.glob("*.dng"))
     with tempfile.TemporaryDirectory(dir=OUT) as tmp:
         cmd = [sys.executable, "-m", "hdrcore", "merge", *frames, "-o", f"{tmp}/m.exr",
                "--preview", f"{tmp}/m.png", "--report", f"{tmp}/m.json", "--quiet", "--force"]
+        if os.environ.get("HDRCORE_BENCH_DNG"):
+            cmd += ["--dng", f"{tmp}/m.dng"]
         t0 = time.perf_counter()
         proc = subprocess.run(cmd, capture_output=True, text=True, cwd=HERE.parent)
         wall = time.perf_counter() - t0
@@ -311,6 +314,7 @@ def whole_command(d: Path, repeat: int, skip: set[str]) -> None:
     contenders = [("hdrcore merge (ours: mosaic read + demosaic)", "command", {}),
                   ("hdrcore merge, LibRaw AHD decode", "command",
                    {"HDRCORE_RAW_DEMOSAIC": "libraw-ahd"}),
+                  ("hdrcore merge (ours) + --dng", "command", {"HDRCORE_BENCH_DNG": "1"}),
                   ("rawpy + AlignMTB + MergeDebevec + EXR", "peer", {})]
     contenders = [c for c in contenders if c[1] not in skip]
     for _ in range(repeat):
