@@ -3,7 +3,8 @@
 Run: ``python bench/bench_local.py [--brackets NAME ...]``
 
 For each bracket in ``../shared/data`` (Pixel 7 and Xperia hand-held phone JPEGs): the pipeline's
-registration (``--align auto``: similarity, homography where perspective is left), then for every
+registration (``--align auto``: similarity, homography where perspective is left; ``--align
+similarity`` for the pipeline's default), then for every
 frame's pair, the remaining misalignment measured independently of the motion model at full
 resolution (:func:`hdrcore.registration.residual.residual_motion` on the green channel, the
 frame warped beforehand by a cubic spline: median and 90th percentile of the tile shifts, px)
@@ -62,13 +63,13 @@ def _log8(v: np.ndarray, lo: float, hi: float) -> np.ndarray:
     return np.clip(np.rint(t * 255), 0, 255).astype(np.uint8)
 
 
-def run(name: str, tile: int | None = None) -> None:
+def run(name: str, tile: int | None = None, align: str = "auto") -> None:
     folder = DATA / name
     if not folder.is_dir():
         print(f"\n{name}: not available, skipped")
         return
     b = load_bracket([folder])
-    pl = Pipeline(b, PipelineParams(align="auto", local="off", registration_previews=False))
+    pl = Pipeline(b, PipelineParams(align=align, local="off", registration_previews=False))
     res = pl.run(until="registration")
     reg = res.registration
     ml = b.max_level
@@ -175,6 +176,9 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--brackets", nargs="*",
                     default=["handheld-pixel7-lab", "handheld-xperia-library"])
+    ap.add_argument("--align", default="auto",
+                    help="the global motion model the fields refine (default auto; the "
+                         "pipeline's default is similarity)")
     ap.add_argument("--tile", type=int, default=None,
                     help="node spacing of the field (default: the library's choice)")
     ap.add_argument("--speed", action="store_true", help="the 24 MP speed section only")
@@ -183,7 +187,7 @@ def main() -> None:
         speed()
         return
     for name in args.brackets:
-        run(name, args.tile)
+        run(name, args.tile, args.align)
 
 
 if __name__ == "__main__":

@@ -54,9 +54,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    help="DNG samples: cfa = the frames' mosaics merged before demosaicing "
                         "(tripod RAW brackets), linear = demosaiced camera RGB (any bracket); "
                         "auto picks cfa when it can (default)")
-    p.add_argument("--align", default="similarity", choices=ALIGN_CHOICES,
-                   help="motion model for hand-held frames (default: similarity, i.e. shift, "
-                        "rotation and scale)")
+    p.add_argument("--align", default="auto", choices=ALIGN_CHOICES,
+                   help="motion model for hand-held frames (default: auto, the similarity "
+                        "(shift, rotation, scale), and the homography for the pairs where "
+                        "perspective is left)")
     p.add_argument("--local", default="auto", choices=LOCAL_CHOICES,
                    help="local refinement after the motion model: a smooth displacement field "
                         "per frame for parallax (auto: the frames whose pair is left "
