@@ -42,14 +42,17 @@ class MosaicMerge:
     left out), each site's merged linear value per unit of exposure time (``g(M) / dt``), in
     sensor orientation; ``channels`` its 2x2 colours (0 R, 1 G, 2 B); ``rgb``: float32 ``(H,
     W, 3)`` camera RGB, demosaiced and turned upright by ``orientation``; ``merge``: the
-    half-size merge of the sites (its maps are per 2x2 cell).
+    half-size merge of the sites (its maps are per 2x2 cell) of a tripod bracket;
+    ``site_merges``: with ``transforms``, the four merges of the sites (row-major), ``merge``
+    then ``None``.
     """
 
     mosaic: np.ndarray
     channels: np.ndarray
     rgb: np.ndarray
-    merge: MergeResult
+    merge: MergeResult | None
     orientation: int | None
+    site_merges: tuple[MergeResult, ...] = ()
 
 
 def interleave_sites(planes: np.ndarray) -> np.ndarray:
@@ -96,6 +99,7 @@ def merge_mosaic(
     orientation: int | None = None,
     workers: int | None = None,
     hdr_edges: bool = True,
+    transforms: Sequence[np.ndarray | None] | None = None,
 ) -> MosaicMerge:
     """Merge the CFA data of a tripod RAW bracket per site, then demosaic once.
 
@@ -109,6 +113,14 @@ def merge_mosaic(
     the merged contrast through the filter's taps: on a simulated window scene, up to 17x the
     pixel's value next to a window clipped in every frame, where the per-frame path, whose
     frames clip that region, errs by up to 2x).
+
+    ``transforms`` (hand-held): per frame ``None`` or the 2x3 / 3x3 matrix taking reference
+    pixel coordinates to that frame's (as :func:`hdrcore.merge.merge` takes them), in the
+    sensor's orientation (``orientation`` None or 1). Each site is then merged on its own
+    plane, every frame read there through the matrix moved to that site's sub-pixel phase:
+    plane pixel ``u`` of site ``(r, c)`` is sensor pixel ``S u = 2 u + (c, r)``, so the
+    plane's matrix is ``S^-1 A S``; a frame is dropped per site (not per cell) where it clips,
+    and the ceiling is the clipping level of the longest frame the site's merge used.
     """
     if len(cfas) < 2:
         raise ParameterError("a mosaic merge needs at least two frames", found=str(len(cfas)))
@@ -122,13 +134,38 @@ def merge_mosaic(
     channels = bayer_channels(first.pattern, first.colors)
     planes = [cfa_planes(c.data, c.pattern, c.colors, c.black_level, max_level)[0]
               for c in cfas]
-    res = merge(planes, exposure_times, max_level=max_level, saturation_level=saturation_level,
-                noise_floor=noise_floor, weighting="noise-aware", noise=noise, workers=workers)
-    mosaic = interleave_sites(res.radiance)
-    ceiling = None
-    if hdr_edges:
-        ceiling = interleave_sites(site_ceiling(planes, exposure_times, max_level,
-                                                saturation_level))
+    common = dict(max_level=max_level, saturation_level=saturation_level,
+                  noise_floor=noise_floor, weighting="noise-aware", noise=noise,
+                  workers=workers)
+    moved = transforms is not None and any(t is not None for t in transforms)
+    res: MergeResult | None = None
+    site_merges: tuple[MergeResult, ...] = ()
+    if not moved:
+        res = merge(planes, exposure_times, **common)
+        mosaic = interleave_sites(res.radiance)
+        ceiling = None
+        if hdr_edges:
+            ceiling = interleave_sites(site_ceiling(planes, exposure_times, max_level,
+                                                    saturation_level))
+    else:
+        if orientation not in (None, 1):
+            raise ParameterError("a hand-held mosaic merge needs the sensor's orientation",
+                                 expected="orientation 1", found=str(orientation))
+        if len(transforms) != len(cfas):
+            raise ParameterError("one transform per frame", expected=str(len(cfas)),
+                                 found=str(len(transforms)))
+        site_merges = tuple(
+            merge([np.ascontiguousarray(pl[..., 2 * r + c:2 * r + c + 1]) for pl in planes],
+                  exposure_times, transforms=[_site_matrix(t, r, c) for t in transforms],
+                  **common)
+            for r in range(2) for c in range(2))
+        mosaic = interleave_sites(np.concatenate([m.radiance for m in site_merges], axis=2))
+        ceiling = None
+        if hdr_edges:
+            ceiling = interleave_sites(np.stack(
+                [_used_ceiling(m, exposure_times, max_level, saturation_level)
+                 for m in site_merges], axis=2))
+    if ceiling is not None:
         np.maximum(ceiling, mosaic, out=ceiling)
     # The merged sites are already black-subtracted: one colour per site, black 0.
     pattern = np.array([[0, 1], [2, 3]])
@@ -137,4 +174,32 @@ def merge_mosaic(
                    ceiling=ceiling)
     return MosaicMerge(mosaic=mosaic, channels=channels,
                        rgb=apply_orientation(rgb, orientation), merge=res,
-                       orientation=orientation)
+                       orientation=orientation, site_merges=site_merges)
+
+
+def _site_matrix(a: np.ndarray | None, r: int, c: int) -> np.ndarray | None:
+    """``S^-1 A S`` for the plane of site ``(r, c)`` (``S u = 2 u + (c, r)``), 2x3 or 3x3 as
+    given; ``None`` stays ``None``."""
+    if a is None:
+        return None
+    m = np.asarray(a, np.float64)
+    full = np.vstack([m, [0.0, 0.0, 1.0]]) if m.shape == (2, 3) else m
+    if full.shape != (3, 3):
+        raise ParameterError("a transform must be 2x3 or 3x3", found=str(m.shape))
+    s = np.array([[2.0, 0.0, c], [0.0, 2.0, r], [0.0, 0.0, 1.0]])
+    out = np.linalg.inv(s) @ full @ s
+    return out[:2] if m.shape == (2, 3) else out
+
+
+def _used_ceiling(res: MergeResult, exposure_times: Sequence[float], max_level: int,
+                  saturation_level: float | None) -> np.ndarray:
+    """Per pixel of a site's merge, the clipping level (per unit time) of the longest frame
+    with a share of its weight (the darkest frame's where none has): float32 ``(h, w)``."""
+    sat = 0.98 * max_level if saturation_level is None else float(saturation_level)
+    order = np.argsort(np.asarray(exposure_times, np.float64))
+    out = np.full(res.radiance.shape[:2],
+                  np.float32(sat / max_level / exposure_times[order[0]]), np.float32)
+    for k in order[1:]:
+        np.copyto(out, np.float32(sat / max_level / exposure_times[k]),
+                  where=res.shares[k] > 0)
+    return out
