@@ -9,8 +9,16 @@ With ``hdrcore.pipeline`` installed the changes go through the app exactly as a 
 (``set_control`` then wait for the worker); without it the stage functions the pipeline would call
 are timed directly (re-fit from cached histograms + drawing), and the table says so.
 
+* a large bracket's draft preview (:mod:`hdrcore.draft`) drawn before the full re-merge.
+
 Usage: ``python bench/bench_hdrview.py [--megapixels 24] [--repeat 3]``. Numbers measured while
 other work runs on the machine are pessimistic.
+
+``--draft sim,pixel7,xperia,frobisher,memorial`` (or ``all``) prints only the draft's table: per
+bracket a saturation change run as the inspector runs it (the draft with the previous full run's
+response and times, then the full re-run), CPU and wall seconds of both, and how far the draft's
+preview is from the full merge's own preview made at the draft's size; ``--draft-side`` sets
+the draft's longer side (1024, the inspector's; smaller sides bin the small real brackets).
 """
 
 from __future__ import annotations
