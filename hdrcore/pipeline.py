@@ -29,7 +29,7 @@ import logging
 import math
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
@@ -318,7 +318,7 @@ class PipelineResult:
         """The document of ``hdrcore align --json`` (``None`` when alignment was off)."""
         if self.registration is None:
             return None
-        return registration_json(self.registration)
+        return registration_json(self.registration, ratios_source=self.times_source)
 
     @property
     def loaded_bracket(self) -> Bracket:
@@ -404,30 +404,16 @@ def ratios_json(bracket: Bracket, res: BracketExposureResult) -> dict[str, Any]:
     }
 
 
-def registration_json(reg: BracketRegistration) -> dict[str, Any]:
-    """``{"reference", "pairs", "to_reference"}`` as printed by ``hdrcore align --json``."""
-    return {
-        "reference": reg.reference,
-        "pairs": [
-            {
-                "dark": p.dark,
-                "bright": p.bright,
-                "matrix": np.asarray(p.matrix).tolist(),
-                "dx": p.dx,
-                "dy": p.dy,
-                "angle_deg": p.angle_deg,
-                "cost_before": p.cost_before,
-                "cost_after": p.cost_after,
-                "status": p.status,
-                "message": p.message,
-            }
-            for p in reg.pairs
-        ],
-        "to_reference": [np.asarray(m).tolist() for m in (
-            reg.to_reference if reg.to_reference is not None else reg.to_reference_homography)],
-        "to_reference_homography": [np.asarray(m).tolist() for m in reg.to_reference_homography],
-        "local": None if reg.local is None else reg.local.to_json(),
-    }
+def registration_json(reg: BracketRegistration, *,
+                      ratios_source: str | None = None) -> dict[str, Any]:
+    """The registration document of ``hdrcore align --json`` and of the merge report (one
+    serialiser: :meth:`BracketRegistration.to_json`, each pair's ``to_json``); ``to_reference``
+    holds the homographies where the model has no 2x3 form."""
+    doc = reg.to_json()
+    if doc["to_reference"] is None:
+        doc["to_reference"] = doc["to_reference_homography"]
+    doc["ratios_source"] = ratios_source
+    return doc
 
 
 @dataclass
@@ -930,6 +916,7 @@ class Pipeline:
         times: tuple[float, ...] | None = (
             tuple(float(e) for e in exif) if all(e is not None for e in exif) else None)
         method_names = {k.lower() for k in RESPONSE_METHODS} | {"auto"}
+        unused_note = ""
         if isinstance(spec, str) and spec.lower() in method_names and times is None:
             # No exposure times: the ratios measured on sRGB-linearised histograms stand in for
             # them (the response is then fixed up to the usual exponent ambiguity, which the
@@ -950,6 +937,17 @@ class Pipeline:
                     "--times or use --response srgb",
                 )
             times = tuple(float(v) for v in rel)
+            # Frames too dark for their histograms to be measured (a film scan of 1/1024 s)
+            # can come out brighter than their neighbours: the response is fitted on the
+            # frames whose rough exposures rise, counted from the brightest down, and says so.
+            keep = _rising_from_brightest(rel)
+            if len(keep) < len(rel) and len(keep) >= 2:
+                left_out = [k for k in range(len(rel)) if k not in keep]
+                unused_note = (f"fitted without frames {_frame_list(left_out)}: without "
+                               "exposure times their histograms did not rise with their "
+                               "brightness (too dark or too flat to measure)")
+                levels = [levels[k] for k in keep]
+                times = tuple(times[k] for k in keep)
         extra: dict[str, Any] = {}
         excluded = self._excluded
         if mask is not None and isinstance(spec, str) and spec.lower() in method_names:
@@ -968,6 +966,9 @@ class Pipeline:
                 times = tuple(times[k] for k in distinct)
         curve = resolve_response(spec, levels, times, max_level=b.max_level, n_channels=3,
                                  **extra)
+        if unused_note and curve is not None:
+            curve = replace(curve, message="; ".join(m for m in (curve.message, unused_note)
+                                                     if m))
         return curve
 
     def _exclusions(self, p: PipelineParams):
@@ -1238,8 +1239,9 @@ class Pipeline:
         (:func:`hdrcore.registration.residual.residual_motion`: phase correlation of tiles of
         the aligned frames' structure): a pair is ``ok`` only when what is left is small and
         unstructured; otherwise ``weak`` (its motion is still used) with a message saying what
-        is left and where. A pair whose residual cannot be measured (no texture) keeps its
-        status and says so."""
+        is left and where (:func:`hdrcore.registration._problem.judge_residual`, the words
+        register_pair's own check uses)."""
+        from .registration._problem import judge_residual
         from .registration.residual import residual_motion
 
         b = self.bracket
@@ -1262,19 +1264,9 @@ class Pipeline:
                 log.debug("residual of pair %d-%d not measured: %s", q.dark, q.bright, exc)
                 pairs.append(q)
                 continue
-            if res.status == "misaligned":
-                what = res.describe()
-                if q.model == "homography":  # the words of the residual assume a simpler model
-                    what = what.replace("the motion model has no perspective",
-                                        "the homography did not remove it (parallax or a "
-                                        "poor optimum)")
-                q = replace(q, status="weak", residual=res,
-                            message=f"{what} (the search itself: {q.message})")
-            elif res.status == "unmeasured":
-                q = replace(q, residual=res, message=q.message + "; " + res.describe())
-            else:
-                q = replace(q, residual=res)
-            pairs.append(q)
+            status, message = judge_residual(res, np.asarray(q.homography), q.model, q.message,
+                                             q.shape)
+            pairs.append(replace(q, status=status, message=message, residual=res))
         return replace(reg, pairs=tuple(pairs))
 
     def _merge(self, p: PipelineParams, lut: np.ndarray | None, times: tuple[float, ...],
@@ -1437,6 +1429,20 @@ def _recovered(spec: Any) -> bool:
         return False
     name = spec.lower()
     return name == "auto" or name in {k.lower() for k in RESPONSE_METHODS}
+
+
+def _rising_from_brightest(exposures: np.ndarray) -> list[int]:
+    """Indices of the frames whose exposures fall strictly from the brightest frame down (each
+    kept frame darker than the kept one after it), in order."""
+    keep = [len(exposures) - 1]
+    for k in range(len(exposures) - 2, -1, -1):
+        if exposures[k] < exposures[keep[-1]]:
+            keep.append(k)
+    return keep[::-1]
+
+
+def _frame_list(ks: Sequence[int]) -> str:
+    return ", ".join(str(k) for k in ks)
 
 
 def _affine_near(h: np.ndarray, shape: tuple[int, int]) -> np.ndarray:

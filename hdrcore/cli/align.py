@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import argparse
 
-from ..pipeline import LOCAL_CHOICES, Pipeline, PipelineParams, registration_json
+from ..pipeline import LOCAL_CHOICES, Pipeline, PipelineParams
 from ..registration import MODELS, REGISTRATION_METHODS
 from ._common import (
     add_bracket_arguments,
@@ -67,16 +67,9 @@ def run(args: argparse.Namespace) -> int:
     print_unused_frames(result)
     reg = result.registration
     assert reg is not None  # align is never "none" here
-    out = registration_json(reg)
-    out["model"] = reg.model
-    out["method"] = reg.method
-    out["ratios_source"] = result.times_source
+    out = result.registration_json()
     out["frames"] = [f.path for f in result.bracket.frames]
     out["frames_not_used"] = [u.to_json() for u in result.unused_frames]
-    extra = ("ratio", "overlap", "iterations", "seconds")
-    for d, p in zip(out["pairs"], reg.pairs, strict=True):
-        js = p.to_json()
-        d.update({k: js[k] for k in extra})
     if args.json:
         print_json(out)
     else:

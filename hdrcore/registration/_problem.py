@@ -94,6 +94,11 @@ log = logging.getLogger(__name__)
 #: similarity (+ scale), homography (+ stretch, shear and the two perspective terms).
 MODELS = {"shift": 2, "euclidean": 3, "similarity": 4, "homography": 8}
 
+#: A pair whose residual cannot be measured (no confident tile) is ``weak`` rather than ``ok``
+#: when its motion moves a corner by more than this (px): the memorial film scans without
+#: exposure times put three near-black pairs of a tripod bracket 16-146 px apart, unmeasurably.
+UNVERIFIED_PX = 1.0
+
 #: The models whose motion is affine (a 2x3 ``matrix`` besides the 3x3 ``homography``).
 AFFINE_MODELS = ("shift", "euclidean", "similarity")
 
@@ -918,15 +923,31 @@ def _checked(data: PairData, homography: np.ndarray, model: str, message: str):
                               lut=data.lut)
     except ParameterError as exc:  # too small a frame to tile
         return "ok", f"{message}; residual not measured: {exc}", None
+    status, message = judge_residual(res, homography, model, message, data.shape)
+    return status, message, res
+
+
+def judge_residual(res, homography: np.ndarray, model: str, message: str,
+                   shape: tuple[int, int]) -> tuple[str, str]:
+    """``(status, message)`` of a registered pair from its residual motion (the words of the
+    registration and the pipeline): ``weak`` when misaligned, or when nothing can verify a
+    motion of more than ``UNVERIFIED_PX``; otherwise ``ok``, the message saying what was found
+    (``message`` is the search's own)."""
     if res.status == "misaligned":
         what = res.describe()
         if model == "homography":  # the words of the residual assume a simpler model
             what = what.replace("the motion model has no perspective",
                                 "the homography did not remove it (parallax or a poor optimum)")
-        return "weak", f"{what} (the search itself: {message})", res
+        return "weak", f"{what} (the search itself: {message})"
     if res.status == "unmeasured":
-        return "ok", f"{message}; {res.describe()}", res
-    return "ok", message, res
+        # Nothing verifies the motion: a sub-pixel one is harmless either way; a larger one
+        # found on frames without measurable structure (near black, flat) is not called ok.
+        moved = float(corner_error(homography, np.eye(3), shape).max())
+        if moved > UNVERIFIED_PX:
+            return "weak", (f"its motion ({moved:.1f} px at the corners) cannot be verified: "
+                            f"{res.describe()} (the search itself: {message})")
+        return "ok", f"{message}; {res.describe()}"
+    return "ok", message
 
 
 def to_level(matrix: np.ndarray, level: int) -> np.ndarray:

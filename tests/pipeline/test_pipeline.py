@@ -77,12 +77,15 @@ def test_report_is_json_with_command_field_names(demo_result) -> None:
                 "inliers", "exif_ratio", "mismatch_stops", "std_error", "status", "message"):
         assert key in pair
     reg = rep["registration"]
-    assert set(reg) == {"reference", "pairs", "to_reference", "to_reference_homography",
-                        "local"}
+    # the same document as `hdrcore align --json` (one serialiser)
+    assert set(reg) == {"reference", "model", "method", "ratios_source", "pairs",
+                        "to_reference", "to_reference_homography", "local"}
+    assert set(reg["pairs"][0]) == set(r.registration.pairs[0].to_json())
     # local refinement: null when it did not run (no pair left misaligned), else its frames
     assert reg["local"] is None or {"tile", "frames", "summary"} <= set(reg["local"])
-    for key in ("dark", "bright", "matrix", "dx", "dy", "angle_deg", "cost_before",
-                "cost_after", "status", "message"):
+    for key in ("dark", "bright", "matrix", "homography", "dx", "dy", "angle_deg", "scale",
+                "ratio", "model", "method", "cost_before", "cost_after", "overlap",
+                "iterations", "seconds", "status", "message", "residual", "ratio_found"):
         assert key in reg["pairs"][0]
     assert rep["timings"]["total"] > 0
     assert rep["verdicts"] and all("message" in v for v in rep["verdicts"])

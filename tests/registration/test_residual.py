@@ -372,3 +372,23 @@ def test_tile_fractions_compiled_and_summed_area_agree(monkeypatch):
     np.testing.assert_array_equal(residual._box_fraction(mask, oy, ox, 32), truth)
     monkeypatch.setattr(residual, "AVAILABLE", False)
     np.testing.assert_array_equal(residual._box_fraction(mask, oy, ox, 32), truth)
+
+
+def test_an_unverifiable_motion_is_not_called_ok():
+    """Frames with no measurable structure (noise about a flat level): the residual is
+    unmeasured, so a motion of several pixels is 'weak' and says it cannot be verified, while
+    a sub-pixel one stays 'ok' (harmless either way)."""
+    from hdrcore.registration._problem import UNVERIFIED_PX, _checked, prepare
+
+    rng = np.random.default_rng(0)
+    ml = 4095
+    dark = (np.clip(np.rint(200 + rng.standard_normal(SHAPE) * 2), 0, ml) / ml).astype(np.float32)
+    bright = (np.clip(np.rint(800 + rng.standard_normal(SHAPE) * 2), 0, ml) / ml).astype(
+        np.float32)
+    data = prepare(dark, bright, 4.0, saturation=0.98, noise_floor=3 / ml, threshold=0.02)
+    far = _similarity(shift=(6.0, -3.0))
+    status, message, res = _checked(data, far, "similarity", "converged")
+    assert res is not None and res.status == "unmeasured"
+    assert status == "weak" and "cannot be verified" in message and "6.7 px" in message
+    near = _similarity(shift=(0.5 * UNVERIFIED_PX, 0.0))
+    assert _checked(data, near, "similarity", "converged")[0] == "ok"

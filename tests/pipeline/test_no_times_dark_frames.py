@@ -1,0 +1,33 @@
+"""A bracket without exposure times whose darkest frames are too dark for their histograms to be
+measured: the response is fitted without them and the bracket merges (it used to stop with
+"frames must be ordered darkest first")."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from hdrcore.pipeline import _rising_from_brightest
+
+
+def test_frames_kept_are_those_that_fall_from_the_brightest_down() -> None:
+    rel = np.array([1.0, 0.47, 2.1, 0.20, 0.05, 0.10, 0.2, 0.42, 0.84, 1.79])
+    assert _rising_from_brightest(rel) == [4, 5, 6, 7, 8, 9]
+    assert _rising_from_brightest(np.array([1.0, 2.0, 4.0])) == [0, 1, 2]
+    assert _rising_from_brightest(np.array([3.0, 2.0, 1.0])) == [2]
+
+
+def test_memorial_without_times_merges(memorial_dir, tmp_path, capsys) -> None:
+    import json
+
+    from hdrcore.cli import main
+
+    rep = tmp_path / "m.json"
+    rc = main(["merge", str(memorial_dir), "-o", str(tmp_path / "m.exr"), "--report", str(rep),
+               "--quiet"])
+    err = capsys.readouterr().err
+    assert rc == 0, err
+    report = json.loads(rep.read_text())
+    assert "fitted without frames" in report["response"]["message"]
+    # the near-black pairs whose motion nothing can verify are not called ok
+    statuses = {(q["dark"], q["bright"]): q["status"] for q in report["registration"]["pairs"]}
+    assert all(statuses[(k, k + 1)] != "ok" for k in (1, 2, 3)), statuses
