@@ -205,6 +205,15 @@ def diagnose(result: PipelineResult) -> list[Verdict]:
     b = result.bracket
     names = [f.name for f in b.frames]
     out.extend(_unused_frames(result))
+    marker = getattr(result, "marker_colour", None)
+    if marker is not None:
+        out.append(Verdict(
+            "marker-colour-excluded", "info",
+            f"Pixels of the pure colour {tuple(int(c) for c in marker)} sit at the same places in "
+            "the darkest and the brightest frame (a mask or border marking, not the scene): they "
+            "were left out of every estimate, as --exclude-colour "
+            f"{','.join(str(int(c)) for c in marker)} does.", (),
+        ))
 
     for w in b.warnings:
         if w.code in _CAPTURE:

@@ -296,6 +296,10 @@ class PipelineResult:
     frame_signals: tuple[FrameSignal, ...] = ()
     unused_frames: tuple[FrameSignal, ...] = ()
     full_bracket: Bracket | None = None
+    #: a pure colour found at the same pixels in every frame (a mask or border marking) and
+    #: left out of the estimation as ``exclude_colour`` would (``None``: none found, or the
+    #: caller chose ``exclude_colour``)
+    marker_colour: tuple[int, int, int] | None = None
 
     @property
     def ok(self) -> bool:
@@ -460,6 +464,8 @@ class Pipeline:
         self._pedestal = 0.0
         self._pedestal_key: Any = None
         self._excluded_key: Any = object()
+        self._marker_key: tuple[tuple[int, int, int] | None] | None = None
+        self._marker_used: tuple[int, int, int] | None = None
         self._lock = threading.Lock()
         self.last_result: PipelineResult | None = None
         self.reuse_buffers = bool(reuse_buffers)
@@ -538,6 +544,28 @@ class Pipeline:
                                                 white=float(f.max_level), clipped_low=0.0))
             self._noise = bracket_noise(measured, max_level=b.max_level, linear=b.is_linear)
         return self._noise
+
+    def marker_colour(self) -> tuple[int, int, int] | None:
+        """A pure colour (each channel 0 or the top level, not grey) at the same pixels in the
+        darkest and the brightest frame, on at least 1/10000 of them: no scene does that across
+        an exposure gap, so it is a marking (Debevec's memorial scans paint their border areas
+        (0, 0, 255)); ``None`` when there is none or the bracket has one exposure."""
+        if self._marker_key is not None:
+            return self._marker_key[0]
+        b = self.bracket
+        found = None
+        if len(b) >= 2 and b.frames[0].levels.ndim == 3 and b.frames[0].levels.shape[2] == 3:
+            m = b.max_level
+            lo, hi = b.frames[0].levels, b.frames[-1].levels
+            need = max(16, lo.shape[0] * lo.shape[1] // 10000)
+            best = 0
+            for colour in ((m, 0, 0), (0, m, 0), (0, 0, m), (m, m, 0), (m, 0, m), (0, m, m)):
+                c = np.asarray(colour, lo.dtype)
+                n = int(np.count_nonzero(np.all(lo == c, axis=2) & np.all(hi == c, axis=2)))
+                if n >= need and n > best:
+                    best, found = n, colour
+        self._marker_key = (found,)
+        return found
 
     def auto_noise_floor(self, exclude_colour: tuple[int, int, int] | None = None) -> float:
         """Default noise floor: :data:`hdrcore.noise.K_SIGMA` times the noise measured from the
@@ -679,6 +707,14 @@ class Pipeline:
         with self._lock:
             p_in = params or self.params
             reference = p_in.reference
+            marker = None
+            if p_in.exclude_colour is None:
+                marker = self.marker_colour()
+                if marker is not None:
+                    p_in = replace(p_in, exclude_colour=marker)
+            elif self._marker_key is not None and p_in.exclude_colour == self._marker_key[0]:
+                marker = self._marker_key[0]  # a re-run with the parameters of the last one
+            self._marker_used = marker
             if p_in.noise_floor is None:
                 p_in = replace(p_in, noise_floor=self.auto_noise_floor(p_in.exclude_colour))
             p = self._check(p_in)
@@ -735,7 +771,7 @@ class Pipeline:
             signals = tuple(more.get(sig.index, sig) for sig in signals)
             unused = tuple(sig for sig in signals if not sig.usable)
         res = replace(res, full_bracket=b, unused_frames=unused, frame_signals=signals,
-                      noise=self.noise())
+                      noise=self.noise(), marker_colour=self._marker_used)
         res = replace(res, verdicts=tuple(diagnose(res)))
         if until == STAGES[-1] or self.last_result is None:
             self.last_result = res
@@ -869,7 +905,7 @@ class Pipeline:
             times_source=times_source, registration=registration, merge=merge_result,
             radiance=radiance, colour=colour_info, preview=preview, preview_factor=factor,
             timings=timings, stages_run=tuple(ran), until=upto, noise=self.noise(),
-            frame_signals=signals,
+            frame_signals=signals, marker_colour=self._marker_used,
         )
         res = replace(res, verdicts=tuple(diagnose(res)))
         if upto == STAGES[-1] or self.last_result is None:
