@@ -142,7 +142,7 @@ def bench_components(sim, repeat: int) -> list[tuple]:
         server.stop()
 
 
-def bench_pipeline(sim, repeat: int) -> list[tuple]:
+def bench_pipeline(sim, repeat: int, drafts: bool = True) -> list[tuple]:
     """With the pipeline: the app's own path, set_control -> worker -> pipeline -> panels."""
     import viser
 
@@ -165,6 +165,7 @@ def bench_pipeline(sim, repeat: int) -> list[tuple]:
         server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
         inspector = InspectorApp(server, root=tmp, demo_dir=None)
         app = inspector.headless_view()  # one page's view, without a browser
+        app.drafts = drafts
         try:
             t = time.perf_counter()
             app.request_path("big")
@@ -319,6 +320,8 @@ def main() -> int:
                     help="only the draft preview's agreement and speed: 'sim' and/or real "
                     f"brackets ({','.join(REAL)}), comma-separated, or 'all'")
     ap.add_argument("--draft-side", type=int, default=1024)
+    ap.add_argument("--no-draft", action="store_true",
+                    help="the app without its draft previews (the full re-merge's own cost)")
     args = ap.parse_args()
     if args.draft is not None:
         names = list(REAL) + ["sim"] if args.draft == "all" else args.draft.split(",")
@@ -339,7 +342,7 @@ def main() -> int:
     print(f"simulated 3-frame {w}x{h} ({w * h / 1e6:.1f} MP) 14-bit bracket in "
           f"{time.perf_counter() - t:.1f} s")
     if importlib.util.find_spec("hdrcore.pipeline") is not None:
-        rows += bench_pipeline(sim, args.repeat)
+        rows += bench_pipeline(sim, args.repeat, drafts=not args.no_draft)
         mode = "through the app and hdrcore.pipeline"
     else:
         rows += bench_components(sim, args.repeat)
