@@ -122,7 +122,7 @@ def test_factor_one_is_the_bracket_itself() -> None:
 
 @pytest.mark.skipif(not (DATA / "frobisher-colour-hdri").is_dir(), reason="no real data")
 def test_real_bracket_draft_is_near_the_full_preview() -> None:
-    """frobisher (640x426 JPEG, tripod) binned 2x2: measured mean 0.56, 99th percentile 5
+    """frobisher (640x426 JPEG, tripod) binned 2x2: measured mean 0.61, 99th percentile 5
     levels against the full run's preview at the draft's size (binned in levels, not in
     exposure: 1.07 and 6)."""
     d = DATA / "frobisher-colour-hdri"
