@@ -17,6 +17,8 @@ def test_frames_kept_are_those_that_fall_from_the_brightest_down() -> None:
 
 
 def test_memorial_without_times_merges(memorial_dir, tmp_path, capsys) -> None:
+    """By default its blue border marks are left out (marker colour): the four darkest scans
+    are then black, the others double per frame and none moves."""
     import json
 
     from hdrcore.cli import main
@@ -24,10 +26,28 @@ def test_memorial_without_times_merges(memorial_dir, tmp_path, capsys) -> None:
     rep = tmp_path / "m.json"
     rc = main(["merge", str(memorial_dir), "-o", str(tmp_path / "m.exr"), "--report", str(rep),
                "--quiet"])
-    err = capsys.readouterr().err
-    assert rc == 0, err
+    assert rc == 0, capsys.readouterr().err
+    report = json.loads(rep.read_text())
+    rel = [f["relative_exposure"] for f in report["frames"]]
+    assert len(rel) >= 10
+    assert np.all(np.abs(np.diff(np.log2(rel)) - 1) < 0.1), rel  # 1 stop apart
+    assert all(abs(q["dx"]) < 1 and abs(q["dy"]) < 1 for q in report["registration"]["pairs"])
+
+
+def test_memorial_marks_kept_the_darkest_frames_are_left_out_of_the_response(
+        memorial_dir, tmp_path, capsys) -> None:
+    """With the marks taken for scene (a colour to exclude that is not there), the darkest
+    frames' histograms do not rise with their brightness: the response is fitted without them
+    (and says which), and their pairs, whose motion nothing verifies, are not ok."""
+    import json
+
+    from hdrcore.cli import main
+
+    rep = tmp_path / "m.json"
+    rc = main(["merge", str(memorial_dir), "-o", str(tmp_path / "m.exr"), "--report", str(rep),
+               "--exclude-colour", "1,2,3", "--quiet"])
+    assert rc == 0, capsys.readouterr().err
     report = json.loads(rep.read_text())
     assert "fitted without frames" in report["response"]["message"]
-    # the near-black pairs whose motion nothing can verify are not called ok
     statuses = {(q["dark"], q["bright"]): q["status"] for q in report["registration"]["pairs"]}
     assert all(statuses[(k, k + 1)] != "ok" for k in (1, 2, 3)), statuses
