@@ -59,8 +59,6 @@ def run(args: argparse.Namespace) -> int:
     frames = bracket.frames
     max_level = frames[0].max_level
     times = [None if f.meta.exposure_time is None else float(f.meta.exposure_time) for f in frames]
-    levels = [f.levels for f in frames]
-    mask = None if args.exclude_colour is None else colour_mask(levels, args.exclude_colour)
     # The same response, defaults and exclusions as 'hdrcore merge' and 'hdrcore align'.
     params = PipelineParams(
         saturation=args.saturation, noise_floor=args.noise_floor, response=args.response,
@@ -73,17 +71,20 @@ def run(args: argparse.Namespace) -> int:
     print_unused_frames(pres)
     res = pres.exposures
     bracket = pres.bracket  # the frames used: a black or saturated frame is left out
+    # the colour left out: the one asked for, or a marking the pipeline found by itself
+    colour = pres.params.exclude_colour
+    levels = [f.levels for f in bracket.frames]
+    mask = None if colour is None else colour_mask(levels, colour)
     if args.noise_sigma is not None:
-        levels = [f.levels for f in bracket.frames]
         times = [None if f.meta.exposure_time is None else float(f.meta.exposure_time)
                  for f in bracket.frames]
-        mask = None if args.exclude_colour is None else colour_mask(levels, args.exclude_colour)
         res = bracket_exposures(
             levels, max_level, method=args.method, exposure_times=times, mask=mask,
             saturation=pres.saturation, noise_floor=pres.noise_floor, lut=pres.lut,
             noise_sigma=args.noise_sigma,
         )
     out = {"masked_fraction": None if mask is None else float(1.0 - mask.mean()),
+           "marker_colour": None if pres.marker_colour is None else list(pres.marker_colour),
            "method": res.method, **ratios_json(bracket, res),
            "frames_not_used": [u.to_json() for u in pres.unused_frames],
            "noise": None if pres.noise is None else pres.noise.to_json(),

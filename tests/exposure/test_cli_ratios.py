@@ -34,14 +34,20 @@ def test_ratios_json_and_mask_colour(tmp_path, capsys) -> None:
     plain = json.loads(capsys.readouterr().out)
     main(args + ["--mask-colour", "0,0,255"])
     masked = json.loads(capsys.readouterr().out)
-    assert plain["masked_fraction"] is None
+    # the painted border is found without the option (the pipeline's marker colour)
+    assert plain["marker_colour"] == [0, 0, 255] and masked["marker_colour"] is None
+    assert plain["masked_fraction"] == pytest.approx(12 / 96, abs=0.01)
     assert masked["masked_fraction"] == pytest.approx(12 / 96, abs=0.01)
     keys = {"dark", "bright", "ratio", "initial_ratio", "iterations", "equations", "inliers",
             "exif_ratio", "mismatch_stops", "std_error", "region_std_error", "status", "message"}
     for pair in masked["pairs"]:
         assert keys <= set(pair)
         assert abs(pair["ratio"] / pair["exif_ratio"] - 1) < 0.01
-    assert [p["ratio"] for p in masked["pairs"]] != [p["ratio"] for p in plain["pairs"]]
+    assert [p["ratio"] for p in masked["pairs"]] == [p["ratio"] for p in plain["pairs"]]
+    # ... and taken for scene when another colour is named: the ratios change
+    main(args + ["--mask-colour", "1,2,3"])
+    kept = json.loads(capsys.readouterr().out)
+    assert [p["ratio"] for p in masked["pairs"]] != [p["ratio"] for p in kept["pairs"]]
 
 
 def test_mask_colour_is_validated(tmp_path, capsys) -> None:
