@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
 import time
 from pathlib import Path
@@ -62,6 +63,17 @@ def _seconds(text: str) -> float:
     if not (math.isfinite(value) and value >= 0):
         raise argparse.ArgumentTypeError(f"expected seconds (e.g. 2 or 0.5), found {text!r}")
     return value
+
+
+def default_worker_memory(workers: int) -> int | None:
+    """Each of ``workers`` processes gets the machine's physical memory divided among them
+    (at least 1 GB): together they cannot push the machine into swap. ``None`` where the
+    memory size is unknown."""
+    try:
+        total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):
+        return None
+    return max(int(1e9), int(total) // max(1, int(workers)))
 
 
 def _gigabytes(text: str) -> int:
@@ -110,8 +122,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                         "same on every worker")
     r.add_argument("--worker-memory", dest="worker_memory", type=_gigabytes, metavar="GB",
                    help="address-space limit of each worker process (a bracket that needs more "
-                        "fails with 'out of memory' instead of swapping); not for Dask, whose "
-                        "workers have their own memory_limit")
+                        "fails with 'out of memory' instead of swapping; default with --workers "
+                        "N > 1: the machine's memory divided by N, at least 1 GB); not for Dask, "
+                        "whose workers have their own memory_limit")
     r.add_argument("--preview", action="store_true", help="also write NAME.png per bracket")
     r.add_argument("--dng", action="store_true",
                    help="also write NAME.dng per bracket (hdrcore merge --dng: float linear DNG)")
@@ -221,10 +234,13 @@ def run(args: argparse.Namespace) -> int:
                             extra_key=extra)
     progress = _Progress(not args.quiet)
     scheduler = args.scheduler or ("local" if args.dask else None)
+    memory_limit = args.worker_memory
+    if memory_limit is None and scheduler is None and args.workers > 1:
+        memory_limit = default_worker_memory(args.workers)
     try:
         result = run_batch(tasks, workers=args.workers, scheduler=scheduler,
                            progress=progress, retry_failed=args.retry_failed, force=args.force,
-                           memory_limit=args.worker_memory)
+                           memory_limit=memory_limit)
     finally:
         progress.close()
     write_index(outdir, result.records, plan.singles,

@@ -169,3 +169,25 @@ def test_bad_input_is_one_line(tmp_path, capsys):
     assert "no JPEG, PNG, TIFF or RAW files found" in capsys.readouterr().err
     assert main(["batch", str(tmp_path), "--gap", "1", "--group-size", "3", "--plan"]) == 2
     assert "give one" in capsys.readouterr().err
+
+
+def test_workers_are_memory_bounded_by_default(sim_folder, tmp_path, monkeypatch):
+    """With --workers N > 1 each worker's address space is capped at the machine's memory
+    divided by N (at least 1 GB) unless --worker-memory says otherwise."""
+    import hdrcore.batch as batch
+    from hdrcore.batch.runner import BatchRun
+
+    folder, _ = sim_folder
+    seen = []
+
+    def fake_run(tasks, **kw):
+        seen.append(kw["memory_limit"])
+        return BatchRun(records=())
+
+    monkeypatch.setattr(batch, "run_batch", fake_run)
+    total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    for argv, want in ((["--workers", "2"], max(int(1e9), total // 2)),
+                       (["--workers", "2", "--worker-memory", "3"], int(3e9)),
+                       (["--workers", "1"], None)):
+        main(["batch", str(folder), "-o", str(tmp_path / "o"), "--quiet", *argv])
+        assert seen[-1] == want, argv
