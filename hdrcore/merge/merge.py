@@ -47,10 +47,10 @@ from __future__ import annotations
 
 import logging
 import time
-from typing import Any
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 
