@@ -59,7 +59,7 @@ from .._numba import njit
 from ..errors import ImageReadError, ParameterError
 
 # One TIFF encoder for the project (the simulator's DNGs use it too).
-from ..synthetic.dng import TiffTag, _encode_ifd, as_rational, exif_tags
+from ._tiff import TiffTag, _encode_ifd, as_rational, exif_tags
 from .atomic import atomic_write
 
 __all__ = [
