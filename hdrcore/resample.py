@@ -1,4 +1,5 @@
-"""Area downsampling for previews (box filter over whole blocks plus a remainder-aware mean)."""
+"""Area downsampling for previews (box filter over whole blocks plus a remainder-aware mean), and
+Keys' cubic weights shared by the registration and the merge."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ from ._numba import njit as _njit
 from ._threads import run_row_spans
 from .errors import ParameterError
 
-__all__ = ["downsample_factor", "downsample_area", "bin_channel"]
+__all__ = ["downsample_factor", "downsample_area", "bin_channel", "keys_weights"]
 
 
 def downsample_factor(shape: tuple[int, int], max_side: int | None) -> int:
@@ -122,3 +123,29 @@ def bin_channel(image: np.ndarray, channel: int, factor: int) -> np.ndarray:
         out += rows[:, j::f]
     out *= np.float32(1.0 / (f * f))
     return out
+
+
+def keys_weights(f: np.ndarray, derivative: bool = False) -> np.ndarray:
+    """Keys' cubic convolution (a = -1/2) weights ``(4, N)`` of taps at offsets -1, 0, 1, 2 for
+    fractional positions ``f`` in [0, 1).
+
+    With ``derivative`` the weights of d/df (the kernel's derivative).
+    """
+    g = 1.0 - f
+    if not derivative:
+        return np.stack(
+            [
+                -0.5 * f * g * g,
+                (1.5 * f - 2.5) * f * f + 1.0,
+                (1.5 * g - 2.5) * g * g + 1.0,
+                -0.5 * f * f * g,
+            ]
+        )
+    return np.stack(
+        [
+            -0.5 * g * (1.0 - 3.0 * f),
+            (4.5 * f - 5.0) * f,
+            -(4.5 * g - 5.0) * g,
+            (1.5 * f - 1.0) * f,
+        ]
+    )

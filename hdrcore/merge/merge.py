@@ -621,9 +621,7 @@ class _Kernel:
         """
         p = self.p
         if p.resample == "cubic":
-            # the project's Keys weights (imported here: hdrcore.registration pulls in
-            # scipy.optimize)
-            from ..registration._sampling import keys_weights as weights
+            from ..resample import keys_weights as weights  # the project's Keys weights
 
             ntap, o = 4, 1.0
         else:  # bilinear: weights 1 - f, f of taps 0, 1

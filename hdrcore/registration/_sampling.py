@@ -10,34 +10,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..resample import keys_weights
+
 __all__ = ["keys_weights", "sample", "reduce2", "Sampled"]
 
 _OFFSETS = np.arange(4)
-
-
-def keys_weights(f: np.ndarray, derivative: bool = False) -> np.ndarray:
-    """Weights ``(4, N)`` of taps at offsets -1, 0, 1, 2 for fractional positions ``f`` in [0, 1).
-
-    With ``derivative`` the weights of d/df (the kernel's derivative).
-    """
-    g = 1.0 - f
-    if not derivative:
-        return np.stack(
-            [
-                -0.5 * f * g * g,
-                (1.5 * f - 2.5) * f * f + 1.0,
-                (1.5 * g - 2.5) * g * g + 1.0,
-                -0.5 * f * f * g,
-            ]
-        )
-    return np.stack(
-        [
-            -0.5 * g * (1.0 - 3.0 * f),
-            (4.5 * f - 5.0) * f,
-            -(4.5 * g - 5.0) * g,
-            (1.5 * f - 1.0) * f,
-        ]
-    )
 
 
 def _dot4(t: np.ndarray, w: np.ndarray) -> np.ndarray:
