@@ -26,9 +26,8 @@ from typing import Any
 import numpy as np
 
 from .. import __version__
-from ..io.dng import DngMetadata, write_float_dng
+from ..io.dng import SRGB_XYZ_TO_CAMERA, DngMetadata, write_float_dng
 from ..merge.colour import colour_conversion
-from ..synthetic.dng import SRGB_XYZ_TO_CAMERA
 
 __all__ = ["DNG_LAYOUTS", "TRIPOD_PX", "dng_layout", "write_result_dng"]
 

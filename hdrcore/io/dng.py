@@ -81,6 +81,16 @@ _CFA = 32803
 _STRIP_BYTES = 1 << 22  # 4 MiB strips
 
 
+#: XYZ (D65) -> linear sRGB (IEC 61966-2-1): the ColorMatrix1 of a DNG whose "camera" space is
+#: linear sRGB (merged JPEG brackets, the simulator's camera); with AsShotNeutral (1, 1, 1) the
+#: colour maths of a raw editor come out as the identity.
+SRGB_XYZ_TO_CAMERA = (
+    (3.2404542, -1.5371385, -0.4985314),
+    (-0.9692660, 1.8760108, 0.0415560),
+    (0.0556434, -0.2040259, 1.0572252),
+)
+
+
 @dataclass(frozen=True)
 class DngMetadata:
     """What a raw editor needs besides the samples, from the reference frame.

@@ -68,6 +68,7 @@ from ..io._tiff import (  # noqa: F401 -- the encoder lives in io; re-exported h
     encode_tiff,
     exif_tags,
 )
+from ..io.dng import SRGB_XYZ_TO_CAMERA  # noqa: F401 -- re-exported
 
 __all__ = [
     "CFA_PATTERNS",
@@ -96,13 +97,8 @@ CFA_PATTERNS: dict[str, tuple[int, int, int, int]] = {
     "GBRG": (1, 2, 0, 1),
 }
 
-# XYZ (D65) -> linear sRGB (IEC 61966-2-1): the simulated camera's native space is linear sRGB, so
-# ColorMatrix1 with AsShotNeutral (1, 1, 1) makes colour maths come out as the identity.
-SRGB_XYZ_TO_CAMERA = (
-    (3.2404542, -1.5371385, -0.4985314),
-    (-0.9692660, 1.8760108, 0.0415560),
-    (0.0556434, -0.2040259, 1.0572252),
-)
+# XYZ (D65) -> linear sRGB: the simulated camera's native space is linear sRGB, so ColorMatrix1
+# with AsShotNeutral (1, 1, 1) makes colour maths come out as the identity (from hdrcore.io.dng).
 
 _DEFAULT_TIME = datetime(2006, 2, 6, 12, 0, 0)
 
