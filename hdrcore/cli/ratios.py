@@ -56,9 +56,7 @@ def run(args: argparse.Namespace) -> int:
 
     bracket = load_bracket_from_args(args)
     print_warnings(bracket)
-    frames = bracket.frames
-    max_level = frames[0].max_level
-    times = [None if f.meta.exposure_time is None else float(f.meta.exposure_time) for f in frames]
+    max_level = bracket.frames[0].max_level
     # The same response, defaults and exclusions as 'hdrcore merge' and 'hdrcore align'.
     params = PipelineParams(
         saturation=args.saturation, noise_floor=args.noise_floor, response=args.response,
