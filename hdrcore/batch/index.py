@@ -14,6 +14,7 @@ from typing import Any
 
 from ..errors import InputError
 from ..io import atomic_write
+from . import remote
 from .task import BracketRecord
 
 __all__ = ["write_index", "read_index", "worst_first", "INDEX_JSON", "INDEX_CSV", "CSV_COLUMNS"]
@@ -42,8 +43,8 @@ def _row(r: BracketRecord) -> dict[str, Any]:
 
 def write_index(outdir: str | os.PathLike, records: Sequence[BracketRecord],
                 singles: Sequence[str] = (), *, summary: dict[str, Any] | None = None) -> None:
-    """Write both index files atomically (replacing the previous run's)."""
-    out = Path(outdir)
+    """Write both index files atomically (replacing the previous run's); ``outdir`` may be
+    an fsspec URL (:func:`hdrcore.batch.remote.put_atomic`)."""
     doc = {
         "summary": {
             "brackets": len(records),
@@ -56,7 +57,7 @@ def write_index(outdir: str | os.PathLike, records: Sequence[BracketRecord],
         "singles": list(singles),
     }
     text = json.dumps(doc, indent=1, default=str)
-    atomic_write(out / INDEX_JSON, lambda tmp: tmp.write_text(text), force=True)
+    _write(outdir, INDEX_JSON, text)
     buf = io.StringIO()
     w = csv.DictWriter(buf, fieldnames=CSV_COLUMNS, lineterminator="\n")
     w.writeheader()
@@ -65,15 +66,27 @@ def write_index(outdir: str | os.PathLike, records: Sequence[BracketRecord],
     for s in singles:
         w.writerow({"name": Path(s).stem, "status": "single", "frames": 1, "merged": False,
                     "reason": "single shot: not a bracket", "files": s})
-    atomic_write(out / INDEX_CSV, lambda tmp: tmp.write_text(buf.getvalue()), force=True)
+    _write(outdir, INDEX_CSV, buf.getvalue())
+
+
+def _write(outdir: str | os.PathLike, name: str, text: str) -> None:
+    if remote.is_url(outdir):
+        remote.write_text_atomic(remote.join(os.fspath(outdir), name), text)
+    else:
+        atomic_write(Path(outdir) / name, lambda tmp: tmp.write_text(text), force=True)
 
 
 def read_index(outdir: str | os.PathLike) -> list[BracketRecord]:
-    """The brackets of ``OUTDIR/index.json`` (a batch's output folder)."""
-    p = Path(outdir) / INDEX_JSON
+    """The brackets of ``OUTDIR/index.json`` (a batch's output folder, or its URL)."""
+    url = remote.is_url(outdir)
+    p: Path | str = remote.join(os.fspath(outdir), INDEX_JSON) if url \
+        else Path(outdir) / INDEX_JSON
     try:
-        doc = json.loads(p.read_text())
+        doc = json.loads(remote.read_text(p) if isinstance(p, str) else p.read_text())
         return [BracketRecord.from_json(b) for b in doc["brackets"]]
+    except FileNotFoundError:
+        raise InputError("cannot read the batch index (no such file)", path=p,
+                         expected="the output folder of 'hdrcore batch'") from None
     except OSError as exc:
         raise InputError(f"cannot read the batch index ({exc.strerror or exc})", path=p,
                          expected="the output folder of 'hdrcore batch'") from None

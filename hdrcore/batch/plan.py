@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import InputError
+from . import remote
 from .group import Group
 
 __all__ = ["PlannedBracket", "Plan", "make_plan", "read_plan", "plan_table", "PLAN_VERSION"]
@@ -79,10 +80,13 @@ def make_plan(groups: Sequence[Group], method: str = "signals") -> Plan:
 
 def read_plan(path: str | os.PathLike) -> Plan:
     """A plan file as printed by ``--plan --json`` (maybe edited); relative file names are
-    taken from the plan file's folder."""
-    p = Path(path)
+    taken from the plan file's folder. Files (and the plan file) may be fsspec URLs."""
+    is_url = remote.is_url(path)
+    p: Path | str = os.fspath(path) if is_url else Path(path)
     try:
-        doc = json.loads(p.read_text())
+        doc = json.loads(remote.read_text(p) if isinstance(p, str) else p.read_text())
+    except FileNotFoundError:
+        raise InputError("cannot read the plan file (no such file)", path=p) from None
     except OSError as exc:
         raise InputError(f"cannot read the plan file ({exc.strerror or exc})", path=p) from None
     except ValueError as exc:
@@ -100,14 +104,21 @@ def read_plan(path: str | os.PathLike) -> Plan:
         for f in b["files"]:
             if not isinstance(f, str) or not f:
                 raise InputError(f"{where}: a file name is not a string", path=p, found=repr(f))
-            q = Path(f) if Path(f).is_absolute() else p.parent / f
-            if not q.is_file():
-                raise InputError(f"{where}: no such file", path=p, found=str(q))
-            key = str(q.resolve())
+            if remote.is_url(f) or isinstance(p, str) and not f.startswith("/"):
+                url = f if remote.is_url(f) else remote.join(remote.parent(p), f)
+                remote.check_url(url)
+                if remote.info_of(url) is None:
+                    raise InputError(f"{where}: no such file", path=p, found=url)
+                key, shown, entry = url, remote.basename(url), url
+            else:
+                q = Path(f) if Path(f).is_absolute() else Path(p).parent / f
+                if not q.is_file():
+                    raise InputError(f"{where}: no such file", path=p, found=str(q))
+                key, shown, entry = str(q.resolve()), q.name, str(q)
             if key in seen_files:
-                raise InputError(f"{where}: {q.name} is also in {seen_files[key]}", path=p)
+                raise InputError(f"{where}: {shown} is also in {seen_files[key]}", path=p)
             seen_files[key] = where
-            files.append(str(q))
+            files.append(entry)
         if len(files) < 2:
             raise InputError(f"{where} has {len(files)} file(s)", path=p,
                              expected="at least two frames per bracket")

@@ -3,7 +3,10 @@ worker processes (``workers``) or on a Dask cluster (``scheduler``), report each
 
 A bracket is *done* when its sidecar holds the key its frames and options give now
 (:func:`up_to_date`): frames are re-hashed only when their size or modification time differ
-from the sidecar's (as ``make`` and git decide), so a restart reads no frame it need not.
+from the sidecar's (as ``make`` and git decide), so a restart reads no frame it need not; a
+remote frame (an fsspec URL) is re-hashed when its size or its listing's stamp (ETag,
+md5Hash, ... or time: :func:`hdrcore.batch.remote.stamp`) differ. A remote output folder is
+listed once per run, not queried per output.
 Ctrl-C stops the run: brackets in progress lose their temporary files (atomic writers) and
 write no sidecar; everything finished is kept, and the next run skips it.
 """
@@ -21,6 +24,8 @@ from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
 
+from ..errors import HdrError, InputError
+from . import remote
 from .plan import Plan
 from .task import SIDECAR_VERSION, BracketRecord, BracketTask, bracket_key, file_digest, run_task
 
@@ -49,18 +54,31 @@ class BatchRun:
 def tasks_from_plan(plan: Plan, outdir: str | os.PathLike, options: dict[str, Any] | None = None,
                     *, preview: bool = False, dng: bool = False,
                     extra_key: str = "") -> list[BracketTask]:
-    out = str(Path(outdir).absolute())
+    out = os.fspath(outdir).rstrip("/") if remote.is_url(outdir) else \
+        str(Path(outdir).absolute())
     return [BracketTask(b.name, tuple(b.files), out, dict(options or {}), preview, extra_key,
                         dng) for b in plan.brackets]
 
 
-def up_to_date(task: BracketTask, *, retry_failed: bool = False) -> BracketRecord | None:
-    """The sidecar's record (``merged=False``) when the bracket needs no merge, else ``None``."""
+def up_to_date(task: BracketTask, *, retry_failed: bool = False,
+               present: set[str] | None = None,
+               infos: Callable[[str], dict | None] | None = None) -> BracketRecord | None:
+    """The sidecar's record (``merged=False``) when the bracket needs no merge, else ``None``.
+
+    For a remote output folder, ``present`` (the names :func:`remote.listing` found in it)
+    saves one request per output; ``infos`` (a :class:`remote.Infos`) gives remote frames'
+    listing entries a folder at a time."""
     try:
-        doc = json.loads(task.sidecar.read_text())
+        if remote.is_url(task.outdir):
+            if present is not None and task.sidecar_name not in present:
+                return None
+            text = remote.read_text(task.target(task.sidecar_name))
+        else:
+            text = task.sidecar.read_text()
+        doc = json.loads(text)
         rec = BracketRecord.from_json(doc["batch"])
         frames = doc["frames"]
-    except (OSError, ValueError, KeyError, TypeError):
+    except (OSError, ValueError, KeyError, TypeError, HdrError):
         return None
     if doc.get("version") != SIDECAR_VERSION or not rec.key:
         return None
@@ -70,42 +88,71 @@ def up_to_date(task: BracketTask, *, retry_failed: bool = False) -> BracketRecor
         return None
     digests = []
     for f in frames:
+        path = f["path"]
+        if remote.is_url(path):
+            info = infos(path) if infos is not None else remote.info_of(path)
+            if info is None:
+                return None
+            now = remote.stamp(info)
+            same = now.get("stamp") is not None and now.get("stamp") == f.get("stamp") \
+                and now.get("size") == f.get("size")
+            try:
+                digests.append(f["sha256"] if same else remote.digest(path))
+            except Exception:  # noqa: BLE001 - unreadable now: merge again (and fail there)
+                return None
+            continue
         try:
-            st = os.stat(f["path"])
+            st = os.stat(path)
         except OSError:
             return None
         same = st.st_size == f.get("size") and st.st_mtime_ns == f.get("mtime_ns")
-        digests.append(f["sha256"] if same else file_digest(f["path"]))
+        digests.append(f["sha256"] if same else file_digest(path))
     if bracket_key(digests, *task.key_args) != rec.key:
         return None
-    for kind in ("exr", "preview", "dng"):
-        path = rec.outputs.get(kind)
-        if path and not Path(path).is_file():
+    wanted = [rec.outputs.get(k) for k in ("exr", "preview", "dng")]
+    if rec.status != "failed":
+        wanted += [task.target(f"{task.name}.png") if task.preview else None,
+                   task.target(f"{task.name}.dng") if task.dng else None]
+    for path in wanted:
+        if path and not _exists(path, task, present):
             return None
-    if rec.status != "failed" and (task.preview and not task.png.is_file()
-                                   or task.dng and not task.dng_path.is_file()):
-        return None
     return replace(rec, merged=False)
+
+
+def _exists(path: str, task: BracketTask, present: set[str] | None) -> bool:
+    if not remote.is_url(path):
+        return Path(path).is_file()
+    if present is not None and remote.parent(path) == task.outdir.rstrip("/"):
+        return remote.basename(path) in present
+    return remote.info_of(path) is not None
 
 
 def remove_temporaries(outdir: str | os.PathLike, names: Sequence[str]) -> int:
     """Remove what a killed worker left of these brackets (``.NAME.exr.*.tmp.exr`` and the
-    like from :func:`hdrcore.io.atomic_write`, ``.NAME.report.json``); returns how many."""
-    out = Path(outdir)
+    like from :func:`hdrcore.io.atomic_write`, ``.NAME.exr.*.tmp`` from
+    :func:`remote.put_atomic`, ``.NAME.report.json``); returns how many."""
     wanted = set(names)
     n = 0
-    try:
-        entries = list(out.iterdir())
-    except OSError:
-        return 0
-    for p in entries:
-        s = p.name
+    if remote.is_url(outdir):
+        entries = sorted(remote.listing(os.fspath(outdir)) or ())
+    else:
+        try:
+            entries = [p.name for p in Path(outdir).iterdir()]
+        except OSError:
+            return 0
+    for s in entries:
         if not s.startswith(".") or ".tmp" not in s and not s.endswith(".report.json"):
             continue
         for suffix in (".exr.", ".png.", ".dng.", ".json.", ".report.json"):
             cut = s.find(suffix, 1)
             if cut > 0 and s[1:cut] in wanted:
-                p.unlink(missing_ok=True)
+                if remote.is_url(outdir):
+                    try:
+                        remote.remove(remote.join(os.fspath(outdir), s))
+                    except Exception:  # noqa: BLE001 - another run removed it first
+                        continue
+                else:
+                    (Path(outdir) / s).unlink(missing_ok=True)
                 n += 1
                 break
     return n
@@ -180,6 +227,21 @@ def _run_dask(todo: list[BracketTask], client: Any,
         raise
 
 
+def _check_shared(tasks: Sequence[BracketTask], workers: int, scheduler: str | None,
+                  client: Any) -> None:
+    """``memory://`` lives in one process: refuse it where worker processes would write into
+    their own memory and the run would lose every output."""
+    if not (workers > 1 and client is None or scheduler is not None):
+        return
+    for t in tasks:
+        for u in (t.outdir, *t.files):
+            if remote.is_url(u) and remote.process_local(u):
+                raise InputError("memory:// exists in one process only; worker processes "
+                                 "would not see it", path=u,
+                                 expected="--workers 1, or a filesystem every worker sees "
+                                          "(file://, s3://, ...)")
+
+
 def run_batch(
     tasks: Sequence[BracketTask], *, workers: int = 1, scheduler: str | None = None,
     client: Any = None, progress: Progress | None = None, retry_failed: bool = False,
@@ -193,11 +255,17 @@ def run_batch(
     total, record)`` is called as each bracket ends (skipped ones first).
     """
     t0 = time.perf_counter()
+    _check_shared(tasks, workers, scheduler, client)
     results: dict[str, BracketRecord] = {}
     total = len(tasks)
     todo: list[BracketTask] = []
+    present: dict[str, set[str] | None] = {}
+    infos = remote.Infos()
     for t in tasks:
-        rec = None if force else up_to_date(t, retry_failed=retry_failed)
+        if remote.is_url(t.outdir) and t.outdir not in present:
+            present[t.outdir] = remote.listing(t.outdir) or set()
+        rec = None if force else up_to_date(t, retry_failed=retry_failed,
+                                            present=present.get(t.outdir), infos=infos)
         if rec is None:
             todo.append(t)
         else:

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from datetime import datetime
 from pathlib import Path
 
@@ -21,8 +21,10 @@ import numpy as np
 from ..errors import InputError
 from ..io import frame_pixels, is_raw_path, read_exif
 from ..io.bracket import IMAGE_EXTENSIONS
+from . import remote
 
-__all__ = ["Shot", "find_images", "scan_shots", "read_shot", "thumbnail_similarity"]
+__all__ = ["Shot", "find_images", "scan_shots", "read_shot", "read_shots",
+           "thumbnail_similarity"]
 
 #: Side of the grey thumbnail kept per shot (pixels).
 THUMB_SIDE = 24
@@ -82,11 +84,24 @@ def _is_image(p: Path) -> bool:
     return p.suffix.lower() in IMAGE_EXTENSIONS or is_raw_path(p)
 
 
-def find_images(paths: list[str | os.PathLike], *, recursive: bool = False) -> list[Path]:
+def _folder_and_name(f: Path | str) -> tuple[str, str]:
+    if isinstance(f, str):
+        return remote.parent(f), remote.basename(f)
+    return str(f.parent), f.name
+
+
+def find_images(paths: list[str | os.PathLike], *,
+                recursive: bool = False) -> list[Path | str]:
     """The image files named (files as given, folders listed; sub-folders with ``recursive``),
-    absolute, hidden files (``.name``) left out, sorted by folder then name."""
-    out: list[Path] = []
+    absolute, hidden files (``.name``) left out, sorted by folder then name. fsspec URLs
+    (``s3://bucket/shots``) are listed through their filesystem and given back as URLs
+    (:mod:`hdrcore.batch.remote`); paths as ``Path``."""
+    out: list[Path | str] = []
     for item in paths:
+        if remote.is_url(item):
+            out.extend(remote.list_images(os.fspath(item), recursive=recursive,
+                                          is_image=_is_image))
+            continue
         p = Path(item)
         if p.is_dir():
             walker = os.walk(p) if recursive else [(str(p), [], os.listdir(p))]
@@ -100,7 +115,7 @@ def find_images(paths: list[str | os.PathLike], *, recursive: bool = False) -> l
             out.append(p.absolute())
         else:
             raise InputError("no such file or folder", path=p)
-    out = sorted(set(out), key=lambda q: (str(q.parent), q.name))
+    out = sorted(set(out), key=_folder_and_name)
     if not out:
         raise InputError("no JPEG, PNG, TIFF or RAW files found",
                          path=", ".join(str(p) for p in paths),
@@ -139,7 +154,10 @@ def _libraw_other(path: Path):  # noqa: ANN202
 
 
 def read_shot(path: str | os.PathLike, *, thumbnail: bool = True) -> Shot:
-    """The grouping signals of one file (headers only, plus the thumbnail)."""
+    """The grouping signals of one file (headers only, plus the thumbnail); a URL is read
+    from a local copy of its bytes (:func:`scan_shots` fetches many at once)."""
+    if remote.is_url(path):
+        return _read_remote([os.fspath(path)], thumbnail)[0]
     p = Path(path)
     exif = read_exif(p)
     t: float | None = None
@@ -169,10 +187,39 @@ def read_shot(path: str | os.PathLike, *, thumbnail: bool = True) -> Shot:
     )
 
 
+#: Remote files fetched per call while scanning (bounds the local copies alive at once).
+SCAN_CHUNK = 16
+
+
+def _read_remote(urls: list[str], thumbnail: bool) -> list[Shot]:
+    """:func:`read_shot` of remote files: copied whole (the thumbnail needs the whole JPEG,
+    LibRaw the whole RAW) to a temporary folder, read, removed; path and folder are the URLs."""
+    import tempfile
+
+    with tempfile.TemporaryDirectory(prefix="hdrcore-scan-") as d:
+        local = remote.stage(urls, d)
+        return [replace(read_shot(lp, thumbnail=thumbnail), path=u, folder=remote.parent(u))
+                for u, lp in zip(urls, local, strict=True)]
+
+
+def read_shots(files: list[Path | str], *, thumbnails: bool = True) -> list[Shot]:
+    """:func:`read_shot` of each file, in order; URLs fetched :data:`SCAN_CHUNK` at a time."""
+    shots: dict[int, Shot] = {}
+    urls = [(k, f) for k, f in enumerate(files) if isinstance(f, str) and remote.is_url(f)]
+    for k, f in enumerate(files):
+        if not (isinstance(f, str) and remote.is_url(f)):
+            shots[k] = read_shot(f, thumbnail=thumbnails)
+    for i in range(0, len(urls), SCAN_CHUNK):
+        part = urls[i:i + SCAN_CHUNK]
+        for (k, _), s in zip(part, _read_remote([u for _, u in part], thumbnails), strict=True):
+            shots[k] = s
+    return [shots[k] for k in range(len(files))]
+
+
 def scan_shots(paths: list[str | os.PathLike], *, recursive: bool = False,
                thumbnails: bool = True) -> list[Shot]:
     """:func:`read_shot` of every image :func:`find_images` finds."""
-    return [read_shot(p, thumbnail=thumbnails) for p in find_images(paths, recursive=recursive)]
+    return read_shots(find_images(paths, recursive=recursive), thumbnails=thumbnails)
 
 
 def thumbnail_similarity(a: np.ndarray | None, b: np.ndarray | None) -> float | None:

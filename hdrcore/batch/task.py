@@ -27,9 +27,10 @@ from typing import Any
 from .. import __version__
 from ..errors import HdrError
 from ..io import atomic_write
+from . import remote
 
 __all__ = ["BracketTask", "BracketRecord", "run_task", "file_digest", "bracket_key",
-           "quality_from_report", "SIDECAR_VERSION"]
+           "quality_from_report", "frame_stamp", "SIDECAR_VERSION"]
 
 SIDECAR_VERSION = 1
 _CHUNK = 1 << 22
@@ -57,7 +58,8 @@ def bracket_key(digests: list[str], options: dict[str, Any], preview: bool,
 
 @dataclass(frozen=True)
 class BracketTask:
-    """Everything a worker needs to merge one bracket (paths every worker can read).
+    """Everything a worker needs to merge one bracket (paths every worker can read, or fsspec
+    URLs: :mod:`hdrcore.batch.remote`).
 
     ``options``: the ``hdrcore merge`` options by destination name (``{"align":
     "homography"}``), JSON-ready; unnamed options keep the merge's defaults.
@@ -75,6 +77,22 @@ class BracketTask:
     def key_args(self) -> tuple:
         """What :func:`bracket_key` takes besides the frames' digests."""
         return (self.options, self.preview, self.extra_key, self.dng)
+
+    @property
+    def remote(self) -> bool:
+        """Whether a frame or the output folder is an fsspec URL."""
+        return remote.is_url(self.outdir) or any(remote.is_url(f) for f in self.files)
+
+    @property
+    def sidecar_name(self) -> str:
+        return f"{self.name}.json"
+
+    def target(self, name: str) -> str:
+        """Where an output file of this name goes: a URL in a remote output folder, else a
+        path (as a string)."""
+        if remote.is_url(self.outdir):
+            return remote.join(self.outdir, name)
+        return str(Path(self.outdir) / name)
 
     @property
     def exr(self) -> Path:
@@ -220,7 +238,20 @@ def _merge_namespace(task: BracketTask, report_path: Path) -> Any:
 def run_task(task: BracketTask) -> BracketRecord:
     """Merge one bracket and write its sidecar; never raises for a bad bracket (the record
     says why it failed). ``KeyboardInterrupt`` passes: the outputs in progress are removed by
-    the atomic writers and no sidecar is written."""
+    the atomic writers and no sidecar is written. A task with URLs (:attr:`BracketTask.remote`)
+    merges local copies of its remote frames and uploads its outputs (:func:`_run_remote`)."""
+    if task.remote:
+        return _run_remote(task)
+    record, report, digests = _merge(task)
+    problem = write_sidecar(task, record, report, digests)
+    if problem:
+        record = replace(record, messages=(*record.messages, problem))
+    return record
+
+
+def _merge(task: BracketTask) -> tuple[BracketRecord, dict[str, Any] | None, list[str]]:
+    """The merge of a bracket of local files into a local folder: its record (outputs named
+    as written), the merge report and the frames' digests. Writes no sidecar."""
     from ..cli import merge as merge_cli
 
     t0, c0 = time.perf_counter(), time.process_time()
@@ -269,10 +300,91 @@ def run_task(task: BracketTask) -> BracketRecord:
         peak_rss_mb=_peak_rss_mb(), worker=f"{os.uname().nodename}:{os.getpid()}",
         messages=tuple(line for line in said.getvalue().splitlines() if line.strip())[:20],
     )
-    problem = write_sidecar(task, record, report, digests)
+    return record, report, digests
+
+
+def _swap(obj: Any, pairs: list[tuple[str, str]]) -> Any:
+    """``obj`` (JSON-like) with each local path of ``pairs`` replaced by its URL."""
+    if isinstance(obj, str):
+        for local, url in pairs:
+            obj = obj.replace(local, url)
+        return obj
+    if isinstance(obj, dict):
+        return {k: _swap(v, pairs) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return type(obj)(_swap(v, pairs) for v in obj)
+    return obj
+
+
+def _run_remote(task: BracketTask) -> BracketRecord:
+    """:func:`run_task` with URLs: remote frames copied to a local temporary folder (names
+    kept, bytes identical, so EXIF and digests are the originals'), merged there; with a
+    remote output folder every output is uploaded atomically (:func:`remote.put_atomic`) and
+    the sidecar last. Paths in the record, report and messages are given back as URLs."""
+    import tempfile
+
+    t0, c0 = time.perf_counter(), time.process_time()
+    with tempfile.TemporaryDirectory(prefix="hdrcore-batch-") as tmp:
+        urls = [f for f in task.files if remote.is_url(f)]
+        try:
+            staged = dict(zip(urls, remote.stage(urls, Path(tmp) / "in"), strict=True))
+        except Exception as exc:  # a missing or unreadable frame: this bracket fails
+            reason = str(exc) if isinstance(exc, HdrError) else \
+                f"cannot read the frames ({type(exc).__name__}: {exc})"
+            record = BracketRecord(task.name, task.files, "failed", reason=reason,
+                                   quality={"score": 0.0},
+                                   outputs={"exr": None, "preview": None, "dng": None,
+                                            "sidecar": task.target(task.sidecar_name)},
+                                   seconds=time.perf_counter() - t0,
+                                   cpu_seconds=time.process_time() - c0,
+                                   worker=f"{os.uname().nodename}:{os.getpid()}")
+            problem = write_sidecar(task, record, None, [])
+            return replace(record, messages=(problem,)) if problem else record
+        files = tuple(str(staged[f]) if f in staged else f for f in task.files)
+        out_remote = remote.is_url(task.outdir)
+        local_out = Path(tmp) / "out" if out_remote else Path(task.outdir)
+        local_out.mkdir(exist_ok=True)
+        local = replace(task, files=files, outdir=str(local_out))
+        record, report, digests = _merge(local)
+        pairs = sorted([(str(staged[u]), u) for u in urls]
+                       + ([(str(local_out), task.outdir.rstrip("/"))] if out_remote else []),
+                       key=lambda p: -len(p[0]))
+        outputs = dict(record.outputs)
+        try:
+            if out_remote:
+                for kind in ("exr", "preview", "dng"):
+                    if outputs.get(kind):
+                        name = Path(str(outputs[kind])).name
+                        outputs[kind] = remote.put_atomic(local_out / name, task.target(name),
+                                                          inputs=task.files)
+        except HdrError as exc:  # the upload failed: nothing of this bracket counts as done
+            record = replace(record, status="failed", reason=str(exc),
+                             quality={"score": 0.0}, key="")
+            outputs = {k: None for k in ("exr", "preview", "dng")}
+        outputs["sidecar"] = task.target(task.sidecar_name)
+        record = replace(BracketRecord.from_json(_swap(record.to_json(), pairs)),
+                         files=task.files, outputs=outputs,
+                         seconds=time.perf_counter() - t0,
+                         cpu_seconds=time.process_time() - c0)
+        report = _swap(report, pairs)
+    problem = write_sidecar(task, record, report, digests if record.key else [])
     if problem:
         record = replace(record, messages=(*record.messages, problem))
     return record
+
+
+def frame_stamp(path: str) -> dict[str, Any] | None:
+    """What tells whether a frame changed without reading it: ``size`` and ``mtime_ns`` of a
+    local file; ``size`` and ``stamp`` (:func:`remote.stamp`: the ETag, md5Hash, ... or a
+    time the filesystem's listing gives) of a URL. ``None`` if it cannot be had."""
+    if remote.is_url(path):
+        info = remote.info_of(path)
+        return None if info is None else remote.stamp(info)
+    try:
+        st = os.stat(path)
+    except OSError:
+        return None
+    return {"size": st.st_size, "mtime_ns": st.st_mtime_ns}
 
 
 def write_sidecar(task: BracketTask, record: BracketRecord, report: dict[str, Any] | None,
@@ -281,18 +393,16 @@ def write_sidecar(task: BracketTask, record: BracketRecord, report: dict[str, An
     Returns what went wrong writing it (the record still reaches the index), else ``None``."""
     frames = []
     for f, d in zip(task.files, digests, strict=False):
-        try:
-            st = os.stat(f)
-            frames.append({"path": f, "size": st.st_size, "mtime_ns": st.st_mtime_ns,
-                           "sha256": d})
-        except OSError:
-            frames.append({"path": f, "sha256": d})
+        frames.append({"path": f, **(frame_stamp(f) or {}), "sha256": d})
     doc = {"version": SIDECAR_VERSION, "batch": record.to_json(), "frames": frames,
            "options": task.options, "preview": task.preview, "dng": task.dng, "report": report}
     text = json.dumps(doc, indent=1, default=str)
     try:
-        atomic_write(task.sidecar, lambda tmp: tmp.write_text(text), force=True,
-                     inputs=task.files)
+        if remote.is_url(task.outdir):
+            remote.write_text_atomic(task.target(task.sidecar_name), text)
+        else:
+            atomic_write(task.sidecar, lambda tmp: tmp.write_text(text), force=True,
+                         inputs=task.files)
     except HdrError as exc:
         return f"sidecar not written: {exc}"
     return None

@@ -8,6 +8,11 @@ merge`` (every merge option below applies to each bracket). Per bracket: ``NAME.
 report and a content key); for the run: ``index.json`` and ``index.csv`` (status, verdicts,
 quality score per bracket).
 
+Inputs and the output folder may be fsspec URLs (``s3://bucket/shots``, ``gcs://``,
+``file://``, ``memory://``; the filesystem's library must be installed: s3fs, gcsfs, ...):
+folders are listed remotely, each bracket's frames copied to a local temporary folder, and
+each output uploaded under a temporary name then moved onto its own.
+
 A bracket whose outputs exist and whose frames and options are unchanged is skipped, so an
 interrupted run is restarted with the same command. One bad bracket is recorded with its
 reason and never stops the run. ``--plan`` only prints the grouping (``--json``: as a plan
@@ -27,6 +32,7 @@ import sys
 import time
 from pathlib import Path
 
+from ..batch import remote
 from ..errors import InputError, OutputError
 from ..io.atomic import same_file
 from . import merge as merge_cli
@@ -94,9 +100,12 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                       "parallel, Dask)",
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("inputs", nargs="+", metavar="DIR", help="folders (or files) of images")
+    p.add_argument("inputs", nargs="+", metavar="DIR",
+                   help="folders (or files) of images; or fsspec URLs (s3://bucket/shots, "
+                        "file:///data/shots, memory://...; s3:// needs s3fs, gcs:// gcsfs)")
     p.add_argument("-o", "--output", metavar="OUTDIR",
-                   help="output folder (created if missing); required unless --plan")
+                   help="output folder (created if missing), or an fsspec URL (outputs are "
+                        "uploaded to a temporary name, then moved); required unless --plan")
     p.add_argument("--recursive", action="store_true", help="also read sub-folders")
     g = p.add_argument_group("grouping")
     g.add_argument("--group-size", dest="group_size", type=_positive_int, metavar="N",
@@ -119,7 +128,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    help="run on a Dask LocalCluster of --workers processes")
     r.add_argument("--scheduler", metavar="ADDRESS",
                    help="run on an existing Dask cluster (tcp://host:8786); paths must be the "
-                        "same on every worker")
+                        "same on every worker (or give URLs every worker can reach: s3://...)")
     r.add_argument("--worker-memory", dest="worker_memory", type=_gigabytes, metavar="GB",
                    help="address-space limit of each worker process (a bracket that needs more "
                         "fails with 'out of memory' instead of swapping; default with --workers "
@@ -183,18 +192,27 @@ def _options(args: argparse.Namespace) -> tuple[dict, str]:
     return options, ";".join(extra)
 
 
-def _plan(args: argparse.Namespace, outdir: Path | None):  # noqa: ANN202
+def _in_output(f: Path | str, outdir: Path | str | None) -> bool:
+    """Whether an image found is in the output folder (the batch's own previews)."""
+    if outdir is None:
+        return False
+    if isinstance(f, str) or isinstance(outdir, str):
+        return isinstance(f, str) and isinstance(outdir, str) and \
+            remote.same_folder(remote.parent(f), outdir)
+    return outdir.is_dir() and (f.parent == outdir or same_file(f.parent, outdir))
+
+
+def _plan(args: argparse.Namespace, outdir: Path | str | None):  # noqa: ANN202
     from ..batch import group_shots, make_plan, read_plan
-    from ..batch.scan import find_images, read_shot
+    from ..batch.scan import find_images, read_shots
 
     if args.plan_file:
         return read_plan(args.plan_file)
     files = find_images(args.inputs, recursive=args.recursive)
-    if outdir is not None and outdir.is_dir():  # never the batch's own previews
-        files = [f for f in files if not (f.parent == outdir or same_file(f.parent, outdir))]
+    files = [f for f in files if not _in_output(f, outdir)]
     if not files:
         raise InputError("no images to group outside the output folder", path=args.inputs[0])
-    shots = [read_shot(f, thumbnail=args.thumbnails) for f in files]
+    shots = read_shots(files, thumbnails=args.thumbnails)
     if args.group_size:
         method, kw = "count", {"size": args.group_size}
     elif args.gap is not None:
@@ -211,7 +229,13 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--group-size and --gap are two rules; give one")
     if args.scheduler and args.dask:
         raise InputError("--dask starts a cluster here, --scheduler uses one; give one")
-    outdir = None if args.output is None else Path(args.output).absolute()
+    for url in [*args.inputs, args.output, args.plan_file]:  # a missing library: fail now
+        if url is not None and remote.is_url(url):
+            remote.check_url(url)
+    outdir: Path | str | None = None
+    if args.output is not None:
+        outdir = args.output.rstrip("/") if remote.is_url(args.output) \
+            else Path(args.output).absolute()
     if args.plan:
         plan = _plan(args, outdir)
         if args.json:
@@ -221,14 +245,17 @@ def run(args: argparse.Namespace) -> int:
         return 0
     if outdir is None:
         raise OutputError("an output folder is needed", expected="-o OUTDIR (or --plan)")
-    if outdir.exists() and not outdir.is_dir():
+    if isinstance(outdir, Path) and outdir.exists() and not outdir.is_dir():
         raise OutputError("the output is not a folder", path=outdir)
     plan = _plan(args, outdir)
-    try:
-        outdir.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise OutputError(f"cannot create the output folder ({exc.strerror or exc})",
-                          path=outdir) from None
+    if isinstance(outdir, str):
+        remote.makedirs(outdir)
+    else:
+        try:
+            outdir.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise OutputError(f"cannot create the output folder ({exc.strerror or exc})",
+                              path=outdir) from None
     options, extra = _options(args)
     tasks = tasks_from_plan(plan, outdir, options, preview=args.preview, dng=args.dng,
                             extra_key=extra)
@@ -250,15 +277,19 @@ def run(args: argparse.Namespace) -> int:
     recs = result.records
     counts = {s: sum(r.status == s for r in recs) for s in ("ok", "warning", "error", "failed")}
     skipped = sum(not r.merged for r in recs)
+    index_csv = remote.join(outdir, "index.csv") if isinstance(outdir, str) \
+        else outdir / "index.csv"
     print(f"hdrcore batch: {len(recs)} of {len(tasks)} brackets: "
           + ", ".join(f"{n} {s}" for s, n in counts.items() if n)
           + f" ({skipped} up to date, not merged again); {len(plan.singles)} single shot(s) "
-            f"left out; index: {outdir / 'index.csv'}", file=sys.stderr)
+            f"left out; index: {index_csv}", file=sys.stderr)
     for r in recs:
         if r.failed:
             print(f"hdrcore batch: {r.status}: {r.name}: {r.reason}", file=sys.stderr)
     if args.json:
-        print_json(json.loads((outdir / "index.json").read_text()))
+        index_json = remote.read_text(remote.join(outdir, "index.json")) \
+            if isinstance(outdir, str) else (outdir / "index.json").read_text()
+        print_json(json.loads(index_json))
     if result.interrupted:
         raise KeyboardInterrupt
     return 1 if any(r.failed for r in recs) else 0
