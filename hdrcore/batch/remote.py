@@ -135,6 +135,15 @@ def same_folder(a: str, b: str) -> bool:
     return type(fa) is type(fb) and pa.rstrip("/") == pb.rstrip("/")
 
 
+def _fresh(fs: Any, path: str) -> None:
+    """Forget what this process's filesystem object listed before (s3fs and gcsfs keep
+    listings): other processes may have written since."""
+    try:
+        fs.invalidate_cache(path)
+    except Exception:  # noqa: BLE001 - a filesystem without a listings cache
+        pass
+
+
 def _hidden(rel: str) -> bool:
     return any(part.startswith(".") for part in rel.split("/") if part)
 
@@ -143,6 +152,7 @@ def list_images(url: str, *, recursive: bool, is_image) -> list[str]:  # noqa: A
     """The image files of a URL (a file, or a folder listed; sub-folders with ``recursive``),
     as URLs, hidden names (``.name``, in any sub-folder) left out."""
     fs, root = filesystem(url)
+    _fresh(fs, root)
     try:
         info = fs.info(root)
     except FileNotFoundError:
@@ -194,6 +204,7 @@ class Infos:
         if folder not in self._folders:
             try:
                 fs, path = filesystem(folder)
+                _fresh(fs, path)
                 self._folders[folder] = {posixpath.basename(e["name"].rstrip("/")): e
                                          for e in fs.ls(path, detail=True)}
             except Exception:  # noqa: BLE001 - a folder that cannot be listed: no entries
@@ -205,6 +216,7 @@ def info_of(url: str) -> dict[str, Any] | None:
     """One file's listing entry, ``None`` if it is missing or unreadable."""
     try:
         fs, path = filesystem(url)
+        _fresh(fs, path)
         return fs.info(path)
     except Exception:  # noqa: BLE001
         return None
@@ -257,6 +269,7 @@ def listing(folder: str) -> set[str] | None:
     """Names in a remote folder (one request), ``None`` if it cannot be listed."""
     try:
         fs, path = filesystem(folder)
+        _fresh(fs, path)
         return {posixpath.basename(p.rstrip("/")) for p in fs.ls(path, detail=False)}
     except Exception:  # noqa: BLE001 - a missing folder: nothing in it
         return None
