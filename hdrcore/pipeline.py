@@ -85,6 +85,7 @@ __all__ = [
     "REFINE_CHOICES",
     "Cancelled",
     "colour_masks",
+    "GRAPH",
     "STAGES",
     "Pipeline",
     "PipelineParams",
