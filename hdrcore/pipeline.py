@@ -36,6 +36,7 @@ from typing import Any
 
 import numpy as np
 
+from ._threads import set_workers
 from .diagnose import Verdict, diagnose
 from .errors import EstimationError, ParameterError, validate_method
 from .exposure import (
@@ -217,6 +218,10 @@ class PipelineParams:
         (:func:`hdrcore.merge.colour_check.anchor_colour`; the frames decoded with sRGB, as a
         screen shows them), keeping the merge's luminance. The colour is checked before and
         after (``result.colour["check"]``).
+    workers : threads for the compiled kernels, scipy's convention: ``None`` the project's
+        default (up to two), ``n`` that many, ``-1`` every core, ``-2`` all but one. No stage
+        reads it and no cache key holds it: a kernel's result does not depend on how many
+        threads share its rows (tested), so changing it re-runs nothing.
     """
 
     saturation: float | None = None
@@ -240,6 +245,7 @@ class PipelineParams:
     refine_ratios: str = "pixels"
     deghost: bool = False
     colour_anchor: bool = True
+    workers: int | None = None
 
     def replace(self, **changes: Any) -> PipelineParams:
         return replace(self, **changes)
@@ -706,7 +712,8 @@ class Pipeline:
         """
         if until not in STAGES:
             raise ParameterError(f"unknown stage {until!r}", expected=", ".join(STAGES))
-        with self._lock:
+        # (the lock is taken before the workers are read: ``with A, B`` enters A first)
+        with self._lock, set_workers((params or self.params).workers):
             p_in = params or self.params
             reference = p_in.reference
             marker = None
