@@ -287,6 +287,7 @@ class _Run:
         self._keys: dict[str, Any] = {}
         self._values: dict[str, Any] = {}  # the stages this run has resolved
         self._tokens: dict[str, Any] = {}
+        self._fields: dict[str, Any] = {}  # parameter tokens (a curve is hashed once a run)
         self._child: list[float] = []  # seconds spent in nested reported stages, per level
 
     def key(self, name: str) -> Any:
@@ -301,12 +302,17 @@ class _Run:
             graph._check_fields(st, fields)
         key = (
             name,
-            tuple((f, token(getattr(self.params, f))) for f in fields),
+            tuple((f, self.field_token(f)) for f in fields),
             tuple((up, self.token(up)) for up in st.inputs),
             tuple((up, ("key", self.key(up))) for up in st.lazy),
         )
         self._keys[name] = key
         return key
+
+    def field_token(self, name: str) -> Any:
+        if name not in self._fields:
+            self._fields[name] = token(getattr(self.params, name))
+        return self._fields[name]
 
     def token(self, name: str) -> Any:
         self.get(name)
