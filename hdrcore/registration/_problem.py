@@ -294,6 +294,7 @@ def select_samples(
     data: PairData, level: int, max_samples: int, *, motion: np.ndarray | None = None,
     by_gradient: bool = True, seed: int = 0, compiled: bool | None = None,
     max_contrast: float = MAX_CONTRAST, check_bright: bool = True, reach: int = 0,
+    exclude: np.ndarray | None = None,
 ) -> Samples:
     """Up to ``max_samples`` valid eq. 6 samples on the dark frame's grid of ``level``, in raster
     order, their validity decided once for the level at ``motion``.
@@ -322,6 +323,9 @@ def select_samples(
     are drawn the same way (more candidates on a mostly badly exposed frame) and a seeded random
     subset of ``max_samples`` is kept. ``well_exposed`` is the fraction of candidates that are
     valid. ``check_bright=False`` leaves the bright frame out (the dark frame's side only).
+    ``exclude``: rectangles ``(K, 4)`` of ``x0, y0, x1, y1`` in full-resolution dark-frame
+    pixels whose pixels are never samples (a near object found by the residual check, see
+    :func:`register_with`).
     ``compiled``: the numba kernels (default when available) or numpy; both select the same
     pixels.
     """
@@ -335,6 +339,9 @@ def select_samples(
         img, lut, lo, hi, k = data.levels[level][1], None, data.lo, data.hi, 1.0
         bright = data.levels[level][0]
     m_motion = np.eye(3) if motion is None else homogeneous(motion)
+    rects = None
+    if exclude is not None and len(exclude):
+        rects = np.asarray(exclude, np.float64).reshape(-1, 4)
     h, w = img.shape
     m = 2
     inner_w = w - 2 * m
@@ -410,6 +417,16 @@ def select_samples(
                 gx = (right - left)[ok]
                 gy = (down - up)[ok]
                 score = (gx * gx + gy * gy) / (mean * mean + eps2)
+        if rects is not None and yy.size:
+            fx = (xx + 0.5) * (1 << level) - 0.5  # level -> full-resolution coordinates
+            fy = (yy + 0.5) * (1 << level) - 0.5
+            out = np.zeros(yy.size, bool)
+            for x0, y0, x1, y1 in rects:
+                out |= (fx >= x0) & (fx < x1) & (fy >= y0) & (fy < y1)
+            keep_c = ~out
+            yy, xx, v = yy[keep_c], xx[keep_c], v[keep_c]
+            if score is not None and score.size:
+                score = score[keep_c]
         if not check_bright:
             return yy, xx, v, score
         n_top = int(1.3 * max_samples)
@@ -764,6 +781,7 @@ def register_with(
     dark_index: int = 0,
     bright_index: int = 1,
     check_residual: bool = False,
+    refit_local: bool = True,
     **refine_options,
 ) -> PairRegistration:
     """The common driver: checks, eq. 5 integer shift, ``refine``, costs, status, previews.
@@ -774,6 +792,11 @@ def register_with(
     is ``ok`` only if that finds it aligned; otherwise ``weak`` with what is left and where
     (its motion is still usable), the measurement in ``residual`` (0.3-0.4 s of CPU for a
     9-24 MP pair).
+    ``refit_local`` (with ``check_residual``): when the check finds a group of neighbouring
+    tiles moving on their own (a nearer object: parallax, or a moving one), the search runs
+    again from its estimate with those tiles' area left out of the samples (see
+    :func:`_refit_without_local`), so the global motion is the dominant plane's; the re-fit
+    is kept when the tiles outside that area are left no worse.
     """
     t0 = time.perf_counter()
     accepted = [n for n, prm in inspect.signature(refine).parameters.items()
@@ -893,6 +916,28 @@ def register_with(
     residual = None
     if check_residual:
         status, message, residual = _checked(data, homography, model, message)
+        if (refit_local and residual is not None and residual.kind == "local"
+                and "exclude" in accepted):
+            again = _refit_without_local(refine, data, inverse, model, residual, message,
+                                         refine_options)
+            if again is not None:
+                res, inverse, homography, status, message, residual = again
+        elif refit_local and (residual is None or residual.status == "unmeasured") and (
+                "exclude" in accepted):
+            # nothing measured the pair independently: the search's own residuals per
+            # block find a nearer plane (see _refit_by_blocks)
+            again = _refit_by_blocks(refine, data, inverse, model, res, message,
+                                     refine_options)
+            if again is not None:
+                res, inverse, homography, message = again
+                status, message = judge_residual(residual, homography, model, message,
+                                                 data.shape) if residual is not None else (
+                    status, message)
+                ev_after = select_samples(data, 0, evaluation_samples, motion=inverse,
+                                          by_gradient=False, seed=1)
+                cost_after, n_after = cost(data, 0, inverse, ev_after)
+                overlap = overlap_fraction(homography, data.shape)
+                dx, dy, angle, scale = similarity_parameters(homography, data.shape)
     return PairRegistration(
         dark=dark_index, bright=bright_index,
         matrix=affine_part(homography) if model in AFFINE_MODELS else None,
@@ -910,6 +955,168 @@ def register_with(
         preview=make_preview(data, homography) if previews else None,
         residual=residual, gain=tuple(float(g) for g in getattr(res, "gain", ())),
     )
+
+
+#: Tiles found moving on their own are left out of a re-fit with this margin around them, in
+#: tiles (the near object reaches past the tiles that measured it, whose neighbours mixed both
+#: motions and were not confident).
+LOCAL_MARGIN = 0.5
+
+
+def local_regions(res, margin: float = LOCAL_MARGIN) -> np.ndarray:
+    """Full-resolution rectangles ``(K, 4)`` (``x0, y0, x1, y1``) around the confident tiles of a
+    residual measurement that are off its global pattern by more than ``local_px`` and agree
+    with a neighbour (what :func:`~.residual.residual_motion` calls local motion), widened by
+    ``margin`` tiles on every side."""
+    from .residual import coherent_tiles
+
+    off = coherent_tiles(res)
+    side = res.tile * (1 << res.level)
+    half = (0.5 + margin) * side
+    c = res.centres[off]
+    return np.stack([c[:, 0] - half, c[:, 1] - half, c[:, 0] + half, c[:, 1] + half],
+                    axis=1) if c.size else np.zeros((0, 4))
+
+
+def _outside_median(res, rects: np.ndarray) -> tuple[float, int]:
+    """Median shift magnitude and count of a measurement's valid tiles outside ``rects``."""
+    c = res.centres
+    inside = np.zeros(c.shape[0], bool)
+    for x0, y0, x1, y1 in rects:
+        inside |= (c[:, 0] >= x0) & (c[:, 0] < x1) & (c[:, 1] >= y0) & (c[:, 1] < y1)
+    keep = res.valid & ~inside
+    if not keep.any():
+        return float("nan"), 0
+    return float(np.median(np.hypot(*res.shifts[keep].T))), int(keep.sum())
+
+
+def _refit_without_local(refine, data: PairData, inverse: np.ndarray, model: str, residual,
+                         message: str, refine_options: dict):
+    """The search again from ``inverse`` with the residual's local-motion area left out, or
+    None when that does not leave the rest of the frame at least as well aligned (median of
+    the tiles outside the area within 0.01 px plus 2 %, and at most one of them or 5 % no
+    longer measurable). Returns ``(refine result, inverse, homography, status, message,
+    residual)``."""
+    rects = local_regions(residual)
+    if not rects.size:
+        return None
+    try:
+        res = refine(data, inverse, model, exclude=rects, **refine_options)
+    except ParameterError:
+        return None
+    inv2 = homogeneous(res.matrix)
+    if not np.all(np.isfinite(inv2)):
+        return None
+    hom2 = homogeneous(invert(inv2))
+    if model in AFFINE_MODELS:
+        hom2[2] = (0.0, 0.0, 1.0)
+        inv2 = homogeneous(invert(hom2))
+    if overlap_fraction(hom2, data.shape) < 0.2:
+        return None
+    msg2 = f"{res.message or 'converged'}; re-fitted without the local motion"
+    status2, msg2, res2 = _checked(data, hom2, model, msg2)
+    if res2 is None:
+        return None
+    before, n_before = _outside_median(residual, rects)
+    after, n_after = _outside_median(res2, rects)
+    if not (np.isfinite(before) and np.isfinite(after)) or n_after < min(0.95 * n_before,
+                                                                           n_before - 1):
+        return None
+    if after > 1.02 * before + 0.01:
+        return None
+    return res, inv2, hom2, status2, msg2, res2
+
+
+#: :func:`_refit_by_blocks`: a block is off when its RMS eq. 7 residual is this many times the
+#: median block's; the re-fit is kept when it lowers the cost of the other samples by at
+#: least ``BLOCK_GAIN`` and leaves out at most ``BLOCK_MAX_SHARE`` of them.
+BLOCK_OFF = 1.6
+BLOCK_GAIN = 0.03
+BLOCK_MAX_SHARE = 0.35
+
+
+def _refit_by_blocks(refine, data: PairData, inverse: np.ndarray, model: str, res,
+                     message: str, refine_options: dict):
+    """Where the independent check measured nothing (too little structure in the range both
+    frames share), a nearer plane can still pull the global fit: the search's own eq. 7
+    residuals, as RMS per block of about an eighth of the short side, show it as a group of
+    neighbouring blocks ``BLOCK_OFF`` times the median block. The search runs again without
+    them, and the re-fit is kept when the other samples' cost falls by ``BLOCK_GAIN`` (a
+    single plane re-fitted on a subset barely moves). Returns ``(refine result, inverse,
+    homography, message)`` or None."""
+    h, w = data.shape
+    side = max(16, min(h, w) // 8)
+    gain = np.asarray(getattr(res, "gain", ()) or (0.0, 0.0, 0.0), float)
+    probe, probe_gain = inverse, gain
+    if model not in AFFINE_MODELS:
+        # a homography bends towards a textured nearer plane and spreads its residual: the
+        # blocks are found under the similarity, which cannot
+        affine = homogeneous(inverse).copy()
+        affine /= affine[2, 2]
+        affine[2] = (0.0, 0.0, 1.0)
+        try:
+            sim = refine(data, affine, "similarity", **refine_options)
+        except ParameterError:
+            return None
+        probe = homogeneous(sim.matrix)
+        probe_gain = np.asarray(getattr(sim, "gain", ()) or (0.0, 0.0, 0.0), float)
+        if not np.all(np.isfinite(probe)):
+            return None
+    s = select_samples(data, 0, 60_000, motion=probe)
+    if s.b.size < 1000:
+        return None
+    n, _, _, wt, _, _ = residuals(data, 0, probe, s, gradient=False, gain=probe_gain)
+    gy, gx = (s.y // side).astype(np.int64), (s.x // side).astype(np.int64)
+    ny, nx = h // side + 1, w // side + 1
+    sq = np.zeros((ny, nx))
+    cnt = np.zeros((ny, nx))
+    np.add.at(sq, (gy, gx), n * n * wt)
+    np.add.at(cnt, (gy, gx), wt)
+    enough = cnt >= max(20.0, 0.1 * s.b.size / (ny * nx))
+    if enough.sum() < 8:
+        return None
+    rms = np.sqrt(sq / np.maximum(cnt, 1e-12))
+    off = enough & (rms > BLOCK_OFF * np.median(rms[enough]))
+    pad = np.pad(off, 1)
+    neighbours = sum(pad[1 + dy: 1 + dy + ny, 1 + dx: 1 + dx + nx]
+                     for dy in (-1, 0, 1) for dx in (-1, 0, 1) if dy or dx)
+    off &= neighbours > 0
+    if not off.any():
+        log.debug("block re-fit: no group of blocks off")
+        return None
+    by, bx = np.nonzero(off)
+    rects = np.stack([bx * side, by * side, (bx + 1) * side, (by + 1) * side], axis=1).astype(
+        np.float64)
+    left_out = off[gy, gx]
+    if cnt[off].sum() > BLOCK_MAX_SHARE * cnt.sum():
+        log.debug("block re-fit: %d blocks hold too many samples", int(off.sum()))
+        return None
+    kept = Samples(s.x[~left_out], s.y[~left_out], s.b[~left_out])
+    try:
+        again = refine(data, inverse, model, exclude=rects, **refine_options)
+    except ParameterError:
+        return None
+    inv2 = homogeneous(again.matrix)
+    if not np.all(np.isfinite(inv2)):
+        return None
+    hom2 = homogeneous(invert(inv2))
+    if model in AFFINE_MODELS:
+        hom2[2] = (0.0, 0.0, 1.0)
+        inv2 = homogeneous(invert(hom2))
+    if overlap_fraction(hom2, data.shape) < 0.2:
+        return None
+    gain2 = np.asarray(getattr(again, "gain", ()) or (0.0, 0.0, 0.0), float)
+    before, _ = cost(data, 0, inverse, kept, gain)
+    after, _ = cost(data, 0, inv2, kept, gain2)
+    if not after <= (1.0 - BLOCK_GAIN) * before:
+        log.debug("block re-fit without %d blocks does not pay: %.4g -> %.4g",
+                  int(off.sum()), before, after)
+        return None
+    share = cnt[off].sum() / cnt.sum()
+    return again, inv2, hom2, (f"{again.message or 'converged'}; re-fitted without "
+                               f"{int(off.sum())} blocks ({share:.0%} of the samples) that "
+                               f"moved on their own (eq. 7 cost of the rest "
+                               f"{before:.4g} -> {after:.4g})")
 
 
 def _checked(data: PairData, homography: np.ndarray, model: str, message: str):

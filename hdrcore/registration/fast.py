@@ -116,6 +116,7 @@ def refine_gauss_newton(
     coarsest_size: int = 40,
     gain_terms: int = GAIN_TERMS,
     robust: float = ROBUST,
+    exclude: np.ndarray | None = None,
 ) -> RefineResult:
     """Coarse-to-fine Gauss-Newton from ``initial`` (``coarse_iterations`` per coarse level,
     ``max_iterations`` at full resolution).
@@ -137,6 +138,9 @@ def refine_gauss_newton(
     ``robust`` (> 0; 0: plain eq. 6): on each level the search minimises Cauchy's loss with
     the scale ``robust`` times the RMS eq. 7 residual at the level's start, so samples of a
     second plane or a moving object weigh less (see :data:`ROBUST`).
+
+    ``exclude``: full-resolution rectangles ``(K, 4)`` (``x0, y0, x1, y1`` on the dark frame)
+    left out of the samples on every level (see :func:`~._problem.select_samples`).
     """
     n_par = MODELS[model]
     if max_samples is None:
@@ -154,7 +158,8 @@ def refine_gauss_newton(
         n_samples = max_samples if level == 0 else coarse_samples
         m = to_level(matrix, level)
         # The samples and their validity are fixed while the motion changes: a continuous cost.
-        s = select_samples(data, level, n_samples, motion=m, reach=REACH)
+        s = select_samples(data, level, n_samples, motion=m, reach=REACH,
+                           exclude=exclude)
         if s.b.size < 4 * n_par:
             continue
         if level < top:  # a coarse level can mislead (photometric mismatch, little detail):
@@ -165,7 +170,8 @@ def refine_gauss_newton(
                 sub = Samples(*(np.ascontiguousarray(a[::stride]) for a in (s.x, s.y, s.b)))
             if _level_cost(data, level, m0, sub, gain) < _level_cost(data, level, m, sub, gain):
                 m = m0
-                s = select_samples(data, level, n_samples, motion=m, reach=REACH)
+                s = select_samples(data, level, n_samples, motion=m, reach=REACH,
+                           exclude=exclude)
         budget = max_iterations if level == 0 else coarse_iterations
         start = m
         c = robust * np.sqrt(_level_cost(data, level, m, s, gain)) if robust > 0 else 0.0
@@ -173,7 +179,8 @@ def refine_gauss_newton(
                           history, levels, c)
         if corner_move(m, start, data.level_shape(level)) > RESELECT:
             # the search left the zone where the samples' validity was decided: decide again
-            s = select_samples(data, level, n_samples, motion=m, reach=REACH)
+            s = select_samples(data, level, n_samples, motion=m, reach=REACH,
+                           exclude=exclude)
             m, gain = _search(data, level, m, gain, s, n_par, gain_terms, budget, tolerance,
                               history, levels, c)
         matrix = to_full(m, level)

@@ -61,7 +61,7 @@ from .._threads import run_row_spans, worker_count
 from ..errors import ParameterError
 from ._kernels import keys_at
 
-__all__ = ["ResidualMotion", "ResidualPattern", "residual_motion", "region_name",
+__all__ = ["ResidualMotion", "ResidualPattern", "residual_motion", "region_name", "coherent_tiles",
            "RESIDUAL_STATUSES"]
 
 #: ``aligned``: nothing above the thresholds; ``misaligned``: a global pattern or a local
@@ -935,6 +935,37 @@ def _box_counts(mask, oy, ox, t, out):  # pragma: no cover - compiled
         out[i] = n
 
 
+@_njit
+def _finite_mean_fill(x, out):  # pragma: no cover - compiled
+    """``out``: ``x`` with its NaNs and infinities replaced by the mean of its finite values
+    (``v - v == 0`` holds for finite ``v`` only; no fast-math)."""
+    h, w = x.shape
+    total = 0.0
+    n = 0
+    for r in range(h):
+        for c in range(w):
+            v = x[r, c]
+            if v - v == 0.0:
+                total += v
+                n += 1
+    mean = total / n if n else 0.0
+    for r in range(h):
+        for c in range(w):
+            v = x[r, c]
+            out[r, c] = v if v - v == 0.0 else mean
+
+
+def _nan_to_mean(x: np.ndarray) -> np.ndarray:
+    """A copy of ``x`` whose non-finite values are the mean of its finite ones (a structure
+    image outside a warped frame: flat, so it adds no phase-correlation peak)."""
+    if not AVAILABLE or x.ndim != 2:
+        return np.where(np.isfinite(x), x, np.float32(np.nanmean(np.where(np.isfinite(x), x,
+                                                                              np.nan))))
+    out = np.empty_like(x)
+    _finite_mean_fill(x, out)
+    return out
+
+
 def _box_fraction(mask: np.ndarray, oy: np.ndarray, ox: np.ndarray, t: int) -> np.ndarray:
     """The fraction of ``mask`` set in each ``t x t`` box at ``(oy, ox)`` (exact: counted per
     box, or from a summed-area table without numba)."""
@@ -983,6 +1014,7 @@ def residual_motion(
     min_in_range: float = 0.5,
     workers: int | None = None,
     memo: dict | None = None,
+    only: np.ndarray | None = None,
 ) -> ResidualMotion:
     """Measure the residual motion of an aligned pair, tile by tile (see the module docstring).
 
@@ -1013,6 +1045,9 @@ def residual_motion(
         refinement): each frame's structure image is computed once and looked up by the frame
         object (which the memo keeps alive); the frames must not be changed while it is used.
         Frames warped by ``matrix`` are not memoised.
+    only : a flag per tile of the grid (raster order, as ``centres``): only these are measured
+        (the others are not valid). Local refinement measures again, through its field, only
+        the tiles a first measurement of the same grid found confident.
 
     Returns a :class:`ResidualMotion`; its ``describe()`` is one line such as "0.12 px median
     over 80 tiles: aligned", "a zoom of +0.40 % is left (1.4 px at the corners): the motion
@@ -1086,11 +1121,17 @@ def residual_motion(
     frac_in = _box_fraction(both_in, oy, ox, t)
     frac_nan = _box_fraction(bad, oy, ox, t)
     if bad.any():  # outside the warped frame: the tile's mean gradient (drops tiles > 10 %)
-        ga = np.where(nan_a, np.float32(np.nanmean(ga)), ga)
-        gb = np.where(nan_b, np.float32(np.nanmean(gb)), gb)
+        ga, gb = _nan_to_mean(ga), _nan_to_mean(gb)
     # Only tiles that can count are measured (a tile mostly outside the range both frames
     # expose, or outside the warped frame, is never valid): NaN shifts, confidence 0 for others.
-    measurable = np.flatnonzero((frac_in >= min_in_range) & (frac_nan <= 0.1))
+    can = (frac_in >= min_in_range) & (frac_nan <= 0.1)
+    if only is not None:
+        only = np.asarray(only, bool)
+        if only.shape != can.shape:
+            raise ParameterError("one flag per tile of the grid", expected=str(can.size),
+                                 found=str(only.size))
+        can &= only
+    measurable = np.flatnonzero(can)
     ts = _TileShifts(np.full((n, 2), np.nan), np.zeros(n), np.full((n, 2, 2), np.nan))
     if measurable.size:
         part = _tile_shifts(ga, gb, oy[measurable], ox[measurable], t, nw)
@@ -1179,6 +1220,19 @@ def _field(m: np.ndarray, points: np.ndarray) -> np.ndarray:
     zw = m[2, 0] * x + m[2, 1] * y + m[2, 2]
     return np.stack([(m[0, 0] * x + m[0, 1] * y + m[0, 2]) / zw - x,
                      (m[1, 0] * x + m[1, 1] * y + m[1, 2]) / zw - y], axis=1)
+
+
+def coherent_tiles(res: ResidualMotion) -> np.ndarray:
+    """The tiles of a measurement that move on their own: valid, off the global pattern by
+    more than ``local_px``, with a neighbour that agrees (see :func:`_coherent`); a boolean
+    per tile (none without a pattern)."""
+    if res.pattern is None:
+        return np.zeros(res.valid.shape, bool)
+    nx = int(np.unique(res.centres[:, 0]).size)
+    ny = res.centres.shape[0] // max(nx, 1)
+    pred = res.pattern.predict(res.centres[:, 0], res.centres[:, 1], res.shape)
+    off = res.valid & (res.local > res.local_px)
+    return _coherent(off, res.shifts - pred, ny, nx, 0.5 * res.local_px)
 
 
 def _coherent(off: np.ndarray, resid: np.ndarray, ny: int, nx: int, tol: float) -> np.ndarray:
