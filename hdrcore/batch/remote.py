@@ -254,6 +254,11 @@ def stage(urls: Sequence[str], folder: str | os.PathLike) -> list[Path]:
             missing = next((u for u, lp in zip(urls, local, strict=True)
                             if not lp.is_file()), str(exc))
             raise InputError("no such file", path=missing) from None
+        except Exception as exc:  # network, permissions, credentials: name the file
+            first = next((u for u, lp in zip(urls, local, strict=True)
+                          if not lp.is_file()), urls[0])
+            raise InputError(f"cannot read this file ({type(exc).__name__}: {exc})",
+                             path=first) from None
     for u, lp in zip(urls, local, strict=True):
         if not lp.is_file():
             raise InputError("could not be read", path=u)

@@ -348,3 +348,22 @@ def test_s3_through_s3fs(sim_folder, s3, local_run, tmp_path):
     s3.invalidate_cache()
     assert {b["name"] for b in json.loads(s3.cat_file("bkt/out/index.json"))["brackets"]
             if b["merged"]} == {target["name"]}
+
+
+def test_unreadable_remote_frame_fails_its_bracket(sim_folder, mem, monkeypatch):
+    from hdrcore.batch import run_task, up_to_date
+
+    folder, _ = sim_folder
+    fs, root = mem
+    url = _upload(fs, folder, root)
+    task = tasks_from_plan(make_plan(group_shots(scan_shots([url]))), f"memory://{root}/o",
+                           {})[0]
+
+    def denied(self, rpath, lpath, **kw):
+        raise PermissionError("access denied")
+
+    monkeypatch.setattr(type(fs), "get", denied)
+    rec = run_task(task)
+    assert rec.status == "failed" and not rec.key
+    assert rec.reason.startswith(task.files[0]) and "PermissionError: access denied" in rec.reason
+    assert fs.isfile(f"{root}/o/{task.name}.json") and up_to_date(task) is None  # tried again
