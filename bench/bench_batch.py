@@ -17,8 +17,13 @@ that mixes the real brackets of ../shared/data (symbolic links in a temporary fo
 * ``--part resume``: ``hdrcore batch --workers 2`` killed (SIGKILL to its process group: a
   crash) once half the brackets have their sidecar, then run again: brackets merged twice,
   brackets lost, EXRs against an uninterrupted run. Simulated, then real.
+* ``--part urls``: the same folders through fsspec URLs with ``--workers 2``: plain paths,
+  ``file://`` URLs and ``s3://`` (s3fs against moto's S3 server started here: the object-store
+  protocol with its copy-then-delete moves, no network), each run twice (the second finds
+  everything up to date), pixels against plain paths; then a run to ``s3://`` killed half-way
+  and restarted.
 
-    python bench/bench_batch.py [--part grouping|throughput|resume|all] [--repeat 2]
+    python bench/bench_batch.py [--part grouping|throughput|resume|urls|all] [--repeat 2]
         [--size 120x160] [--no-real]
 
 Timings share a loaded 2-core machine with other work: each is printed with the load average
@@ -177,8 +182,12 @@ def real_grouping() -> None:
 
 
 # --------------------------------------------------------------------------------------------
+LAST_ERR = [""]
+
+
 def _run(cmd: list[str]) -> tuple[float, float, int]:
-    """Wall and CPU seconds (the child and everything it waited for) of one command."""
+    """Wall and CPU seconds (the child and everything it waited for) of one command; its
+    stderr's last line is kept in ``LAST_ERR``."""
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     proc = subprocess.run(cmd, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
@@ -186,6 +195,7 @@ def _run(cmd: list[str]) -> tuple[float, float, int]:
     wall = time.perf_counter() - t0
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    LAST_ERR[0] = (proc.stderr.strip().splitlines() or [""])[-1]
     return wall, cpu, proc.returncode
 
 
@@ -233,16 +243,21 @@ def throughput(folder: Path, label: str, repeat: int, extra: list[str]) -> None:
         loop = base / "loop"
         loop.mkdir()
         t_wall = t_cpu = 0.0
+        failed = []
         for k, files in enumerate(groups):
             name = Path(files[0]).stem
-            w, c, _ = _run([py, "-m", "hdrcore", "merge", *files, "-o",
-                            str(loop / f"{name}_{k}.exr"), "--quiet", *extra])
+            w, c, rc = _run([py, "-m", "hdrcore", "merge", *files, "-o",
+                             str(loop / f"{name}_{k}.exr"), "--quiet", *extra])
+            if rc not in (0, 1):
+                failed.append(f"{name} (exit {rc}: {LAST_ERR[0]})")
             t_wall += w
             t_cpu += c
         ref_wall = t_wall
         ref = {k.rsplit("_", 1)[0]: v for k, v in _pixels(loop).items()}
         print(f"| {r + 1} | hdrcore merge, each in turn | {t_wall:7.1f} | {t_cpu:7.1f} | 1.00 "
-              f"| reference |")
+              f"| reference ({len(failed)} merges failed) |")
+        for f in failed[:5]:
+            print(f"|   | failed: {f} | | | | |")
         results = {}
         for tag, opts in (("batch --workers 1", ["--workers", "1"]),
                           ("batch --workers 2", ["--workers", "2"]),
@@ -324,11 +339,150 @@ def part_resume(args: argparse.Namespace) -> None:
             resume(d, "real brackets in one folder", 4)
 
 
+# --------------------------------------------------------------------------------------------
+def _moto():  # noqa: ANN202
+    """moto's S3 server in this process (a free local port) and an s3fs filesystem on it;
+    ``None`` without s3fs or moto. Subprocesses reach it through AWS_ENDPOINT_URL."""
+    try:
+        import fsspec
+        import s3fs  # noqa: F401
+        from moto.server import ThreadedMotoServer
+    except ImportError:
+        return None
+    srv = ThreadedMotoServer(ip_address="127.0.0.1", port=0, verbose=False)
+    srv.start()
+    host, port = srv.get_host_and_port()
+    os.environ.update(AWS_ACCESS_KEY_ID="bench", AWS_SECRET_ACCESS_KEY="bench",
+                      AWS_DEFAULT_REGION="us-east-1", AWS_ENDPOINT_URL=f"http://{host}:{port}")
+    fs = fsspec.filesystem("s3")
+    fs.mkdir("bench")
+    return srv, fs
+
+
+def _s3_pixels(fs, prefix: str, tmp: Path) -> dict[str, np.ndarray]:  # noqa: ANN001
+    from hdrcore.io import read_exr
+
+    fs.invalidate_cache()
+    out = {}
+    for p in fs.ls(prefix, detail=False):
+        if p.endswith(".exr"):
+            local = tmp / Path(p).name
+            fs.get_file(p, str(local))
+            out[local.stem] = read_exr(local)[0]
+    return out
+
+
+def _self_cpu() -> float:
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
+
+
+def urls(folder: Path, label: str, moto) -> None:  # noqa: ANN001
+    """``hdrcore batch --workers 2`` on plain paths, on file:// URLs and on s3:// (moto's
+    server on this machine: the S3 protocol through s3fs, no network), then the same command
+    again (everything up to date), then a run to s3:// killed half-way and restarted."""
+    py = sys.executable
+    tag = label.split()[0]
+    base = OUT / f"urls_{tag}"
+    shutil.rmtree(base, ignore_errors=True)
+    base.mkdir(parents=True)
+    n = len(_plan_groups(folder))
+    contenders = [("plain paths", [str(folder)], str(base / "plain")),
+                  ("file:// URLs", [folder.resolve().as_uri()], (base / "file").as_uri())]
+    fs = None
+    if moto is not None:
+        fs = moto[1]
+        for f in sorted(folder.iterdir()):
+            if f.is_file() and not f.name.startswith(".") and f.name != "done":
+                fs.pipe(f"bench/{tag}/shots/{f.name}", f.read_bytes())
+        contenders.append(("s3:// (moto, s3fs)", [f"s3://bench/{tag}/shots"],
+                           f"s3://bench/{tag}/out"))
+    print(f"\n## URLs: {label} ({n} brackets, --workers 2; {_load()} at start)\n")
+    print("| inputs and output | run | wall s | CPU s (children + S3 server) | x plain "
+          "| merged | outputs vs plain |")
+    print("|---|---|---|---|---|---|---|")
+    ref_wall = {}
+    ref_px = None
+    for name, ins, out in contenders:
+        for run in ("first", "again (all up to date)"):
+            c0 = _self_cpu()
+            w, c, rc = _run([py, "-m", "hdrcore", "batch", *ins, "-o", out, "--quiet",
+                             "--workers", "2"])
+            server = _self_cpu() - c0
+            if out.startswith("s3://"):
+                fs.invalidate_cache()
+                doc = json.loads(fs.cat_file(out[5:] + "/index.json"))
+                px = _s3_pixels(fs, out[5:], Path(tempfile.mkdtemp()))
+            else:
+                d = Path(out[7:]) if out.startswith("file://") else Path(out)
+                doc = json.loads((d / "index.json").read_text())
+                px = _pixels(d)
+            if ref_px is None:
+                ref_px = px
+            ref_wall.setdefault(run, w)
+            merged = sum(b["merged"] for b in doc["brackets"])
+            print(f"| {name} | {run} (exit {rc}) | {w:7.1f} | {c:6.1f} + {server:4.1f} | "
+                  f"{w / ref_wall[run]:4.2f} | {merged} | {_same(px, ref_px)} |")
+    if fs is None:
+        print("\n(s3fs or moto not installed: s3:// not measured)")
+        return
+    # killed half-way (SIGKILL to the process group: a crash), then the same command again
+    out = f"s3://bench/{tag}/cut"
+    cmd = [py, "-m", "hdrcore", "batch", f"s3://bench/{tag}/shots", "-o", out, "--quiet",
+           "--workers", "2"]
+    proc = subprocess.Popen(cmd, cwd=ROOT, start_new_session=True, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL)
+
+    def names() -> list[str]:
+        fs.invalidate_cache()
+        try:
+            return [Path(p).name for p in fs.ls(out[5:], detail=False)]
+        except FileNotFoundError:
+            return []
+
+    def sidecars() -> set[str]:
+        return {x[:-5] for x in names() if x.endswith(".json") and not x.startswith(".")
+                and not x.startswith("index")}
+
+    while proc.poll() is None and len(sidecars()) < max(1, n // 2):
+        time.sleep(0.2)
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+    done_before = sidecars()
+    left = [x for x in names() if x.startswith(".")]
+    w, c, rc = _run(cmd)
+    fs.invalidate_cache()
+    doc = json.loads(fs.cat_file(out[5:] + "/index.json"))
+    again = [b["name"] for b in doc["brackets"] if b["merged"] and b["name"] in done_before]
+    px = _s3_pixels(fs, out[5:], Path(tempfile.mkdtemp()))
+    print(f"\n## Resume on s3://: {label}\n")
+    print("| brackets | done when killed | temporaries left by the kill | merged on restart "
+          "| finished ones merged again | temporaries after | outputs vs plain |")
+    print("|---|---|---|---|---|---|---|")
+    print(f"| {len(doc['brackets'])} | {len(done_before)} | {len(left)} | "
+          f"{sum(b['merged'] for b in doc['brackets'])} | {len(again)} | "
+          f"{len([x for x in names() if x.startswith('.')])} | {_same(px, ref_px)} |")
+    print(f"(restart: {w:.1f} s wall, {c:.1f} s CPU, exit {rc})")
+
+
+def part_urls(args: argparse.Namespace) -> None:
+    moto = _moto()
+    try:
+        if args.sim:
+            urls(sim_brackets(args.size, 40), "simulated 40 brackets", moto)
+        if args.real and SHARED.is_dir():
+            with tempfile.TemporaryDirectory() as tmp:
+                urls(real_folder(Path(tmp)), "real brackets in one folder", moto)
+    finally:
+        if moto is not None:
+            moto[0].stop()
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--part", default="all",
-                    choices=("grouping", "throughput", "resume", "all"))
+                    choices=("grouping", "throughput", "resume", "urls", "all"))
     ap.add_argument("--sessions", type=int, default=100)
     ap.add_argument("--files", type=int, default=4)
     ap.add_argument("--repeat", type=int, default=2)
@@ -345,6 +499,8 @@ def main() -> None:
         part_throughput(args)
     if args.part in ("resume", "all"):
         part_resume(args)
+    if args.part in ("urls", "all"):
+        part_urls(args)
 
 
 if __name__ == "__main__":
