@@ -162,6 +162,7 @@ class ColourCheck:
             "frame_pairs_blocks": [p.to_json() for p in self.frame_pairs_blocks],
             "frame_pairs": [p.to_json() for p in self.frame_pairs],
             "frame_pairs_srgb": [p.to_json() for p in self.frame_pairs_srgb],
+            "frame_pairs_wb": [p.to_json() for p in self.frame_pairs_wb],
             "white_balance": [[_num(v) for v in wb] for wb in self.white_balance],
             "white_balance_differs": list(self.white_balance_differs),
             "well_exposed": list(self.well_exposed),

@@ -67,6 +67,13 @@ def test_per_frame_white_balance_is_measured() -> None:
     assert cc.white_balance_differs == (2,)
     assert cc.white_balance[2][2] == pytest.approx(0.9, abs=0.02)
     assert "white balance differs" in cc.message
+    # the re-balanced shot's pair agrees once each frame's balance is divided out, and the
+    # report carries both per pair
+    raw, out = cc.frame_pairs[1].median_difference, cc.frame_pairs_wb[1].median_difference
+    assert raw > 0.01 and out < 0.5 * raw
+    d = json.loads(json.dumps(cc.to_json()))
+    assert [p["median_difference"] for p in d["frame_pairs_wb"]] == pytest.approx(
+        [p.median_difference for p in cc.frame_pairs_wb])
 
 
 def test_anchoring_gives_the_frames_colour_and_keeps_luminance(srgb_bracket) -> None:
