@@ -349,6 +349,9 @@ def _moto():  # noqa: ANN202
         from moto.server import ThreadedMotoServer
     except ImportError:
         return None
+    import logging
+
+    logging.getLogger("werkzeug").setLevel(logging.ERROR)  # no line per request
     srv = ThreadedMotoServer(ip_address="127.0.0.1", port=0, verbose=False)
     srv.start()
     host, port = srv.get_host_and_port()
