@@ -4,7 +4,8 @@ A hypothesis state machine changes the pipeline's parameters at random (one of 2
 time, from a few values each, so sequences come back to earlier settings and hit the cache) and
 runs up to a random stage. After every run, the cached pipeline's result must equal a fresh
 pipeline's on the same parameters, every array and number of every stage result (timings left
-out), and an error must be the same error. It runs on a tiny simulated hand-held bracket and on
+out), and an error must be the same error. It runs on a tiny simulated hand-held bracket, the
+same kind of bracket without exposure times (where the response reads the exposure method), and
 a tiny real one (frobisher, every 6th pixel; skipped without ../shared).
 """
 
@@ -136,6 +137,24 @@ def tiny_handheld(tmp_path_factory: pytest.TempPathFactory) -> Bracket:
     return load_bracket([out])
 
 
+@pytest.fixture(scope="module")
+def tiny_without_times(tmp_path_factory: pytest.TempPathFactory) -> Bracket:
+    """PNG frames without any exposure time: the response reads the exposure method (the case
+    of the issue's forgotten key)."""
+    from PIL import Image
+
+    sim = simulate_bracket(scene="window", shape=(48, 64), exposure_times=(1.0, 4.0, 16.0),
+                           bits=8, response="srgb", noise_sigma=1.0, seed=3)
+    out = tmp_path_factory.mktemp("no_times")
+    written = write_bracket(out, sim, fmt="png")
+    (out / "exposure_times.txt").unlink(missing_ok=True)
+    for f in written.frames:  # saved again without their metadata
+        Image.fromarray(np.asarray(Image.open(f))).save(f)
+    bracket = load_bracket(list(written.frames))
+    assert not any(e is not None for e in bracket.exif_exposures())
+    return bracket
+
+
 def _every(bracket: Bracket, step: int) -> Bracket:
     return replace(bracket, frames=tuple(
         replace(f, levels=np.ascontiguousarray(f.levels[::step, ::step])) for f in bracket.frames))
@@ -145,6 +164,12 @@ def test_cached_runs_equal_fresh_runs_simulated(tiny_handheld: Bracket) -> None:
     REUSED.update(steps=0, reused=0, errors=0)
     _run_machine(tiny_handheld, examples=6, steps=20)
     assert REUSED["steps"] >= 10 and REUSED["reused"] >= 3, REUSED
+
+
+def test_cached_runs_equal_fresh_runs_without_times(tiny_without_times: Bracket) -> None:
+    REUSED.update(steps=0, reused=0, errors=0)
+    _run_machine(tiny_without_times, examples=4, steps=20)
+    assert REUSED["steps"] >= 8 and REUSED["reused"] >= 3, REUSED
 
 
 def test_cached_runs_equal_fresh_runs_real() -> None:
