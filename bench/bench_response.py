@@ -34,7 +34,8 @@ Prints, in one run:
    divided out, on 2/4/8-pixel block means (noise averaged down: what stays is the curve's
    error or a frame's own rendition), and over the 4x4 image regions whose transfer matches
    the whole image's (green ratio within 5 % of the regions' median: local tone mapping left
-   out).
+   out). On the memorial scans also the pedestal test: sRGB with each channel's film fog
+   (the darkest frame's 0.1th percentile) subtracted, beside plain sRGB and the default.
 3. ``../shared/data/memorial-debevec``: our curves against OpenCV's (shape RMS over levels
    5..230 after the best scale) and a plot in ``bench/out/memorial_response.png``.
 
@@ -554,6 +555,28 @@ def consistency_table(label, result, frames, masks) -> None:
         f"{np.nanmedian([v[0] for v in col]):12.4f}" for col in cols.values()))
 
 
+def pedestal_test(frames, masks, reference, to_reference, auto_lut) -> None:
+    """Is film fog (a pedestal) what makes sRGB-decoded scans disagree? sRGB with each
+    channel's pedestal (the darkest frame's 0.1th percentile) subtracted, against plain sRGB
+    and the recovered curve (which maps the fog to about 0 itself)."""
+    from hdrcore.merge.colour_check import srgb_decode_lut
+
+    s = srgb_decode_lut(255)
+    keep = np.logical_and.reduce(masks) if masks is not None else np.ones(frames[0].shape[:2],
+                                                                        bool)
+    ped = np.percentile(frames[0][keep], 0.1, axis=0).astype(int)
+    minus = np.stack([np.clip((s - s[p]) / (1 - s[p]), 0, None) for p in ped])
+    print(f"  pedestal test: darkest frame's 0.1th percentile per channel {ped.tolist()}; "
+          "consecutive frames' median difference per pixel / on 4x4 means:")
+    for name, lut in (("sRGB", np.tile(s, (3, 1))), ("sRGB minus the pedestal", minus),
+                      ("the default's curve", auto_lut)):
+        v = [np.nanmedian([x[0] for x in pair_consistency(
+            frames, lut, max_level=255, reference=reference, to_reference=to_reference,
+            masks=masks, block=b)])
+            for b in (1, 4)]
+        print(f"    {name:24}{v[0]:8.4f}{v[1]:8.4f}")
+
+
 def consistency_tables() -> None:
     print("\n== consecutive frames' colour, per bracket and pair, the default run ==")
     if not DATA.is_dir():
@@ -573,6 +596,11 @@ def consistency_tables() -> None:
         masks = None if excl is None else [~np.all(f == np.asarray(excl), axis=-1)
                                            for f in frames]
         consistency_table(label, r, frames, masks)
+        if folder == "memorial-debevec":
+            reg = r.registration
+            pedestal_test(frames, masks, 0 if reg is None else reg.reference,
+                          None if reg is None else reg.to_reference_homography,
+                          np.asarray(r.lut, float))
         print(f"({time.perf_counter() - t0:.0f} s wall, {time.process_time() - c0:.0f} s CPU)")
 
 
