@@ -927,7 +927,7 @@ def register_with(
             # nothing measured the pair independently: the search's own residuals per
             # block find a nearer plane (see _refit_by_blocks)
             again = _refit_by_blocks(refine, data, inverse, model, res, message,
-                                     refine_options)
+                                     refine_options, start=homogeneous(invert(init)))
             if again is not None:
                 res, inverse, homography, message = again
                 status, message = judge_residual(residual, homography, model, message,
@@ -1033,39 +1033,18 @@ def _refit_without_local(refine, data: PairData, inverse: np.ndarray, model: str
 BLOCK_OFF = 1.6
 BLOCK_GAIN = 0.03
 BLOCK_MAX_SHARE = 0.35
+BLOCK_ROUNDS = 3
 
 
-def _refit_by_blocks(refine, data: PairData, inverse: np.ndarray, model: str, res,
-                     message: str, refine_options: dict):
-    """Where the independent check measured nothing (too little structure in the range both
-    frames share), a nearer plane can still pull the global fit: the search's own eq. 7
-    residuals, as RMS per block of about an eighth of the short side, show it as a group of
-    neighbouring blocks ``BLOCK_OFF`` times the median block. The search runs again without
-    them, and the re-fit is kept when the other samples' cost falls by ``BLOCK_GAIN`` (a
-    single plane re-fitted on a subset barely moves). Returns ``(refine result, inverse,
-    homography, message)`` or None."""
+def _off_blocks(data: PairData, probe: np.ndarray, gain: np.ndarray, side: int):
+    """``(off, weight per block, samples, their block rows, columns)``: the blocks of ``side``
+    px whose RMS eq. 7 residual under ``probe`` is ``BLOCK_OFF`` times the median block's and
+    that have an off neighbour; None with too few samples or blocks."""
     h, w = data.shape
-    side = max(16, min(h, w) // 8)
-    gain = np.asarray(getattr(res, "gain", ()) or (0.0, 0.0, 0.0), float)
-    probe, probe_gain = inverse, gain
-    if model not in AFFINE_MODELS:
-        # a homography bends towards a textured nearer plane and spreads its residual: the
-        # blocks are found under the similarity, which cannot
-        affine = homogeneous(inverse).copy()
-        affine /= affine[2, 2]
-        affine[2] = (0.0, 0.0, 1.0)
-        try:
-            sim = refine(data, affine, "similarity", **refine_options)
-        except ParameterError:
-            return None
-        probe = homogeneous(sim.matrix)
-        probe_gain = np.asarray(getattr(sim, "gain", ()) or (0.0, 0.0, 0.0), float)
-        if not np.all(np.isfinite(probe)):
-            return None
     s = select_samples(data, 0, 60_000, motion=probe)
     if s.b.size < 1000:
         return None
-    n, _, _, wt, _, _ = residuals(data, 0, probe, s, gradient=False, gain=probe_gain)
+    n, _, _, wt, _, _ = residuals(data, 0, probe, s, gradient=False, gain=gain)
     gy, gx = (s.y // side).astype(np.int64), (s.x // side).astype(np.int64)
     ny, nx = h // side + 1, w // side + 1
     sq = np.zeros((ny, nx))
@@ -1080,41 +1059,95 @@ def _refit_by_blocks(refine, data: PairData, inverse: np.ndarray, model: str, re
     pad = np.pad(off, 1)
     neighbours = sum(pad[1 + dy: 1 + dy + ny, 1 + dx: 1 + dx + nx]
                      for dy in (-1, 0, 1) for dx in (-1, 0, 1) if dy or dx)
-    off &= neighbours > 0
-    if not off.any():
-        log.debug("block re-fit: no group of blocks off")
-        return None
-    by, bx = np.nonzero(off)
-    rects = np.stack([bx * side, by * side, (bx + 1) * side, (by + 1) * side], axis=1).astype(
-        np.float64)
-    left_out = off[gy, gx]
-    if cnt[off].sum() > BLOCK_MAX_SHARE * cnt.sum():
-        log.debug("block re-fit: %d blocks hold too many samples", int(off.sum()))
-        return None
-    kept = Samples(s.x[~left_out], s.y[~left_out], s.b[~left_out])
+    return off & (neighbours > 0), cnt, s, gy, gx
+
+
+def _finite_gain(r) -> np.ndarray:
+    return np.asarray(getattr(r, "gain", ()) or (0.0, 0.0, 0.0), float)
+
+
+def _refit_by_blocks(refine, data: PairData, inverse: np.ndarray, model: str, res,
+                     message: str, refine_options: dict, start: np.ndarray | None = None):
+    """Where the independent check measured nothing (too little structure in the range both
+    frames share), a nearer plane can still pull the global fit: the search's own eq. 7
+    residuals, as RMS per block of about an eighth of the short side, show it as a group of
+    neighbouring blocks ``BLOCK_OFF`` times the median block (under the similarity: a
+    homography bends towards a textured nearer plane and spreads its residual). The search
+    runs again without them; the blocks are looked for again under the new fit (the object
+    stands out more once the fit leaves it), at most ``BLOCK_ROUNDS`` times. The re-fit is kept
+    when the cost of the samples outside every left-out block falls by ``BLOCK_GAIN`` (a single
+    plane re-fitted on a subset barely moves). ``start``: the search's starting point (dark ->
+    bright), where the similarity probe starts too. Returns ``(refine result, inverse,
+    homography, message)`` or None."""
+    h, w = data.shape
+    side = max(16, min(h, w) // 8)
+    gain = _finite_gain(res)
+
+    def similarity_probe(exclude):
+        if model in AFFINE_MODELS:
+            return None
+        affine = homogeneous(inverse if start is None else start).copy()
+        affine /= affine[2, 2]
+        affine[2] = (0.0, 0.0, 1.0)
+        sim = refine(data, affine, "similarity", exclude=exclude, **refine_options)
+        m = homogeneous(sim.matrix)
+        return (m, _finite_gain(sim)) if np.all(np.isfinite(m)) else None
+
     try:
-        again = refine(data, inverse, model, exclude=rects, **refine_options)
+        probe = similarity_probe(None) or (inverse, gain)
     except ParameterError:
         return None
-    inv2 = homogeneous(again.matrix)
-    if not np.all(np.isfinite(inv2)):
+    first = _off_blocks(data, probe[0], probe[1], side)
+    if first is None:
         return None
+    off, cnt, s0, gy0, gx0 = first
+    total = np.zeros_like(off)
+    best = None
+    for _ in range(BLOCK_ROUNDS):
+        grown = total | off
+        if not grown.any() or np.array_equal(grown, total):
+            break
+        if cnt[grown].sum() > BLOCK_MAX_SHARE * cnt.sum():
+            log.debug("block re-fit: %d blocks hold too many samples", int(grown.sum()))
+            break
+        total = grown
+        by, bx = np.nonzero(total)
+        rects = np.stack([bx * side, by * side, (bx + 1) * side, (by + 1) * side],
+                         axis=1).astype(np.float64)
+        try:
+            again = refine(data, inverse, model, exclude=rects, **refine_options)
+            probe = similarity_probe(rects) or (homogeneous(again.matrix), _finite_gain(again))
+        except ParameterError:
+            break
+        inv2 = homogeneous(again.matrix)
+        if not np.all(np.isfinite(inv2)):
+            break
+        best = (again, inv2, total.copy())
+        found = _off_blocks(data, probe[0], probe[1], side)
+        if found is None:
+            break
+        off = found[0]
+    if best is None:
+        log.debug("block re-fit: no group of blocks off")
+        return None
+    again, inv2, total = best
     hom2 = homogeneous(invert(inv2))
     if model in AFFINE_MODELS:
         hom2[2] = (0.0, 0.0, 1.0)
         inv2 = homogeneous(invert(hom2))
     if overlap_fraction(hom2, data.shape) < 0.2:
         return None
-    gain2 = np.asarray(getattr(again, "gain", ()) or (0.0, 0.0, 0.0), float)
+    left_out = total[gy0, gx0]
+    kept = Samples(s0.x[~left_out], s0.y[~left_out], s0.b[~left_out])
     before, _ = cost(data, 0, inverse, kept, gain)
-    after, _ = cost(data, 0, inv2, kept, gain2)
+    after, _ = cost(data, 0, inv2, kept, _finite_gain(again))
     if not after <= (1.0 - BLOCK_GAIN) * before:
         log.debug("block re-fit without %d blocks does not pay: %.4g -> %.4g",
-                  int(off.sum()), before, after)
+                  int(total.sum()), before, after)
         return None
-    share = cnt[off].sum() / cnt.sum()
+    share = cnt[total].sum() / cnt.sum()
     return again, inv2, hom2, (f"{again.message or 'converged'}; re-fitted without "
-                               f"{int(off.sum())} blocks ({share:.0%} of the samples) that "
+                               f"{int(total.sum())} blocks ({share:.0%} of the samples) that "
                                f"moved on their own (eq. 7 cost of the rest "
                                f"{before:.4g} -> {after:.4g})")
 
