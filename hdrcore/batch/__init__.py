@@ -7,8 +7,8 @@ bracket, worst first for ``hdrview --batch``). Any of the folders and files may 
 URL (``s3://``, ``gcs://``, ``file://``, ``memory://``): :mod:`hdrcore.batch.remote`.
 """
 
-from .group import GROUPING_METHODS, HDRMERGE_GAP, Group, bracket_order, group_shots
 from . import remote
+from .group import GROUPING_METHODS, HDRMERGE_GAP, Group, bracket_order, group_shots
 from .index import read_index, worst_first, write_index
 from .plan import Plan, PlannedBracket, make_plan, plan_table, read_plan
 from .runner import BatchRun, run_batch, tasks_from_plan, up_to_date
