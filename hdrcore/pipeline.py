@@ -1095,6 +1095,11 @@ def _register(ctx: _Context, p: PipelineParams, lut: np.ndarray | None,
                   saturation=_linear_level(ctx, lut, p.saturation),
                   noise_floor=_linear_level(ctx, lut, p.noise_floor),
                   threshold=p.threshold, previews=p.registration_previews, **extra)
+    if factor == 1:
+        # each pair checked independently as it is registered, and searched again without a
+        # nearer object the check finds (register_pair's check_residual; _with_residuals
+        # then keeps these measurements)
+        search["check_residual"] = True
     reg = register_bracket(
         images, ratios, reference=p.reference,
         model="similarity" if p.align == "auto" else p.align, progress=progress, **search,
@@ -1184,7 +1189,7 @@ def _upgrade_to_homography(ctx: _Context, reg: BracketRegistration, images: list
         ctx.report("registration", 1.0, f"pair {i}: trying the homography model")
         h = register_pair(images[i], images[i + 1], ratios[i], model="homography",
                           dark_index=i, bright_index=i + 1, **search)
-        if not h.ok:
+        if not h.usable:
             continue
         h = _with_residuals(ctx, replace(reg, pairs=(h,)), p, lut).pairs[0]
         if h.residual is None:
@@ -1223,7 +1228,7 @@ def _with_residuals(ctx: _Context, reg: BracketRegistration, p: PipelineParams,
     floor = _linear_level(ctx, lut, p.noise_floor)
     pairs = []
     for q in reg.pairs:
-        if not q.ok:
+        if not q.ok or q.residual is not None:  # failed, or measured by register_pair
             pairs.append(q)
             continue
         try:
