@@ -218,6 +218,8 @@ class PipelineParams:
         (:func:`hdrcore.merge.colour_check.anchor_colour`; the frames decoded with sRGB, as a
         screen shows them), keeping the merge's luminance. The colour is checked before and
         after (``result.colour["check"]``).
+    noise_sigma : the additive noise (levels) the default ratio estimator's noise matching
+        assumes (``None``: the noise measured from the frames, ``noise``).
     workers : threads for the compiled kernels, scipy's convention: ``None`` the project's
         default (up to two), ``n`` that many, ``-1`` every core, ``-2`` all but one. No stage
         reads it and no cache key holds it: a kernel's result does not depend on how many
@@ -245,6 +247,7 @@ class PipelineParams:
     refine_ratios: str = "pixels"
     deghost: bool = False
     colour_anchor: bool = True
+    noise_sigma: float | None = None
     workers: int | None = None
 
     def replace(self, **changes: Any) -> PipelineParams:
@@ -1470,6 +1473,8 @@ def _ratio_fit(ctx: _Context, p: PipelineParams, lut: np.ndarray | None) -> dict
         # estimator): the seed's protocol, 4 scenes x 3 seeds, tripod, histograms: median
         # error 0.023 % -> 0.0010 % at 12 bits, 0.033 % -> 0.026 % at 8 bits.
         fit["noise_sigma"] = ctx.noise().sigma
+    if p.noise_sigma is not None:
+        fit["noise_sigma"] = p.noise_sigma
     return fit
 
 
@@ -1596,7 +1601,8 @@ GRAPH = StageGraph([
     Stage("exclusions", _stage_exclusions, ("exclude_colour",), internal=True),
     Stage("histograms", _stage_histograms, (), ("exclusions",)),
     Stage("response", _stage_response, _response_fields, ("histograms", "exclusions")),
-    Stage("ratios", _stage_ratios, (*_SAT_NF, "exposure_method"), ("histograms", "response")),
+    Stage("ratios", _stage_ratios, (*_SAT_NF, "exposure_method", "noise_sigma"),
+          ("histograms", "response")),
     Stage("times_histogram", _stage_times_histogram, ("times", "ratio_fallback_stops"),
           ("ratios",), by_value=True, internal=True),
     Stage("registration_ratios", _stage_registration_ratios, ("times",),
@@ -1611,7 +1617,7 @@ GRAPH = StageGraph([
           lazy=("response_registered",), internal=True),
     Stage("overlap_histograms", _stage_overlap_histograms, (), ("registration", "exclusions")),
     Stage("overlap_ratios", _stage_overlap_ratios,
-          ("refine_ratios", *_SAT_NF, "exposure_method"),
+          ("refine_ratios", *_SAT_NF, "exposure_method", "noise_sigma"),
           ("registration", "response_used", "ratios", "exclusions"),
           lazy=("overlap_histograms",)),
     Stage("exposures", _stage_exposures, ("refine_ratios",), ("ratios", "registration"),

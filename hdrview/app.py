@@ -25,6 +25,7 @@ from typing import Any
 
 import viser
 
+from hdrcore.cli._common import parse_workers
 from hdrcore.errors import HdrError
 
 from . import security
@@ -53,10 +54,13 @@ class InspectorApp:
         files: Sequence[str | Path] = (),
         limits: UploadLimits | None = None,
         batch: Sequence[Any] = (),
+        workers: int | None = None,
     ) -> None:
         """``files``: paths the operator named on the command line (readable even outside
-        ``root``; every page opens them first, else the demo); ``limits``: the upload limits."""
+        ``root``; every page opens them first, else the demo); ``limits``: the upload limits;
+        ``workers``: ``PipelineParams.workers`` of every page's runs."""
         self.server = server
+        self.workers = workers
         self.guard: ConnectionGuard | None = None  # set by create_app
         self.url = f"http://127.0.0.1:{server.get_port()}/"
         self.demo_dir = None if demo_dir is None else Path(demo_dir)
@@ -169,7 +173,7 @@ class InspectorApp:
         t0 = time.perf_counter()
 
         def run() -> None:
-            session = Session()
+            session = Session(workers=self.workers)
             if not pipeline_available():  # imports it, off the thread that serves pages
                 return
             try:
@@ -274,6 +278,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--batch", metavar="OUTDIR",
                    help="the output folder of 'hdrcore batch': list its brackets worst first "
                         "and open them (the worst first)")
+    # PipelineParams.workers, as on every hdrcore command (tests/cli/test_params_flags.py)
+    p.add_argument("--workers", type=parse_workers, default=None, metavar="N",
+                   help="threads for the compiled kernels of each run, scipy's convention: -1 "
+                        "every core, -2 all but one (default: up to 2)")
     p.add_argument("--debug", action="store_true", help="debug logging")
     return p
 
@@ -295,7 +303,7 @@ def create_app(
     files: Sequence[str] = (), *, host: str = "127.0.0.1", port: int = 8080, root: str = ".",
     verbose: bool = True, demo_dir: Path | None = DEMO_DIR, token: bool = True,
     allow_origins: Sequence[str] = (), limits: UploadLimits | None = None,
-    announce: bool = False, batch: Sequence[Any] = (),
+    announce: bool = False, batch: Sequence[Any] = (), workers: int | None = None,
 ) -> InspectorApp:
     """Start the server and the app; load ``files`` or the demo bracket.
 
@@ -320,7 +328,7 @@ def create_app(
         raise StartError(f"port {port} on {host} is in use: choose another with --port N, "
                          f"or --port 0 for any free port")
     app = InspectorApp(server, root=root, demo_dir=demo_dir, files=files, limits=limits,
-                       batch=batch)
+                       batch=batch, workers=workers)
     app.guard = guard
     app.url = guard.url("127.0.0.1" if host in ("0.0.0.0", "::", "") else host)
     app.warm_up(announce=announce)
@@ -380,7 +388,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         try:
             app = create_app(args.files, host=args.host, port=args.port, root=str(root),
                              token=not args.no_token, allow_origins=args.allow_origin,
-                             limits=limits, announce=True, batch=batch)
+                             limits=limits, announce=True, batch=batch,
+                             workers=args.workers)
         except (StartError, ValueError, HdrError) as exc:
             print(f"hdrview: {exc}", file=sys.stderr)
             return 2

@@ -91,6 +91,7 @@ class Session:
     params: Any = None
     timings: dict[str, float] = field(default_factory=dict)
     full_params: Any = None  # the parameters of the last run through every stage
+    workers: int | None = None  # PipelineParams.workers of every run (hdrview --workers)
 
     def load(self, paths: Sequence[str | os.PathLike], *, source: str = "",
              times: str | os.PathLike | None = None,
@@ -115,7 +116,7 @@ class Session:
     def default_params(self) -> Any:
         from hdrcore.pipeline import PipelineParams
 
-        return PipelineParams()
+        return PipelineParams(workers=self.workers)
 
     def params_for(self, controls: Controls) -> Any:
         """The pipeline's defaults with every control that is set (a reset control goes back to

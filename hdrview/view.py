@@ -129,7 +129,7 @@ class ClientView:
         self.app = app
         self.gui = gui
         self.client = client
-        self.session = Session()
+        self.session = Session(workers=getattr(app, "workers", None))
         self.controls = Controls()
         self.notifications: list[tuple[str, str, str]] = []  # (level, title, body), newest last
         self.draw_count = 0

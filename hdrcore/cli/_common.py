@@ -12,18 +12,18 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import FrameTooLargeError, HdrError, OutputError
+from .._threads import resolve_workers
+from ..errors import FrameTooLargeError, HdrError, OutputError, ParameterError
 from ..io import MAX_FRAME_PIXELS, Bracket, check_output_path, expand_paths, load_bracket
 from ..io.atomic import same_file
 from ._chatter import holding_file_warnings
 
 __all__ = [
     "add_bracket_arguments",
-    "add_exclude_colour_argument",
-    "add_level_arguments",
     "check_outputs_first",
     "parse_colour",
     "parse_pixel_count",
+    "parse_workers",
     "input_files",
     "load_bracket_from_args",
     "print_unused_frames",
@@ -43,6 +43,18 @@ def parse_pixel_count(text: str) -> int:
         raise argparse.ArgumentTypeError(
             f"expected a number of pixels such as 2e8 (0 for no limit), found {text!r}")
     return int(round(value))
+
+
+def parse_workers(text: str) -> int:
+    """``--workers N``: scipy's convention (``-1`` every core); an argparse ``type``."""
+    try:
+        value = int(text)
+        resolve_workers(value)  # 0 and counts below -cores are refused here
+    except (ValueError, ParameterError):
+        raise argparse.ArgumentTypeError(
+            f"expected a number of threads (1, 2, ...; -1 for every core, -2 all but one), "
+            f"found {text!r}") from None
+    return value
 
 
 def suggest_pixel_limit(pixels: int) -> str:
@@ -83,36 +95,6 @@ def parse_colour(text: str) -> tuple[int, int, int]:
         raise argparse.ArgumentTypeError(
             f"expected three non-negative integer levels R,G,B, found {text!r}")
     return parts  # type: ignore[return-value]
-
-
-def add_exclude_colour_argument(parser: argparse.ArgumentParser, *aliases: str) -> None:
-    """``--exclude-colour R,G,B`` (into ``args.exclude_colour``)."""
-    parser.add_argument(
-        "--exclude-colour", *aliases, dest="exclude_colour", metavar="R,G,B", type=parse_colour,
-        help="pixels of exactly this colour carry no data (e.g. 0,0,255: the blue border "
-             "marks of the Debevec-Malik memorial scans)",
-    )
-
-
-def add_level_arguments(parser: argparse.ArgumentParser) -> None:
-    """``--response``, ``--saturation Z`` and ``--noise-floor N``: the pipeline's defaults."""
-    parser.add_argument(
-        "--response", default="auto", metavar="NAME|FILE",
-        help="'auto' (linear for RAW, recovered from the histograms otherwise), 'linear', "
-             "'srgb', a method (debevec1997, debevec-histogram, mitsunaga1999, grossberg2003) "
-             "or a saved curve .json",
-    )
-    parser.add_argument(
-        "--saturation", type=float, metavar="Z",
-        help="saturation level Z in levels (default 97%% of the largest level)",
-    )
-    parser.add_argument(
-        "--noise-floor", type=float, metavar="N",
-        help="noise floor in levels (default: 3 x the read noise measured from the frames "
-             "(RAW: optical-black pixels or the darkest flat regions), at least 2 levels; "
-             "JPEG/PNG/TIFF: at least 2%% of the largest level; raised above a black pedestal "
-             "of the darkest frame)",
-    )
 
 
 def input_files(args: argparse.Namespace, frames: Any = ()) -> list[Path]:

@@ -40,8 +40,10 @@ from ._common import print_json, to_jsonable
 
 __all__ = ["add_parser", "run"]
 
-#: merge options a batch sets per bracket itself (or means otherwise)
-_OWN = {"help", "files", "output", "preview", "dng", "report", "json", "quiet", "force"}
+#: merge options a batch sets per bracket itself (or means otherwise: its --workers counts
+#: processes; each merge keeps the default threads)
+_OWN = {"help", "files", "output", "preview", "dng", "report", "json", "quiet", "force",
+        "workers"}
 
 
 def _merge_actions() -> list[argparse.Action]:

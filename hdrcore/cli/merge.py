@@ -17,20 +17,21 @@ import time
 
 from ..errors import OutputError
 from ..io import EXR_COMPRESSIONS, atomic_write, check_output_path, write_exr, write_png
-from ..pipeline import ALIGN_CHOICES, LOCAL_CHOICES, Pipeline, PipelineParams
-from ..tonemap import TONEMAP_OPERATORS
+from ..pipeline import Pipeline
 from ._common import (
     add_bracket_arguments,
-    add_exclude_colour_argument,
-    add_level_arguments,
     check_outputs_first,
     input_files,
     load_bracket_from_args,
     print_json,
     to_jsonable,
 )
+from ._params import FLAGS, add_param_arguments, params_from_args
 
-__all__ = ["add_parser", "run"]
+__all__ = ["MERGE_FIELDS", "add_parser", "run"]
+
+#: the pipeline's parameters ``hdrcore merge`` offers (every one the command line has)
+MERGE_FIELDS = tuple(FLAGS)
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -39,8 +40,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     add_bracket_arguments(p)
-    add_exclude_colour_argument(p)
-    add_level_arguments(p)
+    add_param_arguments(p, MERGE_FIELDS, command="merge")
     p.add_argument("-o", "--output", required=True, metavar="OUT.exr", help="OpenEXR output")
     p.add_argument("--preview", metavar="OUT.png", help="also write a tonemapped 8-bit preview")
     p.add_argument("--report", metavar="OUT.json", help="write the JSON report of every stage")
@@ -54,32 +54,6 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    help="DNG samples: cfa = the frames' mosaics merged before demosaicing "
                         "(tripod RAW brackets), linear = demosaiced camera RGB (any bracket); "
                         "auto picks cfa when it can (default)")
-    p.add_argument("--align", default="auto", choices=ALIGN_CHOICES,
-                   help="motion model for hand-held frames (default: auto, the similarity "
-                        "(shift, rotation, scale), and the homography for the pairs where "
-                        "perspective is left)")
-    p.add_argument("--local", default="auto", choices=LOCAL_CHOICES,
-                   help="local refinement after the motion model: a smooth displacement field "
-                        "per frame for parallax (auto: the frames whose pair is left "
-                        "misaligned, kept where it lowers the measured residual; default auto)")
-    p.add_argument("--reference", type=int, metavar="N",
-                   help="frame the others are aligned to (default: the middle one)")
-    p.add_argument("--threshold", type=float, default=0.1, metavar="t",
-                   help="normalisation threshold t of eq. 7, fraction of Z (default 0.1)")
-    p.add_argument("--times-source", dest="times_source", default="estimated",
-                   choices=("estimated", "exif"),
-                   help="exposure times for the merge: estimated from the histograms "
-                        "(default) or the EXIF/--times values")
-    p.add_argument("--tonemap", default="auto", choices=sorted(TONEMAP_OPERATORS),
-                   help="preview operator (default: auto, the local durand for scenes of "
-                        "more than 8 stops, else reinhard)")
-    p.add_argument("--exposure", type=float, default=0.0, metavar="EV",
-                   help="preview exposure in stops (default 0, auto key)")
-    p.add_argument("--preview-size", type=int, default=2048, metavar="PX",
-                   help="longest side of the preview PNG (default 2048; 0 = full resolution)")
-    p.add_argument("--deghost", action="store_true",
-                   help="fill each region where the frames disagree (moving objects) from one "
-                        "frame instead of the weighted average")
     p.add_argument("--float32", action="store_true", help="write float32 instead of half")
     p.add_argument("--exr-compression", dest="exr_compression", default="piz",
                    choices=sorted(EXR_COMPRESSIONS),
@@ -132,15 +106,7 @@ def run(args: argparse.Namespace) -> int:
     for w in bracket.warnings:
         print(f"hdrcore: warning: {w.message}", file=sys.stderr)
 
-    params = PipelineParams(
-        saturation=args.saturation, noise_floor=args.noise_floor, threshold=args.threshold,
-        align=args.align, local=args.local, reference=args.reference, response=args.response,
-        times=args.times_source, tonemap=args.tonemap, tonemap_exposure=args.exposure,
-        preview_max_side=None if args.preview_size <= 0 else args.preview_size,
-        exclude_colour=args.exclude_colour,
-        registration_previews=False,
-        deghost=args.deghost,
-    )
+    params = params_from_args(args, MERGE_FIELDS, registration_previews=False)
     progress = _Progress(not args.quiet)
     try:
         result = Pipeline(bracket, params, progress=progress).run(

@@ -7,16 +7,20 @@ import argparse
 import numpy as np
 
 from ..errors import ParameterError
-from ..exposure import DEFAULT_METHOD, EXPOSURE_METHODS, bracket_exposures
 from ._common import (
     add_bracket_arguments,
-    add_exclude_colour_argument,
-    add_level_arguments,
     load_bracket_from_args,
     print_json,
     print_unused_frames,
     print_warnings,
 )
+from ._params import add_param_arguments, params_from_args
+
+__all__ = ["RATIOS_FIELDS", "add_parser", "colour_mask", "run"]
+
+#: the pipeline's parameters ``hdrcore ratios`` offers
+RATIOS_FIELDS = ("saturation", "noise_floor", "response", "exposure_method", "noise_sigma",
+                 "exclude_colour", "workers")
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -24,12 +28,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "ratios", help="estimate exposure ratios of consecutive frames from their histograms"
     )
     add_bracket_arguments(p)
-    add_level_arguments(p)
-    p.add_argument("--method", default=DEFAULT_METHOD, choices=list(EXPOSURE_METHODS),
-                   help="estimator (default: %(default)s)")
-    p.add_argument("--noise-sigma", type=float, default=None, metavar="S",
-                   help="additive noise in levels for noise matching (refined method)")
-    add_exclude_colour_argument(p, "--mask-colour")
+    add_param_arguments(p, RATIOS_FIELDS, command="ratios")
     p.add_argument(
         "--registered", action="store_true",
         help="hand-held brackets: register the frames (as 'hdrcore align') and measure the "
@@ -44,7 +43,7 @@ def colour_mask(levels: list[np.ndarray], colour: tuple[int, ...]) -> np.ndarray
     """True where no frame has exactly ``colour``: the pixels to use."""
     first = np.asarray(levels[0])
     if first.ndim != 3 or first.shape[2] != len(colour):
-        raise ParameterError("--mask-colour needs colour frames with one level per channel",
+        raise ParameterError("--exclude-colour needs colour frames with one level per channel",
                              expected=f"{len(colour)} channels", found=str(first.shape))
     from ..pipeline import colour_masks
 
@@ -52,17 +51,13 @@ def colour_mask(levels: list[np.ndarray], colour: tuple[int, ...]) -> np.ndarray
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..pipeline import Pipeline, PipelineParams, ratios_json
+    from ..pipeline import Pipeline, ratios_json
 
     bracket = load_bracket_from_args(args)
     print_warnings(bracket)
-    max_level = bracket.frames[0].max_level
     # The same response, defaults and exclusions as 'hdrcore merge' and 'hdrcore align'.
-    params = PipelineParams(
-        saturation=args.saturation, noise_floor=args.noise_floor, response=args.response,
-        exposure_method=args.method,
-        exclude_colour=args.exclude_colour, registration_previews=False,
-    )
+    # --noise-sigma is the pipeline's noise_sigma: the whole-frame estimate's noise matching.
+    params = params_from_args(args, RATIOS_FIELDS, registration_previews=False)
     if args.registered and args.noise_sigma is not None:
         raise ParameterError("--noise-sigma applies to the histogram estimate, not --registered")
     pres = Pipeline(bracket, params).run(until="overlap_ratios" if args.registered else "ratios")
@@ -73,14 +68,6 @@ def run(args: argparse.Namespace) -> int:
     colour = pres.params.exclude_colour
     levels = [f.levels for f in bracket.frames]
     mask = None if colour is None else colour_mask(levels, colour)
-    if args.noise_sigma is not None:
-        times = [None if f.meta.exposure_time is None else float(f.meta.exposure_time)
-                 for f in bracket.frames]
-        res = bracket_exposures(
-            levels, max_level, method=args.method, exposure_times=times, mask=mask,
-            saturation=pres.saturation, noise_floor=pres.noise_floor, lut=pres.lut,
-            noise_sigma=args.noise_sigma,
-        )
     out = {"masked_fraction": None if mask is None else float(1.0 - mask.mean()),
            "marker_colour": None if pres.marker_colour is None else list(pres.marker_colour),
            "method": res.method, **ratios_json(bracket, res),

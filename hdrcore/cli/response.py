@@ -13,6 +13,7 @@ import sys
 
 import numpy as np
 
+from .._threads import set_workers
 from ..errors import ParameterError
 from ..io import check_output_path
 from ..response import DEFAULT_METHOD, RESPONSE_METHODS, recover_response
@@ -24,8 +25,15 @@ from ._common import (
     print_json,
     print_warnings,
 )
+from ._params import add_param_arguments
 
-__all__ = ["add_parser", "run"]
+__all__ = ["RESPONSE_FIELDS", "add_parser", "exclusion_mask", "run"]
+
+#: the pipeline's parameters ``hdrcore response`` offers. It does not run the pipeline: its
+#: ``--method``, ``--cutoff``, ``--order`` and ``--no-monotone`` have no pipeline field, it
+#: fits RAW frames too (the pipeline takes them as linear) and it needs exposure times (the
+#: pipeline estimates them from the histograms): see tests/cli/test_response_ratios_routes.py
+RESPONSE_FIELDS = ("exclude_colour", "workers")
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -52,10 +60,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "--no-monotone", action="store_true",
         help="do not constrain the fit to a non-decreasing curve (for comparison only)",
     )
-    p.add_argument(
-        "--exclude-colour", metavar="R,G,B",
-        help="ignore pixels of exactly this colour in any frame (e.g. 0,0,255 borders)",
-    )
+    # the pipeline's flags for what it shares with the other commands (same parsing)
+    add_param_arguments(p, RESPONSE_FIELDS)
     p.add_argument("--plot", metavar="PNG", help="draw the curves into this PNG")
     p.add_argument("--save", metavar="JSON", help="save the curve for --response of other commands")
     p.add_argument("--force", action="store_true", help="replace existing output files")
@@ -63,22 +69,12 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(run=run)
 
 
-def _exclusion_mask(frames: list[np.ndarray], spec: str) -> np.ndarray:
-    try:
-        colour = [int(v) for v in spec.split(",")]
-    except ValueError:
-        colour = []
-    n = frames[0].shape[2] if frames[0].ndim == 3 else 1
-    if len(colour) != n:
-        raise ParameterError(
-            "--exclude-colour needs one integer level per channel",
-            expected=",".join(["L"] * n), found=repr(spec),
-        )
-    bad = np.zeros(frames[0].shape[:2], bool)
-    for f in frames:
-        ff = f if f.ndim == 3 else f[..., None]
-        bad |= np.all(ff == np.asarray(colour), axis=-1)
-    return ~bad
+def exclusion_mask(frames: list[np.ndarray], colour: tuple[int, int, int]) -> np.ndarray:
+    """True where no frame has exactly ``colour``: the pixels the fit uses (the pipeline's
+    exclusion, :func:`hdrcore.pipeline.colour_masks`)."""
+    from ..pipeline import colour_masks
+
+    return ~np.logical_or.reduce(colour_masks(frames, colour))
 
 
 def run(args: argparse.Namespace) -> int:
@@ -97,9 +93,10 @@ def run(args: argparse.Namespace) -> int:
         params["monotone"] = False
     if args.order is not None:
         params["order"] = args.order if args.order == "auto" else _int(args.order, "--order")
-    if args.exclude_colour:
-        params["mask"] = _exclusion_mask(frames, args.exclude_colour)
-    curve = recover_response(frames, times, method=args.method, **params)
+    if args.exclude_colour is not None:
+        params["mask"] = exclusion_mask(frames, args.exclude_colour)
+    with set_workers(args.workers):
+        curve = recover_response(frames, times, method=args.method, **params)
     if args.plot:
         curve.plot(args.plot, force=args.force, inputs=input_files(args, bracket.paths))
     if args.save:
