@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import math
 import sys
 from collections.abc import Callable, Iterable
 from typing import Any
@@ -77,6 +78,17 @@ DEPRECATED: dict[str, dict[str, tuple[str, dict[str, str]]]] = {
     "ratios": {"--method": ("exposure_method", {}),
                "--mask-colour": ("exclude_colour", {})},
 }
+
+
+def _levels(text: str) -> float:
+    """A noise level in levels: a finite number, 0 or more (an argparse ``type``)."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value >= 0):
+        raise argparse.ArgumentTypeError(f"expected levels, 0 or more (e.g. 1.5), found {text!r}")
+    return value
 
 
 def _limit(text: str) -> int | None:
@@ -156,7 +168,7 @@ def _spec(field: str, *, choices: Iterable[str] | None = None) -> dict[str, Any]
         "colour_anchor": dict(action=argparse.BooleanOptionalAction,
                               help="non-linear input: give the merge the colour of the frames "
                                    "that expose each region best"),
-        "noise_sigma": dict(type=float, metavar="S",
+        "noise_sigma": dict(type=_levels, metavar="S",
                             help="additive noise in levels for the noise matching of the "
                                  "default ratio estimator (default: measured from the frames)"),
         "workers": dict(type=parse_workers, metavar="N",

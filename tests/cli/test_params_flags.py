@@ -188,6 +188,13 @@ def test_workers_refused_at_parse_time(text: str, capsys) -> None:
         assert "expected a number of threads" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("text", ["-1", "nan", "x"])
+def test_noise_sigma_refused_at_parse_time(text: str, capsys) -> None:
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["ratios", "f.png", "--noise-sigma", text])
+    assert "expected levels, 0 or more" in capsys.readouterr().err
+
+
 def test_hdrview_workers_reach_every_run() -> None:
     from hdrview.app import build_parser as hdrview_parser
     from hdrview.session import Controls, Session
