@@ -3,9 +3,9 @@
 Every command that runs the pipeline adds its options with :func:`add_param_arguments` and
 builds its parameters with :func:`params_from_args`, so a field has one flag (``FLAGS``), one
 destination (``DESTS``: the field's name but for ``times``) and one default (the field's own)
-on every command. A field the
-command line does not offer is listed in ``NOT_ON_COMMAND_LINE`` with the reason;
-``tests/cli/test_params_flags.py`` fails for a field in neither.
+on every command. A field the command line does not offer is listed in
+``NOT_ON_COMMAND_LINE`` with the reason; ``tests/cli/test_params_flags.py`` fails for a field
+in neither, and for a parser (``hdrview``'s too) that spells a field otherwise.
 
 Old names stay for one release as hidden aliases (``DEPRECATED``): they still work and say on
 stderr which flag replaces them.
