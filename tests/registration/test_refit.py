@@ -121,5 +121,5 @@ def test_blocks_find_the_near_object_where_no_tile_can_be_measured() -> None:
     assert "blocks" in again.message and "moved on their own" in again.message, again.message
     err_plain = corner_error(plain.homography, motion, SHAPE).max()
     err = corner_error(again.homography, motion, SHAPE).max()
-    assert err_plain > 0.3 and err < 0.1, (err_plain, err)  # measured 0.499 -> 0.024 px
+    assert err_plain > 0.3 and err < 0.1, (err_plain, err)  # measured 0.499 -> 0.032 px
     assert again.status == "weak"  # still not verified by anything independent
