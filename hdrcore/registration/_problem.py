@@ -889,16 +889,17 @@ def register_with(
 
     # The searches work on the inverse (dark -> bright) matrix: see select_samples.
     res = refine(data, homogeneous(invert(init)), model, **refine_options)
-    inverse = homogeneous(res.matrix)
-    homography = homogeneous(invert(inverse))
-    if model in AFFINE_MODELS:  # the searches keep the model; clear rounding in the last row
-        homography[2] = (0.0, 0.0, 1.0)
-        inverse = homogeneous(invert(homography))
-    ev_after = select_samples(data, 0, evaluation_samples, motion=inverse, by_gradient=False,
-                              seed=1)
-    cost_after, n_after = cost(data, 0, inverse, ev_after)
-    overlap = overlap_fraction(homography, data.shape)
-    dx, dy, angle, scale = similarity_parameters(homography, data.shape)
+    inverse, homography = _search_motion(res.matrix, model)
+
+    def evaluated(inverse: np.ndarray, homography: np.ndarray):
+        ev = select_samples(data, 0, evaluation_samples, motion=inverse, by_gradient=False,
+                            seed=1)
+        c, n = cost(data, 0, inverse, ev)
+        return (ev, c, n, overlap_fraction(homography, data.shape),
+                similarity_parameters(homography, data.shape))
+
+    ev_after, cost_after, n_after, overlap, (dx, dy, angle, scale) = evaluated(inverse,
+                                                                              homography)
     status, message = "ok", res.message or "converged"
     if not np.all(np.isfinite(homography)) or not np.isfinite(cost_after):
         status, message = "diverged", "the search left the frames (no valid pixels)"
@@ -916,28 +917,28 @@ def register_with(
     residual = None
     if check_residual:
         status, message, residual = _checked(data, homography, model, message)
-        if (refit_local and residual is not None and residual.kind == "local"
-                and "exclude" in accepted):
-            again = _refit_without_local(refine, data, inverse, model, residual, message,
-                                         refine_options)
+        again = None
+        if refit_local and "exclude" in accepted and residual is not None and (
+                residual.kind == "local"):
+            again = _refit_without_local(refine, data, inverse, model, residual,
+                                         refine_options, min_overlap)
             if again is not None:
                 res, inverse, homography, status, message, residual = again
-        elif refit_local and (residual is None or residual.status == "unmeasured") and (
-                "exclude" in accepted):
+        elif refit_local and "exclude" in accepted and (
+                residual is None or residual.status == "unmeasured"):
             # nothing measured the pair independently: the search's own residuals per
             # block find a nearer plane (see _refit_by_blocks)
-            again = _refit_by_blocks(refine, data, inverse, model, res, message,
-                                     refine_options, start=homogeneous(invert(init)))
+            again = _refit_by_blocks(refine, data, inverse, model, res,
+                                     refine_options, min_overlap,
+                                     start=homogeneous(invert(init)))
             if again is not None:
                 res, inverse, homography, message = again
-                status, message = judge_residual(residual, homography, model, message,
-                                                 data.shape) if residual is not None else (
-                    status, message)
-                ev_after = select_samples(data, 0, evaluation_samples, motion=inverse,
-                                          by_gradient=False, seed=1)
-                cost_after, n_after = cost(data, 0, inverse, ev_after)
-                overlap = overlap_fraction(homography, data.shape)
-                dx, dy, angle, scale = similarity_parameters(homography, data.shape)
+                if residual is not None:
+                    status, message = judge_residual(residual, homography, model, message,
+                                                     data.shape)
+        if again is not None:  # what the pair reports is the re-fitted motion's
+            ev_after, cost_after, n_after, overlap, (dx, dy, angle, scale) = evaluated(
+                inverse, homography)
     return PairRegistration(
         dark=dark_index, bright=bright_index,
         matrix=affine_part(homography) if model in AFFINE_MODELS else None,
@@ -955,6 +956,18 @@ def register_with(
         preview=make_preview(data, homography) if previews else None,
         residual=residual, gain=tuple(float(g) for g in getattr(res, "gain", ())),
     )
+
+
+def _search_motion(matrix: np.ndarray, model: str) -> tuple[np.ndarray, np.ndarray]:
+    """``(inverse, homography)`` of a search's result (``matrix``: dark -> bright): for the
+    affine models the rounding in the homography's last row is cleared (the searches keep the
+    model) and the inverse taken again from it."""
+    inverse = homogeneous(matrix)
+    homography = homogeneous(invert(inverse))
+    if model in AFFINE_MODELS:
+        homography[2] = (0.0, 0.0, 1.0)
+        inverse = homogeneous(invert(homography))
+    return inverse, homography
 
 
 #: Tiles found moving on their own are left out of a re-fit with this margin around them, in
@@ -991,7 +1004,7 @@ def _outside_median(res, rects: np.ndarray) -> tuple[float, int]:
 
 
 def _refit_without_local(refine, data: PairData, inverse: np.ndarray, model: str, residual,
-                         message: str, refine_options: dict):
+                         refine_options: dict, min_overlap: float):
     """The search again from ``inverse`` with the residual's local-motion area left out, or
     None when that does not leave the rest of the frame at least as well aligned (median of
     the tiles outside the area within 0.01 px plus 2 %, and at most one of them or 5 % no
@@ -1004,14 +1017,10 @@ def _refit_without_local(refine, data: PairData, inverse: np.ndarray, model: str
         res = refine(data, inverse, model, exclude=rects, **refine_options)
     except ParameterError:
         return None
-    inv2 = homogeneous(res.matrix)
-    if not np.all(np.isfinite(inv2)):
+    if not np.all(np.isfinite(res.matrix)):
         return None
-    hom2 = homogeneous(invert(inv2))
-    if model in AFFINE_MODELS:
-        hom2[2] = (0.0, 0.0, 1.0)
-        inv2 = homogeneous(invert(hom2))
-    if overlap_fraction(hom2, data.shape) < 0.2:
+    inv2, hom2 = _search_motion(res.matrix, model)
+    if overlap_fraction(hom2, data.shape) < min_overlap:
         return None
     msg2 = f"{res.message or 'converged'}; re-fitted without the local motion"
     status2, msg2, res2 = _checked(data, hom2, model, msg2)
@@ -1071,7 +1080,8 @@ def _finite_gain(r) -> np.ndarray:
 
 
 def _refit_by_blocks(refine, data: PairData, inverse: np.ndarray, model: str, res,
-                     message: str, refine_options: dict, start: np.ndarray | None = None):
+                     refine_options: dict, min_overlap: float,
+                     start: np.ndarray | None = None):
     """Where the independent check measured nothing (too little structure in the range both
     frames share), a nearer plane can still pull the global fit: the search's own eq. 7
     residuals, as RMS per block of about a twelfth of the short side, show it as a group of
@@ -1135,11 +1145,8 @@ def _refit_by_blocks(refine, data: PairData, inverse: np.ndarray, model: str, re
         log.debug("block re-fit: no group of blocks off")
         return None
     again, inv2, total = best
-    hom2 = homogeneous(invert(inv2))
-    if model in AFFINE_MODELS:
-        hom2[2] = (0.0, 0.0, 1.0)
-        inv2 = homogeneous(invert(hom2))
-    if overlap_fraction(hom2, data.shape) < 0.2:
+    inv2, hom2 = _search_motion(inv2, model)
+    if overlap_fraction(hom2, data.shape) < min_overlap:
         return None
     left_out = total[gy0, gx0]
     kept = Samples(s0.x[~left_out], s0.y[~left_out], s0.b[~left_out])

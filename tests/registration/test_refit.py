@@ -11,24 +11,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from scipy import ndimage
 
 from hdrcore.registration import corner_error, register_pair
 from hdrcore.registration._problem import local_regions
-from hdrcore.registration.field import map_points
 from hdrcore.synthetic.scenes import make_scene
 
 from ._pairs import perspective
-
-SHAPE = (384, 576)
-MARGIN = 40
-
-
-def _render(big: np.ndarray, m: np.ndarray) -> np.ndarray:
-    h, w = SHAPE
-    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
-    sx, sy = map_points(m, None, xx, yy)
-    return ndimage.map_coordinates(big, [sy + MARGIN, sx + MARGIN], order=3, mode="nearest")
+from .test_local import MARGIN, SHAPE, _render  # the two-plane renderer of the field tests
 
 
 def _pair(scene: str, seed: int, near_object: bool = True, bits: int = 12,
@@ -123,3 +112,16 @@ def test_blocks_find_the_near_object_where_no_tile_can_be_measured() -> None:
     err = corner_error(again.homography, motion, SHAPE).max()
     assert err_plain > 0.3 and err < 0.1, (err_plain, err)  # measured 0.499 -> 0.032 px
     assert again.status == "weak"  # still not verified by anything independent
+
+
+def test_a_re_fitted_pair_reports_the_re_fitted_motion() -> None:
+    # dx, dy, angle, scale, overlap and the cost are the new motion's, not the first search's
+    from hdrcore.registration import similarity_parameters
+
+    dark, bright, motion, floor = _pair("landscape", 1)
+    r = _register(dark, bright, floor, "similarity")
+    assert "re-fitted" in r.message
+    np.testing.assert_allclose((r.dx, r.dy, r.angle_deg, r.scale),
+                               similarity_parameters(r.homography, SHAPE), rtol=0, atol=1e-9)
+    plain = _register(dark, bright, floor, "similarity", refit_local=False)
+    assert abs(r.dx - plain.dx) + abs(r.dy - plain.dy) > 1e-3  # the re-fit moved it
