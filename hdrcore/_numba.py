@@ -38,8 +38,8 @@ try:
                         inline="always")
     AVAILABLE = True
 except ImportError:  # pragma: no cover - exercised only without numba
-    numba = None
-    _caching = None
+    numba = None  # type: ignore[assignment]  # no numba at run time: the names stay, set to None
+    _caching = None  # type: ignore[assignment]  # (mypy checks against the installed numba)
     AVAILABLE = False
 
     def njit(fn):

@@ -68,7 +68,7 @@ def quantile_levels(cdf: np.ndarray, q: np.ndarray) -> np.ndarray:
     return 0.5 * (lo + hi)
 
 
-def _cdf_at(cdf: np.ndarray, x: np.ndarray) -> np.ndarray:
+def _cdf_at(cdf: np.ndarray, x: np.ndarray | float) -> np.ndarray:
     knots = _knots(np.asarray(cdf, np.float64))
     return np.interp(np.asarray(x, np.float64), _edges(knots.size - 1), knots)
 

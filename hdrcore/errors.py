@@ -7,7 +7,7 @@ prints ``str(error)`` on one line and exits non-zero.
 
 from __future__ import annotations
 
-from pathlib import Path
+import os
 
 __all__ = [
     "HdrError",
@@ -29,7 +29,7 @@ class HdrError(Exception):
         self,
         message: str,
         *,
-        path: str | Path | None = None,
+        path: str | os.PathLike[str] | None = None,
         expected: str | None = None,
         found: str | None = None,
     ) -> None:
@@ -66,7 +66,8 @@ class FrameTooLargeError(InputError):
     """
 
     def __init__(
-        self, path: str | Path, *, width: int, height: int, limit: int, hint: str | None = None
+        self, path: str | os.PathLike[str], *, width: int, height: int, limit: int,
+        hint: str | None = None,
     ) -> None:
         self.width = int(width)
         self.height = int(height)

@@ -82,7 +82,7 @@ def token(value: Any) -> Any:
         return ("set", tuple(sorted(repr(token(v)) for v in value)))
     if isinstance(value, np.ndarray):
         a = np.ascontiguousarray(value)
-        digest = hashlib.blake2b(a.view(np.uint8).reshape(-1) if a.size else b"",
+        digest = hashlib.blake2b(a.view(np.uint8).reshape(-1).data if a.size else b"",
                                  digest_size=20).hexdigest()
         return ("array", a.dtype.str, a.shape, digest)
     if dataclasses.is_dataclass(value) and not isinstance(value, type):

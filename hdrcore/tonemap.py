@@ -40,7 +40,7 @@ from .errors import ParameterError, validate_method
 try:
     import numba
 except ImportError:  # pragma: no cover - numba is a dependency; numpy does the work without it
-    numba = None
+    numba = None  # type: ignore[assignment]  # no numba at run time (mypy sees the installed one)
 
 __all__ = [
     "AUTO_LOCAL_STOPS",

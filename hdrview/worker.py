@@ -139,6 +139,7 @@ class LatestWorker:
                 if self._stopped:
                     return
                 req = self._pending
+                assert req is not None  # the wait above ends on a request or on stop
                 self._pending = None
                 self._running = True
             self._set_busy(True)

@@ -40,6 +40,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -198,14 +199,14 @@ def _segment_stream(shots: Sequence[Shot], max_frames: int, thumbnails: bool) ->
             if size == 1:
                 cost = 1.0
             else:
-                ev = evs[i:j]
-                if any(v is None for v in ev):
+                if any(v is None for v in evs[i:j]):
                     continue
-                order = _order_is_bracketing(ev)  # type: ignore[arg-type]
+                ev = [v for v in evs[i:j] if v is not None]
+                order = _order_is_bracketing(ev)
                 if order is None:
                     continue
                 orders[(i, j)] = order
-                centre = 0.5 * (max(ev) + min(ev))  # type: ignore[type-var,operator]
+                centre = 0.5 * (max(ev) + min(ev))
                 metered = metered_at[(i + j - 1) // 2]
                 cost = (1.0 + (PAIR_COST if size == 2 else 0.0) + _shape_cost(ev, order)
                         + CENTRE_COST * min(1.0, abs(centre - metered))
@@ -302,7 +303,7 @@ GROUPING_METHODS: dict[str, Callable[..., list[Group]]] = {
 }
 
 
-def group_shots(shots: Sequence[Shot], method: str = "signals", **kwargs: object) -> list[Group]:
+def group_shots(shots: Sequence[Shot], method: str = "signals", **kwargs: Any) -> list[Group]:
     """Group ``shots`` with one of :data:`GROUPING_METHODS`, in capture order."""
     fn = GROUPING_METHODS[validate_method(method, GROUPING_METHODS, "grouping")]
     groups = fn(list(shots), **kwargs)

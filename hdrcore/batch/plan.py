@@ -105,7 +105,7 @@ def read_plan(path: str | os.PathLike) -> Plan:
             if not isinstance(f, str) or not f:
                 raise InputError(f"{where}: a file name is not a string", path=p, found=repr(f))
             if remote.is_url(f) or isinstance(p, str) and not f.startswith("/"):
-                url = f if remote.is_url(f) else remote.join(remote.parent(p), f)
+                url = f if remote.is_url(f) else remote.join(remote.parent(str(p)), f)
                 remote.check_url(url)
                 if remote.info_of(url) is None:
                     raise InputError(f"{where}: no such file", path=p, found=url)

@@ -94,7 +94,7 @@ def parse_colour(text: str) -> tuple[int, int, int]:
     if len(parts) != 3 or min(parts) < 0:
         raise argparse.ArgumentTypeError(
             f"expected three non-negative integer levels R,G,B, found {text!r}")
-    return parts  # type: ignore[return-value]
+    return parts
 
 
 def input_files(args: argparse.Namespace, frames: Any = ()) -> list[Path]:

@@ -23,6 +23,7 @@ saturation level or noise floor).
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -83,7 +84,7 @@ DEFAULT_METHOD = "Cerman 2006 refined"
 
 def exposure_ratio(
     hist_dark: np.ndarray, hist_bright: np.ndarray, *, method: str = DEFAULT_METHOD,
-    **kwargs: object,
+    **kwargs: Any,
 ) -> ExposureRatioResult:
     """Exposure ratio ``t_bright / t_dark`` of a pair from ``(C, L)`` (or ``(L,)``) histograms.
 
@@ -100,7 +101,7 @@ def exposure_ratio(
 
 def exposure_ratio_frames(
     dark: np.ndarray, bright: np.ndarray, max_level: int, *, mask: np.ndarray | None = None,
-    method: str = DEFAULT_METHOD, **kwargs: object,
+    method: str = DEFAULT_METHOD, **kwargs: Any,
 ) -> ExposureRatioResult:
     """As :func:`exposure_ratio` from two ``(H, W, C)`` integer frames."""
     return exposure_ratio(histograms(dark, max_level, mask), histograms(bright, max_level, mask),
@@ -110,7 +111,7 @@ def exposure_ratio_frames(
 def bracket_exposures_from_histograms(
     hists: BracketHistograms, *, method: str = DEFAULT_METHOD,
     exposure_times: Sequence[float | None] | None = None, non_consecutive: bool = True,
-    **kwargs: object,
+    **kwargs: Any,
 ) -> BracketExposureResult:
     """Relative exposures of a bracket from cached histograms (fast re-fit)."""
     key = validate_method(method, EXPOSURE_METHODS, "exposure")
@@ -124,7 +125,7 @@ def bracket_exposures(
     stride: int | None = None, non_consecutive: bool = True,
     regions: tuple[int, int] | None = DEFAULT_REGIONS,
     pair_matrices: Sequence[np.ndarray] | None = None, margin: float = 2.0,
-    **kwargs: object,
+    **kwargs: Any,
 ) -> BracketExposureResult:
     """Relative exposures (darkest = 1) of ``frames`` (darkest first, integer ``(H, W, C)``).
 
@@ -140,7 +141,7 @@ def bracket_exposures(
 
 def bracket_exposures_registered(
     frames: Sequence[np.ndarray], max_level: int, pair_matrices: Sequence[np.ndarray], *,
-    margin: float = 2.0, **kwargs: object,
+    margin: float = 2.0, **kwargs: Any,
 ) -> BracketExposureResult:
     """Relative exposures of a hand-held bracket from histograms of each pair's common field of
     view.

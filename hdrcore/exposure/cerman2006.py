@@ -20,6 +20,8 @@ hand held camera", Computer Vision Winter Workshop 2006, section 5, eq. 4.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from ._core import FitOptions, estimate_pair, solve_3v
@@ -37,7 +39,7 @@ def exposure_ratio_cerman2006(
     saturation: float | None = None,
     noise_floor: float | None = None,
     lut: np.ndarray | None = None,
-    **kwargs: object,
+    **kwargs: Any,
 ) -> ExposureRatioResult:
     """The paper's estimator (eq. 4 + 3V iteration) on ``(C, max_level + 1)`` histograms.
 
@@ -46,4 +48,4 @@ def exposure_ratio_cerman2006(
     """
     kwargs.pop("noise_sigma", None)
     return estimate_pair(hist_dark, hist_bright, CERMAN2006, saturation=saturation,
-                         noise_floor=noise_floor, lut=lut, **kwargs)  # type: ignore[arg-type]
+                         noise_floor=noise_floor, lut=lut, **kwargs)

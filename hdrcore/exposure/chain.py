@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import replace
+from typing import Any
 
 import numpy as np
 
@@ -66,7 +67,7 @@ def solve_chain(
         return np.where(np.arange(n) == 0, 1.0, np.nan), {}
     a = np.array(rows)
     b = np.array(rhs)
-    w = np.array(wts)
+    wv = np.array(wts)
     # Connectivity to frame 0 (union-find over the used pairs).
     parent = list(range(n))
 
@@ -82,8 +83,8 @@ def solve_chain(
     cols = np.flatnonzero(connected)[1:]
     keep_rows = np.array([connected[i] and connected[j] for i, j in used])
     if cols.size:
-        sol, *_ = np.linalg.lstsq(a[keep_rows][:, cols] * w[keep_rows, None],
-                                  b[keep_rows] * w[keep_rows], rcond=None)
+        sol, *_ = np.linalg.lstsq(a[keep_rows][:, cols] * wv[keep_rows, None],
+                                  b[keep_rows] * wv[keep_rows], rcond=None)
         log_e[cols] = sol
     residuals = {}
     for (i, j), bi in zip(used, b, strict=True):
@@ -149,7 +150,7 @@ def chain_bracket(
     jackknife: bool = True,
     max_region_error: float = 0.005,
     jackknife_groups: int = 256,
-    **kwargs: object,
+    **kwargs: Any,
 ) -> BracketExposureResult:
     """Estimate every consecutive pair (and overlapping non-consecutive ones), then chain.
 
@@ -159,7 +160,7 @@ def chain_bracket(
     """
     n = hists.n_frames
     lut = kwargs.get("lut")
-    diag = dict(lut=lut, jackknife=jackknife, max_region_error=max_region_error,  # type: ignore[arg-type]
+    diag = dict(lut=lut, jackknife=jackknife, max_region_error=max_region_error,
                 jackknife_groups=jackknife_groups)
 
     def one(i: int, j: int) -> ExposureRatioResult:
@@ -233,7 +234,8 @@ def assemble_bracket(
             raise ParameterError("one exposure time per frame", expected=str(n),
                                  found=str(len(exposure_times)))
         times = tuple(None if t is None else float(t) for t in exposure_times)
-    exif_ratios, mismatch = [], []
+    exif_ratios: list[float | None] = []
+    mismatch: list[float | None] = []
     for p in pairs:
         ti, tj = times[p.dark], times[p.bright]
         if ti and tj and ti > 0 and tj > 0:

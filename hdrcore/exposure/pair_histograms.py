@@ -92,13 +92,14 @@ class PairHistograms:
 
     def jackknife_skeleton(self, max_groups: int = 256):
         """The histogram-only part of the region jack-knife (cached), or ``None``."""
-        if self.n_regions < 3:
+        dark, bright = self.regions_dark, self.regions_bright
+        if dark is None or bright is None or self.n_regions < 3:
             return None
         key = ("jackknife", int(max_groups))
         if key not in self._cache:
             from .stability import jackknife_skeleton
 
-            self._cache[key] = jackknife_skeleton(self.regions_dark, self.regions_bright,
+            self._cache[key] = jackknife_skeleton(dark, bright,
                                                   max_groups=max_groups)
         return self._cache[key]
 

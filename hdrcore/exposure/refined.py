@@ -27,6 +27,7 @@ import hashlib
 import threading
 from collections import OrderedDict
 from dataclasses import replace
+from typing import Any
 
 import numpy as np
 from scipy.ndimage import gaussian_filter1d
@@ -75,7 +76,7 @@ def quantised_sigma(sigma: float) -> float:
 
 def _digest(a: np.ndarray) -> bytes:
     a = np.ascontiguousarray(a)
-    return hashlib.blake2b(memoryview(a).cast("B"), digest_size=16,
+    return hashlib.blake2b(a.data.cast("B"), digest_size=16,
                            person=str((a.dtype.str, a.shape)).encode()[:16]).digest()
 
 
@@ -107,14 +108,14 @@ def exposure_ratio_refined(
     noise_floor: float | None = None,
     lut: np.ndarray | None = None,
     noise_sigma: float | None = None,
-    **kwargs: object,
+    **kwargs: Any,
 ) -> ExposureRatioResult:
     """Ratio ``t_bright / t_dark`` from ``(C, max_level + 1)`` histograms (see module docstring).
 
     ``noise_sigma`` (output levels) switches on noise matching; ``None`` or 0 leaves it off.
     """
     result = estimate_pair(hist_dark, hist_bright, REFINED, saturation=saturation,
-                           noise_floor=noise_floor, lut=lut, **kwargs)  # type: ignore[arg-type]
+                           noise_floor=noise_floor, lut=lut, **kwargs)
     if not noise_sigma or noise_sigma <= 0 or not np.isfinite(result.ratio):
         return result
     hd, hb = check_histograms(hist_dark, hist_bright)
@@ -126,7 +127,7 @@ def exposure_ratio_refined(
         blurred, btfs = blurred_transfer(hd, hb, s)
         result_b = estimate_pair(hd, blurred, REFINED, saturation=saturation,
                                  noise_floor=noise_floor, lut=lut, btfs=btfs,
-                                 **kwargs)  # type: ignore[arg-type]
+                                 **kwargs)
         if not np.isfinite(result_b.ratio):
             return result
         k = result_b.ratio

@@ -59,6 +59,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import replace
+from typing import Any
 
 import numpy as np
 
@@ -349,9 +350,10 @@ def exposure_ratio_registered(
 
     n_f, n_i = sf[:, :, 2].sum(axis=1), si[:, :, 2].sum(axis=1)
     pixels = int(min(n_f.sum(), n_i.sum()) / max(nk, 1))
-    common = dict(method=METHOD, saturation=z, noise_floor=floor, max_level=int(max_level),
-                  dark=int(dark_index), bright=int(bright_index), overlap_restricted=True,
-                  non_linear=lut is not None, tolerance=max_relative_error)
+    common: dict[str, Any] = dict(
+        method=METHOD, saturation=z, noise_floor=floor, max_level=int(max_level),
+        dark=int(dark_index), bright=int(bright_index), overlap_restricted=True,
+        non_linear=lut is not None, tolerance=max_relative_error)
     eqs = _equations(sf, si)
     # The fraction of the read pixels (of the sampled tiles) that entered the sums.
     examined = float(np.sum(np.minimum(tile, h - tf[:, 0]) * np.minimum(tile, w - tf[:, 1])))
@@ -482,7 +484,7 @@ def bracket_exposures_from_pixels(
     max_span: int = 3,
     consistency_stops: float = 0.02,
     workers: int | None = None,
-    **kwargs: object,
+    **kwargs: Any,
 ) -> BracketExposureResult:
     """Relative exposures (darkest = 1) of a registered bracket from its pixels.
 
@@ -514,7 +516,7 @@ def bracket_exposures_from_pixels(
     mats = [_homogeneous(m) for m in pair_matrices]
     z = kwargs.get("saturation")
     floor = kwargs.get("noise_floor")
-    zl, fl = check_levels(max_level, z, floor)  # type: ignore[arg-type]
+    zl, fl = check_levels(max_level, z, floor)
     # A frame with no level strictly between the floor and Z gives no ratio: its pairs get
     # status "no-signal" (or keep the fallback's "no-signal" result), never an exception.
     unusable = [_frame_unusable(f, zl, fl) for f in frames]
@@ -522,13 +524,13 @@ def bracket_exposures_from_pixels(
                           for i in range(n - 1)]
 
     def one(i: int, j: int) -> ExposureRatioResult:
-        extra_kw = {}
+        extra_kw: dict[str, Any] = {}
         if masks is not None:
             extra_kw = dict(mask_dark=masks[i], mask_bright=masks[j])
         return exposure_ratio_registered(frames[i], frames[j], max_level,
                                          _chain(mats, i, j), dark_index=i,
                                          bright_index=j, **extra_kw,
-                                         **kwargs)  # type: ignore[arg-type]
+                                         **kwargs)
 
     def signal(i: int, j: int) -> bool:
         return unusable[i] is None and unusable[j] is None
@@ -563,7 +565,7 @@ def bracket_exposures_from_pixels(
                            else ("brighter", unusable[i + 1]))
             pairs.append(_no_signal(which, kind, method=METHOD, n_ch=nc,  # type: ignore[arg-type]
                                     saturation=zl, noise_floor=fl, max_level=max_level, dark=i,
-                                    bright=i + 1, tolerance=tol))  # type: ignore[arg-type]
+                                    bright=i + 1, tolerance=tol))
         elif fallback is not None:
             h = judge(fallback.pairs[i])  # its interval with the region jack-knife
             pairs.append(replace(h, message=f"{h.message} (frames not registered: the "

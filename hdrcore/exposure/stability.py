@@ -144,8 +144,8 @@ def region_jackknife(
     fwd = ((sk.count_dark > 0) & sk.inner_dark & (pos > floor) & (pos < z) & (sk.t_fwd < z))
     inv = ((sk.count_bright > 0) & sk.inner_bright & (pos < z) & (pos > floor)
            & (sk.t_inv > floor))
-    x = np.empty((n_r, n_ch, 2, n_g))
-    y = np.empty((n_r, n_ch, 2, n_g))
+    x: np.ndarray = np.empty((n_r, n_ch, 2, n_g))
+    y: np.ndarray = np.empty((n_r, n_ch, 2, n_g))
     for c in range(n_ch):
         x[:, c, 0] = lin(pos[:, c], c)
         y[:, c, 0] = lin(sk.t_fwd[:, c], c)

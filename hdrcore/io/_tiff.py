@@ -45,7 +45,7 @@ class TiffTag:
             return len(data), data
         if self.type in (1, 7) and isinstance(self.values, bytes):
             return len(self.values), self.values
-        vals = tuple(self.values)  # type: ignore[arg-type]
+        vals = tuple(self.values)
         fmt, _ = _TYPES[self.type]
         if self.type in (5, 10):
             flat: list[int] = []

@@ -52,7 +52,7 @@ def check_output_path(
 
 def atomic_write(
     path: str | os.PathLike,
-    writer: Callable[[Path], None],
+    writer: Callable[[Path], object],
     *,
     force: bool = False,
     inputs: Iterable[str | os.PathLike] = (),

@@ -25,6 +25,7 @@ from dataclasses import dataclass, replace
 from fractions import Fraction
 from functools import cmp_to_key
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -515,7 +516,7 @@ def _capture_warnings(frames: list[Frame]) -> list[BracketWarning]:
         ))
     timed = [k for k, t in enumerate(times) if t is not None]
 
-    def changed(attr: str, code: str, label: str, fmt: Callable[[object], str],
+    def changed(attr: str, code: str, label: str, fmt: Callable[[Any], str],
                 term: str) -> None:
         values = [getattr(f.meta, attr) for f in frames]
         known = [(k, v) for k, v in enumerate(values) if v is not None]
@@ -633,12 +634,12 @@ def load_bracket(
             "a bracket needs at least two frames", path=where, found=f"{len(files)} frame(s)"
         )
     seen_paths: dict[str, Path] = {}
-    for f in files:
-        input_file(f)
-        key = str(resolved(f))
+    for file in files:
+        input_file(file)
+        key = str(resolved(file))
         if key in seen_paths:
-            raise BracketError("the same file is given twice", path=f)
-        seen_paths[key] = f
+            raise BracketError("the same file is given twice", path=file)
+        seen_paths[key] = file
 
     times_map: dict[str, Fraction] | None = None
     if exposure_times is not None:

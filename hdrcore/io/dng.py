@@ -162,8 +162,8 @@ def _check_image(image: np.ndarray, kind: str) -> np.ndarray:
 
 
 def _ifd0(h: int, w: int, kind: str, bits: int, meta: DngMetadata,
-          cfa_pattern: np.ndarray | None, rows_per_strip: int, scale: float,
-          provenance: Mapping[str, Any]) -> list[TiffTag]:
+          cfa_pattern: np.ndarray | Sequence[Sequence[int]] | None, rows_per_strip: int,
+          scale: float, provenance: Mapping[str, Any]) -> list[TiffTag]:
     spp = 3 if kind == "linear" else 1
     now = datetime.now().strftime("%Y:%m:%d %H:%M:%S")
     make = meta.make or "unknown"

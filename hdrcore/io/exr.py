@@ -44,7 +44,7 @@ def _storage(arr: np.ndarray, dtype: type, workers: int | None) -> tuple[np.ndar
     """``arr`` as non-negative finite ``dtype`` values (NaN and -inf -> 0, +inf -> HALF_MAX,
     half: finite values past HALF_MAX clipped there) over row blocks on ``workers`` threads; and
     how many values were clipped (half only). No full-size temporaries."""
-    out = np.empty(arr.shape, dtype)
+    out: np.ndarray = np.empty(arr.shape, dtype)
     half = dtype == np.float16
 
     def block(r0: int) -> int:

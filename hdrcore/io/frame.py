@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 from datetime import datetime
 from fractions import Fraction
+from typing import Any
 
 import numpy as np
 
@@ -277,6 +278,6 @@ class Frame:
         return self.with_meta(exposure_time=t, exposure_time_source=source,
                               exposure_time_apex=None, exposure_time_sequence=None)
 
-    def with_meta(self, **changes: object) -> Frame:
+    def with_meta(self, **changes: Any) -> Frame:
         """The same levels with some metadata fields replaced."""
         return Frame(levels=self.levels, meta=replace(self.meta, **changes), cfa=self.cfa)

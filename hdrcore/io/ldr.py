@@ -10,6 +10,7 @@ runs (:mod:`hdrcore.io.header`).
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 
@@ -17,6 +18,9 @@ from ..errors import ImageReadError
 from .exif import ExifData, read_exif
 from .frame import Frame, FrameMetadata, apply_orientation
 from .header import allow_pillow_pixels, check_frame_pixels, image_size
+
+if TYPE_CHECKING:
+    import tifffile
 
 __all__ = ["read_ldr", "sniff_format"]
 
@@ -65,8 +69,9 @@ def _decode_pillow(path: Path, max_pixels: int | None) -> np.ndarray:
 
     allow_pillow_pixels(max_pixels)
     try:
-        with Image.open(path) as im:
-            im.load()
+        with Image.open(path) as opened:
+            opened.load()
+            im: Image.Image = opened
             if im.mode in ("P", "PA", "CMYK", "YCbCr", "LAB", "HSV", "1"):
                 im = im.convert("RGB")
             if im.mode in ("I;16", "I;16B", "I;16L", "I"):
@@ -97,7 +102,7 @@ def _decode_tiff(path: Path) -> tuple[np.ndarray, int | None]:
 
     try:
         with tifffile.TiffFile(path) as tif:
-            page = tif.pages[0]
+            page = cast("tifffile.TiffPage", tif.pages[0])  # page 0 is never a TiffFrame
             orient_tag = page.tags.get(274)
             orientation = int(orient_tag.value) if orient_tag is not None else None
             arr = page.asarray()

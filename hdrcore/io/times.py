@@ -84,9 +84,9 @@ def read_exposure_times(path: str | os.PathLike) -> dict[str, Fraction]:
     try:
         text = data.decode("utf-8")
     except UnicodeDecodeError as exc:
-        line = data[:exc.start].count(b"\n") + 1
+        bad_line = data[:exc.start].count(b"\n") + 1
         raise InputError(
-            f"line {line} is not UTF-8 text", path=p, expected="a plain text file",
+            f"line {bad_line} is not UTF-8 text", path=p, expected="a plain text file",
             found=f"byte 0x{data[exc.start]:02x}",
         ) from None
     times: dict[str, Fraction] = {}

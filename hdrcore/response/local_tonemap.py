@@ -134,9 +134,9 @@ def local_tone_mapping(
                     meds.append(float(np.median(vals)))
             if len(meds) < 3:
                 continue
-            meds = np.asarray(meds)
-            lo_v, hi_v = ((np.percentile(meds, 10), np.percentile(meds, 90)) if meds.size > 5
-                          else (meds.min(), meds.max()))
+            med = np.asarray(meds)
+            lo_v, hi_v = ((np.percentile(med, 10), np.percentile(med, 90)) if med.size > 5
+                          else (med.min(), med.max()))
             if lo_v > 0:
                 per_bin.append(hi_v / lo_v)
         total_bins += len(per_bin)

@@ -25,7 +25,7 @@ _PALETTE = [
 _CHANNEL_COLOURS = [(200, 30, 30), (20, 140, 20), (30, 60, 220)]
 
 
-def _font(size: int) -> ImageFont.ImageFont:
+def _font(size: int) -> ImageFont.ImageFont | ImageFont.FreeTypeFont:
     try:
         return ImageFont.load_default(size=size)
     except TypeError:  # Pillow < 10.1

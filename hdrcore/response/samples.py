@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Literal, overload
 
 import numpy as np
 
@@ -85,6 +86,15 @@ def check_bracket(
     return out, max_level
 
 
+@overload
+def consecutive_ratios(
+    exposure_times: Sequence[float] | None, n_frames: int, *, required: Literal[True],
+    method: str
+) -> tuple[float, ...]: ...
+@overload
+def consecutive_ratios(
+    exposure_times: Sequence[float] | None, n_frames: int, *, required: bool, method: str
+) -> tuple[float, ...] | None: ...
 def consecutive_ratios(
     exposure_times: Sequence[float] | None, n_frames: int, *, required: bool, method: str
 ) -> tuple[float, ...] | None:

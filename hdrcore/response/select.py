@@ -235,7 +235,7 @@ def select_response(
     recovered = "joint-histogram" if source == "histograms" else "joint-pixels"
     all_pairs = make_pairs(None)
     folds = [make_pairs(f) for f in fold_masks(2)]
-    fit_kw = dict(smoothing=smoothing, cutoff=cutoff, low_cut=low_cut)
+    fit_kw: dict[str, Any] = dict(smoothing=smoothing, cutoff=cutoff, low_cut=low_cut)
     models = list(JOINT_MODELS) if n_ch > 1 else ["shared"]
 
     # --- held-back scores: fit on one fold, score on the other, pool -------------------------
@@ -245,17 +245,16 @@ def select_response(
                              **fit_kw).g
         return fit_family(name, pairs, log_r, max_level, lo, hi, n_channels=n_ch).g
 
-    pooled: dict[str, list] = {}
+    pooled: dict[str, list[tuple[float, tuple[float, ...], float, int]] | None] = {}
     for name in [*models, *families]:
-        acc = []
+        acc: list[tuple[float, tuple[float, ...], float, int]] = []
         for i in range(2):
             try:
                 g = fitted(name, folds[i])
             except (EstimationError, ParameterError):
-                acc = None
                 break
             acc.append(_score(g, folds[1 - i], lo, hi, log_r))
-        pooled[name] = acc
+        pooled[name] = acc if len(acc) == 2 else None
 
     def pool(parts) -> tuple[float, tuple[float, ...], int]:
         if not parts:

@@ -76,7 +76,7 @@ FILMIC_WHITE = 2.0
 def _filmic(x: np.ndarray) -> np.ndarray:
     # Filmic, ACES-like: a toe (slope 0.47 at black, half a linear curve's, rising to 3.9 in
     # the toe's end) and a shoulder (log-log slope 0.13 at saturation).
-    return _aces(FILMIC_WHITE * x) / _aces(FILMIC_WHITE)
+    return _aces(FILMIC_WHITE * x) / _aces(np.asarray(FILMIC_WHITE))
 
 
 def _toe_shoulder(x: np.ndarray) -> np.ndarray:

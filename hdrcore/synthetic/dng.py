@@ -148,7 +148,7 @@ def _black_per_site(black_level: int | Sequence[int]) -> tuple[int, int, int, in
             "per-site black level needs one value per 2x2 CFA site",
             expected="4 values (row-major)", found=str(len(vals)),
         )
-    return vals  # type: ignore[return-value]
+    return vals
 
 
 def _check_levels(black: tuple[int, ...], white: int) -> None:
@@ -226,7 +226,7 @@ def parse_margins(margins: int | Sequence[int]) -> Rect:
             "top and left masked margins must be even (the CFA pattern is that of the active "
             "area)", expected="even top and left", found=f"top {vals[0]}, left {vals[1]}",
         )
-    return vals  # type: ignore[return-value]
+    return vals
 
 
 @dataclass(frozen=True, eq=False)
@@ -316,7 +316,7 @@ def _check_areas(shape: tuple[int, int], active: Rect | None,
                 f"{what} must be a non-empty (top, left, bottom, right) inside the stored image",
                 expected=f"within {h}x{w}", found=str(tuple(r)),
             )
-        return vals  # type: ignore[return-value]
+        return vals
 
     if active is None:
         if masked:

@@ -314,7 +314,8 @@ def _with_frames(sim: SimulatedBracket, replaced: dict[int, float], seed: int) -
 
 
 def _positions(positions: int | Sequence[int], n: int, what: str) -> tuple[int, ...]:
-    vals = (positions,) if np.ndim(positions) == 0 else tuple(positions)  # type: ignore[arg-type]
+    vals: tuple[int, ...] = ((positions,) if isinstance(positions, (int, np.integer))
+                             else tuple(positions))
     out = []
     for p in vals:
         k = int(p)
@@ -379,9 +380,9 @@ def _finish(
         written=written, _signal=masks,
     )
     truth = json.loads(written.truth.read_text(encoding="utf-8"))
-    true = sim.truth()
+    sim_truth = sim.truth()
     for key in ("exposure_times", "ratios", "pairs", "key"):
-        truth[key] = true[key]
+        truth[key] = sim_truth[key]
     for k, f in enumerate(truth.get("frames", [])):
         f["true_exposure_time"] = result.exposure_times[k]
     truth["case"] = result.truth()

@@ -40,7 +40,9 @@ import zlib
 from dataclasses import dataclass
 from datetime import datetime, timedelta
 from fractions import Fraction
+from functools import partial
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -144,6 +146,10 @@ def _tiff_rgb(image: np.ndarray, exif_kwargs: dict) -> bytes:
     return encode_tiff(ifd0, exif=exif, image=data)
 
 
+def _write_bytes(path: Path, data: bytes) -> None:
+    path.write_bytes(data)
+
+
 def _jpeg(image: np.ndarray, exif: bytes, quality: int) -> bytes:
     from PIL import Image
 
@@ -231,11 +237,12 @@ def write_bracket(
     times = tuple(as_rational(t, what="exposure time") for t in sim.exposure_times)
     captures = [_CAPTURE_START + timedelta(seconds=2 * k) for k in range(n)]
 
-    raw_info: dict | None = None
+    raw_info: dict[str, Any] | None = None
     if key == "dng":
         black = black_level if black_level is not None else default_black_level(sim.bits)
         white = int(white_level) if white_level is not None else sim.max_level
-        black_sites = (black,) * 4 if np.ndim(black) == 0 else tuple(int(b) for b in black)
+        black_sites: tuple[int, ...] = ((black,) * 4 if isinstance(black, (int, np.integer))
+                                        else tuple(int(b) for b in black))
         file_max = int(white - max(black_sites))
         raw_info = {
             "cfa_pattern": cfa_pattern.upper(),
@@ -267,7 +274,7 @@ def write_bracket(
         file_max = 65535
 
     for k, path in enumerate(frame_paths):
-        meta = {"exposure_time": times[k], "f_number": f_number, "iso": iso,
+        meta: dict[str, Any] = {"exposure_time": times[k], "f_number": f_number, "iso": iso,
                 "capture_time": captures[k]}
         if raw_info is not None:
             rng = np.random.default_rng([sim.seed, 104729, k])
@@ -279,7 +286,7 @@ def write_bracket(
                 shot_noise_full_well=sim.shot_noise_full_well,
                 rng=rng,
             )
-            areas: dict = {}
+            areas: dict[str, Any] = {}
             if margin_rect is not None:
                 # Drawn after the active area from the same generator: its numbers are unchanged.
                 sensor = add_masked_margins(
@@ -302,7 +309,7 @@ def write_bracket(
                 data = _tiff_rgb(image, meta)
             else:
                 data = _jpeg(image, exif, jpeg_quality)
-        atomic_write(path, lambda tmp, d=data: tmp.write_bytes(d), force=force)
+        atomic_write(path, partial(_write_bytes, data=data), force=force)
 
     lines = ["# name seconds (exact; written by the hdrcore simulator, ground truth in truth.json)"]
     lines += [f"{name} {t}  # {float(t):.9g}" for name, t in zip(names, times, strict=True)]

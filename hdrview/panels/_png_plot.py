@@ -27,7 +27,7 @@ def _colour(value: Any, index: int) -> tuple[int, int, int]:
             return tuple(int(v) for v in rgb[:3])  # type: ignore[return-value]
         except ValueError:
             pass
-    return ImageColor.getrgb(_PALETTE[index % len(_PALETTE)])[:3]  # type: ignore[return-value]
+    return ImageColor.getrgb(_PALETTE[index % len(_PALETTE)])[:3]
 
 
 def _values(v: Any) -> np.ndarray | None:
