@@ -92,7 +92,7 @@ def _frame_list(indices: list[int], names: list[str]) -> str:
 
 def _unused_frames(result: PipelineResult) -> list[Verdict]:
     """Frames left out because they carry no signal (black, saturated): one verdict per kind."""
-    unused = getattr(result, "unused_frames", ())
+    unused = result.unused_frames
     if not unused:
         return []
     full = result.loaded_bracket
@@ -121,12 +121,12 @@ def _response_and_colour(result: PipelineResult) -> list[Verdict]:
     white balance and local tone mapping (issue 15)."""
     out: list[Verdict] = []
     resp = result.response
-    sel = getattr(resp, "selection", None)
+    sel = None if resp is None else resp.selection
     if sel is not None and sel.fallback:
         out.append(Verdict("response-fallback", "warning", sel.message + ". The merge uses "
                            f"{sel.chosen}; its colours and ratios are only as right as that "
                            "curve."))
-    elif sel is not None:
+    elif resp is not None and sel is not None:
         out.append(Verdict("response-auto", "info", sel.message + "."))
         from .response.degeneracy import degeneracy
 
@@ -205,7 +205,7 @@ def diagnose(result: PipelineResult) -> list[Verdict]:
     b = result.bracket
     names = [f.name for f in b.frames]
     out.extend(_unused_frames(result))
-    marker = getattr(result, "marker_colour", None)
+    marker = result.marker_colour
     if marker is not None:
         out.append(Verdict(
             "marker-colour-excluded", "info",
@@ -269,46 +269,46 @@ def diagnose(result: PipelineResult) -> list[Verdict]:
 
     reg = result.registration
     if reg is not None:
-        failed = [p for p in reg.pairs if not p.usable]
-        moved = [math.hypot(p.dx, p.dy) for p in reg.pairs if p.usable]
-        for p in reg.pairs:
-            if p.status != "weak":
+        failed = [rp for rp in reg.pairs if not rp.usable]
+        moved = [math.hypot(rp.dx, rp.dy) for rp in reg.pairs if rp.usable]
+        for rp in reg.pairs:
+            if rp.status != "weak":
                 continue
-            res = p.residual
-            what = res.message if res is not None else p.message
+            res = rp.residual
+            what = res.message if res is not None else rp.message
             out.append(Verdict(
                 "registration-weak", "warning",
-                f"Frames {p.dark} and {p.bright} ({names[p.dark]}, {names[p.bright]}) were "
-                f"aligned with the {p.model} model, but a check independent of it finds {what}. "
+                f"Frames {rp.dark} and {rp.bright} ({names[rp.dark]}, {names[rp.bright]}) were "
+                f"aligned with the {rp.model} model, but a check independent of it finds {what}. "
                 "Edges there may be doubled in the merge"
                 + ("; the homography model (perspective) may fit better."
-                   if p.model != "homography" else "; deghosting may help."),
-                (p.dark, p.bright),
+                   if rp.model != "homography" else "; deghosting may help."),
+                (rp.dark, rp.bright),
             ))
         static = bool(moved) and max(moved) <= STATIC_SHIFT_PX
-        for p in failed:
-            label = f"frames {p.dark} and {p.bright} ({names[p.dark]}, {names[p.bright]})"
+        for rp in failed:
+            label = f"frames {rp.dark} and {rp.bright} ({names[rp.dark]}, {names[rp.bright]})"
             if static:
                 out.append(Verdict(
                     "registration-identity", "info",
-                    f"{label} could not be registered ({p.status}: {p.message}); they keep the "
+                    f"{label} could not be registered ({rp.status}: {rp.message}); they keep the "
                     f"identity. The other pairs moved by at most {max(moved):.2f} px, so the "
                     "bracket looks static (tripod) and the identity is right.",
-                    (p.dark, p.bright),
+                    (rp.dark, rp.bright),
                 ))
             else:
                 out.append(Verdict(
                     "registration-failed", "warning",
-                    f"Registration failed for {label} ({p.status}): {p.message}. They were "
+                    f"Registration failed for {label} ({rp.status}): {rp.message}. They were "
                     "merged without alignment (identity) and may be blurred or ghosted; "
                     + ("the other pairs moved by up to "
                        f"{max(moved):.1f} px." if moved else "no pair could be registered."),
-                    (p.dark, p.bright),
+                    (rp.dark, rp.bright),
                 ))
 
     out.extend(_response_and_colour(result))
     m = result.merge
-    hist = getattr(result, "exposures_histogram", None)
+    hist = result.exposures_histogram
     if hist is not None and hist is not ex:
         for k, (a, c) in enumerate(zip(hist.ratios, ex.ratios, strict=False)):
             if math.isfinite(a) and math.isfinite(c) and c > 0 and abs(a / c - 1) > 0.01:

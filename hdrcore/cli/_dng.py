@@ -142,6 +142,7 @@ def write_result_dng(path: str | os.PathLike, result: Any, *, bits: int = 32,
     # lower bound: written at the darkest frame's white on all four sites, so the editor sees
     # it clipped (at the file's WhiteLevel) and reconstructs it as a highlight (darktable
     # rendered such noisy cells green).
+    assert mos.merge is not None  # without transforms the sites are merged as one
     mosaic = mos.mosaic.copy()
     clipped = np.repeat(np.repeat(mos.merge.clipped, 2, axis=0), 2, axis=1)
     mosaic[clipped] = np.float32(1.0 / min(result.exposure_times))

@@ -50,8 +50,8 @@ def run(args: argparse.Namespace) -> int:
     result = Pipeline(bracket, params).run(until="registration")
     print_unused_frames(result)
     reg = result.registration
-    assert reg is not None  # align is never "none" here
     out = result.registration_json()
+    assert reg is not None and out is not None  # align is never "none" here
     out["frames"] = [f.path for f in result.bracket.frames]
     out["frames_not_used"] = [u.to_json() for u in result.unused_frames]
     if args.json:

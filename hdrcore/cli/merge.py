@@ -16,7 +16,8 @@ import sys
 import time
 
 from ..errors import OutputError
-from ..io import EXR_COMPRESSIONS, atomic_write, check_output_path, write_exr, write_png
+from ..export import write_result
+from ..io import EXR_COMPRESSIONS, atomic_write, check_output_path, write_png
 from ..pipeline import Pipeline
 from ._common import (
     add_bracket_arguments,
@@ -116,20 +117,8 @@ def run(args: argparse.Namespace) -> int:
         progress.close()
 
     t_write = time.perf_counter()
-    write_exr(
-        args.output, result.radiance, half=not args.float32, compression=args.exr_compression,
-        exposure_times=result.exposure_times,
-        exposure_ratios=result.exposures.ratios,
-        transforms=result.to_reference,
-        sources=list(result.bracket.paths),
-        metadata={
-            "reference": None if result.registration is None else result.registration.reference,
-            "times_source": result.times_source,
-            "working_space": params.working_space,
-            "response": None if result.response is None else result.response.method,
-        },
-        force=args.force, inputs=inputs,
-    )
+    write_result(args.output, result, half=not args.float32, compression=args.exr_compression,
+                 force=args.force, inputs=inputs)
     if args.dng:
         from ._dng import write_result_dng
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from typing import Any
 
 import numpy as np
 
@@ -86,9 +87,10 @@ def run(args: argparse.Namespace) -> int:
     for out in outputs:
         check_output_path(out, force=args.force, inputs=input_files(args, bracket.paths))
     frames = [f.levels for f in bracket.frames]
-    times = bracket.exposure_times
-    times = None if any(t is None for t in times) else [float(t) for t in times]
-    params: dict = {"max_level": bracket.max_level, "cutoff": args.cutoff}
+    recorded = bracket.exposure_times
+    times = (None if any(t is None for t in recorded)
+             else [float(t) for t in recorded if t is not None])
+    params: dict[str, Any] = {"max_level": bracket.max_level, "cutoff": args.cutoff}
     if args.no_monotone:
         params["monotone"] = False
     if args.order is not None:

@@ -8,16 +8,20 @@ from __future__ import annotations
 import tempfile
 import threading
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import viser
 
 from hdrcore.errors import InputError
-from hdrcore.io import encode_png, write_exr
+from hdrcore.export import write_result
+from hdrcore.io import encode_png
 
 from ._access import merge_of, preview_of
 from ._draw import DISPLAY_WIDTH, display_step, enlarge, labels_to_rgb, unit_to_display
+
+if TYPE_CHECKING:  # the pipeline is imported on first use (slow: numba), not with the page
+    from hdrcore.pipeline import PipelineResult
 
 __all__ = ["ResultPanel", "LAYERS", "ZOOMS", "FRAME_COLOURS", "exr_bytes", "preview_png_bytes",
            "loupe", "fit_to_box"]
@@ -240,19 +244,14 @@ class ResultPanel:
         return [(f"result-{name}.png", encode_png(img)) for name, img in self._images.items()]
 
 
-def exr_bytes(result: Any, work_dir: str | Path | None = None) -> bytes:
-    """The merged radiance as OpenEXR (half float) bytes (written through a temporary file in
-    ``work_dir``, the inspector's own temporary folder, removed when it stops)."""
-    merged = merge_of(result)
-    radiance = getattr(result, "radiance", None)  # the pipeline's colour-converted radiance
-    if radiance is None and merged is not None:
-        radiance = merged.radiance
-    if radiance is None:
+def exr_bytes(result: PipelineResult, work_dir: str | Path | None = None) -> bytes:
+    """The merged radiance as OpenEXR (half float) bytes, as ``hdrcore merge`` writes it
+    (:func:`hdrcore.export.write_result`: the same attributes), through a temporary file in
+    ``work_dir``, the inspector's own temporary folder, removed when it stops."""
+    if result.radiance is None:
         raise InputError("the merged HDR is not available yet")
-    times = getattr(result, "exposure_times", None) or getattr(merged, "exposure_times", None)
     with tempfile.TemporaryDirectory(prefix="exr-", dir=work_dir) as tmp:
-        path = Path(tmp) / "merged.exr"
-        write_exr(path, radiance, exposure_times=times)
+        path = write_result(Path(tmp) / "merged.exr", result)
         return path.read_bytes()
 
 
