@@ -13,6 +13,8 @@ import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
+from .status import Severity
+
 if TYPE_CHECKING:  # pragma: no cover
     from .pipeline import PipelineResult
 
@@ -38,7 +40,7 @@ MAX_COLOUR_ERROR = 0.02
 @dataclass(frozen=True)
 class Verdict:
     code: str
-    severity: str
+    severity: Severity
     message: str
     frames: tuple[int, ...] = ()
 
@@ -51,7 +53,7 @@ class Verdict:
         }
 
 
-_CAPTURE = {
+_CAPTURE: dict[str, tuple[Severity, str]] = {
     "iso-changed": ("info", "ISO changed between frames (a phone bracketing with exposure "
                     "compensation): the recorded exposure is time x ISO, which is what orders "
                     "and chains the frames; noise differs between exposures."),

@@ -21,6 +21,8 @@ from typing import Any
 
 import numpy as np
 
+from .status import SignalStatus
+
 __all__ = ["MIN_SIGNAL_FRACTION", "FrameSignal", "frame_signal"]
 
 #: A frame with fewer of its pixels between twice the noise floor and Z is unusable (1 in 10^4).
@@ -38,7 +40,7 @@ class FrameSignal:
 
     index: int
     path: str
-    status: str
+    status: SignalStatus
     signal_fraction: float
     black_fraction: float
     saturated_fraction: float
@@ -88,6 +90,7 @@ def frame_signal(counts: np.ndarray, *, noise_floor: float, saturation: float, i
     signal = float(np.mean(h[:, lo_signal:max(lo_signal, hi)].sum(axis=-1) / total))
     black = float(np.mean(h[:, :lo_black].sum(axis=-1) / total))
     saturated = float(np.mean(h[:, hi:].sum(axis=-1) / total))
+    status: SignalStatus
     if signal >= min_fraction:
         status = "ok"
     else:

@@ -182,8 +182,9 @@ def install_guard(guard: ConnectionGuard) -> Iterator[None]:
         kwargs["process_request"] = guard.wrap(kwargs.get("process_request"))
         return original(*args, **kwargs)
 
-    serve_module.serve = serve
+    # viser has no hook: its module's serve (a class) is replaced by a function while it starts
+    serve_module.serve = serve  # type: ignore[misc,assignment]  # a deliberate monkeypatch
     try:
         yield
     finally:
-        serve_module.serve = original
+        serve_module.serve = original  # type: ignore[misc]  # undoing the monkeypatch

@@ -53,7 +53,7 @@ class PathRefused(InputError):
 TIMES_FILES = ("exposure_times.txt", "times.txt")
 
 
-def _real(p: Path, shown: object) -> Path:
+def _real(p: Path, shown: str | Path) -> Path:
     """``p`` with every symbolic link and ``..`` resolved; a loop or an unreadable folder on the
     way is a :class:`PathRefused` naming ``shown``."""
     try:
@@ -118,7 +118,7 @@ class RootResolver:
     def allowed(self, real: Path) -> bool:
         return real in self._files or any(_inside(real, f) for f in self._folders)
 
-    def resolve(self, path: str | Path, *, shown: object = None) -> Path:
+    def resolve(self, path: str | Path, *, shown: str | Path | None = None) -> Path:
         """The real path of ``path`` (typed text or a path; relative to the root) if allowed."""
         shown = path if shown is None else shown
         if isinstance(path, str):

@@ -85,7 +85,7 @@ def _alive(pid: int) -> bool:
 def remove_stale_work_dirs(parent: str | Path | None = None) -> list[Path]:
     """Remove this user's ``hdrview-<pid>-*`` folders whose process is gone; return them."""
     parent = Path(parent or tempfile.gettempdir())
-    removed = []
+    removed: list[Path] = []
     try:
         entries = list(parent.iterdir())
     except OSError:
@@ -206,7 +206,7 @@ class UploadStore:
             self.check_pixels(p, shown=f"{name}: {p.name}")
         return d
 
-    def check_pixels(self, path: Path, *, shown: object) -> None:
+    def check_pixels(self, path: Path, *, shown: str | Path) -> None:
         limit = self.limits.frame_pixels
         if not limit:
             return

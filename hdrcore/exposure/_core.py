@@ -15,6 +15,7 @@ import numpy as np
 
 from ..btf import BrightnessTransferFunction, brightness_transfer_function
 from ..errors import ParameterError
+from ..status import RatioStatus
 from .interval import OK_TOLERANCE, brightness_band_ratios, verdict
 from .result import FORWARD, INVERSE, ExposureEquations, ExposureRatioResult
 
@@ -489,6 +490,7 @@ def estimate_pair(
         channel_std_errors=tuple(float(v) for v in cse), channels_disagree=disagree,
         level_group_size=f, band_ratios=bands, **common,
     )
+    status: RatioStatus
     if not np.isfinite(k) or k <= 0:
         status, message = "failed", f"the fit of frames {dark} and {bright} gave no positive ratio"
     elif n_inliers < min_equations:

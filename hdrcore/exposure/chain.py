@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import ParameterError
+from ..status import ChainStatus
 from .interval import judge
 from .pair_histograms import BracketHistograms, PairHistograms, bracket_histograms
 from .result import BracketExposureResult, ExposureRatioResult
@@ -247,6 +248,7 @@ def assemble_bracket(
             mismatch.append(None)
 
     bad = [p for p in pairs if not p.ok]
+    status: ChainStatus
     if np.any(~np.isfinite(exposures)):
         status = "broken-chain"
         message = ("the chain of exposures is broken: "

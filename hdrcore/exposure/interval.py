@@ -84,6 +84,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..status import RatioStatus
+
 if TYPE_CHECKING:
     from .result import ExposureEquations, ExposureRatioResult
 
@@ -127,7 +129,7 @@ OK_TOLERANCE = 0.008
 N_BANDS = 4
 """Brightness bands of :func:`brightness_band_ratios`."""
 
-JUDGED = ("ok", "uncertain")
+JUDGED: tuple[RatioStatus, ...] = ("ok", "uncertain")
 """The statuses :func:`judge` decides between; every other status is kept as it is."""
 
 _PIXELS = "registered pixels"
@@ -244,7 +246,8 @@ def _fmt_interval(lo: float, hi: float) -> str:
     return f"{lo:.{decimals}f}-{hi:.{decimals}f}"
 
 
-def verdict(result: ExposureRatioResult, tolerance: float, evidence: str) -> tuple[str, str]:
+def verdict(result: ExposureRatioResult, tolerance: float,
+            evidence: str) -> tuple[RatioStatus, str]:
     """``(status, message)`` of a pair that passed every other check: ``"ok"`` when its
     interval's relative half-width is at most ``tolerance``, else ``"uncertain"`` with what
     widens it most."""

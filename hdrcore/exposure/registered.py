@@ -66,6 +66,7 @@ import numpy as np
 from .._numba import njit as _njit
 from .._threads import thread_map
 from ..errors import ParameterError
+from ..status import RatioStatus
 from ._core import _no_signal, as_lut, channels_disagree, check_levels
 from .chain import assemble_bracket
 from .interval import OK_TOLERANCE, brightness_band_ratios, judge, verdict
@@ -419,6 +420,7 @@ def exposure_ratio_registered(
         region_std_error=se, common_fraction=overlap,
         band_ratios=brightness_band_ratios(eqs, inlier_mask, ratio_of_sums=True), **common,
     )
+    status: RatioStatus
     if not np.isfinite(k) or k <= 0:
         status, message = "failed", (f"the registered pixels of frames {dark_index} and "
                                      f"{bright_index} gave no positive ratio")

@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 
 from ..btf import BrightnessTransferFunction
+from ..status import ChainStatus, RatioStatus
 from . import interval as _interval
 
 __all__ = ["ExposureEquations", "ExposureRatioResult", "BracketExposureResult", "PairKey"]
@@ -94,7 +95,7 @@ class ExposureRatioResult:
     residuals: np.ndarray
     std_error: float
     overlap: float
-    status: str
+    status: RatioStatus
     message: str
     channel_ratios: tuple[float, ...]
     channel_std_errors: tuple[float, ...]
@@ -117,7 +118,7 @@ class ExposureRatioResult:
     response_error_per_stop: float = 0.0
 
     @classmethod
-    def unmeasured(cls, *, status: str, message: str, n_channels: int,
+    def unmeasured(cls, *, status: RatioStatus, message: str, n_channels: int,
                    equations: ExposureEquations | None = None, overlap: float = 0.0,
                    **fields: Any) -> ExposureRatioResult:
         """A pair whose ratio could not be measured (no overlap, no signal, not registered):
@@ -242,7 +243,7 @@ class BracketExposureResult:
     exif_ratios: tuple[float | None, ...]
     mismatch_stops: tuple[float | None, ...]
     chain_residuals_stops: dict[PairKey, float]
-    status: str
+    status: ChainStatus
     message: str
     method: str
     saturation: float

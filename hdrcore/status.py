@@ -1,0 +1,49 @@
+"""The words a result's ``status`` and a verdict's ``severity`` may take, defined once.
+
+Each is a :data:`typing.Literal` of the exact strings the JSON outputs carry (so the JSON is
+unchanged and mypy rejects a misspelt or undeclared word where a result is built); the tuple
+next to each lists the same words for code that checks or documents them at run time.
+
+- :data:`Severity`: a :class:`hdrcore.diagnose.Verdict`'s (and the inspector's notifications').
+- :data:`RatioStatus`: one pair's exposure ratio
+  (:class:`hdrcore.exposure.ExposureRatioResult`). ``"ok"`` and ``"uncertain"`` are decided
+  from the 95 % interval (:mod:`hdrcore.exposure.interval`); ``"unstable"`` marks regions that
+  disagree; ``"channels-disagree"``, ``"few-equations"``, ``"failed"`` a fit that cannot be
+  trusted; ``"no-overlap"``, ``"no-signal"``, ``"unregistered"`` a pair that could not be
+  measured; ``"inconsistent"`` a pair the chain of the other pairs contradicts.
+- :data:`ChainStatus`: a whole bracket's ratios
+  (:class:`hdrcore.exposure.BracketExposureResult`): ``"broken-chain"`` when some frame is not
+  linked to the others, ``"not-ok"`` when some pair is not ok.
+- :data:`SignalStatus`: one frame's usable signal (:class:`hdrcore.signal.FrameSignal`).
+"""
+
+from __future__ import annotations
+
+from typing import Literal, get_args
+
+__all__ = [
+    "CHAIN_STATUSES",
+    "RATIO_STATUSES",
+    "SEVERITIES",
+    "SIGNAL_STATUSES",
+    "ChainStatus",
+    "RatioStatus",
+    "Severity",
+    "SignalStatus",
+]
+
+Severity = Literal["error", "warning", "info"]
+#: worst first
+SEVERITIES: tuple[Severity, ...] = get_args(Severity)
+
+RatioStatus = Literal[
+    "ok", "uncertain", "unstable", "channels-disagree", "few-equations", "failed",
+    "no-overlap", "no-signal", "unregistered", "inconsistent",
+]
+RATIO_STATUSES: tuple[RatioStatus, ...] = get_args(RatioStatus)
+
+ChainStatus = Literal["ok", "not-ok", "broken-chain"]
+CHAIN_STATUSES: tuple[ChainStatus, ...] = get_args(ChainStatus)
+
+SignalStatus = Literal["ok", "black", "saturated", "unlinked"]
+SIGNAL_STATUSES: tuple[SignalStatus, ...] = get_args(SignalStatus)

@@ -1,0 +1,68 @@
+"""Statuses and severities are declared once (:mod:`hdrcore.status`, issue 17): the result
+types are annotated with those aliases, and every word real runs write is a declared one."""
+
+from __future__ import annotations
+
+import json
+import typing
+from pathlib import Path
+
+import pytest
+
+from hdrcore import status
+from hdrcore.diagnose import Verdict
+from hdrcore.exposure import BracketExposureResult, ExposureRatioResult
+from hdrcore.io import load_bracket
+from hdrcore.pipeline import Pipeline, PipelineParams
+from hdrcore.signal import FrameSignal
+from hdrcore.synthetic.faults import (
+    SEED_PROTOCOL,
+    write_black_frames,
+    write_swapped_times,
+)
+
+SMALL = SEED_PROTOCOL.replace(shape=(48, 64), exposure_times=(1.0, 4.0, 16.0, 64.0))
+
+
+@pytest.mark.parametrize("cls,field,alias", [
+    (Verdict, "severity", status.Severity),
+    (ExposureRatioResult, "status", status.RatioStatus),
+    (BracketExposureResult, "status", status.ChainStatus),
+    (FrameSignal, "status", status.SignalStatus),
+])
+def test_result_fields_use_the_declared_aliases(cls, field, alias) -> None:
+    assert typing.get_type_hints(cls)[field] == alias
+
+
+def test_the_tuples_list_the_aliases_words() -> None:
+    assert status.SEVERITIES == ("error", "warning", "info")
+    assert set(status.RATIO_STATUSES) >= {"ok", "uncertain", "no-overlap", "no-signal"}
+    for words in (status.SEVERITIES, status.RATIO_STATUSES, status.CHAIN_STATUSES,
+                  status.SIGNAL_STATUSES):
+        assert len(set(words)) == len(words) and all(isinstance(w, str) for w in words)
+
+
+@pytest.mark.parametrize("case", ["black", "swapped"])
+def test_every_word_a_run_writes_is_declared(tmp_path: Path, case: str) -> None:
+    if case == "black":
+        c = write_black_frames(tmp_path, (0,), SMALL)
+        bracket = load_bracket(c.frames)
+    else:
+        c = write_swapped_times(tmp_path, spec=SMALL)
+        bracket = load_bracket(c.frames, exposure_times=c.times_file)
+    result = Pipeline(bracket, PipelineParams()).run(until="merge")
+    doc = json.loads(json.dumps(result.to_report(), default=str))
+    severities = {v["severity"] for v in doc["verdicts"]}
+    pair_statuses = {p["status"] for p in doc["ratios"]["pairs"]}
+    signal_statuses = {s["status"] for s in doc["frame_signal"]}
+    assert severities == {v.severity for v in result.verdicts}
+    assert severities <= set(status.SEVERITIES)
+    assert pair_statuses <= set(status.RATIO_STATUSES)
+    assert {p.status for p in result.exposures_histogram.pairs} <= set(status.RATIO_STATUSES)
+    assert result.exposures.status in status.CHAIN_STATUSES
+    assert result.exposures_histogram.status in status.CHAIN_STATUSES
+    assert signal_statuses <= set(status.SIGNAL_STATUSES)
+    if case == "black":  # runs that report something other than "ok"
+        assert "black" in signal_statuses
+    else:
+        assert severities & {"warning", "error"}
