@@ -156,13 +156,16 @@ def _response_and_colour(result: PipelineResult) -> list[Verdict]:
         return out
     before, after = check["before"], check["after"]
     err = after.get("merge_error_srgb")
+    own = [f["best_error_balanced"] for f in after.get("frame_colours") or []
+           if f.get("best_error_balanced") is not None]
     if check.get("anchor") is not None and before.get("merge_error_srgb") is not None:
         out.append(Verdict(
             "colour-anchored", "info",
-            "The merge was given the frames' own colours (as a screen shows them: the "
-            "reference frame's where it is well exposed, elsewhere the frame nearest mid-grey): "
-            f"median chromaticity error against the reference frame "
-            f"{before['merge_error_srgb']:.3f} -> {err:.3f}."))
+            "The merge was given the frames' own colours (as a screen shows them: each pixel "
+            "the colour of the frames well exposed there, the one nearest mid-grey first): "
+            + (f"median chromaticity error against each frame where it is the best exposed "
+               f"at most {max(own):.3f}; " if own else "")
+            + f"against the reference frame {before['merge_error_srgb']:.3f} -> {err:.3f}."))
     elif err is not None and err > MAX_COLOUR_ERROR:
         out.append(Verdict(
             "colour-drift", "warning",
@@ -177,9 +180,17 @@ def _response_and_colour(result: PipelineResult) -> list[Verdict]:
             "The white balance changes between frames: "
             + ", ".join(f"frame {k} red/green x{wb[k][0]:.3f}, blue/green x{wb[k][2]:.3f}"
                         for k in odd)
-            + " against the reference frame. A phone re-balanced each shot (or the response "
-            "is wrong); the regions those frames expose best keep their colours.",
+            + " against the reference frame. A phone re-balanced each shot; "
+            + ("the merge divides it out (those frames' regions take the reference's balance)."
+               if (check.get("white_balance") or {}).get("applied")
+               else "the regions those frames expose best keep their colours."),
             tuple(odd)))
+    balance = check.get("white_balance") or {}
+    if balance.get("unmeasured"):
+        out.append(Verdict(
+            "white-balance-unmeasured", "info",
+            f"{balance['message'][0].upper()}{balance['message'][1:]}.",
+            tuple(balance["unmeasured"])))
     ltm = check.get("local_tone_mapping") or {}
     if ltm.get("detected"):
         out.append(Verdict(

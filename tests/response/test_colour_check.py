@@ -140,11 +140,15 @@ def _rebalanced(frame: np.ndarray, gains: tuple[float, float, float]) -> np.ndar
 
 
 @pytest.mark.parametrize("numba", [True, False])
-def test_anchoring_keeps_the_reference_colour_where_it_is_well_exposed(
+def test_anchoring_gives_every_frame_its_own_colour_where_it_is_best_exposed(
         srgb_bracket, numba, monkeypatch) -> None:
-    """Frames that disagree in colour (a phone re-balancing each shot): where the reference is
-    well exposed the merge takes its colour, elsewhere the frame that exposes it best."""
+    """Frames that disagree in colour (a phone re-balancing each shot): each pixel takes the
+    colour of the frames well exposed there, the one nearest mid-grey first, so every frame's
+    best-exposed regions have that frame's colour (the issue's target measured on every frame,
+    not only the reference). The old rule (the reference's colour wherever it is well exposed)
+    meets the reference and misses the others."""
     import hdrcore.merge.colour_check as module
+    from hdrcore.merge.colour_check import REFERENCE_BAND, frame_colours
 
     if not numba:
         monkeypatch.setattr(module, "AVAILABLE", False)
@@ -153,21 +157,23 @@ def test_anchoring_keeps_the_reference_colour_where_it_is_well_exposed(
               _rebalanced(frames[2], (0.94, 1.0, 1.06))]
     res = merge(frames, TIMES, response=LUT, max_level=255)
     kw = dict(max_level=255, reference=1)
-    plain = colour_check(frames, res.radiance, LUT, **kw)
+    anchor_kw = dict(max_level=255, saturation=250, noise_floor=2, reference=1, lut=LUT,
+                     exposure_times=TIMES, shares=res.shares)
+    plain = frame_colours(frames, res.radiance, **kw)
     rad = res.radiance.copy()
-    anchor_colour(rad, frames, srgb_decode_lut(255), max_level=255, saturation=250,
-                  noise_floor=2, reference=1, lut=LUT, exposure_times=TIMES,
-                  shares=res.shares)
-    banded = colour_check(frames, rad, LUT, **kw)
-    rad_share = res.radiance.copy()
-    anchor_colour(rad_share, frames, srgb_decode_lut(255), max_level=255, saturation=250,
-                  noise_floor=2, reference=1, lut=LUT, exposure_times=TIMES,
-                  shares=res.shares, reference_band=None)
-    shared = colour_check(frames, rad_share, LUT, **kw)
-    assert plain.merge_error > 0.004
-    assert banded.merge_error < 1e-4 < shared.merge_error
-    # where the reference is clipped, the darker frame's own colour
-    assert banded.best_frame_errors[0][0] < 0.004 < plain.best_frame_errors[0][0] + 0.004
+    y_before = rad @ LUMA.astype(np.float32)
+    done = anchor_colour(rad, frames, srgb_decode_lut(255), **anchor_kw)
+    own = frame_colours(frames, rad, **kw)
+    old = res.radiance.copy()
+    anchor_colour(old, frames, srgb_decode_lut(255), **anchor_kw, frame_band=None,
+                  reference_band=REFERENCE_BAND)
+    ref_only = frame_colours(frames, old, **kw)
+    np.testing.assert_allclose(rad @ LUMA.astype(np.float32), y_before, rtol=1e-4, atol=1e-7)
+    assert done.own_colour_fraction > 0.5
+    assert max(f.best_error for f in plain) > 0.01
+    assert max(f.best_error for f in own) < 0.002
+    assert ref_only[1].well_error < 1e-4  # the reference met exactly ...
+    assert max(f.best_error for f in ref_only) > 0.005  # ... the frames around it missed
 
 
 def test_block_consistency_averages_the_noise_and_keeps_a_wrong_curve() -> None:

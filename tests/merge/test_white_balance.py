@@ -1,0 +1,149 @@
+"""Per-frame white balance of a non-linear bracket: measured through the chain of consecutive
+frames, told apart from a response's error, corrected in the merge (issue 15)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from hdrcore.errors import ParameterError
+from hdrcore.merge import merge
+from hdrcore.merge.colour_check import check_colour, frame_colours, srgb_decode_lut
+from hdrcore.merge.white_balance import correct_merge, measure_white_balance
+from hdrcore.synthetic import simulate_bracket
+
+TIMES = (1.0, 2.0, 4.0, 8.0, 16.0)
+LUT = np.tile(srgb_decode_lut(255), (3, 1))
+GAINS = (1.08, 1.0, 0.93)  # frame 3 shot with a warmer balance (R/G +8 %, B/G -7 %)
+REBALANCED = 3
+REF = 2
+
+
+def _bracket(gains=GAINS, frame=REBALANCED, seed=3):
+    """An sRGB bracket (1 level of noise) whose ``frame`` was shot with ``gains`` applied to
+    the scene's linear colours, and the same bracket without them."""
+    kw = dict(shape=(120, 180), exposure_times=TIMES, bits=8, response="srgb",
+              noise_sigma=1.0, seed=seed)
+    sim = simulate_bracket(scene="patches", **kw)
+    other = simulate_bracket(sim.radiance * np.asarray(gains), key=sim.key, **kw)
+    true = [f.astype(np.uint8) for f in sim.frames]
+    shot = list(true)
+    shot[frame] = other.frames[frame].astype(np.uint8)
+    return true, shot
+
+
+@pytest.fixture(scope="module")
+def rebalanced():
+    return _bracket()
+
+
+def test_a_rebalanced_frame_is_found_and_its_gains_recovered(rebalanced) -> None:
+    true, shot = rebalanced
+    wb = measure_white_balance(shot, LUT, max_level=255, reference=REF)
+    assert wb.differs == (REBALANCED,) and wb.unmeasured == ()
+    np.testing.assert_allclose(wb.gains[REBALANCED], GAINS, atol=0.01)
+    for k in set(range(len(TIMES))) - {REBALANCED}:
+        np.testing.assert_allclose(wb.gains[k], 1.0, atol=0.01)
+    # the pairs on both sides of the frame see it, in opposite directions
+    assert wb.pairs[2].gains[0] == pytest.approx(1.08, abs=0.01)
+    assert wb.pairs[3].gains[0] == pytest.approx(1 / 1.08, abs=0.01)
+    assert "differs" in wb.message and f"{REBALANCED} (R/G x1.0" in wb.message
+    d = json.loads(json.dumps(wb.to_json()))
+    assert d["differs"] == [REBALANCED] and len(d["pairs"]) == len(TIMES) - 1
+    # the same bracket shot with one balance: nothing differs
+    same = measure_white_balance(true, LUT, max_level=255, reference=REF)
+    assert same.differs == () and np.max(np.abs(np.log(same.gains))) < 0.01
+
+
+def test_the_merge_is_corrected_to_the_reference_balance(rebalanced) -> None:
+    """Dividing the merge by the share-weighted gains is merging the frames with their balance
+    divided out: the merged colours are those of the bracket shot with one balance."""
+    true, shot = rebalanced
+    wb = measure_white_balance(shot, LUT, max_level=255, reference=REF)
+    truth = merge(true, TIMES, response=LUT, max_level=255)
+    res = merge(shot, TIMES, response=LUT, max_level=255)
+    cast = frame_colours(true, res.radiance, max_level=255, reference=REF)
+    fixed = res.radiance.copy()
+    correct_merge(fixed, res.shares, wb.correction())
+    after = frame_colours(true, fixed, max_level=255, reference=REF)
+    plain = frame_colours(true, truth.radiance, max_level=255, reference=REF)
+    # the re-balanced frame's regions had a cast (0.0084 against 0.0045 from noise alone);
+    # corrected, every frame's regions are as the bracket shot with one balance makes them
+    assert cast[REBALANCED].best_error > 1.5 * plain[REBALANCED].best_error
+    for k in range(len(TIMES)):
+        assert after[k].best_error < plain[k].best_error + 0.001
+    def p90(rad):
+        return np.percentile(np.abs(rad / np.maximum(truth.radiance, 1e-6) - 1.0), 90)
+    assert p90(fixed) < 0.5 * p90(res.radiance)  # 0.0055 against 0.023
+
+
+def test_a_response_error_shared_by_every_pair_is_not_a_balance() -> None:
+    """A curve whose red channel is too steep shifts every pair's balance the same way: that is
+    the response's error (a drift), not a re-balanced frame; nothing is corrected."""
+    true, _ = _bracket()
+    steep = LUT ** np.array([[1.1], [1.0], [1.0]])
+    wb = measure_white_balance(true, steep, max_level=255, reference=REF)
+    assert wb.differs == ()
+    assert wb.drift[0] != pytest.approx(1.0, abs=0.01)
+    assert all(p.gains[0] > 1.01 or p.gains[0] < 0.99 for p in wb.pairs if p.measured)
+
+
+def test_unmeasured_frames_are_flagged() -> None:
+    """Frames too far apart share no well-exposed pixel: their balance is not measured and the
+    message says so."""
+    sim = simulate_bracket(scene="patches", shape=(96, 144), exposure_times=(1.0, 4.0, 4096.0),
+                           bits=8, response="srgb", noise_sigma=1.0, seed=2)
+    frames = [f.astype(np.uint8) for f in sim.frames]
+    wb = measure_white_balance(frames, LUT, max_level=255, reference=1)
+    assert wb.unmeasured == (2,) and not wb.pairs[1].measured
+    assert 2 not in wb.differs and np.all(np.isnan(wb.gains[2]))
+    assert "not measured for frame(s) 2" in wb.message
+    np.testing.assert_array_equal(wb.correction()[2], 1.0)
+    json.dumps(wb.to_json())
+
+
+def test_check_colour_corrects_and_reports(rebalanced) -> None:
+    _, shot = rebalanced
+    res = merge(shot, TIMES, response=LUT, max_level=255)
+    rad = res.radiance.copy()
+    out = check_colour(shot, rad, LUT, max_level=255, reference=REF, saturation=250,
+                       noise_floor=2, exposure_times=TIMES, shares=res.shares)
+    assert out.white_balance.applied and out.white_balance.differs == (REBALANCED,)
+    assert out.after.white_balance_differs == (REBALANCED,)
+    assert "white balance corrected" in out.message
+    # every frame's regions have its colour, the re-balanced frame's in the reference's balance
+    assert max(f.best_error_balanced for f in out.after.frame_colours) < 0.003
+    assert out.after.frame_colours[REBALANCED].best_error > 0.01
+    # consecutive frames agree once the correction is divided out
+    raw = out.before.frame_pairs[REBALANCED].median_difference
+    assert out.after.frame_pairs_wb[REBALANCED].median_difference < 0.5 * raw
+    d = json.loads(json.dumps(out.to_json()))
+    assert d["white_balance"]["applied"] and d["after"]["frame_colours"][0]["frame"] == 0
+    kept = check_colour(shot, res.radiance.copy(), LUT, max_level=255, reference=REF,
+                        saturation=250, noise_floor=2, exposure_times=TIMES,
+                        shares=res.shares, white_balance=False)
+    assert not kept.white_balance.applied and kept.white_balance.differs == (REBALANCED,)
+
+
+def test_bad_input(rebalanced) -> None:
+    _, shot = rebalanced
+    with pytest.raises(ParameterError, match="reference"):
+        measure_white_balance(shot, LUT, max_level=255, reference=9)
+    with pytest.raises(ParameterError, match="lut"):
+        measure_white_balance(shot, LUT[:, :10], max_level=255, reference=1)
+    with pytest.raises(ParameterError, match="frames"):
+        measure_white_balance([shot[0], shot[1][:10]], LUT, max_level=255, reference=0)
+    rad = np.ones((4, 5, 3), np.float32)
+    shares = np.full((2, 4, 5), 0.5, np.float16)
+    with pytest.raises(ParameterError, match="gains"):
+        correct_merge(rad, shares, np.ones((3, 3)))
+    with pytest.raises(ParameterError, match="gains"):
+        correct_merge(rad, shares, np.array([[1.0, 1.0, 1.0], [0.0, 1.0, 1.0]]))
+    with pytest.raises(ParameterError, match="shares"):
+        correct_merge(rad, shares[:, :2], np.ones((2, 3)))
+    # gains of 1 leave the merge alone; one frame's gain moves only its share
+    out = correct_merge(rad, shares, np.array([[1.0, 1.0, 1.0], [1.0, 1.0, 1.2]]))
+    np.testing.assert_allclose(out[..., 2], 1 / 1.1, rtol=1e-3)
+    np.testing.assert_allclose(out[..., :2], 1.0)
