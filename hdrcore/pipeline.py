@@ -214,11 +214,14 @@ class PipelineParams:
         from one frame, the best exposed there (:mod:`hdrcore.merge.deghost`): a moving object
         comes out whole instead of doubled. Off by default: the weighted average is the
         estimate with the least noise wherever the scene held still.
-    colour_anchor : non-linear input (sRGB working space): give the merge the colour of the
-        frames that expose each region best, the reference frame's where it is well exposed
+    colour_anchor : non-linear input (sRGB working space): give each pixel of the merge the
+        colour of the frames well exposed there, the one nearest mid-grey first
         (:func:`hdrcore.merge.colour_check.anchor_colour`; the frames decoded with sRGB, as a
-        screen shows them), keeping the merge's luminance. The colour is checked before and
-        after (``result.colour["check"]``).
+        screen shows them, each frame's white balance difference divided out when it was
+        corrected), keeping the merge's luminance. Either way a frame whose white balance
+        differs from the reference's by more than 3 % is measured and divided out
+        (:mod:`hdrcore.merge.white_balance`). The colour is checked before and after
+        (``result.colour["check"]``).
     noise_sigma : the additive noise (levels) the default ratio estimator's noise matching
         assumes (``None``: the noise measured from the frames, ``noise``).
     workers : threads for the compiled kernels, scipy's convention: ``None`` the project's
