@@ -24,7 +24,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import replace
 from fractions import Fraction
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -33,6 +33,9 @@ from ._threads import run_row_spans
 from .errors import ParameterError
 from .io import Bracket
 from .io.frame import Frame
+
+if TYPE_CHECKING:  # the pipeline imports this module
+    from .pipeline import PipelineParams, PipelineResult, ProgressCallback
 
 __all__ = ["DRAFT_MAX_SIDE", "draft_factor", "bin_levels", "draft_bracket", "run_draft"]
 
@@ -219,8 +222,9 @@ def draft_bracket(bracket: Bracket, factor: int, *, saturation: float,
     return replace(bracket, frames=frames)
 
 
-def run_draft(bracket: Bracket, params: Any, *, max_side: int = DRAFT_MAX_SIDE,
-              exposure_times: Sequence[float] | None = None, progress: Any = None) -> Any:
+def run_draft(bracket: Bracket, params: PipelineParams, *, max_side: int = DRAFT_MAX_SIDE,
+              exposure_times: Sequence[float] | None = None,
+              progress: ProgressCallback | None = None) -> PipelineResult:
     """Run the pipeline on the binned bracket with ``params`` (checked parameters, as a
     :class:`hdrcore.pipeline.PipelineResult` holds them: explicit saturation and noise floor)
     and return its :class:`~hdrcore.pipeline.PipelineResult`; ``result.preview_factor`` is the

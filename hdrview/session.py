@@ -8,53 +8,42 @@ into the pipeline's parameters and asks the pipeline to re-run what changed.
 from __future__ import annotations
 
 import dataclasses
-import importlib
-import importlib.util
-import logging
 import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
+from hdrcore.errors import InputError
 from hdrcore.io import Bracket, load_bracket
+
+if TYPE_CHECKING:  # imported on first use (slow: numba), not with the page
+    from hdrcore.pipeline import Pipeline, PipelineParams, PipelineResult, ProgressCallback
 
 __all__ = ["Controls", "Session", "pipeline_available"]
 
-log = logging.getLogger(__name__)
-
-
-_PIPELINE_OK = False
-
 
 def pipeline_available() -> bool:
-    """True once ``hdrcore.pipeline`` imports and offers ``Pipeline`` and ``PipelineParams``."""
-    global _PIPELINE_OK
-    if _PIPELINE_OK:
-        return True
-    if importlib.util.find_spec("hdrcore.pipeline") is None:
-        return False
-    try:
-        mod = importlib.import_module("hdrcore.pipeline")
-    except ImportError:
-        log.debug("hdrcore.pipeline is present but does not import yet", exc_info=True)
-        return False
-    _PIPELINE_OK = hasattr(mod, "Pipeline") and hasattr(mod, "PipelineParams")
-    return _PIPELINE_OK
+    """Import ``hdrcore.pipeline`` (its compiled kernels take a second or two to load), so that
+    a caller can do it off the thread that serves pages; True once it is imported."""
+    import hdrcore.pipeline  # noqa: F401
+
+    return True
 
 
 @dataclass(frozen=True)
 class Controls:
-    """The values of the page's parameter widgets (``None``: the pipeline's default)."""
+    """The values of the page's parameter widgets (``None``: the pipeline's default). Each
+    field is the :class:`hdrcore.pipeline.PipelineParams` field of the same name."""
 
     saturation: float | None = None
     noise_floor: float | None = None
     threshold: float | None = None
-    alignment: str | None = None
+    align: str | None = None
     local: str | None = None
     reference: int | None = None
     response: str | None = None
     tonemap: str | None = None
-    exposure: float | None = None
+    tonemap_exposure: float | None = None
     deghost: bool | None = None
     times: str | None = None
     exposure_method: str | None = None
@@ -62,22 +51,10 @@ class Controls:
     def replace(self, **changes: Any) -> Controls:
         return dataclasses.replace(self, **changes)
 
-
-# Names the pipeline's parameter object may use for each control, first match wins.
-_PARAM_NAMES: dict[str, tuple[str, ...]] = {
-    "saturation": ("saturation_level", "saturation"),
-    "noise_floor": ("noise_floor",),
-    "threshold": ("threshold", "normalisation_threshold", "threshold_t"),
-    "alignment": ("alignment", "align", "alignment_model", "model"),
-    "local": ("local",),
-    "reference": ("reference", "reference_frame"),
-    "response": ("response", "response_method"),
-    "tonemap": ("tonemap", "tonemap_operator", "operator"),
-    "exposure": ("exposure", "tonemap_exposure", "exposure_ev"),
-    "deghost": ("deghost",),
-    "times": ("times",),
-    "exposure_method": ("exposure_method",),
-}
+    def changes(self) -> dict[str, Any]:
+        """The controls that are set, by parameter name."""
+        return {f.name: v for f in dataclasses.fields(self)
+                if (v := getattr(self, f.name)) is not None}
 
 
 @dataclass
@@ -86,16 +63,17 @@ class Session:
 
     bracket: Bracket | None = None
     source: str = ""
-    pipeline: Any = None
-    result: Any = None
-    params: Any = None
+    pipeline: Pipeline | None = None
+    result: PipelineResult | None = None
+    params: PipelineParams | None = None
     timings: dict[str, float] = field(default_factory=dict)
-    full_params: Any = None  # the parameters of the last run through every stage
+    full_params: PipelineParams | None = None  # the parameters of the last run to the end
     workers: int | None = None  # PipelineParams.workers of every run (hdrview --workers)
 
     def load(self, paths: Sequence[str | os.PathLike], *, source: str = "",
              times: str | os.PathLike | None = None,
-             loader: Callable[..., Bracket] | None = None) -> Bracket:
+             loader: Callable[[list[str | os.PathLike[str]], str | os.PathLike[str] | None],
+                              Bracket] | None = None) -> Bracket:
         """Load these frame files (already checked by :class:`hdrview.security.RootResolver`,
         which also found the folder's exposure-times list, ``times``); ``loader(files, times)``
         decodes them (the inspector's shared :class:`hdrview.cache.BracketCache`)."""
@@ -113,46 +91,27 @@ class Session:
 
     # -- pipeline ---------------------------------------------------------------------------
 
-    def default_params(self) -> Any:
+    def default_params(self) -> PipelineParams:
         from hdrcore.pipeline import PipelineParams
 
         return PipelineParams(workers=self.workers)
 
-    def params_for(self, controls: Controls) -> Any:
+    def params_for(self, controls: Controls) -> PipelineParams:
         """The pipeline's defaults with every control that is set (a reset control goes back to
         the default, never to its previous value)."""
-        base = self.default_params()  # a control left at None means the pipeline's default
-        names = {f.name for f in dataclasses.fields(base)}
-        changes = {}
-        for key, candidates in _PARAM_NAMES.items():
-            value = getattr(controls, key)
-            if value is None:
-                continue
-            for cand in candidates:
-                if cand in names:
-                    changes[cand] = value
-                    break
-        return dataclasses.replace(base, **changes)
+        return self.default_params().replace(**controls.changes())
 
-    def param_value(self, control: str) -> Any:
-        """Current pipeline value behind a control (for the widgets' initial values)."""
-        params = self.params if self.params is not None else self.default_params()
-        for cand in _PARAM_NAMES[control]:
-            if hasattr(params, cand):
-                return getattr(params, cand)
-        return None
-
-    def run(self, controls: Controls, progress: Callable[..., None] | None = None,
-            until: str | None = None) -> Any:
-        """Run (or re-run what changed in) the pipeline; return its result object."""
+    def run(self, controls: Controls, progress: ProgressCallback | None = None,
+            until: str | None = None) -> PipelineResult:
+        """Run (or re-run what changed in) the pipeline; return its result."""
         if self.bracket is None:
-            return None
+            raise InputError("no bracket loaded: load one first")
         from hdrcore.pipeline import Pipeline
 
         params = self.params_for(controls)
         if self.pipeline is None:
             self.pipeline = Pipeline(self.bracket, params, progress=progress)
-        elif progress is not None and hasattr(self.pipeline, "progress"):
+        elif progress is not None:
             self.pipeline.progress = progress
         result = self.pipeline.run(params) if until is None else self.pipeline.run(
             params, until=until)
@@ -181,8 +140,8 @@ class Session:
                                   **{k: getattr(self.full_params, k) for k in preview_only})
         return new != self.full_params
 
-    def run_draft(self, quick: Any, progress: Callable[..., None] | None = None,
-                  max_side: int | None = None) -> Any:
+    def run_draft(self, quick: PipelineResult, progress: ProgressCallback | None = None,
+                  max_side: int | None = None) -> PipelineResult:
         """The draft of the preview (:func:`hdrcore.draft.run_draft`) for the parameters of
         ``quick``, a run until the ratios (its saturation and noise floor): with the response
         and exposure times the last full run ended with (a hand-held bracket's response is
@@ -190,18 +149,21 @@ class Session:
         the response only when its control is unchanged), else those of ``quick``."""
         from hdrcore.draft import DRAFT_MAX_SIDE, run_draft
 
+        bracket = self.bracket
+        assert bracket is not None  # quick is a run of the loaded bracket
         p = quick.params
         last = self.pipeline.last_result if self.pipeline is not None else None
-        curve, times = quick.response, quick.exposure_times
+        curve = quick.response
+        times: tuple[float, ...] | None = quick.exposure_times
         if (last is not None and self.full_params is not None and last.until == "preview"
                 and self.full_params.response == p.response and last.response is not None):
             curve = last.response
         if (last is not None and self.full_params is not None and last.until == "preview"
-                and len(last.exposure_times) == len(self.bracket)):
+                and len(last.exposure_times) == len(bracket)):
             times = last.exposure_times  # measured on the registered pixels
-        if len(times) != len(self.bracket):
+        if times is not None and len(times) != len(bracket):
             times = None  # a run without unusable frames: the draft measures its own
         if curve is not None:
             p = p.replace(response=curve)
-        return run_draft(self.bracket, p, progress=progress, exposure_times=times,
+        return run_draft(bracket, p, progress=progress, exposure_times=times,
                          max_side=max_side or DRAFT_MAX_SIDE)

@@ -31,13 +31,16 @@ import threading
 import time
 import traceback
 import zipfile
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal, Protocol, TypeVar
 
 import viser
+from viser._messages import GuiSliderMark  # viser has no public setter of a slider's marks
 
 from hdrcore.errors import HdrError, InputError
+from hdrcore.io import Bracket
+from hdrcore.status import Severity
 
 from . import security
 from .panels import btf as btf_panel
@@ -52,7 +55,18 @@ from .uploads import UploadStore, install_upload_limits
 from .worker import JobContext, LatestWorker
 
 if TYPE_CHECKING:
+    from viser._gui_handles import _GuiInputHandle  # inputs and progress bars
+
+    from hdrcore.pipeline import PipelineResult
+
     from .app import InspectorApp
+
+T = TypeVar("T")
+
+
+class _Panel(Protocol):
+    def show(self, bracket: Bracket | None, result: PipelineResult | None,
+             view: dict[str, Any]) -> None: ...
 
 __all__ = ["ClientView", "PANEL_WIDTH", "DEFAULT_MARK"]
 
@@ -104,7 +118,7 @@ def _registry_names() -> dict[str, tuple[str, ...]]:
     from hdrcore.tonemap import TONEMAP_OPERATORS
 
     return {
-        "alignment": tuple(ALIGN_CHOICES),
+        "align": tuple(ALIGN_CHOICES),
         "local": tuple(LOCAL_CHOICES),
         "response": ("auto", *SPECIAL_RESPONSES, *RESPONSE_METHODS),
         "tonemap": tuple(TONEMAP_OPERATORS),
@@ -121,6 +135,16 @@ def _unmark(text: str) -> str:
     return text.split(DEFAULT_MARK)[0]
 
 
+def _assign(handle: _GuiInputHandle[T], value: T) -> None:
+    """``handle.value = value`` (viser defines the setter apart from its getter, which mypy
+    reads as a read-only property)."""
+    handle.value = value  # type: ignore[misc]  # viser's value setter, see above
+
+
+_COLOURS: dict[Severity, Literal["red", "yellow", "blue"]] = {
+    "error": "red", "warning": "yellow", "info": "blue"}
+
+
 class ClientView:
     """All state of one page; methods are safe to call from any thread."""
 
@@ -129,7 +153,7 @@ class ClientView:
         self.app = app
         self.gui = gui
         self.client = client
-        self.session = Session(workers=getattr(app, "workers", None))
+        self.session = Session(workers=app.workers)
         self.controls = Controls()
         self.notifications: list[tuple[str, str, str]] = []  # (level, title, body), newest last
         self.draw_count = 0
@@ -152,9 +176,9 @@ class ClientView:
         # (frame files, times list or None, label): checked by the app's resolver
         self._wanted: tuple[tuple[str, ...], str | None, str] | None = None
         self._loaded: tuple[tuple[str, ...], str | None, str] | None = None
-        self._drawn_bracket: object | None = None
-        self._pairs_bracket: Any = None
-        self._drawn_result: Any = None  # the result every panel shows (last full draw)
+        self._drawn_bracket: Bracket | None = None
+        self._pairs_bracket: Bracket | None = None
+        self._drawn_result: PipelineResult | None = None  # what every panel shows (last draw)
         self._closed = False
         self.pair = 0
         self.progress_text = ""
@@ -196,13 +220,13 @@ class ClientView:
             self.progress_md = gui.add_markdown("", visible=False)
 
         with gui.add_folder("Parameters"):
-            self.saturation_slider = gui.add_slider(
-                "Saturation Z", 0, 255, 1, 250,
+            self.saturation_slider = gui.add_slider(  # float values: Z is 0.97 x max level
+                "Saturation Z", 0.0, 255.0, 1.0, 250.0,
                 hint="levels at or above Z count as clipped (the paper's eq. 4); in the frames' "
                      "own levels; follows the pipeline's choice until moved",
             )
             self.noise_slider = gui.add_slider(
-                "Noise floor", 0, 64, 0.1, 2,
+                "Noise floor", 0.0, 64.0, 0.1, 2.0,
                 hint="levels at or below this are noise and not used (native levels); the "
                      "default is 3 sigma of the noise measured in the frames",
             )
@@ -212,7 +236,7 @@ class ClientView:
                      "normalised (the paper's eq. 7), as a fraction of Z",
             )
             self.alignment_dropdown = gui.add_dropdown(
-                "Alignment", tuple(_option(n, defaults.align) for n in names["alignment"]),
+                "Alignment", tuple(_option(n, defaults.align) for n in names["align"]),
                 initial_value=_option(defaults.align, defaults.align),
                 hint="motion model between hand-held frames",
             )
@@ -267,41 +291,45 @@ class ClientView:
             )
 
         self.panel = gui.add_panel()
-        builders = {
-            "Frames": lambda tab: FramesPanel(gui, tab),
-            "BTF": lambda tab: btf_panel.BtfPanel(gui),
-            "Masks": lambda tab: masks_panel.MasksPanel(gui),
-            "Registration": lambda tab: registration_panel.RegistrationPanel(gui),
-            "Response": lambda tab: response_panel.ResponsePanel(gui),
-            "Result": lambda tab: result_panel.ResultPanel(gui),
-            "Diagnostics": lambda tab: diagnostics_panel.DiagnosticsPanel(gui),
-        }
-        built = {}
-        for name, build in builders.items():
+
+        def in_tab(name: str, build: Callable[[viser.GuiTabHandle], T]) -> T:
             tab = self.panel.add_tab(name)
             with tab:
                 gui.add_markdown(f"_{NOTES[name]}_")
-                built[name] = build(tab)
-        self.frames_panel = built["Frames"]
-        self.btf_panel = built["BTF"]
-        self.masks_panel = built["Masks"]
-        self.registration_panel = built["Registration"]
-        self.response_panel = built["Response"]
-        self.result_panel = built["Result"]
-        self.diagnostics_panel = built["Diagnostics"]
+                return build(tab)
+
+        self.frames_panel = in_tab("Frames", lambda tab: FramesPanel(gui, tab))
+        self.btf_panel = in_tab("BTF", lambda tab: btf_panel.BtfPanel(gui))
+        self.masks_panel = in_tab("Masks", lambda tab: masks_panel.MasksPanel(gui))
+        self.registration_panel = in_tab(
+            "Registration", lambda tab: registration_panel.RegistrationPanel(gui))
+        self.response_panel = in_tab("Response", lambda tab: response_panel.ResponsePanel(gui))
+        self.result_panel = in_tab("Result", lambda tab: result_panel.ResultPanel(gui))
+        self.diagnostics_panel = in_tab(
+            "Diagnostics", lambda tab: diagnostics_panel.DiagnosticsPanel(gui))
         self.panel.dock_left()
         self.panel.set_width(PANEL_WIDTH)
         self._wire()
 
     def _wire(self) -> None:
-        self.load_button.on_click(lambda e: self.request_path(self.path_text.value, e.client))
-        self.demo_button.on_click(lambda e: self.request_demo(e.client))
+        def load(e: viser.GuiEvent) -> None:
+            self.request_path(self.path_text.value, e.client)
+
+        def demo(e: viser.GuiEvent) -> None:
+            self.request_demo(e.client)
+
+        def reset(e: viser.GuiEvent) -> None:
+            self.reset_controls()
+
+        def upload(e: viser.GuiEvent) -> None:
+            self.handle_upload(self.upload_button.value.name, self.upload_button.value.content,
+                               e.client)
+
+        self.load_button.on_click(load)
+        self.demo_button.on_click(demo)
         self.new_set_button.on_click(lambda e: self.new_upload_set(e.client))
-        self.reset_button.on_click(lambda e: self.reset_controls())
-        self.upload_button.on_upload(
-            lambda e: self.handle_upload(self.upload_button.value.name,
-                                         self.upload_button.value.content, e.client)
-        )
+        self.reset_button.on_click(reset)
+        self.upload_button.on_upload(upload)
 
         def control(handle: Any, name: str, cast: Any) -> None:
             def cb(event: viser.GuiEvent) -> None:
@@ -314,9 +342,9 @@ class ClientView:
         control(self.saturation_slider, "saturation", float)
         control(self.noise_slider, "noise_floor", float)
         control(self.threshold_slider, "threshold", float)
-        control(self.alignment_dropdown, "alignment", _unmark)
+        control(self.alignment_dropdown, "align", _unmark)
         control(self.local_dropdown, "local", _unmark)
-        control(self.exposure_slider, "exposure", float)
+        control(self.exposure_slider, "tonemap_exposure", float)
         control(self.reference_dropdown, "reference", self._reference_value)
         control(self.response_dropdown, "response", _unmark)
         control(self.times_dropdown, "times", _unmark)
@@ -367,10 +395,10 @@ class ClientView:
     # -- notifications ---------------------------------------------------------------------
 
     def notify(self, title: str, body: str, *, client: viser.ClientHandle | None = None,
-               level: str = "info") -> None:
+               level: Severity = "info") -> None:
         """Show a notification on this page and keep it in ``notifications``."""
         self.notifications.append((level, title, body))
-        color = {"error": "red", "warning": "yellow", "info": "blue"}.get(level, "blue")
+        color = _COLOURS[level]
         stream = log.warning if level != "info" else log.info
         stream("%s: %s", title, body)
         target = client or self.client
@@ -394,7 +422,8 @@ class ClientView:
                 client=client, level="error",
             )
 
-    def _guarded(self, fn: Any, client: viser.ClientHandle | None) -> None:
+    def _guarded(self, fn: Callable[[viser.ClientHandle | None], object],
+                 client: viser.ClientHandle | None) -> None:
         try:
             fn(client)
         except Exception as exc:  # noqa: BLE001 -- shown to the user
@@ -490,17 +519,17 @@ class ClientView:
         self._syncing = True
         try:
             d = self.app.defaults
-            self.threshold_slider.value = d.threshold
-            self.exposure_slider.value = d.tonemap_exposure
-            self.deghost_checkbox.value = d.deghost
-            self.reference_dropdown.value = "middle"
+            _assign(self.threshold_slider, d.threshold)
+            _assign(self.exposure_slider, d.tonemap_exposure)
+            _assign(self.deghost_checkbox, d.deghost)
+            _assign(self.reference_dropdown, "middle")
             for handle, default in ((self.alignment_dropdown, d.align),
                                     (self.local_dropdown, d.local),
                                     (self.response_dropdown, d.response),
                                     (self.times_dropdown, d.times),
                                     (self.exposure_method_dropdown, d.exposure_method),
                                     (self.tonemap_dropdown, d.tonemap)):
-                handle.value = _option(str(default), default)
+                _assign(handle, _option(str(default), default))
         finally:
             self._syncing = False
         return self._submit("reset")
@@ -527,7 +556,7 @@ class ClientView:
         return self.worker.submit(self._reconcile, on_error=self._report_error, label=label)
 
     def _on_progress(self, fraction: float, text: str) -> None:
-        self.progress.value = round(100.0 * fraction, 1)
+        _assign(self.progress, round(100.0 * fraction, 1))
         if text:
             self.progress_text = text
             note = " (first run of this installation: compiling kernels)" if (
@@ -538,7 +567,7 @@ class ClientView:
         self.progress.visible = busy
         self.progress_md.visible = busy
         if not busy:
-            self.progress.value = 0.0
+            _assign(self.progress, 0.0)
             self.progress_md.content = ""
 
     def _reconcile(self, ctx: JobContext) -> None:
@@ -572,18 +601,18 @@ class ClientView:
                 raise
             self._loaded = wanted
             self._sync_widgets_to_bracket()
-            self.notify("Loaded", f"{label}: {len(self.session.bracket)} frames")
+            self.notify("Loaded", f"{label}: {len(self.session.bracket or ())} frames")
         ctx.check()
-        result = None
+        result: PipelineResult | None = None
         if self.session.bracket is not None and pipeline_available():
-            def progress(*args: Any, **kwargs: Any) -> None:
+            def progress(stage: str, fraction: float, message: str) -> None:
                 # A newer request stops this run at the next stage boundary: the pipeline lets
                 # Cancelled through (finished stages stay cached) and the worker drops the job.
                 if ctx.superseded:
                     from hdrcore.pipeline import Cancelled
 
                     raise Cancelled(ctx.label)
-                frac, text = _progress_args(args, kwargs)
+                frac, text = _progress_words(stage, fraction, message)
                 ctx.progress(0.05 + 0.9 * frac, text)
 
             # Ratios first (a re-fit from cached histograms), drawn at once so the BTF plot and
@@ -643,41 +672,37 @@ class ClientView:
             self.noise_slider.step = 0.1 if b.max_level <= 255 else 1.0
             self._set_pair_options(b)
             self.reference_dropdown.options = ("middle",) + tuple(f"frame {k}" for k in range(n))
-            self.reference_dropdown.value = "middle"
+            _assign(self.reference_dropdown, "middle")
         finally:
             self._syncing = False
 
-    def _sync_widgets_to_result(self, result: Any) -> None:
+    def _sync_widgets_to_result(self, result: PipelineResult) -> None:
         """Controls the user has not moved show what the pipeline used, marked as default."""
-        if result is None:
-            return
-        c = self.controls
         self._syncing = True
         try:
-            for handle, control, used in (
-                (self.saturation_slider, "saturation", getattr(result, "saturation", None)),
-                (self.noise_slider, "noise_floor", getattr(result, "noise_floor", None)),
+            for handle, moved, used in (
+                (self.saturation_slider, self.controls.saturation, result.saturation),
+                (self.noise_slider, self.controls.noise_floor, result.noise_floor),
             ):
-                if used is None:
-                    continue
-                used = float(used)
-                handle.marks = ((used, "default"),)
-                if getattr(c, control) is None and handle.min <= used <= handle.max:
-                    handle.value = round(used, 2)
+                # (``handle.marks = ...`` set a plain attribute the page never saw: viser's
+                # marks are its private prop ``_marks``, with no public setter)
+                handle._marks = (GuiSliderMark(value=float(used), label="default"),)
+                if moved is None and handle.min <= used <= handle.max:
+                    _assign(handle, round(float(used), 2))
         finally:
             self._syncing = False
 
-    def _set_pair_options(self, b: Any) -> None:
+    def _set_pair_options(self, b: Bracket) -> None:
         names = [f.name for f in b.frames]
         self.pair_dropdown.options = tuple(
             f"pair {k}: frames {k}-{k + 1} ({names[k]}, {names[k + 1]})"
             for k in range(len(b) - 1)
         )
-        self.pair_dropdown.value = self.pair_dropdown.options[0]
+        _assign(self.pair_dropdown, self.pair_dropdown.options[0])
         self.pair = 0
         self._pairs_bracket = b
 
-    def _sync_pairs(self, b: Any) -> None:
+    def _sync_pairs(self, b: Bracket) -> None:
         """The pair dropdown lists the pairs of the frames the result used."""
         if self._pairs_bracket is not None and len(self._pairs_bracket) == len(b) and all(
                 x is y for x, y in zip(self._pairs_bracket.frames, b.frames, strict=True)):
@@ -691,14 +716,14 @@ class ClientView:
 
     # -- drawing -----------------------------------------------------------------------------
 
-    def _draw(self, result: Any, stages: tuple[str, ...] | None = None) -> None:
+    def _draw(self, result: PipelineResult | None, stages: tuple[str, ...] | None = None) -> None:
         bracket = self.session.bracket
         if bracket is not self._drawn_bracket:
             self.frames_panel.show(bracket)
             self._drawn_bracket = bracket
         # A black or saturated frame is left out by the pipeline: the stage results index the
         # frames it used (result.bracket); the pair choices follow them.
-        used = getattr(result, "bracket", None) or bracket
+        used = result.bracket if result is not None else bracket
         if used is not None and used is not self._pairs_bracket:
             self._sync_pairs(used)
         view = {
@@ -708,7 +733,7 @@ class ClientView:
         }
         if stages is None:
             self.status.content = self.status_markdown(result)
-        panels = {"btf": self.btf_panel, "masks": self.masks_panel,
+        panels: dict[str, _Panel] = {"btf": self.btf_panel, "masks": self.masks_panel,
                   "registration": self.registration_panel, "response": self.response_panel,
                   "result": self.result_panel}
         for name, panel in panels.items():
@@ -722,11 +747,11 @@ class ClientView:
             # arrays (at 24 MP that saves faulting in 0.7 GB of fresh memory, 0.5-1 s here).
             previous, self._drawn_result = self._drawn_result, result
             pipeline = self.session.pipeline
-            if (previous is not None and pipeline is not None and hasattr(pipeline, "release")
-                    and getattr(previous, "merge", None) is not getattr(result, "merge", None)):
+            if (previous is not None and pipeline is not None and result is not None
+                    and previous.merge is not result.merge):
                 pipeline.release(previous)
 
-    def status_markdown(self, result: Any) -> str:
+    def status_markdown(self, result: PipelineResult | None) -> str:
         """The loaded bracket and the values the pipeline used (the same the controls show)."""
         b = self.session.bracket
         if b is None:
@@ -745,18 +770,18 @@ class ClientView:
         def mark(control: str) -> str:
             return "" if getattr(c, control) is not None else " (default)"
 
-        response = getattr(result.response, "method", None) or str(p.response)
+        response = result.response.method if result.response is not None else str(p.response)
         lines.append(
             f"Z = {_num(result.saturation)}{mark('saturation')}, "
             f"noise floor = {_num(result.noise_floor)}{mark('noise_floor')}, "
             f"t = {_num(p.threshold)}{mark('threshold')}, alignment = {p.align}"
-            f"{mark('alignment')}, local refinement = {getattr(p, 'local', 'off')}"
+            f"{mark('align')}, local refinement = {p.local}"
             f"{mark('local')}, response = {response}{mark('response')}, "
             f"times = {result.times_source}, operator = {p.tonemap}{mark('tonemap')}, "
             f"exposure = {_num(p.tonemap_exposure)} EV"
         )
-        timings = getattr(result, "timings", None) or {}
-        ran = set(getattr(result, "stages_run", ()) or ())
+        timings = result.timings
+        ran = set(result.stages_run)
         if ran:
             lines.append("Computed: " + ", ".join(
                 f"{k} {1000 * float(v):.0f} ms" for k, v in timings.items() if k in ran))
@@ -766,7 +791,7 @@ class ClientView:
 
     # -- exports -----------------------------------------------------------------------------
 
-    def _require_result(self) -> Any:
+    def _require_result(self) -> PipelineResult:
         if self.session.result is None:
             raise InputError("nothing to export yet: load a bracket and wait for the result")
         return self.session.result
@@ -815,9 +840,8 @@ class ClientView:
         self.notify("Export", f"{name} ({len(data) / 1e6:.1f} MB) sent", client=target)
 
 
-def _to_report(result: Any) -> dict:
-    to_report = getattr(result, "to_report", None)
-    return to_report() if callable(to_report) else {"result": repr(result)}
+def _to_report(result: PipelineResult) -> dict[str, Any]:
+    return result.to_report()
 
 
 def _num(v: float | None) -> str:
@@ -839,13 +863,10 @@ _STAGE_TEXT = {
 }
 
 
-def _progress_args(args: tuple, kwargs: dict) -> tuple[float, str]:
+def _progress_words(stage: str, frac: float, message: str) -> tuple[float, str]:
     """Overall fraction and words for the pipeline's ``progress(stage, fraction, message)``."""
     from hdrcore.pipeline import STAGES
 
-    stage = str(args[0]) if args else str(kwargs.get("stage", ""))
-    frac = float(args[1]) if len(args) > 1 else float(kwargs.get("fraction", 0.0))
-    message = str(args[2]) if len(args) > 2 else str(kwargs.get("message", ""))
     if stage in STAGES:
         overall = (STAGES.index(stage) + max(0.0, min(1.0, frac))) / len(STAGES)
         words = _STAGE_TEXT.get(stage, stage)

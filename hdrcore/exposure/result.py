@@ -7,7 +7,7 @@ their weights and directions, the 3V inlier mask, every iterate) so nothing is r
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
@@ -15,7 +15,9 @@ from ..btf import BrightnessTransferFunction
 from ..status import ChainStatus, RatioStatus
 from . import interval as _interval
 
-__all__ = ["ExposureEquations", "ExposureRatioResult", "BracketExposureResult", "PairKey"]
+__all__ = ["ExposureEquations", "ExposureRatioResult", "BracketExposureResult", "PairKey",
+           "FORWARD", "INVERSE", "LEVEL_CLASSES", "UNUSED", "INLIER", "OUTLIER", "UNDER",
+           "SATURATED"]
 
 PairKey = tuple[int, int]
 
@@ -23,6 +25,11 @@ FORWARD = 0
 """Direction code of an equation made from a dark level ``M_A`` and ``T(M_A)``."""
 INVERSE = 1
 """Direction code of an equation made from a bright level ``M_B`` and ``T^-1(M_B)``."""
+
+# Classes of a frame's levels (:meth:`ExposureRatioResult.level_classes`).
+UNUSED, INLIER, OUTLIER, UNDER, SATURATED = 0, 1, 2, 3, 4
+LEVEL_CLASSES = ("not used", "inlier", "outlier (3V)", "under noise floor", "saturated (≥ Z)")
+"""What each class code means, by code."""
 
 
 def _finite_or_none(v: float) -> float | None:
@@ -140,6 +147,28 @@ class ExposureRatioResult:
     @property
     def ok(self) -> bool:
         return self.status == "ok"
+
+    def level_classes(self, which: Literal["dark", "bright"]) -> np.ndarray:
+        """``(C, max_level + 1)`` int8 class of every level of the pair's dark or bright frame:
+        :data:`INLIER` / :data:`OUTLIER` where an equation of that frame's direction (eq. 4,
+        :data:`FORWARD` from the dark frame, :data:`INVERSE` from the bright one) starts at that
+        level and was kept / dropped by the 3V rule, :data:`UNDER` at or below the noise floor,
+        :data:`SATURATED` at or above ``Z`` (whatever equation ends there), else
+        :data:`UNUSED`."""
+        direction = FORWARD if which == "dark" else INVERSE
+        eq = self.equations
+        n_ch = len(self.btfs) if self.btfs else int(np.max(eq.channel, initial=0)) + 1
+        n = int(self.max_level) + 1
+        levels = np.arange(n)
+        table = np.full((n_ch, n), UNUSED, np.int8)
+        sel = np.asarray(eq.direction) == direction
+        idx = np.clip(np.floor(np.asarray(eq.level)[sel]).astype(np.int64), 0, n - 1)
+        ch = np.asarray(eq.channel)[sel].astype(np.int64)
+        inl = np.asarray(self.inlier_mask, bool)[sel]
+        table[ch, idx] = np.where(inl, INLIER, OUTLIER)
+        table[:, levels <= self.noise_floor] = UNDER
+        table[:, levels >= self.saturation] = SATURATED
+        return table
 
     @property
     def model_error(self) -> float:

@@ -7,14 +7,19 @@ the noise floor. Everything drawn comes from :class:`hdrcore.exposure.ExposureRa
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import plotly.graph_objects as go
 import viser
 
-from ._access import exposure_of, histogram_exposure_of
+from hdrcore.io import Bracket
+
 from ._draw import fmt
+
+if TYPE_CHECKING:  # the library's stages are imported on first use, not with the page
+    from hdrcore.exposure import ExposureRatioResult
+    from hdrcore.pipeline import PipelineResult
 
 __all__ = ["BtfPanel", "equations_figure", "transfer_figure", "pair_summary"]
 
@@ -34,7 +39,7 @@ def _figure(data: list[dict], layout: dict) -> go.Figure:
     return go.Figure({"data": data, "layout": {**base, **layout}}, _validate=False)
 
 
-def equations_figure(pair: Any, exif_ratio: float | None,
+def equations_figure(pair: ExposureRatioResult, exif_ratio: float | None,
                      registered_ratio: float | None = None) -> go.Figure:
     """Scatter of the equations ``k x = y`` with the initial, converged and EXIF lines (and the
     ratio measured from the registered pixels, when known)."""
@@ -82,7 +87,7 @@ def equations_figure(pair: Any, exif_ratio: float | None,
     })
 
 
-def transfer_figure(pair: Any) -> go.Figure:
+def transfer_figure(pair: ExposureRatioResult) -> go.Figure:
     """``T(m)`` per channel in levels, with ``Z`` and the noise floor."""
     data: list[dict] = []
     for c, btf in enumerate(pair.btfs):
@@ -107,7 +112,8 @@ def transfer_figure(pair: Any) -> go.Figure:
     })
 
 
-def pair_summary(pair: Any, exif_ratio: float | None, mismatch: float | None) -> str:
+def pair_summary(pair: ExposureRatioResult, exif_ratio: float | None,
+                 mismatch: float | None) -> str:
     iterates = ", ".join(fmt(v, 6) for v in pair.iterates[:8])
     if len(pair.iterates) > 8:
         iterates += ", …"
@@ -137,9 +143,9 @@ class BtfPanel:
         self.transfer = gui.add_plotly(empty, aspect=0.55, visible=False)
         self._figures: dict[str, go.Figure] = {}
 
-    def show(self, bracket: Any, result: Any, view: dict) -> None:
-        exposure = exposure_of(result)
-        if bracket is None or exposure is None:
+    def show(self, bracket: Bracket | None, result: PipelineResult | None,
+             view: dict[str, Any]) -> None:
+        if bracket is None or result is None:
             self.summary.content = ("No bracket loaded." if bracket is None else
                                     "_Waiting for the exposure-ratio stage (hdrcore.pipeline)._")
             self.scatter.visible = self.transfer.visible = False
@@ -147,8 +153,8 @@ class BtfPanel:
             return
         # The figures show the paper's estimate from histograms (its equations and transfer
         # functions); a ratio measured again from the registered pixels is shown beside it.
-        hist = histogram_exposure_of(result)
-        refined = exposure if exposure is not hist else None
+        hist = result.exposures_histogram
+        refined = result.exposures if result.exposures is not hist else None
         k = min(int(view.get("pair", 0)), len(hist.pairs) - 1)
         pair = hist.pairs[k]
         exif = hist.exif_ratios[k] if k < len(hist.exif_ratios) else None

@@ -5,19 +5,27 @@ plain-language verdicts and the capture warnings of the loader."""
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import viser
 
-from ._access import exposure_of, registration_of, verdicts_of
+from hdrcore.io import Bracket
+from hdrcore.status import SEVERITIES, Severity
+
 from ._draw import fmt, md_table
 from .frames import warnings_markdown
+
+if TYPE_CHECKING:  # the library's stages are imported on first use, not with the page
+    from hdrcore.exposure import BracketExposureResult, ExposureRatioResult
+    from hdrcore.pipeline import PipelineResult
+    from hdrcore.registration import BracketRegistration
 
 __all__ = ["DiagnosticsPanel", "bundle_files", "frames_table", "pairs_table",
            "summary_line", "verdicts_markdown"]
 
 
-def pairs_table(exposure: Any, registration: Any, bracket: Any = None) -> str:
+def pairs_table(exposure: BracketExposureResult, registration: BracketRegistration | None,
+                bracket: Bracket | None = None) -> str:
     header = ["pair", "ratio", "95 % interval", "EXIF ratio", "mismatch (stops)",
               "inlier equations",
               "ratio status", "cost before → after", "dx, dy, angle", "registration status"]
@@ -44,13 +52,11 @@ def pairs_table(exposure: Any, registration: Any, bracket: Any = None) -> str:
             f"**{exposure.status}**: {fmt(exposure.message)}")
 
 
-def frames_table(result: Any) -> str:
+def frames_table(result: PipelineResult) -> str:
     """Per frame as loaded: used or not (and why), its measured noise; the noise floor used."""
-    loaded = getattr(result, "loaded_bracket", None)
-    signals = {s.index: s for s in getattr(result, "frame_signals", ())}
-    noise = getattr(result, "noise", None)
-    if loaded is None:
-        return ""
+    loaded = result.loaded_bracket
+    signals = {s.index: s for s in result.frame_signals}
+    noise = result.noise
     header = ["frame", "file", "used", "signal", "noise σ (levels)", "noise measured from"]
     rows = []
     for k, f in enumerate(loaded.frames):
@@ -64,14 +70,14 @@ def frames_table(result: Any) -> str:
         ])
     text = md_table(header, rows)
     if noise is not None:
-        floor = getattr(result, "noise_floor", None)
+        floor = result.noise_floor
         text += (f"\n\nNoise floor used: **{fmt(floor, 4)}** levels (default: "
                  f"{fmt(noise.k_sigma, 2)} × σ = {fmt(noise.k_sigma * noise.sigma, 4)}, at least "
                  f"{fmt(noise.minimum, 4)}; σ = {fmt(noise.sigma, 3)} from {noise.source}).")
     return text
 
 
-def _interval_text(p: Any) -> str:
+def _interval_text(p: ExposureRatioResult) -> str:
     """The pair's calibrated 95 % interval, ``low–high (±h %)``, or a dash."""
     (lo, hi), h = p.interval, p.ci95_relative
     if not all(map(math.isfinite, (lo, hi, h))):
@@ -79,51 +85,46 @@ def _interval_text(p: Any) -> str:
     return f"{lo:.4g}–{hi:.4g} (±{100 * h:.2g} %)"
 
 
-_SEVERITY = (("error", "Problems", "the result is wrong or missing here"),
-             ("warning", "Warnings", "the result may be off; check"),
-             ("info", "Notes", "for information"))
+_SEVERITY: dict[Severity, tuple[str, str, str]] = {  # title, what it means, one of them
+    "error": ("Problems", "the result is wrong or missing here", "problem"),
+    "warning": ("Warnings", "the result may be off; check", "warning"),
+    "info": ("Notes", "for information", "note"),
+}
 
 
-def summary_line(result: Any) -> str:
+def summary_line(result: PipelineResult) -> str:
     """One sentence: what was merged and how many problems, warnings and notes there are."""
-    verdicts = [v for v in verdicts_of(result) if not isinstance(v, str)]
-    counts = {sev: sum(1 for v in verdicts if getattr(v, "severity", "info") == sev)
-              for sev, _, _ in _SEVERITY}
-    loaded = getattr(result, "loaded_bracket", None) or getattr(result, "bracket", None)
-    used = getattr(result, "bracket", None)
-    merged = getattr(result, "merge", None)
-    n_all = len(loaded) if loaded is not None else 0
-    n_used = len(used) if used is not None else n_all
-    head = (f"**Merged {n_used} of {n_all} frames**" if merged is not None
+    counts = {sev: sum(1 for v in result.verdicts if v.severity == sev) for sev in SEVERITIES}
+    n_all, n_used = len(result.loaded_bracket), len(result.bracket)
+    head = (f"**Merged {n_used} of {n_all} frames**" if result.merge is not None
             else "**Not merged**")
-    source = getattr(result, "times_source", None)
+    source = result.times_source
     if source:
         head += f" (exposure times: {fmt(source)})"
     parts = []
-    for sev, _title, _ in _SEVERITY:
+    for sev in SEVERITIES:
         n = counts[sev]
         if n:
-            word = {"error": "problem", "warning": "warning", "info": "note"}[sev]
+            word = _SEVERITY[sev][2]
             parts.append(f"{n} {word}{'s' if n != 1 else ''}")
     return head + ("; " + ", ".join(parts) if parts else "; no problems found") + "."
 
 
-def verdicts_markdown(result: Any) -> str:
+def verdicts_markdown(result: PipelineResult) -> str:
     """The summary line, then the verdicts grouped by severity, worst first (codes on hover)."""
-    verdicts = verdicts_of(result)
+    verdicts = result.verdicts
     lines = [summary_line(result)]
     if not verdicts:
         return lines[0]
-    for sev, title, what in _SEVERITY:
-        group = [v for v in verdicts if (getattr(v, "severity", "info") if not isinstance(
-            v, str) else "info") == sev]
+    for sev in SEVERITIES:
+        title, what, _ = _SEVERITY[sev]
+        group = [v for v in verdicts if v.severity == sev]
         if not group:
             continue
         lines.append(f"\n**{title}** ({what})\n")
         for v in group:
-            code = getattr(v, "code", None)
-            msg = fmt(getattr(v, "message", None) or str(v))
-            lines.append(f"- <span title='{code}'>{msg}</span>" if code else f"- {msg}")
+            msg = fmt(v.message)
+            lines.append(f"- <span title='{v.code}'>{msg}</span>" if v.code else f"- {msg}")
     return "\n".join(lines)
 
 
@@ -135,7 +136,8 @@ class DiagnosticsPanel:
         self.frames = gui.add_markdown("")
         self.warnings = gui.add_markdown("")
 
-    def show(self, bracket: Any, result: Any, view: dict) -> None:
+    def show(self, bracket: Bracket | None, result: PipelineResult | None,
+             view: dict[str, Any]) -> None:
         if bracket is None:
             self.verdicts.content = "No bracket loaded."
             self.table.content = ""
@@ -148,10 +150,7 @@ class DiagnosticsPanel:
             self.table.content = ""
             return
         self.verdicts.content = verdicts_markdown(result)
-        exposure = exposure_of(result)
-        self.table.content = ("" if exposure is None else
-                              pairs_table(exposure, registration_of(result),
-                                          getattr(result, "bracket", None)))
+        self.table.content = pairs_table(result.exposures, result.registration, result.bracket)
         self.frames.content = frames_table(result)
 
 

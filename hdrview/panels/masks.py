@@ -2,52 +2,33 @@
 of system S0 (Cerman & Hlavac 2006, eq. 4), which were 3V outliers, which are saturated (at or
 above ``Z``) and which lie under the noise floor, each in its own colour.
 
-The classes come from the exposure result's own equations (their level, direction, channel and
-inlier flag) and its ``saturation`` and ``noise_floor``; this module only looks each pixel's level
-up in that table. (A per-level class table on the result object would remove even that lookup.)
+The classes of each level come from the exposure result
+(:meth:`hdrcore.exposure.ExposureRatioResult.level_classes`: its equations' levels, directions,
+channels and inlier flags, its ``saturation`` and ``noise_floor``); this module only looks each
+pixel's level up in that table.
 """
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 import viser
 
-from hdrcore.io import encode_png
+from hdrcore.io import Bracket, encode_png
 
-from ._access import histogram_exposure_of
 from ._draw import DISPLAY_WIDTH, enlarge, labels_to_rgb, shrink
 
-__all__ = ["MasksPanel", "CLASSES", "PALETTE", "level_classes", "pixel_classes"]
+if TYPE_CHECKING:
+    from hdrcore.pipeline import PipelineResult
 
-FORWARD, INVERSE = 0, 1  # hdrcore.exposure.result direction codes
-# Class codes, in increasing priority when channels disagree.
-UNUSED, INLIER, OUTLIER, UNDER, SATURATED = 0, 1, 2, 3, 4
-CLASSES = ("not used", "inlier", "outlier (3V)", "under noise floor", "saturated (≥ Z)")
+__all__ = ["MasksPanel", "PALETTE", "pixel_classes"]
+
+# colour of each class of hdrcore.exposure.result.LEVEL_CLASSES, by code
 PALETTE = ((110, 110, 110), (46, 160, 67), (255, 127, 14), (31, 119, 180), (214, 39, 40))
+# Priority when a pixel's channels are in different classes (the table's codes in order)
 _PRIORITY = np.array([1, 0, 2, 3, 4])  # inlier < not used < outlier < under < saturated
 _BY_PRIORITY = np.argsort(_PRIORITY)
-
-
-def level_classes(pair: Any, which: str) -> np.ndarray:
-    """``(C, max_level + 1)`` class of every level of the dark or bright frame of ``pair``."""
-    direction = FORWARD if which == "dark" else INVERSE
-    eq = pair.equations
-    n_ch = len(pair.btfs) if pair.btfs else int(np.max(eq.channel, initial=0)) + 1
-    n = int(pair.max_level) + 1
-    levels = np.arange(n)
-    table = np.full((n_ch, n), UNUSED, np.int8)
-    sel = np.asarray(eq.direction) == direction
-    idx = np.clip(np.floor(np.asarray(eq.level)[sel]).astype(np.int64), 0, n - 1)
-    ch = np.asarray(eq.channel)[sel].astype(np.int64)
-    inl = np.asarray(pair.inlier_mask, bool)[sel]
-    table[ch, idx] = np.where(inl, INLIER, OUTLIER)
-    # A level at or above Z is clipped and one at or below the floor is noise, whatever
-    # equation ends there (an interpolated level can reach the top bin).
-    table[:, levels <= pair.noise_floor] = UNDER
-    table[:, levels >= pair.saturation] = SATURATED
-    return table
 
 
 def pixel_classes(levels: np.ndarray, table: np.ndarray) -> np.ndarray:
@@ -74,7 +55,7 @@ class MasksPanel:
         self._bracket_id: int | None = None
         self._images: dict[str, np.ndarray] = {}
 
-    def _small_levels(self, bracket: Any, k: int) -> np.ndarray:
+    def _small_levels(self, bracket: Bracket, k: int) -> np.ndarray:
         if self._bracket_id != id(bracket):
             self._small = {}
             self._bracket_id = id(bracket)
@@ -82,21 +63,27 @@ class MasksPanel:
             self._small[k] = shrink(bracket.frames[k].levels, DISPLAY_WIDTH)
         return self._small[k]
 
-    def show(self, bracket: Any, result: Any, view: dict) -> None:
-        exposure = histogram_exposure_of(result)
+    def show(self, bracket: Bracket | None, result: PipelineResult | None,
+             view: dict[str, Any]) -> None:
+        # the histogram estimate (eq. 4's equations), even when the ratios the merge used were
+        # measured again after registration
+        exposure = None if result is None else result.exposures_histogram
         if bracket is None or exposure is None:
             self.summary.content = ("No bracket loaded." if bracket is None else
                                     "_Waiting for the exposure-ratio stage (hdrcore.pipeline)._")
             self.dark.visible = self.bright.visible = False
             self._images = {}
             return
+        from hdrcore.exposure.result import LEVEL_CLASSES as CLASSES
+
         k = min(int(view.get("pair", 0)), len(exposure.pairs) - 1)
         pair = exposure.pairs[k]
         rows = []
         images = {}
-        for which, handle, frame in (("dark", self.dark, pair.dark),
-                                     ("bright", self.bright, pair.bright)):
-            classes = pixel_classes(self._small_levels(bracket, frame), level_classes(pair, which))
+        sides: tuple[tuple[Literal["dark", "bright"], viser.GuiImageHandle, int], ...] = (
+            ("dark", self.dark, pair.dark), ("bright", self.bright, pair.bright))
+        for which, handle, frame in sides:
+            classes = pixel_classes(self._small_levels(bracket, frame), pair.level_classes(which))
             rgb = labels_to_rgb(classes, PALETTE)
             images[f"mask-{which}-frame{frame}"] = rgb
             handle.image = enlarge(rgb)

@@ -7,16 +7,20 @@ iteration. Everything drawn comes from :class:`hdrcore.registration.PairRegistra
 from __future__ import annotations
 
 import threading
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import plotly.graph_objects as go
 import viser
 
-from hdrcore.io import encode_png
+from hdrcore.errors import InputError
+from hdrcore.io import Bracket, Frame, encode_png
 
-from ._access import registration_of
 from ._draw import enlarge, fmt, scalar_to_rgb, unit_to_display
+
+if TYPE_CHECKING:  # the library's stages are imported on first use, not with the page
+    from hdrcore.pipeline import PipelineResult
+    from hdrcore.registration import BracketRegistration
 
 __all__ = ["RegistrationPanel", "OVERLAYS", "SHOWS", "cost_figure", "motion_summary",
            "overlay_crop"]
@@ -29,19 +33,23 @@ BLINK_SECONDS = 0.7
 ARROW_GAIN = 10.0  # an arrow is this many times longer than the residual it shows
 
 
-def pair_residual(bracket: Any, result: Any, k: int) -> Any:
+def _registration(result: PipelineResult) -> BracketRegistration:
+    if result.registration is None:
+        raise InputError("alignment is off: there is no registration to draw")
+    return result.registration
+
+
+def pair_residual(bracket: Bracket, result: PipelineResult, k: int) -> Any:
     """The model-independent residual motion of pair ``k`` after alignment
     (:func:`hdrcore.registration.residual.residual_motion`): the registration's own if it
     measured one, else measured here from the frames (green channel)."""
-    reg = registration_of(result)
-    pair = reg.pairs[k]
-    own = getattr(pair, "residual", None)
-    if own is not None:
-        return own
+    pair = _registration(result).pairs[k]
+    if pair.residual is not None:
+        return pair.residual
     from hdrcore.registration.residual import residual_motion
 
     dark_f, bright_f = bracket.frames[pair.dark], bracket.frames[pair.bright]
-    lut = getattr(result, "lut", None)
+    lut = result.lut
     scale = float(dark_f.max_level)
     if lut is None:
         table = np.arange(int(dark_f.max_level) + 1, dtype=np.float32) / scale
@@ -81,7 +89,7 @@ def draw_arrows(image: np.ndarray, residual: Any, step: float, x0: int = 0,
     return np.asarray(im)
 
 
-def _linear_green(frame: Any, lut: Any) -> np.ndarray:
+def _linear_green(frame: Frame, lut: np.ndarray | None) -> np.ndarray:
     """The frame's green channel as linear values in [0, 1] (RAW: levels / max level)."""
     g = frame.levels[..., 1] if frame.levels.ndim == 3 else frame.levels
     if lut is None:
@@ -90,9 +98,9 @@ def _linear_green(frame: Any, lut: Any) -> np.ndarray:
     return np.asarray(table, np.float32)[g]
 
 
-def local_fields(reg: Any) -> tuple:
+def local_fields(reg: BracketRegistration) -> tuple[Any, ...]:
     """The registration's local-refinement fields per frame (all None without any)."""
-    local = getattr(reg, "local", None)
+    local = reg.local
     return tuple(local.fields) if local is not None else (None,) * (len(reg.pairs) + 1)
 
 
@@ -112,9 +120,9 @@ def _sample_region(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
                            cval=0.0)
 
 
-def local_summary(reg: Any, k: int) -> str:
+def local_summary(reg: BracketRegistration, k: int) -> str:
     """One line on the local refinement of pair ``k``'s frames (empty when none ran)."""
-    local = getattr(reg, "local", None)
+    local = reg.local
     if local is None:
         return ""
     pair = reg.pairs[k]
@@ -126,7 +134,8 @@ def local_summary(reg: Any, k: int) -> str:
     return ""
 
 
-def overlay_crop(bracket: Any, result: Any, k: int, *, aligned: bool, zoom: float = 1.0,
+def overlay_crop(bracket: Bracket, result: PipelineResult, k: int, *, aligned: bool,
+                 zoom: float = 1.0,
                  cx: float = 0.5, cy: float = 0.5,
                  box: tuple[int, int] = BOX) -> tuple[np.ndarray, tuple[int, int, int, int]]:
     """Red/cyan overlay of pair ``k`` at full resolution: red the bright frame, cyan the dark
@@ -135,10 +144,10 @@ def overlay_crop(bracket: Any, result: Any, k: int, *, aligned: bool, zoom: floa
     (``aligned``) or as shot; with local refinement both frames are read through their motion
     and field on the reference grid, as the merge reads them. Returns the image (pixels
     repeated for zoom > 1) and the crop."""
-    reg = registration_of(result)
+    reg = _registration(result)
     pair = reg.pairs[k]
     dark_f, bright_f = bracket.frames[pair.dark], bracket.frames[pair.bright]
-    lut = getattr(result, "lut", None)
+    lut = result.lut
     h, w = dark_f.levels.shape[:2]
     if zoom <= 0:  # fit: the whole frame, every n-th pixel
         step = int(np.ceil(max(w / box[0], h / box[1])))
@@ -276,7 +285,7 @@ class RegistrationPanel:
         elif not on:
             self._blink_stop.set()
 
-    def _show_full(self, bracket: Any, result: Any, k: int) -> str:
+    def _show_full(self, bracket: Bracket, result: PipelineResult, k: int) -> str:
         """The full-resolution overlay (or a fit of the whole frame); returns its label."""
         zoom_text = self.zoom.value
         zoom = 0.0 if zoom_text == "fit" else float(zoom_text.split()[0]) / 100.0
@@ -303,7 +312,7 @@ class RegistrationPanel:
                 h, w = bracket.frames[0].levels.shape[:2]
                 step = w / frames[True].shape[1] if zoom == 0 else 1.0 / zoom
                 frames[True] = draw_arrows(frames[True], residual, step, crop[0], crop[1])
-        loc = local_summary(registration_of(result), k)
+        loc = local_summary(_registration(result), k)
         said = "" if residual is None else (
             f"Residual after the motion model: **{residual.status}**: {residual.message} "
             f"(arrows x{ARROW_GAIN:g}: green < 0.3 px, yellow < 1 px, red above; grey x: no "
@@ -318,17 +327,19 @@ class RegistrationPanel:
         return (f"{show} — red: bright frame, cyan: dark frame x ratio, grey where they agree "
                 f"({where})")
 
-    def show(self, bracket: Any, result: Any, view: dict) -> None:
+    def show(self, bracket: Bracket | None, result: PipelineResult | None,
+             view: dict[str, Any]) -> None:
         with self._lock:
             self._last = (bracket, result, view)
             self._show(bracket, result, view)
 
-    def _show(self, bracket: Any, result: Any, view: dict) -> None:
+    def _show(self, bracket: Bracket | None, result: PipelineResult | None,
+              view: dict[str, Any]) -> None:
         if bracket is None:
             self._hide("No bracket loaded.")
             return
-        reg = registration_of(result)
-        if reg is None:
+        reg = None if result is None else result.registration
+        if result is None or reg is None:
             self._hide("_Waiting for the registration stage (hdrcore.pipeline)._" if result is None
                        else "Registration is off (alignment: none).")
             return

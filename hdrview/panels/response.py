@@ -6,13 +6,19 @@ that curve beside its fallback. Everything drawn comes from the pipeline's
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import plotly.graph_objects as go
 import viser
 
+from hdrcore.io import Bracket
+
 from ._draw import fmt, md_table
+
+if TYPE_CHECKING:  # the library's stages are imported on first use, not with the page
+    from hdrcore.pipeline import PipelineResult
+    from hdrcore.response import ResponseCurve
 
 __all__ = ["ResponsePanel", "curves_figure", "residuals_figure", "candidates_table"]
 
@@ -27,13 +33,13 @@ def _layout(title: str, x: str, y: str, **extra: Any) -> dict:
             "legend": {"orientation": "h", "y": -0.2}}
 
 
-def curves_figure(curve: Any) -> go.Figure:
+def curves_figure(curve: ResponseCurve) -> go.Figure:
     """``g`` (linear exposure) against the level, per channel; the degenerate recovered curve
     dashed beside its fallback; the other candidates thin and grey."""
     g = np.asarray(curve.g, np.float64)
     levels = np.arange(g.shape[-1])
     data: list[dict] = []
-    sel = getattr(curve, "selection", None)
+    sel = curve.selection
     if sel is not None:
         for name, other in sel.curves.items():
             if name == sel.chosen:
@@ -55,16 +61,16 @@ def curves_figure(curve: Any) -> go.Figure:
         _validate=False)
 
 
-def residuals_figure(curve: Any) -> go.Figure | None:
+def residuals_figure(curve: ResponseCurve) -> go.Figure | None:
     """The fit's weighted mean residual of ``ln g`` per level (how well the curve explains the
     bracket's own correspondences there)."""
-    sel = getattr(curve, "selection", None)
+    sel = curve.selection
     series = []
     if sel is not None and sel.residuals:
         for name, res in sel.residuals.items():
             if name == sel.chosen or (sel.fallback and name == sel.recovered):
                 series.append((name, np.asarray(res, np.float64)))
-    elif getattr(curve, "residuals", None) is not None:
+    elif curve.residuals is not None:
         series.append((curve.method, np.asarray(curve.residuals, np.float64)))
     if not series:
         return None
@@ -104,22 +110,23 @@ class ResponsePanel:
         self.table = gui.add_markdown("")
         self._figures: dict[str, go.Figure] = {}
 
-    def show(self, bracket: Any, result: Any, view: dict) -> None:
+    def show(self, bracket: Bracket | None, result: PipelineResult | None,
+             view: dict[str, Any]) -> None:
         self._figures = {}
-        curve = getattr(result, "response", None)
         if bracket is None or result is None:
             self.summary.content = ("No bracket loaded." if bracket is None else
                                     "_Waiting for the response stage._")
             self.curves.visible = self.residuals.visible = False
             self.table.content = ""
             return
-        if curve is None or getattr(bracket, "is_linear", False):
+        curve = result.response
+        if curve is None or bracket.is_linear:
             self.summary.content = ("RAW frames are linear: the levels are light already, no "
                                     "response curve is needed.")
             self.curves.visible = self.residuals.visible = False
             self.table.content = ""
             return
-        sel = getattr(curve, "selection", None)
+        sel = curve.selection
         lines = [f"Response **{curve.method}**, status **{curve.status}**"
                  + (f": {fmt(curve.message)}" if curve.message else ".")]
         if sel is not None and sel.message and sel.message not in (curve.message or ""):

@@ -15,9 +15,8 @@ import viser
 
 from hdrcore.errors import InputError
 from hdrcore.export import write_result
-from hdrcore.io import encode_png
+from hdrcore.io import Bracket, encode_png
 
-from ._access import merge_of, preview_of
 from ._draw import DISPLAY_WIDTH, display_step, enlarge, labels_to_rgb, unit_to_display
 
 if TYPE_CHECKING:  # the pipeline is imported on first use (slow: numba), not with the page
@@ -78,7 +77,7 @@ def fit_to_box(image: np.ndarray, box: tuple[int, int] = BOX) -> np.ndarray:
     return out
 
 
-def loupe(result: Any, zoom: float, cx: float, cy: float,
+def loupe(result: PipelineResult, zoom: float, cx: float, cy: float,
           box: tuple[int, int] = BOX) -> tuple[np.ndarray, tuple[int, int, int, int]]:
     """A crop of the full-resolution radiance map at ``zoom`` screen pixels per image pixel
     (1 = 100 %), centred at ``(cx, cy)`` (fractions of the width and height), tonemapped with
@@ -86,8 +85,7 @@ def loupe(result: Any, zoom: float, cx: float, cy: float,
     above 100 %. Returns the image and the crop ``(x0, y0, x1, y1)`` in image pixels."""
     from hdrcore.tonemap import tonemap
 
-    radiance = getattr(result, "radiance", None)
-    preview = getattr(result, "preview", None)
+    radiance, preview = result.radiance, result.preview
     if radiance is None or preview is None:
         raise InputError("the merged radiance map is not available yet")
     h, w = radiance.shape[:2]
@@ -102,7 +100,7 @@ def loupe(result: Any, zoom: float, cx: float, cy: float,
 
     method = preview.method if preview.method in TONEMAP_OPERATORS else "reinhard"
     extra: dict[str, Any] = {}
-    if getattr(preview, "state", None) is not None:  # a local operator: the preview's own state
+    if preview.state is not None:  # a local operator: the preview's own state
         extra = {"state": preview.state, "offset": (float(y0), float(x0))}
     tm = tonemap(crop, method, exposure=float(np.log2(preview.scale)),
                  auto_exposure=False, white=preview.white, **extra)
@@ -137,15 +135,17 @@ class ResultPanel:
         if last is not None:
             self.show(*last)
 
-    def show(self, bracket: Any, result: Any, view: dict) -> None:
+    def show(self, bracket: Bracket | None, result: PipelineResult | None,
+             view: dict[str, Any]) -> None:
         with self._lock:
             self._show(bracket, result, view)
 
-    def _show(self, bracket: Any, result: Any, view: dict) -> None:
+    def _show(self, bracket: Bracket | None, result: PipelineResult | None,
+              view: dict[str, Any]) -> None:
         self._last = (bracket, result, view)
-        merged = merge_of(result)
-        preview = preview_of(result)
-        if bracket is None or (merged is None and preview is None):
+        merged = None if result is None else result.merge
+        preview = None if result is None or result.preview is None else result.preview.image
+        if bracket is None or result is None or (merged is None and preview is None):
             self.summary.content = (
                 "No bracket loaded." if bracket is None else
                 "_Waiting for the merge and tonemap stages (hdrcore.pipeline)._")
@@ -159,7 +159,7 @@ class ResultPanel:
             images["preview"] = shown
         lines = []
         if merged is not None:
-            s = merged.summary() if hasattr(merged, "summary") else {}
+            s = merged.summary()
             lines.append(
                 f"Merge **{merged.status}**: {merged.message}. Weighting {merged.weighting}; "
                 f"clipped {s.get('clipped_fraction', 0):.2%}, under the noise floor "
@@ -168,8 +168,7 @@ class ResultPanel:
                 + (f" Deghosted {s['deghosted_fraction']:.2%}."
                    if s.get("deghosted_fraction") is not None else "")
             )
-        if layer == "deghosted" and merged is not None and getattr(
-                merged, "deghosted", None) is None:
+        if layer == "deghosted" and merged is not None and merged.deghosted is None:
             lines.append("_Layer deghosted: tick Deghost (Parameters) to fill each ghost region "
                          "from one frame._")
         elif layer != "tonemapped" and merged is not None:
@@ -205,7 +204,7 @@ class ResultPanel:
             lines.append(f"_Layer {layer} needs the merge result._")
         zoom = self.zoom.value
         self.centre_x.visible = self.centre_y.visible = zoom != "fit"
-        radiance = getattr(result, "radiance", None)
+        radiance = result.radiance
         if zoom != "fit" and layer == "tonemapped" and radiance is not None:
             factor = float(zoom.split()[0]) / 100.0
             crop, (x0, y0, x1, y1) = loupe(result, factor, self.centre_x.value / 100.0,
@@ -213,8 +212,7 @@ class ResultPanel:
             images["loupe"] = crop
             self.image.image = crop
             self.image.label = (f"{zoom} of the full-resolution result: pixels {x0}-{x1} x "
-                                f"{y0}-{y1} of {result.radiance.shape[1]}x"
-                                f"{result.radiance.shape[0]}")
+                                f"{y0}-{y1} of {radiance.shape[1]}x{radiance.shape[0]}")
             self.image.visible = True
         elif shown is not None:
             self.image.image = fit_to_box(enlarge(shown))
@@ -224,17 +222,17 @@ class ResultPanel:
         self.summary.content = "\n\n".join(lines) if lines else "Tonemapped preview."
         self._images = images
 
-    def show_draft(self, draft: Any) -> None:
+    def show_draft(self, draft: PipelineResult) -> None:
         """The preview of a draft (:func:`hdrcore.draft.run_draft`, the bracket binned) while
         the full-resolution merge runs; the next :meth:`show` replaces it."""
-        preview = preview_of(draft)
-        if preview is None:
+        if draft.preview is None:
             return
+        preview = draft.preview.image
         with self._lock:
             self.image.image = fit_to_box(enlarge(_fit_width(np.asarray(preview))))
             self.image.label = "tonemapped (draft)"
             self.image.visible = True
-            f = getattr(draft, "preview_factor", 1)
+            f = draft.preview_factor
             self.summary.content = (
                 f"_Draft: the bracket binned {f}x{f}, merged with the same parameters; the "
                 "full-resolution merge follows._")
@@ -255,12 +253,11 @@ def exr_bytes(result: PipelineResult, work_dir: str | Path | None = None) -> byt
         return path.read_bytes()
 
 
-def preview_png_bytes(result: Any) -> bytes:
+def preview_png_bytes(result: PipelineResult) -> bytes:
     """The tonemapped preview as 8-bit PNG bytes."""
-    preview = preview_of(result)
-    if preview is None:
+    if result.preview is None:
         raise InputError("the preview is not available yet")
-    arr = np.asarray(preview)
+    arr = np.asarray(result.preview.image)
     if arr.dtype != np.uint8:
         arr = np.clip(arr.astype(np.float32) * 255.0 + 0.5, 0, 255).astype(np.uint8)
     return encode_png(arr)

@@ -110,7 +110,7 @@ def test_zoom_into_the_result_and_read_a_100_percent_crop(page, view: ClientView
 
 @pytest.mark.parametrize("label,control,param", [
     ("Operator", "tonemap", "tonemap"),
-    ("Alignment", "alignment", "align"),
+    ("Alignment", "align", "align"),
     ("Ratio method", "exposure_method", "exposure_method"),
 ])
 def test_each_dropdown_option_reaches_the_result(page, view: ClientView, label: str,

@@ -66,7 +66,7 @@ def test_demo_opens_at_start(page, view: ClientView) -> None:
 @pytest.mark.parametrize(
     ("label", "control"),
     [("Saturation Z", "saturation"), ("Noise floor", "noise_floor"),
-     ("Threshold t", "threshold"), ("Exposure (EV)", "exposure")],
+     ("Threshold t", "threshold"), ("Exposure (EV)", "tonemap_exposure")],
 )
 def test_each_slider_changes_page_and_server(
     page, view: ClientView, label: str, control: str
@@ -91,7 +91,7 @@ def test_each_slider_changes_page_and_server(
 
 def _status_key(control: str) -> str:
     return {"saturation": "Z", "noise_floor": "noise floor", "threshold": "t",
-            "exposure": "exposure"}[control]
+            "tonemap_exposure": "exposure"}[control]
 
 
 def test_bad_paths_notify_and_server_stays_up(page, view: ClientView) -> None:

@@ -63,7 +63,7 @@ def test_draft_first_then_the_full_result(large: ClientView, monkeypatch) -> Non
 
     # the exposure re-runs the preview only: no draft
     large.last_draft_seconds = None
-    large.set_control("exposure", 1.0)
+    large.set_control("tonemap_exposure", 1.0)
     assert large.wait_idle(120)
     assert len(shown) == 2 and large.last_draft_seconds is None
     assert not _errors(large)
@@ -77,7 +77,7 @@ def test_draft_wanted(tmp_path: Path) -> None:
     assert s.draft_wanted(Controls(), max_side=64)  # no full run yet
     s.run(Controls())
     assert not s.draft_wanted(Controls(), max_side=64)  # the full run is current
-    assert not s.draft_wanted(Controls(exposure=1.0, tonemap="reinhard"), max_side=64)
+    assert not s.draft_wanted(Controls(tonemap_exposure=1.0, tonemap="reinhard"), max_side=64)
     assert s.draft_wanted(Controls(saturation=240.0), max_side=64)
     assert s.draft_wanted(Controls(threshold=0.2), max_side=64)
 

@@ -10,17 +10,11 @@ import zipfile
 import numpy as np
 import pytest
 
+from hdrcore.exposure.result import INLIER, OUTLIER, SATURATED, UNDER
 from hdrcore.io import load_bracket
 from hdrcore.pipeline import Pipeline, PipelineParams
 from hdrcore.synthetic import simulate_bracket, write_bracket
-from hdrview.panels.masks import (
-    INLIER,
-    OUTLIER,
-    SATURATED,
-    UNDER,
-    level_classes,
-    pixel_classes,
-)
+from hdrview.panels.masks import pixel_classes
 from hdrview.panels.result import exr_bytes, preview_png_bytes
 from hdrview.view import ClientView
 
@@ -54,7 +48,7 @@ def viewer(app: ClientView) -> ClientView:
 def test_level_classes_follow_the_equations(stage_result) -> None:
     pair = stage_result.exposures_histogram.pairs[0]
     for which in ("dark", "bright"):
-        table = level_classes(pair, which)
+        table = pair.level_classes(which)
         assert table.shape == (3, pair.max_level + 1)
         assert (table[:, int(np.ceil(pair.saturation)):] == SATURATED).all()
         assert (table[:, : int(pair.noise_floor) + 1] == UNDER).all()
@@ -63,7 +57,7 @@ def test_level_classes_follow_the_equations(stage_result) -> None:
     eq = pair.equations
     inside = (eq.level > pair.noise_floor + 1) & (eq.level < pair.saturation - 1)
     sel = (eq.direction == 0) & pair.inlier_mask & inside
-    table = level_classes(pair, "dark")
+    table = pair.level_classes("dark")
     assert (table[eq.channel[sel], np.floor(eq.level[sel]).astype(int)] == INLIER).all()
     sel = (eq.direction == 0) & ~pair.inlier_mask & inside
     assert (table[eq.channel[sel], np.floor(eq.level[sel]).astype(int)] == OUTLIER).all()
