@@ -36,13 +36,23 @@ Prints, in one run:
    the whole image's (green ratio within 5 % of the regions' median: local tone mapping left
    out). On the memorial scans also the pedestal test: sRGB with each channel's film fog
    (the darkest frame's 0.1th percentile) subtracted, beside plain sRGB and the default.
+2c. Every frame's colour in the merge (the issue's colour target on every frame, not only the
+   reference): per bracket and run (``--response srgb`` without and with the anchoring, the
+   default, and the previous default's reference anchoring on the default's merge) the median
+   chromaticity distance of the merge to each frame decoded with sRGB over the pixels where
+   that frame is the best exposed (also against the frame with its white balance corrected,
+   and over all its well-exposed pixels), which frames the default misses by more than the
+   sRGB merge, the white balance measured per pair and frame (gains, standard errors, spread
+   over the level thirds, regions kept) and the consecutive frames' agreement after its
+   correction.
 3. ``../shared/data/memorial-debevec``: our curves against OpenCV's (shape RMS over levels
    5..230 after the best scale) and a plot in ``bench/out/memorial_response.png``.
 
 Timings on a shared 2-core machine are pessimistic. Usage:
 ``python bench/bench_response.py [--quick] [--skip-synthetic] [--shapes-only]
-[--consistency-only]`` (``--quick``: one seed and scene, no phone brackets; ``--shapes-only``:
-sections 1 and 1b; ``--consistency-only``: section 2b).
+[--consistency-only] [--frame-colour-only]`` (``--quick``: one seed and scene, no phone
+brackets; ``--shapes-only``: sections 1 and 1b; ``--consistency-only``: section 2b;
+``--frame-colour-only``: section 2c).
 """
 
 from __future__ import annotations
@@ -338,8 +348,9 @@ def real_tables() -> None:
               f"{'others':>8}"
               f"{'frames':>8}{'WB out':>8}{'sRGB':>8}{'4x4':>8}{'s':>6}  flags")
     print("vs sRGB ref: median chromaticity error of the merge against the reference frame "
-          "decoded with sRGB (pixels well exposed there; the anchoring gives those pixels the "
-          "reference's own sRGB colour, so it is 0 for every anchored run by construction); "
+          "decoded with sRGB (pixels well exposed there; the anchoring gives each pixel the "
+          "colour of the frames well exposed there, nearest mid-grey first: see section 2c "
+          "for every frame); "
           "unanch.: the same for the merge before the anchoring (the curve alone); others: "
           "the same against each other frame decoded with sRGB where that frame is the best "
           "exposed (pixel-weighted mean); "
@@ -604,6 +615,154 @@ def consistency_tables() -> None:
         print(f"({time.perf_counter() - t0:.0f} s wall, {time.process_time() - c0:.0f} s CPU)")
 
 
+# --- every frame's colour in the merge, and the frames' white balance (issue 15) -----------
+
+
+def _uncorrect(result) -> np.ndarray:
+    """The run's radiance before the white balance correction (``E * sum_k s_k gain_k``: the
+    exact inverse of :func:`hdrcore.merge.white_balance.correct_merge`)."""
+    rad = np.array(result.radiance, dtype=np.float32, copy=True)
+    wb = result.colour["check"].get("white_balance") or {}
+    if not wb.get("applied"):
+        return rad
+    gains = np.ones((len(wb["gains"]), 3))
+    for k in wb["differs"]:
+        gains[k] = wb["gains"][k]
+    sh = result.merge.shares
+    den = np.ones(rad.shape, np.float32)
+    for k in wb["differs"]:
+        den += sh[k].astype(np.float32)[..., None] * (gains[k] - 1.0).astype(np.float32)
+    return rad * den
+
+
+def _frame_row(label, run, fc, ref, extra=""):
+    best = [f.best_error for f in fc]
+    bal = [f.best_error_balanced for f in fc]
+    well = [f.well_error for f in fc]
+    print(f"{label:19}{run:30}{np.nanmax(best):8.4f}{np.nanmax(bal):8.4f}"
+          f"{np.nanmax(well):8.4f}{fc[ref].well_error:8.4f}  "
+          + " ".join("   -  " if not np.isfinite(v) else f"{v:.4f}" for v in best) + extra)
+    return np.asarray(best), np.asarray(bal), np.asarray(well)
+
+
+def frame_colour_tables() -> None:
+    """Per bracket and run: every frame's colour in the merge (the issue's target on every
+    frame, not only the reference), the white balance measured per frame and pair, and the
+    consecutive frames' agreement after its correction."""
+    from hdrcore.merge.colour_check import (
+        REFERENCE_BAND,
+        anchor_colour,
+        frame_colours,
+        srgb_decode_lut,
+    )
+
+    print("\n== every frame's colour in the merge: per frame k, the median chromaticity "
+          "distance of the merge to frame k decoded with sRGB ==")
+    if not DATA.is_dir():
+        print(f"skipped: {DATA} not available")
+        return
+    print("best: over the pixels where frame k is the best exposed (every channel within "
+          "10..90 % of the range, the frame nearest mid-grey); worst frame, then per frame "
+          "(darkest first). bal: the same against frame k with its measured white balance "
+          "difference divided out where the run corrected it. well: every pixel well exposed "
+          "in frame k, worst frame (frames that disagree cannot all be met there). ref: the "
+          "old figure, the reference frame's well-exposed pixels. Runs: the pipeline's; "
+          "'old anchoring' re-applies the previous default (the reference's own colour "
+          "wherever it is well exposed, no balance correction) to the default's merge.")
+    print(f"{'bracket':19}{'run':30}{'best':>8}{'bal':>8}{'well':>8}{'ref':>8}  per frame best")
+    runs = [
+        ("--response srgb, no anchoring", dict(response="srgb", colour_anchor=False)),
+        ("--response srgb", dict(response="srgb")),
+        ("default", dict()),
+    ]
+    for label, folder, excl, phone in REAL:
+        if QUICK and phone:
+            continue
+        if not (DATA / folder).is_dir():
+            print(f"{label:19}skipped: not available")
+            continue
+        b = _load(folder)
+        base = PipelineParams(registration_previews=False, exclude_colour=excl)
+        pipe = Pipeline(b, base)
+        t0, c0 = time.perf_counter(), time.process_time()
+        rows = {}
+        for run, kw in runs:
+            r = pipe.run(base.replace(**kw), until="merge")
+            frames = [f.levels for f in r.bracket.frames]
+            masks = None if excl is None else [~np.all(f == np.asarray(excl), axis=-1)
+                                               for f in frames]
+            reg = r.registration
+            ref = 0 if reg is None else reg.reference
+            tr = None if reg is None else reg.to_reference_homography
+            chk = r.colour["check"]
+            wb = chk.get("white_balance") or {}
+            gains = np.ones((len(frames), 3))
+            if wb.get("applied"):
+                for k in wb["differs"]:
+                    gains[k] = wb["gains"][k]
+            fc = frame_colours(frames, r.radiance, max_level=255, reference=ref,
+                               to_reference=tr, masks=masks, gains=gains)
+            rows[run] = _frame_row(label, run, fc, ref)
+            if run == "default":
+                last, last_frames, last_masks = r, frames, masks
+        # the previous default on the same merge
+        r = pipe.run(base.replace(colour_anchor=False), until="merge")
+        rad = _uncorrect(r)
+        reg = r.registration
+        ref = 0 if reg is None else reg.reference
+        tr = None if reg is None else reg.to_reference_homography
+        anchor_colour(rad, last_frames, srgb_decode_lut(255), max_level=255,
+                      saturation=r.saturation, noise_floor=r.noise_floor, to_reference=tr,
+                      masks=last_masks, reference=ref, lut=r.lut,
+                      exposure_times=r.exposure_times, shares=r.merge.shares,
+                      reference_band=REFERENCE_BAND, frame_band=None)
+        fc = frame_colours(last_frames, rad, max_level=255, reference=ref, to_reference=tr,
+                           masks=last_masks)
+        _frame_row(label, "old anchoring (reference)", fc, ref)
+        def above(mine, theirs):
+            return [k for k, (a, b_) in enumerate(zip(mine, theirs, strict=True))
+                    if np.isfinite(a) and np.isfinite(b_) and a > b_ + 1e-4]
+
+        for peer in ("--response srgb, no anchoring", "--response srgb"):
+            plain = above(rows["default"][0], rows[peer][0])
+            bal = above(rows["default"][1], rows[peer][1])
+            print(f"{'':19}default above {peer} (best-exposed; as shot / balanced): "
+                  + (f"frame(s) {plain}" if plain else "no frame") + " / "
+                  + (f"frame(s) {bal}" if bal else "no frame"))
+        wb = last.colour["check"]["white_balance"]
+        print(f"{'':19}white balance (default curve {last.response.method}): {wb['message']}")
+        print(f"{'':19}{'pair':>7}{'R/G':>8}{'B/G':>8}{'se R':>8}{'se B':>8}{'lvl R':>8}"
+              f"{'lvl B':>8}{'regions':>9}  measured")
+        for p in wb["pairs"]:
+            g, se, lv = p["gains"], p["std_error"], p["level_spread"]
+
+            def f(v):
+                return "     -  " if v is None else f"{v:8.4f}"
+
+            print(f"{'':19}{p['dark']:>4}-{p['bright']:<2}{f(g[0])}{f(g[2])}{f(se[0])}"
+                  f"{f(se[2])}{f(lv[0])}{f(lv[2])}{p['regions_kept']:>5}/{p['n_regions']:<3} "
+                  f"{'yes' if p['measured'] else 'no'}")
+        print(f"{'':19}frame gains R/G, B/G (applied: {wb['applied']}): " + ", ".join(
+            f"{k}: -" if g[0] is None else f"{k}: {g[0]:.3f}/{g[2]:.3f}"
+            for k, g in enumerate(wb["gains"])))
+        after = last.colour["check"]["after"]
+        pix = [p["median_difference"] for p in after["frame_pairs"]]
+        cor = [p["median_difference"] for p in after["frame_pairs_wb"]]
+        blk = [p["median_difference"] for p in after["frame_pairs_blocks"]]
+
+        def med(v):
+            v = [x for x in v if x is not None]
+            return float(np.median(v)) if v else float("nan")
+
+        print(f"{'':19}consecutive frames (default curve, target <= 0.01): per pixel "
+              f"{med(pix):.4f}, white balance corrected {med(cor):.4f}, on 4x4 means "
+              f"{med(blk):.4f}; per pair as shot -> corrected: "
+              + " ".join("-" if v is None or c is None else f"{v:.4f}->{c:.4f}"
+                         for v, c in zip(pix, cor, strict=True)))
+        print(f"{'':19}({time.perf_counter() - t0:.0f} s wall, "
+              f"{time.process_time() - c0:.0f} s CPU for the four runs)")
+
+
 def crop_without(blue: np.ndarray) -> tuple[int, int, int, int]:
     """Greedy largest rectangle free of masked pixels (drop the worst edge until clean)."""
     r0, r1, c0, c1 = 0, blue.shape[0], 0, blue.shape[1]
@@ -679,13 +838,17 @@ def memorial_table() -> None:
 
 if __name__ == "__main__":
     t0 = time.perf_counter()
-    if "--skip-synthetic" not in sys.argv and "--consistency-only" not in sys.argv:
+    if "--skip-synthetic" not in sys.argv and "--consistency-only" not in sys.argv \
+            and "--frame-colour-only" not in sys.argv:
         synthetic_table()
         real_scene_shapes()
     if "--consistency-only" in sys.argv:
         consistency_tables()
+    elif "--frame-colour-only" in sys.argv:
+        frame_colour_tables()
     elif "--shapes-only" not in sys.argv:
         real_tables()
+        frame_colour_tables()
         consistency_tables()
         memorial_table()
     print(f"\ntotal {time.perf_counter() - t0:.0f} s (shared 2-core machine: pessimistic)")

@@ -18,9 +18,14 @@ pixels *well exposed* (every channel inside :data:`WELL_EXPOSED` of the level ra
   divided out; ``frame_pairs_blocks`` -- again on 4x4-pixel means (:func:`block_consistency`):
   pixel noise averaged down, what is left is the response's error (real brackets, the
   recovered curve: Canon 0.011 per pixel, 0.003 on blocks; sRGB 0.021 and 0.018);
-* ``white_balance`` -- per frame, the median per-channel ratio to the reference frame's
-  linearised values over pixels well exposed in both, normalised to green: a phone that
-  re-balances each shot shows up as a frame whose red or blue ratio differs from 1.
+* ``white_balance`` -- per frame, the white balance against the reference frame: the chained
+  measurement of :mod:`hdrcore.merge.white_balance` when given (``balance``), else the median
+  per-channel ratio to the reference frame's linearised values over pixels well exposed in
+  both, normalised to green: a phone that re-balances each shot shows up as a frame whose red
+  or blue ratio differs from 1;
+* ``frame_colours`` -- per frame, the merge against that frame decoded with sRGB over the
+  pixels well exposed in it and over those where it is the best exposed
+  (:func:`frame_colours`): the colour target on every frame, not only the reference.
 
 A merge whose ``merge_error`` exceeds :data:`MAX_MERGE_ERROR` is flagged ``"drift"``; a frame
 whose white balance differs by more than :data:`MAX_WB_DIFFERENCE` is named. The check samples
@@ -981,19 +986,25 @@ def anchor_colour(
        that), the weights blurred over :data:`ANCHOR_BLUR` cells for smooth transitions. The
        ratio of that colour to the merge's own (same weights, same blur) is a smooth
        per-channel gain: frames that disagree in colour are followed region by region.
-    3. Each pixel takes the reference pixel's own decoded colour (the merge is on its grid):
-       fully where every channel of the reference is inside ``reference_band`` (the band the
-       colour check measures, :data:`REFERENCE_BAND`), fading over its ramp outside, and
-       elsewhere in the proportion of the reference's share of the blurred weights.
-       ``reference_band=None``: the share alone (where the reference is the best exposed frame
-       nearly all; where another frame is, little).
+    3. With ``frame_band`` (the default, :data:`FRAME_BAND`): every pixel takes the colour of
+       the frames well exposed there, each frame read at its nearest pixel (``to_reference``)
+       and decoded with ``decode``, mixed with weights ``band * exp(-|x - 0.5|^2 / (2
+       frame_sigma^2))`` over the channels' levels ``x`` (:data:`FRAME_SIGMA`: the frame
+       nearest mid-grey gives nearly all of it, smoothly in the levels): fully where some frame
+       has every channel inside the band, fading over its ramp outside, where none is only
+       steps 1-2 apply. So each frame's best-exposed regions have that frame's colour (the
+       issue's target on every frame; the Xperia bracket: at most 0.0077 from each frame
+       there, the sRGB merge 0.027). ``frame_band=None`` and ``reference_band`` (the previous
+       default, :data:`REFERENCE_BAND`): the reference pixel's own colour where every channel
+       of it is inside the band, elsewhere the reference's share of the blurred weights; this
+       meets the reference exactly and misses the frames around it (Xperia: up to 0.053 from
+       a frame where it is the best exposed).
 
-    With ``white_balance`` each frame's decoded colours are first divided by its white balance
-    against the reference (median channel ratios over pixels well exposed in both, normalised
-    to green): one colour balance over the whole merge, at the price of the regions other
-    frames give no longer having those frames' colours (Canon: their error 0.0091 -> 0.0209,
-    Xperia 0.0366 -> 0.0463); off by default, the difference is measured and reported
-    (:attr:`ColourCheck.white_balance`).
+    ``gains`` ``(N, 3)``: each frame's white balance against the reference
+    (:func:`hdrcore.merge.white_balance.measure_white_balance`'s correction), divided out of
+    its decoded colours in steps 2 and 3: one balance over the whole merge. Without,
+    ``white_balance`` measures them here (median channel ratios to the reference, normalised
+    to green; off by default).
 
     The pixel's luminance (Rec. 709 weights) is held fixed throughout. Where no frame is well
     exposed (clipped everywhere) only step 1 applies.
@@ -1141,8 +1152,9 @@ def anchor_colour(
 @dataclass(frozen=True)
 class ColourResult:
     """The colour stage of a non-linear merge: the check of the merge as made (``before``),
-    the local tone-mapping test, the anchoring (``None`` when off) and the check of the
-    result (``after``)."""
+    the local tone-mapping test, the frames' white balance
+    (:class:`~hdrcore.merge.white_balance.FrameBalance`, ``applied`` when the merge was
+    corrected), the anchoring (``None`` when off) and the check of the result (``after``)."""
 
     before: ColourCheck
     after: ColourCheck
