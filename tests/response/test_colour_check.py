@@ -214,3 +214,33 @@ def test_per_pixel_agreement_of_a_right_curve_is_the_noise() -> None:
     pixel, two, four = median(1), median(2), median(4)
     assert 0.007 < pixel < 0.014
     assert 0.4 < two / pixel < 0.6 and 0.4 < four / two < 0.6
+
+
+def test_frame_colours_follow_the_registration_and_engines_agree(srgb_bracket,
+                                                                 monkeypatch) -> None:
+    """Frames displaced by a known shift and given with their ``to_reference`` matrices are
+    read at the right pixels (the same colours as the aligned frames away from the border),
+    and the compiled pass equals the numpy one."""
+    import hdrcore.merge.colour_check as module
+
+    _, frames, res = srgb_bracket
+    frames = [_rebalanced(frames[0], (1.06, 1.0, 0.94)), frames[1],
+              _rebalanced(frames[2], (0.94, 1.0, 1.06))]
+    moved = [np.roll(frames[0], (2, 3), axis=(0, 1)), frames[1],
+             np.roll(frames[2], (-1, 4), axis=(0, 1))]
+    to_ref = [np.array([[1.0, 0, -3], [0, 1, -2]]), np.eye(3)[:2],
+              np.array([[1.0, 0, -4], [0, 1, 1]])]
+    kw = dict(max_level=255, saturation=250, noise_floor=2, reference=1, lut=LUT,
+              exposure_times=TIMES, shares=res.shares)
+    aligned = res.radiance.copy()
+    anchor_colour(aligned, frames, srgb_decode_lut(255), **kw)
+    runs = {}
+    for numba in (True, False):
+        monkeypatch.setattr(module, "AVAILABLE", numba and module.AVAILABLE)
+        rad = res.radiance.copy()
+        anchor_colour(rad, moved, srgb_decode_lut(255), **kw, to_reference=to_ref)
+        runs[numba] = rad
+    np.testing.assert_allclose(runs[True], runs[False], rtol=2e-5, atol=1e-7)
+    inner = (slice(12, -12), slice(12, -12))
+    np.testing.assert_allclose(chromaticity(runs[True][inner]),
+                               chromaticity(aligned[inner]), atol=2e-3)
