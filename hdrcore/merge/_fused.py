@@ -163,17 +163,16 @@ def tap_thresholds(sat: np.ndarray, dtype: np.dtype) -> np.ndarray:
 def _finish_block(
     y, x0, x1, n, order, den, num, s2, sv, share, fv, lo, nbad, me2, thr,
     wsum_out, shares, clipped_out, under_out, gscore, ghost, pick, invw, zflag, radf, bb, cc,
-    fe, fs,
+    eb,
 ):
-    """Radiance, ghost score, shares and fallback decisions of one block (the reference's
-    ``_finish``) from interleaved sums (``den[3 i + ch]``), every step a straight pass (SIMD).
-    ``fv[i]`` is the first valid frame in exposure order (-1: none), ``lo[i]`` the last one not
-    dropped, ``nbad[i]`` the number dropped. Returns how many pixels need a fallback value and
-    sets, per element, ``fe`` 1 where every channel takes the first valid frame's ``E_k`` (the
-    pixel is clipped in every valid frame; the darkest frame's when none is valid) and ``fs`` 1
-    where the channels without weight take the last frame not dropped (float32, for straight
-    passes); ``pick[i]`` is that frame, which takes the whole share when the pixel has no
-    weight."""
+    """Radiance, ghost score, shares and fallback values of one block (the reference's
+    ``_finish`` and ``_fallback``) from interleaved sums (``den[3 i + ch]``), the sums' steps
+    straight passes (SIMD). ``fv[i]`` is the exposure-order position of the darkest valid
+    frame clipped at the pixel (``n``: none), ``lo[i]`` that of the brightest usable frame
+    that gave it weight (the brightest usable one when none did; -1: none usable),
+    ``nbad[i]`` the number of frames dropped and ``eb[j]`` the ``E_k`` of the ``j``-th frame.
+    A pixel with a channel of no weight takes (in those channels, or in all) the value of one
+    frame, ``pick[i]``, which takes the whole share when no channel has weight."""
     zero = np.float32(0.0)
     one = np.float32(1.0)
     nbk = x1 - x0
@@ -191,6 +190,7 @@ def _finish_block(
     ws = wsum_out[y, x0:x1]
     gh = ghost[y, x0:x1]
     gs = gscore[y, x0:x1]
+    nz = 0
     for i in range(nbk):
         e = 3 * i
         spread = (bb[e] + bb[e + 1]) + bb[e + 2]
@@ -205,48 +205,55 @@ def _finish_block(
         wsum = (d0 + d1) + d2
         ws[i] = wsum
         invw[i] = one / (wsum if wsum >= _TINY else _TINY)
-        zflag[i] = (d0 <= zero) | (d1 <= zero) | (d2 <= zero)
-    # fallbacks (the reference's _finish): a pixel with a channel of no weight that is clipped
-    # in every valid frame takes the darkest valid frame (mode 3 when that is the darkest
-    # frame, else 1; no valid frame at all: the darkest, not clipped); otherwise (some frame
-    # not dropped) the channels of no weight take the brightest frame not dropped (mode 2),
-    # which also takes all of the share when no channel has weight
+        z = (d0 <= zero) | (d1 <= zero) | (d2 <= zero)
+        zflag[i] = z
+        nz += z
+    # fallbacks (the reference's _fallback), for the few pixels with a channel of no weight:
+    # no frame gave the pixel weight, a valid frame is clipped there and every usable frame
+    # is a shorter exposure: the darkest clipped frame's value in every channel (a lower
+    # bound; shorter frames below the noise floor, a black one, say nothing against it); no
+    # valid frame at all: the darkest frame's, not clipped. Otherwise (some frame usable) the
+    # channels of no weight take the brightest usable frame that gave the pixel weight (any
+    # usable one when none did).
     co = clipped_out[y, x0:x1]
     uo = under_out[y, x0:x1]
-    dk = order[0]
-    nz = 0
     for i in range(nbk):
-        z = zflag[i]
-        allbad = nbad[i] == n
-        f = fv[i]
-        cl = z & allbad
-        nz += z
+        co[i] = False
+        uo[i] = False
+        pick[i] = -1
+    for i in range(nbk if nz > 0 else 0):
+        if not zflag[i]:
+            continue
         e = 3 * i
-        every = np.float32(1.0) if cl else zero
-        some = np.float32(1.0) if z & (not cl) else zero
-        fe[e] = every
-        fe[e + 1] = every
-        fe[e + 2] = every
-        fs[e] = some
-        fs[e + 1] = some
-        fs[e + 2] = some
-        last = lo[i]
-        p = dk if f < 0 else f
-        p = p if cl else last
-        pick[i] = p
-        co[i] = allbad & (f >= 0) if z else allbad
-        uo[i] = z & (not allbad)
         whole = (den[e] <= zero) & (den[e + 1] <= zero) & (den[e + 2] <= zero)
-        # the whole share to one frame: spread as a bit per frame (p < 64)
-        zflag[i] = cl | (z & whole)
+        f = fv[i]
+        last = lo[i]
+        allbad = nbad[i] == n
+        cl = whole & (((f < n) & (last < f)) | allbad)
+        co[i] = cl & (f < n)
+        uo[i] = not cl
+        if cl:
+            jp = f if f < n else 0
+            src = eb[jp]
+            ro[e] = src[e]
+            ro[e + 1] = src[e + 1]
+            ro[e + 2] = src[e + 2]
+        else:
+            jp = last
+            src = eb[jp]
+            for ch in range(3):
+                if den[e + ch] <= zero:
+                    ro[e + ch] = src[e + ch]
+        if whole:  # the whole share to that frame
+            pick[i] = order[jp]
     for k in range(n):
         sk = share[k]
         so = shares[k, y, x0:x1]
         for i in range(nbk):
             h = _f16_bits(sk[i] * invw[i])
-            one_k = _ONE_F16 if pick[i] == k else np.uint16(0)
-            so[i] = one_k if zflag[i] else h
-    return nz
+            p = pick[i]
+            one_k = _ONE_F16 if p == k else np.uint16(0)
+            so[i] = one_k if p >= 0 else h
 
 
 @_njit
@@ -269,13 +276,12 @@ def _weight(wcode, level, var, t2k):
 
 @_njit
 def _accumulate_run(
-    xk, okf, taf, ne, wcode, inv_max, shot, const_var, floor_norm, itk, it2, t2k, den, num, s2,
-    sv, wbuf, fa, fb,
+    xk, okf, ne, wcode, inv_max, shot, const_var, floor_norm, itk, it2, t2k, den, num, s2,
+    sv, wbuf, eb,
 ):
     """The sums of one frame over ``ne`` interleaved samples of linear data (no LUT): straight
-    SIMD loops, one for the noise-aware weight (RAW data) and one for the others. The fallback
-    candidates take this frame's ``E_k``: ``fa`` where ``taf`` (the first valid frame so far),
-    ``fb`` where ``okf`` (the frame is not dropped: the last such in exposure order wins)."""
+    SIMD loops, one for the noise-aware weight (RAW data) and one for the others. ``eb``
+    receives ``E_k`` of every sample: the fallback values are read from it."""
     zero = np.float32(0.0)
     if wcode == 2:
         for e in range(ne):
@@ -284,11 +290,7 @@ def _accumulate_run(
             var = var + const_var
             ev = level * itk
             ok = okf[e]
-            ta = taf[e]
-            pa = fa[e]  # loads outside the selects: they vectorise
-            pb = fb[e]
-            fa[e] = ev if ta != zero else pa
-            fb[e] = ev if ok != zero else pb
+            eb[e] = ev
             wk = t2k / var
             wk = wk * (ok if level > floor_norm else zero)
             wbuf[e] = wk
@@ -305,11 +307,7 @@ def _accumulate_run(
             var = var + const_var
             ev = level * itk
             ok = okf[e]
-            ta = taf[e]
-            pa = fa[e]  # loads outside the selects: they vectorise
-            pb = fb[e]
-            fa[e] = ev if ta != zero else pa
-            fb[e] = ev if ok != zero else pb
+            eb[e] = ev
             wk = _weight(wcode, level, var, t2k)
             wk = wk * (ok if level > floor_norm else zero)
             wbuf[e] = wk
@@ -323,13 +321,13 @@ def _accumulate_run(
 
 @_njit
 def _accumulate_lut_run(
-    xk, okf, taf, nbk, wcode, inv_max, shot, const_var, floor_norm, itk, it2, t2k, lut, lut_var,
-    den, num, s2, sv, wbuf, fa, fb,
+    xk, okf, nbk, wcode, inv_max, shot, const_var, floor_norm, itk, it2, t2k, lut, lut_var,
+    den, num, s2, sv, wbuf, eb,
 ):
     """The sums of one resampled frame with a LUT over ``nbk`` pixels: each channel's
     interpolated level read linearly between the entries of its LUT row (the reference's
-    ``_LUT_MODE`` "levels"), one loop per channel (table loads: scalar code); the fallback
-    candidates as :func:`_accumulate_run`."""
+    ``_LUT_MODE`` "levels"), one loop per channel (table loads: scalar code); ``eb`` as
+    :func:`_accumulate_run`."""
     zero = np.float32(0.0)
     lmax1 = lut.shape[1] - 2
     for ch in range(3):
@@ -355,11 +353,7 @@ def _accumulate_lut_run(
             var = var + const_var
             ev = xv * itk
             ok = okf[e]
-            ta = taf[e]
-            pa = fa[e]
-            pb = fb[e]
-            fa[e] = ev if ta != zero else pa
-            fb[e] = ev if ok != zero else pb
+            eb[e] = ev
             wk = _weight(wcode, level, var, t2k)
             wk = wk * (ok if level > floor_norm else zero)
             wbuf[e] = wk
@@ -372,8 +366,8 @@ def _accumulate_lut_run(
 
 
 @_njit
-def _accumulate_levels_table(src, choff, tk, lmax, has_lut, inv_max, itk, okf, taf, ne, den,
-                             num, s2, sv, wbuf, fa, fb):
+def _accumulate_levels_table(src, choff, tk, lmax, has_lut, inv_max, itk, okf, ne, den,
+                             num, s2, sv, wbuf, eb):
     """The sums of one frame of integer levels read in place through its per-level table
     ``tk (C L, 8)`` (:func:`hdrcore.merge.merge._level_tables`: ``E_k, w, w var(E_k), w E_k,
     w E_k**2`` of every level, built by the reference itself, the noise floor applied; channel
@@ -381,8 +375,7 @@ def _accumulate_levels_table(src, choff, tk, lmax, has_lut, inv_max, itk, okf, t
     adds a sample, bit for bit the reference's (the Gaussian weight's ``exp`` included).
     Without a LUT ``E_k`` is computed (levels past the table are clipped there, and the
     fallbacks need their value); with one, levels past it are counted (the caller refuses
-    them). The fallback candidates as :func:`_accumulate_run`."""
-    zero = np.float32(0.0)
+    them). ``eb`` as :func:`_accumulate_run`."""
     bad = 0
     for e in range(ne):
         v = src[e]
@@ -393,11 +386,7 @@ def _accumulate_levels_table(src, choff, tk, lmax, has_lut, inv_max, itk, okf, t
         ea = (np.float32(v) * inv_max) * itk
         ev = te if has_lut else ea
         ok = okf[e]
-        ta = taf[e]
-        pa = fa[e]  # loads outside the selects
-        pb = fb[e]
-        fa[e] = ev if ta != zero else pa
-        fb[e] = ev if ok != zero else pb
+        eb[e] = ev
         wk = tk[li, 1] * ok
         wbuf[e] = wk
         den[e] += wk
@@ -608,11 +597,9 @@ def merge_rows(
     sv = np.empty(b3, np.float32)
     wbuf = np.empty(b3, np.float32)
     okf = np.empty(b3, np.float32)
-    taf = np.empty(b3, np.float32)
-    fa = np.empty(b3, np.float32)  # fallback: the first valid frame's E_k (else the darkest's)
-    fb = np.empty(b3, np.float32)  # fallback: the last frame not dropped's E_k
-    fa_sel = np.empty(b3, np.float32)  # 1 where a pixel takes fa in every channel
-    fb_sel = np.empty(b3, np.float32)  # 1 where a pixel takes fb in its channels of no weight
+    # E_k of every frame (row j: the j-th in exposure order): the fallback values, read for
+    # the few pixels that need one
+    eb = np.empty((n, b3), np.float32)
     acc = np.empty(b3, np.float32)
     wxe = np.empty((4, b3), np.float32)
     wye = np.empty((4, b3), np.float32)
@@ -624,8 +611,13 @@ def merge_rows(
     ins = np.empty(bw, np.bool_)
     share = np.empty((n, bw), np.float32)
     # int32 (not int64): the per-pixel loops then vectorise at the float32 width
-    fv = np.empty(bw, np.int32)  # first valid frame in exposure order (-1: none)
-    lo = np.empty(bw, np.int32)  # last frame not dropped
+    # positions in exposure order (j, not the frame index k): the darkest valid frame clipped
+    # at the pixel (n: none), the brightest usable frame that gave the pixel weight (the
+    # brightest usable one while none has; -1: none usable)
+    fv = np.empty(bw, np.int32)
+    lo = np.empty(bw, np.int32)
+    seen = np.empty(bw, np.bool_)  # some frame so far gave the pixel weight
+    okp = np.empty(bw, np.bool_)  # this frame is usable at the pixel
     nbad = np.empty(bw, np.int32)
     pick = np.empty(bw, np.int32)
     invw = np.empty(bw, np.float32)
@@ -666,8 +658,9 @@ def merge_rows(
         s2[:ne] = zero
         sv[:ne] = zero
         nbad[:nbk] = 0
-        fv[:nbk] = -1
-        lo[:nbk] = 0
+        fv[:nbk] = n
+        lo[:nbk] = -1
+        seen[:nbk] = False
         crow = clip_count[y]
         crow[x0:x1] = 0
         for j in range(n):
@@ -745,59 +738,51 @@ def merge_rows(
                 b = (not valid) | cl
                 cs[i] += np.uint8(cl)
                 nbad[i] += np.int32(b)
-                # fallback candidate A: the darkest frame, replaced by the first valid one
-                ta = (j == 0) | ((fv[i] < 0) & valid)
                 f = fv[i]
-                last = lo[i]
-                fv[i] = k if (f < 0) & valid else f
-                lo[i] = last if b else k
+                fv[i] = np.int32(j) if (f == n) & cl else f
+                okp[i] = not b
                 okv = zero if b else one
-                tav = one if ta else zero
                 e = 3 * i
                 okf[e] = okv
                 okf[e + 1] = okv
                 okf[e + 2] = okv
-                taf[e] = tav
-                taf[e + 1] = tav
-                taf[e + 2] = tav
             itk = inv_t[k]
             it2 = inv_t2[k]
             t2k = t2[k]
+            ebj = eb[j]
             if has_lut and warped:
-                _accumulate_lut_run(xk, okf, taf, nbk, wcode, inv_max, shot, const_var,
+                _accumulate_lut_run(xk, okf, nbk, wcode, inv_max, shot, const_var,
                                     floor_norm, itk, it2, t2k, lut, lut_var, den, num, s2, sv,
-                                    wbuf, fa, fb)
+                                    wbuf, ebj)
             elif use_tab:
                 out_of_range += _accumulate_levels_table(
-                    frf, choff, tabs[k], tab_max, has_lut, inv_max, itk, okf, taf, ne, den, num,
-                    s2, sv, wbuf, fa, fb)
+                    frf, choff, tabs[k], tab_max, has_lut, inv_max, itk, okf, ne, den, num,
+                    s2, sv, wbuf, ebj)
             elif warped:
-                _accumulate_run(xk, okf, taf, ne, wcode, inv_max, shot, const_var, floor_norm,
-                                itk, it2, t2k, den, num, s2, sv, wbuf, fa, fb)
+                _accumulate_run(xk, okf, ne, wcode, inv_max, shot, const_var, floor_norm,
+                                itk, it2, t2k, den, num, s2, sv, wbuf, ebj)
             else:  # the frame's own dtype (a specialisation per dtype)
-                _accumulate_run(frf, okf, taf, ne, wcode, inv_max, shot, const_var, floor_norm,
-                                itk, it2, t2k, den, num, s2, sv, wbuf, fa, fb)
+                _accumulate_run(frf, okf, ne, wcode, inv_max, shot, const_var, floor_norm,
+                                itk, it2, t2k, den, num, s2, sv, wbuf, ebj)
+            # the brightest usable frame that gave the pixel weight (a usable frame without
+            # any, e.g. a black one, only while no frame has)
+            jj = np.int32(j)
             for i in range(nbk):
                 e = 3 * i
-                share[k, i] = (wbuf[e] + wbuf[e + 1]) + wbuf[e + 2]
-        nz = _finish_block(
+                sh = (wbuf[e] + wbuf[e + 1]) + wbuf[e + 2]
+                share[k, i] = sh
+                sig = sh > zero
+                sn = seen[i]
+                upd = okp[i] & (sig | (not sn))
+                seen[i] = sn | sig
+                last = lo[i]
+                lo[i] = jj if upd else last
+        _finish_block(
             y, x0, x1, n, order, den, num, s2, sv, share, fv, lo, nbad, me2, thr,
             wsum_out, shares, clipped_out, under_out, gscore, ghost, pick, invw, zflag, radf,
-            bb, cc, fa_sel, fb_sel,
+            bb, cc, eb,
         )
         ro = radf[y, 3 * x0:3 * x1]
-        # fallbacks, a straight pass: modes 1 and 3 take candidate A in every channel, mode 2
-        # candidate B in the channels without weight
-        for e in range(ne if nz > 0 else 0):
-            # every load outside the selects (a load inside one does not vectorise)
-            every = fa_sel[e] != zero
-            some = fb_sel[e] != zero
-            va = fa[e]
-            vb = fb[e]
-            d = den[e]
-            r = ro[e]
-            v = va if every else vb
-            ro[e] = v if every | (some & (d <= zero)) else r
         if has_colour:
             convert_pixels(ro, clipped_out[y, x0:x1], True, cm, cwb, cneu)
     return out_of_range

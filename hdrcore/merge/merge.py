@@ -12,10 +12,14 @@ Rules that keep the result free of colour casts and honest about what it could n
   Merging the unclipped channels of a frame with the clipped ones taken from a darker frame is
   what turns highlights magenta or green when one channel clips first.
 * A sample at or below the noise floor gets zero weight in its own channel only.
-* A pixel clipped in every valid frame takes the darkest valid frame's value and is flagged
-  ``clipped``; a channel below the noise floor in every usable frame takes the brightest usable
-  frame's value and the pixel is flagged ``underexposed``. Such a value is that frame's
-  ``E_k = g(M) / dt`` exactly as the weighted sums formed it (float32).
+* A pixel no frame gives weight to takes the darkest valid frame clipped there, a lower bound,
+  and is flagged ``clipped``, when every usable frame is a shorter exposure than that frame
+  (too short to see the pixel: a frame below the noise floor, or black, says nothing against
+  a clip level). Otherwise a channel below the noise floor in every usable frame takes the
+  brightest usable frame that gave the pixel weight (any usable one when none did; also where
+  a longer exposure saw nothing where a shorter one clipped, data that contradict themselves,
+  a marker or a moving object) and the pixel is flagged ``underexposed``. Such a value is that
+  frame's ``E_k = g(M) / dt`` exactly as the weighted sums formed it (float32).
 * With ``colour=`` (a :class:`~hdrcore.merge.colour.ColourConversion`) the radiance comes out in
   the working space, the pixels clipped in every frame neutral: the fused kernel converts each
   block while it is in cache, which saves a pass over the map.
@@ -111,8 +115,9 @@ class MergeResult:
     clip_count
         uint8 ``(H, W)``: number of valid frames in which the pixel is clipped (any channel).
     clipped
-        bool ``(H, W)``: clipped in every valid frame; the value is the darkest frame's (a lower
-        bound).
+        bool ``(H, W)``: clipped in every valid frame that could see the pixel (frames below
+        the noise floor that are shorter exposures, e.g. a black frame, do not count); the value
+        is the darkest clipped frame's (a lower bound).
     underexposed
         bool ``(H, W)``: some channel is at or below the noise floor in every usable frame.
     ghost_score, ghost
@@ -839,64 +844,70 @@ class _Kernel:
         np.maximum(wsum, _TINY, out=inv)
         np.divide(np.float32(1.0), inv, out=inv)
         shares = s.share[:, :m]
+        need = np.flatnonzero(anyzero)
+        # which frames contributed to each pixel needing a fallback (before normalising)
+        seen = shares[:, need] > 0.0
         shares *= inv
         clipped = out.clipped[r0:r1].reshape(m)
         under = out.underexposed[r0:r1].reshape(m)
         under.fill(False)
-        # Every frame dropped (clipped, or invalid): the darkest valid frame's value.
-        np.equal(s.nbad[:m], n, out=clipped)
-        need = np.flatnonzero(anyzero)
+        clipped.fill(False)
         if need.size:
-            self._fallback(r0, m, need, s, rad, shares, clipped, under)
+            self._fallback(need, seen, s, rad, shares, clipped, under)
         for k in range(n):
             to_float16_nonnegative(shares[k], out.shares[k, r0:r1].reshape(m), s.i32[:m])
 
     def _fallback(
         self,
-        r0: int,
-        m: int,
         need: np.ndarray,
+        seen: np.ndarray,
         s: _Scratch,
         rad: np.ndarray,
         shares: np.ndarray,
         clipped: np.ndarray,
         under: np.ndarray,
     ) -> None:
-        """Values for pixels the weighted average could not estimate (see the module doc)."""
+        """Values for pixels the weighted average could not estimate (see the module doc).
+
+        ``need``: chunk pixels with a channel of no weight; ``seen (N, q)``: frame ``k``
+        contributed weight to pixel ``need[q]`` (some channel above the noise floor).
+        """
         p = self.p
         order = p.order
-        dark_k = int(order[0])
-        # 1) every frame dropped: the darkest valid frame (fast path: the darkest frame is valid)
-        alldrop = need[clipped[need]]
-        if alldrop.size:
-            dark_ok = ~(s.bad[dark_k, alldrop] & ~s.clip[dark_k, alldrop])
-            fast = alldrop[dark_ok]
-            rad[fast] = s.ek[dark_k][:, fast].T
-            shares[:, fast] = 0.0
-            shares[dark_k, fast] = 1.0
-            slow = alldrop[~dark_ok]
-            if slow.size:
-                invalid = s.bad[np.ix_(order, slow)] & ~s.clip[np.ix_(order, slow)]
-                has_valid = ~invalid.all(axis=0)
-                first_valid = np.where(has_valid, np.argmax(~invalid, axis=0), 0)
-                for j, k in enumerate(order):
-                    pick = slow[first_valid == j]
-                    if pick.size == 0:
-                        continue
-                    rad[pick] = s.ek[k][:, pick].T
-                    shares[:, pick] = 0.0
-                    shares[k, pick] = 1.0
-                # no valid frame at all: not clipped, just unknown (darkest frame's value)
-                clipped[slow[~has_valid]] = False
-        # 2) some channel at or below the noise floor in every usable frame: the brightest
-        #    usable frame's value for that channel.
-        rest = need[~clipped[need]]
-        rest = rest[(s.nbad[rest] < len(order))]
-        if rest.size:
+        n = len(order)
+        seen_o = seen[order]  # (N, q), exposure order
+        whole = (s.den[:, need] <= 0).all(axis=0)  # no frame contributed to any channel
+        clip_o = s.clip[np.ix_(order, need)]  # clipped (and valid), exposure order
+        has_clip = clip_o.any(axis=0)
+        first = np.where(has_clip, np.argmax(clip_o, axis=0), 0)
+        usable_o = ~s.bad[np.ix_(order, need)]
+        last_usable = np.where(usable_o.any(axis=0), n - 1 - np.argmax(usable_o[::-1], axis=0),
+                               -1)
+        # 1) no frame gave the pixel weight, some valid frame is clipped there and every usable
+        #    frame (below the floor) is a shorter exposure than the darkest clipped one: that
+        #    frame's value, a lower bound (a frame too short to see the pixel, or black, says
+        #    nothing against it). No valid frame at all: the darkest frame's value, not flagged.
+        every = whole & ((has_clip & (last_usable < first)) | (s.nbad[need] == n))
+        for j, k in enumerate(order):
+            pick = need[every & (first == j)]
+            if pick.size == 0:
+                continue
+            rad[pick] = s.ek[k][:, pick].T
+            shares[:, pick] = 0.0
+            shares[k, pick] = 1.0
+        clipped[need[every & has_clip]] = True
+        # 2) some channel at or below the noise floor in every usable frame: that channel takes
+        #    the brightest usable frame that saw the pixel (any usable frame when none did; also
+        #    where a longer exposure saw nothing where a shorter one clipped: the frames
+        #    contradict each other, a marker or a moving object, and the longest reading stays)
+        rest_q = np.flatnonzero(~every)
+        if rest_q.size:
+            rest = need[rest_q]
             zero = (s.den[:, rest] <= 0).T  # (q, C)
-            whole = zero.all(axis=1)
             usable = ~s.bad[np.ix_(order, rest)]
-            last = usable.shape[0] - 1 - np.argmax(usable[::-1], axis=0)
+            sr = seen_o[:, rest_q]
+            cand = np.where(sr.any(axis=0), sr, usable)
+            last = n - 1 - np.argmax(cand[::-1], axis=0)
             for j, k in enumerate(order):
                 sel = np.flatnonzero(last == j)
                 if sel.size == 0:
@@ -907,7 +918,7 @@ class _Kernel:
                 zc = zero[sel]
                 target[zc] = vals[zc]
                 rad[pick] = target
-                wholes = pick[whole[sel]]
+                wholes = pick[whole[rest_q[sel]]]
                 if wholes.size:
                     shares[:, wholes] = 0.0
                     shares[k, wholes] = 1.0

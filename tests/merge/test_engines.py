@@ -133,6 +133,33 @@ def test_fallbacks_when_the_darkest_frame_is_invalid_or_no_frame_is_valid():
     both(floats, (1.0, 4.0, 16.0), masks=[m0, m1, m2], noise_floor=10 / 4095)
 
 
+def test_fallbacks_of_frames_below_the_floor_against_a_clipped_one():
+    """No frame gives the pixel weight (issue 17's black frame): a clipped frame's lower bound
+    wins over shorter exposures below the floor (they could not see it), while a longer
+    exposure below the floor where a shorter one clipped contradicts it (a marker, a moving
+    object) and keeps its reading, as before the fix."""
+    ml, floor = 4095, 40
+    times = (1.0, 4.0, 16.0)
+    frames = [np.full((2, 4, 3), 1000, np.uint16) for _ in times]
+    frames[0][0, 0] = (5, 0, 30)  # shortest: below the floor
+    frames[1][0, 0] = (4095, 20, 10)  # clipped in red: radiance at least ~4013 / 4
+    frames[2][0, 0] = (4095, 4095, 4095)
+    frames[0][1, 0] = (4095, 4095, 10)  # shortest clipped ...
+    frames[1][1, 0] = (30, 0, 2)  # ... the longer ones below the floor: contradiction
+    frames[2][1, 0] = (12, 3, 0)
+    ref, _ = both(frames, times, max_level=ml, noise_floor=floor)
+    np.testing.assert_allclose(ref.radiance[0, 0], frames[1][0, 0] / ml / 4.0, rtol=1e-6)
+    assert ref.clipped[0, 0] and not ref.underexposed[0, 0]
+    assert ref.shares[1, 0, 0] == 1.0
+    np.testing.assert_allclose(ref.radiance[1, 0], frames[2][1, 0] / ml / 16.0, rtol=1e-6)
+    assert ref.underexposed[1, 0] and not ref.clipped[1, 0]
+    # the black frame: shorter than every other, it changes nothing
+    black = np.zeros_like(frames[0])
+    ref2, _ = both([black, *frames], (0.25, *times), max_level=ml, noise_floor=floor)
+    np.testing.assert_array_equal(ref2.radiance, ref.radiance)
+    np.testing.assert_array_equal(ref2.clipped, ref.clipped)
+
+
 def test_levels_above_max_level_with_a_lut_are_refused():
     frames = [np.full((4, 5, 3), 100 * (k + 1), np.uint16) for k in range(3)]
     frames[1][0, 0, 0] = 300

@@ -57,17 +57,46 @@ def test_the_order_of_the_frames_changes_nothing(b, rnd) -> None:
     np.testing.assert_allclose(e2, e1, rtol=1e-6, atol=0)
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "known bug (issue 17, found by this property): merge() called without a noise floor, a "
-    "black frame added to this bracket sets 42 % of its pixels to 0: those clipped in every "
-    "other frame, and dark ones (levels 7 and 11 -> 0); the pipeline drops black frames before "
-    "merging"))
-def test_a_black_frame_adds_nothing() -> None:
+@pytest.mark.parametrize("engine", ["numpy", "numba"])
+def test_a_black_frame_adds_nothing(engine) -> None:
+    # the example that found the bug (issue 17): 42 % of the pixels are clipped in both frames
+    # (or dark in one channel of a pixel clipped in another); a black frame set them to 0
     frames, times = _bracket(0, 2, 0.5, 2.0)
-    e1 = _radiance(frames, times)
+    r1 = merge(frames, times, max_level=ML, engine=engine)
     black = np.zeros_like(frames[0])
-    e2 = _radiance([black, *frames], [times[0] / 4.0, *times])
-    np.testing.assert_allclose(e2, e1, rtol=1e-6, atol=0)
+    r2 = merge([black, *frames], [times[0] / 4.0, *times], max_level=ML, engine=engine)
+    assert r1.clipped.mean() > 0.3
+    np.testing.assert_allclose(r2.radiance, r1.radiance, rtol=1e-6, atol=0)
+    np.testing.assert_array_equal(r2.clipped, r1.clipped)
+    np.testing.assert_array_equal(r2.underexposed, r1.underexposed)
+    np.testing.assert_array_equal(r2.shares[0], 0.0)  # the black frame's share
+    np.testing.assert_array_equal(r2.shares[1:], r1.shares)
+
+
+@settings(max_examples=20, deadline=None)
+@given(brackets, st.floats(1 / 64, 64.0), st.integers(0, 40), st.sampled_from(["numpy", "numba"]))
+def test_a_black_frame_of_any_time_adds_nothing_with_a_noise_floor(b, c, floor, engine) -> None:
+    # the black frame darker, between or brighter than the others; a noise floor (the
+    # pipeline's) leaves channels of no weight that take a frame's value below the floor.
+    # Shorter than every frame: nothing changes anywhere. Otherwise nothing changes where some
+    # frame gave the pixel weight; where none did, a black frame longer than a frame clipped
+    # there contradicts it (as a marker or a moving object would) and the longest reading
+    # stays, and a pixel below the floor in every frame takes the longest frame's value.
+    frames, times = _bracket(*b)
+    kw = dict(max_level=ML, noise_floor=floor, engine=engine)
+    r1 = merge(frames, times, **kw)
+    r2 = merge([*frames, np.zeros_like(frames[0])], [*times, times[0] * c], **kw)
+    if c < 1.0:
+        np.testing.assert_allclose(r2.radiance, r1.radiance, rtol=1e-6, atol=0)
+        np.testing.assert_array_equal(r2.clipped, r1.clipped)
+        np.testing.assert_array_equal(r2.underexposed, r1.underexposed)
+        np.testing.assert_array_equal(r2.shares[-1], 0.0)
+        np.testing.assert_array_equal(r2.shares[:-1], r1.shares)
+    else:
+        seen = r1.weight_sum > 0
+        assert seen.mean() > 0.3
+        np.testing.assert_allclose(r2.radiance[seen], r1.radiance[seen], rtol=1e-6, atol=0)
+        np.testing.assert_array_equal(r2.underexposed[seen], r1.underexposed[seen])
 
 
 @settings(max_examples=15, deadline=None)
