@@ -66,6 +66,7 @@ from .registration import (
     MODELS,
     REGISTRATION_METHODS,
     BracketRegistration,
+    PairRegistration,
     invert,
     register_bracket,
     register_pair,
@@ -642,8 +643,8 @@ class Pipeline:
     def _signals(self, p: PipelineParams, run: Any) -> tuple[FrameSignal, ...]:
         hists = run.get("histograms")
         return tuple(
-            frame_signal(hists.counts[k], noise_floor=float(p.noise_floor),
-                         saturation=float(p.saturation), index=k, path=f.path)
+            frame_signal(hists.counts[k], noise_floor=_level(p.noise_floor),
+                         saturation=_level(p.saturation), index=k, path=f.path)
             for k, f in enumerate(self.bracket.frames)
         )
 
@@ -835,8 +836,8 @@ class Pipeline:
                 preview, factor = run.get("preview")
         timings["total"] = time.perf_counter() - t_start
         res = PipelineResult(
-            bracket=b, params=p, saturation=float(p.saturation),
-            noise_floor=float(p.noise_floor), histograms=hists, response=response, lut=lut,
+            bracket=b, params=p, saturation=_level(p.saturation),
+            noise_floor=_level(p.noise_floor), histograms=hists, response=response, lut=lut,
             exposures=exposures, exposures_histogram=exposures_hist, exposure_times=times,
             times_source=times_source, registration=registration, merge=merge_result,
             radiance=radiance, colour=colour_info, preview=preview, preview_factor=factor,
@@ -885,8 +886,8 @@ def _response(ctx: _Context, p: PipelineParams, hists: BracketHistograms, exclud
     if levels is None:
         levels = [f.levels for f in b.frames]
     exif = _recorded_exposures(ctx)
-    times: tuple[float, ...] | None = (
-        tuple(float(e) for e in exif) if all(e is not None for e in exif) else None)
+    known = [float(e) for e in exif if e is not None]
+    times: tuple[float, ...] | None = tuple(known) if len(known) == len(exif) else None
     method_names = {k.lower() for k in RESPONSE_METHODS} | {"auto"}
     unused_note = ""
     if isinstance(spec, str) and spec.lower() in method_names and times is None:
@@ -986,7 +987,7 @@ def _merge_times(ctx: _Context, exposures: BracketExposureResult,
             raise EstimationError(
                 "times='exif' needs an exposure time for every frame (EXIF or --times)"
             )
-        return tuple(float(e) for e in exif), "exif"
+        return tuple(float(e) for e in exif if e is not None), "exif"
     rel = np.asarray(exposures.relative_exposures, float)
     source = "estimated"
     n = len(rel)
@@ -1000,7 +1001,8 @@ def _merge_times(ctx: _Context, exposures: BracketExposureResult,
     broken = []
     for k, pair in enumerate(exposures.pairs):
         r = ratios[k]
-        exif_r = None if exif[k] is None or exif[k + 1] is None else exif[k + 1] / exif[k]
+        e0, e1 = exif[k], exif[k + 1]
+        exif_r = None if e0 is None or e1 is None else e1 / e0
         good = math.isfinite(r) and r > 0
         lo, hi = pair.interval
         # Within a tight enough interval (half-width <= 2.5 %), a measured ratio that holds
@@ -1037,19 +1039,19 @@ def _pixel_ratios(ctx: _Context, p: PipelineParams, lut: np.ndarray | None,
     masks = None if excluded is None else [~mask for mask in excluded[0]]
     # The registered-pixel estimator samples each pair through its matrix: affine, or
     # the homography of a pair registered with perspective.
-    common = dict(registered=[q.usable for q in registration.pairs], fallback=fallback,
-                  exposure_times=b.exif_exposures(), saturation=p.saturation,
-                  noise_floor=p.noise_floor)
-    matrices = [q.matrix if q.matrix is not None else q.homography
-                for q in registration.pairs]
-    cfa_ok = masks is None and lut is None and all(
-        f.cfa is not None and f.cfa.data.shape == f.levels.shape[:2]
-        and (f.meta.orientation in (None, 1)) for f in b.frames)
+    common: dict[str, Any] = dict(
+        registered=[q.usable for q in registration.pairs], fallback=fallback,
+        exposure_times=b.exif_exposures(), saturation=p.saturation, noise_floor=p.noise_floor)
+    matrices = [_pair_motion(q) for q in registration.pairs]
+    cfas = [f.cfa for f in b.frames if f.cfa is not None]
+    cfa_ok = masks is None and lut is None and len(cfas) == len(b.frames) and all(
+        c.data.shape == f.levels.shape[:2] and (f.meta.orientation in (None, 1))
+        for c, f in zip(cfas, b.frames, strict=True))
     if cfa_ok:
         # RAW: compare the sensor's own CFA sites, not demosaiced values (demosaicing is
         # not linear in the exposure; see hdrcore.exposure.registered.cfa_planes).
-        planes = [cfa_planes(f.cfa.data, f.cfa.pattern, f.cfa.colors, f.cfa.black_level,
-                             b.max_level) for f in b.frames]
+        planes = [cfa_planes(c.data, c.pattern, c.colors, c.black_level, b.max_level)
+                  for c in cfas]
         return bracket_exposures_from_pixels(
             [pl[0] for pl in planes], b.max_level, matrices, geometry=planes[0][1],
             channel_groups=planes[0][2], **common)
@@ -1057,11 +1059,36 @@ def _pixel_ratios(ctx: _Context, p: PipelineParams, lut: np.ndarray | None,
         [f.levels for f in b.frames], b.max_level, matrices, masks=masks, lut=lut, **common)
 
 
-def _linear_level(ctx: _Context, lut: np.ndarray | None, level: float, channel: int = 1) -> float:
+def _pair_motion(q: PairRegistration) -> np.ndarray:
+    """The pair's 2x3 matrix (affine models), else its 3x3 homography (it has one or the
+    other: ``PairRegistration`` refuses neither)."""
+    motion = q.matrix if q.matrix is not None else q.homography
+    if motion is None:
+        raise ValueError(f"pair {q.dark}-{q.bright} has no motion")
+    return motion
+
+
+def _pair_homography(q: PairRegistration) -> np.ndarray:
+    """The pair's 3x3 homography (``PairRegistration`` sets it from the matrix if need be)."""
+    if q.homography is None:
+        raise ValueError(f"pair {q.dark}-{q.bright} has no homography")
+    return q.homography
+
+
+def _level(value: float | None) -> float:
+    """A level of checked parameters (``Pipeline._check`` replaced each ``None`` by its value:
+    the saturation level and the noise floor)."""
+    if value is None:
+        raise TypeError("the parameters were not checked: a level is still None")
+    return float(value)
+
+
+def _linear_level(ctx: _Context, lut: np.ndarray | None, level: float | None,
+                  channel: int = 1) -> float:
     m = ctx.bracket.max_level
     if lut is None:
-        return float(level) / m
-    return float(np.interp(level, np.arange(m + 1), lut[channel]))
+        return _level(level) / m
+    return float(np.interp(_level(level), np.arange(m + 1), lut[channel]))
 
 
 def _register(ctx: _Context, p: PipelineParams, lut: np.ndarray | None,
@@ -1120,19 +1147,31 @@ def _register(ctx: _Context, p: PipelineParams, lut: np.ndarray | None,
         return reg
     pairs = []
     for q in reg.pairs:
-        mat = scale_matrix(q.matrix, float(factor)) if q.usable else np.eye(2, 3)
+        # the motion at full resolution: the 2x3 matrix of an affine model (the homography
+        # follows from it), else the homography (a perspective pair has no 2x3 form)
+        affine = q.matrix is not None
+        mat = (scale_matrix(_pair_motion(q), float(factor)) if q.usable
+               else np.eye(2, 3) if affine else np.eye(3))
         dx, dy, angle = rigid_parameters(mat, (h, w))
         preview = q.preview
         if preview is not None:
             preview = replace(preview, scale=preview.scale / factor)
         pairs.append(replace(
-            q, matrix=mat, dx=dx, dy=dy, angle_deg=angle, shape=(h, w),
+            q, matrix=mat if affine else None, homography=None if affine else mat,
+            dx=dx, dy=dy, angle_deg=angle, shape=(h, w),
             initial_shift=(q.initial_shift[0] * factor, q.initial_shift[1] * factor),
             preview=preview,
             message=q.message + f" (registered on the green channel binned {factor}x{factor})",
         ))
-    chain = to_reference([q.matrix for q in pairs], reg.reference)
-    return _with_residuals(ctx, replace(reg, pairs=tuple(pairs), to_reference=chain), p, lut)
+    matrices = [q.matrix for q in pairs]
+    if all(m is not None for m in matrices):
+        chain = to_reference([m for m in matrices if m is not None], reg.reference)
+        full = replace(reg, pairs=tuple(pairs), to_reference=chain)
+    else:
+        chain = to_reference([_pair_motion(q) for q in pairs], reg.reference)
+        full = replace(reg, pairs=tuple(pairs), to_reference=None,
+                       to_reference_homography=chain)
+    return _with_residuals(ctx, full, p, lut)
 
 
 def _refine_locally(ctx: _Context, reg: BracketRegistration, images: list, p: PipelineParams,
@@ -1151,7 +1190,7 @@ def _refine_locally(ctx: _Context, reg: BracketRegistration, images: list, p: Pi
               for q in pairs]
     if not any(refine):
         return reg
-    exposures = np.cumprod([1.0] + [float(q.ratio) for q in pairs])
+    exposures = [float(e) for e in np.cumprod([1.0] + [float(q.ratio) for q in pairs])]
 
     def progress(done: int, total: int) -> None:
         ctx.report("registration", 1.0, f"local refinement: frame {done} of {total}")
@@ -1221,7 +1260,7 @@ def _upgrade_to_homography(ctx: _Context, reg: BracketRegistration, images: list
             changed = True
     if not changed:
         return reg
-    mats = [q.homography if q.usable else np.eye(3) for q in pairs]
+    mats = [_pair_homography(q) if q.usable else np.eye(3) for q in pairs]
     chain = to_reference(mats, reg.reference)
     return BracketRegistration(reg.reference, tuple(pairs), None, "auto", reg.method,
                                to_reference_homography=tuple(chain), local=reg.local)
@@ -1295,7 +1334,7 @@ def _merge_frames(ctx: _Context, p: PipelineParams, lut: np.ndarray | None,
         masks = []
         for k in range(n):
             gone = excluded[0][k]
-            if transforms is not None and transforms[k] is not None:
+            if registration is not None and transforms is not None and transforms[k] is not None:
                 moved = warp_to_reference(gone.astype(np.float32),
                                           registration.to_reference_homography[k],
                                           fill=0.0).image
@@ -1306,7 +1345,7 @@ def _merge_frames(ctx: _Context, p: PipelineParams, lut: np.ndarray | None,
     colour, colour_info = _colour(ctx, p)
     result = merge(
         levels, times, response=lut, max_level=b.max_level, masks=masks,
-        saturation_level=float(p.saturation), noise_floor=float(p.noise_floor),
+        saturation_level=_level(p.saturation), noise_floor=_level(p.noise_floor),
         weighting="noise-aware" if lut is None else "hat", noise=noise,
         transforms=transforms,
         fields=None if registration is None or registration.local is None
@@ -1324,7 +1363,7 @@ def _merge_frames(ctx: _Context, p: PipelineParams, lut: np.ndarray | None,
         checked = check_colour(
             levels, result.radiance, lut, max_level=b.max_level,
             reference=0 if registration is None else registration.reference,
-            saturation=float(p.saturation), noise_floor=float(p.noise_floor),
+            saturation=_level(p.saturation), noise_floor=_level(p.noise_floor),
             to_reference=None if registration is None
             else registration.to_reference_homography,
             masks=None if excluded is None else [~e for e in excluded[0]],
@@ -1563,7 +1602,7 @@ def _overlap_matrices(registration: BracketRegistration) -> tuple[np.ndarray, ..
     # The common field of view: a homography's affine part is within a few pixels of it at the
     # borders, which is all the overlap fields need.
     return tuple(np.asarray(q.matrix if q.matrix is not None
-                            else _affine_near(q.homography, q.shape))
+                            else _affine_near(_pair_motion(q), q.shape))
                  for q in registration.pairs)
 
 
