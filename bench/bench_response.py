@@ -625,13 +625,13 @@ def _uncorrect(result) -> np.ndarray:
     wb = result.colour["check"].get("white_balance") or {}
     if not wb.get("applied"):
         return rad
-    gains = np.ones((len(wb["gains"]), 3))
-    for k in wb["differs"]:
-        gains[k] = wb["gains"][k]
+    # every measured frame's balance was divided out (FrameBalance.correction())
+    measured = [k for k, g in enumerate(wb["gains"]) if None not in g]
     sh = result.merge.shares
     den = np.ones(rad.shape, np.float32)
-    for k in wb["differs"]:
-        den += sh[k].astype(np.float32)[..., None] * (gains[k] - 1.0).astype(np.float32)
+    for k in measured:
+        gk = np.asarray(wb["gains"][k], np.float32)
+        den += sh[k].astype(np.float32)[..., None] * (gk - np.float32(1.0))
     return rad * den
 
 

@@ -374,8 +374,9 @@ def colour_check(
     (in its own coordinates). ``frame_pairs_blocks``: the frames' :func:`block_consistency`
     when already measured (it does not depend on ``radiance``). ``balance``: the frames'
     :class:`~hdrcore.merge.white_balance.FrameBalance`; its gains are then the reported white
-    balance, its correction is divided out in ``frame_pairs_wb`` and the ``*_balanced``
-    errors of ``frame_colours``, its ``differs`` the frames named.
+    balance, its correction is divided out in ``frame_pairs_wb`` (every measured frame's) and
+    the ``*_balanced`` errors of ``frame_colours`` (the frames that differ: what the anchoring
+    divides out), its ``differs`` the frames named.
     """
     from ..registration.transform import nearest_in_frame
 
@@ -453,9 +454,11 @@ def colour_check(
         pairs_srgb.append(FramePairColour(k, k + 1, _median_distance(
             chromaticity(linear(k, srgb)[both]), chromaticity(linear(k + 1, srgb)[both])), cnt))
 
+    own_gains = None
     if balance is not None:
         wb = [tuple(float(v) for v in g) for g in balance.gains]
         gains = list(balance.correction())
+        own_gains = balance.correction(every_measured=False)
     else:
         wb = []
         ref_lin = linear(reference)
@@ -479,7 +482,8 @@ def colour_check(
             chromaticity(linear(k)[both] / gains[k]),
             chromaticity(linear(k + 1)[both] / gains[k + 1])), int(both.sum())))
     own = frame_colours(frames, rad, max_level=max_level, reference=reference,
-                        to_reference=to_reference, masks=masks, gains=np.asarray(gains),
+                        to_reference=to_reference, masks=masks,
+                        gains=np.asarray(gains) if own_gains is None else own_gains,
                         max_samples=max_samples, well_exposed=well_exposed)
 
     status = "ok"
@@ -1221,7 +1225,8 @@ def check_colour(
                              to_reference=to_reference, masks=masks, reference=reference,
                              lut=lut, exposure_times=exposure_times, shares=shares,
                              reference_band=reference_band,
-                             gains=correction if balance.applied else None,
+                             gains=balance.correction(every_measured=False)
+                             if balance.applied else None,
                              frame_band=frame_band)
     if anchor or balance.applied:
         after = colour_check(frames, radiance, lut, **kw, balance=balance,

@@ -138,15 +138,21 @@ class FrameBalance:
     message: str
     drift: tuple[float, float, float] = (1.0, 1.0, 1.0)
 
-    def correction(self) -> np.ndarray:
-        """``(N, 3)`` gains the merge divides out: when some frame differs, every measured
-        frame's (a frame within the threshold next to one beyond it would otherwise be left
-        off by the difference of the two: Xperia pair 2-3, 1.5 % -> 2.4 %), 1 for unmeasured
-        frames; when none differs, all 1."""
+    def correction(self, every_measured: bool = True) -> np.ndarray:
+        """``(N, 3)`` gains to divide out, all 1 when no frame differs. When some frame does:
+        every measured frame's (``every_measured``; what the merge's radiance and the
+        consecutive frames, linearised with the curve they were measured with, take: a frame
+        within the threshold next to one beyond it would otherwise be left off by the
+        difference of the two, Xperia pair 2-3 1.5 % -> 2.4 % in R/G), or only those of the
+        frames that differ (what the sRGB-decoded colours of the anchoring take: a balance
+        under the threshold is within what two decodings of a frame disagree by, the Canon's
+        sRGB and recovered curves 2.4 %); 1 for unmeasured frames."""
         out = np.ones((len(self.gains), 3))
         if self.differs:
             g = np.asarray(self.gains, dtype=np.float64)
             ok = np.all(np.isfinite(g), axis=1)
+            if not every_measured:
+                ok &= np.isin(np.arange(len(g)), self.differs)
             out[ok] = g[ok]
         return out
 
