@@ -21,7 +21,7 @@ import threading
 import time
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import viser
 
@@ -34,6 +34,9 @@ from .guard import ConnectionGuard, install_guard
 from .session import Session, pipeline_available
 from .uploads import UploadLimits, make_work_dir, remove_stale_work_dirs
 from .view import PANEL_WIDTH, ClientView
+
+if TYPE_CHECKING:  # imported on first use (slow: numba), not with the page
+    from hdrcore.pipeline import PipelineParams
 
 __all__ = ["InspectorApp", "main", "build_parser", "create_app", "DEMO_DIR", "PANEL_WIDTH"]
 
@@ -92,7 +95,7 @@ class InspectorApp:
         server.on_client_disconnect(self._on_disconnect)
 
     @property
-    def defaults(self) -> Any:
+    def defaults(self) -> PipelineParams:
         """The pipeline's default parameters (``hdrcore.pipeline`` is imported on first use:
         at start the start-up run's thread imports it while the browser loads the page)."""
         if self._defaults is None:
@@ -227,12 +230,10 @@ class InspectorApp:
             time.sleep(0.1)
 
 
-def _default_params() -> Any:
-    if pipeline_available():
-        from hdrcore.pipeline import PipelineParams
+def _default_params() -> PipelineParams:
+    from hdrcore.pipeline import PipelineParams
 
-        return PipelineParams()
-    raise RuntimeError("hdrcore.pipeline is not importable")
+    return PipelineParams()
 
 
 LOOPBACK_HOSTS = ("127.0.0.1", "localhost", "::1", "[::1]")

@@ -20,7 +20,8 @@ from ._draw import enlarge, fmt, scalar_to_rgb, unit_to_display
 
 if TYPE_CHECKING:  # the library's stages are imported on first use, not with the page
     from hdrcore.pipeline import PipelineResult
-    from hdrcore.registration import BracketRegistration
+    from hdrcore.registration import BracketRegistration, PairRegistration
+    from hdrcore.registration.residual import ResidualMotion
 
 __all__ = ["RegistrationPanel", "OVERLAYS", "SHOWS", "cost_figure", "motion_summary",
            "overlay_crop"]
@@ -39,7 +40,7 @@ def _registration(result: PipelineResult) -> BracketRegistration:
     return result.registration
 
 
-def pair_residual(bracket: Bracket, result: PipelineResult, k: int) -> Any:
+def pair_residual(bracket: Bracket, result: PipelineResult, k: int) -> ResidualMotion:
     """The model-independent residual motion of pair ``k`` after alignment
     (:func:`hdrcore.registration.residual.residual_motion`): the registration's own if it
     measured one, else measured here from the frames (green channel)."""
@@ -63,7 +64,7 @@ def pair_residual(bracket: Bracket, result: PipelineResult, k: int) -> Any:
                            lut=table)
 
 
-def draw_arrows(image: np.ndarray, residual: Any, step: float, x0: int = 0,
+def draw_arrows(image: np.ndarray, residual: ResidualMotion, step: float, x0: int = 0,
                 y0: int = 0) -> np.ndarray:
     """Arrows of the residual field on a display image (``step`` image pixels per display pixel,
     ``(x0, y0)`` the image pixel at its corner): green under 0.3 px, yellow under 1 px, red
@@ -188,7 +189,7 @@ def overlay_crop(bracket: Bracket, result: PipelineResult, k: int, *, aligned: b
     return np.ascontiguousarray(img), (x0, y0, x0 + cw, y0 + ch)
 
 
-def cost_figure(pair: Any) -> go.Figure:
+def cost_figure(pair: PairRegistration) -> go.Figure:
     it = list(range(len(pair.cost_history)))
     data = [{"type": "scatter", "mode": "lines+markers", "x": it,
              "y": [float(c) for c in pair.cost_history], "name": "eq. 6 cost",
@@ -201,7 +202,7 @@ def cost_figure(pair: Any) -> go.Figure:
     return go.Figure({"data": data, "layout": layout}, _validate=False)
 
 
-def motion_summary(pair: Any) -> str:
+def motion_summary(pair: PairRegistration) -> str:
     return (
         f"**Pair {pair.dark}→{pair.bright}** ({pair.model}, {pair.method}): status "
         f"**{pair.status}**: {fmt(pair.message)}\n\n"
@@ -230,12 +231,12 @@ class RegistrationPanel:
             "Residual arrows", True, hint="what is left after alignment, tile by tile, measured "
                                           "independently of the motion model (phase correlation)")
         self.residual_md = gui.add_markdown("")
-        self._residuals: dict[tuple[int, int], Any] = {}
+        self._residuals: dict[tuple[int, int], ResidualMotion | None] = {}
         blank = np.zeros((4, 4, 3), np.uint8)
         self.full = gui.add_image(blank, label="overlay", format="png", visible=False)
         self.before = gui.add_image(blank, label="before alignment", format="png", visible=False)
         self.after = gui.add_image(blank, label="after alignment", format="png", visible=False)
-        self._last: tuple[Any, Any, dict] | None = None
+        self._last: tuple[Bracket | None, PipelineResult | None, dict[str, Any]] | None = None
         self._frames: dict[bool, np.ndarray] = {}
         self._lock = threading.Lock()
         self._blink_stop = threading.Event()

@@ -125,7 +125,7 @@ class ResultPanel:
         self.image = gui.add_image(np.zeros((4, 4, 3), np.uint8), label="result", format="jpeg",
                                    visible=False)
         self._images: dict[str, np.ndarray] = {}
-        self._last: tuple[Any, Any, dict] | None = None
+        self._last: tuple[Bracket | None, PipelineResult | None, dict[str, Any]] | None = None
         self._lock = threading.Lock()
         for handle in (self.zoom, self.centre_x, self.centre_y):
             handle.on_update(lambda _e: self._redraw())
