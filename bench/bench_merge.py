@@ -122,9 +122,8 @@ def warp_accuracy_table() -> list[tuple[str, float, float]]:
     reference: "levels" interpolates levels then reads the LUT between entries -- the default
     and the fused kernel's; "samples" linearises the 16 taps first), and the ratio of the
     sharpness (mean gradient magnitude of log luminance) to the same scene shot on a tripod."""
-    import hdrcore.merge.merge as merge_module  # noqa: F401 (the module, for _LUT_MODE)
+    from hdrcore.merge import reference as mod  # the module, for LUT_MODE
 
-    mod = sys.modules["hdrcore.merge.merge"]
     rows = []
     for bits, response in ((12, "linear"), (12, "gamma"), (8, "gamma")):
         sb = simulate_bracket(
@@ -145,12 +144,12 @@ def warp_accuracy_table() -> list[tuple[str, float, float]]:
         sharp_ref = _sharpness(merge(tripod.frames, TIMES, **kw).radiance, well)
         modes = ("levels", "samples") if response == "gamma" else ("levels",)
         for mode in modes:
-            old = mod._LUT_MODE
-            mod._LUT_MODE = mode
+            old = mod.LUT_MODE
+            mod.LUT_MODE = mode
             try:
                 res = merge(sb.frames, sb.exposure_times, transforms=tf, engine="numpy", **kw)
             finally:
-                mod._LUT_MODE = old
+                mod.LUT_MODE = old
             err = np.abs(res.radiance / sb.key - sb.radiance) / sb.radiance
             rows.append((f"{bits}-bit {response}, LUT mode {mode!r}" if response == "gamma"
                          else f"{bits}-bit {response}", float(np.median(err[well])),

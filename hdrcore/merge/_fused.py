@@ -1,8 +1,9 @@
 """The fused merge kernel: one pass over blocks of pixels, every frame and channel.
 
-Same arithmetic as the numpy reference (:class:`hdrcore.merge.merge._Kernel`), in the same
-float32 order, so both give the same radiance, shares, weight sums and maps (bit for bit for integer
-frames; within float32 rounding of ``exp`` for the Gaussian weight of float frames).
+Same arithmetic as the numpy reference (:class:`hdrcore.merge.reference.ReferenceKernel`), in
+the same float32 order, so both give the same radiance, shares, weight sums and maps (bit for
+bit for integer frames; within float32 rounding of ``exp`` for the Gaussian weight of float
+frames).
 
 One kernel, :func:`merge_rows`, for every input: frames with a transform (resampled
 inside the merge, Keys cubic convolution (Keys 1981, a = -1/2) or bilinear, see
@@ -132,7 +133,7 @@ def warm_up() -> float:
 # --------------------------------------------------------------------------------------------
 # Resampling inside the merge: frames with a transform are read at T_k (x, y, 1) with Keys'
 # cubic convolution (a = -1/2) straight from their levels (the reference is
-# hdrcore.merge.merge._Kernel._sample / _linearise_sampled).
+# hdrcore.merge.reference.ReferenceKernel._sample / _linearise_sampled).
 
 
 @_njit
@@ -326,7 +327,7 @@ def _accumulate_lut_run(
 ):
     """The sums of one resampled frame with a LUT over ``nbk`` pixels: each channel's
     interpolated level read linearly between the entries of its LUT row (the reference's
-    ``_LUT_MODE`` "levels"), one loop per channel (table loads: scalar code); ``eb`` as
+    ``LUT_MODE`` "levels"), one loop per channel (table loads: scalar code); ``eb`` as
     :func:`_accumulate_run`."""
     zero = np.float32(0.0)
     lmax1 = lut.shape[1] - 2
@@ -369,7 +370,7 @@ def _accumulate_lut_run(
 def _accumulate_levels_table(src, choff, tk, lmax, has_lut, inv_max, itk, okf, ne, den,
                              num, s2, sv, wbuf, eb):
     """The sums of one frame of integer levels read in place through its per-level table
-    ``tk (C L, 8)`` (:func:`hdrcore.merge.merge._level_tables`: ``E_k, w, w var(E_k), w E_k,
+    ``tk (C L, 8)`` (:func:`hdrcore.merge.reference.level_tables`: ``E_k, w, w var(E_k), w E_k,
     w E_k**2`` of every level, built by the reference itself, the noise floor applied; channel
     ``ch``'s entry of level ``v`` at ``choff[e] + v``, ``choff[e] = ch L``): five loads and five
     adds a sample, bit for bit the reference's (the Gaussian weight's ``exp`` included).

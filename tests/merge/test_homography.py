@@ -9,7 +9,7 @@ import pytest
 from scipy import ndimage
 
 from hdrcore.merge import merge
-from hdrcore.merge.merge import _as_transforms
+from hdrcore.merge.plan import as_transforms as _as_transforms
 
 
 def _scene(h: int, w: int) -> np.ndarray:

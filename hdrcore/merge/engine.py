@@ -1,0 +1,133 @@
+"""The merge engines: the fused numba kernel (:mod:`hdrcore.merge._fused`, the default) and the
+numpy reference (:mod:`hdrcore.merge.reference`), and how the fused kernel is called."""
+
+from __future__ import annotations
+
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+
+from ..errors import ParameterError
+from . import _fused
+from .colour import ColourConversion
+from .plan import IDENTITY, Outputs, Plan
+from .reference import ReferenceKernel, level_tables
+
+__all__ = ["MERGE_ENGINES", "default_engine", "fused_supported", "run_fused"]
+
+MERGE_ENGINES: dict[str, str] = {
+    "numba": "fused one-pass kernel compiled by numba (hdrcore.merge._fused)",
+    "numpy": "vectorised numpy over chunks of rows: the reference implementation",
+}
+"""Implementations of :func:`merge` by name; both give the same result."""
+
+
+def default_engine() -> str:
+    """``"numba"`` when numba is importable, else ``"numpy"``."""
+    return "numba" if _fused.AVAILABLE else "numpy"
+
+
+
+
+def fused_supported(plan: Plan) -> str | None:
+    """Why the fused kernel cannot run this plan, or ``None`` when it can."""
+    if not _fused.AVAILABLE:
+        return "numba is not installed"
+    if plan.shape[2] != 3:
+        return f"{plan.shape[2]} channels (the fused kernel is unrolled for 3)"
+    if plan.integer and plan.frames[0].dtype not in (np.uint8, np.uint16):
+        return f"integer frames of dtype {plan.frames[0].dtype} (uint8 and uint16 only)"
+    return None
+
+
+def run_fused(
+    kernel: ReferenceKernel, out: Outputs, spans: list[tuple[int, int]], workers: int,
+    force_tables: bool = False, colour: ColourConversion | None = None,
+) -> None:
+    """The fused kernel (:func:`hdrcore.merge._fused.merge_rows`) over ``spans`` of
+    rows, ``colour`` applied inside it. Integer frames read in place go through the
+    reference's per-level tables when they have a LUT or ``force_tables``."""
+    p = kernel.p
+    frames = p.frames
+    if p.integer and len({f.dtype for f in frames}) > 1:
+        frames = tuple(f.astype(np.uint16) for f in frames)
+    frames_t = tuple(frames)
+    dummy = np.ones((1, 1), bool)
+    masks_t = tuple(m if m is not None else dummy for m in p.masks)
+    has_mask = np.array([m is not None for m in p.masks], np.bool_)
+    order = np.ascontiguousarray(p.order, np.int64)
+    sat = np.ascontiguousarray(p.saturation, np.float64)
+    me2 = kernel.model_error2
+    thr = kernel.ghost_threshold
+    outs = (
+        out.radiance, out.weight_sum, out.shares.view(np.uint16), out.clip_count, out.clipped,
+        out.underexposed, out.ghost_score.view(np.uint16), out.ghost,
+    )
+    inv_t = np.array([1.0 / t for t in p.times], np.float32)
+    use_tab = bool(p.integer and (p.lut is not None or force_tables)
+                   and not all(tf is not None for tf in p.transforms))
+    if use_tab:
+        tabs = level_tables(kernel)
+    else:
+        tabs = np.zeros((len(frames), 3, 8), np.float32)
+    inv_t2 = np.array([1.0 / (t * t) for t in p.times], np.float32)
+    t2 = np.array([float(t) ** 2 for t in p.times], np.float32)
+    wcode = _fused.WEIGHT_CODES[p.weighting]
+    mats = np.zeros((len(frames), 3, 3))
+    for k, tf in enumerate(p.transforms):
+        mats[k] = IDENTITY if tf is None else tf
+    has_mat = np.array([tf is not None for tf in p.transforms], np.bool_)
+    # local refinement: the frames' displacement fields on one node grid
+    fl = [f for f in p.fields if f is not None] if p.fields else []
+    if fl:
+        flds = np.zeros((len(frames),) + np.shape(fl[0].offsets), np.float64)
+        for k, f in enumerate(p.fields):
+            if f is not None:
+                flds[k] = f.offsets
+        fgeo = np.array([1.0 / fl[0].step, fl[0].origin[0], fl[0].origin[1]])
+    else:
+        flds = np.zeros((len(frames), 2, 2, 2))
+        fgeo = np.array([1.0, 0.0, 0.0])
+    has_fld = np.array([bool(p.fields) and p.fields[k] is not None
+                        for k in range(len(frames))], np.bool_)
+    has_lut = p.lut is not None
+    lut = p.lut if has_lut else np.zeros((3, 2), np.float32)
+    lut_var = p.lut_var if has_lut else lut
+    hi = np.float32(p.max_level if p.integer else 1.0)
+    tap_thr = _fused.tap_thresholds(sat, frames_t[0].dtype)
+    ntap = 4 if p.resample == "cubic" else 2
+    # levels past the LUT (refused): only a frame that holds any is searched for them
+    lmax = lut.shape[1] - 1
+    oor = np.array([
+        bool(has_lut and has_mat[k] and np.iinfo(f.dtype).max > lmax and f.max() > lmax)
+        for k, f in enumerate(frames_t)
+    ], np.bool_)
+
+    flats = tuple(f.reshape(f.shape[0], -1) for f in frames_t)
+    # padded to a multiple of TUPLE_SLOTS: one compiled kernel serves every frame count
+    pad = -len(frames_t) % _fused.TUPLE_SLOTS
+    frames_t += (frames_t[0],) * pad
+    flats += (flats[0],) * pad
+    masks_t += (masks_t[0],) * pad
+    cm, cwb, cneu = colour if colour is not None else (np.eye(3), np.ones(3), np.ones(3))
+
+    def work(span: tuple[int, int]) -> int:
+        return _fused.merge_rows(
+            frames_t, flats, masks_t, has_mask, mats, has_mat, order, inv_t, inv_t2, t2,
+            wcode, kernel.shot, kernel.const_var, kernel.floor_norm, kernel.inv_max,
+            hi, has_lut, lut, lut_var, tap_thr, me2, thr, span[0], span[1],
+            *outs, ntap, oor, colour is not None, cm, cwb, cneu, use_tab, tabs,
+            flds, has_fld, fgeo,
+        )
+
+    if workers == 1:
+        bad_levels = sum(work(sp) for sp in spans)
+    else:
+        with ThreadPoolExecutor(max_workers=workers) as pool:
+            bad_levels = sum(pool.map(work, spans))
+    if bad_levels:
+        raise ParameterError(
+            "levels above max_level have no response LUT entry",
+            expected=f"levels 0..{p.max_level}",
+            found=f"{bad_levels} samples above {p.max_level}",
+        )

@@ -1,0 +1,118 @@
+"""The result of :func:`hdrcore.merge.merge`: the radiance map and how each pixel was made."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .consistency import GhostRegions
+from .maps import dominant_frame, provenance_summary
+from .weights import NoiseModel
+
+__all__ = ["MergeResult"]
+
+
+@dataclass(frozen=True, eq=False)
+class MergeResult:
+    """The merged radiance map and the per-pixel diagnostics of how it was made.
+
+    radiance
+        float32 ``(H, W, C)``, ``g(M) / dt`` in the units of the exposure times given.
+    weight_sum
+        float32 ``(H, W)``: the total weight (all frames, all channels) behind each pixel; 0 where
+        a fallback value was used.
+    shares
+        float16 ``(N, H, W)``: frame ``k``'s share of the weight at each pixel, in the order the
+        frames were given; sums to 1 over ``k`` at every pixel.
+    clip_count
+        uint8 ``(H, W)``: number of valid frames in which the pixel is clipped (any channel).
+    clipped
+        bool ``(H, W)``: clipped in every valid frame that could see the pixel (frames below
+        the noise floor that are shorter exposures, e.g. a black frame, do not count); the value
+        is the darkest clipped frame's (a lower bound).
+    underexposed
+        bool ``(H, W)``: some channel is at or below the noise floor in every usable frame.
+    ghost_score, ghost
+        float16 ``(H, W)`` per-pixel score of :func:`hdrcore.merge.maps.ghost_score_from_moments`
+        and the ghost mask: with ``ghost_test="pixels"`` ``ghost_score > ghost_threshold``, with
+        ``"regions"`` (the default) the pixels of the regions where blocks of the frames
+        disagree (:func:`hdrcore.merge.consistency.consistency_regions`, in ``ghost_regions``).
+    engine
+        which implementation ran (a key of :data:`MERGE_ENGINES`).
+    deghosted
+        bool ``(H, W)``: pixels filled from one frame by ``merge(..., deghost=True)`` (``None``
+        without it).
+    """
+
+    radiance: np.ndarray
+    weight_sum: np.ndarray
+    shares: np.ndarray
+    clip_count: np.ndarray
+    clipped: np.ndarray
+    underexposed: np.ndarray
+    ghost_score: np.ndarray
+    ghost: np.ndarray
+    exposure_times: tuple[float, ...]
+    weighting: str
+    units: str
+    max_level: int | None
+    saturation_level: tuple[float, ...]
+    noise_floor: float
+    noise: NoiseModel
+    ghost_threshold: float
+    model_error: float
+    status: str
+    message: str
+    timings: dict[str, float] = field(default_factory=dict)
+    engine: str = "numpy"
+    deghosted: np.ndarray | None = None
+    ghost_test: str = "pixels"
+    ghost_regions: GhostRegions | None = None
+
+    @property
+    def n_frames(self) -> int:
+        return int(self.shares.shape[0])
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return (int(self.radiance.shape[0]), int(self.radiance.shape[1]))
+
+    @property
+    def dominant_frame(self) -> np.ndarray:
+        """Index of the frame with the largest share at each pixel, uint8 ``(H, W)``."""
+        return dominant_frame(self.shares)
+
+    @property
+    def success(self) -> bool:
+        return self.status in ("ok", "warning")
+
+    def summary(self) -> dict:
+        """JSON-ready diagnostics (no arrays)."""
+        n_pix = max(self.clipped.size, 1)
+        return {
+            "status": self.status,
+            "message": self.message,
+            "shape": list(self.shape),
+            "n_frames": self.n_frames,
+            "exposure_times": list(self.exposure_times),
+            "weighting": self.weighting,
+            "units": self.units,
+            "max_level": self.max_level,
+            "saturation_level": list(self.saturation_level),
+            "noise_floor": self.noise_floor,
+            "noise": self.noise.to_json(),
+            "ghost_threshold": self.ghost_threshold,
+            "model_error": self.model_error,
+            "clipped_fraction": float(np.count_nonzero(self.clipped)) / n_pix,
+            "underexposed_fraction": float(np.count_nonzero(self.underexposed)) / n_pix,
+            "ghost_test": self.ghost_test,
+            "ghost_fraction": float(np.count_nonzero(self.ghost)) / n_pix,
+            "ghost_regions": None if self.ghost_regions is None
+            else self.ghost_regions.to_json(),
+            "deghosted_fraction": None if self.deghosted is None
+            else float(np.count_nonzero(self.deghosted)) / n_pix,
+            "provenance": provenance_summary(self.shares),
+            "timings": dict(self.timings),
+            "engine": self.engine,
+        }
