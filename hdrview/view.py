@@ -26,6 +26,7 @@ from __future__ import annotations
 import io
 import json
 import logging
+import math
 import sys
 import threading
 import time
@@ -687,7 +688,9 @@ class ClientView:
                 # (``handle.marks = ...`` set a plain attribute the page never saw: viser's
                 # marks are its private prop ``_marks``, with no public setter)
                 handle._marks = (GuiSliderMark(value=float(used), label="default"),)
-                if moved is None and handle.min <= used <= handle.max:
+                if used > handle.max:  # a noisy bracket's floor (memorial: 21.1 of 8 bits)
+                    handle.max = float(math.ceil(2 * used))
+                if moved is None and handle.min <= used:
                     _assign(handle, round(float(used), 2))
         finally:
             self._syncing = False
