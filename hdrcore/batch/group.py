@@ -220,8 +220,8 @@ def _segment_stream(shots: Sequence[Shot], max_frames: int, thumbnails: bool) ->
         if j - i == 1:
             groups.append(Group((shots[i],), "single shot"))
         else:
-            evs_g = [evs[k] for k in range(i, j)]
-            span = max(evs_g) - min(evs_g)  # type: ignore[type-var,operator]
+            evs_g = [e for k in range(i, j) if (e := evs[k]) is not None]
+            span = max(evs_g) - min(evs_g)
             groups.append(Group(tuple(shots[i:j]),
                                 f"{j - i} exposures {orders[(i, j)]} over {span:.1f} stops"))
         j = i

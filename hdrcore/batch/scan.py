@@ -164,7 +164,7 @@ def read_shot(path: str | os.PathLike, *, thumbnail: bool = True) -> Shot:
     if isinstance(exif.capture_time, datetime):
         t = exif.capture_time.timestamp() + (exif.capture_subsec or 0.0)
     try:
-        size: tuple[int, int] | None = tuple(frame_pixels(p))  # type: ignore[assignment]
+        size: tuple[int, int] | None = frame_pixels(p)
     except InputError:
         size = None
     camera = " ".join(x for x in (exif.make, exif.model) if x) or None

@@ -14,6 +14,7 @@ import importlib.util
 import signal
 import sys
 from collections.abc import Sequence
+from typing import NoReturn
 
 from .. import __version__
 from ..errors import HdrError
@@ -37,7 +38,7 @@ class _Parser(argparse.ArgumentParser):
     """Usage errors on one line, like every other error: ``hdrcore merge: error: ... (see
     'hdrcore merge --help')``, exit 2 (argparse prints the whole usage first)."""
 
-    def error(self, message: str) -> None:  # type: ignore[override]
+    def error(self, message: str) -> NoReturn:
         self.exit(2, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
 
 

@@ -161,14 +161,15 @@ def chain_bracket(
     """
     n = hists.n_frames
     lut = kwargs.get("lut")
-    diag = dict(lut=lut, jackknife=jackknife, max_region_error=max_region_error,
-                jackknife_groups=jackknife_groups)
+    diag: dict[str, Any] = dict(lut=lut, jackknife=jackknife,
+                                max_region_error=max_region_error,
+                                jackknife_groups=jackknife_groups)
 
     def one(i: int, j: int) -> ExposureRatioResult:
         ph = hists.pair(i, j)
         r = estimate(ph.counts_dark, ph.counts_bright, dark=i, bright=j, btfs=ph.btfs(),
                      **kwargs)
-        return _with_diagnostics(r, ph, **diag)  # type: ignore[arg-type]
+        return _with_diagnostics(r, ph, **diag)
 
     pairs = [one(i, i + 1) for i in range(n - 1)]
     extra = []

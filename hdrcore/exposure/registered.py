@@ -549,23 +549,24 @@ def bracket_exposures_from_pixels(
     nc = frames[0].shape[-1]
     tol = kwargs.get("max_relative_error", OK_TOLERANCE)
     for i in range(n - 1):
-        if fallback_no_signal[i]:
-            pairs.append(fallback.pairs[i])  # type: ignore[union-attr]
+        if fallback is not None and fallback_no_signal[i]:
+            pairs.append(fallback.pairs[i])
         elif (i, i + 1) in done and not (
                 done[(i, i + 1)].status in ("no-overlap", "few-equations")
                 and fallback is not None and np.isfinite(fallback.pairs[i].ratio)):
             pairs.append(done[(i, i + 1)])
-        elif (i, i + 1) in done:
+        elif (i, i + 1) in done and fallback is not None:
             # Too few registered pixels to compare, but the histograms (which need no pixel
             # correspondence) measured the pair: their estimate, with its own interval.
-            h = judge(fallback.pairs[i])  # type: ignore[union-attr]
+            h = judge(fallback.pairs[i])
             pairs.append(replace(h, message=f"{h.message} (too few registered pixels: "
                                             f"{done[(i, i + 1)].message}; the histogram "
                                             "estimate)"))
         elif not signal(i, i + 1):
-            which, kind = (("darker", unusable[i]) if unusable[i] is not None
-                           else ("brighter", unusable[i + 1]))
-            pairs.append(_no_signal(which, kind, method=METHOD, n_ch=nc,  # type: ignore[arg-type]
+            which, kind = next((w, u) for w, u in (("darker", unusable[i]),
+                                                   ("brighter", unusable[i + 1]))
+                               if u is not None)  # not signal(i, i + 1): one is unusable
+            pairs.append(_no_signal(which, kind, method=METHOD, n_ch=nc,
                                     saturation=zl, noise_floor=fl, max_level=max_level, dark=i,
                                     bright=i + 1, tolerance=tol))
         elif fallback is not None:

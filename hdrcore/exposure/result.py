@@ -305,10 +305,11 @@ class BracketExposureResult:
             float(np.median(exif)) if exif else 1.0)
         out = []
         for k, r in enumerate(est):
+            exif_k = self.exif_ratios[k]
             if np.isfinite(r) and abs(np.log(r / med)) <= np.log(max_factor):
                 out.append(float(r))
-            elif self.exif_ratios[k]:
-                out.append(float(self.exif_ratios[k]))  # type: ignore[arg-type]
+            elif exif_k:
+                out.append(float(exif_k))
             else:
                 out.append(med)
         return tuple(out)

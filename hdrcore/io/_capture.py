@@ -89,7 +89,7 @@ class _Fd2Capture:
                 self._lines[name] = []
             else:
                 del self._users[name]
-            if not self._users and self._saved is not None:
+            if not self._users and self._saved is not None and self._tmp is not None:
                 try:
                     sys.stderr.flush()
                 except (AttributeError, OSError, ValueError):
@@ -97,7 +97,7 @@ class _Fd2Capture:
                 os.dup2(self._saved, 2)
                 self._collect(final=True)
                 os.close(self._saved)
-                os.close(self._tmp)  # type: ignore[arg-type]
+                os.close(self._tmp)
                 self._saved = self._tmp = None
             return lines
 

@@ -25,7 +25,7 @@ from dataclasses import dataclass, replace
 from fractions import Fraction
 from functools import cmp_to_key
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -38,6 +38,8 @@ from .frame import Frame, FrameMetadata, apply_orientation, undo_orientation
 from .ldr import read_ldr, sniff_format
 from .raw import is_raw_path, read_raw
 from .times import read_exposure_times, times_from_mapping
+
+K = TypeVar("K")
 
 __all__ = [
     "BracketWarning",
@@ -127,10 +129,10 @@ class Bracket:
     def apex_sequence(self) -> str | None:
         """The APEX sequence (``"1/3-stop"``, ``"1/2-stop"``) of the frames' nominal EXIF times,
         ``None`` when no time was snapped (exact times, a times file)."""
-        seqs = {f.meta.exposure_time_sequence for f in self.frames} - {None}
+        seqs = {s for f in self.frames if (s := f.meta.exposure_time_sequence) is not None}
         if not seqs:
             return None
-        return next(iter(seqs)) if len(seqs) == 1 else ", ".join(sorted(seqs))  # type: ignore[arg-type]
+        return next(iter(seqs)) if len(seqs) == 1 else ", ".join(sorted(seqs))
 
     def exif_exposures(self, snapped: bool = True) -> tuple[float | None, ...]:
         """Recorded exposure ``t * (ISO / ISO_0) * (N_0 / N)^2`` relative to frame 0's settings.
@@ -144,9 +146,10 @@ class Bracket:
     def exif_ratio(self, dark: int, bright: int, snapped: bool = True) -> float | None:
         """Exposure ratio the metadata implies for frames ``bright`` over ``dark``, or ``None``."""
         e = self.exif_exposures(snapped)
-        if e[dark] is None or e[bright] is None or e[dark] == 0:
+        ed, eb = e[dark], e[bright]
+        if ed is None or eb is None or ed == 0:
             return None
-        return e[bright] / e[dark]  # type: ignore[operator]
+        return eb / ed
 
     def warning_codes(self) -> tuple[str, ...]:
         return tuple(w.code for w in self.warnings)
@@ -260,19 +263,23 @@ def recorded_exposures(
     iso0 = timed[0].iso if use_iso else None
 
     def n_of(m: FrameMetadata) -> float:
-        return float(m.f_number_actual if snapped else m.f_number)  # type: ignore[arg-type]
+        n = m.f_number_actual if snapped else m.f_number
+        if n is None:  # use_n: every timed frame records one
+            raise ValueError("a frame with an exposure time records no f-number")
+        return float(n)
 
     n0 = n_of(timed[0]) if use_n else None
     out: list[float | None] = []
     for m in metas:
-        if m.exposure_time is None:
+        t = m.exposure_time_actual if snapped else m.exposure_time
+        if m.exposure_time is None or t is None:
             out.append(None)
             continue
-        e = float(m.exposure_time_actual if snapped else m.exposure_time)  # type: ignore[arg-type]
-        if use_iso:
-            e *= m.iso / iso0  # type: ignore[operator]
-        if use_n:
-            e *= (n0 / n_of(m)) ** 2  # type: ignore[operator]
+        e = float(t)
+        if iso0 and m.iso:  # use_iso: every timed frame records its ISO
+            e *= m.iso / iso0
+        if n0 is not None:  # use_n
+            e *= (n0 / n_of(m)) ** 2
         out.append(e)
     return tuple(out)
 
@@ -401,10 +408,9 @@ def _stored_shape(frame: Frame) -> tuple[int, int]:
     return (w, h) if _orientation_tag(frame) in (5, 6, 7, 8) else (h, w)
 
 
-def _majority(values: Sequence, key: Callable = lambda v: v) -> object:
-    """The most common ``key`` among ``values``; a tie goes to the one met first."""
-    keys = [key(v) for v in values]
-    return max(dict.fromkeys(keys), key=keys.count)
+def _majority(keys: Sequence[K]) -> K:
+    """The most common of ``keys``; a tie goes to the one met first."""
+    return max(dict.fromkeys(keys), key=list(keys).count)
 
 
 def _names(frames: Sequence[Frame], limit: int = 3) -> str:
@@ -427,7 +433,7 @@ def _unify_orientation(frames: list[Frame]) -> tuple[list[Frame], BracketWarning
     tags = [_orientation_tag(f) for f in frames]
     if len(set(tags)) <= 1 or len({_stored_shape(f) for f in frames}) != 1:
         return frames, None
-    target = int(_majority(tags))  # type: ignore[call-overload]
+    target = _majority(tags)
     out = []
     for f, tag in zip(frames, tags, strict=True):
         if tag == target:
@@ -458,7 +464,7 @@ def _check_consistent(frames: list[Frame]) -> None:
     others (from most of them; with a tie, from the first in file order) is the one named."""
 
     def odd_one(key: Callable[[Frame], object]) -> tuple[Frame, list[Frame]] | None:
-        common = _majority(frames, key)
+        common = _majority([key(f) for f in frames])
         alike = [f for f in frames if key(f) == common]
         odd = next((f for f in frames if key(f) != common), None)
         return None if odd is None else (odd, alike)
@@ -531,7 +537,7 @@ def _capture_warnings(frames: list[Frame]) -> list[BracketWarning]:
                     f"order and chain the frames leaves it out")
         # Frames that share one exposure time differ by this setting alone.
         shared = []
-        for t in sorted({times[k] for k in timed}):  # type: ignore[type-var]
+        for t in sorted({t for k in timed if (t := times[k]) is not None}):
             same = [k for k in timed if times[k] == t]
             if len(same) > 1 and len({values[k] for k in same}) > 1:
                 shared.append(f"{', '.join(names[k] for k in same)} share {_seconds(t)}")

@@ -202,7 +202,7 @@ def apply_orientation(image: np.ndarray, orientation: int | None) -> np.ndarray:
 
 def undo_orientation(image: np.ndarray, orientation: int | None) -> np.ndarray:
     """The inverse of :func:`apply_orientation`: the image as stored, before the tag's turn."""
-    inverse = {6: 8, 8: 6}.get(orientation, orientation)  # type: ignore[arg-type]
+    inverse = orientation if orientation is None else {6: 8, 8: 6}.get(orientation, orientation)
     return apply_orientation(image, inverse)
 
 

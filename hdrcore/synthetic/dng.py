@@ -139,10 +139,9 @@ def default_black_level(bits: int) -> int:
 
 
 def _black_per_site(black_level: int | Sequence[int]) -> tuple[int, int, int, int]:
+    vals = tuple(int(v) for v in np.ravel(black_level))
     if np.ndim(black_level) == 0:
-        b = int(black_level)  # type: ignore[arg-type]
-        return (b, b, b, b)
-    vals = tuple(int(v) for v in black_level)  # type: ignore[union-attr]
+        return (vals[0],) * 4
     if len(vals) != 4:
         raise ParameterError(
             "per-site black level needs one value per 2x2 CFA site",
@@ -211,11 +210,9 @@ def parse_margins(margins: int | Sequence[int]) -> Rect:
 
     Top and left must be even (the CFA phase stays that of the active area); all are >= 0.
     """
+    vals = tuple(int(v) for v in np.ravel(margins))
     if np.ndim(margins) == 0:
-        m = int(margins)  # type: ignore[arg-type]
-        vals: tuple[int, ...] = (m, m, m, m)
-    else:
-        vals = tuple(int(v) for v in margins)  # type: ignore[union-attr]
+        vals = (vals[0],) * 4
     if len(vals) != 4 or min(vals) < 0:
         raise ParameterError(
             "masked margins are one value or four (top, left, bottom, right), each >= 0",

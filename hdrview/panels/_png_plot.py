@@ -24,7 +24,7 @@ def _colour(value: Any, index: int) -> tuple[int, int, int]:
     if isinstance(value, str):
         try:
             rgb = ImageColor.getrgb(value.replace(" ", ""))
-            return tuple(int(v) for v in rgb[:3])  # type: ignore[return-value]
+            return int(rgb[0]), int(rgb[1]), int(rgb[2])
         except ValueError:
             pass
     return ImageColor.getrgb(_PALETTE[index % len(_PALETTE)])[:3]
