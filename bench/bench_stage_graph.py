@@ -31,7 +31,7 @@ DATA = Path("/work/shared/data")
 
 
 def controls(res) -> list[tuple[str, dict, dict]]:
-    """One change per inspector control (hdrview.session._PARAM_NAMES), from the defaults (and
+    """One change per inspector control (hdrview.session.Controls), from the defaults (and
     the sliders once more with alignment off): (control, base changes, change)."""
     p = res.params
     off = {"align": "none"}
