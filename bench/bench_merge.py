@@ -6,6 +6,7 @@
     python bench/bench_merge.py --no-old   # skip today's pipeline path (float32 + shear warp)
     python bench/bench_merge.py --handheld-only  # the 24 MP DNG hand-held merge step only
     python bench/bench_merge.py --handheld-only --retain-memory  # both without first-touch costs
+    python bench/bench_merge.py --kernel --mp 6  # the fused kernel alone, 6 input kinds, CPU s
 
 Frames come from ``hdrcore.synthetic.simulate_bracket`` at 750 x 500 and are upsampled by
 pixel repetition (generation time excluded). OpenCV needs 8-bit frames, so MergeDebevec always
@@ -334,6 +335,57 @@ def handheld_dng(reps: int = 3) -> None:
           "run to run; reuse= writes into pages already touched)")
 
 
+def kernel_table(mp: float, reps: int) -> None:
+    """The fused kernel alone on the input kinds it has paths for (one worker, ``ghost_test=
+    "pixels"``: no region test), min and median CPU seconds over ``reps`` runs taken in turn:
+    the before/after table of a kernel change (run both trees in turn; the machine's load
+    moves wall times far more than CPU times)."""
+    factor = max(1, int(round(np.sqrt(mp * 1e6 / (750 * 500)))))
+    s12 = simulate_bracket(shape=(500, 750), exposure_times=TIMES, bits=12, response="linear",
+                           noise_sigma=1.0, seed=1)
+    s8 = simulate_bracket(shape=(500, 750), exposure_times=TIMES, bits=8, response="gamma",
+                          noise_sigma=1.0, seed=1)
+    f12 = upsample(s12.frames, factor)
+    f8 = upsample(s8.frames, factor)
+    ff = [np.asarray(f, np.float32) / np.float32(4095) for f in f12]
+    lut = np.tile(np.linspace(0, 1, 256) ** 2.2, (3, 1))
+    h, w = f12[0].shape[:2]
+
+    def rot(deg: float, dx: float, dy: float) -> np.ndarray:
+        c, s = np.cos(np.radians(deg)), np.sin(np.radians(deg))
+        cx, cy = w / 2, h / 2
+        return np.array([[c, -s, cx - c * cx + s * cy + dx], [s, c, cy - s * cx - c * cy + dy]])
+
+    tf = [rot(0.3, 2.5, -1.5), None, rot(-0.2, -3.25, 2.0)]
+    kw = {"workers": 1, "ghost_test": "pixels", "engine": "numba"}
+    cases = {
+        "12-bit linear, noise-aware": lambda: merge(f12, TIMES, max_level=4095, **kw),
+        "8-bit LUT, hat (level tables)": lambda: merge(f8, TIMES, response=lut, **kw),
+        "float32, noise-aware": lambda: merge(ff, TIMES, **kw),
+        "float32, hat": lambda: merge(ff, TIMES, weighting="hat", **kw),
+        "12-bit, 2 of 3 resampled (cubic)": lambda: merge(f12, TIMES, max_level=4095,
+                                                          transforms=tf, **kw),
+        "8-bit LUT hat, 2 of 3 resampled": lambda: merge(f8, TIMES, response=lut,
+                                                         transforms=tf, **kw),
+    }
+    for fn in cases.values():
+        fn()  # compiled or loaded outside the runs
+    cpu: dict[str, list[float]] = {name: [] for name in cases}
+    for _ in range(reps):
+        for name, fn in cases.items():
+            c0 = time.process_time()
+            out = fn()
+            cpu[name].append(time.process_time() - c0)
+            del out
+    import hdrcore
+
+    print(f"hdrcore from {os.path.dirname(hdrcore.__file__)}; 3 frames of {w} x {h}, "
+          f"{reps} runs, load average {os.getloadavg()[0]:.2f}")
+    print(f"{'fused kernel, workers=1':36s} {'min cpu s':>10s} {'median':>8s}")
+    for name, v in cpu.items():
+        print(f"{name:36s} {min(v):10.3f} {float(np.median(v)):8.3f}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--mp", type=float, default=24.0, help="megapixels per frame (default 24)")
@@ -345,7 +397,13 @@ def main() -> None:
     ap.add_argument("--retain-memory", action="store_true",
                     help="glibc keeps freed memory, as the hdrcore program does "
                          "(hdrcore._memory); both contenders then reuse touched pages")
+    ap.add_argument("--kernel", action="store_true",
+                    help="only the fused kernel's CPU time on 6 input kinds (before/after)")
+    ap.add_argument("--reps", type=int, default=5, help="runs per row of --kernel")
     args = ap.parse_args()
+    if args.kernel:
+        kernel_table(args.mp, args.reps)
+        return
     import cv2
 
     if args.retain_memory:

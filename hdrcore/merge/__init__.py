@@ -34,7 +34,7 @@ from .merge import (
     default_engine,
     merge,
 )
-from .weights import WEIGHTS, NoiseModel, WeightFunction, weights
+from .weights import WEIGHTS, NoiseModel, WeightFunction, Weighting, weights
 
 __all__ = [
     "DEFAULT_CHUNK_PIXELS",
@@ -52,6 +52,7 @@ __all__ = [
     "MergeResult",
     "NoiseModel",
     "WeightFunction",
+    "Weighting",
     "apply_colour",
     "camera_to_working",
     "camera_to_working_matrix",

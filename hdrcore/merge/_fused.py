@@ -59,6 +59,7 @@ import numpy as np
 from .._numba import AVAILABLE  # without numba the numpy reference runs
 from .._numba import njit as _njit
 from .colour import convert_pixels
+from .weights import weight_by_code
 
 logger = logging.getLogger(__name__)
 
@@ -68,8 +69,6 @@ the first frame; ``len(order)`` is the frame count): numba compiles one kernel p
 so a bracket of 5, 7 or 16 frames reuses the one compiled (and cached) for 3 instead of spending
 seconds compiling its own."""
 
-WEIGHT_CODES = {"hat": 0, "gaussian": 1, "noise-aware": 2, "uniform": 3}
-"""Weighting names of :data:`hdrcore.merge.weights.WEIGHTS` -> the kernel's inline code."""
 
 _F16_MAX = np.float32(65504.0)
 _TINY = np.float32(1e-30)
@@ -258,31 +257,15 @@ def _finish_block(
 
 
 @_njit
-def _weight(wcode, level, var, t2k):
-    one = np.float32(1.0)
-    if wcode == 0:
-        wk = level * np.float32(2.0)
-        wk = wk - one
-        wk = abs(wk)
-        return one - wk
-    if wcode == 1:
-        wk = level - np.float32(0.5)
-        wk = wk * wk
-        wk = wk * np.float32(-16.0)
-        return np.exp(wk)
-    if wcode == 2:
-        return t2k / var
-    return one
-
-
-@_njit
 def _accumulate_run(
-    xk, okf, ne, wcode, inv_max, shot, const_var, floor_norm, itk, it2, t2k, den, num, s2,
+    xk, okf, ne, wcode, wfn, inv_max, shot, const_var, floor_norm, itk, it2, t2k, den, num, s2,
     sv, wbuf, eb,
 ):
     """The sums of one frame over ``ne`` interleaved samples of linear data (no LUT): straight
-    SIMD loops, one for the noise-aware weight (RAW data) and one for the others. ``eb``
-    receives ``E_k`` of every sample: the fallback values are read from it."""
+    SIMD loops for the built-in weightings (:func:`hdrcore.merge.weights.weight_by_code`, one
+    loop for the noise-aware weight of RAW data, one for the others), a scalar one for any
+    other weighting (``wfn``, its compiled scalar form, when ``wcode < 0``). ``eb`` receives
+    ``E_k`` of every sample: the fallback values are read from it."""
     zero = np.float32(0.0)
     if wcode == 2:
         for e in range(ne):
@@ -292,7 +275,24 @@ def _accumulate_run(
             ev = level * itk
             ok = okf[e]
             eb[e] = ev
-            wk = t2k / var
+            wk = weight_by_code(2, level, level, t2k, var)
+            wk = wk * (ok if level > floor_norm else zero)
+            wbuf[e] = wk
+            den[e] += wk
+            var = var * wk
+            sv[e] += var * it2
+            wk = wk * ev
+            num[e] += wk
+            s2[e] += wk * ev
+    elif wcode >= 0:
+        for e in range(ne):
+            level = np.float32(xk[e]) * inv_max
+            var = level * shot
+            var = var + const_var
+            ev = level * itk
+            ok = okf[e]
+            eb[e] = ev
+            wk = weight_by_code(wcode, level, level, t2k, var)
             wk = wk * (ok if level > floor_norm else zero)
             wbuf[e] = wk
             den[e] += wk
@@ -309,7 +309,7 @@ def _accumulate_run(
             ev = level * itk
             ok = okf[e]
             eb[e] = ev
-            wk = _weight(wcode, level, var, t2k)
+            wk = wfn(level, level, t2k, var)
             wk = wk * (ok if level > floor_norm else zero)
             wbuf[e] = wk
             den[e] += wk
@@ -322,7 +322,7 @@ def _accumulate_run(
 
 @_njit
 def _accumulate_lut_run(
-    xk, okf, nbk, wcode, inv_max, shot, const_var, floor_norm, itk, it2, t2k, lut, lut_var,
+    xk, okf, nbk, wcode, wfn, inv_max, shot, const_var, floor_norm, itk, it2, t2k, lut, lut_var,
     den, num, s2, sv, wbuf, eb,
 ):
     """The sums of one resampled frame with a LUT over ``nbk`` pixels: each channel's
@@ -355,7 +355,8 @@ def _accumulate_lut_run(
             ev = xv * itk
             ok = okf[e]
             eb[e] = ev
-            wk = _weight(wcode, level, var, t2k)
+            wk = (weight_by_code(wcode, level, xv, t2k, var) if wcode >= 0
+                  else wfn(level, xv, t2k, var))
             wk = wk * (ok if level > floor_norm else zero)
             wbuf[e] = wk
             den[e] += wk
@@ -564,7 +565,7 @@ def _clipped_supports(flat, iy0, c0, m, ntap, t0, t1, t2, cf, out):
 
 @_njit
 def merge_rows(
-    frames, flats, masks, has_mask, mats, has_mat, order, inv_t, inv_t2, t2, wcode, shot,
+    frames, flats, masks, has_mask, mats, has_mat, order, inv_t, inv_t2, t2, wcode, wfn, shot,
     const_var, floor_norm, inv_max, hi, has_lut, lut, lut_var, tap_thr, me2, thr, r0, r1,
     rad, wsum_out, shares, clip_count, clipped_out, under_out, gscore, ghost, ntap, oor,
     has_colour, cm, cwb, cneu, use_tab, tabs, flds, has_fld, fgeo,
@@ -752,7 +753,7 @@ def merge_rows(
             t2k = t2[k]
             ebj = eb[j]
             if has_lut and warped:
-                _accumulate_lut_run(xk, okf, nbk, wcode, inv_max, shot, const_var,
+                _accumulate_lut_run(xk, okf, nbk, wcode, wfn, inv_max, shot, const_var,
                                     floor_norm, itk, it2, t2k, lut, lut_var, den, num, s2, sv,
                                     wbuf, ebj)
             elif use_tab:
@@ -760,10 +761,10 @@ def merge_rows(
                     frf, choff, tabs[k], tab_max, has_lut, inv_max, itk, okf, ne, den, num,
                     s2, sv, wbuf, ebj)
             elif warped:
-                _accumulate_run(xk, okf, ne, wcode, inv_max, shot, const_var, floor_norm,
+                _accumulate_run(xk, okf, ne, wcode, wfn, inv_max, shot, const_var, floor_norm,
                                 itk, it2, t2k, den, num, s2, sv, wbuf, ebj)
             else:  # the frame's own dtype (a specialisation per dtype)
-                _accumulate_run(frf, okf, ne, wcode, inv_max, shot, const_var, floor_norm,
+                _accumulate_run(frf, okf, ne, wcode, wfn, inv_max, shot, const_var, floor_norm,
                                 itk, it2, t2k, den, num, s2, sv, wbuf, ebj)
             # the brightest usable frame that gave the pixel weight (a usable frame without
             # any, e.g. a black one, only while no frame has)

@@ -12,6 +12,7 @@ from . import _fused
 from .colour import ColourConversion
 from .plan import IDENTITY, Outputs, Plan
 from .reference import ReferenceKernel, level_tables
+from .weights import WEIGHTS
 
 __all__ = ["MERGE_ENGINES", "default_engine", "fused_supported", "run_fused"]
 
@@ -72,7 +73,9 @@ def run_fused(
         tabs = np.zeros((len(frames), 3, 8), np.float32)
     inv_t2 = np.array([1.0 / (t * t) for t in p.times], np.float32)
     t2 = np.array([float(t) ** 2 for t in p.times], np.float32)
-    wcode = _fused.WEIGHT_CODES[p.weighting]
+    weighting = WEIGHTS[p.weighting]
+    wcode = weighting.code  # built-ins: inlined in the kernel; others: a function pointer
+    wfn = (weighting if wcode < 0 else WEIGHTS["uniform"]).pointer
     mats = np.zeros((len(frames), 3, 3))
     for k, tf in enumerate(p.transforms):
         mats[k] = IDENTITY if tf is None else tf
@@ -114,7 +117,7 @@ def run_fused(
     def work(span: tuple[int, int]) -> int:
         return _fused.merge_rows(
             frames_t, flats, masks_t, has_mask, mats, has_mat, order, inv_t, inv_t2, t2,
-            wcode, kernel.shot, kernel.const_var, kernel.floor_norm, kernel.inv_max,
+            wcode, wfn, kernel.shot, kernel.const_var, kernel.floor_norm, kernel.inv_max,
             hi, has_lut, lut, lut_var, tap_thr, me2, thr, span[0], span[1],
             *outs, ntap, oor, colour is not None, cm, cwb, cneu, use_tab, tabs,
             flds, has_fld, fgeo,

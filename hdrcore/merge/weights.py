@@ -1,16 +1,20 @@
 """Weighting functions of the HDR merge and the noise model behind the noise-aware weight.
 
 A weighting function says how much a frame's sample counts in the weighted average
-``E = sum(w * g(M) / dt) / sum(w)`` (Debevec & Malik 1997, eq. 6). Every function here has the
-signature ``fn(level, linear, exposure_time, variance) -> weight`` where
+``E = sum(w * g(M) / dt) / sum(w)`` (Debevec & Malik 1997, eq. 6). A weighting is ONE scalar
+function ``fn(level, linear, exposure_time_sq, variance) -> weight`` (float32 in, float32 out)
+that numba can compile, wrapped in a :class:`Weighting` and entered in :data:`WEIGHTS`; the merge
+kernel, its per-level tables and the whole-array form (``WEIGHTS[name](level, linear,
+exposure_time, variance)``, :func:`weights`) are all made from it. The arguments:
 
 ``level``
     the sample's output level normalised to [0, 1] (``M / max_level``; for frames that are already
     linear floats the linear value itself),
 ``linear``
     the linearised value ``x = g(M)`` at the saturation scale (1.0 = sensor saturation),
-``exposure_time``
-    the frame's (relative) exposure time ``dt``,
+``exposure_time_sq``
+    the square of the frame's (relative) exposure time ``dt`` (float32 of the float64 square;
+    the whole-array form takes ``dt`` itself),
 ``variance``
     the variance of ``x`` predicted by the :class:`NoiseModel`.
 
@@ -35,15 +39,21 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
+from .._numba import AVAILABLE, numba
+from .._numba import inline as _inline
+from .._numba import njit as _njit
 from ..errors import ParameterError, validate_method
 
 __all__ = [
     "NoiseModel",
+    "Weighting",
     "WeightFunction",
     "WEIGHTS",
+    "weight_by_code",
     "weight_hat",
     "weight_gaussian",
     "weight_noise_aware",
@@ -105,53 +115,132 @@ class NoiseModel:
         }
 
 
-def weight_hat(
-    level: np.ndarray, linear: np.ndarray, exposure_time: float, variance: np.ndarray
-) -> np.ndarray:
+def weight_hat(level, linear, exposure_time_sq, variance):  # noqa: ANN001, ANN201
     """Debevec & Malik's triangle ``1 - |2 z - 1|`` on normalised levels [1]."""
-    w = np.multiply(level, 2.0, dtype=np.float32)
-    w -= 1.0
-    np.abs(w, out=w)
-    np.subtract(1.0, w, out=w)
-    return w
+    w = level * np.float32(2.0)
+    w = w - np.float32(1.0)
+    return np.float32(1.0) - abs(w)
 
 
-def weight_gaussian(
-    level: np.ndarray, linear: np.ndarray, exposure_time: float, variance: np.ndarray
-) -> np.ndarray:
+def weight_gaussian(level, linear, exposure_time_sq, variance):  # noqa: ANN001, ANN201
     """Robertson et al.'s bell ``exp(-4 (z - 0.5)**2 / 0.5**2)`` on normalised levels [2]."""
-    w = np.subtract(level, 0.5, dtype=np.float32)
-    np.square(w, out=w)
-    w *= -16.0
-    np.exp(w, out=w)
-    return w
+    w = level - np.float32(0.5)
+    w = w * w
+    w = w * np.float32(-16.0)
+    return np.exp(w)
 
 
-def weight_noise_aware(
-    level: np.ndarray, linear: np.ndarray, exposure_time: float, variance: np.ndarray
-) -> np.ndarray:
+def weight_noise_aware(level, linear, exposure_time_sq, variance):  # noqa: ANN001, ANN201
     """Inverse variance of the radiance estimate ``x / dt``: ``dt**2 / var(x)`` [3], [4].
 
     With shot and read noise a longer exposure has the smaller relative variance, so it counts
     more wherever it is not clipped; this is the maximum-likelihood weight for linear RAW data.
     """
-    return np.divide(np.float32(float(exposure_time) ** 2), variance, dtype=np.float32)
+    return exposure_time_sq / variance
 
 
-def weight_uniform(
-    level: np.ndarray, linear: np.ndarray, exposure_time: float, variance: np.ndarray
-) -> np.ndarray:
+def weight_uniform(level, linear, exposure_time_sq, variance):  # noqa: ANN001, ANN201
     """Every unclipped sample above the noise floor counts the same."""
-    return np.ones(np.shape(level), np.float32)
+    return np.float32(1.0)
 
 
-WEIGHTS: dict[str, WeightFunction] = {
-    "hat": weight_hat,
-    "gaussian": weight_gaussian,
-    "noise-aware": weight_noise_aware,
-    "uniform": weight_uniform,
+_BUILT_IN = (weight_hat, weight_gaussian, weight_noise_aware, weight_uniform)
+"""The weightings the merge kernel inlines (SIMD); their codes are their positions here. Any
+other weighting reaches the kernel through a compiled function pointer (scalar code)."""
+
+_hat = _inline(weight_hat)
+_gaussian = _inline(weight_gaussian)
+_noise_aware = _inline(weight_noise_aware)
+_uniform = _inline(weight_uniform)
+
+
+@_inline
+def weight_by_code(code, level, linear, exposure_time_sq, variance):  # noqa: ANN001, ANN201
+    """The built-in weighting number ``code`` (a :attr:`Weighting.code`), inlined."""
+    if code == 0:
+        return _hat(level, linear, exposure_time_sq, variance)
+    if code == 1:
+        return _gaussian(level, linear, exposure_time_sq, variance)
+    if code == 2:
+        return _noise_aware(level, linear, exposure_time_sq, variance)
+    return _uniform(level, linear, exposure_time_sq, variance)
+
+
+@_njit
+def _apply_code(code, level, linear, t2, variance, out):  # noqa: ANN001, ANN202
+    for i in range(out.size):
+        out[i] = weight_by_code(code, level[i], linear[i], t2, variance[i])
+
+
+@_njit
+def _apply_pointer(fn, level, linear, t2, variance, out):  # noqa: ANN001, ANN202
+    for i in range(out.size):
+        out[i] = fn(level[i], linear[i], t2, variance[i])
+
+
+_SIGNATURE = "float32(float32, float32, float32, float32)"
+
+
+class Weighting:
+    """A weighting function from its scalar form ``fn(level, linear, exposure_time_sq,
+    variance) -> weight`` (see the module's docstring): adding a weighting is this one
+    function, ``WEIGHTS["name"] = Weighting(fn)``.
+
+    Calling a ``Weighting`` applies it to whole arrays with the old signature
+    ``(level, linear, exposure_time, variance) -> float32 weights`` (the numpy reference engine,
+    the per-level tables, :func:`weights`); :attr:`code` (built-ins, inlined in the kernel) or
+    :attr:`pointer` (any other: a compiled function pointer the kernel calls) is how the fused
+    kernel runs it. Both run the same compiled scalar code."""
+
+    def __init__(self, fn: Callable[..., Any]) -> None:
+        if not callable(fn):
+            raise ParameterError("a weighting is a function", found=type(fn).__name__)
+        self.fn = fn
+        self.code = next((i for i, b in enumerate(_BUILT_IN) if b is fn), -1)
+        self._pointer: Any = None
+        self.__doc__ = fn.__doc__
+
+    @property
+    def pointer(self) -> Any:
+        """The scalar form compiled as a C function pointer (numba ``cfunc``), made on first
+        use; the kernel's argument type is the same for every weighting, so one compiled
+        kernel serves them all."""
+        if self._pointer is None:
+            if not AVAILABLE:
+                raise ParameterError("numba is needed to compile a weighting",
+                                     found="numba not installed")
+            self._pointer = numba.cfunc(_SIGNATURE, cache=True)(self.fn)
+        return self._pointer
+
+    def __call__(self, level: np.ndarray, linear: np.ndarray, exposure_time: float,
+                 variance: np.ndarray) -> np.ndarray:
+        lv = np.ascontiguousarray(level, np.float32)
+        shape = lv.shape
+        lv = lv.ravel()
+        lin = np.ascontiguousarray(np.broadcast_to(linear, shape), np.float32).ravel()
+        var = np.ascontiguousarray(np.broadcast_to(variance, shape), np.float32).ravel()
+        t2 = np.float32(float(exposure_time) ** 2)
+        out = np.empty(lv.size, np.float32)
+        if not AVAILABLE:  # pragma: no cover - numba is a dependency
+            for i in range(out.size):
+                out[i] = self.fn(lv[i], lin[i], t2, var[i])
+        elif self.code >= 0:
+            _apply_code(self.code, lv, lin, t2, var, out)
+        else:
+            _apply_pointer(self.pointer, lv, lin, t2, var, out)
+        return out.reshape(shape)
+
+    def __repr__(self) -> str:
+        return f"Weighting({getattr(self.fn, '__name__', self.fn)!r})"
+
+
+WEIGHTS: dict[str, Weighting] = {
+    "hat": Weighting(weight_hat),
+    "gaussian": Weighting(weight_gaussian),
+    "noise-aware": Weighting(weight_noise_aware),
+    "uniform": Weighting(weight_uniform),
 }
-"""Weighting functions by name (see :func:`weights`)."""
+"""Weightings by name (see :func:`weights`): add one with ``WEIGHTS[name] = Weighting(fn)``."""
 
 
 def weights(
