@@ -93,9 +93,9 @@ def run_fused(
         fgeo = np.array([1.0, 0.0, 0.0])
     has_fld = np.array([bool(p.fields) and p.fields[k] is not None
                         for k in range(len(frames))], np.bool_)
-    has_lut = p.lut is not None
-    lut = p.lut if has_lut else np.zeros((3, 2), np.float32)
-    lut_var = p.lut_var if has_lut else lut
+    has_lut = p.lut is not None and p.lut_var is not None
+    lut = p.lut if p.lut is not None else np.zeros((3, 2), np.float32)
+    lut_var = p.lut_var if p.lut_var is not None else lut
     hi = np.float32(p.max_level if p.integer else 1.0)
     tap_thr = _fused.tap_thresholds(sat, frames_t[0].dtype)
     ntap = 4 if p.resample == "cubic" else 2

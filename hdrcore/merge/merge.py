@@ -316,7 +316,8 @@ def merge(
     ghost_regions = None
     if ghost_test == "regions":
         ghost_regions = consistency_regions(
-            plan.frames, plan.times, saturation=plan.saturation, floor=plan.floor,
+            plan.frames, [float(t) for t in plan.times],
+            saturation=[float(v) for v in plan.saturation], floor=plan.floor,
             lut=plan.lut, max_level=plan.max_level, noise=plan.noise, masks=plan.masks,
             transforms=plan.transforms or None, candidates=ghost, score=ghost_score,
             params=ghost_params, workers=workers,

@@ -6,15 +6,21 @@ kernel's per-level tables (:func:`level_tables`), so those are the reference's o
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
+from ..resample import keys_weights
 from .maps import to_float16_nonnegative
 from .plan import Outputs, Plan
 from .weights import WEIGHTS
 
 __all__ = ["LUT_MODE", "ReferenceKernel", "Scratch", "level_tables", "run_reference"]
+
+def _bilinear_weights(f: np.ndarray) -> np.ndarray:
+    return np.stack([1.0 - f, f])
+
 
 LUT_MODE = "levels"
 """How resampled frames with a response LUT are linearised: ``"levels"`` (the default and the
@@ -70,9 +76,13 @@ class ReferenceKernel:
         self.out = out
         self.ghost_threshold = np.float32(ghost_threshold)
         self.model_error2 = np.float32(model_error**2)
-        self.inv_max = np.float32(1.0 / plan.max_level) if plan.integer else np.float32(1.0)
+        self.inv_max = (np.float32(1.0 / plan.max_level)
+                        if plan.integer and plan.max_level else np.float32(1.0))
         self.floor_norm = np.float32(plan.floor * float(self.inv_max))
         self.weight_fn = WEIGHTS[plan.weighting]
+        c = plan.shape[2]
+        self.lut = plan.lut if plan.lut is not None else np.zeros((c, 2), np.float32)
+        self.lut_var = plan.lut_var if plan.lut_var is not None else self.lut
         nm = plan.noise
         self.shot = np.float32(nm.shot_gain)
         const = nm.read_noise**2
@@ -98,8 +108,8 @@ class ReferenceKernel:
             else:
                 x, idx = s.x[:m], s.idx[:m]
                 np.copyto(idx, col, casting="unsafe")
-                np.take(p.lut[ch], idx, out=x)
-                np.take(p.lut_var[ch], idx, out=var)
+                np.take(self.lut[ch], idx, out=x)
+                np.take(self.lut_var[ch], idx, out=var)
                 if self.shot:
                     np.multiply(x, self.shot, out=s.a[:m])
                     var += s.a[:m]
@@ -123,18 +133,14 @@ class ReferenceKernel:
         response LUT the taps are linearised before the interpolation (``LUT values``).
         """
         p = self.p
+        weights: Callable[[np.ndarray], np.ndarray]
         if p.resample == "cubic":
-            from ..resample import keys_weights as weights  # the project's Keys weights
-
-            ntap, o = 4, 1.0
+            weights, ntap, o = keys_weights, 4, 1.0  # the project's Keys weights
         else:  # bilinear: weights 1 - f, f of taps 0, 1
-
-            def weights(f):
-                return np.stack([1.0 - f, f])
-
-            ntap, o = 2, 0.0
+            weights, ntap, o = _bilinear_weights, 2, 0.0
         h, w, c = p.shape
         t = p.transforms[k]
+        assert t is not None  # only resampled frames come here
         pix = np.arange(r0 * w, r1 * w, dtype=np.int64)
         yy = (pix // w).astype(np.float64)
         xx = (pix % w).astype(np.float64)
@@ -172,16 +178,18 @@ class ReferenceKernel:
                     term = taps.astype(np.float32) * wx[jx]
                     row = term if row is None else row + term
                     if lut_vals is not None:
-                        lv = p.lut[ch].take(np.minimum(taps, p.lut_len - 1)) * wx[jx]
+                        lv = self.lut[ch].take(np.minimum(taps, p.lut_len - 1)) * wx[jx]
                         lrow = lv if lrow is None else lrow + lv
                 term = row * wy[jy]
                 acc = term if acc is None else acc + term
                 if lut_vals is not None:
                     lv = lrow * wy[jy]
                     lacc = lv if lacc is None else lacc + lv
+            assert acc is not None  # ntap >= 2 taps were summed
             np.clip(acc, np.float32(0.0), hi, out=vals[ch])
             if lut_vals is not None:
-                np.clip(lacc, np.float32(0.0), p.lut[ch, -1], out=lut_vals[ch])
+                assert lacc is not None
+                np.clip(lacc, np.float32(0.0), self.lut[ch, -1], out=lut_vals[ch])
         tap_clip &= inside
         vals[:, ~inside] = 0.0  # no data (a pixel with no valid frame at all reads 0 there)
         if lut_vals is not None:
@@ -212,12 +220,12 @@ class ReferenceKernel:
                 if lut_vals is not None:
                     np.copyto(x, lut_vals)
                 else:  # LUT_MODE "levels": the LUT linearly interpolated at the level
-                    v0 = p.lut[ch].take(lo)
-                    np.subtract(p.lut[ch].take(lo + 1), v0, out=x)
+                    v0 = self.lut[ch].take(lo)
+                    np.subtract(self.lut[ch].take(lo + 1), v0, out=x)
                     x *= frac
                     x += v0
-                v0 = p.lut_var[ch].take(lo)
-                np.subtract(p.lut_var[ch].take(lo + 1), v0, out=var)
+                v0 = self.lut_var[ch].take(lo)
+                np.subtract(self.lut_var[ch].take(lo + 1), v0, out=var)
                 var *= frac
                 var += v0
                 if self.shot:
@@ -416,7 +424,7 @@ class ReferenceKernel:
                 zc = zero[sel]
                 target[zc] = vals[zc]
                 rad[pick] = target
-                wholes = pick[whole[rest_q[sel]]]
+                wholes = pick[np.asarray(whole)[rest_q[sel]]]
                 if wholes.size:
                     shares[:, wholes] = 0.0
                     shares[k, wholes] = 1.0
@@ -460,7 +468,7 @@ def level_tables(kernel: ReferenceKernel) -> np.ndarray:
     p = kernel.p
     n, c = len(p.frames), p.shape[2]
     dtype = p.frames[0].dtype
-    length = int(p.max_level) + 1
+    length = int(p.max_level or 0) + 1
     levels = np.arange(length, dtype=dtype)
     s = Scratch(n, length, c)
     tab = np.zeros((n, c * length, 8), np.float32)
