@@ -15,21 +15,27 @@ next to each lists the same words for code that checks or documents them at run 
   (:class:`hdrcore.exposure.BracketExposureResult`): ``"broken-chain"`` when some frame is not
   linked to the others, ``"not-ok"`` when some pair is not ok.
 - :data:`SignalStatus`: one frame's usable signal (:class:`hdrcore.signal.FrameSignal`).
+- :data:`BatchStatus`: one bracket of ``hdrcore batch`` (:class:`hdrcore.batch.BracketRecord`):
+  merged ``"ok"``, with a ``"warning"``, with an ``"error"`` verdict (exit 1), or ``"failed"``
+  (nothing written).
 """
 
 from __future__ import annotations
 
-from typing import Literal, get_args
+from typing import Literal, TypeGuard, get_args
 
 __all__ = [
+    "BATCH_STATUSES",
     "CHAIN_STATUSES",
     "RATIO_STATUSES",
     "SEVERITIES",
     "SIGNAL_STATUSES",
+    "BatchStatus",
     "ChainStatus",
     "RatioStatus",
     "Severity",
     "SignalStatus",
+    "is_batch_status",
 ]
 
 Severity = Literal["error", "warning", "info"]
@@ -47,3 +53,11 @@ CHAIN_STATUSES: tuple[ChainStatus, ...] = get_args(ChainStatus)
 
 SignalStatus = Literal["ok", "black", "saturated", "unlinked"]
 SIGNAL_STATUSES: tuple[SignalStatus, ...] = get_args(SignalStatus)
+
+BatchStatus = Literal["ok", "warning", "error", "failed"]
+BATCH_STATUSES: tuple[BatchStatus, ...] = get_args(BatchStatus)
+
+
+def is_batch_status(value: object) -> TypeGuard[BatchStatus]:
+    """``value`` is one of :data:`BATCH_STATUSES` (a record read back from a file)."""
+    return value in BATCH_STATUSES

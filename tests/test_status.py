@@ -10,7 +10,10 @@ from pathlib import Path
 import pytest
 
 from hdrcore import status
+from hdrcore.batch.index import read_index
+from hdrcore.batch.task import BracketRecord
 from hdrcore.diagnose import Verdict
+from hdrcore.errors import InputError
 from hdrcore.exposure import BracketExposureResult, ExposureRatioResult
 from hdrcore.io import load_bracket
 from hdrcore.pipeline import Pipeline, PipelineParams
@@ -29,6 +32,7 @@ SMALL = SEED_PROTOCOL.replace(shape=(48, 64), exposure_times=(1.0, 4.0, 16.0, 64
     (ExposureRatioResult, "status", status.RatioStatus),
     (BracketExposureResult, "status", status.ChainStatus),
     (FrameSignal, "status", status.SignalStatus),
+    (BracketRecord, "status", status.BatchStatus),
 ])
 def test_result_fields_use_the_declared_aliases(cls, field, alias) -> None:
     assert typing.get_type_hints(cls)[field] == alias
@@ -66,3 +70,17 @@ def test_every_word_a_run_writes_is_declared(tmp_path: Path, case: str) -> None:
         assert "black" in signal_statuses
     else:
         assert severities & {"warning", "error"}
+
+
+def test_a_record_read_back_with_an_unknown_status_is_refused(tmp_path: Path) -> None:
+    """A batch record read back names its status; an unknown word (a damaged or foreign index)
+    is a clear error naming the file, not a bracket taken as done."""
+    rec = BracketRecord(name="b", files=("a.jpg",), status="warning")
+    assert BracketRecord.from_json(rec.to_json()) == rec
+    bad = {**rec.to_json(), "status": "success"}
+    with pytest.raises(ValueError, match="unknown bracket status 'success'"):
+        BracketRecord.from_json(bad)
+    (tmp_path / "index.json").write_text(json.dumps({"brackets": [bad]}))
+    with pytest.raises(InputError, match="not a batch index.*success") as info:
+        read_index(tmp_path)
+    assert info.value.path is not None and info.value.path.endswith("index.json")

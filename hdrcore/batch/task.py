@@ -27,6 +27,7 @@ from typing import Any
 from .. import __version__
 from ..errors import HdrError
 from ..io import atomic_write
+from ..status import BATCH_STATUSES, BatchStatus, is_batch_status
 from . import remote
 
 __all__ = ["BracketTask", "BracketRecord", "run_task", "file_digest", "bracket_key",
@@ -120,7 +121,7 @@ class BracketRecord:
 
     name: str
     files: tuple[str, ...]
-    status: str
+    status: BatchStatus
     reason: str = ""
     key: str = ""
     quality: dict[str, Any] = field(default_factory=dict)
@@ -149,9 +150,14 @@ class BracketRecord:
 
     @classmethod
     def from_json(cls, doc: dict[str, Any]) -> BracketRecord:
+        """A record read back (a sidecar, the index); ``ValueError`` for an unknown status."""
+        status = doc.get("status", "failed")
+        if not is_batch_status(status):
+            raise ValueError(f"unknown bracket status {status!r}, expected one of "
+                             + ", ".join(BATCH_STATUSES))
         return cls(
             name=str(doc["name"]), files=tuple(doc.get("files", ())),
-            status=str(doc.get("status", "failed")), reason=str(doc.get("reason", "")),
+            status=status, reason=str(doc.get("reason", "")),
             key=str(doc.get("key", "")), quality=dict(doc.get("quality") or {}),
             verdicts=tuple(doc.get("verdicts") or ()), outputs=dict(doc.get("outputs") or {}),
             merged=bool(doc.get("merged", True)), seconds=float(doc.get("seconds") or 0.0),
@@ -259,7 +265,8 @@ def _merge(task: BracketTask) -> tuple[BracketRecord, dict[str, Any] | None, lis
     said = io.StringIO()
     report: dict[str, Any] | None = None
     digests: list[str] = []
-    status, reason = "failed", ""
+    status: BatchStatus = "failed"
+    reason = ""
     try:
         digests = [file_digest(f) for f in task.files]
         ns = _merge_namespace(task, report_path)
