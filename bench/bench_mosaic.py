@@ -4,8 +4,8 @@ Paths, all through the same merge (:func:`hdrcore.merge.merge`, noise-aware weig
 exposure times, saturation 0.98, no colour conversion: camera RGB):
 
 * ``per-frame AHD``: each frame demosaiced by LibRaw's AHD (the project's earlier decode);
-* ``per-frame Malvar`` / ``HA``: each frame demosaiced by our Malvar-He-Cutler (today's
-  decode) or Hamilton-Adams kernel;
+* ``per-frame Malvar`` / ``HA`` / ``RCD``: each frame demosaiced by our Malvar-He-Cutler
+  (today's decode), Hamilton-Adams or RCD (ratio corrected demosaicing) kernel;
 * ``mosaic Malvar`` / ``HA``: the CFA sites merged, then one demosaic
   (:func:`hdrcore.merge.mosaic.merge_mosaic`).
 
@@ -83,6 +83,7 @@ def simulated(size: tuple[int, int], seed: int, scene: str,
         for label, demosaic in (("per-frame AHD", "libraw-ahd"),
                                 ("per-frame Malvar", "malvar2004"),
                                 ("per-frame HA", "hamilton-adams"),
+                                ("per-frame RCD", "rcd"),
                                 ("mosaic Malvar", "malvar2004"),
                                 ("mosaic HA", "hamilton-adams")):
             frames = [read_raw(p, demosaic=demosaic) for p in files]
@@ -147,7 +148,8 @@ def real_crw(path: Path) -> dict[str, list[float]]:
                       black_level=black, white_level=white)
             names.append(p)
         m = read_raw(names[0]).max_level
-        for label, method in (("LibRaw AHD", "libraw-ahd"), ("ours (Malvar)", "malvar2004")):
+        for label, method in (("LibRaw AHD", "libraw-ahd"), ("ours (Malvar)", "malvar2004"),
+                              ("ours (RCD)", "rcd")):
             rgbs = [read_raw(p, demosaic=method).levels.astype(np.float64) for p in names]
             ok = np.ones(rgbs[0].shape[:2], bool)
             for r in rgbs:

@@ -61,6 +61,10 @@ DEMOSAIC_METHODS: dict[str, str] = {
     "hamilton-adams": "Hamilton & Adams 1997: green along the direction of the smaller "
                       "gradient + Laplacian, red and blue by colour differences; its choices "
                       "compare gradients, so it is scale-equivariant",
+    "rcd": "Sanz Rodriguez's ratio corrected demosaicing (RCD 2.3): directions from "
+           "high-pass statistics, green by low-pass ratios, red and blue by colour differences "
+           "blended by inverse gradients; ratios and ratios of gradients, so scale-equivariant "
+           "(up to its 1e-5 guards)",
 }
 
 _LETTERS = {"R": 0, "G": 1, "B": 2}
@@ -304,6 +308,177 @@ def _ha_colour_rows(cfa, offset, chan, green, lo, hi, rounding, out, r0, r1, cei
             out[y, x, 2] = b
 
 
+# ---------------------------------------------------------------------------------------- RCD
+#: RCD's guards against dividing by zero, in units of the white level (its own values).
+_RCD_EPS = np.float32(1e-5)
+_RCD_EPSSQ = np.float32(1e-10)
+
+
+@njit
+def _rcd_hpf(x, r, c, dr, dc):  # pragma: no cover - numba
+    """RCD's high-pass filter along ``(dr, dc)`` at ``(r, c)``."""
+    return ((x[r - 3 * dr, c - 3 * dc] - x[r - dr, c - dc] - x[r + dr, c + dc]
+             + x[r + 3 * dr, c + 3 * dc]) - 3.0 * (x[r - 2 * dr, c - 2 * dc]
+                                                    + x[r + 2 * dr, c + 2 * dc]) + 6.0 * x[r, c])
+
+
+@njit
+def _rcd_directions(x, chan, vh, pq, lpf, r0, r1):  # pragma: no cover - numba
+    """Pass 1 over rows ``r0..r1``: the V/H (every site) and P/Q (R and B sites) statistics
+    ``V / (V + H)`` from RCD's high-pass filters summed in squares over three lines, and the
+    low-pass filter at R and B sites."""
+    h, w = x.shape
+    eps2 = _RCD_EPSSQ
+    for r in range(max(r0, 2), min(r1, h - 2)):
+        for c in range(2, w - 2):
+            if chan[r & 1, c & 1] != 1:  # held at 0: the ratios below stay within [0, 2]
+                lpf[r, c] = max(0.0, x[r, c] + 0.5 * (x[r - 1, c] + x[r + 1, c] + x[r, c - 1]
+                                                      + x[r, c + 1])
+                                + 0.25 * (x[r - 1, c - 1] + x[r - 1, c + 1] + x[r + 1, c - 1]
+                                          + x[r + 1, c + 1]))
+    for r in range(max(r0, 4), min(r1, h - 4)):
+        for c in range(4, w - 4):
+            v = 0.0
+            hh = 0.0
+            for k in (-1, 0, 1):
+                a = _rcd_hpf(x, r + k, c, 1, 0)
+                b = _rcd_hpf(x, r, c + k, 0, 1)
+                v += a * a
+                hh += b * b
+            v = max(v, eps2)
+            hh = max(hh, eps2)
+            vh[r, c] = v / (v + hh)
+            if chan[r & 1, c & 1] != 1:
+                p = 0.0
+                q = 0.0
+                for k in (-1, 0, 1):
+                    a = _rcd_hpf(x, r + k, c + k, 1, 1)
+                    b = _rcd_hpf(x, r + k, c - k, 1, -1)
+                    p += a * a
+                    q += b * b
+                p = max(p, eps2)
+                q = max(q, eps2)
+                pq[r, c] = p / (p + q)
+
+
+@njit
+def _rcd_refined(d, r, c):  # pragma: no cover - numba
+    """RCD's refined discrimination: the diagonal neighbours' mean where it is more decided
+    (further from 0.5) than the site's own value."""
+    centre = d[r, c]
+    near = 0.25 * (d[r - 1, c - 1] + d[r - 1, c + 1] + d[r + 1, c - 1] + d[r + 1, c + 1])
+    return near if abs(0.5 - centre) < abs(0.5 - near) else centre
+
+
+@njit
+def _rcd_green(x, chan, vh, lpf, g, r0, r1):  # pragma: no cover - numba
+    """Pass 2: green at R and B sites, the four cardinal neighbours each corrected by the ratio
+    of the low-pass filter between the site and the next same-colour site, blended by inverse
+    gradients and the refined V/H discrimination; green sites keep their sample."""
+    h, w = x.shape
+    eps = _RCD_EPS
+    for r in range(max(r0, 4), min(r1, h - 4)):
+        for c in range(4, w - 4):
+            if chan[r & 1, c & 1] == 1:
+                g[r, c] = x[r, c]
+                continue
+            gn = eps + abs(x[r - 1, c] - x[r + 1, c]) + abs(x[r, c] - x[r - 2, c]) + abs(
+                x[r - 1, c] - x[r - 3, c]) + abs(x[r - 2, c] - x[r - 4, c])
+            gs = eps + abs(x[r + 1, c] - x[r - 1, c]) + abs(x[r, c] - x[r + 2, c]) + abs(
+                x[r + 1, c] - x[r + 3, c]) + abs(x[r + 2, c] - x[r + 4, c])
+            gw = eps + abs(x[r, c - 1] - x[r, c + 1]) + abs(x[r, c] - x[r, c - 2]) + abs(
+                x[r, c - 1] - x[r, c - 3]) + abs(x[r, c - 2] - x[r, c - 4])
+            ge = eps + abs(x[r, c + 1] - x[r, c - 1]) + abs(x[r, c] - x[r, c + 2]) + abs(
+                x[r, c + 1] - x[r, c + 3]) + abs(x[r, c + 2] - x[r, c + 4])
+            l0 = lpf[r, c]
+            en = x[r - 1, c] * 2.0 * l0 / (eps + l0 + lpf[r - 2, c])
+            es = x[r + 1, c] * 2.0 * l0 / (eps + l0 + lpf[r + 2, c])
+            ew = x[r, c - 1] * 2.0 * l0 / (eps + l0 + lpf[r, c - 2])
+            ee = x[r, c + 1] * 2.0 * l0 / (eps + l0 + lpf[r, c + 2])
+            v = (gs * en + gn * es) / (gn + gs)
+            hz = (gw * ee + ge * ew) / (ge + gw)
+            d = _rcd_refined(vh, r, c)
+            g[r, c] = min(d * hz + (1.0 - d) * v, 1.0)
+
+
+@njit
+def _rcd_diagonal(x, chan, pq, g, rb, r0, r1):  # pragma: no cover - numba
+    """Pass 3: at an R site blue, at a B site red, from the four diagonal colour differences,
+    blended by inverse gradients and the refined P/Q discrimination; the sites' own colour
+    copied into ``rb`` (plane 0 red, 1 blue)."""
+    h, w = x.shape
+    eps = _RCD_EPS
+    for r in range(max(r0, 4), min(r1, h - 4)):
+        for c in range(4, w - 4):
+            s = chan[r & 1, c & 1]
+            if s == 1:
+                continue
+            own = 0 if s == 0 else 1
+            o = 1 - own
+            rb[r, c, own] = x[r, c]
+            # the other colour sits on the diagonals (samples of the mosaic)
+            gnw = eps + abs(x[r - 1, c - 1] - x[r + 1, c + 1]) + abs(
+                x[r - 1, c - 1] - x[r - 3, c - 3]) + abs(g[r, c] - g[r - 2, c - 2])
+            gne = eps + abs(x[r - 1, c + 1] - x[r + 1, c - 1]) + abs(
+                x[r - 1, c + 1] - x[r - 3, c + 3]) + abs(g[r, c] - g[r - 2, c + 2])
+            gsw = eps + abs(x[r + 1, c - 1] - x[r - 1, c + 1]) + abs(
+                x[r + 1, c - 1] - x[r + 3, c - 3]) + abs(g[r, c] - g[r + 2, c - 2])
+            gse = eps + abs(x[r + 1, c + 1] - x[r - 1, c - 1]) + abs(
+                x[r + 1, c + 1] - x[r + 3, c + 3]) + abs(g[r, c] - g[r + 2, c + 2])
+            enw = x[r - 1, c - 1] - g[r - 1, c - 1]
+            ene = x[r - 1, c + 1] - g[r - 1, c + 1]
+            esw = x[r + 1, c - 1] - g[r + 1, c - 1]
+            ese = x[r + 1, c + 1] - g[r + 1, c + 1]
+            p = (gnw * ese + gse * enw) / (gnw + gse)
+            q = (gne * esw + gsw * ene) / (gne + gsw)
+            d = _rcd_refined(pq, r, c)
+            rb[r, c, o] = min(g[r, c] + (1.0 - d) * p + d * q, 1.0)
+
+
+@njit
+def _rcd_cardinal(chan, vh, g, rb, r0, r1):  # pragma: no cover - numba
+    """Pass 4: red and blue at G sites from the four cardinal colour differences (samples one
+    way, pass 3's values the other), blended by inverse gradients and the refined V/H
+    discrimination."""
+    h, w = g.shape
+    eps = _RCD_EPS
+    for r in range(max(r0, 4), min(r1, h - 4)):
+        for c in range(4, w - 4):
+            if chan[r & 1, c & 1] != 1:
+                continue
+            d = _rcd_refined(vh, r, c)
+            for k in range(2):
+                gn = eps + abs(g[r, c] - g[r - 2, c]) + abs(rb[r - 1, c, k] - rb[r + 1, c, k]) \
+                    + abs(rb[r - 1, c, k] - rb[r - 3, c, k])
+                gs = eps + abs(g[r, c] - g[r + 2, c]) + abs(rb[r + 1, c, k] - rb[r - 1, c, k]) \
+                    + abs(rb[r + 1, c, k] - rb[r + 3, c, k])
+                gw = eps + abs(g[r, c] - g[r, c - 2]) + abs(rb[r, c - 1, k] - rb[r, c + 1, k]) \
+                    + abs(rb[r, c - 1, k] - rb[r, c - 3, k])
+                ge = eps + abs(g[r, c] - g[r, c + 2]) + abs(rb[r, c + 1, k] - rb[r, c - 1, k]) \
+                    + abs(rb[r, c + 1, k] - rb[r, c + 3, k])
+                en = rb[r - 1, c, k] - g[r - 1, c]
+                es = rb[r + 1, c, k] - g[r + 1, c]
+                ew = rb[r, c - 1, k] - g[r, c - 1]
+                ee = rb[r, c + 1, k] - g[r, c + 1]
+                v = (gn * es + gs * en) / (gn + gs)
+                hz = (ge * ew + gw * ee) / (ge + gw)
+                rb[r, c, k] = min(g[r, c] + (1.0 - d) * v + d * hz, 1.0)
+
+
+@njit
+def _rcd_store(g, rb, scale, lo, hi, rounding, out, r0, r1):  # pragma: no cover - numba
+    """The interior (4 px from every border) into ``out``: scaled back to levels, held in
+    ``[lo, hi]`` and rounded for an integer output; the border keeps what ``out`` holds."""
+    h, w = g.shape
+    for r in range(max(r0, 4), min(r1, h - 4)):
+        for c in range(4, w - 4):
+            for k, v in ((0, rb[r, c, 0]), (1, g[r, c]), (2, rb[r, c, 1])):
+                v = min(max(v * scale, lo), hi)
+                if rounding:
+                    v = np.floor(v + 0.5)
+                out[r, c, k] = v
+
+
 def _prepare(mosaic: np.ndarray, pattern, colors: str, black_level):
     cfa = np.asarray(mosaic)
     if cfa.ndim != 2 or cfa.shape[0] < 3 or cfa.shape[1] < 3:
@@ -376,9 +551,47 @@ def demosaic(
         run_row_spans(h, workers, lambda r0, r1: _ha_colour_rows(
             cfa, offset, chan, green, lo32, hi32, integer, out, r0, r1, cap, capped))
         return out
+    if method == "rcd":
+        if capped:
+            raise ParameterError("the rcd demosaic takes no ceiling (an HDR mosaic)",
+                                 expected="malvar2004 or hamilton-adams with a ceiling")
+        return _rcd(cfa, offset, chan, lo32, hi32, integer, out, workers)
     code = {"malvar2004": 0, "bilinear": 1, "malvar2004-clamped": 2}[method]
     run_row_spans(h, workers, lambda r0, r1: _malvar_rows(
         cfa, offset, chan, code, lo32, hi32, integer, out, r0, r1, cap, capped))
+    return out
+
+
+def _rcd(cfa, offset, chan, lo32, hi32, integer, out, workers):
+    """RCD (see :data:`DEMOSAIC_METHODS`): Malvar-He-Cutler first (the 4-pixel border keeps it,
+    and it is where the passes start), then RCD's four passes on the mosaic in units of its
+    largest sample (RCD's unit, the white level, for a frame that clips; its guards then scale
+    with the frame, so the result is exactly scale-equivariant; no interpolated value exceeds
+    that sample), the interior written back."""
+    h, w = cfa.shape
+    no_cap = np.full((1, 1), np.inf, np.float32)
+    run_row_spans(h, workers, lambda r0, r1: _malvar_rows(
+        cfa, offset, chan, 0, lo32, hi32, integer, out, r0, r1, no_cap, False))
+    if h < 9 or w < 9:
+        return out
+    site = offset[np.arange(h)[:, None] % 2, np.arange(w)[None, :] % 2]
+    x = cfa.astype(np.float32) - site
+    del site
+    scale = max(float(x.max()), 1e-30)  # the frame's own: exactly scale-equivariant
+    x *= np.float32(1.0 / scale)
+    g = out[..., 1].astype(np.float32) * np.float32(1.0 / scale)
+    rb = np.empty((h, w, 2), np.float32)
+    rb[..., 0] = out[..., 0] * np.float32(1.0 / scale)
+    rb[..., 1] = out[..., 2] * np.float32(1.0 / scale)
+    vh = np.full((h, w), 0.5, np.float32)
+    pq = np.full((h, w), 0.5, np.float32)
+    lpf = np.zeros((h, w), np.float32)
+    run_row_spans(h, workers, lambda r0, r1: _rcd_directions(x, chan, vh, pq, lpf, r0, r1))
+    run_row_spans(h, workers, lambda r0, r1: _rcd_green(x, chan, vh, lpf, g, r0, r1))
+    run_row_spans(h, workers, lambda r0, r1: _rcd_diagonal(x, chan, pq, g, rb, r0, r1))
+    run_row_spans(h, workers, lambda r0, r1: _rcd_cardinal(chan, vh, g, rb, r0, r1))
+    run_row_spans(h, workers, lambda r0, r1: _rcd_store(
+        g, rb, np.float32(scale), lo32, hi32, integer, out, r0, r1))
     return out
 
 
@@ -412,6 +625,12 @@ def demosaic_reference(
     x = cfa.astype(np.float64) - offset.astype(np.float64)[site]
     if method == "hamilton-adams":
         return _hamilton_adams_reference(x, chan, site, ceiling)
+    if method == "rcd":
+        if ceiling is not None:
+            raise ParameterError("the rcd demosaic takes no ceiling (an HDR mosaic)")
+        base = demosaic_reference(mosaic, pattern, colors, method="malvar2004",
+                                  black_level=black_level)
+        return _rcd_reference(x, chan[site], np.maximum(base, 0.0))
     if method.startswith("malvar2004"):
         k = {"cross": _K_G_AT_RB, "row": _K_ROW, "col": _K_COL, "diag": _K_DIAG}
     else:
@@ -482,4 +701,117 @@ def _hamilton_adams_reference(x: np.ndarray, chan: np.ndarray, site, ceiling) ->
     for ch in (0, 2):
         at_g = np.where(c_h == ch, d_h, d_v)
         out[..., ch] = np.where(c == ch, cen, green + np.where(c == 1, at_g, d_diag))
+    return out
+
+
+def _rcd_reference(x: np.ndarray, c: np.ndarray, base: np.ndarray) -> np.ndarray:
+    """RCD as whole-image array code (float64): ``x`` the black-subtracted mosaic, ``c`` each
+    site's colour, ``base`` Malvar's result (held at 0 below), which the 4-pixel border keeps."""
+    h, w = x.shape
+    out = base.copy()
+    if h < 9 or w < 9:
+        return out
+    scale = max(float(x.max()), 1e-30)
+    x = x / scale
+    eps, eps2 = 1e-5, 1e-10
+    rb_site = c != 1
+
+    def at(a: np.ndarray, dy: int, dx: int, m: int) -> np.ndarray:
+        """``a`` at the offset (dy, dx) over the rows and columns [m, n - m)."""
+        return a[m + dy:h - m + dy, m + dx:w - m + dx]
+
+    def hpf(dy: int, dx: int) -> np.ndarray:  # over [3, n - 3), along (dy, dx)
+        outer = (at(x, -3 * dy, -3 * dx, 3) - at(x, -dy, -dx, 3) - at(x, dy, dx, 3)
+                 + at(x, 3 * dy, 3 * dx, 3))
+        return outer - 3 * (at(x, -2 * dy, -2 * dx, 3) + at(x, 2 * dy, 2 * dx, 3)) \
+            + 6 * at(x, 0, 0, 3)
+
+    def stat(f: np.ndarray, dy: int, dx: int) -> np.ndarray:  # over [4, n - 4)
+        q = f * f
+        k = h - 6, w - 6
+        s3 = sum(q[1 + j * dy:k[0] - 1 + j * dy, 1 + j * dx:k[1] - 1 + j * dx]
+                 for j in (-1, 0, 1))
+        return np.maximum(s3, eps2)
+
+    v, hz = stat(hpf(1, 0), 1, 0), stat(hpf(0, 1), 0, 1)
+    p, q = stat(hpf(1, 1), 1, 1), stat(hpf(1, -1), 1, -1)
+    vh = np.full((h, w), 0.5)
+    pq = np.full((h, w), 0.5)
+    inner = (slice(4, h - 4), slice(4, w - 4))
+    vh[inner] = v / (v + hz)
+    pq[inner] = np.where(rb_site[inner], p / (p + q), 0.5)
+    lpf = np.zeros((h, w))
+    lp = (at(x, 0, 0, 2) + 0.5 * (at(x, -1, 0, 2) + at(x, 1, 0, 2) + at(x, 0, -1, 2)
+                                  + at(x, 0, 1, 2))
+          + 0.25 * (at(x, -1, -1, 2) + at(x, -1, 1, 2) + at(x, 1, -1, 2) + at(x, 1, 1, 2)))
+    lpf[2:h - 2, 2:w - 2] = np.where(rb_site[2:h - 2, 2:w - 2], np.maximum(lp, 0.0), 0.0)
+
+    def refined(d: np.ndarray) -> np.ndarray:
+        centre = at(d, 0, 0, 4)
+        near = 0.25 * (at(d, -1, -1, 4) + at(d, -1, 1, 4) + at(d, 1, -1, 4) + at(d, 1, 1, 4))
+        return np.where(np.abs(0.5 - centre) < np.abs(0.5 - near), near, centre)
+
+    # green at R and B sites
+    g = base[..., 1] / scale
+    xs = {(dy, dx): at(x, dy, dx, 4) for dy in range(-4, 5) for dx in range(-4, 5)
+          if dy == 0 or dx == 0}
+
+    def card(dy: int, dx: int) -> np.ndarray:
+        return (eps + np.abs(xs[dy, dx] - xs[-dy, -dx]) + np.abs(xs[0, 0] - xs[2 * dy, 2 * dx])
+                + np.abs(xs[dy, dx] - xs[3 * dy, 3 * dx])
+                + np.abs(xs[2 * dy, 2 * dx] - xs[4 * dy, 4 * dx]))
+
+    gn, gs, gw, ge = card(-1, 0), card(1, 0), card(0, -1), card(0, 1)
+    l0 = at(lpf, 0, 0, 4)
+
+    def est(dy: int, dx: int) -> np.ndarray:
+        return xs[dy, dx] * 2.0 * l0 / (eps + l0 + at(lpf, 2 * dy, 2 * dx, 4))
+
+    vv = (gs * est(-1, 0) + gn * est(1, 0)) / (gn + gs)
+    hh = (gw * est(0, 1) + ge * est(0, -1)) / (ge + gw)
+    d = refined(vh)
+    green = np.minimum(d * hh + (1 - d) * vv, 1.0)
+    g[inner] = np.where(rb_site[inner], green, at(x, 0, 0, 4))
+    # the other of red and blue at R and B sites (diagonals)
+    own = {0: base[..., 0] / scale, 2: base[..., 2] / scale}
+    red, blue = own[0], own[2]
+    red[inner] = np.where(c[inner] == 0, at(x, 0, 0, 4), red[inner])
+    blue[inner] = np.where(c[inner] == 2, at(x, 0, 0, 4), blue[inner])
+
+    def diag(dy: int, dx: int) -> np.ndarray:
+        return eps + np.abs(at(x, dy, dx, 4) - at(x, -dy, -dx, 4)) + np.abs(
+            at(x, dy, dx, 4) - at(x, 3 * dy, 3 * dx, 4)) + np.abs(at(g, 0, 0, 4)
+                                                              - at(g, 2 * dy, 2 * dx, 4))
+
+    gnw, gne, gsw, gse = diag(-1, -1), diag(-1, 1), diag(1, -1), diag(1, 1)
+
+    def diff(dy: int, dx: int) -> np.ndarray:
+        return at(x, dy, dx, 4) - at(g, dy, dx, 4)
+
+    pe = (gnw * diff(1, 1) + gse * diff(-1, -1)) / (gnw + gse)
+    qe = (gne * diff(1, -1) + gsw * diff(-1, 1)) / (gne + gsw)
+    d = refined(pq)
+    other = np.minimum(at(g, 0, 0, 4) + (1 - d) * pe + d * qe, 1.0)
+    red[inner] = np.where(c[inner] == 2, other, red[inner])
+    blue[inner] = np.where(c[inner] == 0, other, blue[inner])
+    # red and blue at G sites (cardinals), from the planes just completed
+    d = refined(vh)
+    done = {}
+    for name, a in (("r", red), ("b", blue)):
+        def cg(dy: int, dx: int, a=a) -> np.ndarray:
+            return eps + np.abs(at(g, 0, 0, 4) - at(g, 2 * dy, 2 * dx, 4)) + np.abs(
+                at(a, dy, dx, 4) - at(a, -dy, -dx, 4)) + np.abs(at(a, dy, dx, 4)
+                                                               - at(a, 3 * dy, 3 * dx, 4))
+
+        gn, gs, gw, ge = cg(-1, 0), cg(1, 0), cg(0, -1), cg(0, 1)
+
+        def cd(dy: int, dx: int, a=a) -> np.ndarray:
+            return at(a, dy, dx, 4) - at(g, dy, dx, 4)
+
+        vv = (gn * cd(1, 0) + gs * cd(-1, 0)) / (gn + gs)
+        hh = (ge * cd(0, -1) + gw * cd(0, 1)) / (ge + gw)
+        done[name] = np.minimum(at(g, 0, 0, 4) + (1 - d) * vv + d * hh, 1.0)
+    for k, name, a in ((0, "r", red), (2, "b", blue)):
+        out[..., k][inner] = np.where(c[inner] == 1, done[name], a[inner]) * scale
+    out[..., 1][inner] = g[inner] * scale
     return out

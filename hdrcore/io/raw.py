@@ -82,7 +82,7 @@ RAW_EXTENSIONS = frozenset(
 
 #: Demosaic methods of :func:`read_raw`: ours (:data:`hdrcore.demosaic.DEMOSAIC_METHODS`) and
 #: LibRaw's AHD through ``postprocess``.
-RAW_DEMOSAIC_METHODS = ("malvar2004", "hamilton-adams", "malvar2004-clamped", "bilinear",
+RAW_DEMOSAIC_METHODS = ("malvar2004", "hamilton-adams", "rcd", "malvar2004-clamped", "bilinear",
                         "libraw-ahd")
 DEFAULT_RAW_DEMOSAIC = "malvar2004"
 

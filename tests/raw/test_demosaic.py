@@ -132,7 +132,7 @@ def test_bad_inputs_are_named() -> None:
         demosaic(np.zeros((2, 4), np.uint16), PATTERNS["RGGB"])
 
 
-@pytest.mark.parametrize("method", sorted(DEMOSAIC_METHODS))
+@pytest.mark.parametrize("method", sorted(set(DEMOSAIC_METHODS) - {"rcd"}))
 def test_ceiling_compiled_equals_spec_and_scales(method: str) -> None:
     """With a ceiling every tap read for a pixel is held at that pixel's ceiling; scaling the
     mosaic and the ceiling by k scales the result by k."""
@@ -177,3 +177,31 @@ def test_hamilton_adams_at_least_libraw_ahd(tmp_path: Path, scene: str) -> None:
     ours = _psnr(read_raw(p, demosaic="hamilton-adams").levels.astype(float), truth, 3839)
     ahd = _psnr(read_raw(p, demosaic="libraw-ahd").levels.astype(float), truth, 3839)
     assert np.all(ours >= ahd - 0.2), (ours, ahd)
+
+
+def test_rcd_takes_no_ceiling() -> None:
+    m = np.ones((12, 12), np.float32)
+    with pytest.raises(ParameterError, match="rcd"):
+        demosaic(m, PATTERNS["RGGB"], method="rcd", ceiling=m)
+
+
+@pytest.mark.parametrize("scene", ["window", "night", "patches"])
+def test_rcd_at_least_malvar_and_no_zipper(scene: str) -> None:
+    """Noise-free 12-bit mosaics of the simulator's scenes (192x288): RCD's PSNR against the
+    truth beats Malvar-He-Cutler's on red and blue by 1 dB or more (measured +1.1 to +6.3 dB),
+    green within 0.5 dB (-0.3 to +4.5; on 'landscape', not tested, green is 2.5 dB below), and a
+    one-pixel bright line keeps a flat green along its row, as Hamilton-Adams does and Malvar
+    does not."""
+    img = make_scene(scene, (192, 288), seed=3).astype(np.float64)
+    lin = np.clip(img * 0.36 / np.median(img), 0, 1)
+    m = np.rint(mosaic(lin, "RGGB") * 4095).astype(np.uint16)
+    truth = lin * 4095
+    psnr = {k: _psnr(demosaic(m, PATTERNS["RGGB"], method=k, max_level=4095), truth, 4095)
+            for k in ("rcd", "malvar2004")}
+    gain = psnr["rcd"] - psnr["malvar2004"]
+    assert gain[0] >= 1.0 and gain[2] >= 1.0 and gain[1] >= -0.5, psnr
+    line = np.full((16, 24, 3), 100.0)
+    line[8] = 3000.0
+    g = demosaic(mosaic(line, "RGGB").astype(np.uint16), PATTERNS["RGGB"], method="rcd",
+                 max_level=np.inf)[8, 4:-4, 1]
+    assert float(g.max() - g.min()) < 1.0
