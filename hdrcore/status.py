@@ -15,6 +15,9 @@ next to each lists the same words for code that checks or documents them at run 
   (:class:`hdrcore.exposure.BracketExposureResult`): ``"broken-chain"`` when some frame is not
   linked to the others, ``"not-ok"`` when some pair is not ok.
 - :data:`SignalStatus`: one frame's usable signal (:class:`hdrcore.signal.FrameSignal`).
+- :data:`ResponseStatus`: a recovered response curve
+  (:class:`hdrcore.response.ResponseCurve`): ``"warning"`` when a channel's fit is degenerate,
+  ``"fallback"`` when the automatic choice fell back on another curve.
 - :data:`BatchStatus`: one bracket of ``hdrcore batch`` (:class:`hdrcore.batch.BracketRecord`):
   merged ``"ok"``, with a ``"warning"``, with an ``"error"`` verdict (exit 1), or ``"failed"``
   (nothing written).
@@ -32,10 +35,13 @@ __all__ = [
     "SIGNAL_STATUSES",
     "BatchStatus",
     "ChainStatus",
+    "RESPONSE_STATUSES",
     "RatioStatus",
+    "ResponseStatus",
     "Severity",
     "SignalStatus",
     "is_batch_status",
+    "is_response_status",
 ]
 
 Severity = Literal["error", "warning", "info"]
@@ -61,3 +67,11 @@ BATCH_STATUSES: tuple[BatchStatus, ...] = get_args(BatchStatus)
 def is_batch_status(value: object) -> TypeGuard[BatchStatus]:
     """``value`` is one of :data:`BATCH_STATUSES` (a record read back from a file)."""
     return value in BATCH_STATUSES
+
+ResponseStatus = Literal["ok", "warning", "fallback"]
+RESPONSE_STATUSES: tuple[ResponseStatus, ...] = get_args(ResponseStatus)
+
+
+def is_response_status(value: object) -> TypeGuard[ResponseStatus]:
+    """``value`` is one of :data:`RESPONSE_STATUSES` (a curve read back from a file)."""
+    return value in RESPONSE_STATUSES

@@ -17,6 +17,7 @@ from hdrcore.errors import InputError
 from hdrcore.exposure import BracketExposureResult, ExposureRatioResult
 from hdrcore.io import load_bracket
 from hdrcore.pipeline import Pipeline, PipelineParams
+from hdrcore.response import ResponseCurve, srgb_response
 from hdrcore.signal import FrameSignal
 from hdrcore.synthetic.faults import (
     SEED_PROTOCOL,
@@ -33,6 +34,7 @@ SMALL = SEED_PROTOCOL.replace(shape=(48, 64), exposure_times=(1.0, 4.0, 16.0, 64
     (BracketExposureResult, "status", status.ChainStatus),
     (FrameSignal, "status", status.SignalStatus),
     (BracketRecord, "status", status.BatchStatus),
+    (ResponseCurve, "status", status.ResponseStatus),
 ])
 def test_result_fields_use_the_declared_aliases(cls, field, alias) -> None:
     assert typing.get_type_hints(cls)[field] == alias
@@ -66,6 +68,7 @@ def test_every_word_a_run_writes_is_declared(tmp_path: Path, case: str) -> None:
     assert result.exposures.status in status.CHAIN_STATUSES
     assert result.exposures_histogram.status in status.CHAIN_STATUSES
     assert signal_statuses <= set(status.SIGNAL_STATUSES)
+    assert result.response is None or result.response.status in status.RESPONSE_STATUSES
     if case == "black":  # runs that report something other than "ok"
         assert "black" in signal_statuses
     else:
@@ -84,3 +87,16 @@ def test_a_record_read_back_with_an_unknown_status_is_refused(tmp_path: Path) ->
     with pytest.raises(InputError, match="not a batch index.*success") as info:
         read_index(tmp_path)
     assert info.value.path is not None and info.value.path.endswith("index.json")
+
+
+def test_a_saved_curve_with_an_unknown_status_is_refused(tmp_path: Path) -> None:
+    curve = srgb_response(255, 3)
+    assert curve.status in status.RESPONSE_STATUSES
+    path = curve.save(tmp_path / "curve.json")
+    assert ResponseCurve.load(path).status == curve.status
+    doc = json.loads(path.read_text())
+    doc["status"] = "success"
+    path.write_text(json.dumps(doc))
+    with pytest.raises(InputError, match="unknown status 'success'") as info:
+        ResponseCurve.load(path)
+    assert info.value.path == str(path)

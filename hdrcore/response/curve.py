@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import InputError, ParameterError
+from ..status import ResponseStatus, is_response_status
 
 __all__ = ["ChannelFit", "ResponseCurve", "normalise_curve", "FORMAT_VERSION"]
 
@@ -112,7 +113,7 @@ class ResponseCurve:
     method: str
     exposure_ratios: tuple[float, ...] = ()
     channels: tuple[ChannelFit, ...] = ()
-    status: str = "ok"
+    status: ResponseStatus = "ok"
     message: str = ""
     parameters: dict[str, Any] = field(default_factory=dict)
     channel_names: tuple[str, ...] = ()
@@ -308,12 +309,15 @@ class ResponseCurve:
             if all(c.get("residuals") is not None for c in chans):
                 res = np.array([[np.nan if v is None else float(v) for v in c["residuals"]]
                                 for c in chans], dtype=np.float64)
+            status = d.get("status", "ok")
+            if not is_response_status(status):
+                raise ValueError(f"unknown status {status!r}")
             return cls(
                 g=g,
                 method=str(d.get("method", "unknown")),
                 exposure_ratios=tuple(float(r) for r in d.get("exposure_ratios", ())),
                 channels=fits if len(fits) == len(chans) else (),
-                status=str(d.get("status", "ok")),
+                status=status,
                 message=str(d.get("message", "")),
                 parameters=dict(d.get("parameters", {})),
                 channel_names=tuple(str(c.get("name", f"c{k}")) for k, c in enumerate(chans)),

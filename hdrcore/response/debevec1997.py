@@ -28,6 +28,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from ..errors import EstimationError, ParameterError
+from ..status import ResponseStatus
 from .curve import ChannelFit, ResponseCurve, normalise_curve
 from .monotone import fit_increments
 from .samples import check_bracket, consecutive_ratios, hat_weight, pixel_samples, valid_range
@@ -90,7 +91,8 @@ class LogCurveGrid:
         return normalise_curve(g)[0]
 
 
-def _status(fits: Sequence[ChannelFit], n_nodes: int, coverage: Sequence[float]):
+def _status(fits: Sequence[ChannelFit], n_nodes: int,
+            coverage: Sequence[float]) -> tuple[ResponseStatus, str]:
     msgs = []
     for c, (f, cov) in enumerate(zip(fits, coverage, strict=True)):
         if f.active_constraints > 0.1 * n_nodes:

@@ -27,6 +27,8 @@ from typing import Any
 
 import numpy as np
 
+from ..status import ResponseStatus
+
 __all__ = [
     "FLAT_RUN",
     "FLAT_SLOPE",
@@ -144,7 +146,7 @@ def degeneracy(
     return out
 
 
-def channel_fits_status(fit: Any) -> tuple[str, str]:
+def channel_fits_status(fit: Any) -> tuple[ResponseStatus, str]:
     """``(status, message)`` of a :class:`.joint.JointFit`: ``"warning"`` with the signs of
     degeneracy, else ``"ok"``."""
     found = degeneracy(

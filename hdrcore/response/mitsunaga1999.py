@@ -27,6 +27,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from ..errors import EstimationError, ParameterError
+from ..status import ResponseStatus
 from .curve import ChannelFit, ResponseCurve, normalise_curve
 from .monotone import bernstein_cumulative, bernstein_value, fit_bernstein_homogeneous
 from .samples import (
@@ -167,7 +168,7 @@ def finish_polynomial(
     monotone (running maximum) so that it can still be used."""
     g = np.stack(curves)
     msgs = []
-    status = "ok"
+    status: ResponseStatus = "ok"
     bad = [c for c, f in enumerate(fits) if f.non_monotone_steps]
     if bad:
         status = "warning"
