@@ -203,3 +203,23 @@ def test_a_tripod_canon_bracket_has_one_balance_and_every_frame_its_colour(
     theirs = srgb.colour["check"]["after"]["frame_colours"]
     for a, s in zip(ours, theirs, strict=True):
         assert a["best_error"] <= s["best_error"] + 1e-4
+
+
+def test_a_locally_tone_mapped_bracket_keeps_its_balance_measurable() -> None:
+    """Phone-like local tone mapping (strength 0.5: the transfer varies across the image) moves
+    the regions' exposure ratios apart; the regions off the common transfer are left out and
+    the re-balanced frame is still found, its gains within 0.01; the same bracket with one
+    balance has no frame said to differ."""
+    kw = dict(shape=(120, 180), exposure_times=TIMES, bits=8, response="srgb",
+              noise_sigma=1.0, seed=3, local_tonemap=0.5)
+    sim = simulate_bracket(scene="patches", **kw)
+    other = simulate_bracket(sim.radiance * np.asarray(GAINS), key=sim.key, **kw)
+    true = [f.astype(np.uint8) for f in sim.frames]
+    shot = list(true)
+    shot[REBALANCED] = other.frames[REBALANCED].astype(np.uint8)
+    wb = measure_white_balance(shot, LUT, max_level=255, reference=REF)
+    assert wb.differs == (REBALANCED,)
+    np.testing.assert_allclose(wb.gains[REBALANCED], GAINS, atol=0.01)
+    assert any(p.regions_kept < p.n_regions for p in wb.pairs)
+    same = measure_white_balance(true, LUT, max_level=255, reference=REF)
+    assert same.differs == () and same.unmeasured == ()
