@@ -53,6 +53,7 @@ from __future__ import annotations
 
 import logging
 import time
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -68,6 +69,72 @@ TUPLE_SLOTS = 16
 the first frame; ``len(order)`` is the frame count): numba compiles one kernel per tuple length,
 so a bracket of 5, 7 or 16 frames reuses the one compiled (and cached) for 3 instead of spending
 seconds compiling its own."""
+
+
+class FusedFrames(NamedTuple):
+    """The frames (tuples padded to :data:`TUPLE_SLOTS`) and their exposures."""
+
+    frames: tuple[np.ndarray, ...]  # (H, W, 3) each
+    flats: tuple[np.ndarray, ...]  # the same as (H, W * 3)
+    masks: tuple[np.ndarray, ...]  # (H, W) validity, or a dummy where not has_mask
+    has_mask: np.ndarray  # bool (N,)
+    order: np.ndarray  # int64 (N,): frame indices, shortest exposure first (unpadded)
+    inv_t: np.ndarray  # float32 (N,) 1 / dt
+    inv_t2: np.ndarray  # float32 (N,) 1 / dt**2
+    t2: np.ndarray  # float32 (N,) dt**2
+
+
+class FusedWarp(NamedTuple):
+    """How frames with a transform are resampled."""
+
+    mats: np.ndarray  # float64 (N, 3, 3): output -> frame pixel coordinates
+    has_mat: np.ndarray  # bool (N,): resampled
+    ntap: int  # 4: Keys cubic, 2: bilinear
+    oor: np.ndarray  # bool (N,): resampled frame with levels past the LUT
+    flds: np.ndarray  # float64 (N, gh, gw, 2): displacement fields on one node grid
+    has_fld: np.ndarray  # bool (N,)
+    fgeo: np.ndarray  # float64 (3,): 1 / step, origin x, origin y of the fields' grid
+
+
+class FusedModel(NamedTuple):
+    """Linearisation, noise, weighting and clipping of the samples."""
+
+    wcode: int  # a built-in weighting's code (weights.weight_by_code), -1: the pointer
+    shot: Any  # float32: variance per unit of linear signal
+    const_var: Any  # float32: signal-independent variance
+    floor_norm: Any  # float32: noise floor, normalised level
+    inv_max: Any  # float32: 1 / max_level (1 for float frames)
+    hi: Any  # float32: largest interpolated value (max_level or 1)
+    has_lut: bool
+    lut: np.ndarray  # float32 (3, L): level -> linear value (a dummy without a LUT)
+    lut_var: np.ndarray  # float32 (3, L): level-noise variance through g'
+    tap_thr: np.ndarray  # (3,) clip thresholds in the frames' dtype (tap_thresholds)
+    use_tab: bool  # integer frames read in place through the per-level tables
+    tabs: np.ndarray  # float32 (N, 3 L, 8): reference.level_tables
+
+
+class FusedFinish(NamedTuple):
+    """The ghost test's constants and the colour conversion of finished blocks."""
+
+    me2: Any  # float32: squared relative model error
+    thr: Any  # float32: ghost threshold
+    has_colour: bool
+    cm: np.ndarray  # float64 (3, 3) camera -> working space
+    cwb: np.ndarray  # float64 (3,)
+    cneu: np.ndarray  # float64 (3,)
+
+
+class FusedOutputs(NamedTuple):
+    """The arrays the kernel writes (float16 maps as their uint16 bits)."""
+
+    rad: np.ndarray
+    wsum: np.ndarray
+    shares: np.ndarray
+    clip_count: np.ndarray
+    clipped: np.ndarray
+    under: np.ndarray
+    gscore: np.ndarray
+    ghost: np.ndarray
 
 
 _F16_MAX = np.float32(65504.0)
@@ -564,29 +631,38 @@ def _clipped_supports(flat, iy0, c0, m, ntap, t0, t1, t2, cf, out):
 
 
 @_njit
-def merge_rows(
-    frames, flats, masks, has_mask, mats, has_mat, order, inv_t, inv_t2, t2, wcode, wfn, shot,
-    const_var, floor_norm, inv_max, hi, has_lut, lut, lut_var, tap_thr, me2, thr, r0, r1,
-    rad, wsum_out, shares, clip_count, clipped_out, under_out, gscore, ghost, ntap, oor,
-    has_colour, cm, cwb, cneu, use_tab, tabs, flds, has_fld, fgeo,
-):
-    """Rows ``r0:r1`` of the output grid; frame ``k`` with ``has_mat[k]`` is read at
-    ``mats[k] @ (x, y, 1)`` (``ntap`` 4: Keys cubic, 4 weights per axis shared by the 3
-    channels; 2: bilinear), the others at ``(x, y)``; ``flats[k]`` is frame ``k`` as
-    ``(H, W * 3)``. A resampled frame is clipped at a pixel when any of the taps of any channel
-    is at or above its saturation level (``tap_thr``: :func:`tap_thresholds` in the frames'
-    dtype; :func:`_clipped_supports`), and invalid when the support leaves the frame (its
-    values read 0 there). ``oor[k]``: frame ``k`` (resampled, with a LUT) holds levels past
-    the LUT, so clipped supports are searched for them. Resampled integer levels with a LUT
-    are interpolated, then read linearly between LUT entries; with ``use_tab`` the integer
-    frames read in place go through the per-level tables ``tabs (N, C L, 8)``
-    (:func:`_accumulate_levels_table`: frames with a LUT, and the Gaussian weight, whose
-    ``exp`` is then numpy's); otherwise integer levels and float frames are linear
-    (``level = value * inv_max``). With ``has_colour`` each finished
-    block is converted to the working space (:func:`hdrcore.merge.colour.convert_pixels` with
-    ``cm``, ``cwb``, ``cneu``) while it is in cache. Returns the number of samples above the
-    LUT's last level (the caller refuses the input).
+def merge_rows(fr, warp, model, wfn, fin, out, r0, r1):
+    """Rows ``r0:r1`` of the output grid; the arguments are grouped (:class:`FusedFrames`,
+    :class:`FusedWarp`, :class:`FusedModel`, :class:`FusedFinish`, :class:`FusedOutputs`;
+    ``wfn`` the weighting's compiled scalar form, used when ``model.wcode < 0``). Frame ``k``
+    with ``has_mat[k]`` is read at ``mats[k] @ (x, y, 1)`` (``ntap`` 4: Keys cubic, 4 weights
+    per axis shared by the 3 channels; 2: bilinear), the others at ``(x, y)``; ``flats[k]`` is
+    frame ``k`` as ``(H, W * 3)``. A resampled frame is clipped at a pixel when any of the taps
+    of any channel is at or above its saturation level (``tap_thr``: :func:`tap_thresholds` in
+    the frames' dtype; :func:`_clipped_supports`), and invalid when the support leaves the frame
+    (its values read 0 there). ``oor[k]``: frame ``k`` (resampled, with a LUT) holds levels past
+    the LUT, so clipped supports are searched for them. Resampled integer levels with a LUT are
+    interpolated, then read linearly between LUT entries; with ``use_tab`` the integer frames
+    read in place go through the per-level tables ``tabs (N, C L, 8)``
+    (:func:`_accumulate_levels_table`: frames with a LUT, and the Gaussian weight, whose ``exp``
+    is then the reference's to the last bit); otherwise integer levels and float frames are
+    linear (``level = value * inv_max``). With ``has_colour`` each finished block is converted
+    to the working space (:func:`hdrcore.merge.colour.convert_pixels` with ``cm``, ``cwb``,
+    ``cneu``) while it is in cache. Returns the number of samples above the LUT's last level
+    (the caller refuses the input).
     """
+    frames, flats, masks, has_mask = fr.frames, fr.flats, fr.masks, fr.has_mask
+    order, inv_t, inv_t2, t2 = fr.order, fr.inv_t, fr.inv_t2, fr.t2
+    mats, has_mat, ntap, oor = warp.mats, warp.has_mat, warp.ntap, warp.oor
+    flds, has_fld, fgeo = warp.flds, warp.has_fld, warp.fgeo
+    wcode, shot, const_var = model.wcode, model.shot, model.const_var
+    floor_norm, inv_max, hi = model.floor_norm, model.inv_max, model.hi
+    has_lut, lut, lut_var, tap_thr = model.has_lut, model.lut, model.lut_var, model.tap_thr
+    use_tab, tabs = model.use_tab, model.tabs
+    me2, thr = fin.me2, fin.thr
+    has_colour, cm, cwb, cneu = fin.has_colour, fin.cm, fin.cwb, fin.cneu
+    rad, wsum_out, shares, clip_count = out.rad, out.wsum, out.shares, out.clip_count
+    clipped_out, under_out, gscore, ghost = out.clipped, out.under, out.gscore, out.ghost
     n = len(order)  # the tuples may be padded (TUPLE_SLOTS)
     h = frames[0].shape[0]
     w = frames[0].shape[1]

@@ -114,14 +114,15 @@ def run_fused(
     masks_t += (masks_t[0],) * pad
     cm, cwb, cneu = colour if colour is not None else (np.eye(3), np.ones(3), np.ones(3))
 
+    fr = _fused.FusedFrames(frames_t, flats, masks_t, has_mask, order, inv_t, inv_t2, t2)
+    warp = _fused.FusedWarp(mats, has_mat, ntap, oor, flds, has_fld, fgeo)
+    model = _fused.FusedModel(wcode, kernel.shot, kernel.const_var, kernel.floor_norm,
+                              kernel.inv_max, hi, has_lut, lut, lut_var, tap_thr, use_tab, tabs)
+    fin = _fused.FusedFinish(me2, thr, colour is not None, cm, cwb, cneu)
+    dst = _fused.FusedOutputs(*outs)
+
     def work(span: tuple[int, int]) -> int:
-        return _fused.merge_rows(
-            frames_t, flats, masks_t, has_mask, mats, has_mat, order, inv_t, inv_t2, t2,
-            wcode, wfn, kernel.shot, kernel.const_var, kernel.floor_norm, kernel.inv_max,
-            hi, has_lut, lut, lut_var, tap_thr, me2, thr, span[0], span[1],
-            *outs, ntap, oor, colour is not None, cm, cwb, cneu, use_tab, tabs,
-            flds, has_fld, fgeo,
-        )
+        return _fused.merge_rows(fr, warp, model, wfn, fin, dst, span[0], span[1])
 
     if workers == 1:
         bad_levels = sum(work(sp) for sp in spans)
