@@ -181,8 +181,15 @@ def register_bracket(
         if progress is not None:
             progress(i + 1, n - 1)
     if model in AFFINE_MODELS:
-        chain = to_reference([p.matrix for p in pairs], ref)
+        chain = to_reference([_present(p.matrix) for p in pairs], ref)
         return BracketRegistration(ref, tuple(pairs), chain, model, key)
-    chain = to_reference([p.homography for p in pairs], ref)
+    chain = to_reference([_present(p.homography) for p in pairs], ref)
     return BracketRegistration(ref, tuple(pairs), None, model, key,
                                to_reference_homography=chain)
+
+
+def _present(m: np.ndarray | None) -> np.ndarray:
+    """A pair's matrix, which every registered pair has (a failed one: the identity)."""
+    if m is None:
+        raise RuntimeError("a registered pair without its motion matrix")
+    return m

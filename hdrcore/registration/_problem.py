@@ -63,6 +63,7 @@ import logging
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -241,7 +242,7 @@ def prepare(
         )
     if not (np.isfinite(threshold) and threshold >= 0):
         raise ParameterError("normalisation threshold t must be >= 0", found=str(threshold))
-    lo = max(nf * max(1.0, k), np.finfo(np.float32).tiny)
+    lo = max(nf * max(1.0, k), float(np.finfo(np.float32).tiny))
     hi = sat * min(1.0, k)
     data = PairData(dark, bright, k, sat, nf, float(threshold) * sat, lo, hi, lut=lut)
     if lo >= hi:
@@ -430,7 +431,7 @@ def select_samples(
         if not check_bright:
             return yy, xx, v, score
         n_top = int(1.3 * max_samples)
-        if by_gradient and v.size > n_top:
+        if by_gradient and score is not None and v.size > n_top:
             # the bright frame's side only for the best-scoring candidates (it is the slower
             # test): the top 1.3 max_samples, all of them if too few of those pass
             top = np.argpartition(score, -n_top)[-n_top:]
@@ -440,7 +441,7 @@ def select_samples(
                 top = top[ok]
                 return yy[top], xx[top], v[top], score[top]
         ok = bright_ok(xx, yy)
-        return yy[ok], xx[ok], v[ok], score[ok] if by_gradient else score
+        return yy[ok], xx[ok], v[ok], score[ok] if score is not None and by_gradient else score
 
     yy, xx, v, score = candidates(n_cand)
     if not by_gradient and 0 < v.size < max_samples and n_cand < n_inner:
@@ -817,7 +818,7 @@ def register_with(
         dark, bright, ratio, saturation=saturation, noise_floor=noise_floor, threshold=threshold,
         lut=lut,
     )
-    common = dict(method=method, model=model, dark_index=dark_index,
+    common: dict[str, Any] = dict(method=method, model=model, dark_index=dark_index,
                   bright_index=bright_index, t0=t0)
     if data.lo >= data.hi:
         return _failed(

@@ -167,7 +167,9 @@ def refine_gauss_newton(
             sub = s  # the choice needs a rough cost only: at most ~coarse_samples points
             stride = s.b.size // max(coarse_samples, 1)
             if stride > 1:
-                sub = Samples(*(np.ascontiguousarray(a[::stride]) for a in (s.x, s.y, s.b)))
+                sub = Samples(np.ascontiguousarray(s.x[::stride]),
+                              np.ascontiguousarray(s.y[::stride]),
+                              np.ascontiguousarray(s.b[::stride]))
             if _level_cost(data, level, m0, sub, gain) < _level_cost(data, level, m, sub, gain):
                 m = m0
                 s = select_samples(data, level, n_samples, motion=m, reach=REACH,

@@ -1261,7 +1261,7 @@ def _verdict(pattern: ResidualPattern, med: float, p90: float, mags: np.ndarray,
     own are counted in the message but do not decide the status.
     """
     comps = pattern.component_px()
-    name = max(comps, key=comps.get)
+    name = max(comps, key=lambda c: comps[c])
     big = comps[name]
     n_local = int(np.count_nonzero(coherent))
     local_worst = float(local[coherent].max()) if n_local else 0.0

@@ -221,8 +221,7 @@ def to_reference(pairs: Sequence[np.ndarray], reference: int) -> tuple[np.ndarra
         )
     ref = int(reference)
     affine = all(np.shape(p) == (2, 3) for p in pairs)
-    out: list[np.ndarray | None] = [None] * n
-    out[ref] = identity() if affine else np.eye(3)
+    out: list[np.ndarray] = [identity() if affine else np.eye(3)] * n  # the reference's
     for k in range(ref + 1, n):  # brighter frames: k -> k-1 -> ... -> ref
         out[k] = compose(out[k - 1], pairs[k - 1])
     for k in range(ref - 1, -1, -1):  # darker frames: k -> k+1 -> ... -> ref
