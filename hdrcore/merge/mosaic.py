@@ -21,6 +21,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -134,7 +135,7 @@ def merge_mosaic(
     channels = bayer_channels(first.pattern, first.colors)
     planes = [cfa_planes(c.data, c.pattern, c.colors, c.black_level, max_level)[0]
               for c in cfas]
-    common = dict(max_level=max_level, saturation_level=saturation_level,
+    common: dict[str, Any] = dict(max_level=max_level, saturation_level=saturation_level,
                   noise_floor=noise_floor, weighting="noise-aware", noise=noise,
                   workers=workers)
     moved = transforms is not None and any(t is not None for t in transforms)
@@ -148,6 +149,7 @@ def merge_mosaic(
             ceiling = interleave_sites(site_ceiling(planes, exposure_times, max_level,
                                                     saturation_level))
     else:
+        assert transforms is not None  # moved
         if orientation not in (None, 1):
             raise ParameterError("a hand-held mosaic merge needs the sensor's orientation",
                                  expected="orientation 1", found=str(orientation))
