@@ -25,8 +25,9 @@ every channel lies inside :data:`WELL_EXPOSED` in both frames (not clipped, not 
 4. a white balance multiplies every level alike: the pair's balance over each third of the
    darker frame's green levels must agree within :data:`LEVEL_TOLERANCE`, else it is the
    response's error (its channels disagree at some levels) and the pair is not measured;
-5. what every measured pair shares (their median, with a zero among them) is the response's
-   drift (a channel's curve too steep shifts every pair alike) and is taken out;
+5. what the pairs share (the median of every pair's balance, those step 4 rejects included,
+   with a zero among them) is the response's drift (a channel's curve too steep shifts every
+   pair alike) and is taken out;
 6. the pairs are chained out from the reference frame: ``gain_k`` is the product of the pair
    balances between the reference and frame ``k`` (their variances add); a frame behind a pair
    that could not be measured (fewer than :data:`MIN_PIXELS` pixels or regions, or step 4)
@@ -282,7 +283,9 @@ def measure_white_balance(
                         region, gr * gc, k, k + 1) for k in range(n - 1))
     # step 5: what every pair shares is the response's (a channel's curve too steep or too
     # flat shifts every pair's balance the same way); only what is left is the frames'
-    measured = [p for p in pairs if p.measured]
+    # (every pair with a balance counts here, the level test's too: a curve's error is what
+    # makes a pair fail it, and leaving those out would hide the drift they share)
+    measured = [p for p in pairs if np.all(np.isfinite(p.gains))]
     drift = np.zeros(3)
     if len(measured) >= 2:
         logs = np.log(np.asarray([p.gains for p in measured]))
