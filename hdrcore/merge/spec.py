@@ -1,0 +1,160 @@
+"""The merge written as plainly as numpy allows: the specification the tests hold the engines to.
+
+Whole images, float64, one statement per rule, no chunks, no scratch buffers, no speed. It takes
+a validated :class:`~hdrcore.merge.plan.Plan` (so it checks no input) and returns the arrays of a
+:class:`~hdrcore.merge.result.MergeResult` that depend only on the frames (not the region ghost
+test, deghosting or colour). The engines compute the same in float32, in their own order, so a
+test compares with a tolerance; the decisions (clipped, below the floor, which frame a fallback
+takes) are the same to the bit: thresholds are compared as the kernel compares them.
+
+For each frame ``k`` (exposure time ``t_k``) and output pixel: the sample (the frame's own, or
+read at ``T_k (x, y, 1)`` plus its displacement field: Keys cubic or bilinear taps of the levels,
+clamped), valid (mask, and the whole support inside the frame), clipped (valid and any tap of any
+channel at or above its saturation level), usable (valid, not clipped). Per channel:
+``x = g(level)`` (the LUT read linearly between entries; linear levels without one),
+``var = read**2 + x / full_well + g'**2 (level_noise**2 + 1/12)``, ``E_k = x / t_k``,
+``w = weight(level, x, t_k, var)`` where usable and the level is above the noise floor, else 0;
+``E = sum(w E_k) / sum(w)`` (Debevec & Malik 1997, eq. 6). Ghost score: the weighted spread of
+the ``E_k`` over their weighted variance plus ``(model_error E)**2``, summed over channels
+(:mod:`hdrcore.merge.maps`). Fallbacks: see :mod:`hdrcore.merge.merge`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..resample import keys_weights
+from .plan import Plan
+from .weights import WEIGHTS
+
+__all__ = ["merge_spec"]
+
+
+def _sample(plan: Plan, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Frame ``k`` on the output grid: ``(values (H, W, C) float64, clipped (H, W), inside)``."""
+    frame = plan.frames[k].astype(np.float64)
+    h, w, c = plan.shape
+    sat = np.asarray(plan.saturation, np.float64)
+    t = plan.transforms[k] if plan.transforms else None
+    if t is None:
+        return frame, (frame >= sat).any(axis=2), np.ones((h, w), bool)
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    den = t[2, 0] * xx + t[2, 1] * yy + t[2, 2]
+    sx = (t[0, 0] * xx + t[0, 1] * yy + t[0, 2]) / den
+    sy = (t[1, 0] * xx + t[1, 1] * yy + t[1, 2]) / den
+    fld = plan.fields[k] if plan.fields else None
+    if fld is not None:
+        dx, dy = fld.at(xx, yy)
+        sx, sy = sx + dx, sy + dy
+    ntap, first = (4, 1) if plan.resample == "cubic" else (2, 0)
+    x0, y0 = np.floor(sx), np.floor(sy)
+    inside = (x0 >= first) & (x0 <= w - ntap + first) & (y0 >= first) & (y0 <= h - ntap + first)
+    fx, fy = np.where(inside, sx - x0, 0.0), np.where(inside, sy - y0, 0.0)
+    if ntap == 4:
+        wx, wy = keys_weights(fx), keys_weights(fy)
+    else:
+        wx, wy = np.stack([1.0 - fx, fx]), np.stack([1.0 - fy, fy])
+    ix = np.where(inside, x0 - first, 0).astype(np.intp)
+    iy = np.where(inside, y0 - first, 0).astype(np.intp)
+    values = np.zeros((h, w, c))
+    clipped = np.zeros((h, w), bool)
+    for jy in range(ntap):
+        for jx in range(ntap):
+            tap = frame[iy + jy, ix + jx]  # (H, W, C)
+            values += (wy[jy] * wx[jx])[..., None] * tap
+            clipped |= (tap >= sat).any(axis=2)
+    hi = float(plan.max_level) if plan.integer else 1.0
+    values = np.where(inside[..., None], np.clip(values, 0.0, hi), 0.0)
+    return values, clipped & inside, inside
+
+
+def _linearise(plan: Plan, values: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(level, x, var)``, each ``(H, W, C)`` float64, of samples in the frames' units."""
+    scale = float(plan.max_level) if plan.integer else 1.0
+    level = values / scale
+    noise = plan.noise
+    const = noise.read_noise**2
+    if plan.lut is None:
+        x = level
+        if plan.integer:
+            const += noise.level_variance() / scale**2
+        var = x * noise.shot_gain + max(const, 1e-12)
+        return level, x, var
+    g = plan.lut.astype(np.float64)  # (C, L)
+    slope2 = np.gradient(g, axis=1) ** 2 * noise.level_variance()
+    x = np.empty_like(values)
+    var = np.empty_like(values)
+    grid = np.arange(g.shape[1])
+    for ch in range(values.shape[2]):
+        x[..., ch] = np.interp(values[..., ch], grid, g[ch])
+        var[..., ch] = np.interp(values[..., ch], grid, slope2[ch])
+    var += x * noise.shot_gain + max(const, 1e-12)
+    return level, x, var
+
+
+def merge_spec(plan: Plan, *, ghost_threshold: float, model_error: float) -> dict[str, np.ndarray]:
+    """``radiance``, ``weight_sum``, ``shares``, ``clip_count``, ``clipped``, ``underexposed``,
+    ``ghost_score`` and ``ghost`` (float64 and bool) of the merge the plan describes."""
+    h, w, c = plan.shape
+    n = len(plan.frames)
+    order = list(plan.order)
+    inv_max = np.float32(1.0 / plan.max_level) if plan.integer and plan.max_level else 1.0
+    floor_level = float(np.float32(plan.floor * float(inv_max)))  # as the kernel compares it
+    weight = WEIGHTS[plan.weighting]
+    wk = np.zeros((n, h, w, c))
+    ek = np.zeros((n, h, w, c))
+    var_e = np.zeros((n, h, w, c))
+    clipped_k = np.zeros((n, h, w), bool)
+    usable_k = np.zeros((n, h, w), bool)
+    for k in range(n):
+        values, clipped, inside = _sample(plan, k)
+        valid = inside if plan.masks[k] is None else inside & plan.masks[k]
+        clipped_k[k] = clipped & valid
+        usable_k[k] = valid & ~clipped
+        level, x, var = _linearise(plan, values)
+        t = float(plan.times[k])
+        ek[k] = x / t
+        var_e[k] = var / t**2
+        # the normalised level in float32, as the kernel forms it (the floor is a threshold)
+        lv32 = values.astype(np.float32) * np.float32(inv_max)
+        wgt = weight(lv32, x.astype(np.float32), t, var.astype(np.float32))
+        wk[k] = wgt * (usable_k[k][..., None] & (lv32 > floor_level))
+
+    den = wk.sum(axis=0)  # (H, W, C)
+    rad = np.divide((wk * ek).sum(axis=0), den, out=np.zeros_like(den), where=den > 0)
+    spread = np.divide((wk * ek**2).sum(axis=0), den, out=np.zeros_like(den), where=den > 0)
+    spread = np.maximum(spread - rad**2, 0.0)
+    noise = np.divide((wk * var_e).sum(axis=0), den, out=np.zeros_like(den), where=den > 0)
+    noise += (model_error * rad) ** 2
+    score = spread.sum(axis=2) / np.maximum(noise.sum(axis=2), 1e-30)
+    weight_sum = den.sum(axis=2)
+    shares = np.divide(wk.sum(axis=3), weight_sum, out=np.zeros((n, h, w)),
+                       where=weight_sum > 0)
+
+    # fallbacks, in exposure order j (frame order[j])
+    gave = wk.sum(axis=3)[order] > 0  # (N, H, W): frame j gave the pixel weight
+    clip_o, usable_o = clipped_k[order], usable_k[order]
+    first_clip = np.where(clip_o.any(axis=0), np.argmax(clip_o, axis=0), n)
+    last_usable = np.where(usable_o.any(axis=0), n - 1 - np.argmax(usable_o[::-1], axis=0), -1)
+    seen_o = np.where(gave.any(axis=0), gave, usable_o)
+    last_seen = n - 1 - np.argmax(seen_o[::-1], axis=0)
+    none_valid = ~(clip_o | usable_o).any(axis=0)
+    whole = weight_sum <= 0
+    needs = (den <= 0).any(axis=2)
+    every = whole & (((first_clip < n) & (last_usable < first_clip)) | none_valid)
+    clipped_px = every & (first_clip < n)
+    under = needs & ~every
+    jy, jx = np.nonzero(needs)
+    for y, x in zip(jy, jx, strict=True):
+        j = (first_clip[y, x] if first_clip[y, x] < n else 0) if every[y, x] else last_seen[y, x]
+        k = order[j]
+        chans = slice(None) if every[y, x] else den[y, x] <= 0
+        rad[y, x, chans] = ek[k, y, x, chans]
+        if whole[y, x]:
+            shares[:, y, x] = 0.0
+            shares[k, y, x] = 1.0
+    return {
+        "radiance": rad, "weight_sum": weight_sum, "shares": shares,
+        "clip_count": clipped_k.sum(axis=0), "clipped": clipped_px, "underexposed": under,
+        "ghost_score": score, "ghost": score > ghost_threshold,
+    }
