@@ -82,8 +82,10 @@ MAX_TRANSFER_DEVIATION = 0.25
 LTM_TOLERANCE = 0.05
 #: Largest spread (ln) of a pair's balance over the thirds of the darker frame's levels for
 #: it to be a white balance: a balance multiplies every level alike, a response whose channels
-#: disagree does not (real brackets, the default's curve: Canon 0.02, Xperia's re-balanced
-#: pair 0.034; memorial's dark scan pairs 0.046-0.067, sRGB-decoded phone pairs 0.05-0.2).
+#: disagree does not (real brackets, the default's curve: Canon 0.006-0.014, Xperia 0.004-0.033,
+#: its re-balanced pair 0.033; memorial's dark scan pairs 0.044-0.098; the Xperia decoded with
+#: sRGB 0.05-0.23). The margin under the Xperia's re-balanced pair is small: a threshold from
+#: four brackets, not a law.
 LEVEL_TOLERANCE = 0.04
 #: Fewest pixels a pair (and a region: a quarter of it) needs for a measurement.
 MIN_PIXELS = 400
