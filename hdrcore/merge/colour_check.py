@@ -52,6 +52,8 @@ __all__ = [
     "ANCHOR_BLUR",
     "ANCHOR_SIGMA",
     "CONSISTENCY_BLOCK",
+    "FRAME_BAND",
+    "FRAME_SIGMA",
     "block_consistency",
     "REFERENCE_BAND",
     "ColourAnchor",
