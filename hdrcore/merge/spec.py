@@ -37,7 +37,7 @@ def _sample(plan: Plan, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     sat = np.asarray(plan.saturation, np.float64)
     t = plan.transforms[k] if plan.transforms else None
     if t is None:
-        return frame, (frame >= sat).any(axis=2), np.ones((h, w), bool)
+        return frame, np.asarray((frame >= sat).any(axis=2)), np.ones((h, w), bool)
     yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
     den = t[2, 0] * xx + t[2, 1] * yy + t[2, 2]
     sx = (t[0, 0] * xx + t[0, 1] * yy + t[0, 2]) / den
@@ -63,14 +63,14 @@ def _sample(plan: Plan, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
             tap = frame[iy + jy, ix + jx]  # (H, W, C)
             values += (wy[jy] * wx[jx])[..., None] * tap
             clipped |= (tap >= sat).any(axis=2)
-    hi = float(plan.max_level) if plan.integer else 1.0
+    hi = float(plan.max_level or 1) if plan.integer else 1.0
     values = np.where(inside[..., None], np.clip(values, 0.0, hi), 0.0)
     return values, clipped & inside, inside
 
 
 def _linearise(plan: Plan, values: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(level, x, var)``, each ``(H, W, C)`` float64, of samples in the frames' units."""
-    scale = float(plan.max_level) if plan.integer else 1.0
+    scale = float(plan.max_level or 1) if plan.integer else 1.0
     level = values / scale
     noise = plan.noise
     const = noise.read_noise**2
@@ -144,15 +144,17 @@ def merge_spec(plan: Plan, *, ghost_threshold: float, model_error: float) -> dic
     every = whole & (((first_clip < n) & (last_usable < first_clip)) | none_valid)
     clipped_px = every & (first_clip < n)
     under = needs & ~every
-    jy, jx = np.nonzero(needs)
-    for y, x in zip(jy, jx, strict=True):
-        j = (first_clip[y, x] if first_clip[y, x] < n else 0) if every[y, x] else last_seen[y, x]
+    for py, px in zip(*np.nonzero(needs), strict=True):
+        if every[py, px]:
+            j = first_clip[py, px] if first_clip[py, px] < n else 0
+        else:
+            j = last_seen[py, px]
         k = order[j]
-        chans = slice(None) if every[y, x] else den[y, x] <= 0
-        rad[y, x, chans] = ek[k, y, x, chans]
-        if whole[y, x]:
-            shares[:, y, x] = 0.0
-            shares[k, y, x] = 1.0
+        chans = slice(None) if every[py, px] else den[py, px] <= 0
+        rad[py, px, chans] = ek[k, py, px, chans]
+        if whole[py, px]:
+            shares[:, py, px] = 0.0
+            shares[k, py, px] = 1.0
     return {
         "radiance": rad, "weight_sum": weight_sum, "shares": shares,
         "clip_count": clipped_k.sum(axis=0), "clipped": clipped_px, "underexposed": under,
