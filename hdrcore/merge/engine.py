@@ -3,6 +3,7 @@ numpy reference (:mod:`hdrcore.merge.reference`), and how the fused kernel is ca
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -41,6 +42,20 @@ def fused_supported(plan: Plan) -> str | None:
     return None
 
 
+def _one_type(arrays: Sequence[np.ndarray]) -> tuple[np.ndarray, ...]:
+    """The arrays as one numba type: read-only views of all when any is read-only (a decoded
+    bracket's levels are; a frame made by the caller is not), since the kernel indexes the
+    tuple at run time and numba cannot index a tuple of mixed types."""
+    if any(not a.flags.writeable for a in arrays) and any(a.flags.writeable for a in arrays):
+        views = []
+        for a in arrays:
+            v = a.view()
+            v.setflags(write=False)
+            views.append(v)
+        return tuple(views)
+    return tuple(arrays)
+
+
 def run_fused(
     kernel: ReferenceKernel, out: Outputs, spans: list[tuple[int, int]], workers: int,
     force_tables: bool = False, colour: ColourConversion | None = None,
@@ -52,9 +67,9 @@ def run_fused(
     frames = p.frames
     if p.integer and len({f.dtype for f in frames}) > 1:
         frames = tuple(f.astype(np.uint16) for f in frames)
-    frames_t = tuple(frames)
+    frames_t = _one_type(frames)
     dummy = np.ones((1, 1), bool)
-    masks_t = tuple(m if m is not None else dummy for m in p.masks)
+    masks_t = _one_type([m if m is not None else dummy for m in p.masks])
     has_mask = np.array([m is not None for m in p.masks], np.bool_)
     order = np.ascontiguousarray(p.order, np.int64)
     sat = np.ascontiguousarray(p.saturation, np.float64)

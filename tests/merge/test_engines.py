@@ -160,6 +160,19 @@ def test_fallbacks_of_frames_below_the_floor_against_a_clipped_one():
     np.testing.assert_array_equal(ref2.clipped, ref.clipped)
 
 
+def test_read_only_and_writable_frames_mixed():
+    """A decoded bracket's levels are read-only, a frame the caller made is not: numba types
+    them differently, and the kernel's frame tuple must still be one type (it was a
+    TypingError traceback)."""
+    frames = [np.full((6, 8, 3), 100 * (k + 1), np.uint16) for k in range(3)]
+    frames[0].setflags(write=False)
+    masks = [np.ones((6, 8), bool), None, np.ones((6, 8), bool)]
+    masks[0].setflags(write=False)
+    both(frames, (1.0, 2.0, 4.0), max_level=4095, masks=masks)
+    both(frames, (1.0, 2.0, 4.0), max_level=4095,
+         transforms=[None, np.array([[1.0, 0.0, 0.5], [0.0, 1.0, 0.25]]), None])
+
+
 def test_levels_above_max_level_with_a_lut_are_refused():
     frames = [np.full((4, 5, 3), 100 * (k + 1), np.uint16) for k in range(3)]
     frames[1][0, 0, 0] = 300
