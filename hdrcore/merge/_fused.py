@@ -18,8 +18,9 @@ each source row are contiguous, so the 16 taps are 16 multiply-adds over contigu
 instead of 48 scattered loads per pixel. The "any tap clipped" test is made per run too: each
 source column of the run once, then ``ntap`` columns per support (:func:`_clipped_supports`).
 Integer frames read in place with a response LUT (or with the Gaussian weight, whose ``exp``
-must be numpy's to the last bit) go through per-level tables built *by the reference itself*
-(its linearisation and weight function applied to every level of every frame and channel:
+must be the reference's to the last bit) go through per-level tables built with the numpy
+engine's arithmetic (:func:`hdrcore.merge.engine.level_tables`: the linearisation and the
+weighting applied to every level of every frame and channel:
 ``E_k = g(M) / dt``, ``w`` with the noise floor applied, ``w var(E_k)``, ``w E_k`` and
 ``w E_k**2``), five loads and five adds a sample: the compiler does not vectorise table
 loads on this CPU (gathers are not used on AMD), so those loops run scalar.
@@ -110,7 +111,7 @@ class FusedModel(NamedTuple):
     lut_var: np.ndarray  # float32 (3, L): level-noise variance through g'
     tap_thr: np.ndarray  # (3,) clip thresholds in the frames' dtype (tap_thresholds)
     use_tab: bool  # integer frames read in place through the per-level tables
-    tabs: np.ndarray  # float32 (N, 3 L, 8): reference.level_tables
+    tabs: np.ndarray  # float32 (N, 3 L, 8): engine.level_tables
 
 
 class FusedFinish(NamedTuple):
@@ -438,8 +439,8 @@ def _accumulate_lut_run(
 def _accumulate_levels_table(src, choff, tk, lmax, has_lut, inv_max, itk, okf, ne, den,
                              num, s2, sv, wbuf, eb):
     """The sums of one frame of integer levels read in place through its per-level table
-    ``tk (C L, 8)`` (:func:`hdrcore.merge.reference.level_tables`: ``E_k, w, w var(E_k), w E_k,
-    w E_k**2`` of every level, built by the reference itself, the noise floor applied; channel
+    ``tk (C L, 8)`` (:func:`hdrcore.merge.engine.level_tables`: ``E_k, w, w var(E_k), w E_k,
+    w E_k**2`` of every level, the numpy engine's arithmetic, the noise floor applied; channel
     ``ch``'s entry of level ``v`` at ``choff[e] + v``, ``choff[e] = ch L``): five loads and five
     adds a sample, bit for bit the reference's (the Gaussian weight's ``exp`` included).
     Without a LUT ``E_k`` is computed (levels past the table are clipped there, and the

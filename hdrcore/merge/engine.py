@@ -11,8 +11,7 @@ import numpy as np
 from ..errors import ParameterError
 from . import _fused
 from .colour import ColourConversion
-from .plan import IDENTITY, Outputs, Plan
-from .reference import ReferenceKernel, level_tables
+from .plan import IDENTITY, Outputs, Plan, SampleModel
 from .weights import WEIGHTS
 
 __all__ = ["MERGE_ENGINES", "default_engine", "fused_supported", "run_fused"]
@@ -56,14 +55,56 @@ def _one_type(arrays: Sequence[np.ndarray]) -> tuple[np.ndarray, ...]:
     return tuple(arrays)
 
 
+def level_tables(p: Plan, m: SampleModel) -> np.ndarray:
+    """float32 ``(N, C L, 8)``: ``E_k, w, w var(E_k), w E_k, w E_k**2`` (and three zeros: one
+    aligned 32-byte line a level, so a sample's five values are one cache line even when a
+    16-bit table does not fit the cache) of every level ``0..max_level`` (``L`` levels) of
+    every frame, channel ``ch``'s level ``v`` at row ``ch L + v`` (the fused kernel's
+    :func:`~hdrcore.merge._fused._accumulate_levels_table`). The float32 operations are the
+    numpy engine's, in its order, so an entry is bit for bit what it computes for a sample of
+    that level (the noise floor applied; clipping and masks, which depend on the pixel, not).
+    """
+    n, c = len(p.frames), p.shape[2]
+    length = int(p.max_level or 0) + 1
+    levels = np.arange(length, dtype=p.frames[0].dtype)
+    level = np.multiply(levels, m.inv_max, dtype=np.float32)
+    weight = WEIGHTS[p.weighting]
+    tab = np.zeros((n, c * length, 8), np.float32)
+    for ch in range(c):
+        if p.lut is None or p.lut_var is None:
+            x = level
+            var_x = np.multiply(x, m.shot)
+        else:
+            x = p.lut[ch].take(levels.astype(np.intp))
+            var_x = p.lut_var[ch].take(levels.astype(np.intp))
+            if m.shot:
+                var_x += np.multiply(x, m.shot)
+        var_x += m.const_var
+        for k in range(n):
+            t = float(p.times[k])
+            row = slice(ch * length, (ch + 1) * length)
+            e = np.multiply(x, np.float32(1.0 / t))
+            wk = weight(level, x, t, var_x)
+            wk *= level > m.floor_norm
+            tab[k, row, 0] = e
+            tab[k, row, 1] = wk
+            var = var_x * wk
+            var *= np.float32(1.0 / (t * t))
+            tab[k, row, 2] = var
+            wk *= e
+            tab[k, row, 3] = wk
+            wk *= e
+            tab[k, row, 4] = wk
+    return tab
+
+
 def run_fused(
-    kernel: ReferenceKernel, out: Outputs, spans: list[tuple[int, int]], workers: int,
+    p: Plan, out: Outputs, m: SampleModel, spans: list[tuple[int, int]], workers: int,
     force_tables: bool = False, colour: ColourConversion | None = None,
 ) -> None:
     """The fused kernel (:func:`hdrcore.merge._fused.merge_rows`) over ``spans`` of
-    rows, ``colour`` applied inside it. Integer frames read in place go through the
-    reference's per-level tables when they have a LUT or ``force_tables``."""
-    p = kernel.p
+    rows, ``colour`` applied inside it. Integer frames read in place go through per-level
+    tables (:func:`level_tables`) when they have a LUT or ``force_tables``."""
     frames = p.frames
     if p.integer and len({f.dtype for f in frames}) > 1:
         frames = tuple(f.astype(np.uint16) for f in frames)
@@ -73,8 +114,8 @@ def run_fused(
     has_mask = np.array([m is not None for m in p.masks], np.bool_)
     order = np.ascontiguousarray(p.order, np.int64)
     sat = np.ascontiguousarray(p.saturation, np.float64)
-    me2 = kernel.model_error2
-    thr = kernel.ghost_threshold
+    me2 = m.model_error2
+    thr = m.ghost_threshold
     outs = (
         out.radiance, out.weight_sum, out.shares.view(np.uint16), out.clip_count, out.clipped,
         out.underexposed, out.ghost_score.view(np.uint16), out.ghost,
@@ -83,7 +124,7 @@ def run_fused(
     use_tab = bool(p.integer and (p.lut is not None or force_tables)
                    and not all(tf is not None for tf in p.transforms))
     if use_tab:
-        tabs = level_tables(kernel)
+        tabs = level_tables(p, m)
     else:
         tabs = np.zeros((len(frames), 3, 8), np.float32)
     inv_t2 = np.array([1.0 / (t * t) for t in p.times], np.float32)
@@ -131,8 +172,8 @@ def run_fused(
 
     fr = _fused.FusedFrames(frames_t, flats, masks_t, has_mask, order, inv_t, inv_t2, t2)
     warp = _fused.FusedWarp(mats, has_mat, ntap, oor, flds, has_fld, fgeo)
-    model = _fused.FusedModel(wcode, kernel.shot, kernel.const_var, kernel.floor_norm,
-                              kernel.inv_max, hi, has_lut, lut, lut_var, tap_thr, use_tab, tabs)
+    model = _fused.FusedModel(wcode, m.shot, m.const_var, m.floor_norm, m.inv_max, hi, has_lut,
+                              lut, lut_var, tap_thr, use_tab, tabs)
     fin = _fused.FusedFinish(me2, thr, colour is not None, cm, cwb, cneu)
     dst = _fused.FusedOutputs(*outs)
 

@@ -72,6 +72,7 @@ from .plan import (
     make_plan,
     new_outputs,
     reused_outputs,
+    sample_model,
 )
 from .reference import ReferenceKernel, run_reference
 from .result import MergeResult
@@ -288,7 +289,6 @@ def merge(
     t1 = time.perf_counter()
     out = (new_outputs((h, w, c), n) if reuse is None
            else reused_outputs(reuse, (h, w, c), n))
-    kernel = ReferenceKernel(plan, out, float(ghost_threshold), float(model_error))
     rows = max(1, int(chunk_pixels) // w)
     if engine == "numba":
         # no per-chunk scratch: chunks only balance the threads' work
@@ -296,11 +296,14 @@ def merge(
     spans = [(r, min(h, r + rows)) for r in range(0, h, rows)]
     workers = min(int(workers), len(spans))
     if engine == "numba":
-        # exp() of the Gaussian weight is not numpy's to the last bit: integer levels take it
-        # from the per-level tables the reference computes, so they stay bit for bit the same
-        run_fused(kernel, out, spans, workers, force_tables=plan.integer
-                   and plan.weighting == "gaussian", colour=colour)
+        # exp() of the Gaussian weight, vectorised, may differ from the numpy engine's in the
+        # last bit: integer levels take it from the per-level tables (that engine's
+        # arithmetic), so they stay bit for bit the same
+        run_fused(plan, out, sample_model(plan, float(ghost_threshold), float(model_error)),
+                  spans, workers, force_tables=plan.integer and plan.weighting == "gaussian",
+                  colour=colour)
     else:
+        kernel = ReferenceKernel(plan, out, float(ghost_threshold), float(model_error))
         try:
             run_reference(kernel, spans, workers, rows)
         except IndexError as exc:  # np.take of a level past the end of the LUT

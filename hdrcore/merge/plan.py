@@ -21,8 +21,9 @@ if TYPE_CHECKING:
     from .result import MergeResult
 
 __all__ = [
-    "DEFAULT_SATURATION", "IDENTITY", "RESAMPLING", "Outputs", "Plan", "as_fields", "as_frames",
-    "as_transforms", "make_plan", "new_outputs", "output_layout", "reused_outputs",
+    "DEFAULT_SATURATION", "IDENTITY", "RESAMPLING", "Outputs", "Plan", "SampleModel", "as_fields",
+    "as_frames", "as_transforms", "make_plan", "new_outputs", "output_layout", "reused_outputs",
+    "sample_model",
 ]
 
 DEFAULT_SATURATION = 0.98
@@ -61,6 +62,34 @@ class Plan:
     @property
     def warped(self) -> bool:
         return any(t is not None for t in self.transforms)
+
+
+@dataclass(frozen=True)
+class SampleModel:
+    """The float32 constants every engine applies to a sample of the plan: ``level = value *
+    inv_max``, zero weight unless ``level > floor_norm``, ``var(x) = x shot + const_var``
+    (plus the LUT's level-noise term), the ghost test's threshold and squared model error."""
+
+    inv_max: np.float32
+    floor_norm: np.float32
+    shot: np.float32
+    const_var: np.float32
+    ghost_threshold: np.float32
+    model_error2: np.float32
+
+
+def sample_model(plan: Plan, ghost_threshold: float, model_error: float) -> SampleModel:
+    inv_max = (np.float32(1.0 / plan.max_level) if plan.integer and plan.max_level
+               else np.float32(1.0))
+    nm = plan.noise
+    const = nm.read_noise**2
+    if plan.integer and plan.lut is None:
+        # linear levels: level noise and quantisation scale by 1 / max_level
+        const += nm.level_variance() * float(inv_max) ** 2
+    return SampleModel(
+        inv_max=inv_max, floor_norm=np.float32(plan.floor * float(inv_max)),
+        shot=np.float32(nm.shot_gain), const_var=np.float32(max(const, 1e-12)),
+        ghost_threshold=np.float32(ghost_threshold), model_error2=np.float32(model_error**2))
 
 
 def as_frames(frames: Sequence[np.ndarray]) -> tuple[tuple[np.ndarray, ...], bool]:

@@ -1,7 +1,7 @@
 """The numpy reference engine of the merge (``engine="numpy"``): one vectorised operation at a
 time over chunks of rows, channel-planar scratch buffers, float32 throughout, in the order the
-fused kernel (:mod:`hdrcore.merge._fused`) repeats to the last bit. It also builds the fused
-kernel's per-level tables (:func:`level_tables`), so those are the reference's own arithmetic.
+fused kernel (:mod:`hdrcore.merge._fused`) repeats to the last bit. It runs the inputs the fused
+kernel does not take (1 or 4 channels: the RAW mosaic merge) and ``engine="numpy"``.
 """
 
 from __future__ import annotations
@@ -13,10 +13,10 @@ import numpy as np
 
 from ..resample import keys_weights
 from .maps import to_float16_nonnegative
-from .plan import Outputs, Plan
+from .plan import Outputs, Plan, sample_model
 from .weights import WEIGHTS
 
-__all__ = ["LUT_MODE", "ReferenceKernel", "Scratch", "level_tables", "run_reference"]
+__all__ = ["LUT_MODE", "ReferenceKernel", "Scratch", "run_reference"]
 
 def _bilinear_weights(f: np.ndarray) -> np.ndarray:
     return np.stack([1.0 - f, f])
@@ -74,22 +74,17 @@ class ReferenceKernel:
     def __init__(self, plan: Plan, out: Outputs, ghost_threshold: float, model_error: float):
         self.p = plan
         self.out = out
-        self.ghost_threshold = np.float32(ghost_threshold)
-        self.model_error2 = np.float32(model_error**2)
-        self.inv_max = (np.float32(1.0 / plan.max_level)
-                        if plan.integer and plan.max_level else np.float32(1.0))
-        self.floor_norm = np.float32(plan.floor * float(self.inv_max))
+        m = sample_model(plan, ghost_threshold, model_error)
+        self.ghost_threshold = m.ghost_threshold
+        self.model_error2 = m.model_error2
+        self.inv_max = m.inv_max
+        self.floor_norm = m.floor_norm
+        self.shot = m.shot
+        self.const_var = m.const_var
         self.weight_fn = WEIGHTS[plan.weighting]
         c = plan.shape[2]
         self.lut = plan.lut if plan.lut is not None else np.zeros((c, 2), np.float32)
         self.lut_var = plan.lut_var if plan.lut_var is not None else self.lut
-        nm = plan.noise
-        self.shot = np.float32(nm.shot_gain)
-        const = nm.read_noise**2
-        if plan.integer and plan.lut is None:
-            # linear levels: level noise and quantisation scale by 1 / max_level
-            const += nm.level_variance() * float(self.inv_max) ** 2
-        self.const_var = np.float32(max(const, 1e-12))
 
     # ---- linearisation of one channel of one frame's chunk ---------------------------------
     def _linearise(
@@ -452,43 +447,3 @@ def run_reference(
 
     with ThreadPoolExecutor(max_workers=workers) as pool:
         list(pool.map(work, range(workers)))
-
-
-def level_tables(kernel: ReferenceKernel) -> np.ndarray:
-    """float32 ``(N, C L, 8)``: ``E_k, w, w var(E_k), w E_k, w E_k**2`` (and three zeros: one
-    aligned 32-byte line a level, so a sample's five values are one cache line even when a
-    16-bit table does not fit the cache) of every level ``0..max_level`` (``L`` levels) of
-    every frame, channel ``ch``'s level ``v`` at row ``ch L + v`` (the fused kernel's
-    :func:`~hdrcore.merge._fused._accumulate_levels_table`).
-
-    Built with the reference's own linearisation and weight function, in its operation order,
-    so a table entry is bit for bit what the reference computes for a sample of that level
-    (the noise floor is applied; clipping and masks, which depend on the pixel, are not).
-    """
-    p = kernel.p
-    n, c = len(p.frames), p.shape[2]
-    dtype = p.frames[0].dtype
-    length = int(p.max_level or 0) + 1
-    levels = np.arange(length, dtype=dtype)
-    s = Scratch(n, length, c)
-    tab = np.zeros((n, c * length, 8), np.float32)
-    for k in range(n):
-        t = float(p.times[k])
-        inv_t = np.float32(1.0 / t)
-        inv_t2 = np.float32(1.0 / (t * t))
-        for ch in range(c):
-            row = slice(ch * length, (ch + 1) * length)
-            x, level, var = kernel._linearise(levels, ch, s, length)
-            e = np.multiply(x, inv_t)
-            wk = kernel.weight_fn(level, x, t, var)
-            wk *= level > kernel.floor_norm
-            tab[k, row, 0] = e
-            tab[k, row, 1] = wk
-            var *= wk
-            var *= inv_t2
-            tab[k, row, 2] = var
-            wk *= e
-            tab[k, row, 3] = wk
-            wk *= e
-            tab[k, row, 4] = wk
-    return tab
