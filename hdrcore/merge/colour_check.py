@@ -194,6 +194,11 @@ def _num(v: float) -> float | None:
     return float(v) if np.isfinite(v) else None
 
 
+def _triple(v: Sequence[float] | np.ndarray) -> tuple[float, float, float]:
+    """The three channels of ``v`` as Python floats."""
+    return (float(v[0]), float(v[1]), float(v[2]))
+
+
 def _median_distance(a: np.ndarray, b: np.ndarray) -> float:
     d = np.hypot(a[..., 0] - b[..., 0], a[..., 1] - b[..., 1])
     d = d[np.isfinite(d)]
@@ -457,8 +462,9 @@ def colour_check(
             chromaticity(linear(k, srgb)[both]), chromaticity(linear(k + 1, srgb)[both])), cnt))
 
     own_gains = None
+    wb: list[tuple[float, float, float]]
     if balance is not None:
-        wb = [tuple(float(v) for v in g) for g in balance.gains]
+        wb = [_triple(g) for g in balance.gains]
         gains = list(balance.correction())
         own_gains = balance.correction(every_measured=False)
     else:
@@ -474,7 +480,7 @@ def colour_check(
                 continue
             ratio = linear(k)[both] / np.maximum(ref_lin[both], 1e-12)
             med = np.median(ratio, axis=0)
-            wb.append(tuple(float(v) for v in med / med[1]))
+            wb.append(_triple(med / med[1]))
         gains = [np.where(np.isfinite(g), g, 1.0) for g in np.asarray(wb, dtype=np.float64)]
     # the consecutive frames again with each frame's white balance divided out
     pairs_wb = []
@@ -497,7 +503,8 @@ def colour_check(
     check = ColourCheck(
         reference=reference, merge_error=err, merge_error_srgb=err_srgb,
         n_pixels=int(ref_ok.sum()), frame_pairs=tuple(pairs), frame_pairs_srgb=tuple(pairs_srgb),
-        white_balance=tuple(wb), status=status, message="", well_exposed=tuple(well_exposed),
+        white_balance=tuple(wb), status=status, message="",
+        well_exposed=(well_exposed[0], well_exposed[1]),
         best_frame_errors=tuple(best_errors), frame_pairs_wb=tuple(pairs_wb),
         frame_colours=own,
         balance_differs=None if balance is None else tuple(balance.differs),
@@ -911,7 +918,7 @@ def _blend_numpy(rad, acc, wsum, amax, rows_per_chunk) -> None:
 
 
 def _frame_band(rad, frames, table, gains, *, max_level, noise_floor, saturation, reference,
-                to_reference, masks, band, sigma, rows_per_chunk=256) -> np.ndarray:
+                to_reference, masks, band, sigma, rows_per_chunk=256) -> float:
     """Step 3 of :func:`anchor_colour` with ``frame_band``: every pixel's chromaticity from the
     frames well exposed there (each frame's decoded colour, its white balance divided out),
     mixed with weights that favour the frame nearest mid-grey; luminance kept. Returns the
@@ -1041,19 +1048,21 @@ def anchor_colour(
     step = max(1, int(np.ceil(np.sqrt(h * w / max_samples))))
     gy = np.arange(step // 2, h, step)
     gx = np.arange(step // 2, w, step)
-    ys, xs = np.meshgrid(gy, gx, indexing="ij")
-    shape = ys.shape
-    ys = ys.ravel()
-    xs = xs.ravel()
+    ys_grid, xs_grid = np.meshgrid(gy, gx, indexing="ij")
+    shape = ys_grid.shape
+    ys = ys_grid.ravel()
+    xs = xs_grid.ravel()
 
     def pixel_log_time(sh: np.ndarray) -> np.ndarray:
+        if log_t is None:  # only called with the re-decoding, which sets log_t
+            raise ParameterError("pixel_log_time needs the exposure times")
         s_ = sh.astype(np.float32)
         tot = s_.sum(axis=0)
         lt_ = np.tensordot(log_t.astype(np.float32), s_, axes=(0, 0))
         return np.where(tot > 0, lt_ / np.where(tot > 0, tot, 1), float(log_t.min()))
 
     merged = rad[ys, xs].astype(np.float64)
-    if redecode is not None:
+    if redecode is not None and shares is not None:  # redecode is only set with shares
         merged = _redecode(merged, pixel_log_time(shares[:, ys, xs]), redecode)
     msum = merged.sum(axis=-1)
     okm = np.isfinite(msum) & (msum > 0)
@@ -1081,9 +1090,9 @@ def anchor_colour(
 
     # per-frame white balance against the reference (median channel ratios over pixels well
     # exposed in both, normalised to green), divided out: one rendition of the colours
-    gains = [np.ones(3) for _ in frames]
+    frame_gains = [np.ones(3) for _ in frames]
     if gains_in is not None:
-        gains = [np.asarray(g, np.float64) for g in gains_in]
+        frame_gains = [np.asarray(g, np.float64) for g in gains_in]
     elif white_balance and reference is not None:
         for k in range(len(frames)):
             both = wells[k] & wells[reference]
@@ -1092,7 +1101,7 @@ def anchor_colour(
             ratio = lins[k][both] / np.maximum(lins[reference][both], 1e-12)
             med = np.median(ratio, axis=0)
             if np.all(np.isfinite(med)) and np.all(med > 0):
-                gains[k] = med / med[1]
+                frame_gains[k] = med / med[1]
 
     ref_weight = None
     num_t = np.zeros((ys.size, 3))
@@ -1100,7 +1109,7 @@ def anchor_colour(
     den = np.zeros(ys.size)
     shares_out = []
     for k in range(len(frames)):
-        lin = lins[k] / gains[k]
+        lin = lins[k] / frame_gains[k]
         wk = weights[k]
         if k == reference:
             wk = wk * REFERENCE_BOOST
@@ -1137,9 +1146,9 @@ def anchor_colour(
         _apply_numpy(rad, fields, step, shares, log_t, redecode, ref_frame, table,
                      noise_floor, saturation, max_level, rows_per_chunk, pixel_log_time,
                      reference_band)
-    own = 0.0
+    own_fraction = 0.0
     if frame_band is not None:
-        own = _frame_band(rad, frames, table, gains, max_level=max_level,
+        own_fraction = _frame_band(rad, frames, table, frame_gains, max_level=max_level,
                           noise_floor=noise_floor, saturation=saturation, reference=reference,
                           to_reference=to_reference, masks=masks, band=frame_band,
                           sigma=frame_sigma, rows_per_chunk=rows_per_chunk)
@@ -1150,8 +1159,8 @@ def anchor_colour(
         median_shift=float(np.median(shift)) if shift.size else 0.0,
         frame_shares=tuple(v / total for v in shares_out),
         decode=decode_name,
-        white_balance=tuple(tuple(float(v) for v in g) for g in gains),
-        own_colour_fraction=own,
+        white_balance=tuple(_triple(g) for g in frame_gains),
+        own_colour_fraction=own_fraction,
     )
 
 
@@ -1210,7 +1219,8 @@ def check_colour(
     from ..response.local_tonemap import local_tone_mapping
     from .white_balance import correct_merge, measure_white_balance
 
-    kw = dict(max_level=max_level, reference=reference, to_reference=to_reference, masks=masks)
+    kw: dict[str, Any] = dict(max_level=max_level, reference=reference,
+                              to_reference=to_reference, masks=masks)
     balance = measure_white_balance(frames, lut, **kw)
     before = colour_check(frames, radiance, lut, **kw, balance=balance)
     ltm = local_tone_mapping(frames, lut, max_level=max_level, to_reference=to_reference,

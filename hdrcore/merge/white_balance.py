@@ -199,6 +199,11 @@ def _sample(frames, reference, to_reference, masks, max_samples, max_level, band
     return ys, xs, (h, w), out
 
 
+def _triple(v: np.ndarray) -> tuple[float, float, float]:
+    """The three channels of ``v`` (``(3,)``) as Python floats."""
+    return (float(v[0]), float(v[1]), float(v[2]))
+
+
 def _pair(lin_a, lin_b, z_a, both, region, n_regions, dark, bright) -> PairBalance:
     nan3 = (float("nan"),) * 3
     if both.sum() < MIN_PIXELS:
@@ -236,9 +241,9 @@ def _pair(lin_a, lin_b, z_a, both, region, n_regions, dark, bright) -> PairBalan
     thirds = [np.median(du[(zg >= lo) & (zg <= hi)], axis=0)
               for lo, hi in zip(edges[:-1], edges[1:], strict=True)]
     spread = np.ptp(np.asarray(thirds), axis=0)
-    gains = tuple(float(v) for v in np.exp(med))
-    return PairBalance(dark, bright, gains, tuple(float(v) for v in se), int(lr.shape[0]),
-                       len(bal), int(kept.sum()), tuple(float(v) for v in spread))
+    gains = _triple(np.exp(med))
+    return PairBalance(dark, bright, gains, _triple(se), int(lr.shape[0]),
+                       len(bal), int(kept.sum()), _triple(spread))
 
 
 def measure_white_balance(
@@ -337,11 +342,11 @@ def measure_white_balance(
                      "corrected here")
     return FrameBalance(
         reference=reference,
-        gains=tuple(tuple(float(v) for v in g) for g in gains),
-        std_error=tuple(tuple(float(v) for v in s) for s in se),
+        gains=tuple(_triple(g) for g in gains),
+        std_error=tuple(_triple(s) for s in se),
         pairs=pairs, differs=differs, unmeasured=unmeasured, threshold=float(threshold),
         applied=False, message="; ".join(parts),
-        drift=tuple(float(v) for v in np.exp(drift)))
+        drift=_triple(np.exp(drift)))
 
 
 def correct_merge(
