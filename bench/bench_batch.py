@@ -57,8 +57,12 @@ from hdrcore.batch.scan import Shot  # noqa: E402
 from hdrcore.batch.simulate import simulate_session, true_groups, write_session  # noqa: E402
 
 #: the real folder: what is truly one bracket (by source folder); the CRW files are singles
-REAL_BRACKETS = ("frobisher-colour-hdri", "handheld-pixel7-lab", "handheld-xperia-library",
-                 "memorial-debevec")
+REAL_BRACKETS = (
+    "frobisher-colour-hdri",
+    "handheld-pixel7-lab",
+    "handheld-xperia-library",
+    "memorial-debevec",
+)
 REAL_SINGLES = ("raw-singles-cc0-canon-crw",)
 
 
@@ -70,10 +74,20 @@ def _shots_from_sim(sim, folder: str, subsec: bool) -> list[Shot]:
     out = []
     for s in sim:
         t = 1.0e9 + s.time
-        out.append(Shot(path=f"{folder}/{s.name}", folder=folder,
-                        time=t if subsec else float(int(t)), subsec=subsec,
-                        exposure_time=float(s.exposure_time), iso=100.0, f_number=8.0,
-                        exposure_bias=float(s.bias), camera="SimCam S1", size=(64, 48)))
+        out.append(
+            Shot(
+                path=f"{folder}/{s.name}",
+                folder=folder,
+                time=t if subsec else float(int(t)),
+                subsec=subsec,
+                exposure_time=float(s.exposure_time),
+                iso=100.0,
+                f_number=8.0,
+                exposure_bias=float(s.bias),
+                camera="SimCam S1",
+                size=(64, 48),
+            )
+        )
     return out
 
 
@@ -83,13 +97,17 @@ def _score(groups, truth: set[frozenset[str]]) -> tuple[int, int]:
 
 
 def _row(name: str, exact: int, total: int, wrong: int, extra: str = "") -> str:
-    return f"| {name:<34} | {exact:>5} / {total:<5} | {100.0 * exact / max(total, 1):6.2f} % " \
-           f"| {wrong:>6} |{extra}"
+    return (
+        f"| {name:<34} | {exact:>5} / {total:<5} | {100.0 * exact / max(total, 1):6.2f} % "
+        f"| {wrong:>6} |{extra}"
+    )
 
 
 def part_grouping(args: argparse.Namespace) -> None:
-    print("\n## Grouping: simulated sessions (metadata only, held-out seeds "
-          f"1000..{1000 + args.sessions - 1})\n")
+    print(
+        "\n## Grouping: simulated sessions (metadata only, held-out seeds "
+        f"1000..{1000 + args.sessions - 1})\n"
+    )
     print("| rule | brackets exact | share | groups that are no bracket |")
     print("|---|---|---|---|")
     gaps = (0.5, 1.0, 2.0, 3.0)
@@ -102,8 +120,7 @@ def part_grouping(args: argparse.Namespace) -> None:
             for seed in range(1000, 1000 + args.sessions):
                 sim = simulate_session(seed, n_brackets=15, step=step)
                 shots = _shots_from_sim(sim, "/s", subsec)
-                truth = {frozenset(f"/s/{Path(p).name}" for p in g)
-                         for g in true_groups(sim, "/s")}
+                truth = {frozenset(f"/s/{Path(p).name}" for p in g) for g in true_groups(sim, "/s")}
                 tot += len(truth)
                 e, w = _score(group_shots(shots), truth)
                 ours[0] += e
@@ -114,10 +131,17 @@ def part_grouping(args: argparse.Namespace) -> None:
                     theirs[g][1] += w
             print(_row(f"ours ({tag})", ours[0], tot, ours[1]))
             for g in gaps:
-                print(_row(f"HDRMerge gap {g:g} s" + (" (default)" if g == 2.0 else ""),
-                           theirs[g][0], tot, theirs[g][1]))
-    print("\n## Grouping: simulated sessions written as 64x48 JPEG and read back "
-          "(EXIF, thumbnails)\n")
+                print(
+                    _row(
+                        f"HDRMerge gap {g:g} s" + (" (default)" if g == 2.0 else ""),
+                        theirs[g][0],
+                        tot,
+                        theirs[g][1],
+                    )
+                )
+    print(
+        "\n## Grouping: simulated sessions written as 64x48 JPEG and read back (EXIF, thumbnails)\n"
+    )
     print("| session | brackets exact | share | groups that are no bracket | scan s |")
     print("|---|---|---|---|---|")
     for seed in range(2000, 2000 + args.files):
@@ -165,20 +189,34 @@ def real_grouping() -> None:
         d = real_folder(Path(tmp))
         shots = scan_shots([d])
         truth = _real_truth(d)
-        print(f"\n## Grouping: the real brackets in one folder ({len(shots)} files: "
-              + ", ".join(REAL_BRACKETS) + "; + 2 CRW singles)\n")
+        print(
+            f"\n## Grouping: the real brackets in one folder ({len(shots)} files: "
+            + ", ".join(REAL_BRACKETS)
+            + "; + 2 CRW singles)\n"
+        )
         print("| rule | brackets exact | share | groups that are no bracket | groups |")
         print("|---|---|---|---|---|")
-        for name, groups in (("ours", group_shots(shots)),
-                             ("HDRMerge gap 2 s", group_shots(shots, "gap", gap=2.0)),
-                             ("HDRMerge gap 20 s", group_shots(shots, "gap", gap=20.0))):
+        for name, groups in (
+            ("ours", group_shots(shots)),
+            ("HDRMerge gap 2 s", group_shots(shots, "gap", gap=2.0)),
+            ("HDRMerge gap 20 s", group_shots(shots, "gap", gap=20.0)),
+        ):
             e, w = _score(groups, truth)
             sizes = sorted((len(g.shots) for g in groups if g.is_bracket), reverse=True)
-            print(_row(name, e, len(truth), w, f" {sizes} + {sum(not g.is_bracket for g in groups)}"
-                       " singles |"))
+            print(
+                _row(
+                    name,
+                    e,
+                    len(truth),
+                    w,
+                    f" {sizes} + {sum(not g.is_bracket for g in groups)} singles |",
+                )
+            )
         for g in group_shots(shots):
-            print(f"    {len(g.shots):>2} {Path(g.paths[0]).name:<24} .. "
-                  f"{Path(g.paths[-1]).name:<24} {g.reason}")
+            print(
+                f"    {len(g.shots):>2} {Path(g.paths[0]).name:<24} .. "
+                f"{Path(g.paths[-1]).name:<24} {g.reason}"
+            )
 
 
 # --------------------------------------------------------------------------------------------
@@ -190,8 +228,9 @@ def _run(cmd: list[str]) -> tuple[float, float, int]:
     stderr's last line is kept in ``LAST_ERR``."""
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
-    proc = subprocess.run(cmd, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-                          text=True)
+    proc = subprocess.run(
+        cmd, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True
+    )
     wall = time.perf_counter() - t0
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
@@ -217,8 +256,9 @@ def sim_brackets(size: tuple[int, int], n: int) -> Path:
     if (d / "done").exists():
         return d
     shutil.rmtree(d, ignore_errors=True)
-    sim = simulate_session(4242, n_brackets=n, sizes=(3,), singles=0.0, bursts=0.0,
-                           gap_range=(0.5, 3.0))
+    sim = simulate_session(
+        4242, n_brackets=n, sizes=(3,), singles=0.0, bursts=0.0, gap_range=(0.5, 3.0)
+    )
     write_session(d, sim, seed=5, shape=size, same_scene=False)
     (d / "done").write_text("ok")
     return d
@@ -246,33 +286,62 @@ def throughput(folder: Path, label: str, repeat: int, extra: list[str]) -> None:
         failed = []
         for k, files in enumerate(groups):
             name = Path(files[0]).stem
-            w, c, rc = _run([py, "-m", "hdrcore", "merge", *files, "-o",
-                             str(loop / f"{name}_{k}.exr"), "--quiet", *extra])
+            w, c, rc = _run(
+                [
+                    py,
+                    "-m",
+                    "hdrcore",
+                    "merge",
+                    *files,
+                    "-o",
+                    str(loop / f"{name}_{k}.exr"),
+                    "--quiet",
+                    *extra,
+                ]
+            )
             if rc not in (0, 1):
                 failed.append(f"{name} (exit {rc}: {LAST_ERR[0]})")
             t_wall += w
             t_cpu += c
         ref_wall = t_wall
         ref = {k.rsplit("_", 1)[0]: v for k, v in _pixels(loop).items()}
-        print(f"| {r + 1} | hdrcore merge, each in turn | {t_wall:7.1f} | {t_cpu:7.1f} | 1.00 "
-              f"| reference ({len(failed)} merges failed) |")
+        print(
+            f"| {r + 1} | hdrcore merge, each in turn | {t_wall:7.1f} | {t_cpu:7.1f} | 1.00 "
+            f"| reference ({len(failed)} merges failed) |"
+        )
         for f in failed[:5]:
             print(f"|   | failed: {f} | | | | |")
         results = {}
-        for tag, opts in (("batch --workers 1", ["--workers", "1"]),
-                          ("batch --workers 2", ["--workers", "2"]),
-                          ("batch --dask --workers 2", ["--dask", "--workers", "2"])):
+        for tag, opts in (
+            ("batch --workers 1", ["--workers", "1"]),
+            ("batch --workers 2", ["--workers", "2"]),
+            ("batch --dask --workers 2", ["--dask", "--workers", "2"]),
+        ):
             out = base / tag.replace(" ", "_").replace("-", "")
-            w, c, rc = _run([py, "-m", "hdrcore", "batch", str(folder), "-o", str(out),
-                             "--quiet", *opts, *extra])
+            w, c, rc = _run(
+                [
+                    py,
+                    "-m",
+                    "hdrcore",
+                    "batch",
+                    str(folder),
+                    "-o",
+                    str(out),
+                    "--quiet",
+                    *opts,
+                    *extra,
+                ]
+            )
             px = _pixels(out)
             results[tag] = (w, px)
             first = {Path(f[0]).stem: None for f in groups}
             as_ref = {}
             for k, v in px.items():  # batch names are first-last; compare by the first frame
                 as_ref[next(s for s in first if k.startswith(s))] = v
-            print(f"| {r + 1} | {tag} (exit {rc}) | {w:7.1f} | {c:7.1f} | {w / ref_wall:4.2f} | "
-                  f"{_same(as_ref, ref)} vs merge |")
+            print(
+                f"| {r + 1} | {tag} (exit {rc}) | {w:7.1f} | {c:7.1f} | {w / ref_wall:4.2f} | "
+                f"{_same(as_ref, ref)} vs merge |"
+            )
         w2, px2 = results["batch --workers 2"]
         wd, pxd = results["batch --dask --workers 2"]
         print(f"| {r + 1} | dask / workers 2 | | | {wd / w2:4.2f} | {_same(pxd, px2)} |")
@@ -282,8 +351,9 @@ def throughput(folder: Path, label: str, repeat: int, extra: list[str]) -> None:
 def part_throughput(args: argparse.Namespace) -> None:
     if args.sim:
         folder = sim_brackets(args.size, 40)
-        throughput(folder, f"simulated 40 x 3 frames {args.size[0]}x{args.size[1]} JPEG",
-                   args.repeat, [])
+        throughput(
+            folder, f"simulated 40 x 3 frames {args.size[0]}x{args.size[1]} JPEG", args.repeat, []
+        )
     if args.real and SHARED.is_dir():
         with tempfile.TemporaryDirectory() as tmp:
             d = real_folder(Path(tmp))
@@ -300,34 +370,45 @@ def resume(folder: Path, label: str, n_total: int) -> None:
     shutil.rmtree(base, ignore_errors=True)
     base.mkdir(parents=True)
     whole, cut = base / "whole", base / "cut"
-    _run([py, "-m", "hdrcore", "batch", str(folder), "-o", str(whole), "--quiet",
-          "--workers", "2"])
-    proc = subprocess.Popen([py, "-m", "hdrcore", "batch", str(folder), "-o", str(cut),
-                             "--quiet", "--workers", "2"], cwd=ROOT, start_new_session=True,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    _run([py, "-m", "hdrcore", "batch", str(folder), "-o", str(whole), "--quiet", "--workers", "2"])
+    proc = subprocess.Popen(
+        [py, "-m", "hdrcore", "batch", str(folder), "-o", str(cut), "--quiet", "--workers", "2"],
+        cwd=ROOT,
+        start_new_session=True,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     half = max(1, n_total // 2)
     while proc.poll() is None and len(_sidecars(cut) if cut.exists() else ()) < half:
         time.sleep(0.05)
     os.killpg(proc.pid, signal.SIGKILL)
     proc.wait()
     done_before = _sidecars(cut)
-    stamps = {n: (cut / f"{n}.exr").stat().st_mtime_ns for n in done_before
-              if (cut / f"{n}.exr").exists()}
+    stamps = {
+        n: (cut / f"{n}.exr").stat().st_mtime_ns for n in done_before if (cut / f"{n}.exr").exists()
+    }
     left = [p.name for p in cut.iterdir() if p.name.startswith(".")]
-    w, c, rc = _run([py, "-m", "hdrcore", "batch", str(folder), "-o", str(cut), "--quiet",
-                     "--workers", "2"])
+    w, c, rc = _run(
+        [py, "-m", "hdrcore", "batch", str(folder), "-o", str(cut), "--quiet", "--workers", "2"]
+    )
     doc = json.loads((cut / "index.json").read_text())
     merged_again = [b["name"] for b in doc["brackets"] if b["merged"] and b["name"] in done_before]
     rewritten = [n for n, t in stamps.items() if (cut / f"{n}.exr").stat().st_mtime_ns != t]
     print(f"\n## Resume: {label}\n")
-    print("| brackets | done when killed | temporaries left by the kill | merged on restart "
-          "| finished ones merged again | EXRs rewritten | outputs vs uninterrupted |")
+    print(
+        "| brackets | done when killed | temporaries left by the kill | merged on restart "
+        "| finished ones merged again | EXRs rewritten | outputs vs uninterrupted |"
+    )
     print("|---|---|---|---|---|---|---|")
-    print(f"| {len(doc['brackets'])} | {len(done_before)} | {len(left)} | "
-          f"{sum(b['merged'] for b in doc['brackets'])} | {len(merged_again)} | "
-          f"{len(rewritten)} | {_same(_pixels(cut), _pixels(whole))} |")
-    print(f"(restart: {w:.1f} s wall, {c:.1f} s CPU, exit {rc}; "
-          f"{len([p for p in cut.iterdir() if p.name.startswith('.')])} temporaries after)")
+    print(
+        f"| {len(doc['brackets'])} | {len(done_before)} | {len(left)} | "
+        f"{sum(b['merged'] for b in doc['brackets'])} | {len(merged_again)} | "
+        f"{len(rewritten)} | {_same(_pixels(cut), _pixels(whole))} |"
+    )
+    print(
+        f"(restart: {w:.1f} s wall, {c:.1f} s CPU, exit {rc}; "
+        f"{len([p for p in cut.iterdir() if p.name.startswith('.')])} temporaries after)"
+    )
 
 
 def part_resume(args: argparse.Namespace) -> None:
@@ -355,8 +436,12 @@ def _moto():  # noqa: ANN202
     srv = ThreadedMotoServer(ip_address="127.0.0.1", port=0, verbose=False)
     srv.start()
     host, port = srv.get_host_and_port()
-    os.environ.update(AWS_ACCESS_KEY_ID="bench", AWS_SECRET_ACCESS_KEY="bench",
-                      AWS_DEFAULT_REGION="us-east-1", AWS_ENDPOINT_URL=f"http://{host}:{port}")
+    os.environ.update(
+        AWS_ACCESS_KEY_ID="bench",
+        AWS_SECRET_ACCESS_KEY="bench",
+        AWS_DEFAULT_REGION="us-east-1",
+        AWS_ENDPOINT_URL=f"http://{host}:{port}",
+    )
     fs = fsspec.filesystem("s3")
     fs.mkdir("bench")
     return srv, fs
@@ -390,27 +475,33 @@ def urls(folder: Path, label: str, moto) -> None:  # noqa: ANN001
     shutil.rmtree(base, ignore_errors=True)
     base.mkdir(parents=True)
     n = len(_plan_groups(folder))
-    contenders = [("plain paths", [str(folder)], str(base / "plain")),
-                  ("file:// URLs", [folder.resolve().as_uri()], (base / "file").as_uri())]
+    contenders = [
+        ("plain paths", [str(folder)], str(base / "plain")),
+        ("file:// URLs", [folder.resolve().as_uri()], (base / "file").as_uri()),
+    ]
     fs = None
     if moto is not None:
         fs = moto[1]
         for f in sorted(folder.iterdir()):
             if f.is_file() and not f.name.startswith(".") and f.name != "done":
                 fs.pipe(f"bench/{tag}/shots/{f.name}", f.read_bytes())
-        contenders.append(("s3:// (moto, s3fs)", [f"s3://bench/{tag}/shots"],
-                           f"s3://bench/{tag}/out"))
+        contenders.append(
+            ("s3:// (moto, s3fs)", [f"s3://bench/{tag}/shots"], f"s3://bench/{tag}/out")
+        )
     print(f"\n## URLs: {label} ({n} brackets, --workers 2; {_load()} at start)\n")
-    print("| inputs and output | run | wall s | CPU s (children + S3 server) | x plain "
-          "| merged | outputs vs plain |")
+    print(
+        "| inputs and output | run | wall s | CPU s (children + S3 server) | x plain "
+        "| merged | outputs vs plain |"
+    )
     print("|---|---|---|---|---|---|---|")
     ref_wall = {}
     ref_px = None
     for name, ins, out in contenders:
         for run in ("first", "again (all up to date)"):
             c0 = _self_cpu()
-            w, c, rc = _run([py, "-m", "hdrcore", "batch", *ins, "-o", out, "--quiet",
-                             "--workers", "2"])
+            w, c, rc = _run(
+                [py, "-m", "hdrcore", "batch", *ins, "-o", out, "--quiet", "--workers", "2"]
+            )
             server = _self_cpu() - c0
             if out.startswith("s3://"):
                 fs.invalidate_cache()
@@ -424,17 +515,30 @@ def urls(folder: Path, label: str, moto) -> None:  # noqa: ANN001
                 ref_px = px
             ref_wall.setdefault(run, w)
             merged = sum(b["merged"] for b in doc["brackets"])
-            print(f"| {name} | {run} (exit {rc}) | {w:7.1f} | {c:6.1f} + {server:4.1f} | "
-                  f"{w / ref_wall[run]:4.2f} | {merged} | {_same(px, ref_px)} |")
+            print(
+                f"| {name} | {run} (exit {rc}) | {w:7.1f} | {c:6.1f} + {server:4.1f} | "
+                f"{w / ref_wall[run]:4.2f} | {merged} | {_same(px, ref_px)} |"
+            )
     if fs is None:
         print("\n(s3fs or moto not installed: s3:// not measured)")
         return
     # killed half-way (SIGKILL to the process group: a crash), then the same command again
     out = f"s3://bench/{tag}/cut"
-    cmd = [py, "-m", "hdrcore", "batch", f"s3://bench/{tag}/shots", "-o", out, "--quiet",
-           "--workers", "2"]
-    proc = subprocess.Popen(cmd, cwd=ROOT, start_new_session=True, stdout=subprocess.DEVNULL,
-                            stderr=subprocess.DEVNULL)
+    cmd = [
+        py,
+        "-m",
+        "hdrcore",
+        "batch",
+        f"s3://bench/{tag}/shots",
+        "-o",
+        out,
+        "--quiet",
+        "--workers",
+        "2",
+    ]
+    proc = subprocess.Popen(
+        cmd, cwd=ROOT, start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+    )
 
     def names() -> list[str]:
         fs.invalidate_cache()
@@ -444,8 +548,11 @@ def urls(folder: Path, label: str, moto) -> None:  # noqa: ANN001
             return []
 
     def sidecars() -> set[str]:
-        return {x[:-5] for x in names() if x.endswith(".json") and not x.startswith(".")
-                and not x.startswith("index")}
+        return {
+            x[:-5]
+            for x in names()
+            if x.endswith(".json") and not x.startswith(".") and not x.startswith("index")
+        }
 
     while proc.poll() is None and len(sidecars()) < max(1, n // 2):
         time.sleep(0.2)
@@ -459,12 +566,16 @@ def urls(folder: Path, label: str, moto) -> None:  # noqa: ANN001
     again = [b["name"] for b in doc["brackets"] if b["merged"] and b["name"] in done_before]
     px = _s3_pixels(fs, out[5:], Path(tempfile.mkdtemp()))
     print(f"\n## Resume on s3://: {label}\n")
-    print("| brackets | done when killed | temporaries left by the kill | merged on restart "
-          "| finished ones merged again | temporaries after | outputs vs plain |")
+    print(
+        "| brackets | done when killed | temporaries left by the kill | merged on restart "
+        "| finished ones merged again | temporaries after | outputs vs plain |"
+    )
     print("|---|---|---|---|---|---|---|")
-    print(f"| {len(doc['brackets'])} | {len(done_before)} | {len(left)} | "
-          f"{sum(b['merged'] for b in doc['brackets'])} | {len(again)} | "
-          f"{len([x for x in names() if x.startswith('.')])} | {_same(px, ref_px)} |")
+    print(
+        f"| {len(doc['brackets'])} | {len(done_before)} | {len(left)} | "
+        f"{sum(b['merged'] for b in doc['brackets'])} | {len(again)} | "
+        f"{len([x for x in names() if x.startswith('.')])} | {_same(px, ref_px)} |"
+    )
     print(f"(restart: {w:.1f} s wall, {c:.1f} s CPU, exit {rc})")
 
 
@@ -482,18 +593,23 @@ def part_urls(args: argparse.Namespace) -> None:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--part", default="all",
-                    choices=("grouping", "throughput", "resume", "urls", "all"))
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    ap.add_argument(
+        "--part", default="all", choices=("grouping", "throughput", "resume", "urls", "all")
+    )
     ap.add_argument("--sessions", type=int, default=100)
     ap.add_argument("--files", type=int, default=4)
     ap.add_argument("--repeat", type=int, default=2)
-    ap.add_argument("--size", default="120x160",
-                    type=lambda s: tuple(int(v) for v in s.split("x")))
+    ap.add_argument("--size", default="120x160", type=lambda s: tuple(int(v) for v in s.split("x")))
     ap.add_argument("--no-real", dest="real", action="store_false")
-    ap.add_argument("--no-sim", dest="sim", action="store_false",
-                    help="throughput and resume: only the real folder")
+    ap.add_argument(
+        "--no-sim",
+        dest="sim",
+        action="store_false",
+        help="throughput and resume: only the real folder",
+    )
     args = ap.parse_args()
     print(f"# bench_batch ({_load()}, {os.cpu_count()} cores)")
     if args.part in ("grouping", "all"):

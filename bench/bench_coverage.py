@@ -107,14 +107,32 @@ class PairRecord:
         return bool(self.low <= self.truth <= self.high)
 
     def to_json(self) -> dict:
-        d = {k: getattr(self, k) for k in (
-            "group", "estimator", "label", "dark", "bright", "truth", "ratio", "status", "low",
-            "high", "half", "method", "std_error", "region_std_error", "model_error",
-            "changed_by_judge")}
+        d = {
+            k: getattr(self, k)
+            for k in (
+                "group",
+                "estimator",
+                "label",
+                "dark",
+                "bright",
+                "truth",
+                "ratio",
+                "status",
+                "low",
+                "high",
+                "half",
+                "method",
+                "std_error",
+                "region_std_error",
+                "model_error",
+                "changed_by_judge",
+            )
+        }
         d["band_ratios"] = list(self.band_ratios)
         d.update(self.extra)
-        return {k: (None if isinstance(v, float) and not np.isfinite(v) else v)
-                for k, v in d.items()}
+        return {
+            k: (None if isinstance(v, float) and not np.isfinite(v) else v) for k, v in d.items()
+        }
 
 
 def _dark_level(p: ExposureRatioResult) -> float:
@@ -125,36 +143,69 @@ def _dark_level(p: ExposureRatioResult) -> float:
     m = p.inlier_mask & (e.x > 0)
     w2 = e.weights[m] ** 2
     info = w2 if p.method == "registered pixels" else w2 * e.x[m] ** 2
-    return float(np.sum(info * e.x[m]) / np.sum(info) * p.max_level) if info.sum() > 0 else \
-        float("nan")
+    return (
+        float(np.sum(info * e.x[m]) / np.sum(info) * p.max_level)
+        if info.sum() > 0
+        else float("nan")
+    )
 
 
-def records(pairs: tuple[ExposureRatioResult, ...], truth, group: str, estimator: str,
-            label: str, **extra) -> list[PairRecord]:
+def records(
+    pairs: tuple[ExposureRatioResult, ...], truth, group: str, estimator: str, label: str, **extra
+) -> list[PairRecord]:
     out = []
     for p0 in pairs:
         p = judge(p0)
-        extra = dict(extra, dark_level=_dark_level(p), noise_floor=p.noise_floor,
-                     max_level=p.max_level, non_linear=p.non_linear)
+        extra = dict(
+            extra,
+            dark_level=_dark_level(p),
+            noise_floor=p.noise_floor,
+            max_level=p.max_level,
+            non_linear=p.non_linear,
+        )
         lo, hi = p.interval
-        out.append(PairRecord(
-            group=group, estimator=estimator, label=label, dark=p.dark, bright=p.bright,
-            truth=float(truth(p.dark, p.bright)), ratio=float(p.ratio), status=p.status, low=lo,
-            high=hi, half=p.ci95_relative, method=p.method, std_error=float(p.std_error),
-            region_std_error=float(p.region_std_error), band_ratios=p.band_ratios,
-            model_error=float(p.model_error), changed_by_judge=p.status != p0.status,
-            extra=extra))
+        out.append(
+            PairRecord(
+                group=group,
+                estimator=estimator,
+                label=label,
+                dark=p.dark,
+                bright=p.bright,
+                truth=float(truth(p.dark, p.bright)),
+                ratio=float(p.ratio),
+                status=p.status,
+                low=lo,
+                high=hi,
+                half=p.ci95_relative,
+                method=p.method,
+                std_error=float(p.std_error),
+                region_std_error=float(p.region_std_error),
+                band_ratios=p.band_ratios,
+                model_error=float(p.model_error),
+                changed_by_judge=p.status != p0.status,
+                extra=extra,
+            )
+        )
     return out
 
 
 # ----------------------------------------------------------------------------- simulated pairs
-def simulated(bits: int, handheld: bool, seed: int, scene: str, *,
-              response: str = "auto") -> list[PairRecord]:
+def simulated(
+    bits: int, handheld: bool, seed: int, scene: str, *, response: str = "auto"
+) -> list[PairRecord]:
     shift, rot = (20.0, 1.0) if handheld else (0.0, 0.0)
     fmt = "png" if bits == 8 else "dng"
-    sim = simulate_bracket(scene=scene, shape=SHAPE, exposure_times=TIMES, bits=bits,
-                           noise_sigma=1.0, seed=seed, max_shift=shift, max_rotation_deg=rot,
-                           keep_linear=fmt == "dng")
+    sim = simulate_bracket(
+        scene=scene,
+        shape=SHAPE,
+        exposure_times=TIMES,
+        bits=bits,
+        noise_sigma=1.0,
+        seed=seed,
+        max_shift=shift,
+        max_rotation_deg=rot,
+        keep_linear=fmt == "dng",
+    )
     group = f"{bits:2d}{' lin' if response != 'auto' else ''} {'hand' if handheld else 'tripod'}"
 
     def truth(i: int, j: int) -> float:
@@ -168,13 +219,19 @@ def simulated(bits: int, handheld: bool, seed: int, scene: str, *,
     with tempfile.TemporaryDirectory() as d:
         write_bracket(d, sim, fmt)
         bracket = load_bracket([d])
-        res = Pipeline(bracket, PipelineParams(registration_previews=False, response=response)
-                       ).run(until="overlap_ratios")
+        res = Pipeline(bracket, PipelineParams(registration_previews=False, response=response)).run(
+            until="overlap_ratios"
+        )
     hist = res.exposures_histogram
     out += records(hist.pairs + hist.extra_pairs, truth, group, "pipeline, histograms", label)
     if res.exposures is not hist:
-        out += records(res.exposures.pairs + res.exposures.extra_pairs, truth, group,
-                       "pipeline, registered", label)
+        out += records(
+            res.exposures.pairs + res.exposures.extra_pairs,
+            truth,
+            group,
+            "pipeline, registered",
+            label,
+        )
     return out
 
 
@@ -186,9 +243,11 @@ def simulated_all() -> list[PairRecord]:
             for scene in SCENES:
                 for seed in SEEDS:
                     out += simulated(bits, handheld, seed, scene)
-            print(f"  simulated {bits:2d}-bit {'hand-held' if handheld else 'tripod':9s}: "
-                  f"{len(SCENES) * len(SEEDS)} brackets in {time.perf_counter() - t0:.0f} s",
-                  flush=True)
+            print(
+                f"  simulated {bits:2d}-bit {'hand-held' if handheld else 'tripod':9s}: "
+                f"{len(SCENES) * len(SEEDS)} brackets in {time.perf_counter() - t0:.0f} s",
+                flush=True,
+            )
     for handheld in (False, True):
         for scene in SCENES:
             for seed in SEEDS_LINEAR_8:
@@ -210,8 +269,13 @@ def _times_file(path: Path) -> dict[str, float]:
 REAL = (
     # name, folder, truth (a times file; None: the EXIF exposures, APEX-snapped), whether the
     # bracket is loaded with that file, pipeline parameters
-    ("memorial", "memorial-debevec", "exposure_times.txt", True,
-     dict(exclude_colour=(0, 0, 255), align="none")),
+    (
+        "memorial",
+        "memorial-debevec",
+        "exposure_times.txt",
+        True,
+        dict(exclude_colour=(0, 0, 255), align="none"),
+    ),
     ("frobisher", "frobisher-colour-hdri", None, False, {}),
     # hdrcore.io multiplies a times file's values by the EXIF ISO: the ISO-100-equivalent file
     # would count the ISO twice, so the bracket is loaded from EXIF (time x ISO) and the file
@@ -245,15 +309,23 @@ def real_all() -> tuple[list[PairRecord], list[str]]:
         def truth(i: int, j: int, times=times) -> float:
             return times[j] / times[i]
 
-        res = Pipeline(bracket, PipelineParams(registration_previews=False, **params)
-                       ).run(until="overlap_ratios")
+        res = Pipeline(bracket, PipelineParams(registration_previews=False, **params)).run(
+            until="overlap_ratios"
+        )
         hist = res.exposures_histogram
         out += records(hist.pairs + hist.extra_pairs, truth, name, "pipeline, histograms", name)
         if res.exposures is not hist:
-            out += records(res.exposures.pairs + res.exposures.extra_pairs, truth, name,
-                           "pipeline, registered", name)
-        notes.append(f"{name}: {len(bracket.frames)} frames, truth from {source}, "
-                     f"{time.perf_counter() - t0:.1f} s")
+            out += records(
+                res.exposures.pairs + res.exposures.extra_pairs,
+                truth,
+                name,
+                "pipeline, registered",
+                name,
+            )
+        notes.append(
+            f"{name}: {len(bracket.frames)} frames, truth from {source}, "
+            f"{time.perf_counter() - t0:.1f} s"
+        )
     return out, notes
 
 
@@ -279,21 +351,27 @@ def summary(rs: list[PairRecord]) -> dict:
     }
 
 
-HEADER = (f"  {'estimator':22s} {'group':11s} {'measured':>8s} {'cov all':>8s} {'ok':>5s} "
-          f"{'cov ok':>7s} {'med err':>8s} {'p95 err':>8s} {'max err':>8s} {'>1 %':>5s} "
-          f"{'med ±':>7s}")
+HEADER = (
+    f"  {'estimator':22s} {'group':11s} {'measured':>8s} {'cov all':>8s} {'ok':>5s} "
+    f"{'cov ok':>7s} {'med err':>8s} {'p95 err':>8s} {'max err':>8s} {'>1 %':>5s} "
+    f"{'med ±':>7s}"
+)
 
 
 def row(name: str, group: str, s: dict) -> str:
-    return (f"  {name:22s} {group:11s} {s['measured']:8d} {_pct(s['cov_all'], 1):>8s} "
-            f"{s['ok']:5d} {_pct(s['cov_ok'], 1):>7s} {_pct(s['median']):>8s} "
-            f"{_pct(s['p95']):>8s} {_pct(s['max']):>8s} {s['over']:5d} {_pct(s['half']):>7s}")
+    return (
+        f"  {name:22s} {group:11s} {s['measured']:8d} {_pct(s['cov_all'], 1):>8s} "
+        f"{s['ok']:5d} {_pct(s['cov_ok'], 1):>7s} {_pct(s['median']):>8s} "
+        f"{_pct(s['p95']):>8s} {_pct(s['max']):>8s} {s['over']:5d} {_pct(s['half']):>7s}"
+    )
 
 
 def table(rs: list[PairRecord], title: str) -> None:
     print(f"\n{title}")
-    print("  coverage in %: of all measured pairs / of the ok pairs; errors of the ok pairs and "
-          "the median half-width of their intervals in %")
+    print(
+        "  coverage in %: of all measured pairs / of the ok pairs; errors of the ok pairs and "
+        "the median half-width of their intervals in %"
+    )
     print(HEADER)
     groups = list(dict.fromkeys(r.group for r in rs))
     for est in ESTIMATORS:
@@ -308,8 +386,11 @@ def table(rs: list[PairRecord], title: str) -> None:
     print(row("every estimator", "all", summary(rs)))
     upstream = [r for r in rs if _response_failure(r)]
     if upstream:
-        print(row("every estimator", "all but *", summary([r for r in rs
-                                                          if not _response_failure(r)])))
+        print(
+            row(
+                "every estimator", "all but *", summary([r for r in rs if not _response_failure(r)])
+            )
+        )
 
 
 def _response_failure(r: PairRecord) -> bool:
@@ -323,13 +404,17 @@ def real_listing(rs: list[PairRecord]) -> None:
     print("\n  real pairs: ratio, 95 % interval, truth, error (log, %), status")
     for r in rs:
         if not r.measured:
-            print(f"    {r.group:10s} {r.estimator:22s} {r.dark:2d}-{r.bright:<2d} "
-                  f"{'':41s} truth {r.truth:8.4f}  {r.status}")
+            print(
+                f"    {r.group:10s} {r.estimator:22s} {r.dark:2d}-{r.bright:<2d} "
+                f"{'':41s} truth {r.truth:8.4f}  {r.status}"
+            )
             continue
         mark = "in " if r.covered else "OUT"
-        print(f"    {r.group:10s} {r.estimator:22s} {r.dark:2d}-{r.bright:<2d} {r.ratio:8.4f} "
-              f"[{r.low:8.4f}, {r.high:8.4f}] ±{100 * r.half:5.2f} % truth {r.truth:8.4f} "
-              f"err {100 * np.log(r.ratio / r.truth):+6.2f} % {mark} {r.status}")
+        print(
+            f"    {r.group:10s} {r.estimator:22s} {r.dark:2d}-{r.bright:<2d} {r.ratio:8.4f} "
+            f"[{r.low:8.4f}, {r.high:8.4f}] ±{100 * r.half:5.2f} % truth {r.truth:8.4f} "
+            f"err {100 * np.log(r.ratio / r.truth):+6.2f} % {mark} {r.status}"
+        )
 
 
 def main() -> None:
@@ -337,29 +422,36 @@ def main() -> None:
     if "--dump" in sys.argv:
         dump = Path(sys.argv[sys.argv.index("--dump") + 1])
     t0 = time.perf_counter()
-    print(f"Coverage of the 95 % intervals of exposure ratios ({'quick' if QUICK else 'full'}): "
-          f"times {', '.join(f'{t:g}' for t in TIMES)} s, {SHAPE[0]}x{SHAPE[1]}, "
-          f"{len(SCENES)} scenes x {len(SEEDS)} seeds per group")
+    print(
+        f"Coverage of the 95 % intervals of exposure ratios ({'quick' if QUICK else 'full'}): "
+        f"times {', '.join(f'{t:g}' for t in TIMES)} s, {SHAPE[0]}x{SHAPE[1]}, "
+        f"{len(SCENES)} scenes x {len(SEEDS)} seeds per group"
+    )
     sim = simulated_all()
     real, notes = real_all()
     changed = sum(r.changed_by_judge for r in sim + real)
-    table([r for r in sim if r.consecutive],
-          "Simulated consecutive pairs (x4 each; '8 lin': the pipeline given the true, linear "
-          "response)")
-    table([r for r in sim if not r.consecutive],
-          "Simulated non-consecutive pairs (x16, x64)")
+    table(
+        [r for r in sim if r.consecutive],
+        "Simulated consecutive pairs (x4 each; '8 lin': the pipeline given the true, linear "
+        "response)",
+    )
+    table([r for r in sim if not r.consecutive], "Simulated non-consecutive pairs (x16, x64)")
     print("\nReal brackets: " + "; ".join(notes))
     table([r for r in real if r.consecutive], "Real consecutive pairs")
     table([r for r in real if not r.consecutive], "Real non-consecutive pairs")
     real_listing(real)
-    print("\n  * all but the pipeline's registered-pixel ratios of 8-bit hand-held brackets whose "
-          "response was recovered from the frames before registration: that response is off, "
-          "so every ratio measured through it is (by up to 6 % on 4x pairs); the row '8 lin "
-          "hand' (the pipeline given the true response) shows the estimator itself")
+    print(
+        "\n  * all but the pipeline's registered-pixel ratios of 8-bit hand-held brackets whose "
+        "response was recovered from the frames before registration: that response is off, "
+        "so every ratio measured through it is (by up to 6 % on 4x pairs); the row '8 lin "
+        "hand' (the pipeline given the true response) shows the estimator itself"
+    )
     if changed:
-        print(f"\n  note: {changed} pair statuses changed when judged from the interval with "
-              "their region jack-knife (hdrcore.exposure.chain does not call interval.judge "
-              "after adding it)")
+        print(
+            f"\n  note: {changed} pair statuses changed when judged from the interval with "
+            "their region jack-knife (hdrcore.exposure.chain does not call interval.judge "
+            "after adding it)"
+        )
     if dump is not None:
         with open(dump, "w") as fh:
             for r in sim + real:

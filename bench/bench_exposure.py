@@ -80,7 +80,7 @@ def hdrutils_ratios(frames, times, max_level, method):
         return ratios, ""
     per_pair, notes = [], []
     for k in range(len(frames) - 1):
-        r, n = _hdrutils_stack(frames[k:k + 2], times[k:k + 2], max_level, method)
+        r, n = _hdrutils_stack(frames[k : k + 2], times[k : k + 2], max_level, method)
         per_pair.append(r[0])
         if n:
             notes.append(f"pair {k}: {n}")
@@ -100,12 +100,17 @@ def _hdrutils_stack(frames, times, max_level, method):
     lg.propagate = False
     imgs = np.stack([bayer_mosaic(f) for f in frames])
     h, w = imgs.shape[1:3]
-    meta = {"black_level": np.zeros(4), "h": h, "w": w,
-            "saturation_point": default_saturation(max_level),
-            "dtype": np.uint16 if max_level > 255 else np.uint8}
+    meta = {
+        "black_level": np.zeros(4),
+        "h": h,
+        "w": w,
+        "saturation_point": default_saturation(max_level),
+        "dtype": np.uint16 if max_level > 255 else np.uint8,
+    }
     try:
-        exp = hx.estimate_exposures(imgs, np.array(times, float), meta, method,
-                                    noise_floor=default_noise_floor(max_level))
+        exp = hx.estimate_exposures(
+            imgs, np.array(times, float), meta, method, noise_floor=default_noise_floor(max_level)
+        )
     except Exception as exc:  # a peer's failure is a result, not a crash of the bench
         return [float("nan")] * (len(times) - 1), f"{type(exc).__name__}: {exc}"
     finally:
@@ -141,9 +146,12 @@ def integer_shift_matrices(frames, max_level, ratios):
 
 def registered_matrices(frames, max_level, ratios):
     ks = ratios
-    reg = register_bracket(green_linear(frames, max_level), ks,
-                           saturation=default_saturation(max_level) / max_level,
-                           noise_floor=default_noise_floor(max_level) / max_level)
+    reg = register_bracket(
+        green_linear(frames, max_level),
+        ks,
+        saturation=default_saturation(max_level) / max_level,
+        noise_floor=default_noise_floor(max_level) / max_level,
+    )
     return [p.matrix for p in reg.pairs]
 
 
@@ -153,9 +161,17 @@ def ours(frames, max_level, method="Cerman 2006 refined", matrices=None):
 
 
 # ------------------------------------------------------------------------------------- tables
-ROWS = ("histograms only", "Cerman 2006 (paper)", "overlap: eq.5 int shift",
-        "overlap: registered", "overlap: true matrices", "pixels: registered",
-        "pixels: true matrices", "HDRutils cerman", "HDRutils mst")
+ROWS = (
+    "histograms only",
+    "Cerman 2006 (paper)",
+    "overlap: eq.5 int shift",
+    "overlap: registered",
+    "overlap: true matrices",
+    "pixels: registered",
+    "pixels: true matrices",
+    "HDRutils cerman",
+    "HDRutils mst",
+)
 FLAGGED = ROWS[:7]
 
 
@@ -164,8 +180,17 @@ def pixels(frames, max_level, matrices, first):
     return [p.ratio for p in r.pairs], [p.ok for p in r.pairs], r
 
 
-def accuracy_table(bits, shape, seeds, *, shift=0.0, rotation=0.0, integer_motion=False,
-                   half_pixel=False, rendering="area"):
+def accuracy_table(
+    bits,
+    shape,
+    seeds,
+    *,
+    shift=0.0,
+    rotation=0.0,
+    integer_motion=False,
+    half_pixel=False,
+    rendering="area",
+):
     """``integer_motion``: whole-pixel shifts, the reference frame unmoved (no frame is
     resampled); ``half_pixel``: whole-pixel shifts plus half a pixel in x and y for every frame,
     the reference too (every frame resampled with the same sub-pixel phase)."""
@@ -179,17 +204,30 @@ def accuracy_table(bits, shape, seeds, *, shift=0.0, rotation=0.0, integer_motio
             motion = None
             if integer_motion or half_pixel:
                 rng = np.random.default_rng(seed)
-                motion = [(float(rng.integers(-shift, shift + 1)),
-                           float(rng.integers(-shift, shift + 1)), 0.0) for _ in TIMES]
+                motion = [
+                    (
+                        float(rng.integers(-shift, shift + 1)),
+                        float(rng.integers(-shift, shift + 1)),
+                        0.0,
+                    )
+                    for _ in TIMES
+                ]
                 if half_pixel:
                     motion = [(dx + 0.5, dy + 0.5, 0.0) for dx, dy, _ in motion]
                 else:
                     motion[len(TIMES) // 2] = (0.0, 0.0, 0.0)
-            b = simulate_bracket(scene=scene, shape=shape, exposure_times=TIMES, bits=bits,
-                                 noise_sigma=1.0, seed=seed, motion=motion,
-                                 max_shift=0 if motion else shift,
-                                 max_rotation_deg=0 if motion else rotation,
-                                 rendering=rendering)
+            b = simulate_bracket(
+                scene=scene,
+                shape=shape,
+                exposure_times=TIMES,
+                bits=bits,
+                noise_sigma=1.0,
+                seed=seed,
+                motion=motion,
+                max_shift=0 if motion else shift,
+                max_rotation_deg=0 if motion else rotation,
+                rendering=rendering,
+            )
             m = b.max_level
             runs = {}
             runs["histograms only"] = ours(b.frames, m)
@@ -199,7 +237,8 @@ def accuracy_table(bits, shape, seeds, *, shift=0.0, rotation=0.0, integer_motio
                 # replaced by the median step (BracketExposureResult.starting_ratios; no EXIF).
                 first = runs["histograms only"][2].starting_ratios()
                 runs["overlap: eq.5 int shift"] = ours(
-                    b.frames, m, matrices=integer_shift_matrices(b.frames, m, first))
+                    b.frames, m, matrices=integer_shift_matrices(b.frames, m, first)
+                )
                 t0 = time.perf_counter()
                 mats = registered_matrices(b.frames, m, first)
                 timing["registration"].append(time.perf_counter() - t0)
@@ -209,8 +248,9 @@ def accuracy_table(bits, shape, seeds, *, shift=0.0, rotation=0.0, integer_motio
                 t0 = time.perf_counter()
                 runs["pixels: registered"] = pixels(b.frames, m, mats, runs["histograms only"][2])
                 timing["pixels"].append(time.perf_counter() - t0)
-                runs["pixels: true matrices"] = pixels(b.frames, m, true,
-                                                       runs["histograms only"][2])
+                runs["pixels: true matrices"] = pixels(
+                    b.frames, m, true, runs["histograms only"][2]
+                )
             for name, (ratios, ok, _) in runs.items():
                 errs[name] += [abs(r / 4 - 1) for r in ratios]
                 oks[name] += ok
@@ -220,8 +260,10 @@ def accuracy_table(bits, shape, seeds, *, shift=0.0, rotation=0.0, integer_motio
                 if note:
                     notes[f"HDRutils {meth}"] = note
     if half_pixel:
-        kind = (f"hand-held, shifts <= {shift:g} px + 1/2 px for every frame (all resampled "
-                "alike), no rotation")
+        kind = (
+            f"hand-held, shifts <= {shift:g} px + 1/2 px for every frame (all resampled "
+            "alike), no rotation"
+        )
     elif integer_motion:
         kind = f"hand-held, integer shifts <= {shift:g} px, no rotation"
     elif moving:
@@ -231,10 +273,14 @@ def accuracy_table(bits, shape, seeds, *, shift=0.0, rotation=0.0, integer_motio
     else:
         kind = "tripod"
     n_pairs = len(SCENES) * len(seeds) * (len(TIMES) - 1)
-    print(f"\n{bits}-bit, {kind}, {shape[0]}x{shape[1]}, {len(SCENES)} scenes x {len(seeds)} "
-          f"seeds x 5 pairs = {n_pairs} pairs")
-    print(f"  {'estimator':26s} {'median %':>9s} {'p90 %':>8s} {'max %':>8s} {'failed':>6s} "
-          f"{'>1 %':>5s} {'>1 % not ok':>11s} {'not ok':>7s}")
+    print(
+        f"\n{bits}-bit, {kind}, {shape[0]}x{shape[1]}, {len(SCENES)} scenes x {len(seeds)} "
+        f"seeds x 5 pairs = {n_pairs} pairs"
+    )
+    print(
+        f"  {'estimator':26s} {'median %':>9s} {'p90 %':>8s} {'max %':>8s} {'failed':>6s} "
+        f"{'>1 %':>5s} {'>1 % not ok':>11s} {'not ok':>7s}"
+    )
     for name in ROWS:
         e = np.array(errs[name], float)
         if e.size == 0:
@@ -250,29 +296,38 @@ def accuracy_table(bits, shape, seeds, *, shift=0.0, rotation=0.0, integer_motio
         if np.all(~np.isfinite(e)):
             print(f"  {name:26s} {'nan':>9s} {'nan':>8s} {'nan':>8s} {failed:6d}")
             continue
-        print(f"  {name:26s} {100 * np.nanmedian(e):9.3f} {100 * np.nanpercentile(e, 90):8.3f} "
-              f"{100 * np.nanmax(e):8.3f} {failed:6d} {np.count_nonzero(over):5d} {flag:>11s} "
-              f"{notok:>7s}")
+        print(
+            f"  {name:26s} {100 * np.nanmedian(e):9.3f} {100 * np.nanpercentile(e, 90):8.3f} "
+            f"{100 * np.nanmax(e):8.3f} {failed:6d} {np.count_nonzero(over):5d} {flag:>11s} "
+            f"{notok:>7s}"
+        )
     for name, note in notes.items():
         print(f"  note {name}: {note}")
     if timing["registration"]:
-        print(f"  registration (register_bracket 'fast', 6 frames): median "
-              f"{np.median(timing['registration']):.2f} s per bracket; registered-pixel "
-              f"ratios {np.median(timing['pixels']):.2f} s per bracket")
+        print(
+            f"  registration (register_bracket 'fast', 6 frames): median "
+            f"{np.median(timing['registration']):.2f} s per bracket; registered-pixel "
+            f"ratios {np.median(timing['pixels']):.2f} s per bracket"
+        )
 
 
 def seed_protocol():
-    print("Seed protocol (section 5.3): times 1..1024 x4, linear, 8 bits, sigma 1 level, "
-          "256x384; darkest pair (paper: 4.0178, 0.45 % off)")
+    print(
+        "Seed protocol (section 5.3): times 1..1024 x4, linear, 8 bits, sigma 1 level, "
+        "256x384; darkest pair (paper: 4.0178, 0.45 % off)"
+    )
     for scene in SCENES:
-        b = simulate_bracket(scene=scene, shape=(256, 384), exposure_times=TIMES, bits=8,
-                             noise_sigma=1.0, seed=1)
+        b = simulate_bracket(
+            scene=scene, shape=(256, 384), exposure_times=TIMES, bits=8, noise_sigma=1.0, seed=1
+        )
         r1, _, _ = ours(b.frames, 255)
         r2, _, _ = ours(b.frames, 255, "Cerman 2006")
         h1, n1 = hdrutils_ratios(b.frames, TIMES, 255, "cerman")
         h2, n2 = hdrutils_ratios(b.frames, TIMES, 255, "mst")
-        print(f"  {scene:10s} refined {r1[0]:.4f}  Cerman 2006 {r2[0]:.4f}  "
-              f"HDRutils cerman {h1[0]:.4f}  mst {h2[0]:.4f}" + (f"  ({n2})" if n2 else ""))
+        print(
+            f"  {scene:10s} refined {r1[0]:.4f}  Cerman 2006 {r2[0]:.4f}  "
+            f"HDRutils cerman {h1[0]:.4f}  mst {h2[0]:.4f}" + (f"  ({n2})" if n2 else "")
+        )
 
 
 # -------------------------------------------------------------------------------------- speed
@@ -287,8 +342,14 @@ def _median_time(fn, repeat=5):
 
 
 def speed(bits):
-    b = simulate_bracket(scene="window", shape=(500, 750), exposure_times=(1.0, 4.0, 16.0),
-                         bits=bits, noise_sigma=2.0, seed=1)
+    b = simulate_bracket(
+        scene="window",
+        shape=(500, 750),
+        exposure_times=(1.0, 4.0, 16.0),
+        bits=bits,
+        noise_sigma=2.0,
+        seed=1,
+    )
     big = [np.tile(f, (8, 8, 1)) for f in b.frames]  # 4000 x 6000 = 24 MP
     m = b.max_level
     t_h, hists = _median_time(lambda: bracket_histograms(big, m), repeat=3)
@@ -299,15 +360,18 @@ def speed(bits):
     zs = iter(np.linspace(0.90, 0.96, 50) * m)
     fs = iter(np.linspace(1.2, 2.0, 50) * f0)
     t_z, _ = _median_time(lambda: bracket_exposures_from_histograms(hists, saturation=next(zs)))
-    t_f, _ = _median_time(lambda: bracket_exposures_from_histograms(
-        hists, saturation=z0, noise_floor=next(fs)))
+    t_f, _ = _median_time(
+        lambda: bracket_exposures_from_histograms(hists, saturation=z0, noise_floor=next(fs))
+    )
     fresh = bracket_exposures_from_histograms(bracket_histograms(big, m))
     same = np.allclose(fresh.ratios, res.ratios, rtol=0, atol=0)
-    print(f"  {bits:2d}-bit  stride {hists.stride}  histograms {1e3 * t_h:6.0f} ms  first fit "
-          f"{1e3 * t_fit:5.0f} ms  total {1e3 * (t_h + t_fit):6.0f} ms  re-fit Z "
-          f"{1e3 * t_z:5.1f} ms  re-fit floor {1e3 * t_f:5.1f} ms  ratios "
-          + ", ".join(f"{r:.4f}" for r in res.ratios)
-          + f"  ({res.status}; fresh fit identical: {same})")
+    print(
+        f"  {bits:2d}-bit  stride {hists.stride}  histograms {1e3 * t_h:6.0f} ms  first fit "
+        f"{1e3 * t_fit:5.0f} ms  total {1e3 * (t_h + t_fit):6.0f} ms  re-fit Z "
+        f"{1e3 * t_z:5.1f} ms  re-fit floor {1e3 * t_f:5.1f} ms  ratios "
+        + ", ".join(f"{r:.4f}" for r in res.ratios)
+        + f"  ({res.status}; fresh fit identical: {same})"
+    )
 
 
 # ----------------------------------------------------------------------------------- memorial
@@ -326,22 +390,28 @@ def memorial():
     for f in frames:
         border |= (f[..., 0] == 0) & (f[..., 1] == 0) & (f[..., 2] == 255)
     known = [times[k + 1] / times[k] for k in range(len(times) - 1)]
-    print(f"\nmemorial-debevec ({len(frames)} frames from exposure_times.txt, darkest first, "
-          f"1 stop: known ratio {np.median(known):g}; {border.mean():.1%} blue border masked)")
+    print(
+        f"\nmemorial-debevec ({len(frames)} frames from exposure_times.txt, darkest first, "
+        f"1 stop: known ratio {np.median(known):g}; {border.mean():.1%} blue border masked)"
+    )
     t0 = time.perf_counter()
     resp = recover_response(frames, times, method="debevec-histogram", max_level=255)
     t_resp = time.perf_counter() - t0
-    for name, lut in (("sRGB fallback", srgb_lut(255)),
-                      (f"recovered response ({t_resp:.1f} s)", resp.to_lut(255)),
-                      ("levels as linear", None)):
+    for name, lut in (
+        ("sRGB fallback", srgb_lut(255)),
+        (f"recovered response ({t_resp:.1f} s)", resp.to_lut(255)),
+        ("levels as linear", None),
+    ):
         r = bracket_exposures(frames, 255, lut=lut, mask=~border)
         rat = np.array([p.ratio for p in r.pairs])
         ok = np.array([p.ok for p in r.pairs])
         err = np.abs(rat / np.array(known) - 1)
         okerr = err[ok & np.isfinite(err)]
-        print(f"  {name:34s} median ratio {np.nanmedian(rat):.4f}, median |err| "
-              f"{100 * np.nanmedian(err):6.2f} %, ok {ok.sum()}/{ok.size} (median |err| of ok "
-              f"pairs {100 * np.median(okerr) if okerr.size else float('nan'):.2f} %)")
+        print(
+            f"  {name:34s} median ratio {np.nanmedian(rat):.4f}, median |err| "
+            f"{100 * np.nanmedian(err):6.2f} %, ok {ok.sum()}/{ok.size} (median |err| of ok "
+            f"pairs {100 * np.median(okerr) if okerr.size else float('nan'):.2f} %)"
+        )
         print("    ratios " + " ".join(f"{v:.3f}" for v in rat))
         print("    status " + " ".join(p.status for p in r.pairs))
     # The pipeline as 'hdrcore ratios --registered': recovered response, registration, then
@@ -349,16 +419,19 @@ def memorial():
     from hdrcore.pipeline import Pipeline, PipelineParams
 
     t0 = time.perf_counter()
-    res = Pipeline(br, PipelineParams(exclude_colour=(0, 0, 255), registration_previews=False)
-                   ).run(until="overlap_ratios")
+    res = Pipeline(br, PipelineParams(exclude_colour=(0, 0, 255), registration_previews=False)).run(
+        until="overlap_ratios"
+    )
     rat = np.array([p.ratio for p in res.exposures.pairs])
     ok = np.array([p.ok for p in res.exposures.pairs])
     err = np.abs(rat / np.array(known) - 1)
     okerr = err[ok & np.isfinite(err)]
-    print(f"  {'registered pixels (%.1f s)' % (time.perf_counter() - t0):34s} median ratio "
-          f"{np.nanmedian(rat):.4f}, median |err| {100 * np.nanmedian(err):6.2f} %, ok "
-          f"{ok.sum()}/{ok.size} (median |err| of ok pairs "
-          f"{100 * np.median(okerr) if okerr.size else float('nan'):.2f} %)")
+    print(
+        f"  {'registered pixels (%.1f s)' % (time.perf_counter() - t0):34s} median ratio "
+        f"{np.nanmedian(rat):.4f}, median |err| {100 * np.nanmedian(err):6.2f} %, ok "
+        f"{ok.sum()}/{ok.size} (median |err| of ok pairs "
+        f"{100 * np.median(okerr) if okerr.size else float('nan'):.2f} %)"
+    )
     print("    ratios " + " ".join(f"{v:.3f}" for v in rat))
     print("    status " + " ".join(p.status for p in res.exposures.pairs))
 
@@ -377,8 +450,10 @@ if __name__ == "__main__":
     accuracy_table(12, (768, 1152), seeds, shift=20, half_pixel=True)
     # The simulator's earlier renderer, for comparison with the first session's numbers.
     accuracy_table(12, (768, 1152), seeds, shift=20, rotation=1.0, rendering="log-cubic")
-    print("\nSpeed, 3 frames 4000x6000x3 (24 MP) after decoding, median of repeats; re-fits reuse "
-          "the cached histograms and transfer functions")
+    print(
+        "\nSpeed, 3 frames 4000x6000x3 (24 MP) after decoding, median of repeats; re-fits reuse "
+        "the cached histograms and transfer functions"
+    )
     speed(14)
     speed(8)
     memorial()

@@ -52,12 +52,18 @@ from hdrcore.pipeline import Pipeline, PipelineParams  # noqa: E402
 DATA = (ROOT / ".." / "shared" / "data").resolve()
 
 REAL = {
-    "memorial": ("memorial-debevec", "exposure_times.txt",
-                 dict(exclude_colour=(0, 0, 255), align="none")),
+    "memorial": (
+        "memorial-debevec",
+        "exposure_times.txt",
+        dict(exclude_colour=(0, 0, 255), align="none"),
+    ),
     "frobisher": ("frobisher-colour-hdri", None, {}),
     "pixel7": ("handheld-pixel7-lab", None, dict(registration_max_pixels=3_000_000)),
-    "xperia": ("handheld-xperia-library", "iso100_equivalent_times.txt",
-               dict(registration_max_pixels=3_000_000)),
+    "xperia": (
+        "handheld-xperia-library",
+        "iso100_equivalent_times.txt",
+        dict(registration_max_pixels=3_000_000),
+    ),
 }
 TRIPOD = ("memorial", "frobisher")
 
@@ -120,16 +126,30 @@ def _inverse_response(lut: np.ndarray):
     return lambda ch, x: np.interp(x, g[ch], levels)
 
 
-def _ellipse_alpha(shape: tuple[int, int], cy: float, cx: float, ry: float, rx: float,
-                   ys: np.ndarray, xs: np.ndarray) -> np.ndarray:
+def _ellipse_alpha(
+    shape: tuple[int, int],
+    cy: float,
+    cx: float,
+    ry: float,
+    rx: float,
+    ys: np.ndarray,
+    xs: np.ndarray,
+) -> np.ndarray:
     """Anti-aliased ellipse coverage at output coordinates ``ys, xs``."""
     r = np.sqrt(((ys - cy) / ry) ** 2 + ((xs - cx) / rx) ** 2)
     edge = 1.5 / min(ry, rx)
     return np.clip((1.0 - r) / edge + 0.5, 0.0, 1.0)
 
 
-def moving_object_bracket(b: Bracket, inputs: dict, radiance: np.ndarray, *, contrast: float,
-                          seed: int = 0, jpeg_quality: int | None = 92):
+def moving_object_bracket(
+    b: Bracket,
+    inputs: dict,
+    radiance: np.ndarray,
+    *,
+    contrast: float,
+    seed: int = 0,
+    jpeg_quality: int | None = 92,
+):
     """``b`` with a textured ellipse walking across it (see the module docstring):
     ``(bracket, the frames without the object encoded alike, coverage per frame (N, H, W) on
     the output grid)``."""
@@ -154,11 +174,11 @@ def moving_object_bracket(b: Bracket, inputs: dict, radiance: np.ndarray, *, con
     # the object's texture: the scene's radiance a third of the frame away, scaled to
     # ``contrast`` times the radiance of the background along its path
     lum = radiance.mean(axis=2)
-    band = lum[int(cy - ry):int(cy + ry), int(x_start - rx):int(x_start + travel + rx)]
+    band = lum[int(cy - ry) : int(cy + ry), int(x_start - rx) : int(x_start + travel + rx)]
     bg = float(np.exp(np.mean(np.log(np.maximum(band, 1e-12)))))
     sy0 = int((cy - ry + h / 3) % (h - 2 * ry))
     sx0 = int(rng.integers(0, max(1, w - int(2 * rx) - 1)))
-    tex = radiance[sy0:sy0 + int(2 * ry) + 2, sx0:sx0 + int(2 * rx) + 2].astype(np.float64)
+    tex = radiance[sy0 : sy0 + int(2 * ry) + 2, sx0 : sx0 + int(2 * rx) + 2].astype(np.float64)
     tex_l = float(np.exp(np.mean(np.log(np.maximum(tex.mean(axis=2), 1e-12)))))
     tex = tex * (contrast * bg / tex_l)
     frames = []
@@ -172,11 +192,17 @@ def moving_object_bracket(b: Bracket, inputs: dict, radiance: np.ndarray, *, con
         fwd = np.eye(3)
         if t is not None:
             a = np.asarray(t, np.float64)  # output -> frame: 2x3 affine or 3x3
-            fwd[:a.shape[0]] = a
+            fwd[: a.shape[0]] = a
             fwd /= fwd[2, 2]
         back = np.linalg.inv(fwd)  # frame -> output
-        box = np.array([[cx - rx - 3, cy - ry - 3, 1], [cx + rx + 3, cy - ry - 3, 1],
-                        [cx - rx - 3, cy + ry + 3, 1], [cx + rx + 3, cy + ry + 3, 1]]).T
+        box = np.array(
+            [
+                [cx - rx - 3, cy - ry - 3, 1],
+                [cx + rx + 3, cy - ry - 3, 1],
+                [cx - rx - 3, cy + ry + 3, 1],
+                [cx + rx + 3, cy + ry + 3, 1],
+            ]
+        ).T
         fb = fwd @ box
         fb = fb[:2] / fb[2]
         y0, y1 = max(0, int(fb[1].min()) - 2), min(h, int(fb[1].max()) + 3)
@@ -213,8 +239,9 @@ def moving_object_bracket(b: Bracket, inputs: dict, radiance: np.ndarray, *, con
     return replace(b, frames=tuple(frames)), still, cover
 
 
-def visible_ghost(inputs: dict, still: list[np.ndarray], cover: np.ndarray, moved,
-                  change: float) -> np.ndarray:
+def visible_ghost(
+    inputs: dict, still: list[np.ndarray], cover: np.ndarray, moved, change: float
+) -> np.ndarray:
     """Pixels where the merge ``moved`` of the bracket with the object differs from the merge of
     ``still`` (the frames without it, same inputs otherwise) by more than ``change`` in some
     channel, inside the object's footprint and not clipped in every frame."""
@@ -265,14 +292,20 @@ def moving_area(inputs: dict, cover: np.ndarray) -> np.ndarray:
 
 
 def static_table(names: list[str]) -> None:
-    print("\n## Static brackets: % of the image flagged (ghost) and filled (deghost); before: "
-          "the per-pixel test (ghost_test='pixels'), after: consistency regions (default)")
-    print("   'seen' = flagged where filling from one frame moves the merge by > 10 % (the frames "
-          "really disagree there, visibly: a moving object or a defect of one frame); 'unseen' = "
-          "flagged where it moves it less (false alarms)")
-    print(f"{'bracket':<10} {'frames':>6} {'size':>10} | {'ghost % before':>14} "
-          f"{'after':>7} | {'seen %':>6} {'unseen %':>8} | {'filled % before':>15} {'after':>7} | "
-          f"{'merge s':>7} {'test s':>6} | {'deghost changed %':>17}")
+    print(
+        "\n## Static brackets: % of the image flagged (ghost) and filled (deghost); before: "
+        "the per-pixel test (ghost_test='pixels'), after: consistency regions (default)"
+    )
+    print(
+        "   'seen' = flagged where filling from one frame moves the merge by > 10 % (the frames "
+        "really disagree there, visibly: a moving object or a defect of one frame); 'unseen' = "
+        "flagged where it moves it less (false alarms)"
+    )
+    print(
+        f"{'bracket':<10} {'frames':>6} {'size':>10} | {'ghost % before':>14} "
+        f"{'after':>7} | {'seen %':>6} {'unseen %':>8} | {'filled % before':>15} {'after':>7} | "
+        f"{'merge s':>7} {'test s':>6} | {'deghost changed %':>17}"
+    )
     for name in names:
         b, kw = load(name)
         _, inputs = pipeline_inputs(b, kw)
@@ -284,31 +317,38 @@ def static_table(names: list[str]) -> None:
         with np.errstate(divide="ignore", invalid="ignore"):
             rel = np.abs(after_d.radiance - after.radiance) / np.abs(after.radiance)
         seen = after.ghost & np.any(rel > 0.1, axis=-1)
-        print(f"{name:<10} {len(b):>6} {b.shape[1]:>5}x{b.shape[0]:<4} | "
-              f"{100 * before.ghost.mean():>14.2f} {100 * after.ghost.mean():>7.2f} | "
-              f"{100 * seen.mean():>6.2f} {100 * (after.ghost & ~seen).mean():>8.2f} | "
-              f"{100 * before_d.deghosted.mean():>15.2f} {100 * after_d.deghosted.mean():>7.2f}"
-              f" | {secs:>7.2f} {after.timings['ghosts']:>6.2f} | "
-              f"{100 * float(changed.mean()):>17.2f}")
+        print(
+            f"{name:<10} {len(b):>6} {b.shape[1]:>5}x{b.shape[0]:<4} | "
+            f"{100 * before.ghost.mean():>14.2f} {100 * after.ghost.mean():>7.2f} | "
+            f"{100 * seen.mean():>6.2f} {100 * (after.ghost & ~seen).mean():>8.2f} | "
+            f"{100 * before_d.deghosted.mean():>15.2f} {100 * after_d.deghosted.mean():>7.2f}"
+            f" | {secs:>7.2f} {after.timings['ghosts']:>6.2f} | "
+            f"{100 * float(changed.mean()):>17.2f}"
+        )
         gr = after.ghost_regions
         if gr is not None:
             print(f"{'':<10} {gr.message}")
 
 
 def moving_table(names: list[str], contrasts: tuple[float, ...]) -> None:
-    print("\n## Moving object pasted into the brackets: % of the visible ghost flagged "
-          "(merge changed > 10 % / > 30 %), % flagged away from the object")
-    print(f"{'bracket':<10} {'object':>7} {'ghost px':>8} | {'>10% before':>11} {'after':>6} | "
-          f"{'>30% before':>11} {'after':>6} | {'false % before':>14} {'after':>6} | "
-          f"{'recorded after':>14} | {'filled %':>8}")
+    print(
+        "\n## Moving object pasted into the brackets: % of the visible ghost flagged "
+        "(merge changed > 10 % / > 30 %), % flagged away from the object"
+    )
+    print(
+        f"{'bracket':<10} {'object':>7} {'ghost px':>8} | {'>10% before':>11} {'after':>6} | "
+        f"{'>30% before':>11} {'after':>6} | {'false % before':>14} {'after':>6} | "
+        f"{'recorded after':>14} | {'filled %':>8}"
+    )
     from scipy import ndimage
 
     for name in names:
         b, kw = load(name)
         r, inputs0 = pipeline_inputs(b, kw)
         for i, contrast in enumerate(contrasts):
-            mb, still, cover = moving_object_bracket(b, inputs0, r.radiance, contrast=contrast,
-                                                     seed=i)
+            mb, still, cover = moving_object_bracket(
+                b, inputs0, r.radiance, contrast=contrast, seed=i
+            )
             # the floor of the static bracket: a bright object in the darkest frames moves the
             # measured film-base pedestal of the memorial scans (21.1 -> 12.1 levels)
             _, inputs = pipeline_inputs(mb, {**kw, "noise_floor": r.noise_floor})
@@ -319,12 +359,14 @@ def moving_table(names: list[str], contrasts: tuple[float, ...]) -> None:
             vis30 = visible_ghost(inputs, still, cover, before, 0.3)
             recorded = moving_area(inputs, cover)
             away = ~ndimage.binary_dilation((cover > 0.0).any(axis=0), iterations=8)
-            print(f"{name:<10} {f'x{contrast:g}':>7} {int(vis10.sum()):>8} | "
-                  f"{100 * before.ghost[vis10].mean():>11.1f} {100 * after[vis10].mean():>6.1f} | "
-                  f"{100 * before.ghost[vis30].mean():>11.1f} {100 * after[vis30].mean():>6.1f} | "
-                  f"{100 * before.ghost[away].mean():>14.2f} {100 * after[away].mean():>6.2f} | "
-                  f"{100 * after[recorded].mean():>14.1f} | "
-                  f"{100 * after_d.deghosted.mean():>8.2f}")
+            print(
+                f"{name:<10} {f'x{contrast:g}':>7} {int(vis10.sum()):>8} | "
+                f"{100 * before.ghost[vis10].mean():>11.1f} {100 * after[vis10].mean():>6.1f} | "
+                f"{100 * before.ghost[vis30].mean():>11.1f} {100 * after[vis30].mean():>6.1f} | "
+                f"{100 * before.ghost[away].mean():>14.2f} {100 * after[away].mean():>6.2f} | "
+                f"{100 * after[recorded].mean():>14.1f} | "
+                f"{100 * after_d.deghosted.mean():>8.2f}"
+            )
 
 
 def main() -> None:

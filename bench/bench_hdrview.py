@@ -55,17 +55,31 @@ def first_page_ready() -> tuple[float, float] | None:
 
     port = _free_port()
     with sync_playwright() as p:
-        b = p.chromium.launch(executable_path="/usr/bin/chromium", args=[
-            "--no-sandbox", "--disable-gpu", "--enable-unsafe-swiftshader",
-            "--disable-dev-shm-usage"])
+        b = p.chromium.launch(
+            executable_path="/usr/bin/chromium",
+            args=[
+                "--no-sandbox",
+                "--disable-gpu",
+                "--enable-unsafe-swiftshader",
+                "--disable-dev-shm-usage",
+            ],
+        )
         page = b.new_page(viewport={"width": 1600, "height": 1000})
         t0 = time.perf_counter()  # the browser is already running: time the app only
         proc = subprocess.Popen(
             # --no-token: the page is opened without the printed address (the Host and
             # Origin checks stay on).
-            [sys.executable, "-c", "from hdrview.app import main; main()", "--port", str(port),
-             "--no-token"],
-            cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+            [
+                sys.executable,
+                "-c",
+                "from hdrview.app import main; main()",
+                "--port",
+                str(port),
+                "--no-token",
+            ],
+            cwd=ROOT,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
         )
         try:
             while True:
@@ -78,8 +92,9 @@ def first_page_ready() -> tuple[float, float] | None:
                     time.sleep(0.05)
             page.get_by_text("frame00.dng").first.wait_for(state="visible", timeout=60_000)
             elapsed = time.perf_counter() - t0
-            page.get_by_text(re.compile(r"^(Computed:|Everything came from the cache)")).first \
-                .wait_for(state="visible", timeout=120_000)
+            page.get_by_text(
+                re.compile(r"^(Computed:|Everything came from the cache)")
+            ).first.wait_for(state="visible", timeout=120_000)
             result = time.perf_counter() - t0
         finally:
             proc.terminate()
@@ -93,8 +108,15 @@ def large_bracket(megapixels: float):
 
     w = int(round(np.sqrt(megapixels * 1e6 * 1.5)))
     h = int(round(w / 1.5))
-    return simulate_bracket(scene="window", shape=(h, w), exposure_times=(1.0, 4.0, 16.0),
-                            bits=14, response="linear", noise_sigma=2.0, seed=5)
+    return simulate_bracket(
+        scene="window",
+        shape=(h, w),
+        exposure_times=(1.0, 4.0, 16.0),
+        bits=14,
+        response="linear",
+        noise_sigma=2.0,
+        seed=5,
+    )
 
 
 def bench_components(sim, repeat: int) -> list[tuple]:
@@ -114,8 +136,9 @@ def bench_components(sim, repeat: int) -> list[tuple]:
         rows = [("histograms of the bracket (once per load)", t_hist, "hdrcore")]
 
         class _B:
-            frames = [type("F", (), {"levels": f, "name": f"f{k}"})() for k, f in
-                      enumerate(sim.frames)]
+            frames = [
+                type("F", (), {"levels": f, "name": f"f{k}"})() for k, f in enumerate(sim.frames)
+            ]
             warnings = ()
 
         for what, kw in (("saturation", "saturation"), ("noise floor", "noise_floor")):
@@ -124,19 +147,31 @@ def bench_components(sim, repeat: int) -> list[tuple]:
                 value = (0.95 - 0.01 * r) * sim.max_level if kw == "saturation" else 40.0 + 5 * r
                 t = time.perf_counter()
                 exposure = bracket_exposures_from_histograms(
-                    hists, exposure_times=list(sim.exposure_times), **{kw: value})
+                    hists, exposure_times=list(sim.exposure_times), **{kw: value}
+                )
                 times_fit.append(time.perf_counter() - t)
                 result = type("R", (), {"exposure": exposure})()
                 t = time.perf_counter()
                 btf.show(_B, result, {"pair": 0})
                 masks.show(_B, result, {"pair": 0})
                 times_draw.append(time.perf_counter() - t)
-            rows.append((f"{what} change: ratios re-fit from cached histograms",
-                         float(np.median(times_fit)), "hdrcore"))
-            rows.append((f"{what} change: BTF plot + masks drawn", float(np.median(times_draw)),
-                         "hdrview"))
-            rows.append((f"{what} change: total (target < 0.3 s)",
-                         float(np.median(times_fit) + np.median(times_draw)), "both"))
+            rows.append(
+                (
+                    f"{what} change: ratios re-fit from cached histograms",
+                    float(np.median(times_fit)),
+                    "hdrcore",
+                )
+            )
+            rows.append(
+                (f"{what} change: BTF plot + masks drawn", float(np.median(times_draw)), "hdrview")
+            )
+            rows.append(
+                (
+                    f"{what} change: total (target < 0.3 s)",
+                    float(np.median(times_fit) + np.median(times_draw)),
+                    "both",
+                )
+            )
         return rows
     finally:
         server.stop()
@@ -161,7 +196,8 @@ def bench_pipeline(sim, repeat: int, drafts: bool = True) -> list[tuple]:
             tifffile.imwrite(p, f.astype(np.uint16))
             names.append(p.name)
         (folder / "exposure_times.txt").write_text(
-            "".join(f"{n} {t:g}\n" for n, t in zip(names, sim.exposure_times, strict=True)))
+            "".join(f"{n} {t:g}\n" for n, t in zip(names, sim.exposure_times, strict=True))
+        )
         server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
         inspector = InspectorApp(server, root=tmp, demo_dir=None)
         app = inspector.headless_view()  # one page's view, without a browser
@@ -171,8 +207,14 @@ def bench_pipeline(sim, repeat: int, drafts: bool = True) -> list[tuple]:
             app.request_path("big")
             app.wait_idle(600)
             rows.append(("load + full pipeline + draw (once)", time.perf_counter() - t, "app"))
-            rows.append(("load: draft preview drawn", app.last_draft_seconds or float("nan"),
-                         "app", app.last_draft_cpu or float("nan")))
+            rows.append(
+                (
+                    "load: draft preview drawn",
+                    app.last_draft_seconds or float("nan"),
+                    "app",
+                    app.last_draft_cpu or float("nan"),
+                )
+            )
             top = app.saturation_slider.max
             for label, control, values in (
                 ("saturation change", "saturation", [0.95 * top - r for r in range(repeat)]),
@@ -192,19 +234,42 @@ def bench_pipeline(sim, repeat: int, drafts: bool = True) -> list[tuple]:
                     quick.append(app.last_ratios_seconds or float("nan"))
                     reg.append(app.last_registration_seconds or float("nan"))
                     cpu["quick"].append(getattr(app, "last_ratios_cpu", None) or float("nan"))
-                    cpu["reg"].append(getattr(app, "last_registration_cpu", None)
-                                      or float("nan"))
+                    cpu["reg"].append(getattr(app, "last_registration_cpu", None) or float("nan"))
                     cpu["all"].append(getattr(app, "last_job_cpu", None) or float("nan"))
                 quick_target = " (target < 0.3 s)" if control != "threshold" else ""
                 reg_target = " (target < 1.5 s)" if control == "threshold" else ""
-                rows.append((f"{label}: ratios + BTF drawn{quick_target}",
-                             float(np.median(quick)), "app", float(np.median(cpu["quick"]))))
-                rows.append((f"{label}: draft preview drawn (target < 2 s)",
-                             float(np.median(draft)), "app", float(np.median(cpu["draft"]))))
-                rows.append((f"{label}: re-registered + overlays drawn{reg_target}",
-                             float(np.median(reg)), "app", float(np.median(cpu["reg"]))))
-                rows.append((f"{label}: every stage re-run and drawn",
-                             float(np.median(times)), "app", float(np.median(cpu["all"]))))
+                rows.append(
+                    (
+                        f"{label}: ratios + BTF drawn{quick_target}",
+                        float(np.median(quick)),
+                        "app",
+                        float(np.median(cpu["quick"])),
+                    )
+                )
+                rows.append(
+                    (
+                        f"{label}: draft preview drawn (target < 2 s)",
+                        float(np.median(draft)),
+                        "app",
+                        float(np.median(cpu["draft"])),
+                    )
+                )
+                rows.append(
+                    (
+                        f"{label}: re-registered + overlays drawn{reg_target}",
+                        float(np.median(reg)),
+                        "app",
+                        float(np.median(cpu["reg"])),
+                    )
+                )
+                rows.append(
+                    (
+                        f"{label}: every stage re-run and drawn",
+                        float(np.median(times)),
+                        "app",
+                        float(np.median(cpu["all"])),
+                    )
+                )
             errors = [n for n in app.notifications if n[0] == "error"]
             if errors:
                 rows.append((f"errors during the bench: {errors[-1][2][:80]}", float("nan"), "app"))
@@ -249,33 +314,48 @@ def draft_agreement(bracket, extra: dict, max_side: int) -> dict:
     pipe = Pipeline(bracket, PipelineParams(**extra))
     first = pipe.run()
     p = first.params.replace(saturation=first.params.saturation - 1)
-    draft, t_draft, c_draft = _timed(lambda: run_draft(
-        bracket, p.replace(response=first.response if first.response is not None
-                           else p.response), max_side=max_side,
-        exposure_times=first.exposure_times))
+    draft, t_draft, c_draft = _timed(
+        lambda: run_draft(
+            bracket,
+            p.replace(response=first.response if first.response is not None else p.response),
+            max_side=max_side,
+            exposure_times=first.exposure_times,
+        )
+    )
     full, t_full, c_full = _timed(lambda: pipe.run(p))
     a = np.asarray(draft.preview.image)
     same_size = pipe.run(p.replace(preview_max_side=max(a.shape[:2]))).preview.image
     d = _difference(a, same_size)
     f = draft.preview_factor // full.preview_factor
     shown = _difference(a, downsample_area(np.asarray(full.preview.image, np.float32), f))
-    return {"full_s": t_full, "full_cpu": c_full, "draft_s": t_draft, "draft_cpu": c_draft,
-            "mean": float(d.mean()), "p99": float(np.percentile(d, 99)),
-            "over10": float(np.mean(d > 10)), "shown": float(shown.mean()),
-            "size": f"{a.shape[1]}x{a.shape[0]}",
-            "ops": f"{full.preview.method}/{draft.preview.method}"}
+    return {
+        "full_s": t_full,
+        "full_cpu": c_full,
+        "draft_s": t_draft,
+        "draft_cpu": c_draft,
+        "mean": float(d.mean()),
+        "p99": float(np.percentile(d, 99)),
+        "over10": float(np.mean(d > 10)),
+        "shown": float(shown.mean()),
+        "size": f"{a.shape[1]}x{a.shape[0]}",
+        "ops": f"{full.preview.method}/{draft.preview.method}",
+    }
 
 
 def bench_draft(names: list[str], max_side: int, sim=None) -> None:
     from hdrcore.io import load_bracket
 
-    print(f"\ndraft preview (hdrcore.draft, longer side <= {max_side}) against the full "
-          "re-merge after a saturation change: |difference| of 8-bit previews, max over RGB, "
-          "against the full merge's preview made at the draft's size (mean, 99th percentile, "
-          "share over 10 levels) and against the full preview area-reduced ('shown', mean); "
-          f"times wall / CPU s, load average {os.getloadavg()[0]:.1f}")
-    print(f"{'bracket':<22} {'draft':>10} {'full s':>7} {'cpu':>6} {'draft s':>7} {'cpu':>6} "
-          f"{'mean':>6} {'p99':>5} {'>10':>7} {'shown':>6}  tonemap full/draft")
+    print(
+        f"\ndraft preview (hdrcore.draft, longer side <= {max_side}) against the full "
+        "re-merge after a saturation change: |difference| of 8-bit previews, max over RGB, "
+        "against the full merge's preview made at the draft's size (mean, 99th percentile, "
+        "share over 10 levels) and against the full preview area-reduced ('shown', mean); "
+        f"times wall / CPU s, load average {os.getloadavg()[0]:.1f}"
+    )
+    print(
+        f"{'bracket':<22} {'draft':>10} {'full s':>7} {'cpu':>6} {'draft s':>7} {'cpu':>6} "
+        f"{'mean':>6} {'p99':>5} {'>10':>7} {'shown':>6}  tonemap full/draft"
+    )
     rows = []
     if sim is not None:
         rows.append(("simulated 24 MP", sim, {}))
@@ -286,13 +366,16 @@ def bench_draft(names: list[str], max_side: int, sim=None) -> None:
             print(f"{name:<22} skipped: {d} absent")
             continue
         files = sorted(q for q in d.iterdir() if q.suffix.lower() in (".jpg", ".png"))
-        rows.append((name, load_bracket(files, exposure_times=None if times is None
-                                        else d / times), extra))
+        rows.append(
+            (name, load_bracket(files, exposure_times=None if times is None else d / times), extra)
+        )
     for label, b, extra in rows:
         r = draft_agreement(b, extra, max_side)
-        print(f"{label:<22} {r['size']:>10} {r['full_s']:>7.2f} {r['full_cpu']:>6.2f} "
-              f"{r['draft_s']:>7.2f} {r['draft_cpu']:>6.2f} {r['mean']:>6.2f} {r['p99']:>5.0f} "
-              f"{100 * r['over10']:>6.2f}% {r['shown']:>6.2f}  {r['ops']}")
+        print(
+            f"{label:<22} {r['size']:>10} {r['full_s']:>7.2f} {r['full_cpu']:>6.2f} "
+            f"{r['draft_s']:>7.2f} {r['draft_cpu']:>6.2f} {r['mean']:>6.2f} {r['p99']:>5.0f} "
+            f"{100 * r['over10']:>6.2f}% {r['shown']:>6.2f}  {r['ops']}"
+        )
 
 
 def _sim_bracket(sim):
@@ -307,7 +390,8 @@ def _sim_bracket(sim):
         tifffile.imwrite(tmp / f"frame{k}.tif", f.astype(np.uint16))
         names.append(f"frame{k}.tif")
     (tmp / "exposure_times.txt").write_text(
-        "".join(f"{n} {t:g}\n" for n, t in zip(names, sim.exposure_times, strict=True)))
+        "".join(f"{n} {t:g}\n" for n, t in zip(names, sim.exposure_times, strict=True))
+    )
     return load_bracket([tmp / n for n in names], exposure_times=tmp / "exposure_times.txt")
 
 
@@ -316,12 +400,19 @@ def main() -> int:
     ap.add_argument("--megapixels", type=float, default=24.0)
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--skip-browser", action="store_true")
-    ap.add_argument("--draft", default=None, metavar="NAMES",
-                    help="only the draft preview's agreement and speed: 'sim' and/or real "
-                    f"brackets ({','.join(REAL)}), comma-separated, or 'all'")
+    ap.add_argument(
+        "--draft",
+        default=None,
+        metavar="NAMES",
+        help="only the draft preview's agreement and speed: 'sim' and/or real "
+        f"brackets ({','.join(REAL)}), comma-separated, or 'all'",
+    )
     ap.add_argument("--draft-side", type=int, default=1024)
-    ap.add_argument("--no-draft", action="store_true",
-                    help="the app without its draft previews (the full re-merge's own cost)")
+    ap.add_argument(
+        "--no-draft",
+        action="store_true",
+        help="the app without its draft previews (the full re-merge's own cost)",
+    )
     args = ap.parse_args()
     if args.draft is not None:
         names = list(REAL) + ["sim"] if args.draft == "all" else args.draft.split(",")
@@ -332,25 +423,41 @@ def main() -> int:
     rows: list[tuple] = []
     if not args.skip_browser:
         t = first_page_ready()
-        rows.append(("first page ready after start (target < 3 s)",
-                     float("nan") if t is None else t[0], "demo, chromium"))
-        rows.append(("first page: merged result drawn after start",
-                     float("nan") if t is None else t[1], "demo, chromium"))
+        rows.append(
+            (
+                "first page ready after start (target < 3 s)",
+                float("nan") if t is None else t[0],
+                "demo, chromium",
+            )
+        )
+        rows.append(
+            (
+                "first page: merged result drawn after start",
+                float("nan") if t is None else t[1],
+                "demo, chromium",
+            )
+        )
     t = time.perf_counter()
     sim = large_bracket(args.megapixels)
     h, w = sim.frames[0].shape[:2]
-    print(f"simulated 3-frame {w}x{h} ({w * h / 1e6:.1f} MP) 14-bit bracket in "
-          f"{time.perf_counter() - t:.1f} s")
+    print(
+        f"simulated 3-frame {w}x{h} ({w * h / 1e6:.1f} MP) 14-bit bracket in "
+        f"{time.perf_counter() - t:.1f} s"
+    )
     if importlib.util.find_spec("hdrcore.pipeline") is not None:
         rows += bench_pipeline(sim, args.repeat, drafts=not args.no_draft)
         mode = "through the app and hdrcore.pipeline"
     else:
         rows += bench_components(sim, args.repeat)
         mode = "hdrcore.pipeline absent: stage functions timed directly"
-    print(f"\nhdrview bench ({mode}); median of {args.repeat}; load average "
-          f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
-    print("  cpu: CPU seconds of the whole process (every thread) over the same span; on a "
-          "shared machine the load stretches the wall time, not these")
+    print(
+        f"\nhdrview bench ({mode}); median of {args.repeat}; load average "
+        f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores"
+    )
+    print(
+        "  cpu: CPU seconds of the whole process (every thread) over the same span; on a "
+        "shared machine the load stretches the wall time, not these"
+    )
     print(f"{'what':<62} {'seconds':>9} {'cpu':>7}  by")
     for what, sec, by, *cpu in rows:
         c = f"{cpu[0]:>7.3f}" if cpu else f"{'':>7}"

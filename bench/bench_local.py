@@ -73,26 +73,43 @@ def run(name: str, tile: int | None = None, align: str = "auto") -> None:
     res = pl.run(until="registration")
     reg = res.registration
     ml = b.max_level
-    table = (np.arange(ml + 1, dtype=np.float32) / ml if res.lut is None
-             else res.lut[1].astype(np.float32))
+    table = (
+        np.arange(ml + 1, dtype=np.float32) / ml
+        if res.lut is None
+        else res.lut[1].astype(np.float32)
+    )
     sat = float(np.interp(res.saturation, np.arange(ml + 1), table))
     nf = float(np.interp(res.noise_floor, np.arange(ml + 1), table))
     exposures = np.cumprod([1.0] + [float(q.ratio) for q in reg.pairs])
     green = [f.levels[..., 1] for f in b.frames]
     t0 = time.process_time()
     w0 = time.perf_counter()
-    loc = refine_bracket(green, exposures, reg.to_reference_homography, reg.reference,
-                         saturation=sat, noise_floor=nf, lut=table, threshold=pl.params.threshold,
-                         tile=tile)
+    loc = refine_bracket(
+        green,
+        exposures,
+        reg.to_reference_homography,
+        reg.reference,
+        saturation=sat,
+        noise_floor=nf,
+        lut=table,
+        threshold=pl.params.threshold,
+        tile=tile,
+    )
     cpu, wall = time.process_time() - t0, time.perf_counter() - w0
     lin = [table[g] for g in green]
-    inv = [np.linalg.inv(np.asarray(m, float) if np.shape(m) == (3, 3)
-                         else np.vstack([m, [0, 0, 1]])) for m in reg.to_reference_homography]
-    print(f"\n### {name}: {b.shape[1]}x{b.shape[0]}, {len(b)} frames, reference {reg.reference}; "
-          f"refinement ({loc.tile} px nodes) {wall:.1f} s wall, {cpu:.1f} s CPU for "
-          f"{len(loc.frames)} frames")
-    print("\n| frame vs | global: median / p90 | + our field | + DIS flow | field kept | "
-          "field median / max px |")
+    inv = [
+        np.linalg.inv(np.asarray(m, float) if np.shape(m) == (3, 3) else np.vstack([m, [0, 0, 1]]))
+        for m in reg.to_reference_homography
+    ]
+    print(
+        f"\n### {name}: {b.shape[1]}x{b.shape[0]}, {len(b)} frames, reference {reg.reference}; "
+        f"refinement ({loc.tile} px nodes) {wall:.1f} s wall, {cpu:.1f} s CPU for "
+        f"{len(loc.frames)} frames"
+    )
+    print(
+        "\n| frame vs | global: median / p90 | + our field | + DIS flow | field kept | "
+        "field median / max px |"
+    )
     print("|---|---|---|---|---|---|")
     fields_used = {}
     dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
@@ -106,8 +123,14 @@ def run(name: str, tile: int | None = None, align: str = "auto") -> None:
 
         def measure(bk: np.ndarray, a=a, dark_first=dark_first, ratio=ratio):
             d, br = (a, bk) if dark_first else (bk, a)
-            r = residual_motion(np.where(np.isnan(d), np.nan, d), br, float(ratio), None,
-                                saturation=sat, noise_floor=nf)
+            r = residual_motion(
+                np.where(np.isnan(d), np.nan, d),
+                br,
+                float(ratio),
+                None,
+                saturation=sat,
+                noise_floor=nf,
+            )
             return r
 
         g = _warp(lin[k], inv[k])
@@ -127,8 +150,10 @@ def run(name: str, tile: int | None = None, align: str = "auto") -> None:
         def cell(r) -> str:
             return "-" if r.status == "unmeasured" else f"{r.median:.2f} / {r.p90:.2f}"
 
-        print(f"| {k} vs {j} | {cell(r0)} | {cell(r1)} | {cell(r2)} | "
-              f"{'yes' if fr.kept else 'no'} | {cand.median_px:.2f} / {cand.max_px:.2f} |")
+        print(
+            f"| {k} vs {j} | {cell(r0)} | {cell(r1)} | {cell(r2)} | "
+            f"{'yes' if fr.kept else 'no'} | {cand.median_px:.2f} / {cand.max_px:.2f} |"
+        )
 
 
 def speed() -> None:
@@ -154,33 +179,49 @@ def speed() -> None:
             cpus.append(time.process_time() - c0)
         return min(walls), min(cpus), out
 
-    w1, c1, loc = best(lambda: refine_bracket([dark, bright], [1.0, 4.0], [np.eye(3), truth], 0,
-                                              saturation=0.98, noise_floor=3 / ml))
+    w1, c1, loc = best(
+        lambda: refine_bracket(
+            [dark, bright], [1.0, 4.0], [np.eye(3), truth], 0, saturation=0.98, noise_floor=3 / ml
+        )
+    )
     d8 = np.clip(np.rint(np.sqrt(np.clip(dark * 4.0, 0, 1)) * 255), 0, 255).astype(np.uint8)
     b8 = np.clip(np.rint(np.sqrt(np.clip(bright, 0, 1)) * 255), 0, 255).astype(np.uint8)
     mtb = cv2.createAlignMTB()
     w2, c2, _ = best(lambda: mtb.calculateShift(d8, b8))
     fr = loc.frames[0]
-    print(f"\n## Speed: 24 MP pair (6000x4000), best of 3; load {os.getloadavg()[0]:.1f} "
-          "on 2 cores\n")
+    print(
+        f"\n## Speed: 24 MP pair (6000x4000), best of 3; load {os.getloadavg()[0]:.1f} on 2 cores\n"
+    )
     print("| | wall s | CPU s | vs AlignMTB (wall) |")
     print("|---|---|---|---|")
-    print(f"| local refinement ({loc.tile} px nodes, level {loc.level}) | {w1:.2f} | {c1:.2f} | "
-          f"{w1 / w2:.2f}x |")
+    print(
+        f"| local refinement ({loc.tile} px nodes, level {loc.level}) | {w1:.2f} | {c1:.2f} | "
+        f"{w1 / w2:.2f}x |"
+    )
     print(f"| AlignMTB (cv2) | {w2:.2f} | {c2:.2f} | 1 |")
-    print(f"\nfield on the exact global motion: {fr.candidate.median_px:.3f} px median, "
-          f"{fr.candidate.max_px:.3f} px max; {fr.message}")
+    print(
+        f"\nfield on the exact global motion: {fr.candidate.median_px:.3f} px median, "
+        f"{fr.candidate.max_px:.3f} px max; {fr.message}"
+    )
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--brackets", nargs="*",
-                    default=["handheld-pixel7-lab", "handheld-xperia-library"])
-    ap.add_argument("--align", default="auto",
-                    help="the global motion model the fields refine (default auto; the "
-                         "pipeline's default is similarity)")
-    ap.add_argument("--tile", type=int, default=None,
-                    help="node spacing of the field (default: the library's choice)")
+    ap.add_argument(
+        "--brackets", nargs="*", default=["handheld-pixel7-lab", "handheld-xperia-library"]
+    )
+    ap.add_argument(
+        "--align",
+        default="auto",
+        help="the global motion model the fields refine (default auto; the "
+        "pipeline's default is similarity)",
+    )
+    ap.add_argument(
+        "--tile",
+        type=int,
+        default=None,
+        help="node spacing of the field (default: the library's choice)",
+    )
     ap.add_argument("--speed", action="store_true", help="the 24 MP speed section only")
     args = ap.parse_args()
     if args.speed:

@@ -101,8 +101,13 @@ def accuracy_table() -> list[tuple[str, float]]:
         ((12, "linear"), (12, "gamma"), (8, "gamma")), ("numba", "numpy")
     ):
         sb = simulate_bracket(
-            shape=(256, 384), exposure_times=TIMES, bits=bits, response=response,
-            noise_sigma=1.0, keep_linear=True, seed=1,
+            shape=(256, 384),
+            exposure_times=TIMES,
+            bits=bits,
+            response=response,
+            noise_sigma=1.0,
+            keep_linear=True,
+            seed=1,
         )
         kw = {"max_level": sb.max_level}
         if response == "gamma":
@@ -112,8 +117,9 @@ def accuracy_table() -> list[tuple[str, float]]:
         for lf in sb.linear_frames:
             well |= ((lf > 0.05) & (lf < 0.9)).all(axis=2)
         err = np.abs(res.radiance / sb.key - sb.radiance) / sb.radiance
-        rows.append((f"{bits}-bit {response} ({res.weighting}, {engine})",
-                     float(np.median(err[well]))))
+        rows.append(
+            (f"{bits}-bit {response} ({res.weighting}, {engine})", float(np.median(err[well])))
+        )
     return rows
 
 
@@ -128,8 +134,15 @@ def warp_accuracy_table() -> list[tuple[str, float, float]]:
     rows = []
     for bits, response in ((12, "linear"), (12, "gamma"), (8, "gamma")):
         sb = simulate_bracket(
-            shape=(256, 384), exposure_times=TIMES, bits=bits, response=response,
-            noise_sigma=1.0, keep_linear=True, seed=3, max_shift=6.0, max_rotation_deg=1.5,
+            shape=(256, 384),
+            exposure_times=TIMES,
+            bits=bits,
+            response=response,
+            noise_sigma=1.0,
+            keep_linear=True,
+            seed=3,
+            max_shift=6.0,
+            max_rotation_deg=1.5,
         )
         tf = [invert(t) for t in sb.to_reference]
         kw = {"max_level": sb.max_level}
@@ -140,8 +153,15 @@ def warp_accuracy_table() -> list[tuple[str, float, float]]:
             well |= ((lf > 0.05) & (lf < 0.9)).all(axis=2)
         well[:16] = well[-16:] = False
         well[:, :16] = well[:, -16:] = False
-        tripod = simulate_bracket(sb.radiance, exposure_times=TIMES, bits=bits,
-                                  response=response, noise_sigma=1.0, key=sb.key, seed=3)
+        tripod = simulate_bracket(
+            sb.radiance,
+            exposure_times=TIMES,
+            bits=bits,
+            response=response,
+            noise_sigma=1.0,
+            key=sb.key,
+            seed=3,
+        )
         sharp_ref = _sharpness(merge(tripod.frames, TIMES, **kw).radiance, well)
         modes = ("levels", "samples") if response == "gamma" else ("levels",)
         for mode in modes:
@@ -152,13 +172,24 @@ def warp_accuracy_table() -> list[tuple[str, float, float]]:
             finally:
                 mod.LUT_MODE = old
             err = np.abs(res.radiance / sb.key - sb.radiance) / sb.radiance
-            rows.append((f"{bits}-bit {response}, LUT mode {mode!r}" if response == "gamma"
-                         else f"{bits}-bit {response}", float(np.median(err[well])),
-                         _sharpness(res.radiance, well) / sharp_ref))
+            rows.append(
+                (
+                    f"{bits}-bit {response}, LUT mode {mode!r}"
+                    if response == "gamma"
+                    else f"{bits}-bit {response}",
+                    float(np.median(err[well])),
+                    _sharpness(res.radiance, well) / sharp_ref,
+                )
+            )
         blind = merge(sb.frames, sb.exposure_times, **kw)
         err = np.abs(blind.radiance / sb.key - sb.radiance) / sb.radiance
-        rows.append((f"{bits}-bit {response}, motion ignored", float(np.median(err[well])),
-                     _sharpness(blind.radiance, well) / sharp_ref))
+        rows.append(
+            (
+                f"{bits}-bit {response}, motion ignored",
+                float(np.median(err[well])),
+                _sharpness(blind.radiance, well) / sharp_ref,
+            )
+        )
     return rows
 
 
@@ -170,41 +201,60 @@ def deghost_table() -> list[tuple[str, float, float, float]]:
     weighted average against ``deghost=True``; and the share of the image replaced."""
     rows = []
     sq = (slice(60, 92), slice(120, 152))
-    for label, motion in (("tripod", {}), ("hand-held", {"max_shift": 6.0,
-                                                         "max_rotation_deg": 1.5})):
-        sb = simulate_bracket(shape=(256, 384), exposure_times=TIMES, bits=12,
-                              response="linear", noise_sigma=1.0, keep_linear=True, seed=5,
-                              **motion)
+    for label, motion in (
+        ("tripod", {}),
+        ("hand-held", {"max_shift": 6.0, "max_rotation_deg": 1.5}),
+    ):
+        sb = simulate_bracket(
+            shape=(256, 384),
+            exposure_times=TIMES,
+            bits=12,
+            response="linear",
+            noise_sigma=1.0,
+            keep_linear=True,
+            seed=5,
+            **motion,
+        )
         tf = [invert(t) for t in sb.to_reference] if motion else None
         for k in range(len(TIMES)):
             frames = [f.copy() for f in sb.frames]
-            frames[k][sq] = np.minimum(frames[k][sq].astype(np.int64) * 3,
-                                       sb.max_level).astype(frames[k].dtype)
+            frames[k][sq] = np.minimum(frames[k][sq].astype(np.int64) * 3, sb.max_level).astype(
+                frames[k].dtype
+            )
             # where the object lands on the output grid (frame k's pixels mapped back)
             where = np.zeros(sb.radiance.shape[:2], bool)
             if tf is None or tf[k] is None:
                 where[sq] = True
             else:
-                yy, xx = np.mgrid[0:where.shape[0], 0:where.shape[1]].astype(float)
+                yy, xx = np.mgrid[0 : where.shape[0], 0 : where.shape[1]].astype(float)
                 fx = tf[k][0, 0] * xx + tf[k][0, 1] * yy + tf[k][0, 2]
                 fy = tf[k][1, 0] * xx + tf[k][1, 1] * yy + tf[k][1, 2]
-                where = ((fy >= sq[0].start + 2) & (fy < sq[0].stop - 2)
-                         & (fx >= sq[1].start + 2) & (fx < sq[1].stop - 2))
+                where = (
+                    (fy >= sq[0].start + 2)
+                    & (fy < sq[0].stop - 2)
+                    & (fx >= sq[1].start + 2)
+                    & (fx < sq[1].stop - 2)
+                )
             errs = []
             # deghosting may keep the object (the frame it chose saw it) or the scene behind:
             # the error is to the nearer of the two (the weighted average matches neither)
             scene = sb.radiance * sb.key
-            seen = merge([frames[k]], [sb.exposure_times[k]], max_level=sb.max_level,
-                         transforms=None if tf is None else [tf[k]]).radiance
+            seen = merge(
+                [frames[k]],
+                [sb.exposure_times[k]],
+                max_level=sb.max_level,
+                transforms=None if tf is None else [tf[k]],
+            ).radiance
             for dg in (False, True):
-                res = merge(frames, sb.exposure_times, max_level=sb.max_level, transforms=tf,
-                            deghost=dg)
+                res = merge(
+                    frames, sb.exposure_times, max_level=sb.max_level, transforms=tf, deghost=dg
+                )
                 with np.errstate(divide="ignore", invalid="ignore"):
-                    err = np.fmin(np.abs(res.radiance / scene - 1),
-                                  np.abs(res.radiance / seen - 1))
+                    err = np.fmin(np.abs(res.radiance / scene - 1), np.abs(res.radiance / seen - 1))
                 errs.append(float(np.median(err[where])))
-            rows.append((f"{label}, object in frame {k}", errs[0], errs[1],
-                         float(res.deghosted.mean())))
+            rows.append(
+                (f"{label}, object in frame {k}", errs[0], errs[1], float(res.deghosted.mean()))
+            )
     return rows
 
 
@@ -239,10 +289,16 @@ def compile_times() -> tuple[float, float]:
     code = "import time; from hdrcore.merge import warm_up; print(warm_up())"
     with tempfile.TemporaryDirectory() as tmp:
         env = dict(os.environ, NUMBA_CACHE_DIR=tmp)
-        cold = float(subprocess.run([sys.executable, "-c", code], env=env, check=True,
-                                    capture_output=True, text=True).stdout.split()[-1])
-    cached = float(subprocess.run([sys.executable, "-c", code], check=True,
-                                  capture_output=True, text=True).stdout.split()[-1])
+        cold = float(
+            subprocess.run(
+                [sys.executable, "-c", code], env=env, check=True, capture_output=True, text=True
+            ).stdout.split()[-1]
+        )
+    cached = float(
+        subprocess.run(
+            [sys.executable, "-c", code], check=True, capture_output=True, text=True
+        ).stdout.split()[-1]
+    )
     return cold, cached
 
 
@@ -272,9 +328,11 @@ def handheld_dng(reps: int = 3) -> None:
     times32 = np.asarray(res.exposure_times, np.float32)
     moved = [k for k in range(len(bracket)) if reg is not None and k != reg.reference]
     h, w = bracket.shape
-    print(f"\nhand-held DNG bracket {d.name}: {len(bracket)} frames of {w} x {h}, frames "
-          f"{moved} resampled (reference {None if reg is None else reg.reference}); "
-          f"load average {os.getloadavg()[0]:.2f}")
+    print(
+        f"\nhand-held DNG bracket {d.name}: {len(bracket)} frames of {w} x {h}, frames "
+        f"{moved} resampled (reference {None if reg is None else reg.reference}); "
+        f"load average {os.getloadavg()[0]:.2f}"
+    )
 
     def timed(fn):
         gc.collect()
@@ -287,24 +345,39 @@ def handheld_dng(reps: int = 3) -> None:
 
     def ours(registration, reuse=None):
         # with reuse: the previous result's arrays, as Pipeline(reuse_buffers=True) hands over
-        return pipe._merge(res.params, res.lut, res.exposure_times, registration, None,
-                           reuse=reuse)
+        return pipe._merge(res.params, res.lut, res.exposure_times, registration, None, reuse=reuse)
 
     prev = ours(reg)[0]  # kernels compiled or loaded from numba's cache outside the runs
     # OpenCV's way to the same hand-held result: each moved frame resampled (bicubic, as our
     # Keys cubic) onto the reference grid, then MergeDebevec. Our transforms map output pixels
     # into the frame: exactly warpAffine's WARP_INVERSE_MAP convention.
-    cv_mats = [None if k not in moved else np.asarray(invert(reg.to_reference[k]), np.float64)
-               for k in range(len(bracket))]
+    cv_mats = [
+        None if k not in moved else np.asarray(invert(reg.to_reference[k]), np.float64)
+        for k in range(len(bracket))
+    ]
 
     def cv_handheld():
-        warped = [img if m is None else cv2.warpAffine(
-            img, m, (w, h), flags=cv2.INTER_CUBIC | cv2.WARP_INVERSE_MAP,
-            borderMode=cv2.BORDER_REPLICATE) for img, m in zip(imgs8, cv_mats, strict=True)]
+        warped = [
+            img
+            if m is None
+            else cv2.warpAffine(
+                img,
+                m,
+                (w, h),
+                flags=cv2.INTER_CUBIC | cv2.WARP_INVERSE_MAP,
+                borderMode=cv2.BORDER_REPLICATE,
+            )
+            for img, m in zip(imgs8, cv_mats, strict=True)
+        ]
         return cv2.createMergeDebevec().process(warped, times32)
 
     rows: dict[str, list[tuple[float, float, float]]] = {
-        "debevec": [], "cv-hand-held": [], "hand-held": [], "reuse": [], "tripod": []}
+        "debevec": [],
+        "cv-hand-held": [],
+        "hand-held": [],
+        "reuse": [],
+        "tripod": [],
+    }
     for _ in range(reps):
         rows["debevec"].append(timed(lambda: cv2.createMergeDebevec().process(imgs8, times32)))
         rows["cv-hand-held"].append(timed(cv_handheld))
@@ -313,26 +386,38 @@ def handheld_dng(reps: int = 3) -> None:
         rows["tripod"].append(timed(lambda: ours(None)))
     ref = min(t for t, _, _ in rows["debevec"])
     ref_hh = min(t for t, _, _ in rows["cv-hand-held"])
-    print(f"{'':48s} {'min wall s':>10s} {'cpu s':>6s} {'sys s':>6s} {'/Debevec':>9s} "
-          f"{'per run':>12s}")
-    for name, label in (("debevec", "OpenCV MergeDebevec (8-bit)"),
-                        ("cv-hand-held", "OpenCV warpAffine cubic x2 + MergeDebevec"),
-                        ("tripod", "ours: merge step (+ colour), frames as given"),
-                        ("hand-held", "ours: merge step, hand-held (warps 2 frames)"),
-                        ("reuse", "  the same, merge(..., reuse=previous)")):
+    print(
+        f"{'':48s} {'min wall s':>10s} {'cpu s':>6s} {'sys s':>6s} {'/Debevec':>9s} "
+        f"{'per run':>12s}"
+    )
+    for name, label in (
+        ("debevec", "OpenCV MergeDebevec (8-bit)"),
+        ("cv-hand-held", "OpenCV warpAffine cubic x2 + MergeDebevec"),
+        ("tripod", "ours: merge step (+ colour), frames as given"),
+        ("hand-held", "ours: merge step, hand-held (warps 2 frames)"),
+        ("reuse", "  the same, merge(..., reuse=previous)"),
+    ):
         wall, cpu, sys_s = min(rows[name])
         per = [r[0] / d[0] for r, d in zip(rows[name], rows["debevec"], strict=True)]
-        print(f"{label:48s} {wall:10.2f} {cpu:6.2f} {sys_s:6.2f} {wall / ref:9.2f} "
-              f"{min(per):5.2f}..{max(per):.2f}")
-    print(f"merge step / MergeDebevec on the same frames: {min(rows['tripod'])[0] / ref:.2f}   "
-          f"target <= 0.30")
-    print(f"hand-held: our warp + merge / OpenCV warpAffine x2 + MergeDebevec: "
-          f"{min(rows['hand-held'])[0] / ref_hh:.2f}; / MergeDebevec alone: "
-          f"{min(rows['hand-held'])[0] / ref:.2f}")
-    print(f"(min over {reps} alternating runs; 'per run' pairs each run with the Debevec run "
-          "before it. sys s: mostly the first touch of new arrays; on a virtual machine memory "
-          "the process has not touched recently is slow to fault in, so the plain rows vary "
-          "run to run; reuse= writes into pages already touched)")
+        print(
+            f"{label:48s} {wall:10.2f} {cpu:6.2f} {sys_s:6.2f} {wall / ref:9.2f} "
+            f"{min(per):5.2f}..{max(per):.2f}"
+        )
+    print(
+        f"merge step / MergeDebevec on the same frames: {min(rows['tripod'])[0] / ref:.2f}   "
+        f"target <= 0.30"
+    )
+    print(
+        f"hand-held: our warp + merge / OpenCV warpAffine x2 + MergeDebevec: "
+        f"{min(rows['hand-held'])[0] / ref_hh:.2f}; / MergeDebevec alone: "
+        f"{min(rows['hand-held'])[0] / ref:.2f}"
+    )
+    print(
+        f"(min over {reps} alternating runs; 'per run' pairs each run with the Debevec run "
+        "before it. sys s: mostly the first touch of new arrays; on a virtual machine memory "
+        "the process has not touched recently is slow to fault in, so the plain rows vary "
+        "run to run; reuse= writes into pages already touched)"
+    )
 
 
 def kernel_table(mp: float, reps: int) -> None:
@@ -341,10 +426,12 @@ def kernel_table(mp: float, reps: int) -> None:
     the before/after table of a kernel change (run both trees in turn; the machine's load
     moves wall times far more than CPU times)."""
     factor = max(1, int(round(np.sqrt(mp * 1e6 / (750 * 500)))))
-    s12 = simulate_bracket(shape=(500, 750), exposure_times=TIMES, bits=12, response="linear",
-                           noise_sigma=1.0, seed=1)
-    s8 = simulate_bracket(shape=(500, 750), exposure_times=TIMES, bits=8, response="gamma",
-                          noise_sigma=1.0, seed=1)
+    s12 = simulate_bracket(
+        shape=(500, 750), exposure_times=TIMES, bits=12, response="linear", noise_sigma=1.0, seed=1
+    )
+    s8 = simulate_bracket(
+        shape=(500, 750), exposure_times=TIMES, bits=8, response="gamma", noise_sigma=1.0, seed=1
+    )
     f12 = upsample(s12.frames, factor)
     f8 = upsample(s8.frames, factor)
     ff = [np.asarray(f, np.float32) / np.float32(4095) for f in f12]
@@ -363,10 +450,12 @@ def kernel_table(mp: float, reps: int) -> None:
         "8-bit LUT, hat (level tables)": lambda: merge(f8, TIMES, response=lut, **kw),
         "float32, noise-aware": lambda: merge(ff, TIMES, **kw),
         "float32, hat": lambda: merge(ff, TIMES, weighting="hat", **kw),
-        "12-bit, 2 of 3 resampled (cubic)": lambda: merge(f12, TIMES, max_level=4095,
-                                                          transforms=tf, **kw),
-        "8-bit LUT hat, 2 of 3 resampled": lambda: merge(f8, TIMES, response=lut,
-                                                         transforms=tf, **kw),
+        "12-bit, 2 of 3 resampled (cubic)": lambda: merge(
+            f12, TIMES, max_level=4095, transforms=tf, **kw
+        ),
+        "8-bit LUT hat, 2 of 3 resampled": lambda: merge(
+            f8, TIMES, response=lut, transforms=tf, **kw
+        ),
     }
     for fn in cases.values():
         fn()  # compiled or loaded outside the runs
@@ -379,8 +468,10 @@ def kernel_table(mp: float, reps: int) -> None:
             del out
     import hdrcore
 
-    print(f"hdrcore from {os.path.dirname(hdrcore.__file__)}; 3 frames of {w} x {h}, "
-          f"{reps} runs, load average {os.getloadavg()[0]:.2f}")
+    print(
+        f"hdrcore from {os.path.dirname(hdrcore.__file__)}; 3 frames of {w} x {h}, "
+        f"{reps} runs, load average {os.getloadavg()[0]:.2f}"
+    )
     print(f"{'fused kernel, workers=1':36s} {'min cpu s':>10s} {'median':>8s}")
     for name, v in cpu.items():
         print(f"{name:36s} {min(v):10.3f} {float(np.median(v)):8.3f}")
@@ -389,16 +480,25 @@ def kernel_table(mp: float, reps: int) -> None:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--mp", type=float, default=24.0, help="megapixels per frame (default 24)")
-    ap.add_argument("--handheld-only", action="store_true",
-                    help="only the 24 MP DNG hand-held merge step against MergeDebevec")
+    ap.add_argument(
+        "--handheld-only",
+        action="store_true",
+        help="only the 24 MP DNG hand-held merge step against MergeDebevec",
+    )
     ap.add_argument("--mertens", action="store_true", help="also time MergeMertens")
     ap.add_argument("--no-numpy", action="store_true", help="skip the numpy reference rows")
     ap.add_argument("--no-old", action="store_true", help="skip today's pipeline path row")
-    ap.add_argument("--retain-memory", action="store_true",
-                    help="glibc keeps freed memory, as the hdrcore program does "
-                         "(hdrcore._memory); both contenders then reuse touched pages")
-    ap.add_argument("--kernel", action="store_true",
-                    help="only the fused kernel's CPU time on 6 input kinds (before/after)")
+    ap.add_argument(
+        "--retain-memory",
+        action="store_true",
+        help="glibc keeps freed memory, as the hdrcore program does "
+        "(hdrcore._memory); both contenders then reuse touched pages",
+    )
+    ap.add_argument(
+        "--kernel",
+        action="store_true",
+        help="only the fused kernel's CPU time on 6 input kinds (before/after)",
+    )
     ap.add_argument("--reps", type=int, default=5, help="runs per row of --kernel")
     args = ap.parse_args()
     if args.kernel:
@@ -429,16 +529,22 @@ def main() -> None:
     import hdrcore
 
     print(f"hdrcore from {os.path.dirname(hdrcore.__file__)}")
-    print(f"3 frames of {w} x {h} ({h * w / 1e6:.1f} MP) x 3 channels; cpu count "
-          f"{os.cpu_count()}, load average {load0[0]:.2f} {load0[1]:.2f} {load0[2]:.2f}")
+    print(
+        f"3 frames of {w} x {h} ({h * w / 1e6:.1f} MP) x 3 channels; cpu count "
+        f"{os.cpu_count()}, load average {load0[0]:.2f} {load0[1]:.2f} {load0[2]:.2f}"
+    )
 
     def debevec():
         return measure(lambda: cv2.createMergeDebevec().process(fr8, times32), trace=False)
 
     rows = [("OpenCV MergeDebevec (8-bit)", *debevec())]
     if args.mertens:
-        rows.append(("OpenCV MergeMertens (8-bit)",
-                     *measure(lambda: cv2.createMergeMertens().process(fr8), trace=False)))
+        rows.append(
+            (
+                "OpenCV MergeMertens (8-bit)",
+                *measure(lambda: cv2.createMergeMertens().process(fr8), trace=False),
+            )
+        )
     engines = ("numba",) if args.no_numpy else ("numba", "numpy")
     cases = [
         ("12-bit linear, noise-aware", fr12, {"max_level": 4095}),
@@ -446,25 +552,57 @@ def main() -> None:
     ]
     for label, frames, kw in cases:
         for engine in engines:
-            rows.append((f"ours ({engine}) {label}", *measure(
-                lambda frames=frames, kw=kw, engine=engine: merge(frames, TIMES, engine=engine,
-                                                                  **kw), trace=False)))
+            rows.append(
+                (
+                    f"ours ({engine}) {label}",
+                    *measure(
+                        lambda frames=frames, kw=kw, engine=engine: merge(
+                            frames, TIMES, engine=engine, **kw
+                        ),
+                        trace=False,
+                    ),
+                )
+            )
     # a small hand-held motion for frames 0 and 2 (frame 1 is the reference)
     to_ref = [rigid_matrix(3.3, -2.7, 0.4, (h, w)), None, rigid_matrix(-4.1, 1.9, -0.3, (h, w))]
     tf = [None if m is None else invert(m) for m in to_ref]
     for label, frames, kw in cases:
-        rows.append((f"ours (numba) {label} + warp 2 frames", *measure(
-            lambda frames=frames, kw=kw: merge(frames, TIMES, engine="numba", transforms=tf,
-                                               **kw), trace=False)))
-        rows.append((f"ours (numba) {label} + warp 2 bilinear", *measure(
-            lambda frames=frames, kw=kw: merge(frames, TIMES, engine="numba", transforms=tf,
-                                               resample="bilinear", **kw), trace=False)))
+        rows.append(
+            (
+                f"ours (numba) {label} + warp 2 frames",
+                *measure(
+                    lambda frames=frames, kw=kw: merge(
+                        frames, TIMES, engine="numba", transforms=tf, **kw
+                    ),
+                    trace=False,
+                ),
+            )
+        )
+        rows.append(
+            (
+                f"ours (numba) {label} + warp 2 bilinear",
+                *measure(
+                    lambda frames=frames, kw=kw: merge(
+                        frames, TIMES, engine="numba", transforms=tf, resample="bilinear", **kw
+                    ),
+                    trace=False,
+                ),
+            )
+        )
     if not args.no_old:
-        rows.append(("old path: float32 + shear warp 2 + merge (12-bit)", *measure(
-            lambda: old_path(fr12, 4095, to_ref, 0.98 * 4095), trace=False)))
+        rows.append(
+            (
+                "old path: float32 + shear warp 2 + merge (12-bit)",
+                *measure(lambda: old_path(fr12, 4095, to_ref, 0.98 * 4095), trace=False),
+            )
+        )
     fr32 = [f.astype(np.float32) * np.float32(1 / 4095) for f in fr12]
-    rows.append(("ours (numba) float32 linear, noise-aware", *measure(
-        lambda: merge(fr32, TIMES, engine="numba"), trace=False)))
+    rows.append(
+        (
+            "ours (numba) float32 linear, noise-aware",
+            *measure(lambda: merge(fr32, TIMES, engine="numba"), trace=False),
+        )
+    )
     fr32.clear()
     # Debevec again at the end: the machine is shared, so bracket our rows with two references.
     rows.append(("OpenCV MergeDebevec (8-bit), again", *debevec()))
@@ -475,10 +613,14 @@ def main() -> None:
     print(f"{'method':54s} {'wall s':>7s} {'cpu s':>7s} {'/Debevec':>9s} {'peak RSS+ MB':>13s}")
     for name, wall, cpu, peak, _ in rows:
         print(f"{name:54s} {wall:7.2f} {cpu:7.2f} {wall / ref:9.2f} {peak:13.0f}")
-    print(f"(ratio against the faster of the two MergeDebevec runs, {ref:.2f} s; "
-          f"load average at the end {load1[0]:.2f})")
-    print(f"numba compilation of the kernels (warm_up): cold cache {t_compile[0]:.1f} s, "
-          f"cached {t_compile[1]:.2f} s")
+    print(
+        f"(ratio against the faster of the two MergeDebevec runs, {ref:.2f} s; "
+        f"load average at the end {load1[0]:.2f})"
+    )
+    print(
+        f"numba compilation of the kernels (warm_up): cold cache {t_compile[0]:.1f} s, "
+        f"cached {t_compile[1]:.2f} s"
+    )
 
     print()
     print(f"{'accuracy (median relative radiance error, well exposed)':60s}")
@@ -490,8 +632,10 @@ def main() -> None:
     for name, err, sharp in warp_accuracy_table():
         print(f"  {name:40s} {100 * err:8.3f} % {sharp:19.3f}")
     print()
-    print("an object in one frame only (32 x 32, 3x the scene): median error over it, to the "
-          "nearer of scene and object")
+    print(
+        "an object in one frame only (32 x 32, 3x the scene): median error over it, to the "
+        "nearer of scene and object"
+    )
     print(f"  {'case':40s} {'average':>9s} {'deghost':>9s} {'replaced':>9s}")
     for name, plain, fixed, frac in deghost_table():
         print(f"  {name:40s} {100 * plain:7.2f} % {100 * fixed:7.3f} % {100 * frac:7.2f} %")

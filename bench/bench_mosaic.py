@@ -49,49 +49,85 @@ SHARED = HERE.parent.parent / "shared" / "data" / "raw-singles-cc0-canon-crw"
 def _paths(frames, times, max_level, sat, noise, method, transforms=None):
     if method != "frames":
         t0 = time.perf_counter()
-        res = merge_mosaic([f.cfa for f in frames], times, max_level=max_level,
-                           saturation_level=sat, noise=noise, method=method,
-                           transforms=transforms)
+        res = merge_mosaic(
+            [f.cfa for f in frames],
+            times,
+            max_level=max_level,
+            saturation_level=sat,
+            noise=noise,
+            method=method,
+            transforms=transforms,
+        )
         return res.rgb, time.perf_counter() - t0
     t0 = time.perf_counter()
-    res = merge([f.levels for f in frames], times, max_level=max_level, saturation_level=sat,
-                weighting="noise-aware", noise=noise, transforms=transforms)
+    res = merge(
+        [f.levels for f in frames],
+        times,
+        max_level=max_level,
+        saturation_level=sat,
+        weighting="noise-aware",
+        noise=noise,
+        transforms=transforms,
+    )
     return res.radiance, time.perf_counter() - t0
 
 
-def simulated(size: tuple[int, int], seed: int, scene: str,
-              handheld: bool = False) -> dict[str, dict[str, float]]:
+def simulated(
+    size: tuple[int, int], seed: int, scene: str, handheld: bool = False
+) -> dict[str, dict[str, float]]:
     from hdrcore.registration.transform import invert
     from hdrcore.synthetic import simulate_bracket, write_bracket
 
     times = (1 / 256, 1 / 64, 1 / 16)
     motion = dict(max_shift=4.0, max_rotation_deg=0.3) if handheld else {}
-    sim = simulate_bracket(scene=scene, shape=size, exposure_times=times, bits=12,
-                           response="linear", noise_sigma=2.0, shot_noise_full_well=20000,
-                           seed=seed, keep_linear=True, **motion)
+    sim = simulate_bracket(
+        scene=scene,
+        shape=size,
+        exposure_times=times,
+        bits=12,
+        response="linear",
+        noise_sigma=2.0,
+        shot_noise_full_well=20000,
+        seed=seed,
+        keep_linear=True,
+        **motion,
+    )
     # Hand-held: the true motion (reference -> frame), so the paths differ only in how they
     # read the moved frames (Keys cubic on demosaiced frames, or on each site's plane).
-    transforms = None if not handheld else [
-        None if k == sim.reference else invert(np.asarray(sim.to_reference[k]))
-        for k in range(len(times))]
+    transforms = (
+        None
+        if not handheld
+        else [
+            None if k == sim.reference else invert(np.asarray(sim.to_reference[k]))
+            for k in range(len(times))
+        ]
+    )
     out: dict[str, dict[str, float]] = {}
     with tempfile.TemporaryDirectory() as tmp:
         write_bracket(tmp, sim, "dng", force=True)
         files = sorted(Path(tmp).glob("*.dng"))
         truth = sim.radiance.astype(np.float64) * sim.key
         ref = 1
-        for label, demosaic in (("per-frame AHD", "libraw-ahd"),
-                                ("per-frame Malvar", "malvar2004"),
-                                ("per-frame HA", "hamilton-adams"),
-                                ("per-frame RCD", "rcd"),
-                                ("mosaic Malvar", "malvar2004"),
-                                ("mosaic HA", "hamilton-adams")):
+        for label, demosaic in (
+            ("per-frame AHD", "libraw-ahd"),
+            ("per-frame Malvar", "malvar2004"),
+            ("per-frame HA", "hamilton-adams"),
+            ("per-frame RCD", "rcd"),
+            ("mosaic Malvar", "malvar2004"),
+            ("mosaic HA", "hamilton-adams"),
+        ):
             frames = [read_raw(p, demosaic=demosaic) for p in files]
             m = frames[0].max_level
             noise = NoiseModel(read_noise=2.0 / m, full_well=None, level_noise=0.0)
-            est, secs = _paths(frames, times, m, 0.98 * m, noise,
-                               demosaic if label.startswith("mosaic") else "frames",
-                               transforms)
+            est, secs = _paths(
+                frames,
+                times,
+                m,
+                0.98 * m,
+                noise,
+                demosaic if label.startswith("mosaic") else "frames",
+                transforms,
+            )
             est = est.astype(np.float64)
             c = (slice(8, -8), slice(8, -8)) if handheld else (slice(4, -4), slice(4, -4))
             e, t = est[c], truth[c]
@@ -105,10 +141,10 @@ def simulated(size: tuple[int, int], seed: int, scene: str,
             # Colour sums over whole 16x16 blocks that no frame clips (a per-pixel selection
             # by level correlates with the local texture and biases interpolated channels).
             bh, bw = ok.shape[0] // 16, ok.shape[1] // 16
-            blocks = ok[:bh * 16, :bw * 16].reshape(bh, 16, bw, 16).all(axis=(1, 3))
+            blocks = ok[: bh * 16, : bw * 16].reshape(bh, 16, bw, 16).all(axis=(1, 3))
             whole = np.repeat(np.repeat(blocks, 16, axis=0), 16, axis=1)
-            sums_e = e[:bh * 16, :bw * 16][whole].sum(axis=0)
-            sums_t = t[:bh * 16, :bw * 16][whole].sum(axis=0)
+            sums_e = e[: bh * 16, : bw * 16][whole].sum(axis=0)
+            sums_t = t[: bh * 16, : bw * 16][whole].sum(axis=0)
             out[label] = {
                 "median_rel_%": 100 * float(np.median(rel)),
                 "median_rel_R_%": 100 * float(np.median(rel[:, 0])),
@@ -144,12 +180,21 @@ def real_crw(path: Path) -> dict[str, list[float]]:
             # Integer gains: the scaled mosaic is exact (no rounding, no added noise).
             raw = np.clip(black + lin * g, 0, white)
             p = Path(tmp) / f"f{k}.dng"
-            write_dng(p, raw.astype(np.uint16), exposure_time=g / 100, pattern=letters,
-                      black_level=black, white_level=white)
+            write_dng(
+                p,
+                raw.astype(np.uint16),
+                exposure_time=g / 100,
+                pattern=letters,
+                black_level=black,
+                white_level=white,
+            )
             names.append(p)
         m = read_raw(names[0]).max_level
-        for label, method in (("LibRaw AHD", "libraw-ahd"), ("ours (Malvar)", "malvar2004"),
-                              ("ours (RCD)", "rcd")):
+        for label, method in (
+            ("LibRaw AHD", "libraw-ahd"),
+            ("ours (Malvar)", "malvar2004"),
+            ("ours (RCD)", "rcd"),
+        ):
             rgbs = [read_raw(p, demosaic=method).levels.astype(np.float64) for p in names]
             ok = np.ones(rgbs[0].shape[:2], bool)
             for r in rgbs:
@@ -162,8 +207,10 @@ def real_crw(path: Path) -> dict[str, list[float]]:
             row = []
             for r in rgbs[1:]:
                 s = r[ok].sum(axis=0)
-                row += [100 * ((s[0] / s[1]) / (base[0] / base[1]) - 1),
-                        100 * ((s[2] / s[1]) / (base[2] / base[1]) - 1)]
+                row += [
+                    100 * ((s[0] / s[1]) / (base[0] / base[1]) - 1),
+                    100 * ((s[2] / s[1]) / (base[2] / base[1]) - 1),
+                ]
             out[label] = row
         out["_ok_share"] = [float(ok.mean())]
     return out
@@ -173,35 +220,55 @@ GAINS = (1, 2, 4)
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("--size", default="768x1152")
     ap.add_argument("--seeds", type=int, default=3)
-    ap.add_argument("--handheld", action="store_true",
-                    help="frames moved (up to 4 px, 0.3 deg), merged through the true motion")
+    ap.add_argument(
+        "--handheld",
+        action="store_true",
+        help="frames moved (up to 4 px, 0.3 deg), merged through the true motion",
+    )
     args = ap.parse_args()
     h, w = (int(v) for v in args.size.lower().split("x"))
     kind = "hand-held (true motion)" if args.handheld else "tripod"
-    print(f"# simulated 12-bit {kind} DNG brackets {w}x{h}, 3 frames 2 stops apart, "
-          f"read noise 2 DN + shot noise; {args.seeds} seeds x scenes window, landscape")
-    keys = ["median_rel_%", "median_rel_R_%", "median_rel_B_%", "psnr_R", "psnr_G", "psnr_B",
-            "bias_R/G_%", "bias_B/G_%"]
+    print(
+        f"# simulated 12-bit {kind} DNG brackets {w}x{h}, 3 frames 2 stops apart, "
+        f"read noise 2 DN + shot noise; {args.seeds} seeds x scenes window, landscape"
+    )
+    keys = [
+        "median_rel_%",
+        "median_rel_R_%",
+        "median_rel_B_%",
+        "psnr_R",
+        "psnr_G",
+        "psnr_B",
+        "bias_R/G_%",
+        "bias_B/G_%",
+    ]
     print(f"{'scene/seed':<14}{'path':<16}" + "".join(f"{k:>15}" for k in keys))
     for scene in ("window", "landscape"):
         for seed in range(args.seeds):
             res = simulated((h, w), seed, scene, args.handheld)
             for label, r in res.items():
-                print(f"{scene + '/' + str(seed):<14}{label:<16}"
-                      + "".join(f"{r[k]:>15.4f}" for k in keys))
+                print(
+                    f"{scene + '/' + str(seed):<14}{label:<16}"
+                    + "".join(f"{r[k]:>15.4f}" for k in keys)
+                )
     if args.handheld:
         return
     if SHARED.is_dir():
-        print("\n# real Canon CRW singles, bracket SIMULATED from each by scaling its "
-              "black-subtracted mosaic by 1, 2, 4 (integers: exact, no noise added): colour "
-              "ratio of each frame's demosaic against the x1 frame's, % (0 = linear in the "
-              "exposure), over pixels unclipped in every frame, 3 px away from clipping")
-        print(f"{'file':<18}{'demosaic':<16}" + "".join(
-            f"{f'x{g} {c}':>12}" for g in GAINS[1:] for c in ('R/G', 'B/G')))
+        print(
+            "\n# real Canon CRW singles, bracket SIMULATED from each by scaling its "
+            "black-subtracted mosaic by 1, 2, 4 (integers: exact, no noise added): colour "
+            "ratio of each frame's demosaic against the x1 frame's, % (0 = linear in the "
+            "exposure), over pixels unclipped in every frame, 3 px away from clipping"
+        )
+        print(
+            f"{'file':<18}{'demosaic':<16}"
+            + "".join(f"{f'x{g} {c}':>12}" for g in GAINS[1:] for c in ("R/G", "B/G"))
+        )
         for p in sorted(SHARED.glob("*.CRW")):
             res = real_crw(p)
             share = res.pop("_ok_share")[0]

@@ -35,8 +35,11 @@ from hdrcore.synthetic import faults  # noqa: E402
 DATA = (ROOT / ".." / "shared" / "data").resolve()
 
 REAL = {
-    "memorial": ("memorial-debevec", "exposure_times.txt",
-                 dict(exclude_colour=(0, 0, 255), align="none")),
+    "memorial": (
+        "memorial-debevec",
+        "exposure_times.txt",
+        dict(exclude_colour=(0, 0, 255), align="none"),
+    ),
     "frobisher": ("frobisher-colour-hdri", None, {}),
     "pixel7": ("handheld-pixel7-lab", None, dict(registration_max_pixels=3_000_000)),
 }
@@ -47,22 +50,27 @@ EXTRA_FLOORS = {"memorial": (16.0 + 2.55, 16.0 + 8.0)}
 
 def simulated(quick: bool) -> None:
     print("\n## Simulated DNG brackets: measured read noise (DN) and the floor")
-    print(f"{'bits':>4} {'true sigma':>10} {'margins':>8} {'measured':>9} {'source':>14} "
-          f"{'floor':>7} {'old floor':>9}")
+    print(
+        f"{'bits':>4} {'true sigma':>10} {'margins':>8} {'measured':>9} {'source':>14} "
+        f"{'floor':>7} {'old floor':>9}"
+    )
     sigmas = (1.0, 3.0) if quick else (1.0, 2.0, 4.0)
     for bits in (12, 14):
         for sigma in sigmas:
             for margins in (None, 16):
-                spec = faults.DARK_RAW_12BIT.replace(bits=bits, noise_sigma=sigma,
-                                                     margins=margins, shape=(192, 288))
+                spec = faults.DARK_RAW_12BIT.replace(
+                    bits=bits, noise_sigma=sigma, margins=margins, shape=(192, 288)
+                )
                 with tempfile.TemporaryDirectory() as d:
                     fb = faults.write_dark_raw_bracket(Path(d) / "b", spec=spec)
                     pipe = Pipeline(load_bracket([fb.directory]))
                     n = pipe.noise()
                     old = max(3.0, 0.02 * pipe.bracket.max_level)
-                    print(f"{bits:>4} {sigma:>10.2f} {('yes' if margins else 'no'):>8} "
-                          f"{n.sigma:>9.3f} {n.source:>14} {pipe.auto_noise_floor():>7.2f} "
-                          f"{old:>9.1f}")
+                    print(
+                        f"{bits:>4} {sigma:>10.2f} {('yes' if margins else 'no'):>8} "
+                        f"{n.sigma:>9.3f} {n.source:>14} {pipe.auto_noise_floor():>7.2f} "
+                        f"{old:>9.1f}"
+                    )
 
 
 def _true_times(b, times_file):
@@ -84,16 +92,24 @@ def real(quick: bool) -> None:
         b = load_bracket(files, exposure_times=None if times_name is None else d / times_name)
         pipe = Pipeline(b)
         n = pipe.noise()
-        print(f"\n## {name}: sigma per frame (levels) "
-              + ", ".join(f"{f.sigma:.2f}" for f in n.frames)
-              + f"; default floor {pipe.auto_noise_floor(kw.get('exclude_colour')):.2f}")
+        print(
+            f"\n## {name}: sigma per frame (levels) "
+            + ", ".join(f"{f.sigma:.2f}" for f in n.frames)
+            + f"; default floor {pipe.auto_noise_floor(kw.get('exclude_colour')):.2f}"
+        )
         truth = _true_times(b, times_name)
-        print(f"{'floor':>7} {'ok pairs':>9} {'median err %':>12} {'max err %':>10} "
-              f"{'ghost %':>8} {'seconds':>8}")
+        print(
+            f"{'floor':>7} {'ok pairs':>9} {'median err %':>12} {'max err %':>10} "
+            f"{'ghost %':>8} {'seconds':>8}"
+        )
         for floor in floors + EXTRA_FLOORS.get(name, ()):
             t0 = time.perf_counter()
-            r = pipe.run(PipelineParams(noise_floor=floor, preview_max_side=400,
-                                        registration_previews=False, **kw), until="merge")
+            r = pipe.run(
+                PipelineParams(
+                    noise_floor=floor, preview_max_side=400, registration_previews=False, **kw
+                ),
+                until="merge",
+            )
             errs, ok = [], 0
             for p in r.exposures.pairs:
                 if not np.isfinite(p.ratio):
@@ -104,9 +120,11 @@ def real(quick: bool) -> None:
                 ok += p.ok
             med = 100 * float(np.median(errs)) if errs else float("nan")
             mx = 100 * float(np.max(errs)) if errs else float("nan")
-            print(f"{r.noise_floor:>7.2f} {ok:>4}/{len(r.exposures.pairs):<4} {med:>12.3f} "
-                  f"{mx:>10.3f} {100 * float(r.merge.ghost.mean()):>8.1f} "
-                  f"{time.perf_counter() - t0:>8.1f}")
+            print(
+                f"{r.noise_floor:>7.2f} {ok:>4}/{len(r.exposures.pairs):<4} {med:>12.3f} "
+                f"{mx:>10.3f} {100 * float(r.merge.ghost.mean()):>8.1f} "
+                f"{time.perf_counter() - t0:>8.1f}"
+            )
 
 
 def main() -> None:

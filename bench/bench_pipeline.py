@@ -54,16 +54,26 @@ def make_bracket(size: tuple[int, int], frames: int, bits: int = 12) -> Path:
 
     h, w = size
     d = OUT / (f"pipeline_{h}x{w}_{frames}" + ("" if bits == 12 else f"_{bits}bit"))
-    if (d / "truth.json").exists() and json.loads(
-            (d / "truth.json").read_text()).get("rendering") == "area":
+    if (d / "truth.json").exists() and json.loads((d / "truth.json").read_text()).get(
+        "rendering"
+    ) == "area":
         return d  # (a bracket from the earlier log-cubic renderer is made again)
     d.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     times = tuple(2.0 ** (2 * k) / 256 for k in range(frames))
     sim = simulate_bracket(
-        scene="window", shape=(h, w), exposure_times=times, bits=bits, response="linear",
-        noise_sigma=2.0, shot_noise_full_well=20000, max_shift=20, max_rotation_deg=1.0,
-        key=0.24, seed=11, keep_linear=True,
+        scene="window",
+        shape=(h, w),
+        exposure_times=times,
+        bits=bits,
+        response="linear",
+        noise_sigma=2.0,
+        shot_noise_full_well=20000,
+        max_shift=20,
+        max_rotation_deg=1.0,
+        key=0.24,
+        seed=11,
+        keep_linear=True,
     )
     write_bracket(d, sim, "dng", force=True)
     print(f"# made {d} in {time.perf_counter() - t0:.1f} s", file=sys.stderr)
@@ -96,8 +106,11 @@ def child_ours(d: Path) -> dict:
     # As ``hdrcore merge --preview``: a preview PNG of at most 2048 px on its longest side.
     # reuse_buffers: the second run writes its merge into the first run's arrays (a long-lived
     # process; the first run, as 'hdrcore merge', allocates them).
-    pipe = Pipeline(bracket, PipelineParams(preview_max_side=2048, registration_previews=False),
-                    reuse_buffers=True)
+    pipe = Pipeline(
+        bracket,
+        PipelineParams(preview_max_side=2048, registration_previews=False),
+        reuse_buffers=True,
+    )
     t1 = time.perf_counter()
     res = pipe.run()
     cold = time.perf_counter() - t1
@@ -125,11 +138,16 @@ def child_ours(d: Path) -> dict:
     err = [abs(r / t - 1) for r, t in zip(res.exposures.ratios, truth["ratios"], strict=True)]
     from hdrcore.registration import corner_error
 
-    corner = [
-        float(np.max(corner_error(p.matrix, np.array(truth["pairs"][k]["matrix"]),
-                                  bracket.shape)))
-        for k, p in enumerate(res.registration.pairs)
-    ] if res.registration is not None else []
+    corner = (
+        [
+            float(
+                np.max(corner_error(p.matrix, np.array(truth["pairs"][k]["matrix"]), bracket.shape))
+            )
+            for k, p in enumerate(res.registration.pairs)
+        ]
+        if res.registration is not None
+        else []
+    )
     return {
         "retain_freed_memory": retained,
         "decode_s": decode,
@@ -177,8 +195,11 @@ def child_opencv(d: Path) -> dict:
     _ = np.clip(ldr * 255, 0, 255).astype(np.uint8)
     t_tm = time.perf_counter() - t2
     return {
-        "align_s": t_align, "merge_s": t_merge, "tonemap_s": t_tm,
-        "pipeline_s": t_align + t_merge + t_tm, "peak_mb": _peak_mb(),
+        "align_s": t_align,
+        "merge_s": t_merge,
+        "tonemap_s": t_tm,
+        "pipeline_s": t_align + t_merge + t_tm,
+        "peak_mb": _peak_mb(),
         "after_decode_mb": base_mb,
     }
 
@@ -196,9 +217,14 @@ def child_hdrutils(d: Path) -> dict:
         # HDRutils passes user_wb=(1, 1, 1, 1) for raw colour, a tuple the installed rawpy
         # rejects ("expected list"); the same call with a list.
         if color_space.lower() == "raw":
-            return raw.postprocess(gamma=(1, 1), no_auto_bright=True, output_bps=16,
-                                   user_wb=[1, 1, 1, 1], user_flip=0,
-                                   output_color=rawpy.ColorSpace.raw)
+            return raw.postprocess(
+                gamma=(1, 1),
+                no_auto_bright=True,
+                output_bps=16,
+                user_wb=[1, 1, 1, 1],
+                user_flip=0,
+                output_color=rawpy.ColorSpace.raw,
+            )
         return original(raw, color_space)
 
     hio.imread_libraw = imread_libraw
@@ -208,11 +234,19 @@ def child_hdrutils(d: Path) -> dict:
     n = len(files)
     t0 = time.perf_counter()
     # Its EXIF reader does not find our DNG tags, so the metadata is given by hand.
-    HDRutils.merge(files, demosaic_first=True, color_space="raw",
-                   exp=np.array(truth["exposure_times"]), gain=np.ones(n),
-                   aperture=np.ones(n))
-    return {"pipeline_s": time.perf_counter() - t0, "peak_mb": _peak_mb(),
-            "note": "includes its own decode"}
+    HDRutils.merge(
+        files,
+        demosaic_first=True,
+        color_space="raw",
+        exp=np.array(truth["exposure_times"]),
+        gain=np.ones(n),
+        aperture=np.ones(n),
+    )
+    return {
+        "pipeline_s": time.perf_counter() - t0,
+        "peak_mb": _peak_mb(),
+        "note": "includes its own decode",
+    }
 
 
 def _child_rusage() -> tuple[float, float]:
@@ -228,8 +262,21 @@ def child_command(d: Path) -> dict:
 
     frames = sorted(str(p) for p in d.glob("*.dng"))
     with tempfile.TemporaryDirectory(dir=OUT) as tmp:
-        cmd = [sys.executable, "-m", "hdrcore", "merge", *frames, "-o", f"{tmp}/m.exr",
-               "--preview", f"{tmp}/m.png", "--report", f"{tmp}/m.json", "--quiet", "--force"]
+        cmd = [
+            sys.executable,
+            "-m",
+            "hdrcore",
+            "merge",
+            *frames,
+            "-o",
+            f"{tmp}/m.exr",
+            "--preview",
+            f"{tmp}/m.png",
+            "--report",
+            f"{tmp}/m.json",
+            "--quiet",
+            "--force",
+        ]
         if os.environ.get("HDRCORE_BENCH_DNG"):
             cmd += ["--dng", f"{tmp}/m.dng"]
         t0 = time.perf_counter()
@@ -239,11 +286,16 @@ def child_command(d: Path) -> dict:
             raise RuntimeError(proc.stderr.strip().splitlines()[-1])
         report = json.loads(Path(f"{tmp}/m.json").read_text())
     cpu, peak = _child_rusage()
-    return {"wall_s": wall, "cpu_s": cpu, "peak_mb": peak,
-            "decode_s": report["timings"].get("decode"),
-            "write_s": report["timings"].get("write"),
-            "stages": {k: v for k, v in report["timings"].items()
-                       if k not in ("decode", "write", "total")}}
+    return {
+        "wall_s": wall,
+        "cpu_s": cpu,
+        "peak_mb": peak,
+        "decode_s": report["timings"].get("decode"),
+        "write_s": report["timings"].get("write"),
+        "stages": {
+            k: v for k, v in report["timings"].items() if k not in ("decode", "write", "total")
+        },
+    }
 
 
 def child_peer(d: Path) -> dict:
@@ -280,10 +332,15 @@ def child_peer(d: Path) -> dict:
         OpenEXR.File(header, {"RGB": rgb.astype(np.float16)}).write(f"{tmp}/peer.exr")
     t_wr = time.perf_counter()
     r1 = resource.getrusage(resource.RUSAGE_SELF)
-    return {"wall_s": t_wr - t0, "cpu_s": (r1.ru_utime + r1.ru_stime) - (r0.ru_utime
-                                                                          + r0.ru_stime),
-            "peak_mb": _peak_mb(), "decode_s": t_dec - t0, "align_s": t_al - t_dec,
-            "merge_s": t_me - t_al, "write_s": t_wr - t_me}
+    return {
+        "wall_s": t_wr - t0,
+        "cpu_s": (r1.ru_utime + r1.ru_stime) - (r0.ru_utime + r0.ru_stime),
+        "peak_mb": _peak_mb(),
+        "decode_s": t_dec - t0,
+        "align_s": t_al - t_dec,
+        "merge_s": t_me - t_al,
+        "write_s": t_wr - t_me,
+    }
 
 
 def tempfile_dir():
@@ -292,15 +349,23 @@ def tempfile_dir():
     return tempfile.TemporaryDirectory(dir=OUT)
 
 
-CHILDREN = {"ours": child_ours, "opencv": child_opencv, "hdrutils": child_hdrutils,
-            "command": child_command, "peer": child_peer}
+CHILDREN = {
+    "ours": child_ours,
+    "opencv": child_opencv,
+    "hdrutils": child_hdrutils,
+    "command": child_command,
+    "peer": child_peer,
+}
 
 
 def run_child(name: str, d: Path, retain: bool = True, **extra_env: str) -> dict:
     env = dict(os.environ, HDRCORE_RETAIN_MEMORY="1" if retain else "0", **extra_env)
     proc = subprocess.run(
         [sys.executable, __file__, "--child", name, "--dir", str(d)],
-        capture_output=True, text=True, timeout=1800, env=env,
+        capture_output=True,
+        text=True,
+        timeout=1800,
+        env=env,
     )
     if proc.returncode != 0:
         tail = (proc.stderr or "").strip().splitlines()[-1:] or ["?"]
@@ -311,19 +376,24 @@ def run_child(name: str, d: Path, retain: bool = True, **extra_env: str) -> dict
 def whole_command(d: Path, repeat: int, skip: set[str]) -> None:
     """The issue-18 table: the whole command, decode included, beside the peer."""
     runs: dict[str, list[dict]] = {}
-    contenders = [("hdrcore merge (ours: mosaic read + demosaic)", "command", {}),
-                  ("hdrcore merge, LibRaw AHD decode", "command",
-                   {"HDRCORE_RAW_DEMOSAIC": "libraw-ahd"}),
-                  ("hdrcore merge (ours) + --dng", "command", {"HDRCORE_BENCH_DNG": "1"}),
-                  ("rawpy + AlignMTB + MergeDebevec + EXR", "peer", {})]
+    contenders = [
+        ("hdrcore merge (ours: mosaic read + demosaic)", "command", {}),
+        ("hdrcore merge, LibRaw AHD decode", "command", {"HDRCORE_RAW_DEMOSAIC": "libraw-ahd"}),
+        ("hdrcore merge (ours) + --dng", "command", {"HDRCORE_BENCH_DNG": "1"}),
+        ("rawpy + AlignMTB + MergeDebevec + EXR", "peer", {}),
+    ]
     contenders = [c for c in contenders if c[1] not in skip]
     for _ in range(repeat):
         for label, child, env in contenders:
             runs.setdefault(label, []).append(run_child(child, d, **env))
-    print("\n## the whole command, decode INCLUDED (each in a new process; best of "
-          f"{repeat} by wall, alternated; load average now {os.getloadavg()[0]:.2f})")
-    print(f"{'contender':<46}{'wall s':>8}{'CPU s':>8}{'decode':>8}{'write':>8}"
-          f"{'peak MB':>9}{'x peer':>8}")
+    print(
+        "\n## the whole command, decode INCLUDED (each in a new process; best of "
+        f"{repeat} by wall, alternated; load average now {os.getloadavg()[0]:.2f})"
+    )
+    print(
+        f"{'contender':<46}{'wall s':>8}{'CPU s':>8}{'decode':>8}{'write':>8}"
+        f"{'peak MB':>9}{'x peer':>8}"
+    )
     best = {}
     for label, rs in runs.items():
         ok = [r for r in rs if "error" not in r]
@@ -336,26 +406,35 @@ def whole_command(d: Path, repeat: int, skip: set[str]) -> None:
         ratio = "-" if peer is None else f"{r['wall_s'] / peer['wall_s']:.2f}"
         dec = "-" if r.get("decode_s") is None else f"{r['decode_s']:.2f}"
         wr = "-" if r.get("write_s") is None else f"{r['write_s']:.2f}"
-        print(f"{label:<46}{r['wall_s']:>8.2f}{r['cpu_s']:>8.2f}{dec:>8}{wr:>8}"
-              f"{r['peak_mb']:>9.0f}{ratio:>8}")
+        print(
+            f"{label:<46}{r['wall_s']:>8.2f}{r['cpu_s']:>8.2f}{dec:>8}{wr:>8}"
+            f"{r['peak_mb']:>9.0f}{ratio:>8}"
+        )
     for label, rs in runs.items():
         walls = ", ".join(f"{r['wall_s']:.2f}" for r in rs if "error" not in r)
         print(f"#   {label}: every run {walls} s")
     ours = best.get("hdrcore merge (ours: mosaic read + demosaic)")
     if ours:
-        print("#   ours per stage (s): " + ", ".join(
-            f"{k} {v:.2f}" for k, v in ours["stages"].items() if isinstance(v, float)))
+        print(
+            "#   ours per stage (s): "
+            + ", ".join(f"{k} {v:.2f}" for k, v in ours["stages"].items() if isinstance(v, float))
+        )
     print("#   targets (3 x 24 MP): ours <= 2.5 s wall, <= 0.45x the peer, peak <= 1.5 GB")
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("--size", default="4000x6000")
     ap.add_argument("--frames", type=int, default=3)
     ap.add_argument("--bits", type=int, default=12)
-    ap.add_argument("--repeat", type=int, default=2,
-                    help="runs of the whole-command contenders, alternated (best reported)")
+    ap.add_argument(
+        "--repeat",
+        type=int,
+        default=2,
+        help="runs of the whole-command contenders, alternated (best reported)",
+    )
     ap.add_argument("--child", choices=sorted(CHILDREN))
     ap.add_argument("--dir")
     ap.add_argument("--skip", default="", help="comma list of contenders to skip")
@@ -366,8 +445,10 @@ def main() -> None:
     h, w = (int(v) for v in args.size.lower().split("x"))
     d = make_bracket((h, w), args.frames, args.bits)
     skip = {s for s in args.skip.split(",") if s}
-    print(f"# {args.frames}-frame {w}x{h} ({h * w / 1e6:.0f} MP) {args.bits}-bit DNG hand-held "
-          f"bracket, 2 stops; load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores")
+    print(
+        f"# {args.frames}-frame {w}x{h} ({h * w / 1e6:.0f} MP) {args.bits}-bit DNG hand-held "
+        f"bracket, 2 stops; load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores"
+    )
     if "command" not in skip:
         whole_command(d, args.repeat, skip)
     res = {n: run_child(n, d) for n in ("ours", "opencv", "hdrutils") if n not in skip}
@@ -376,9 +457,11 @@ def main() -> None:
     ours, cv = res.get("ours", {}), res.get("opencv", {})
     cv0 = res.get("opencv-default", {})
     if "error" not in ours and ours:
-        print("\n## ours, per stage (seconds): first run in a new process (numba kernels load "
-              "from their cache) and a second run in the same process; glibc keeps freed "
-              f"memory as in the hdrcore program: {ours.get('retain_freed_memory')}")
+        print(
+            "\n## ours, per stage (seconds): first run in a new process (numba kernels load "
+            "from their cache) and a second run in the same process; glibc keeps freed "
+            f"memory as in the hdrcore program: {ours.get('retain_freed_memory')}"
+        )
         print(f"{'stage':<20}{'first':>8}{'second':>8}")
         print(f"{'decode':<20}{ours['decode_s']:>8.2f}   (excluded from the totals)")
         for k, v in ours["stages"].items():
@@ -392,22 +475,48 @@ def main() -> None:
     base = ours.get("pipeline_s") if "error" not in ours else None
     cold_total = ours.get("cold_s")
     rows = [
-        ("ours (2nd run, 2048 px preview)", ours.get("pipeline_s"),
-         ours.get("stages", {}).get("merge"), ours.get("peak_mb")),
-        ("ours (1st run, new process)", cold_total,
-         ours.get("cold_stages", {}).get("merge"), ours.get("peak_mb")),
-        ("ours (1st run + decode)", None if cold_total is None else cold_total
-         + ours.get("decode_s", 0.0), None, ours.get("peak_mb")),
-        ("OpenCV AlignMTB+MergeDebevec+TM", cv.get("pipeline_s"), cv.get("merge_s"),
-         cv.get("peak_mb")),
-        ("  the same, glibc defaults", cv0.get("pipeline_s"), cv0.get("merge_s"),
-         cv0.get("peak_mb")),
-        ("HDRutils.merge (incl. decode)", res.get("hdrutils", {}).get("pipeline_s"), None,
-         res.get("hdrutils", {}).get("peak_mb")),
+        (
+            "ours (2nd run, 2048 px preview)",
+            ours.get("pipeline_s"),
+            ours.get("stages", {}).get("merge"),
+            ours.get("peak_mb"),
+        ),
+        (
+            "ours (1st run, new process)",
+            cold_total,
+            ours.get("cold_stages", {}).get("merge"),
+            ours.get("peak_mb"),
+        ),
+        (
+            "ours (1st run + decode)",
+            None if cold_total is None else cold_total + ours.get("decode_s", 0.0),
+            None,
+            ours.get("peak_mb"),
+        ),
+        (
+            "OpenCV AlignMTB+MergeDebevec+TM",
+            cv.get("pipeline_s"),
+            cv.get("merge_s"),
+            cv.get("peak_mb"),
+        ),
+        (
+            "  the same, glibc defaults",
+            cv0.get("pipeline_s"),
+            cv0.get("merge_s"),
+            cv0.get("peak_mb"),
+        ),
+        (
+            "HDRutils.merge (incl. decode)",
+            res.get("hdrutils", {}).get("pipeline_s"),
+            None,
+            res.get("hdrutils", {}).get("peak_mb"),
+        ),
     ]
     for name, tot, mer, mb in rows:
+
         def f(v: float | None, fmt: str = ".2f") -> str:
             return "-" if v is None else format(v, fmt)
+
         ratio = f(tot / base) if (tot and base) else "-"
         print(f"{name:<34}{f(tot):>9}{f(mer):>9}{f(mb, '.0f'):>9}{ratio:>8}")
     for n, r in res.items():
@@ -415,18 +524,23 @@ def main() -> None:
             print(f"# {n} failed: {r['error']}")
     if ours.get("stages", {}).get("merge") and cv.get("merge_s"):
         print("\nmerge step / MergeDebevec (target <= 0.30 for the merge of the same frames):")
-        for label, ref in (("same allocator setting", cv), ("MergeDebevec on glibc defaults",
-                                                            cv0)):
+        for label, ref in (("same allocator setting", cv), ("MergeDebevec on glibc defaults", cv0)):
             if ref.get("merge_s"):
                 print(f"  {label}:")
-                print(f"    merge + colour of the frames as given  "
-                      f"{ours['merge_as_given_s'] / ref['merge_s']:.2f}")
-                print(f"    hand-held: warp 2 frames + merge + colour  "
-                      f"{ours['stages']['merge'] / ref['merge_s']:.2f} (our second run), "
-                      f"{ours['cold_stages']['merge'] / ref['merge_s']:.2f} (first)")
-        print("  (MergeDebevec gets AlignMTB-shifted 8-bit frames; ours 12-bit levels. Our "
-              "first run pays the first touch of its output arrays in a new process, as "
-              "MergeDebevec does in its own; bench_merge.py compares both in one process)")
+                print(
+                    f"    merge + colour of the frames as given  "
+                    f"{ours['merge_as_given_s'] / ref['merge_s']:.2f}"
+                )
+                print(
+                    f"    hand-held: warp 2 frames + merge + colour  "
+                    f"{ours['stages']['merge'] / ref['merge_s']:.2f} (our second run), "
+                    f"{ours['cold_stages']['merge'] / ref['merge_s']:.2f} (first)"
+                )
+        print(
+            "  (MergeDebevec gets AlignMTB-shifted 8-bit frames; ours 12-bit levels. Our "
+            "first run pays the first touch of its output arrays in a new process, as "
+            "MergeDebevec does in its own; bench_merge.py compares both in one process)"
+        )
     if ours.get("peak_mb"):
         print(f"peak memory ours: {ours['peak_mb'] / 1024:.2f} GB   target <= 3 GB")
 

@@ -130,8 +130,10 @@ class Pair:
     def linear(self) -> tuple[np.ndarray, np.ndarray]:
         if "linear" not in self._cache:
             if self.lut is None:
-                self._cache["linear"] = (np.asarray(self.dark, np.float32),
-                                         np.asarray(self.bright, np.float32))
+                self._cache["linear"] = (
+                    np.asarray(self.dark, np.float32),
+                    np.asarray(self.bright, np.float32),
+                )
             else:
                 self._cache["linear"] = (self.lut[self.dark], self.lut[self.bright])
         return self._cache["linear"]
@@ -194,14 +196,24 @@ def ours(model: str, check: bool = True) -> Callable[[Pair], Estimate]:
     """Our registration; with ``check`` (the accuracy tables) the pair's status includes the
     independent residual check (``check_residual=True``: ``weak`` when the residual is not
     aligned, its motion still used); the speed table times the search alone."""
+
     def run(p: Pair) -> Estimate:
         kw = {"lut": p.lut} if p.lut is not None else {}
-        r = register_pair(p.dark, p.bright, p.ratio, saturation=p.saturation,
-                          noise_floor=p.noise_floor, model=model, previews=False,
-                          check_residual=check, **kw)
+        r = register_pair(
+            p.dark,
+            p.bright,
+            p.ratio,
+            saturation=p.saturation,
+            noise_floor=p.noise_floor,
+            model=model,
+            previews=False,
+            check_residual=check,
+            **kw,
+        )
         h = getattr(r, "homography", None)
         h = _h(r.matrix) if h is None else _h(h)
         return Estimate(h if r.usable else None, r.ok, f"{r.status}: {r.message}")
+
     return run
 
 
@@ -219,12 +231,20 @@ def ours_with_field(model: str) -> Callable[[Pair], Estimate]:
         e = search(p)
         if e.matrix is None or p.truth is not None:
             return e
-        loc = refine_bracket([p.dark, p.bright], [1.0, p.ratio], [np.eye(3), e.matrix], 0,
-                             saturation=p.saturation, noise_floor=p.noise_floor, lut=p.lut)
+        loc = refine_bracket(
+            [p.dark, p.bright],
+            [1.0, p.ratio],
+            [np.eye(3), e.matrix],
+            0,
+            saturation=p.saturation,
+            noise_floor=p.noise_floor,
+            lut=p.lut,
+        )
         fr = loc.frames[0]
         if not fr.kept:
             return e
         return Estimate(e.matrix, e.ok, e.note + "; field kept", field=fr.candidate)
+
     return run
 
 
@@ -256,13 +276,13 @@ def peer_ecc(motion: int) -> Callable[[Pair], Estimate]:
             m = start if motion == cv2.MOTION_HOMOGRAPHY else start[:2]
             try:
                 # template = bright, input = dark: dark(W x) ~ bright(x), W is the pair matrix
-                _, m = cv2.findTransformECC(tpl, inp, m.astype(np.float32), motion, crit,
-                                            None, 5)
+                _, m = cv2.findTransformECC(tpl, inp, m.astype(np.float32), motion, crit, None, 5)
             except cv2.error as exc:
                 return Estimate(None, False, f"ECC failed at 1/{f}: {str(exc).splitlines()[-1]}")
             warp = _rescale(m.astype(np.float64), f)
             f //= 2
         return Estimate(warp, True)
+
     return run
 
 
@@ -278,8 +298,9 @@ def _sift_matches(p: Pair):
         pb = pd = None
         if db is not None and dd is not None and len(kb) >= 4 and len(kd) >= 4:
             matches = cv2.BFMatcher().knnMatch(db, dd, k=2)
-            good = [m for m, n in (q for q in matches if len(q) == 2)
-                    if m.distance < 0.75 * n.distance]
+            good = [
+                m for m, n in (q for q in matches if len(q) == 2) if m.distance < 0.75 * n.distance
+            ]
             if len(good) >= 4:
                 # keypoints at full resolution (a reduced pixel centre x is at f x + (f-1)/2)
                 pb = np.float32([kb[m.queryIdx].pt for m in good]) * f + (f - 1) / 2
@@ -299,23 +320,27 @@ def peer_sift(homography: bool) -> Callable[[Pair], Estimate]:
                 keep = inl.ravel().astype(bool)
                 p._cache["sift_h_inliers"] = (pb[keep], pd[keep])
         else:
-            m, inl = cv2.estimateAffinePartial2D(pb, pd, method=cv2.RANSAC,
-                                                 ransacReprojThreshold=1.0 * f)
+            m, inl = cv2.estimateAffinePartial2D(
+                pb, pd, method=cv2.RANSAC, ransacReprojThreshold=1.0 * f
+            )
         if m is None:
             return Estimate(None, False, "RANSAC found no model", 0)
         return Estimate(_h(m), True, "", int(inl.sum()))
+
     return run
 
 
 def methods() -> dict[str, Callable[[Pair], Estimate]]:
     out: dict[str, Callable[[Pair], Estimate]] = {f"ours {m}": ours(m) for m in MODELS}
-    out.update({
-        "AlignMTB": peer_mtb,
-        "ECC euclidean": peer_ecc(cv2.MOTION_EUCLIDEAN),
-        "ECC homography": peer_ecc(cv2.MOTION_HOMOGRAPHY),
-        "SIFT+RANSAC similarity": peer_sift(False),
-        "SIFT+RANSAC homography": peer_sift(True),
-    })
+    out.update(
+        {
+            "AlignMTB": peer_mtb,
+            "ECC euclidean": peer_ecc(cv2.MOTION_EUCLIDEAN),
+            "ECC homography": peer_ecc(cv2.MOTION_HOMOGRAPHY),
+            "SIFT+RANSAC similarity": peer_sift(False),
+            "SIFT+RANSAC homography": peer_sift(True),
+        }
+    )
     return out
 
 
@@ -347,18 +372,25 @@ def residual_of(p: Pair, matrix: np.ndarray | None, fld=None):
         yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
         sx, sy = map_points(np.linalg.inv(matrix), fld, xx, yy)
         lin = p.lut[p.bright] if p.lut is not None else p.bright
-        b = ndimage.map_coordinates(np.asarray(lin, np.float32), [sy, sx], order=3,
-                                    mode="nearest")
+        b = ndimage.map_coordinates(np.asarray(lin, np.float32), [sy, sx], order=3, mode="nearest")
         b[~((sx >= 0) & (sx <= w - 1) & (sy >= 0) & (sy <= h - 1))] = np.nan
         d = p.lut[p.dark] if p.lut is not None else p.dark
-        return residual_motion(np.asarray(d, np.float32), b.astype(np.float32), p.ratio, None,
-                               saturation=p.saturation, noise_floor=p.noise_floor)
-    return residual_motion(p.dark, p.bright, p.ratio, matrix, saturation=p.saturation,
-                           noise_floor=p.noise_floor, **kw)
+        return residual_motion(
+            np.asarray(d, np.float32),
+            b.astype(np.float32),
+            p.ratio,
+            None,
+            saturation=p.saturation,
+            noise_floor=p.noise_floor,
+        )
+    return residual_motion(
+        p.dark, p.bright, p.ratio, matrix, saturation=p.saturation, noise_floor=p.noise_floor, **kw
+    )
 
 
-def measure(pairs: Sequence[Pair], meths: dict[str, Callable[[Pair], Estimate]]
-            ) -> tuple[dict[str, Row], list[dict]]:
+def measure(
+    pairs: Sequence[Pair], meths: dict[str, Callable[[Pair], Estimate]]
+) -> tuple[dict[str, Row], list[dict]]:
     """Every method on every pair; per-pair details for the per-pair tables."""
     rows = {name: Row() for name in ["none", *meths]}
     details = []
@@ -389,8 +421,11 @@ def measure(pairs: Sequence[Pair], meths: dict[str, Callable[[Pair], Estimate]]
                 c = corner_error(e.matrix, p.truth, p.shape)
                 row.corner.append(float(c.mean()))
                 row.worst.append(float(c.max()))
-            if sift_h is not None and sift_h.matrix is not None \
-                    and sift_h.inliers >= SIFT_MIN_INLIERS:
+            if (
+                sift_h is not None
+                and sift_h.matrix is not None
+                and sift_h.inliers >= SIFT_MIN_INLIERS
+            ):
                 row.to_sift.append(float(corner_error(e.matrix, sift_h.matrix, p.shape).mean()))
                 pb, pd = p._cache["sift_h_inliers"]
                 q = np.c_[pb, np.ones(len(pb))] @ e.matrix.T
@@ -409,11 +444,17 @@ def print_summary(rows: dict[str, Row], n: int, *, truth: bool, sift: bool) -> N
     cols = ["method", "failed"]
     if truth:
         cols += ["mean corner px", "worst corner px"]
-    cols += ["residual px (median pair)", "residual px (worst pair)", "residual unmeasured",
-             "ok, res > 1 px"]
+    cols += [
+        "residual px (median pair)",
+        "residual px (worst pair)",
+        "residual unmeasured",
+        "ok, res > 1 px",
+    ]
     if sift:
-        cols += [f"to SIFT-H px (SIFT >= {SIFT_MIN_INLIERS} inliers)",
-                 "SIFT-H inliers reprojected px"]
+        cols += [
+            f"to SIFT-H px (SIFT >= {SIFT_MIN_INLIERS} inliers)",
+            "SIFT-H inliers reprojected px",
+        ]
     cols += ["s/pair", "x MTB"]
     print("\n| " + " | ".join(cols) + " |")
     print("|" + "---|" * len(cols))
@@ -422,13 +463,19 @@ def print_summary(rows: dict[str, Row], n: int, *, truth: bool, sift: bool) -> N
         if truth:
             cells += [_f(r.corner, np.mean), _f(r.worst, np.max)]
         unmeasured = int(np.isnan(r.residual).sum()) - r.fails
-        cells += [_f(r.residual, np.median), _f(r.residual, np.max), f"{unmeasured}",
-                  f"{r.ok_but_off}" if name.startswith("ours") else ""]
+        cells += [
+            _f(r.residual, np.median),
+            _f(r.residual, np.max),
+            f"{unmeasured}",
+            f"{r.ok_but_off}" if name.startswith("ours") else "",
+        ]
         if sift:
             cells += [_f(r.to_sift, np.mean) + f" ({len(r.to_sift)})", _f(r.reproj, np.mean)]
         secs = float(np.sum(r.seconds))
-        cells += ["" if name == "none" else f"{secs / n:.3f}",
-                  "" if name == "none" or not mtb else f"{secs / mtb:.1f}"]
+        cells += [
+            "" if name == "none" else f"{secs / n:.3f}",
+            "" if name == "none" or not mtb else f"{secs / mtb:.1f}",
+        ]
         print("| " + " | ".join(cells) + " |")
 
 
@@ -436,20 +483,30 @@ def print_pairs(details: list[dict], names: Sequence[str]) -> None:
     """Per pair: SIFT inliers, the residual of each method, and for ours with the default
     model its status and the residual's sentence."""
     default = inspect.signature(register_pair).parameters["model"].default
-    first = f"ours {default}" if f"ours {default}" in names else next(
-        n for n in names if n.startswith("ours"))
-    print("\n| pair | SIFT inliers sim/H | " + " | ".join(names) +
-          f" | {first}: status / residual says |")
+    first = (
+        f"ours {default}"
+        if f"ours {default}" in names
+        else next(n for n in names if n.startswith("ours"))
+    )
+    print(
+        "\n| pair | SIFT inliers sim/H | "
+        + " | ".join(names)
+        + f" | {first}: status / residual says |"
+    )
     print("|" + "---|" * (len(names) + 3))
     for det in details:
         est, res = det["estimates"], det["residual"]
-        inl = "/".join(str(est[k].inliers) for k in ("SIFT+RANSAC similarity",
-                                                     "SIFT+RANSAC homography") if k in est)
+        inl = "/".join(
+            str(est[k].inliers)
+            for k in ("SIFT+RANSAC similarity", "SIFT+RANSAC homography")
+            if k in est
+        )
         cells = []
         for n in names:
             r = res.get(n)
-            cells.append("fail" if r is None else ("-" if r.status == "unmeasured"
-                                                   else f"{r.median:.2f}"))
+            cells.append(
+                "fail" if r is None else ("-" if r.status == "unmeasured" else f"{r.median:.2f}")
+            )
         r0 = res.get(first)
         say = est[first].note.split(":")[0] + " / " + ("-" if r0 is None else r0.describe())
         print(f"| {det['pair']} | {inl} | " + " | ".join(cells) + f" | {say} |")
@@ -497,8 +554,9 @@ def simulated_pair(kind: str, bits: int, seed: int, shape: tuple[int, int]) -> P
     margin = 48
     scene = SCENES[seed % len(SCENES)]
     big = make_scene(scene, (h + 2 * margin, w + 2 * margin), seed)[..., 1].astype(np.float64)
-    motion = similarity3(shape, *rng.uniform(-15, 15, 2), rng.uniform(-1, 1),
-                         rng.uniform(0.99, 1.01))
+    motion = similarity3(
+        shape, *rng.uniform(-15, 15, 2), rng.uniform(-1, 1), rng.uniform(0.99, 1.01)
+    )
     if kind == "homography":
         motion = motion @ tilt3(shape, *rng.uniform(-0.01, 0.01, 2))
     dark = _render(big, np.eye(3), shape, margin)
@@ -512,8 +570,9 @@ def simulated_pair(kind: str, bits: int, seed: int, shape: tuple[int, int]) -> P
         yy, xx = np.mgrid[0 : big.shape[0], 0 : big.shape[1]].astype(np.float64)
         cx, cy = rng.uniform(0.25, 0.75) * w + margin, rng.uniform(0.3, 0.7) * h + margin
         ax, ay = 0.18 * w, 0.16 * h
-        alpha = np.clip(1.5 - 1.5 * np.maximum(np.abs(xx - cx) / ax, np.abs(yy - cy) / ay) ** 4,
-                        0, 1)
+        alpha = np.clip(
+            1.5 - 1.5 * np.maximum(np.abs(xx - cx) / ax, np.abs(yy - cy) / ay) ** 4, 0, 1
+        )
         ang = rng.uniform(0, 2 * np.pi)
         par = rng.uniform(2, 6) * np.array([np.cos(ang), np.sin(ang)])
         near = np.eye(3)
@@ -532,8 +591,15 @@ def simulated_pair(kind: str, bits: int, seed: int, shape: tuple[int, int]) -> P
         y = np.clip(e * t * key, 0, 1) * ml + noise.standard_normal(e.shape)
         return (np.clip(np.rint(y), 0, ml) / ml).astype(np.float32)
 
-    return Pair(f"{scene} {seed}", expose(dark, 1.0), expose(bright, ratio), ratio, 0.97,
-                5.0 / ml, truth=motion)
+    return Pair(
+        f"{scene} {seed}",
+        expose(dark, 1.0),
+        expose(bright, ratio),
+        ratio,
+        0.97,
+        5.0 / ml,
+        truth=motion,
+    )
 
 
 def simulated(args, meths) -> None:
@@ -544,8 +610,10 @@ def simulated(args, meths) -> None:
         for bits in bits_list:
             pairs = [simulated_pair(kind, bits, s, tuple(args.shape)) for s in range(n)]
             rows, _ = measure(pairs, meths)
-            print(f"\n### Simulated {kind}, {bits}-bit, {args.shape[1]}x{args.shape[0]}, "
-                  f"ratio 4, {n} pairs")
+            print(
+                f"\n### Simulated {kind}, {bits}-bit, {args.shape[1]}x{args.shape[0]}, "
+                f"ratio 4, {n} pairs"
+            )
             print_summary(rows, n, truth=True, sift=False)
 
 
@@ -571,8 +639,9 @@ def _warp_spline(img: np.ndarray, m: np.ndarray) -> np.ndarray:
     zw = m[2, 0] * xx + m[2, 1] * yy + m[2, 2]
     xs = (m[0, 0] * xx + m[0, 1] * yy + m[0, 2]) / zw
     ys = (m[1, 0] * xx + m[1, 1] * yy + m[1, 2]) / zw
-    out = ndimage.map_coordinates(np.asarray(img, np.float64), [ys, xs], order=3,
-                                  mode="nearest").astype(np.float32)
+    out = ndimage.map_coordinates(
+        np.asarray(img, np.float64), [ys, xs], order=3, mode="nearest"
+    ).astype(np.float32)
     out[~((xs >= 0) & (xs <= w - 1) & (ys >= 0) & (ys <= h - 1))] = np.nan
     return out
 
@@ -586,12 +655,18 @@ def moved(args, meths) -> None:
     h, w = levels[0].shape
     b = 40
     crop = (slice(b, h - b), slice(b, w - b))
-    sims = [(7.3, -4.6, 0.6, 1.006), (-12.8, 9.1, -0.9, 0.993), (3.4, 15.2, 0.3, 1.009),
-            (-18.5, -6.7, 1.0, 0.991)]
+    sims = [
+        (7.3, -4.6, 0.6, 1.006),
+        (-12.8, 9.1, -0.9, 0.993),
+        (3.4, 15.2, 0.3, 1.009),
+        (-18.5, -6.7, 1.0, 0.991),
+    ]
     tilts = [(0.006, -0.004), (-0.008, 0.005), (0.004, 0.009), (-0.009, -0.006)]
     motions = [("similarity", similarity3((h, w), *s), s) for s in sims]
-    motions += [("homography", similarity3((h, w), *s) @ tilt3((h, w), *t), s + t)
-                for s, t in zip(sims, tilts, strict=True)]
+    motions += [
+        ("homography", similarity3((h, w), *s) @ tilt3((h, w), *t), s + t)
+        for s, t in zip(sims, tilts, strict=True)
+    ]
     if args.quick:
         motions = motions[::2][:4]
     shift, back = np.eye(3), np.eye(3)
@@ -603,15 +678,29 @@ def moved(args, meths) -> None:
             # bright(x) = original_bright(T x): the pair matrix (bright -> dark) is T.
             moved_b = np.nan_to_num(_warp_spline(linear[i + 1], t_full)[crop], nan=0.0)
             truth = back @ t_full @ shift  # in the crop's coordinates
-            gamma = (levels[i][crop].copy(),
-                     np.clip(np.rint(_warp_spline(levels[i + 1].astype(np.float32), t_full)[crop]),
-                             0, 255).astype(np.uint8))
-            pairs.append(Pair(f"{i}-{i + 1} {kind} {np.round(par, 3).tolist()}",
-                              linear[i][crop].copy(), moved_b.astype(np.float32), k,
-                              float(lut[247]), float(lut[5]), truth=truth, gamma=gamma))
+            gamma = (
+                levels[i][crop].copy(),
+                np.clip(
+                    np.rint(_warp_spline(levels[i + 1].astype(np.float32), t_full)[crop]), 0, 255
+                ).astype(np.uint8),
+            )
+            pairs.append(
+                Pair(
+                    f"{i}-{i + 1} {kind} {np.round(par, 3).tolist()}",
+                    linear[i][crop].copy(),
+                    moved_b.astype(np.float32),
+                    k,
+                    float(lut[247]),
+                    float(lut[5]),
+                    truth=truth,
+                    gamma=gamma,
+                )
+            )
     rows, details = measure(pairs, meths)
-    print(f"\n## Real frobisher frames ({w}x{h} JPEG, tripod, ratio 8) moved by a known "
-          f"similarity / homography ({len(pairs)} pairs, a {b} px border cropped)")
+    print(
+        f"\n## Real frobisher frames ({w}x{h} JPEG, tripod, ratio 8) moved by a known "
+        f"similarity / homography ({len(pairs)} pairs, a {b} px border cropped)"
+    )
     print_summary(rows, len(pairs), truth=True, sift=True)
     print_pairs(details, list(rows))
 
@@ -623,11 +712,9 @@ def _load_real(name: str):
     d = DATA / name
     files = sorted(p for p in d.iterdir() if p.suffix.lower() in (".jpg", ".jpeg"))
     b = load_bracket(files)
-    r = Pipeline(b).run(PipelineParams(align="none", registration_previews=False),
-                        until="ratios")
+    r = Pipeline(b).run(PipelineParams(align="none", registration_previews=False), until="ratios")
     m = b.max_level
-    lut = (np.arange(m + 1, dtype=np.float32) / m if r.lut is None
-           else r.lut[1].astype(np.float32))
+    lut = np.arange(m + 1, dtype=np.float32) / m if r.lut is None else r.lut[1].astype(np.float32)
     sat = float(np.interp(r.saturation, np.arange(m + 1), lut))
     nf = float(np.interp(r.noise_floor, np.arange(m + 1), lut))
     ratios = [float(x) for x in r.exposures.starting_ratios()]
@@ -636,8 +723,11 @@ def _load_real(name: str):
 
 
 def real(args, meths) -> None:
-    sets = ["handheld-pixel7-lab"] if args.quick else ["handheld-xperia-library",
-                                                       "handheld-pixel7-lab"]
+    sets = (
+        ["handheld-pixel7-lab"]
+        if args.quick
+        else ["handheld-xperia-library", "handheld-pixel7-lab"]
+    )
     for name in sets:
         if not (DATA / name).is_dir():
             print(f"\n({name} skipped: not found)")
@@ -647,8 +737,18 @@ def real(args, meths) -> None:
         for i in range(len(b.frames) - 1):
             d = b.frames[i].levels[..., 1]
             g = b.frames[i + 1].levels[..., 1]
-            pairs.append(Pair(f"{names[i]} -> {names[i + 1]}", d, g, ratios[i], sat, nf,
-                              lut=lut, gamma=(np.ascontiguousarray(d), np.ascontiguousarray(g))))
+            pairs.append(
+                Pair(
+                    f"{names[i]} -> {names[i + 1]}",
+                    d,
+                    g,
+                    ratios[i],
+                    sat,
+                    nf,
+                    lut=lut,
+                    gamma=(np.ascontiguousarray(d), np.ascontiguousarray(g)),
+                )
+            )
         real_meths = dict(meths)
         if "ours homography" in meths:  # what the pipeline warps with: the motion and a field
             real_meths = {}
@@ -658,18 +758,25 @@ def real(args, meths) -> None:
                     real_meths["ours homography + field"] = ours_with_field("homography")
         rows, details = measure(pairs, real_meths)
         h, w = b.shape
-        print(f"\n## Real hand-held bracket {name} ({w}x{h} JPEG, {len(pairs)} consecutive "
-              f"pairs, ratios {', '.join(f'{r:.2f}' for r in ratios)})")
+        print(
+            f"\n## Real hand-held bracket {name} ({w}x{h} JPEG, {len(pairs)} consecutive "
+            f"pairs, ratios {', '.join(f'{r:.2f}' for r in ratios)})"
+        )
         print_summary(rows, len(pairs), truth=False, sift=True)
         print_pairs(details, list(rows))
         sim = rows["SIFT+RANSAC similarity"].residual
         for mname, row in rows.items():
             if not mname.startswith("ours"):
                 continue
-            worse = [det["pair"] for det, r, s in zip(details, row.residual, sim, strict=True)
-                     if not (np.isfinite(r) and r <= max(0.3, s if np.isfinite(s) else 0.3))]
-            print(f"\n{mname}: pairs with a residual above max(0.3 px, SIFT similarity's): "
-                  f"{len(worse)}/{len(pairs)}" + (f" ({'; '.join(worse)})" if worse else ""))
+            worse = [
+                det["pair"]
+                for det, r, s in zip(details, row.residual, sim, strict=True)
+                if not (np.isfinite(r) and r <= max(0.3, s if np.isfinite(s) else 0.3))
+            ]
+            print(
+                f"\n{mname}: pairs with a residual above max(0.3 px, SIFT similarity's): "
+                f"{len(worse)}/{len(pairs)}" + (f" ({'; '.join(worse)})" if worse else "")
+            )
 
 
 # ---------------------------------------------------------------------------------- speed
@@ -688,16 +795,28 @@ def speed(args, meths) -> None:
     lut = np.arange(ml + 1, dtype=np.float32) / ml
     views = [f.levels[..., 1] for f in b.frames]
     # noise floor: 5 sigma of the bracket's read noise (2 levels)
-    pair = Pair("24 MP 0-1", views[0], views[1], float(truth["ratios"][0]), 0.97, 10.0 / ml,
-                lut=lut, truth=_h(np.array(truth["pairs"][0]["matrix"])))
-    print(f"\n## Speed: one 24-megapixel pair (6000x4000, the pipeline bench's bracket), best of "
-          f"3, same run; load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores")
+    pair = Pair(
+        "24 MP 0-1",
+        views[0],
+        views[1],
+        float(truth["ratios"][0]),
+        0.97,
+        10.0 / ml,
+        lut=lut,
+        truth=_h(np.array(truth["pairs"][0]["matrix"])),
+    )
+    print(
+        f"\n## Speed: one 24-megapixel pair (6000x4000, the pipeline bench's bracket), best of "
+        f"3, same run; load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores"
+    )
     print("\n| method | best s | x MTB | worst corner px | residual px |")
     print("|---|---|---|---|---|")
     best: dict[str, float] = {}
     out: dict[str, Estimate] = {}
-    meths = {n: (ours(n.split()[1], check=False) if n.startswith("ours") else f)
-             for n, f in meths.items()}  # the search alone; the residual check is timed below
+    meths = {
+        n: (ours(n.split()[1], check=False) if n.startswith("ours") else f)
+        for n, f in meths.items()
+    }  # the search alone; the residual check is timed below
     order = ["AlignMTB"] + [m for m in meths if m != "AlignMTB"]
     for name in order:
         if name.startswith("ECC") or name.startswith("SIFT"):
@@ -712,28 +831,39 @@ def speed(args, meths) -> None:
     for name, t in best.items():
         e = out[name]
         res = residual_of(pair, e.matrix)
-        c = ("-" if e.matrix is None
-             else f"{corner_error(e.matrix, pair.truth, pair.shape).max():.3f}")
+        c = (
+            "-"
+            if e.matrix is None
+            else f"{corner_error(e.matrix, pair.truth, pair.shape).max():.3f}"
+        )
         r = "-" if res is None or res.status == "unmeasured" else f"{res.median:.3f}"
         print(f"| {name} | {t:.3f} | {t / best['AlignMTB']:.2f} | {c} | {r} |")
     default = inspect.signature(register_pair).parameters["model"].default
-    first = f"ours {default}" if f"ours {default}" in best else next(
-        n for n in best if n.startswith("ours"))
+    first = (
+        f"ours {default}"
+        if f"ours {default}" in best
+        else next(n for n in best if n.startswith("ours"))
+    )
     ts = []
     for _ in range(3):
         t0 = time.perf_counter()
         res = residual_of(pair, out[first].matrix)
         ts.append(time.perf_counter() - t0)
-    print(f"\nresidual_motion on the aligned pair ({first}): best {min(ts):.3f} s "
-          f"(level {res.level}, {res.valid.size} tiles of {res.tile} px, {res.n_valid} "
-          f"confident): {res.describe()}")
+    print(
+        f"\nresidual_motion on the aligned pair ({first}): best {min(ts):.3f} s "
+        f"(level {res.level}, {res.valid.size} tiles of {res.tile} px, {res.n_valid} "
+        f"confident): {res.describe()}"
+    )
 
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--quick", action="store_true", help="a small subset (see the docstring)")
-    p.add_argument("--only", default="sim,moved,real,speed",
-                   help="comma-separated parts: sim, moved, real, speed")
+    p.add_argument(
+        "--only",
+        default="sim,moved,real,speed",
+        help="comma-separated parts: sim, moved, real, speed",
+    )
     p.add_argument("--pairs", type=int, default=None, help="simulated pairs per case")
     p.add_argument("--shape", type=int, nargs=2, default=(384, 576))
     args = p.parse_args()
@@ -741,9 +871,11 @@ def main() -> None:
         args.pairs = 2 if args.quick else 6
     parts = set(args.only.split(","))
     meths = methods()
-    print(f"# Registration bench (models {', '.join(MODELS)}; load average "
-          f"{os.getloadavg()[0]:.2f} on {os.cpu_count()} cores; shared machine: timings are "
-          f"pessimistic)")
+    print(
+        f"# Registration bench (models {', '.join(MODELS)}; load average "
+        f"{os.getloadavg()[0]:.2f} on {os.cpu_count()} cores; shared machine: timings are "
+        f"pessimistic)"
+    )
     if "sim" in parts:
         simulated(args, meths)
     if "moved" in parts:

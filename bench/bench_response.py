@@ -155,19 +155,31 @@ def err_at_top_of_data(g, truth, level=TOP_OF_DATA):
     """RMS of ``g`` over levels 2..98 % with each channel scaled to the truth at ``level``
     (the highest level the fit sees; level 255 is the clip bin, whose ``g`` no data fixes)."""
     g = np.asarray(g, float)
-    g = (g - g[:, :1]) / np.maximum(g[:, level:level + 1] - g[:, :1], 1e-300) * truth[level]
+    g = (g - g[:, :1]) / np.maximum(g[:, level : level + 1] - g[:, :1], 1e-300) * truth[level]
     return float(np.max(np.sqrt(np.mean((g[:, LEVELS] - truth[None, LEVELS]) ** 2, axis=1))))
 
 
 def top_levels_note() -> None:
     """How much of each shape's range lies above the fitted levels (the truth, no fit)."""
     print("\ntruth above the fitted range (% of the range): g(255) - g(250) / g(255) - g(254)")
-    print("  " + "; ".join(f"{s}: {100 * (1 - truth_g(s)[TOP_OF_DATA]):.1f} / "
-                           f"{100 * (1 - truth_g(s)[254]):.1f}" for s in SHAPES))
-    print("oracle, normalised at g(max) = 1: the truth itself on levels 0..254 (0..250), "
-          "continued straight in ln g from its last two levels")
-    print("  " + "; ".join(f"{s}: {100 * oracle_top(s, 254):.2f} % ({100 * oracle_top(s, 250):.2f}"
-                           " %)" for s in SHAPES))
+    print(
+        "  "
+        + "; ".join(
+            f"{s}: {100 * (1 - truth_g(s)[TOP_OF_DATA]):.1f} / {100 * (1 - truth_g(s)[254]):.1f}"
+            for s in SHAPES
+        )
+    )
+    print(
+        "oracle, normalised at g(max) = 1: the truth itself on levels 0..254 (0..250), "
+        "continued straight in ln g from its last two levels"
+    )
+    print(
+        "  "
+        + "; ".join(
+            f"{s}: {100 * oracle_top(s, 254):.2f} % ({100 * oracle_top(s, 250):.2f} %)"
+            for s in SHAPES
+        )
+    )
 
 
 def oracle_top(shape: str, top: int) -> float:
@@ -193,8 +205,15 @@ def synthetic_table() -> None:
         truth = truth_g(resp)
         for scene in scenes:
             for seed in seeds:
-                b = simulate_bracket(scene=scene, shape=shape, exposure_times=TIMES, bits=8,
-                                     response=resp, noise_sigma=1.0, seed=seed)
+                b = simulate_bracket(
+                    scene=scene,
+                    shape=shape,
+                    exposure_times=TIMES,
+                    bits=8,
+                    response=resp,
+                    noise_sigma=1.0,
+                    seed=seed,
+                )
                 for lab, method, kw in OURS:
                     t0 = time.perf_counter()
                     c = recover_response(b.frames, TIMES, method=method, **kw)
@@ -221,21 +240,34 @@ def synthetic_table() -> None:
             row = "".join(f"{100 * max(data[lab][s]):12.2f}%" for s in SHAPES)
             print(f"{lab:28}{row}{np.mean(secs[lab]):8.2f}")
 
-    print(f"== six response shapes: 6 frames x4, 8 bits, sigma 1 level, {shape[0]}x{shape[1]}, "
-          f"scenes {list(scenes)}, seeds {list(seeds)}; worst channel, worst run ==")
-    table("RMS of g over levels 2..98 %, after one exposure scale shared by the channels "
-          "(% of range; target <= 1 %)", common)
-    table("RMS of g over levels 2..98 %, normalised at g(max) = 1 (% of range; the top 2 % "
-          "has no data)", top)
-    table(f"RMS of g over levels 2..98 %, each channel scaled to the truth at level "
-          f"{TOP_OF_DATA}, the top of the fitted range (% of range)", fitted)
+    print(
+        f"== six response shapes: 6 frames x4, 8 bits, sigma 1 level, {shape[0]}x{shape[1]}, "
+        f"scenes {list(scenes)}, seeds {list(seeds)}; worst channel, worst run =="
+    )
+    table(
+        "RMS of g over levels 2..98 %, after one exposure scale shared by the channels "
+        "(% of range; target <= 1 %)",
+        common,
+    )
+    table(
+        "RMS of g over levels 2..98 %, normalised at g(max) = 1 (% of range; the top 2 % "
+        "has no data)",
+        top,
+    )
+    table(
+        f"RMS of g over levels 2..98 %, each channel scaled to the truth at level "
+        f"{TOP_OF_DATA}, the top of the fitted range (% of range)",
+        fitted,
+    )
     top_levels_note()
-    print("\nauto chose: " + "; ".join(f"{s}: {', '.join(sorted(set(v)))}"
-                                       for s, v in chosen.items()))
+    print(
+        "\nauto chose: " + "; ".join(f"{s}: {', '.join(sorted(set(v)))}" for s, v in chosen.items())
+    )
     OUT.mkdir(parents=True, exist_ok=True)
     truth = PeerCurve(np.tile(truth_g("filmic"), (3, 1)))
-    img = render_curves([(truth, "truth")] + plot[:9],
-                        title="filmic (ACES-like), sigma 1: every method")
+    img = render_curves(
+        [(truth, "truth")] + plot[:9], title="filmic (ACES-like), sigma 1: every method"
+    )
     p = OUT / "synthetic_filmic.png"
     img.save(p)
     print(f"plot: {p.relative_to(ROOT)}")
@@ -245,15 +277,20 @@ def real_scene_shapes() -> None:
     """The six shapes again on real scenes: the radiance merged (default pipeline) from the
     Canon and memorial brackets, downsampled to at most 300 px, imaged by the simulated camera
     (six frames 4x apart, 8 bits, sigma 1 level): real content and dynamic range, known truth."""
-    print("\n== six response shapes on real scenes (radiance merged from real brackets, "
-          "simulated camera: 6 frames x4, 8 bits, sigma 1 level, seeds 1 and 2) ==")
+    print(
+        "\n== six response shapes on real scenes (radiance merged from real brackets, "
+        "simulated camera: 6 frames x4, 8 bits, sigma 1 level, seeds 1 and 2) =="
+    )
     if not DATA.is_dir():
         print(f"skipped: {DATA} not available")
         return
     methods = [("auto (default)", "auto")]
     cols = ("common scale", f"at g({TOP_OF_DATA})", "g(max)=1")
-    print(f"{'scene':22}{'method':18}{'shape':14}" + "".join(f"{c:>14}" for c in cols)
-          + "  auto chose")
+    print(
+        f"{'scene':22}{'method':18}{'shape':14}"
+        + "".join(f"{c:>14}" for c in cols)
+        + "  auto chose"
+    )
     for label, folder, excl, _ in REAL:
         if folder not in ("frobisher-colour-hdri", "memorial-debevec"):
             continue
@@ -261,7 +298,8 @@ def real_scene_shapes() -> None:
             continue
         b = _load(folder)
         r = Pipeline(b, PipelineParams(registration_previews=False, exclude_colour=excl)).run(
-            until="merge")
+            until="merge"
+        )
         rad = np.maximum(np.asarray(r.radiance, np.float64), 0.0)
         if excl is not None:
             blue = np.zeros(rad.shape[:2], bool)
@@ -281,8 +319,9 @@ def real_scene_shapes() -> None:
             errs: dict[str, list[list[float]]] = {}
             chose = set()
             for seed in (1, 2):
-                sim = simulate_bracket(rad, exposure_times=TIMES, bits=8, response=resp,
-                                       noise_sigma=1.0, seed=seed)
+                sim = simulate_bracket(
+                    rad, exposure_times=TIMES, bits=8, response=resp, noise_sigma=1.0, seed=seed
+                )
                 curves = {}
                 for lab, method in methods:
                     c = recover_response(sim.frames, TIMES, method=method)
@@ -291,14 +330,20 @@ def real_scene_shapes() -> None:
                 for lab, (g, _) in opencv_curves(sim.frames, TIMES).items():
                     curves[lab] = g
                 for lab, g in curves.items():
-                    errs.setdefault(lab, []).append([err_common_scale(g, truth),
-                                                     err_at_top_of_data(g, truth),
-                                                     err_max_normalised(g, truth)])
+                    errs.setdefault(lab, []).append(
+                        [
+                            err_common_scale(g, truth),
+                            err_at_top_of_data(g, truth),
+                            err_max_normalised(g, truth),
+                        ]
+                    )
             for lab, rows in errs.items():
                 worst = np.max(np.asarray(rows), axis=0)
-                print(f"{scene:22}{lab[:17]:18}{resp:14}"
-                      + "".join(f"{100 * v:13.2f}%" for v in worst)
-                      + (f"  {', '.join(sorted(chose))}" if lab.startswith("auto") else ""))
+                print(
+                    f"{scene:22}{lab[:17]:18}{resp:14}"
+                    + "".join(f"{100 * v:13.2f}%" for v in worst)
+                    + (f"  {', '.join(sorted(chose))}" if lab.startswith("auto") else "")
+                )
         print(f"{'':22}(scene spans {stops:.1f} stops, 1st-99th percentile)")
 
 
@@ -310,8 +355,14 @@ REAL = [
     ("Xperia 1 IV JPEG", "handheld-xperia-library", None, True),
     ("memorial film PNG", "memorial-debevec", (0, 0, 255), False),
 ]
-RESPONSE_VERDICTS = ("response-fallback", "response-degenerate", "response-channels-differ",
-                     "colour-drift", "locally-tone-mapped", "white-balance-differs")
+RESPONSE_VERDICTS = (
+    "response-fallback",
+    "response-degenerate",
+    "response-channels-differ",
+    "colour-drift",
+    "locally-tone-mapped",
+    "white-balance-differs",
+)
 
 
 def _load(folder: str):
@@ -330,8 +381,10 @@ def gamma_curve(gamma: float = 2.2, max_level: int = 255) -> ResponseCurve:
 
 
 def real_tables() -> None:
-    print("\n== real brackets through the pipeline: before (per-channel DM histogram, no colour "
-          "anchoring) and after (auto + anchoring); --response srgb without and with it ==")
+    print(
+        "\n== real brackets through the pipeline: before (per-channel DM histogram, no colour "
+        "anchoring) and after (auto + anchoring); --response srgb without and with it =="
+    )
     if not DATA.is_dir():
         print(f"skipped: {DATA} not available")
         return
@@ -344,19 +397,23 @@ def real_tables() -> None:
         ("gamma 2.2 (def. anchoring)", dict(response=gamma, colour_anchor=True)),
         ("after: auto (default)", dict(response="auto", colour_anchor=True)),
     ]
-    header = (f"{'bracket':19}{'run':27}{'curve':18}{'vs sRGB ref':>12}{'unanch.':>8}"
-              f"{'others':>8}"
-              f"{'frames':>8}{'WB out':>8}{'sRGB':>8}{'4x4':>8}{'s':>6}  flags")
-    print("vs sRGB ref: median chromaticity error of the merge against the reference frame "
-          "decoded with sRGB (pixels well exposed there; the anchoring gives each pixel the "
-          "colour of the frames well exposed there, nearest mid-grey first: see section 2c "
-          "for every frame); "
-          "unanch.: the same for the merge before the anchoring (the curve alone); others: "
-          "the same against each other frame decoded with sRGB where that frame is the best "
-          "exposed (pixel-weighted mean); "
-          "frames: median difference between consecutive frames linearised with the run's "
-          "curve (WB out: each frame's white balance divided out; sRGB: decoded with sRGB; "
-          "4x4: the same as frames on 4x4-pixel means, pixel noise averaged down)")
+    header = (
+        f"{'bracket':19}{'run':27}{'curve':18}{'vs sRGB ref':>12}{'unanch.':>8}"
+        f"{'others':>8}"
+        f"{'frames':>8}{'WB out':>8}{'sRGB':>8}{'4x4':>8}{'s':>6}  flags"
+    )
+    print(
+        "vs sRGB ref: median chromaticity error of the merge against the reference frame "
+        "decoded with sRGB (pixels well exposed there; the anchoring gives each pixel the "
+        "colour of the frames well exposed there, nearest mid-grey first: see section 2c "
+        "for every frame); "
+        "unanch.: the same for the merge before the anchoring (the curve alone); others: "
+        "the same against each other frame decoded with sRGB where that frame is the best "
+        "exposed (pixel-weighted mean); "
+        "frames: median difference between consecutive frames linearised with the run's "
+        "curve (WB out: each frame's white balance divided out; sRGB: decoded with sRGB; "
+        "4x4: the same as frames on 4x4-pixel means, pixel noise averaged down)"
+    )
     print(header)
     for label, folder, excl, phone in REAL:
         if QUICK and phone:
@@ -379,26 +436,42 @@ def real_tables() -> None:
             err = chk["after"]["merge_error_srgb"]
             err_curve = chk["before"]["merge_error_srgb"]
             ref_k = chk["after"]["reference"]
-            parts = [(d["median_error_srgb"], d["n_pixels"])
-                     for d in chk["after"]["best_frame_errors"]
-                     if d["frame"] != ref_k and d["median_error_srgb"] is not None]
-            others = (sum(e * n for e, n in parts) / max(sum(n for _, n in parts), 1)
-                      if parts else float("nan"))
+            parts = [
+                (d["median_error_srgb"], d["n_pixels"])
+                for d in chk["after"]["best_frame_errors"]
+                if d["frame"] != ref_k and d["median_error_srgb"] is not None
+            ]
+            others = (
+                sum(e * n for e, n in parts) / max(sum(n for _, n in parts), 1)
+                if parts
+                else float("nan")
+            )
             resp = r.response
-            signs = degeneracy(resp.g, active=[c.active_constraints for c in resp.channels]
-                               or None, n_nodes=resp.max_level if resp.channels else None)
+            signs = degeneracy(
+                resp.g,
+                active=[c.active_constraints for c in resp.channels] or None,
+                n_nodes=resp.max_level if resp.channels else None,
+            )
             flagged = [v.code for v in r.verdicts if v.code in RESPONSE_VERDICTS]
             sign_codes = sorted({d.code for d in signs})
-            caught = ("" if not signs else
-                      " (flagged)" if ({"response-fallback", "response-degenerate",
-                                        "response-channels-differ"} & set(flagged))
-                      else " (NOT FLAGGED)")
+            caught = (
+                ""
+                if not signs
+                else " (flagged)"
+                if (
+                    {"response-fallback", "response-degenerate", "response-channels-differ"}
+                    & set(flagged)
+                )
+                else " (NOT FLAGGED)"
+            )
             blocks = chk["before"]["frame_consistency_blocks"] or float("nan")
-            print(f"{label:19}{run:27}{resp.method[:17]:18}{err:12.4f}{err_curve:8.4f}"
-                  f"{others:8.4f}"
-                  f"{cons:8.4f}{cons_wb:8.4f}{cons_srgb:8.4f}{blocks:8.4f}{dt:6.0f}  "
-                  f"{','.join(flagged) or '-'}"
-                  + (f"; signs {','.join(sign_codes)}{caught}" if signs else ""))
+            print(
+                f"{label:19}{run:27}{resp.method[:17]:18}{err:12.4f}{err_curve:8.4f}"
+                f"{others:8.4f}"
+                f"{cons:8.4f}{cons_wb:8.4f}{cons_srgb:8.4f}{blocks:8.4f}{dt:6.0f}  "
+                f"{','.join(flagged) or '-'}"
+                + (f"; signs {','.join(sign_codes)}{caught}" if signs else "")
+            )
             if resp.selection is not None:
                 print(f"{'':19}   {resp.selection.message}")
             last = r
@@ -412,19 +485,21 @@ def real_tables() -> None:
         tr = None if reg is None else reg.to_reference_homography
         times = [float(t) for t in last.exposure_times]
         usable = frames if excl is None else frames  # OpenCV takes no mask
-        masks = None if excl is None else [~np.all(f == np.asarray(excl), axis=-1)
-                                           for f in frames]
+        masks = None if excl is None else [~np.all(f == np.asarray(excl), axis=-1) for f in frames]
         for name, (g, _) in opencv_curves(usable, times).items():
             g = np.maximum.accumulate(np.clip(np.asarray(g, float), 0, None), axis=1)
             g = g / np.maximum(g[:, -1:], 1e-300)
-            cc = colour_check(frames, last.radiance, g, max_level=255, reference=ref,
-                              to_reference=tr, masks=masks)
+            cc = colour_check(
+                frames, last.radiance, g, max_level=255, reference=ref, to_reference=tr, masks=masks
+            )
             signs = sorted({d.code for d in degeneracy(g)})
             blocks = cc.frame_consistency_blocks
-            print(f"{label:19}{name:27}{'(curve only)':18}{'':>28}{cc.frame_consistency:8.4f}"
-                  f"{cc.frame_consistency_wb:8.4f}{cc.frame_consistency_srgb:8.4f}"
-                  f"{blocks:8.4f}      "
-                  f"signs {','.join(signs) or '-'}")
+            print(
+                f"{label:19}{name:27}{'(curve only)':18}{'':>28}{cc.frame_consistency:8.4f}"
+                f"{cc.frame_consistency_wb:8.4f}{cc.frame_consistency_srgb:8.4f}"
+                f"{blocks:8.4f}      "
+                f"signs {','.join(signs) or '-'}"
+            )
 
 
 # --- consecutive frames' colour agreement, per bracket and pair (issue 15, target 3) -------
@@ -457,25 +532,39 @@ def _chroma(rgb):
         return np.where(s > 0, rgb[..., :2] / s, np.nan)
 
 
-def pair_consistency(frames, lut, *, max_level, reference, to_reference=None, masks=None,
-                     block=1, gains=None, keep=None, grid=(4, 4), max_blocks=40_000):
+def pair_consistency(
+    frames,
+    lut,
+    *,
+    max_level,
+    reference,
+    to_reference=None,
+    masks=None,
+    block=1,
+    gains=None,
+    keep=None,
+    grid=(4, 4),
+    max_blocks=40_000,
+):
     """Per consecutive pair ``(median chromaticity distance, blocks)`` of the two frames
     linearised by ``lut`` (``gains[k]``: frame k's white balance divided out) on
     ``block x block`` means over blocks whose every pixel is well exposed in both;
     ``keep[k]``: the ``grid`` regions pair k may use (``None``: all)."""
     h, w = frames[reference].shape[:2]
     step = max(block, int(np.ceil(np.sqrt(h * w / max_blocks))))
-    oy, ox = np.mgrid[0:h - block + 1:step, 0:w - block + 1:step]
+    oy, ox = np.mgrid[0 : h - block + 1 : step, 0 : w - block + 1 : step]
     dy, dx = np.mgrid[0:block, 0:block]
     ys = (oy.ravel()[:, None] + dy.ravel()[None, :]).ravel()
     xs = (ox.ravel()[:, None] + dx.ravel()[None, :]).ravel()
     nb = oy.size
-    region = (np.minimum(oy.ravel() * grid[0] // h, grid[0] - 1) * grid[1]
-              + np.minimum(ox.ravel() * grid[1] // w, grid[1] - 1))
+    region = np.minimum(oy.ravel() * grid[0] // h, grid[0] - 1) * grid[1] + np.minimum(
+        ox.ravel() * grid[1] // w, grid[1] - 1
+    )
     table = np.asarray(lut, float)
     lins, oks = [], []
-    for k, (z, ok) in enumerate(_sampled(frames, reference, to_reference, masks, ys, xs,
-                                         max_level)):
+    for k, (z, ok) in enumerate(
+        _sampled(frames, reference, to_reference, masks, ys, xs, max_level)
+    ):
         lin = np.stack([table[c][z[:, c]] for c in range(3)], axis=-1)
         if gains is not None:
             lin = lin / np.asarray(gains[k], float)
@@ -492,8 +581,18 @@ def pair_consistency(frames, lut, *, max_level, reference, to_reference=None, ma
     return out
 
 
-def consistent_regions(frames, lut, *, max_level, reference, to_reference=None, masks=None,
-                       grid=(4, 4), tolerance=0.05, max_samples=200_000):
+def consistent_regions(
+    frames,
+    lut,
+    *,
+    max_level,
+    reference,
+    to_reference=None,
+    masks=None,
+    grid=(4, 4),
+    tolerance=0.05,
+    max_samples=200_000,
+):
     """Per consecutive pair, the ``grid`` regions whose transfer matches the whole image's:
     the median over the region's pixels (well exposed in both) of the green channel's
     linearised ratio bright / dark within ``tolerance`` of the median over the regions.
@@ -503,8 +602,9 @@ def consistent_regions(frames, lut, *, max_level, reference, to_reference=None, 
     h, w = frames[reference].shape[:2]
     step = max(1, int(np.ceil(np.sqrt(h * w / max_samples))))
     ys, xs = (a.ravel() for a in np.mgrid[0:h:step, 0:w:step])
-    region = (np.minimum(ys * grid[0] // h, grid[0] - 1) * grid[1]
-              + np.minimum(xs * grid[1] // w, grid[1] - 1))
+    region = np.minimum(ys * grid[0] // h, grid[0] - 1) * grid[1] + np.minimum(
+        xs * grid[1] // w, grid[1] - 1
+    )
     g = np.asarray(lut, float)[1]
     sam = _sampled(frames, reference, to_reference, masks, ys, xs, max_level)
     keep, spreads = [], []
@@ -523,8 +623,10 @@ def consistent_regions(frames, lut, *, max_level, reference, to_reference=None, 
             spreads.append(float("nan"))
             continue
         mid = np.median(fin)
-        keep.append(np.isfinite(meds) & (np.abs(np.log(np.where(np.isfinite(meds), meds, 1.0)
-                                                        / mid)) <= np.log1p(tolerance)))
+        keep.append(
+            np.isfinite(meds)
+            & (np.abs(np.log(np.where(np.isfinite(meds), meds, 1.0) / mid)) <= np.log1p(tolerance))
+        )
         spreads.append(float(np.percentile(fin, 90) / np.percentile(fin, 10)))
     return keep, spreads
 
@@ -553,17 +655,26 @@ def consistency_table(label, result, frames, masks) -> None:
         "px glob WB": pair_consistency(frames, lut, keep=keep, gains=gains, **kw),
         "4x4 glob WB": pair_consistency(frames, lut, block=4, keep=keep, gains=gains, **kw),
     }
-    print(f"\n{label}: curve {result.response.method}, reference frame {ref}; median "
-          "chromaticity difference of consecutive linearised frames (pixels/blocks well "
-          "exposed in both; target <= 0.01)")
-    print(f"{'pair':7}{'pixels':>8}" + "".join(f"{c:>12}" for c in cols)
-          + f"{'regions kept':>14}{'spread':>8}")
+    print(
+        f"\n{label}: curve {result.response.method}, reference frame {ref}; median "
+        "chromaticity difference of consecutive linearised frames (pixels/blocks well "
+        "exposed in both; target <= 0.01)"
+    )
+    print(
+        f"{'pair':7}{'pixels':>8}"
+        + "".join(f"{c:>12}" for c in cols)
+        + f"{'regions kept':>14}{'spread':>8}"
+    )
     for k in range(len(frames) - 1):
-        print(f"{k}-{k + 1:<5}{cols['pixel'][k][1]:8d}"
-              + "".join(f"{v[k][0]:12.4f}" for v in cols.values())
-              + f"{int(keep[k].sum()):>10d}/{keep[k].size:<3d}{spreads[k]:8.2f}")
-    print(f"{'median':15}" + "".join(
-        f"{np.nanmedian([v[0] for v in col]):12.4f}" for col in cols.values()))
+        print(
+            f"{k}-{k + 1:<5}{cols['pixel'][k][1]:8d}"
+            + "".join(f"{v[k][0]:12.4f}" for v in cols.values())
+            + f"{int(keep[k].sum()):>10d}/{keep[k].size:<3d}{spreads[k]:8.2f}"
+        )
+    print(
+        f"{'median':15}"
+        + "".join(f"{np.nanmedian([v[0] for v in col]):12.4f}" for col in cols.values())
+    )
 
 
 def pedestal_test(frames, masks, reference, to_reference, auto_lut) -> None:
@@ -573,18 +684,35 @@ def pedestal_test(frames, masks, reference, to_reference, auto_lut) -> None:
     from hdrcore.merge.colour_check import srgb_decode_lut
 
     s = srgb_decode_lut(255)
-    keep = np.logical_and.reduce(masks) if masks is not None else np.ones(frames[0].shape[:2],
-                                                                        bool)
+    keep = np.logical_and.reduce(masks) if masks is not None else np.ones(frames[0].shape[:2], bool)
     ped = np.percentile(frames[0][keep], 0.1, axis=0).astype(int)
     minus = np.stack([np.clip((s - s[p]) / (1 - s[p]), 0, None) for p in ped])
-    print(f"  pedestal test: darkest frame's 0.1th percentile per channel {ped.tolist()}; "
-          "consecutive frames' median difference per pixel / on 4x4 means:")
-    for name, lut in (("sRGB", np.tile(s, (3, 1))), ("sRGB minus the pedestal", minus),
-                      ("the default's curve", auto_lut)):
-        v = [np.nanmedian([x[0] for x in pair_consistency(
-            frames, lut, max_level=255, reference=reference, to_reference=to_reference,
-            masks=masks, block=b)])
-            for b in (1, 4)]
+    print(
+        f"  pedestal test: darkest frame's 0.1th percentile per channel {ped.tolist()}; "
+        "consecutive frames' median difference per pixel / on 4x4 means:"
+    )
+    for name, lut in (
+        ("sRGB", np.tile(s, (3, 1))),
+        ("sRGB minus the pedestal", minus),
+        ("the default's curve", auto_lut),
+    ):
+        v = [
+            np.nanmedian(
+                [
+                    x[0]
+                    for x in pair_consistency(
+                        frames,
+                        lut,
+                        max_level=255,
+                        reference=reference,
+                        to_reference=to_reference,
+                        masks=masks,
+                        block=b,
+                    )
+                ]
+            )
+            for b in (1, 4)
+        ]
         print(f"    {name:24}{v[0]:8.4f}{v[1]:8.4f}")
 
 
@@ -602,16 +730,20 @@ def consistency_tables() -> None:
         b = _load(folder)
         t0, c0 = time.perf_counter(), time.process_time()
         r = Pipeline(b, PipelineParams(registration_previews=False, exclude_colour=excl)).run(
-            until="merge")
+            until="merge"
+        )
         frames = [f.levels for f in r.bracket.frames]
-        masks = None if excl is None else [~np.all(f == np.asarray(excl), axis=-1)
-                                           for f in frames]
+        masks = None if excl is None else [~np.all(f == np.asarray(excl), axis=-1) for f in frames]
         consistency_table(label, r, frames, masks)
         if folder == "memorial-debevec":
             reg = r.registration
-            pedestal_test(frames, masks, 0 if reg is None else reg.reference,
-                          None if reg is None else reg.to_reference_homography,
-                          np.asarray(r.lut, float))
+            pedestal_test(
+                frames,
+                masks,
+                0 if reg is None else reg.reference,
+                None if reg is None else reg.to_reference_homography,
+                np.asarray(r.lut, float),
+            )
         print(f"({time.perf_counter() - t0:.0f} s wall, {time.process_time() - c0:.0f} s CPU)")
 
 
@@ -639,9 +771,12 @@ def _frame_row(label, run, fc, ref, extra=""):
     best = [f.best_error for f in fc]
     bal = [f.best_error_balanced for f in fc]
     well = [f.well_error for f in fc]
-    print(f"{label:19}{run:30}{np.nanmax(best):8.4f}{np.nanmax(bal):8.4f}"
-          f"{np.nanmax(well):8.4f}{fc[ref].well_error:8.4f}  "
-          + " ".join("   -  " if not np.isfinite(v) else f"{v:.4f}" for v in best) + extra)
+    print(
+        f"{label:19}{run:30}{np.nanmax(best):8.4f}{np.nanmax(bal):8.4f}"
+        f"{np.nanmax(well):8.4f}{fc[ref].well_error:8.4f}  "
+        + " ".join("   -  " if not np.isfinite(v) else f"{v:.4f}" for v in best)
+        + extra
+    )
     return np.asarray(best), np.asarray(bal), np.asarray(well)
 
 
@@ -656,19 +791,23 @@ def frame_colour_tables() -> None:
         srgb_decode_lut,
     )
 
-    print("\n== every frame's colour in the merge: per frame k, the median chromaticity "
-          "distance of the merge to frame k decoded with sRGB ==")
+    print(
+        "\n== every frame's colour in the merge: per frame k, the median chromaticity "
+        "distance of the merge to frame k decoded with sRGB =="
+    )
     if not DATA.is_dir():
         print(f"skipped: {DATA} not available")
         return
-    print("best: over the pixels where frame k is the best exposed (every channel within "
-          "10..90 % of the range, the frame nearest mid-grey); worst frame, then per frame "
-          "(darkest first). bal: the same against frame k with its measured white balance "
-          "difference divided out where the run corrected it. well: every pixel well exposed "
-          "in frame k, worst frame (frames that disagree cannot all be met there). ref: the "
-          "old figure, the reference frame's well-exposed pixels. Runs: the pipeline's; "
-          "'old anchoring' re-applies the previous default (the reference's own colour "
-          "wherever it is well exposed, no balance correction) to the default's merge.")
+    print(
+        "best: over the pixels where frame k is the best exposed (every channel within "
+        "10..90 % of the range, the frame nearest mid-grey); worst frame, then per frame "
+        "(darkest first). bal: the same against frame k with its measured white balance "
+        "difference divided out where the run corrected it. well: every pixel well exposed "
+        "in frame k, worst frame (frames that disagree cannot all be met there). ref: the "
+        "old figure, the reference frame's well-exposed pixels. Runs: the pipeline's; "
+        "'old anchoring' re-applies the previous default (the reference's own colour "
+        "wherever it is well exposed, no balance correction) to the default's merge."
+    )
     print(f"{'bracket':19}{'run':30}{'best':>8}{'bal':>8}{'well':>8}{'ref':>8}  per frame best")
     runs = [
         ("--response srgb, no anchoring", dict(response="srgb", colour_anchor=False)),
@@ -689,8 +828,9 @@ def frame_colour_tables() -> None:
         for run, kw in runs:
             r = pipe.run(base.replace(**kw), until="merge")
             frames = [f.levels for f in r.bracket.frames]
-            masks = None if excl is None else [~np.all(f == np.asarray(excl), axis=-1)
-                                               for f in frames]
+            masks = (
+                None if excl is None else [~np.all(f == np.asarray(excl), axis=-1) for f in frames]
+            )
             reg = r.registration
             ref = 0 if reg is None else reg.reference
             tr = None if reg is None else reg.to_reference_homography
@@ -700,8 +840,15 @@ def frame_colour_tables() -> None:
             if wb.get("applied"):
                 for k in wb["differs"]:
                     gains[k] = wb["gains"][k]
-            fc = frame_colours(frames, r.radiance, max_level=255, reference=ref,
-                               to_reference=tr, masks=masks, gains=gains)
+            fc = frame_colours(
+                frames,
+                r.radiance,
+                max_level=255,
+                reference=ref,
+                to_reference=tr,
+                masks=masks,
+                gains=gains,
+            )
             rows[run] = _frame_row(label, run, fc, ref)
             if run == "default":
                 last, last_frames, last_masks = r, frames, masks
@@ -711,40 +858,67 @@ def frame_colour_tables() -> None:
         reg = r.registration
         ref = 0 if reg is None else reg.reference
         tr = None if reg is None else reg.to_reference_homography
-        anchor_colour(rad, last_frames, srgb_decode_lut(255), max_level=255,
-                      saturation=r.saturation, noise_floor=r.noise_floor, to_reference=tr,
-                      masks=last_masks, reference=ref, lut=r.lut,
-                      exposure_times=r.exposure_times, shares=r.merge.shares,
-                      reference_band=REFERENCE_BAND, frame_band=None)
-        fc = frame_colours(last_frames, rad, max_level=255, reference=ref, to_reference=tr,
-                           masks=last_masks)
+        anchor_colour(
+            rad,
+            last_frames,
+            srgb_decode_lut(255),
+            max_level=255,
+            saturation=r.saturation,
+            noise_floor=r.noise_floor,
+            to_reference=tr,
+            masks=last_masks,
+            reference=ref,
+            lut=r.lut,
+            exposure_times=r.exposure_times,
+            shares=r.merge.shares,
+            reference_band=REFERENCE_BAND,
+            frame_band=None,
+        )
+        fc = frame_colours(
+            last_frames, rad, max_level=255, reference=ref, to_reference=tr, masks=last_masks
+        )
         _frame_row(label, "old anchoring (reference)", fc, ref)
+
         def above(mine, theirs):
-            return [k for k, (a, b_) in enumerate(zip(mine, theirs, strict=True))
-                    if np.isfinite(a) and np.isfinite(b_) and a > b_ + 1e-4]
+            return [
+                k
+                for k, (a, b_) in enumerate(zip(mine, theirs, strict=True))
+                if np.isfinite(a) and np.isfinite(b_) and a > b_ + 1e-4
+            ]
 
         for peer in ("--response srgb, no anchoring", "--response srgb"):
             plain = above(rows["default"][0], rows[peer][0])
             bal = above(rows["default"][1], rows[peer][1])
-            print(f"{'':19}default above {peer} (best-exposed; as shot / balanced): "
-                  + (f"frame(s) {plain}" if plain else "no frame") + " / "
-                  + (f"frame(s) {bal}" if bal else "no frame"))
+            print(
+                f"{'':19}default above {peer} (best-exposed; as shot / balanced): "
+                + (f"frame(s) {plain}" if plain else "no frame")
+                + " / "
+                + (f"frame(s) {bal}" if bal else "no frame")
+            )
         wb = last.colour["check"]["white_balance"]
         print(f"{'':19}white balance (default curve {last.response.method}): {wb['message']}")
-        print(f"{'':19}{'pair':>7}{'R/G':>8}{'B/G':>8}{'se R':>8}{'se B':>8}{'lvl R':>8}"
-              f"{'lvl B':>8}{'regions':>9}  measured")
+        print(
+            f"{'':19}{'pair':>7}{'R/G':>8}{'B/G':>8}{'se R':>8}{'se B':>8}{'lvl R':>8}"
+            f"{'lvl B':>8}{'regions':>9}  measured"
+        )
         for p in wb["pairs"]:
             g, se, lv = p["gains"], p["std_error"], p["level_spread"]
 
             def f(v):
                 return "     -  " if v is None else f"{v:8.4f}"
 
-            print(f"{'':19}{p['dark']:>4}-{p['bright']:<2}{f(g[0])}{f(g[2])}{f(se[0])}"
-                  f"{f(se[2])}{f(lv[0])}{f(lv[2])}{p['regions_kept']:>5}/{p['n_regions']:<3} "
-                  f"{'yes' if p['measured'] else 'no'}")
-        print(f"{'':19}frame gains R/G, B/G (applied: {wb['applied']}): " + ", ".join(
-            f"{k}: -" if g[0] is None else f"{k}: {g[0]:.3f}/{g[2]:.3f}"
-            for k, g in enumerate(wb["gains"])))
+            print(
+                f"{'':19}{p['dark']:>4}-{p['bright']:<2}{f(g[0])}{f(g[2])}{f(se[0])}"
+                f"{f(se[2])}{f(lv[0])}{f(lv[2])}{p['regions_kept']:>5}/{p['n_regions']:<3} "
+                f"{'yes' if p['measured'] else 'no'}"
+            )
+        print(
+            f"{'':19}frame gains R/G, B/G (applied: {wb['applied']}): "
+            + ", ".join(
+                f"{k}: -" if g[0] is None else f"{k}: {g[0]:.3f}/{g[2]:.3f}"
+                for k, g in enumerate(wb["gains"])
+            )
+        )
         after = last.colour["check"]["after"]
         pix = [p["median_difference"] for p in after["frame_pairs"]]
         cor = [p["median_difference"] for p in after["frame_pairs_wb"]]
@@ -754,13 +928,19 @@ def frame_colour_tables() -> None:
             v = [x for x in v if x is not None]
             return float(np.median(v)) if v else float("nan")
 
-        print(f"{'':19}consecutive frames (default curve, target <= 0.01): per pixel "
-              f"{med(pix):.4f}, white balance corrected {med(cor):.4f}, on 4x4 means "
-              f"{med(blk):.4f}; per pair as shot -> corrected: "
-              + " ".join("-" if v is None or c is None else f"{v:.4f}->{c:.4f}"
-                         for v, c in zip(pix, cor, strict=True)))
-        print(f"{'':19}({time.perf_counter() - t0:.0f} s wall, "
-              f"{time.process_time() - c0:.0f} s CPU for the four runs)")
+        print(
+            f"{'':19}consecutive frames (default curve, target <= 0.01): per pixel "
+            f"{med(pix):.4f}, white balance corrected {med(cor):.4f}, on 4x4 means "
+            f"{med(blk):.4f}; per pair as shot -> corrected: "
+            + " ".join(
+                "-" if v is None or c is None else f"{v:.4f}->{c:.4f}"
+                for v, c in zip(pix, cor, strict=True)
+            )
+        )
+        print(
+            f"{'':19}({time.perf_counter() - t0:.0f} s wall, "
+            f"{time.process_time() - c0:.0f} s CPU for the four runs)"
+        )
 
 
 def crop_without(blue: np.ndarray) -> tuple[int, int, int, int]:
@@ -780,16 +960,19 @@ def memorial_table() -> None:
     if not MEMORIAL.is_dir():
         print(f"skipped: {MEMORIAL} not available")
         return
-    br = load_bracket(sorted(MEMORIAL.glob("*.png")),
-                      exposure_times=MEMORIAL / "exposure_times.txt")
+    br = load_bracket(
+        sorted(MEMORIAL.glob("*.png")), exposure_times=MEMORIAL / "exposure_times.txt"
+    )
     frames = [f.levels for f in br.frames]
     times = [float(t) for t in br.exposure_times]
     blue = np.zeros(frames[0].shape[:2], bool)
     for f in frames:
         blue |= np.all(f == (0, 0, 255), axis=-1)
     r0, r1, c0, c1 = crop_without(blue)
-    print(f"blue border: {100 * blue.mean():.1f}% of pixels masked for ours; OpenCV gets the "
-          f"blue-free crop rows {r0}:{r1}, cols {c0}:{c1}")
+    print(
+        f"blue border: {100 * blue.mean():.1f}% of pixels masked for ours; OpenCV gets the "
+        f"blue-free crop rows {r0}:{r1}, cols {c0}:{c1}"
+    )
     curves: dict[str, np.ndarray] = {}
     secs: dict[str, float] = {}
     for lab, method, _ in OURS:
@@ -799,8 +982,7 @@ def memorial_table() -> None:
         curves[lab] = c.g
         print(f"  {lab}: {c.method} {c.status} {c.message[:160]}".rstrip())
     names = ["OpenCV Debevec", "OpenCV Debevec samples=500", "OpenCV Robertson"]
-    for lab, (g, dt) in opencv_curves([f[r0:r1, c0:c1] for f in frames], times,
-                                      names).items():
+    for lab, (g, dt) in opencv_curves([f[r0:r1, c0:c1] for f in frames], times, names).items():
         curves[lab] = g
         secs[lab] = dt
     sl = slice(5, 231)
@@ -810,10 +992,15 @@ def memorial_table() -> None:
         s = np.sum(a * b, axis=1) / np.sum(a * a, axis=1)
         return np.sqrt(np.mean((a * s[:, None] - b) ** 2, axis=1)) / b[:, -1]
 
-    print("\nshape RMS vs each OpenCV curve over levels 5..230 after the best scale "
-          "(% of the reference's g(230)), channels R/G/B")
-    print(f"{'method':30}" + "".join(f"{r.replace('OpenCV ', 'vs '):>30}" for r in names)
-          + f"{'s':>7}")
+    print(
+        "\nshape RMS vs each OpenCV curve over levels 5..230 after the best scale "
+        "(% of the reference's g(230)), channels R/G/B"
+    )
+    print(
+        f"{'method':30}"
+        + "".join(f"{r.replace('OpenCV ', 'vs '):>30}" for r in names)
+        + f"{'s':>7}"
+    )
     for lab, g in curves.items():
         cells = "".join(
             f"{'/'.join(f'{100 * v:.1f}' for v in diff(g, curves[r])):>30}" for r in names
@@ -838,8 +1025,11 @@ def memorial_table() -> None:
 
 if __name__ == "__main__":
     t0 = time.perf_counter()
-    if "--skip-synthetic" not in sys.argv and "--consistency-only" not in sys.argv \
-            and "--frame-colour-only" not in sys.argv:
+    if (
+        "--skip-synthetic" not in sys.argv
+        and "--consistency-only" not in sys.argv
+        and "--frame-colour-only" not in sys.argv
+    ):
         synthetic_table()
         real_scene_shapes()
     if "--consistency-only" in sys.argv:

@@ -107,11 +107,14 @@ def run_hdrcore(args: Sequence[str], *, json_file: Path | None = None) -> Outcom
     """Run ``python -m hdrcore.cli ARGS``; the document is stdout's JSON or ``json_file``'s."""
     t0 = time.perf_counter()
     try:
-        proc = subprocess.run([sys.executable, "-m", "hdrcore.cli", *map(str, args)],
-                              capture_output=True, text=True, timeout=COMMAND_TIMEOUT)
+        proc = subprocess.run(
+            [sys.executable, "-m", "hdrcore.cli", *map(str, args)],
+            capture_output=True,
+            text=True,
+            timeout=COMMAND_TIMEOUT,
+        )
     except subprocess.TimeoutExpired:
-        return Outcome(None, None, f"timeout after {COMMAND_TIMEOUT:g} s",
-                       time.perf_counter() - t0)
+        return Outcome(None, None, f"timeout after {COMMAND_TIMEOUT:g} s", time.perf_counter() - t0)
     doc = None
     try:
         if json_file is not None:
@@ -163,8 +166,15 @@ def check_pairs(doc: dict | None, case: FaultyBracket) -> list[PairCheck] | None
         except (KeyError, IndexError, TypeError, ValueError):
             continue
         r = p.get("ratio")
-        out.append(PairCheck(i, j, float("nan") if r is None else float(r), case.true_ratio(i, j),
-                             str(p.get("status"))))
+        out.append(
+            PairCheck(
+                i,
+                j,
+                float("nan") if r is None else float(r),
+                case.true_ratio(i, j),
+                str(p.get("status")),
+            )
+        )
     return out
 
 
@@ -249,8 +259,9 @@ def _mosaic(frame: np.ndarray) -> np.ndarray:
     return m
 
 
-def _estimate(hx, Y: np.ndarray, exif: np.ndarray, meta: dict, method: str, floor: float,
-              cap: _Capture) -> tuple[np.ndarray | None, str]:
+def _estimate(
+    hx, Y: np.ndarray, exif: np.ndarray, meta: dict, method: str, floor: float, cap: _Capture
+) -> tuple[np.ndarray | None, str]:
     """HDRutils' ``estimate_exposures``: the times, or ``None`` and why it gave up."""
     cap.messages.clear()
     try:
@@ -286,19 +297,29 @@ def hdrutils_on_frames(case: FaultyBracket, method: str) -> PeerResult:
     top = int(loaded[0].max_level)
     Y = np.stack([_mosaic(f.levels.astype(np.float32)) for f in loaded])
     exif = np.array(case.listed_times, float)
-    meta = {"black_level": np.zeros(4), "h": Y.shape[1], "w": Y.shape[2],
-            "saturation_point": 0.98 * top, "dtype": np.uint8 if top == 255 else np.uint16}
+    meta = {
+        "black_level": np.zeros(4),
+        "h": Y.shape[1],
+        "w": Y.shape[2],
+        "saturation_point": 0.98 * top,
+        "dtype": np.uint8 if top == 255 else np.uint16,
+    }
     floor = 5.0 * case.spec.noise_sigma * top / ((1 << case.spec.bits) - 1)
-    use = [i for i in range(n)
-           if not (Y[i] >= meta["saturation_point"]).sum() > 0.95 * Y[i].size
-           and not (Y[i] <= floor).sum() > 0.95 * Y[i].size]
+    use = [
+        i
+        for i in range(n)
+        if not (Y[i] >= meta["saturation_point"]).sum() > 0.95 * Y[i].size
+        and not (Y[i] <= floor).sum() > 0.95 * Y[i].size
+    ]
     notes = [f"frames {sorted(set(range(n)) - set(use))} screened out"] if len(use) < n else []
     if len(use) <= 2:
         return PeerResult([], "; ".join([*notes, f"not estimated: {len(use)} frame(s) kept"]))
     exp, why = _estimate(hx, Y[use], exif[use], meta, method, floor, cap)
     if exp is not None:
-        pairs = [(a, b, float(exp[k + 1] / exp[k])) for k, (a, b) in
-                 enumerate(zip(use, use[1:], strict=False))]
+        pairs = [
+            (a, b, float(exp[k + 1] / exp[k]))
+            for k, (a, b) in enumerate(zip(use, use[1:], strict=False))
+        ]
         return PeerResult(pairs, "; ".join(notes))
     pairs, fails = [], []
     for a, b in zip(use, use[1:], strict=False):
@@ -321,15 +342,23 @@ def hdrutils_on_dng(case: FaultyBracket, method: str) -> PeerResult:
     cap = _quiet_hdrutils()
     n = len(case.frames)
     try:
-        hdr, exif, est = HDRutils.merge([str(p) for p in case.frames], exp=list(case.listed_times),
-                                        gain=[1.0] * n, aperture=1.0, estimate_exp=method,
-                                        return_exif_exp=True)
+        hdr, exif, est = HDRutils.merge(
+            [str(p) for p in case.frames],
+            exp=list(case.listed_times),
+            gain=[1.0] * n,
+            aperture=1.0,
+            estimate_exp=method,
+            return_exif_exp=True,
+        )
     except Exception as exc:
         return PeerResult([], f"{type(exc).__name__}: {exc}"[:120])
     est = np.asarray(est, float)
     pairs = [(k, k + 1, float(est[k + 1] / est[k])) for k in range(n - 1)]
-    notes = [re.sub(r"\S*/", "", m) for m in cap.messages  # file names, not paths
-             if "Skipping" in m or "Reverting" in m or "failed" in m]
+    notes = [
+        re.sub(r"\S*/", "", m)
+        for m in cap.messages  # file names, not paths
+        if "Skipping" in m or "Reverting" in m or "failed" in m
+    ]
     if np.array_equal(est, np.asarray(exif, float)):
         pairs = []
         notes.insert(0, "not estimated (EXIF returned: it estimates with > 2 usable frames)")
@@ -338,8 +367,10 @@ def hdrutils_on_dng(case: FaultyBracket, method: str) -> PeerResult:
 
 def peer_stats(case: FaultyBracket, peer: PeerResult) -> tuple[int, int, list[float]]:
     """(pairs estimated, consecutive pairs of the bracket, errors of the estimated pairs)."""
-    errs = [abs(r / case.true_ratio(a, b) - 1.0) if np.isfinite(r) and r > 0 else float("inf")
-            for a, b, r in peer.pairs]
+    errs = [
+        abs(r / case.true_ratio(a, b) - 1.0) if np.isfinite(r) and r > 0 else float("inf")
+        for a, b, r in peer.pairs
+    ]
     return len(errs), max(len(case.frames) - 1, 0), errs
 
 
@@ -388,9 +419,16 @@ class CaseResult:
     failure: str = ""
 
 
-def run_case(name: str, make: Callable[[Path], FaultyBracket], root: Path, *,
-             peers: Sequence[str] = ("cerman", "mst"), extra_args: Sequence[str] = (),
-             use_times_file: bool = False, align: bool = True) -> CaseResult:
+def run_case(
+    name: str,
+    make: Callable[[Path], FaultyBracket],
+    root: Path,
+    *,
+    peers: Sequence[str] = ("cerman", "mst"),
+    extra_args: Sequence[str] = (),
+    use_times_file: bool = False,
+    align: bool = True,
+) -> CaseResult:
     d = root / re.sub(r"[^A-Za-z0-9_.-]+", "_", name)
     try:
         case = make(d)
@@ -405,8 +443,10 @@ def run_case(name: str, make: Callable[[Path], FaultyBracket], root: Path, *,
     if align:
         res.align = run_hdrcore(["align", *common, "--json"])
     report = d / "report.json"
-    res.merge = run_hdrcore(["merge", *common, "-o", d / "merged.exr", "--report", report,
-                             "--quiet", "--force"], json_file=report)
+    res.merge = run_hdrcore(
+        ["merge", *common, "-o", d / "merged.exr", "--report", report, "--quiet", "--force"],
+        json_file=report,
+    )
     for cmd in ("ratios", "align", "merge"):
         remember(name, cmd, getattr(res, cmd))
     res.r_stats = pair_stats(check_pairs(res.ratios.doc, case), case)
@@ -438,16 +478,22 @@ def seed_jobs(root: Path, quick: bool) -> list[tuple]:
             for scene in SCENES:
                 for seed in seeds:
                     spec = SEED_PROTOCOL.replace(
-                        scene=scene, shape=shape, bits=bits, seed=seed,
+                        scene=scene,
+                        shape=shape,
+                        bits=bits,
+                        seed=seed,
                         max_shift=20.0 if motion == "hand-held" else 0.0,
-                        max_rotation_deg=1.0 if motion == "hand-held" else 0.0)
+                        max_rotation_deg=1.0 if motion == "hand-held" else 0.0,
+                    )
                     darks = (0, 1, 2) if not quick or scene in ("window", "patches") else (0,)
                     for n_black in darks:
                         name = f"{scene} {bits} {motion} dark{n_black} s{seed}"
+
                         def make(d: Path, spec=spec, n_black=n_black) -> FaultyBracket:
                             if n_black == 0:
                                 return write_reference_bracket(d, spec)
                             return write_dark_scene(d, n_black, spec)
+
                         jobs.append((name, make, root, {"align": True}))
     return jobs
 
@@ -467,15 +513,19 @@ def codes_and_pair_columns(r: CaseResult) -> tuple[str, list[str]]:
 
 
 def print_seed_table(results: list[CaseResult]) -> None:
-    print("\n== 1. Seed protocol (6 frames, times 1..1024 x4, linear, sigma 1 level): exit codes "
-          "of ratios/align/merge; ok pairs and |error| % of their ratios from 'ratios --json' "
-          "(the histograms alone: hand-held pairs are unstable there by design) and from the "
-          "merge report (registered pixels); sig r/m: of the pairs with signal in both frames "
-          "(truth), how many ratios / the merge reported ok; align: pairs registered ok; "
-          "HDRutils: pairs estimated and |error| %")
-    hdr = (f"{'case':34s} {'r a m':>7s} | {'ratios ok':>9s} {'med%':>7s} {'max%':>7s} | "
-           f"{'merge ok':>8s} {'med%':>7s} {'max%':>7s} | {'sig r/m':>8s} | {'align':>5s} | "
-           f"{'cerman':>6s} {'med%':>6s} {'max%':>7s} | {'mst':>5s} {'med%':>6s} {'max%':>7s}")
+    print(
+        "\n== 1. Seed protocol (6 frames, times 1..1024 x4, linear, sigma 1 level): exit codes "
+        "of ratios/align/merge; ok pairs and |error| % of their ratios from 'ratios --json' "
+        "(the histograms alone: hand-held pairs are unstable there by design) and from the "
+        "merge report (registered pixels); sig r/m: of the pairs with signal in both frames "
+        "(truth), how many ratios / the merge reported ok; align: pairs registered ok; "
+        "HDRutils: pairs estimated and |error| %"
+    )
+    hdr = (
+        f"{'case':34s} {'r a m':>7s} | {'ratios ok':>9s} {'med%':>7s} {'max%':>7s} | "
+        f"{'merge ok':>8s} {'med%':>7s} {'max%':>7s} | {'sig r/m':>8s} | {'align':>5s} | "
+        f"{'cerman':>6s} {'med%':>6s} {'max%':>7s} | {'mst':>5s} {'med%':>6s} {'max%':>7s}"
+    )
     print(hdr)
     print("-" * len(hdr))
     for r in results:
@@ -495,16 +545,22 @@ def print_seed_table(results: list[CaseResult]) -> None:
             k, n, errs = peer_stats(r.case, p)
             m, x = med_max(errs)
             peers.append(f"{f'{k}/{n}':>6s} {pct(m, 2):>6s} {pct(x, 2):>7s}")
-        print(f"{r.name:34s} {codes:>7s} | {cols[0]} | {cols[1][1:]} | "
-              f"{sig:>8s} | {al:>5s} | {peers[0]} | {peers[1]}")
+        print(
+            f"{r.name:34s} {codes:>7s} | {cols[0]} | {cols[1][1:]} | "
+            f"{sig:>8s} | {al:>5s} | {peers[0]} | {peers[1]}"
+        )
     # Summary against the targets, per bit depth.
     print()
     for bits in (8, 12):
         rows = [r for r in results if r.case is not None and r.case.spec.bits == bits]
         if not rows:
             continue
-        twos = {cmd: sum(getattr(r, cmd) is not None and getattr(r, cmd).code not in (0, 1)
-                         for r in rows) for cmd in ("ratios", "align", "merge")}
+        twos = {
+            cmd: sum(
+                getattr(r, cmd) is not None and getattr(r, cmd).code not in (0, 1) for r in rows
+            )
+            for cmd in ("ratios", "align", "merge")
+        }
         for label, attr in (("ratios", "r_stats"), ("merge report", "m_stats")):
             errs = [e for r in rows if getattr(r, attr) for e in getattr(r, attr).errors]
             bad = sum(getattr(r, attr).bad_ok for r in rows if getattr(r, attr))
@@ -512,15 +568,26 @@ def print_seed_table(results: list[CaseResult]) -> None:
             sig_ok = sum(getattr(r, attr).signal_ok for r in rows if getattr(r, attr))
             m, x = med_max(errs)
             verdict = []
-            verdict.append("exit ok" if sum(twos.values()) == 0 else
-                           f"EXIT 2/3 in {twos['ratios']}/{twos['align']}/{twos['merge']} "
-                           "cases (ratios/align/merge)")
-            verdict.append(("median ok" if m is not None and m <= TARGET_MEDIAN[bits] else
-                            "MEDIAN OVER TARGET") + f" ({pct(m)} % vs {pct(TARGET_MEDIAN[bits])})")
+            verdict.append(
+                "exit ok"
+                if sum(twos.values()) == 0
+                else f"EXIT 2/3 in {twos['ratios']}/{twos['align']}/{twos['merge']} "
+                "cases (ratios/align/merge)"
+            )
+            verdict.append(
+                (
+                    "median ok"
+                    if m is not None and m <= TARGET_MEDIAN[bits]
+                    else "MEDIAN OVER TARGET"
+                )
+                + f" ({pct(m)} % vs {pct(TARGET_MEDIAN[bits])})"
+            )
             verdict.append("no ok pair > 1 %" if bad == 0 else f"{bad} OK PAIRS > 1 %")
             verdict.append(f"signal pairs ok {sig_ok}/{sig}")
-            print(f"  {bits:2d} bits, {label:12s}: {len(rows)} cases, {len(errs)} ok pairs, "
-                  f"median {pct(m)} %, max {pct(x)} %: " + "; ".join(verdict))
+            print(
+                f"  {bits:2d} bits, {label:12s}: {len(rows)} cases, {len(errs)} ok pairs, "
+                f"median {pct(m)} %, max {pct(x)} %: " + "; ".join(verdict)
+            )
 
 
 # --------------------------------------------------------------------------------- 2. faults
@@ -532,15 +599,20 @@ def fault_jobs(root: Path, quick: bool) -> list[tuple]:
     jobs = [
         ("black first (png 8)", lambda d: write_black_frames(d, 0, s)),
         ("black middle (png 8)", lambda d: write_black_frames(d, 2, s)),
-        ("black first two (jpeg 8)", lambda d: write_black_frames(d, (0, 1), s.replace(
-            fmt="jpeg"))),
+        (
+            "black first two (jpeg 8)",
+            lambda d: write_black_frames(d, (0, 1), s.replace(fmt="jpeg")),
+        ),
         ("black first (dng 12)", lambda d: write_black_frames(d, 0, dng12)),
         ("black middle (dng 14)", lambda d: write_black_frames(d, 3, dng14)),
         ("saturated last (png 8)", lambda d: write_saturated_frame(d, -1, s)),
         ("saturated middle (png 8)", lambda d: write_saturated_frame(d, 3, s)),
         ("duplicate exposure (png 8)", lambda d: write_duplicate_exposure(d, 2, s)),
         ("duplicate, hand-held (png 8)", lambda d: write_duplicate_exposure(d, 2, hand)),
-        ("swapped times file 1<->2", lambda d: write_swapped_times(d, (1, 2), s), ),
+        (
+            "swapped times file 1<->2",
+            lambda d: write_swapped_times(d, (1, 2), s),
+        ),
         ("swapped EXIF times 1<->2", lambda d: write_swapped_times(d, (1, 2), s, in_exif=True)),
         ("unregistrable tripod (png 8)", lambda d: write_unregistrable_tripod(d, s)),
         ("one usable frame (png 8)", lambda d: write_one_usable_frame(d, 1)),
@@ -555,11 +627,15 @@ def fault_jobs(root: Path, quick: bool) -> list[tuple]:
 
 
 def print_fault_table(results: list[CaseResult]) -> None:
-    print("\n== 2. Faults (seed protocol, 256x384 unless said): exit codes of ratios/align/"
-          "merge (target: 0 or 1; 'one usable frame': 2 with a message naming the others); "
-          "the status of each pair from ratios (file indices dark-bright); ok pairs > 1 % off")
-    print(f"{'case':30s} {'r a m':>7s} | {'ok >1%':>6s} | pairs (ratios --json): status, ratio "
-          "vs true")
+    print(
+        "\n== 2. Faults (seed protocol, 256x384 unless said): exit codes of ratios/align/"
+        "merge (target: 0 or 1; 'one usable frame': 2 with a message naming the others); "
+        "the status of each pair from ratios (file indices dark-bright); ok pairs > 1 % off"
+    )
+    print(
+        f"{'case':30s} {'r a m':>7s} | {'ok >1%':>6s} | pairs (ratios --json): status, ratio "
+        "vs true"
+    )
     print("-" * 110)
     for r in results:
         if r.case is None:
@@ -572,15 +648,17 @@ def print_fault_table(results: list[CaseResult]) -> None:
             print(f"{r.name:30s} {codes:>7s} | {'-':>6s} | {err[:600]}")
             continue
         bad = sum(c.ok and c.error > TARGET_MAX_OK for c in checks)
-        desc = ", ".join(f"{c.dark}-{c.bright} {c.status} {c.ratio:.4g}/{c.true:.4g}"
-                         for c in checks)
+        desc = ", ".join(
+            f"{c.dark}-{c.bright} {c.status} {c.ratio:.4g}/{c.true:.4g}" for c in checks
+        )
         print(f"{r.name:30s} {codes:>7s} | {bad:6d} | {desc}")
         if r.merge and r.merge.code not in (0, None) and r.merge.error:
             print(f"{'':30s} {'':>7s} | {'':>6s} | merge: {r.merge.error[:600]}")
         doc = r.merge.doc if r.merge else None
         if doc:
-            codes_seen = Counter(f"{v.get('code')}({v.get('severity', '')[:4]})"
-                                 for v in doc.get("verdicts", []))
+            codes_seen = Counter(
+                f"{v.get('code')}({v.get('severity', '')[:4]})" for v in doc.get("verdicts", [])
+            )
             listed = ", ".join(f"{c} x{n}" if n > 1 else c for c, n in codes_seen.items())
             print(f"{'':30s} {'':>7s} | {'':>6s} | merge verdicts: {listed or 'none'}")
 
@@ -594,8 +672,9 @@ def _well_exposed(case: FaultyBracket) -> np.ndarray:
     return good
 
 
-def radiance_error(rgb: np.ndarray | None, case: FaultyBracket, *,
-                   sites: bool = True) -> float | None:
+def radiance_error(
+    rgb: np.ndarray | None, case: FaultyBracket, *, sites: bool = True
+) -> float | None:
     """Median |merged / (s * truth) - 1| over the well-exposed samples, ``s`` the median ratio.
 
     ``sites``: only each pixel's own CFA colour (the value the sensor measured there; the
@@ -632,8 +711,9 @@ def library_provenance(case: FaultyBracket, extra_args: Sequence[str]) -> dict[s
         floor = float(extra_args[list(extra_args).index("--noise-floor") + 1])
     try:
         br = load_bracket([str(p) for p in case.frames])
-        res = Pipeline(br, PipelineParams(noise_floor=floor, registration_previews=False)
-                       ).run(until="merge")
+        res = Pipeline(br, PipelineParams(noise_floor=floor, registration_previews=False)).run(
+            until="merge"
+        )
     except Exception as exc:
         return {"error": f"{type(exc).__name__}: {exc}"[:120]}
     if res.merge is None:
@@ -662,34 +742,44 @@ def raw_jobs(root: Path, quick: bool) -> list[tuple]:
     d14 = WIDE_RAW_14BIT.replace(shape=shape, seed=5)
     variants = [
         ("12-bit 2 stops peak 1.5 %", lambda d: write_dark_raw_bracket(d, d12)),
-        ("  + margins, MaskedAreas", lambda d: write_dark_raw_bracket(
-            d, d12.replace(margins=16))),
-        ("  + margins, ActiveArea only", lambda d: write_dark_raw_bracket(
-            d, d12.replace(margins=16, masked_areas=False))),
+        ("  + margins, MaskedAreas", lambda d: write_dark_raw_bracket(d, d12.replace(margins=16))),
+        (
+            "  + margins, ActiveArea only",
+            lambda d: write_dark_raw_bracket(d, d12.replace(margins=16, masked_areas=False)),
+        ),
         ("14-bit pair 6 stops", lambda d: write_wide_raw_pair(d, d14)),
-        ("  + margins, MaskedAreas", lambda d: write_wide_raw_pair(
-            d, d14.replace(margins=16))),
+        ("  + margins, MaskedAreas", lambda d: write_wide_raw_pair(d, d14.replace(margins=16))),
     ]
     jobs = []
     for k, (name, make) in enumerate(variants):
         jobs.append((f"{name}", make, root / f"raw{k}", {"align": True}))
         if not name.startswith(" "):  # the issue's workaround, beside the defaults
-            jobs.append((f"{name}, --noise-floor 8", make, root / f"raw{k}-floor8",
-                         {"align": True, "extra_args": ("--noise-floor", "8"), "peers": ()}))
+            jobs.append(
+                (
+                    f"{name}, --noise-floor 8",
+                    make,
+                    root / f"raw{k}-floor8",
+                    {"align": True, "extra_args": ("--noise-floor", "8"), "peers": ()},
+                )
+            )
     return jobs
 
 
 def print_raw_table(results: list[CaseResult]) -> None:
-    print("\n== 3. Dark RAW (DNG, read noise 2 DN, 'patches' scene): exit codes; ok pairs and "
-          "|error| % (ratios --json; merge report); merged EXR median radiance |error| % where "
-          "some frame is well exposed (target <= 1 %), at each pixel's own CFA colour (rad) and "
-          "over all samples, demosaicing included (all); provenance (report: darkest frame's mean "
-          "share / dominant fraction; library merge: share of the brightest 1 % and of the "
-          "samples where only the darkest frame is unclipped that the darkest frame dominates); "
-          "HDRutils merge (cerman / mst): pairs estimated, ratio |error| %, radiance |error| %")
-    hdr = (f"{'case':44s} {'r a m':>7s} | {'ratios ok':>9s} {'med%':>7s} {'max%':>7s} | "
-           f"{'merge ok':>8s} {'med%':>7s} {'max%':>7s} | {'rad%':>6s} {'all%':>5s} | "
-           f"{'prov':>11s} | {'top1%':>5s} {'only':>11s}")
+    print(
+        "\n== 3. Dark RAW (DNG, read noise 2 DN, 'patches' scene): exit codes; ok pairs and "
+        "|error| % (ratios --json; merge report); merged EXR median radiance |error| % where "
+        "some frame is well exposed (target <= 1 %), at each pixel's own CFA colour (rad) and "
+        "over all samples, demosaicing included (all); provenance (report: darkest frame's mean "
+        "share / dominant fraction; library merge: share of the brightest 1 % and of the "
+        "samples where only the darkest frame is unclipped that the darkest frame dominates); "
+        "HDRutils merge (cerman / mst): pairs estimated, ratio |error| %, radiance |error| %"
+    )
+    hdr = (
+        f"{'case':44s} {'r a m':>7s} | {'ratios ok':>9s} {'med%':>7s} {'max%':>7s} | "
+        f"{'merge ok':>8s} {'med%':>7s} {'max%':>7s} | {'rad%':>6s} {'all%':>5s} | "
+        f"{'prov':>11s} | {'top1%':>5s} {'only':>11s}"
+    )
     print(hdr)
     print("-" * len(hdr))
     for r in results:
@@ -703,17 +793,23 @@ def print_raw_table(results: list[CaseResult]) -> None:
         if doc and doc.get("merge") and doc["merge"].get("provenance"):
             pv = doc["merge"]["provenance"]
             darkest_sorted = 0  # the report lists frames darkest first
-            prov = (f"{pv['mean_share'][darkest_sorted]:.3f}/"
-                    f"{pv['dominant_fraction'][darkest_sorted]:.3f}")
+            prov = (
+                f"{pv['mean_share'][darkest_sorted]:.3f}/"
+                f"{pv['dominant_fraction'][darkest_sorted]:.3f}"
+            )
         lp = r.extra.get("prov", {})
         top = "-" if "top1_darkest_share" not in lp else f"{lp['top1_darkest_share']:.2f}"
         only = "-"
         if "only_darkest_unclipped" in lp:
             share = lp.get("there_darkest_share")
-            only = (f"{'-' if share is None else f'{share:.2f}'} of "
-                    f"{100 * lp['only_darkest_unclipped']:.1f}%")
-        print(f"{r.name:44s} {codes:>7s} | {cols[0]} | {cols[1][1:]} | {pct(rad, 2):>6s} "
-              f"{pct(r.extra.get('rad_all'), 2):>5s} | {prov:>11s} | {top:>5s} {only:>11s}")
+            only = (
+                f"{'-' if share is None else f'{share:.2f}'} of "
+                f"{100 * lp['only_darkest_unclipped']:.1f}%"
+            )
+        print(
+            f"{r.name:44s} {codes:>7s} | {cols[0]} | {cols[1][1:]} | {pct(rad, 2):>6s} "
+            f"{pct(r.extra.get('rad_all'), 2):>5s} | {prov:>11s} | {top:>5s} {only:>11s}"
+        )
         if "error" in lp:
             print(f"{'':44s} library merge: {lp['error']}")
         for method in ("cerman", "mst"):
@@ -724,12 +820,16 @@ def print_raw_table(results: list[CaseResult]) -> None:
             m, x = med_max(errs)
             prad = radiance_error(p.hdr, r.case)
             pall = radiance_error(p.hdr, r.case, sites=False)
-            print(f"{'':44s} HDRutils {method:6s}: {k}/{n} estimated, median {pct(m)} %, max "
-                  f"{pct(x)} %, radiance {pct(prad, 2)} % (all {pct(pall, 2)} %)"
-                  + (f"  ({p.note})" if p.note else ""))
-    print("  note: 2 stops apart, a darkest frame peaking at 1.5 % leaves the next frame at 6 %, "
-          "unclipped: an SNR-weighted merge takes the highlights from the brighter frames; the "
-          "darkest frame can carry only what every brighter frame clips ('only' column).")
+            print(
+                f"{'':44s} HDRutils {method:6s}: {k}/{n} estimated, median {pct(m)} %, max "
+                f"{pct(x)} %, radiance {pct(prad, 2)} % (all {pct(pall, 2)} %)"
+                + (f"  ({p.note})" if p.note else "")
+            )
+    print(
+        "  note: 2 stops apart, a darkest frame peaking at 1.5 % leaves the next frame at 6 %, "
+        "unclipped: an SNR-weighted merge takes the highlights from the brighter frames; the "
+        "darkest frame can carry only what every brighter frame clips ('only' column)."
+    )
 
 
 def finish_raw(results: list[CaseResult]) -> None:
@@ -758,16 +858,22 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--quick", action="store_true", help="small frames, one seed, fewer scenes")
     ap.add_argument("--jobs", type=int, default=1, help="cases run at once (default 1)")
     ap.add_argument("--keep", metavar="DIR", help="write the brackets here and keep them")
-    ap.add_argument("--only", choices=("seed", "faults", "raw"), action="append",
-                    help="run only these tables (repeatable)")
+    ap.add_argument(
+        "--only",
+        choices=("seed", "faults", "raw"),
+        action="append",
+        help="run only these tables (repeatable)",
+    )
     args = ap.parse_args(argv)
     tables = set(args.only or ("seed", "faults", "raw"))
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="bench_robustness_") as tmp:
         root = Path(args.keep) if args.keep else Path(tmp)
         root.mkdir(parents=True, exist_ok=True)
-        print(f"bench_robustness: {'quick' if args.quick else 'full'} run, jobs {args.jobs}, "
-              f"brackets in {root}{'' if args.keep else ' (deleted at the end)'}")
+        print(
+            f"bench_robustness: {'quick' if args.quick else 'full'} run, jobs {args.jobs}, "
+            f"brackets in {root}{'' if args.keep else ' (deleted at the end)'}"
+        )
         if "seed" in tables:
             res = run_all(seed_jobs(root / "seed", args.quick), args.jobs)
             print_seed_table(res)

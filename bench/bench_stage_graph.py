@@ -35,25 +35,31 @@ def controls(res) -> list[tuple[str, dict, dict]]:
     the sliders once more with alignment off): (control, base changes, change)."""
     p = res.params
     off = {"align": "none"}
-    return [(name, {}, change) for name, change in [
-        ("saturation", {"saturation": float(p.saturation) * 0.9}),
-        ("noise_floor", {"noise_floor": float(p.noise_floor) + 2.0}),
-        ("threshold", {"threshold": 0.15}),
-        ("alignment", {"align": "similarity" if p.align != "similarity" else "shift"}),
-        ("local", {"local": "off"}),
-        ("reference", {"reference": 0}),
-        ("response", {"response": "srgb"}),
-        ("times", {"times": "exif"}),
-        ("exposure_method", {"exposure_method": "Cerman 2006"}),
-        ("tonemap", {"tonemap": "reinhard" if p.tonemap != "reinhard" else "aces"}),
-        ("exposure", {"tonemap_exposure": 1.0}),
-        ("deghost", {"deghost": True}),
-    ]] + [(f"{name} (align none)", off, change) for name, change in [
-        ("saturation", {"saturation": float(p.saturation) * 0.9}),
-        ("noise_floor", {"noise_floor": float(p.noise_floor) + 2.0}),
-        ("threshold", {"threshold": 0.15}),
-        ("exposure", {"tonemap_exposure": 1.0}),
-    ]]
+    return [
+        (name, {}, change)
+        for name, change in [
+            ("saturation", {"saturation": float(p.saturation) * 0.9}),
+            ("noise_floor", {"noise_floor": float(p.noise_floor) + 2.0}),
+            ("threshold", {"threshold": 0.15}),
+            ("alignment", {"align": "similarity" if p.align != "similarity" else "shift"}),
+            ("local", {"local": "off"}),
+            ("reference", {"reference": 0}),
+            ("response", {"response": "srgb"}),
+            ("times", {"times": "exif"}),
+            ("exposure_method", {"exposure_method": "Cerman 2006"}),
+            ("tonemap", {"tonemap": "reinhard" if p.tonemap != "reinhard" else "aces"}),
+            ("exposure", {"tonemap_exposure": 1.0}),
+            ("deghost", {"deghost": True}),
+        ]
+    ] + [
+        (f"{name} (align none)", off, change)
+        for name, change in [
+            ("saturation", {"saturation": float(p.saturation) * 0.9}),
+            ("noise_floor", {"noise_floor": float(p.noise_floor) + 2.0}),
+            ("threshold", {"threshold": 0.15}),
+            ("exposure", {"tonemap_exposure": 1.0}),
+        ]
+    ]
 
 
 def equal(a, b) -> bool:
@@ -68,10 +74,17 @@ def brackets(only: str | None) -> list[tuple[str, object]]:
     if only in (None, "sim"):
         from hdrcore.synthetic import simulate_bracket, write_bracket
 
-        sim = simulate_bracket(scene="window", shape=(320, 480),
-                               exposure_times=(1 / 64, 1 / 16, 1 / 4), bits=8,
-                               response="gamma", noise_sigma=1.0, max_shift=4,
-                               max_rotation_deg=0.5, seed=3)
+        sim = simulate_bracket(
+            scene="window",
+            shape=(320, 480),
+            exposure_times=(1 / 64, 1 / 16, 1 / 4),
+            bits=8,
+            response="gamma",
+            noise_sigma=1.0,
+            max_shift=4,
+            max_rotation_deg=0.5,
+            seed=3,
+        )
         tmp = Path(tempfile.mkdtemp(prefix="bench_stage_graph_"))
         write_bracket(tmp, sim, fmt="png")
         out.append(("simulated hand-held 480x320 PNG", load_bracket([tmp])))
@@ -89,8 +102,10 @@ def main() -> None:
     for name, bracket in brackets(args.only):
         base = Pipeline(bracket).run()
         print(f"\n{name}: defaults ran {', '.join(base.stages_run)}")
-        print("| control | parameter | quick run (until ratios) | full run | cached wall / CPU s "
-              "| fresh wall / CPU s | equal to fresh |")
+        print(
+            "| control | parameter | quick run (until ratios) | full run | cached wall / CPU s "
+            "| fresh wall / CPU s | equal to fresh |"
+        )
         print("|---|---|---|---|---|---|---|")
         for control, start, change in controls(base):
             pipe = Pipeline(bracket)
@@ -108,15 +123,25 @@ def main() -> None:
                 print(f"| {control} | {change} | - | {type(exc).__name__}: {exc} | | | |")
                 continue
             same = equal(full, fresh)
-            row = dict(bracket=name, control=control, change={k: str(v) for k, v in change.items()},
-                       quick=list(quick.stages_run), full=list(full.stages_run),
-                       cached_wall=w1 - w0, cached_cpu=c1 - c0, fresh_wall=w2 - w1,
-                       fresh_cpu=c2 - c1, equal=same)
+            row = dict(
+                bracket=name,
+                control=control,
+                change={k: str(v) for k, v in change.items()},
+                quick=list(quick.stages_run),
+                full=list(full.stages_run),
+                cached_wall=w1 - w0,
+                cached_cpu=c1 - c0,
+                fresh_wall=w2 - w1,
+                fresh_cpu=c2 - c1,
+                equal=same,
+            )
             rows.append(row)
-            print(f"| {control} | {', '.join(f'{k}={v}' for k, v in row['change'].items())} "
-                  f"| {', '.join(quick.stages_run) or '-'} | {', '.join(full.stages_run) or '-'} "
-                  f"| {w1 - w0:.2f} / {c1 - c0:.2f} | {w2 - w1:.2f} / {c2 - c1:.2f} "
-                  f"| {'yes' if same else 'NO'} |")
+            print(
+                f"| {control} | {', '.join(f'{k}={v}' for k, v in row['change'].items())} "
+                f"| {', '.join(quick.stages_run) or '-'} | {', '.join(full.stages_run) or '-'} "
+                f"| {w1 - w0:.2f} / {c1 - c0:.2f} | {w2 - w1:.2f} / {c2 - c1:.2f} "
+                f"| {'yes' if same else 'NO'} |"
+            )
     if args.json:
         args.json.write_text(json.dumps(rows, indent=1))
 

@@ -43,11 +43,17 @@ PREVIEW = 2048
 
 REAL = {
     "frobisher": ("frobisher-colour-hdri", None, {}),
-    "memorial": ("memorial-debevec", "exposure_times.txt",
-                 dict(exclude_colour=(0, 0, 255), align="none")),
+    "memorial": (
+        "memorial-debevec",
+        "exposure_times.txt",
+        dict(exclude_colour=(0, 0, 255), align="none"),
+    ),
     "pixel7": ("handheld-pixel7-lab", None, dict(registration_max_pixels=3_000_000)),
-    "xperia": ("handheld-xperia-library", "iso100_equivalent_times.txt",
-               dict(registration_max_pixels=3_000_000)),
+    "xperia": (
+        "handheld-xperia-library",
+        "iso100_equivalent_times.txt",
+        dict(registration_max_pixels=3_000_000),
+    ),
 }
 LUMA = np.array([0.2126, 0.7152, 0.0722])
 
@@ -106,8 +112,10 @@ def mertens(b, factor: int) -> np.ndarray | None:
 
 def bracket_table(names: list[str]) -> None:
     print(f"\n## Previews at {PREVIEW} px: 'auto' is 'durand' above {AUTO_LOCAL_STOPS:g} stops")
-    print(f"{'bracket':<10} {'stops':>5} {'auto':>8} | {'operator':<13} {'in range %':>10} "
-          f"{'detail hi':>9} {'detail lo':>9} {'ms':>7}")
+    print(
+        f"{'bracket':<10} {'stops':>5} {'auto':>8} | {'operator':<13} {'in range %':>10} "
+        f"{'detail hi':>9} {'detail lo':>9} {'ms':>7}"
+    )
     cv = opencv_operators()
     for name in names:
         if not (DATA / REAL[name][0]).is_dir():
@@ -123,23 +131,36 @@ def bracket_table(names: list[str]) -> None:
             tonemap(small[:64, :64], method)  # compiled kernels loaded
             t0 = time.perf_counter()
             res = tonemap(small, method, pixel_size=factor)
-            rows.append((method if method != "auto" else f"auto={res.method}", res.image,
-                         time.perf_counter() - t0))
+            rows.append(
+                (
+                    method if method != "auto" else f"auto={res.method}",
+                    res.image,
+                    time.perf_counter() - t0,
+                )
+            )
         bgr = np.ascontiguousarray(np.nan_to_num(small[..., ::-1], nan=0.0, posinf=0.0))
         for label, op in cv.items():
             t0 = time.perf_counter()
             out = op(bgr)
             dt = time.perf_counter() - t0
-            rows.append((label, np.clip(np.rint(np.nan_to_num(out[..., ::-1]) * 255), 0, 255)
-                         .astype(np.uint8), dt))
+            rows.append(
+                (
+                    label,
+                    np.clip(np.rint(np.nan_to_num(out[..., ::-1]) * 255), 0, 255).astype(np.uint8),
+                    dt,
+                )
+            )
         t0 = time.perf_counter()
         fused = mertens(b, factor)
         if fused is not None:
             rows.append(("cv2-mertens", fused, time.perf_counter() - t0))
         for i, (label, image, dt) in enumerate(rows):
             inr, hi, lo = measures(image, scene)
-            head = (f"{name:<10} {auto.dynamic_range:>5.1f} {auto.method:>8}" if i == 0
-                    else f"{'':<10} {'':>5} {'':>8}")
+            head = (
+                f"{name:<10} {auto.dynamic_range:>5.1f} {auto.method:>8}"
+                if i == 0
+                else f"{'':<10} {'':>5} {'':>8}"
+            )
             print(f"{head} | {label:<13} {inr:>10.1f} {hi:>9.2f} {lo:>9.2f} {1e3 * dt:>7.1f}")
 
 
@@ -154,9 +175,11 @@ def timing_table() -> None:
     t0 = time.perf_counter()
     small = downsample_area(big, factor)
     t_down = time.perf_counter() - t0
-    print(f"\n## Preview of a {big.shape[1]}x{big.shape[0]} map "
-          f"({big.shape[0] * big.shape[1] / 1e6:.1f} MP): reduction to "
-          f"{small.shape[1]}x{small.shape[0]} {1e3 * t_down:.0f} ms")
+    print(
+        f"\n## Preview of a {big.shape[1]}x{big.shape[0]} map "
+        f"({big.shape[0] * big.shape[1] / 1e6:.1f} MP): reduction to "
+        f"{small.shape[1]}x{small.shape[0]} {1e3 * t_down:.0f} ms"
+    )
     print(f"{'operator':<10} {'ms':>7}")
     for method in ("reinhard", "durand", "auto"):
         best = min(_timed(small, method, factor) for _ in range(3))

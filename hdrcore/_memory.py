@@ -48,5 +48,8 @@ def retain_freed_memory() -> bool:
     mallopt.restype = ctypes.c_int
     # No mmap for large blocks, never trim the heap top (2 GB is mallopt's int limit), one arena
     # for every thread.
-    return (bool(mallopt(_M_MMAP_MAX, 0)) and bool(mallopt(_M_TRIM_THRESHOLD, 2**31 - 1))
-            and bool(mallopt(_M_ARENA_MAX, 1)))
+    return (
+        bool(mallopt(_M_MMAP_MAX, 0))
+        and bool(mallopt(_M_TRIM_THRESHOLD, 2**31 - 1))
+        and bool(mallopt(_M_ARENA_MAX, 1))
+    )

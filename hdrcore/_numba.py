@@ -34,8 +34,9 @@ try:
     from numba.core import caching as _caching
 
     njit = numba.njit(nogil=True, cache=True, fastmath=False, error_model="numpy")
-    inline = numba.njit(nogil=True, cache=True, fastmath=False, error_model="numpy",
-                        inline="always")
+    inline = numba.njit(
+        nogil=True, cache=True, fastmath=False, error_model="numpy", inline="always"
+    )
     AVAILABLE = True
 except ImportError:  # pragma: no cover - exercised only without numba
     numba = None  # type: ignore[assignment]  # no numba at run time: the names stay, set to None
@@ -56,8 +57,10 @@ def _in_package(py_file: str) -> bool:
     return True
 
 
-if _caching is not None and all(hasattr(_caching, name) for name in (
-        "_CacheLocator", "_SourceFileBackedLocatorMixin", "CacheImpl")):
+if _caching is not None and all(
+    hasattr(_caching, name)
+    for name in ("_CacheLocator", "_SourceFileBackedLocatorMixin", "CacheImpl")
+):
 
     class UserCacheLocator(_caching._SourceFileBackedLocatorMixin, _caching._CacheLocator):
         """numba cache locator: hdrcore's functions in :func:`cache_dir` (one sub-folder per
@@ -66,8 +69,9 @@ if _caching is not None and all(hasattr(_caching, name) for name in (
         def __init__(self, py_func, py_file):
             self._py_file = py_file
             self._lineno = py_func.__code__.co_firstlineno
-            self._cache_path = os.path.join(str(cache_dir()),
-                                            self.get_suitable_cache_subpath(py_file))
+            self._cache_path = os.path.join(
+                str(cache_dir()), self.get_suitable_cache_subpath(py_file)
+            )
 
         def get_cache_path(self):
             return self._cache_path
@@ -81,7 +85,11 @@ if _caching is not None and all(hasattr(_caching, name) for name in (
     _locators = _caching.CacheImpl._locator_classes
     if not any(getattr(c, "__name__", "") == "UserCacheLocator" for c in _locators):
         # after numba's NUMBA_CACHE_DIR locator, before its __pycache__ one
-        _locators.insert(1 if _locators and _locators[0] is getattr(
-            _caching, "UserProvidedCacheLocator", None) else 0, UserCacheLocator)
+        _locators.insert(
+            1
+            if _locators and _locators[0] is getattr(_caching, "UserProvidedCacheLocator", None)
+            else 0,
+            UserCacheLocator,
+        )
 
 __all__ = ["AVAILABLE", "cache_dir", "inline", "njit", "numba"]

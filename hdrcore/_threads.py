@@ -23,12 +23,19 @@ from .errors import ParameterError
 T = TypeVar("T")
 R = TypeVar("R")
 
-__all__ = ["cpu_count", "resolve_workers", "run_row_spans", "set_workers", "thread_map",
-           "worker_count"]
+__all__ = [
+    "cpu_count",
+    "resolve_workers",
+    "run_row_spans",
+    "set_workers",
+    "thread_map",
+    "worker_count",
+]
 
 #: The default of the code running in this context (``None``: the project's policy).
-_DEFAULT: contextvars.ContextVar[int | None] = contextvars.ContextVar("hdrcore_workers",
-                                                                      default=None)
+_DEFAULT: contextvars.ContextVar[int | None] = contextvars.ContextVar(
+    "hdrcore_workers", default=None
+)
 
 
 def cpu_count() -> int:
@@ -54,16 +61,21 @@ def resolve_workers(workers: int | None) -> int:
         except (TypeError, ValueError):
             as_int = None
         if as_int is None or as_int != workers or isinstance(workers, bool):
-            raise ParameterError("workers must be an integer", expected="n >= 1, or -1 for "
-                                 "every core (scipy's convention)", found=repr(workers))
+            raise ParameterError(
+                "workers must be an integer",
+                expected="n >= 1, or -1 for every core (scipy's convention)",
+                found=repr(workers),
+            )
         workers = as_int
     if workers >= 1:
         return workers
     cores = cpu_count()
     if workers == 0 or cores + 1 + workers < 1:
-        raise ParameterError("workers out of range",
-                             expected=f"1..n, or -1..-{cores} (-1: all {cores} cores)",
-                             found=str(workers))
+        raise ParameterError(
+            "workers out of range",
+            expected=f"1..n, or -1..-{cores} (-1: all {cores} cores)",
+            found=str(workers),
+        )
     return cores + 1 + workers
 
 

@@ -141,14 +141,19 @@ def brightness_transfer_function(
     hd = np.asarray(hist_dark)
     hb = np.asarray(hist_bright)
     if hd.ndim != 1 or hb.ndim != 1 or hd.size < 2 or hb.size < 2:
-        raise ParameterError("histograms must be one-dimensional with at least 2 bins",
-                             found=f"{hd.shape} and {hb.shape}")
+        raise ParameterError(
+            "histograms must be one-dimensional with at least 2 bins",
+            found=f"{hd.shape} and {hb.shape}",
+        )
     if np.any(hd < 0) or np.any(hb < 0):
         raise ParameterError("histogram counts must be non-negative")
     if hd.sum() <= 0 or hb.sum() <= 0:
         which = "dark" if hd.sum() <= 0 else "bright"
-        raise EstimationError(f"the {which} histogram is empty: no pixels to match",
-                              expected="at least one counted pixel", found="0")
+        raise EstimationError(
+            f"the {which} histogram is empty: no pixels to match",
+            expected="at least one counted pixel",
+            found="0",
+        )
     # Integer counts stay int64; blurred (float) histograms are accepted as float64.
     hd = np.array(hd, np.int64 if np.issubdtype(hd.dtype, np.integer) else np.float64)
     hb = np.array(hb, np.int64 if np.issubdtype(hb.dtype, np.integer) else np.float64)

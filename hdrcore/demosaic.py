@@ -56,15 +56,15 @@ DEMOSAIC_METHODS: dict[str, str] = {
     "malvar2004": "Malvar, He & Cutler 2004: bilinear + gradient correction, 5x5, linear",
     "bilinear": "bilinear interpolation of each colour plane, 3x3, linear",
     "malvar2004-clamped": "malvar2004, each interpolated value held within the range of the "
-                          "nearest samples of its colour (no overshoot at high-contrast edges; "
-                          "scale-equivariant)",
+    "nearest samples of its colour (no overshoot at high-contrast edges; "
+    "scale-equivariant)",
     "hamilton-adams": "Hamilton & Adams 1997: green along the direction of the smaller "
-                      "gradient + Laplacian, red and blue by colour differences; its choices "
-                      "compare gradients, so it is scale-equivariant",
+    "gradient + Laplacian, red and blue by colour differences; its choices "
+    "compare gradients, so it is scale-equivariant",
     "rcd": "Sanz Rodriguez's ratio corrected demosaicing (RCD 2.3): directions from "
-           "high-pass statistics, green by low-pass ratios, red and blue by colour differences "
-           "blended by inverse gradients; ratios and ratios of gradients, so scale-equivariant "
-           "(up to its 1e-5 guards)",
+    "high-pass statistics, green by low-pass ratios, red and blue by colour differences "
+    "blended by inverse gradients; ratios and ratios of gradients, so scale-equivariant "
+    "(up to its 1e-5 guards)",
 }
 
 _LETTERS = {"R": 0, "G": 1, "B": 2}
@@ -73,8 +73,11 @@ _LETTERS = {"R": 0, "G": 1, "B": 2}
 def validate_method(method: str) -> str:
     """``method`` if it is a key of :data:`DEMOSAIC_METHODS`, else a ParameterError naming them."""
     if method not in DEMOSAIC_METHODS:
-        raise ParameterError(f"unknown demosaic method {method!r}",
-                             expected=", ".join(DEMOSAIC_METHODS), found=repr(method))
+        raise ParameterError(
+            f"unknown demosaic method {method!r}",
+            expected=", ".join(DEMOSAIC_METHODS),
+            found=repr(method),
+        )
     return method
 
 
@@ -84,17 +87,23 @@ def bayer_channels(pattern: np.ndarray | Sequence[Sequence[int]], colors: str) -
     is not a Bayer cell (one R, one B, two G on a diagonal)."""
     pat = np.asarray(pattern, dtype=np.int64)
     if pat.shape != (2, 2):
-        raise ParameterError("demosaic needs a 2x2 colour filter array", expected="(2, 2)",
-                             found=str(pat.shape))
+        raise ParameterError(
+            "demosaic needs a 2x2 colour filter array", expected="(2, 2)", found=str(pat.shape)
+        )
     try:
         ch = np.array([[_LETTERS[colors[int(i)]] for i in row] for row in pat], np.int64)
     except (KeyError, IndexError):
-        raise ParameterError("colour filter array site is not R, G or B",
-                             found=f"pattern {pat.tolist()}, colours {colors!r}") from None
+        raise ParameterError(
+            "colour filter array site is not R, G or B",
+            found=f"pattern {pat.tolist()}, colours {colors!r}",
+        ) from None
     if not (ch[0, 0] == ch[1, 1] == 1 or ch[0, 1] == ch[1, 0] == 1) or sorted(
-            ch.ravel().tolist()) != [0, 1, 1, 2]:
-        raise ParameterError("demosaic needs a Bayer pattern (one R, one B, two G on a diagonal)",
-                             found=str(ch.tolist()))
+        ch.ravel().tolist()
+    ) != [0, 1, 1, 2]:
+        raise ParameterError(
+            "demosaic needs a Bayer pattern (one R, one B, two G on a diagonal)",
+            found=str(ch.tolist()),
+        )
     return ch
 
 
@@ -114,8 +123,9 @@ def _reflect_index(n, pad):  # pragma: no cover - numba
 
 
 @njit
-def _malvar_rows(cfa, offset, chan, method, lo, hi, rounding, out, r0, r1,
-                 ceiling, capped):  # pragma: no cover
+def _malvar_rows(
+    cfa, offset, chan, method, lo, hi, rounding, out, r0, r1, ceiling, capped
+):  # pragma: no cover
     h, w = cfa.shape
     ry = _reflect_index(h, 2)
     rx = _reflect_index(w, 2)
@@ -147,10 +157,12 @@ def _malvar_rows(cfa, offset, chan, method, lo, hi, rounding, out, r0, r1,
             clamp = method == 2
             if method != 1:
                 op = offset[p, i]
-                far_v = (min(np.float32(cfa[ym2, x]) - op, cap)
-                         + min(np.float32(cfa[yp2, x]) - op, cap))
-                far_h = (min(np.float32(cfa[y, xm2]) - op, cap)
-                         + min(np.float32(cfa[y, xp2]) - op, cap))
+                far_v = min(np.float32(cfa[ym2, x]) - op, cap) + min(
+                    np.float32(cfa[yp2, x]) - op, cap
+                )
+                far_h = min(np.float32(cfa[y, xm2]) - op, cap) + min(
+                    np.float32(cfa[y, xp2]) - op, cap
+                )
             else:
                 far_v = np.float32(0.0)
                 far_h = np.float32(0.0)
@@ -181,8 +193,9 @@ def _malvar_rows(cfa, offset, chan, method, lo, hi, rounding, out, r0, r1,
                     oo = (6 * cen + 2 * diag - np.float32(1.5) * far) / 8
                     if clamp:
                         g = min(max(g, min(min(n, s), min(e, wv))), max(max(n, s), max(e, wv)))
-                        oo = min(max(oo, min(min(d1, d2), min(d3, d4))),
-                                 max(max(d1, d2), max(d3, d4)))
+                        oo = min(
+                            max(oo, min(min(d1, d2), min(d3, d4))), max(max(d1, d2), max(d3, d4))
+                        )
                 else:
                     g = quarter * cross
                     oo = quarter * diag
@@ -230,10 +243,16 @@ def _ha_green_rows(cfa, offset, chan, green, r0, r1, ceiling, capped):  # pragma
             wv = min(np.float32(cfa[y, xm1]) - offset[p, j], cap)
             n = min(np.float32(cfa[ym1, x]) - offset[q, i], cap)
             s = min(np.float32(cfa[yp1, x]) - offset[q, i], cap)
-            lap_h = 2 * cen - min(np.float32(cfa[y, xm2]) - op, cap) \
+            lap_h = (
+                2 * cen
+                - min(np.float32(cfa[y, xm2]) - op, cap)
                 - min(np.float32(cfa[y, xp2]) - op, cap)
-            lap_v = 2 * cen - min(np.float32(cfa[ym2, x]) - op, cap) \
+            )
+            lap_v = (
+                2 * cen
+                - min(np.float32(cfa[ym2, x]) - op, cap)
                 - min(np.float32(cfa[yp2, x]) - op, cap)
+            )
             grad_h = abs(e - wv) + abs(lap_h)
             grad_v = abs(n - s) + abs(lap_v)
             g_h = half * (e + wv) + quarter * lap_h
@@ -247,8 +266,9 @@ def _ha_green_rows(cfa, offset, chan, green, r0, r1, ceiling, capped):  # pragma
 
 
 @njit
-def _ha_colour_rows(cfa, offset, chan, green, lo, hi, rounding, out, r0, r1, ceiling,
-                    capped):  # pragma: no cover
+def _ha_colour_rows(
+    cfa, offset, chan, green, lo, hi, rounding, out, r0, r1, ceiling, capped
+):  # pragma: no cover
     """Hamilton-Adams pass 2: red and blue by bilinear colour differences over ``green``."""
     h, w = cfa.shape
     ry = _reflect_index(h, 2)
@@ -269,14 +289,14 @@ def _ha_colour_rows(cfa, offset, chan, green, lo, hi, rounding, out, r0, r1, cei
             cen = min(np.float32(cfa[y, x]) - offset[p, i], cap)
             if c == 1:
                 # Row neighbours' colour and column neighbours' colour, as differences to G.
-                d_h = half * ((min(np.float32(cfa[y, xm1]) - offset[p, j], cap)
-                               - min(green[y, xm1], cap))
-                              + (min(np.float32(cfa[y, xp1]) - offset[p, j], cap)
-                                 - min(green[y, xp1], cap)))
-                d_v = half * ((min(np.float32(cfa[ym1, x]) - offset[q, i], cap)
-                               - min(green[ym1, x], cap))
-                              + (min(np.float32(cfa[yp1, x]) - offset[q, i], cap)
-                                 - min(green[yp1, x], cap)))
+                d_h = half * (
+                    (min(np.float32(cfa[y, xm1]) - offset[p, j], cap) - min(green[y, xm1], cap))
+                    + (min(np.float32(cfa[y, xp1]) - offset[p, j], cap) - min(green[y, xp1], cap))
+                )
+                d_v = half * (
+                    (min(np.float32(cfa[ym1, x]) - offset[q, i], cap) - min(green[ym1, x], cap))
+                    + (min(np.float32(cfa[yp1, x]) - offset[q, i], cap) - min(green[yp1, x], cap))
+                )
                 if chan[p, j] == 0:
                     r = g + d_h
                     b = g + d_v
@@ -289,7 +309,8 @@ def _ha_colour_rows(cfa, offset, chan, green, lo, hi, rounding, out, r0, r1, cei
                     (min(np.float32(cfa[ym1, xm1]) - od, cap) - min(green[ym1, xm1], cap))
                     + (min(np.float32(cfa[ym1, xp1]) - od, cap) - min(green[ym1, xp1], cap))
                     + (min(np.float32(cfa[yp1, xm1]) - od, cap) - min(green[yp1, xm1], cap))
-                    + (min(np.float32(cfa[yp1, xp1]) - od, cap) - min(green[yp1, xp1], cap)))
+                    + (min(np.float32(cfa[yp1, xp1]) - od, cap) - min(green[yp1, xp1], cap))
+                )
                 if c == 0:
                     r = cen
                     b = g + d
@@ -317,9 +338,16 @@ _RCD_EPSSQ = np.float32(1e-10)
 @njit
 def _rcd_hpf(x, r, c, dr, dc):  # pragma: no cover - numba
     """RCD's high-pass filter along ``(dr, dc)`` at ``(r, c)``."""
-    return ((x[r - 3 * dr, c - 3 * dc] - x[r - dr, c - dc] - x[r + dr, c + dc]
-             + x[r + 3 * dr, c + 3 * dc]) - 3.0 * (x[r - 2 * dr, c - 2 * dc]
-                                                    + x[r + 2 * dr, c + 2 * dc]) + 6.0 * x[r, c])
+    return (
+        (
+            x[r - 3 * dr, c - 3 * dc]
+            - x[r - dr, c - dc]
+            - x[r + dr, c + dc]
+            + x[r + 3 * dr, c + 3 * dc]
+        )
+        - 3.0 * (x[r - 2 * dr, c - 2 * dc] + x[r + 2 * dr, c + 2 * dc])
+        + 6.0 * x[r, c]
+    )
 
 
 @njit
@@ -332,10 +360,13 @@ def _rcd_directions(x, chan, vh, pq, lpf, r0, r1):  # pragma: no cover - numba
     for r in range(max(r0, 2), min(r1, h - 2)):
         for c in range(2, w - 2):
             if chan[r & 1, c & 1] != 1:  # held at 0: the ratios below stay within [0, 2]
-                lpf[r, c] = max(0.0, x[r, c] + 0.5 * (x[r - 1, c] + x[r + 1, c] + x[r, c - 1]
-                                                      + x[r, c + 1])
-                                + 0.25 * (x[r - 1, c - 1] + x[r - 1, c + 1] + x[r + 1, c - 1]
-                                          + x[r + 1, c + 1]))
+                lpf[r, c] = max(
+                    0.0,
+                    x[r, c]
+                    + 0.5 * (x[r - 1, c] + x[r + 1, c] + x[r, c - 1] + x[r, c + 1])
+                    + 0.25
+                    * (x[r - 1, c - 1] + x[r - 1, c + 1] + x[r + 1, c - 1] + x[r + 1, c + 1]),
+                )
     for r in range(max(r0, 4), min(r1, h - 4)):
         for c in range(4, w - 4):
             v = 0.0
@@ -382,14 +413,34 @@ def _rcd_green(x, chan, vh, lpf, g, r0, r1):  # pragma: no cover - numba
             if chan[r & 1, c & 1] == 1:
                 g[r, c] = x[r, c]
                 continue
-            gn = eps + abs(x[r - 1, c] - x[r + 1, c]) + abs(x[r, c] - x[r - 2, c]) + abs(
-                x[r - 1, c] - x[r - 3, c]) + abs(x[r - 2, c] - x[r - 4, c])
-            gs = eps + abs(x[r + 1, c] - x[r - 1, c]) + abs(x[r, c] - x[r + 2, c]) + abs(
-                x[r + 1, c] - x[r + 3, c]) + abs(x[r + 2, c] - x[r + 4, c])
-            gw = eps + abs(x[r, c - 1] - x[r, c + 1]) + abs(x[r, c] - x[r, c - 2]) + abs(
-                x[r, c - 1] - x[r, c - 3]) + abs(x[r, c - 2] - x[r, c - 4])
-            ge = eps + abs(x[r, c + 1] - x[r, c - 1]) + abs(x[r, c] - x[r, c + 2]) + abs(
-                x[r, c + 1] - x[r, c + 3]) + abs(x[r, c + 2] - x[r, c + 4])
+            gn = (
+                eps
+                + abs(x[r - 1, c] - x[r + 1, c])
+                + abs(x[r, c] - x[r - 2, c])
+                + abs(x[r - 1, c] - x[r - 3, c])
+                + abs(x[r - 2, c] - x[r - 4, c])
+            )
+            gs = (
+                eps
+                + abs(x[r + 1, c] - x[r - 1, c])
+                + abs(x[r, c] - x[r + 2, c])
+                + abs(x[r + 1, c] - x[r + 3, c])
+                + abs(x[r + 2, c] - x[r + 4, c])
+            )
+            gw = (
+                eps
+                + abs(x[r, c - 1] - x[r, c + 1])
+                + abs(x[r, c] - x[r, c - 2])
+                + abs(x[r, c - 1] - x[r, c - 3])
+                + abs(x[r, c - 2] - x[r, c - 4])
+            )
+            ge = (
+                eps
+                + abs(x[r, c + 1] - x[r, c - 1])
+                + abs(x[r, c] - x[r, c + 2])
+                + abs(x[r, c + 1] - x[r, c + 3])
+                + abs(x[r, c + 2] - x[r, c + 4])
+            )
             l0 = lpf[r, c]
             en = x[r - 1, c] * 2.0 * l0 / (eps + l0 + lpf[r - 2, c])
             es = x[r + 1, c] * 2.0 * l0 / (eps + l0 + lpf[r + 2, c])
@@ -417,14 +468,30 @@ def _rcd_diagonal(x, chan, pq, g, rb, r0, r1):  # pragma: no cover - numba
             o = 1 - own
             rb[r, c, own] = x[r, c]
             # the other colour sits on the diagonals (samples of the mosaic)
-            gnw = eps + abs(x[r - 1, c - 1] - x[r + 1, c + 1]) + abs(
-                x[r - 1, c - 1] - x[r - 3, c - 3]) + abs(g[r, c] - g[r - 2, c - 2])
-            gne = eps + abs(x[r - 1, c + 1] - x[r + 1, c - 1]) + abs(
-                x[r - 1, c + 1] - x[r - 3, c + 3]) + abs(g[r, c] - g[r - 2, c + 2])
-            gsw = eps + abs(x[r + 1, c - 1] - x[r - 1, c + 1]) + abs(
-                x[r + 1, c - 1] - x[r + 3, c - 3]) + abs(g[r, c] - g[r + 2, c - 2])
-            gse = eps + abs(x[r + 1, c + 1] - x[r - 1, c - 1]) + abs(
-                x[r + 1, c + 1] - x[r + 3, c + 3]) + abs(g[r, c] - g[r + 2, c + 2])
+            gnw = (
+                eps
+                + abs(x[r - 1, c - 1] - x[r + 1, c + 1])
+                + abs(x[r - 1, c - 1] - x[r - 3, c - 3])
+                + abs(g[r, c] - g[r - 2, c - 2])
+            )
+            gne = (
+                eps
+                + abs(x[r - 1, c + 1] - x[r + 1, c - 1])
+                + abs(x[r - 1, c + 1] - x[r - 3, c + 3])
+                + abs(g[r, c] - g[r - 2, c + 2])
+            )
+            gsw = (
+                eps
+                + abs(x[r + 1, c - 1] - x[r - 1, c + 1])
+                + abs(x[r + 1, c - 1] - x[r + 3, c - 3])
+                + abs(g[r, c] - g[r + 2, c - 2])
+            )
+            gse = (
+                eps
+                + abs(x[r + 1, c + 1] - x[r - 1, c - 1])
+                + abs(x[r + 1, c + 1] - x[r + 3, c + 3])
+                + abs(g[r, c] - g[r + 2, c + 2])
+            )
             enw = x[r - 1, c - 1] - g[r - 1, c - 1]
             ene = x[r - 1, c + 1] - g[r - 1, c + 1]
             esw = x[r + 1, c - 1] - g[r + 1, c - 1]
@@ -448,14 +515,30 @@ def _rcd_cardinal(chan, vh, g, rb, r0, r1):  # pragma: no cover - numba
                 continue
             d = _rcd_refined(vh, r, c)
             for k in range(2):
-                gn = eps + abs(g[r, c] - g[r - 2, c]) + abs(rb[r - 1, c, k] - rb[r + 1, c, k]) \
+                gn = (
+                    eps
+                    + abs(g[r, c] - g[r - 2, c])
+                    + abs(rb[r - 1, c, k] - rb[r + 1, c, k])
                     + abs(rb[r - 1, c, k] - rb[r - 3, c, k])
-                gs = eps + abs(g[r, c] - g[r + 2, c]) + abs(rb[r + 1, c, k] - rb[r - 1, c, k]) \
+                )
+                gs = (
+                    eps
+                    + abs(g[r, c] - g[r + 2, c])
+                    + abs(rb[r + 1, c, k] - rb[r - 1, c, k])
                     + abs(rb[r + 1, c, k] - rb[r + 3, c, k])
-                gw = eps + abs(g[r, c] - g[r, c - 2]) + abs(rb[r, c - 1, k] - rb[r, c + 1, k]) \
+                )
+                gw = (
+                    eps
+                    + abs(g[r, c] - g[r, c - 2])
+                    + abs(rb[r, c - 1, k] - rb[r, c + 1, k])
                     + abs(rb[r, c - 1, k] - rb[r, c - 3, k])
-                ge = eps + abs(g[r, c] - g[r, c + 2]) + abs(rb[r, c + 1, k] - rb[r, c - 1, k]) \
+                )
+                ge = (
+                    eps
+                    + abs(g[r, c] - g[r, c + 2])
+                    + abs(rb[r, c + 1, k] - rb[r, c - 1, k])
                     + abs(rb[r, c + 1, k] - rb[r, c + 3, k])
+                )
                 en = rb[r - 1, c, k] - g[r - 1, c]
                 es = rb[r + 1, c, k] - g[r + 1, c]
                 ew = rb[r, c - 1, k] - g[r, c - 1]
@@ -528,8 +611,9 @@ def demosaic(
     if out is None:
         out = np.empty((h, w, 3), dtype=dtype)
     elif out.shape != (h, w, 3):
-        raise ParameterError("demosaic output has the wrong shape", expected=str((h, w, 3)),
-                             found=str(out.shape))
+        raise ParameterError(
+            "demosaic output has the wrong shape", expected=str((h, w, 3)), found=str(out.shape)
+        )
     integer = np.issubdtype(out.dtype, np.integer)
     hi = float(np.iinfo(out.dtype).max) if integer else float(np.inf)
     if max_level is not None:
@@ -540,25 +624,39 @@ def demosaic(
     else:
         cap = np.ascontiguousarray(ceiling, dtype=np.float32)
         if cap.shape != (h, w):
-            raise ParameterError("demosaic ceiling has the wrong shape", expected=str((h, w)),
-                                 found=str(cap.shape))
+            raise ParameterError(
+                "demosaic ceiling has the wrong shape", expected=str((h, w)), found=str(cap.shape)
+            )
     capped = ceiling is not None
     lo32, hi32 = np.float32(0.0), np.float32(hi)
     if method == "hamilton-adams":
         green = np.empty((h, w), np.float32)
-        run_row_spans(h, workers, lambda r0, r1: _ha_green_rows(
-            cfa, offset, chan, green, r0, r1, cap, capped))
-        run_row_spans(h, workers, lambda r0, r1: _ha_colour_rows(
-            cfa, offset, chan, green, lo32, hi32, integer, out, r0, r1, cap, capped))
+        run_row_spans(
+            h, workers, lambda r0, r1: _ha_green_rows(cfa, offset, chan, green, r0, r1, cap, capped)
+        )
+        run_row_spans(
+            h,
+            workers,
+            lambda r0, r1: _ha_colour_rows(
+                cfa, offset, chan, green, lo32, hi32, integer, out, r0, r1, cap, capped
+            ),
+        )
         return out
     if method == "rcd":
         if capped:
-            raise ParameterError("the rcd demosaic takes no ceiling (an HDR mosaic)",
-                                 expected="malvar2004 or hamilton-adams with a ceiling")
+            raise ParameterError(
+                "the rcd demosaic takes no ceiling (an HDR mosaic)",
+                expected="malvar2004 or hamilton-adams with a ceiling",
+            )
         return _rcd(cfa, offset, chan, lo32, hi32, integer, out, workers)
     code = {"malvar2004": 0, "bilinear": 1, "malvar2004-clamped": 2}[method]
-    run_row_spans(h, workers, lambda r0, r1: _malvar_rows(
-        cfa, offset, chan, code, lo32, hi32, integer, out, r0, r1, cap, capped))
+    run_row_spans(
+        h,
+        workers,
+        lambda r0, r1: _malvar_rows(
+            cfa, offset, chan, code, lo32, hi32, integer, out, r0, r1, cap, capped
+        ),
+    )
     return out
 
 
@@ -570,8 +668,13 @@ def _rcd(cfa, offset, chan, lo32, hi32, integer, out, workers):
     that sample), the interior written back."""
     h, w = cfa.shape
     no_cap = np.full((1, 1), np.inf, np.float32)
-    run_row_spans(h, workers, lambda r0, r1: _malvar_rows(
-        cfa, offset, chan, 0, lo32, hi32, integer, out, r0, r1, no_cap, False))
+    run_row_spans(
+        h,
+        workers,
+        lambda r0, r1: _malvar_rows(
+            cfa, offset, chan, 0, lo32, hi32, integer, out, r0, r1, no_cap, False
+        ),
+    )
     if h < 9 or w < 9:
         return out
     site = offset[np.arange(h)[:, None] % 2, np.arange(w)[None, :] % 2]
@@ -590,19 +693,49 @@ def _rcd(cfa, offset, chan, lo32, hi32, integer, out, workers):
     run_row_spans(h, workers, lambda r0, r1: _rcd_green(x, chan, vh, lpf, g, r0, r1))
     run_row_spans(h, workers, lambda r0, r1: _rcd_diagonal(x, chan, pq, g, rb, r0, r1))
     run_row_spans(h, workers, lambda r0, r1: _rcd_cardinal(chan, vh, g, rb, r0, r1))
-    run_row_spans(h, workers, lambda r0, r1: _rcd_store(
-        g, rb, np.float32(scale), lo32, hi32, integer, out, r0, r1))
+    run_row_spans(
+        h,
+        workers,
+        lambda r0, r1: _rcd_store(g, rb, np.float32(scale), lo32, hi32, integer, out, r0, r1),
+    )
     return out
 
 
 #: The paper's filters (figure 2), sums of 8, as (name, 5x5) for the NumPy reference.
-_K_G_AT_RB = np.array([[0, 0, -1, 0, 0], [0, 0, 2, 0, 0], [-1, 2, 4, 2, -1], [0, 0, 2, 0, 0],
-                       [0, 0, -1, 0, 0]], np.float64) / 8
-_K_ROW = np.array([[0, 0, 0.5, 0, 0], [0, -1, 0, -1, 0], [-1, 4, 5, 4, -1], [0, -1, 0, -1, 0],
-                   [0, 0, 0.5, 0, 0]], np.float64) / 8
+_K_G_AT_RB = (
+    np.array(
+        [[0, 0, -1, 0, 0], [0, 0, 2, 0, 0], [-1, 2, 4, 2, -1], [0, 0, 2, 0, 0], [0, 0, -1, 0, 0]],
+        np.float64,
+    )
+    / 8
+)
+_K_ROW = (
+    np.array(
+        [
+            [0, 0, 0.5, 0, 0],
+            [0, -1, 0, -1, 0],
+            [-1, 4, 5, 4, -1],
+            [0, -1, 0, -1, 0],
+            [0, 0, 0.5, 0, 0],
+        ],
+        np.float64,
+    )
+    / 8
+)
 _K_COL = _K_ROW.T
-_K_DIAG = np.array([[0, 0, -1.5, 0, 0], [0, 2, 0, 2, 0], [-1.5, 0, 6, 0, -1.5], [0, 2, 0, 2, 0],
-                    [0, 0, -1.5, 0, 0]], np.float64) / 8
+_K_DIAG = (
+    np.array(
+        [
+            [0, 0, -1.5, 0, 0],
+            [0, 2, 0, 2, 0],
+            [-1.5, 0, 6, 0, -1.5],
+            [0, 2, 0, 2, 0],
+            [0, 0, -1.5, 0, 0],
+        ],
+        np.float64,
+    )
+    / 8
+)
 _B_CROSS = np.array([[0, 1, 0], [1, 0, 1], [0, 1, 0]], np.float64) / 4
 _B_DIAG = np.array([[1, 0, 1], [0, 0, 0], [1, 0, 1]], np.float64) / 4
 _B_ROW = np.array([[0, 0, 0], [1, 0, 1], [0, 0, 0]], np.float64) / 2
@@ -628,8 +761,9 @@ def demosaic_reference(
     if method == "rcd":
         if ceiling is not None:
             raise ParameterError("the rcd demosaic takes no ceiling (an HDR mosaic)")
-        base = demosaic_reference(mosaic, pattern, colors, method="malvar2004",
-                                  black_level=black_level)
+        base = demosaic_reference(
+            mosaic, pattern, colors, method="malvar2004", black_level=black_level
+        )
         return _rcd_reference(x, chan[site], np.maximum(base, 0.0))
     if method.startswith("malvar2004"):
         k = {"cross": _K_G_AT_RB, "row": _K_ROW, "col": _K_COL, "diag": _K_DIAG}
@@ -639,30 +773,43 @@ def demosaic_reference(
     cap = np.inf if ceiling is None else np.asarray(ceiling, np.float64)
 
     def at(dy: int, dx: int) -> np.ndarray:
-        return np.minimum(padded[2 + dy:2 + dy + h, 2 + dx:2 + dx + w], cap)
+        return np.minimum(padded[2 + dy : 2 + dy + h, 2 + dx : 2 + dx + w], cap)
 
     def filt(kern: np.ndarray) -> np.ndarray:
         r = kern.shape[0] // 2  # symmetric kernels: correlation = convolution
-        return sum(kern[dy + r, dx + r] * at(dy, dx) for dy in range(-r, r + 1)
-                   for dx in range(-r, r + 1) if kern[dy + r, dx + r] != 0)
+        return sum(
+            kern[dy + r, dx + r] * at(dy, dx)
+            for dy in range(-r, r + 1)
+            for dx in range(-r, r + 1)
+            if kern[dy + r, dx + r] != 0
+        )
 
     f = {name: filt(kern) for name, kern in k.items()}
     x = at(0, 0)
     if method == "malvar2004-clamped":
-
-        sets = {"row": (at(0, -1), at(0, 1)), "col": (at(-1, 0), at(1, 0)),
-                "cross": (at(-1, 0), at(1, 0), at(0, -1), at(0, 1)),
-                "diag": (at(-1, -1), at(-1, 1), at(1, -1), at(1, 1))}
-        f = {name: np.clip(v, np.minimum.reduce(sets[name]), np.maximum.reduce(sets[name]))
-             for name, v in f.items()}
+        sets = {
+            "row": (at(0, -1), at(0, 1)),
+            "col": (at(-1, 0), at(1, 0)),
+            "cross": (at(-1, 0), at(1, 0), at(0, -1), at(0, 1)),
+            "diag": (at(-1, -1), at(-1, 1), at(1, -1), at(1, 1)),
+        }
+        f = {
+            name: np.clip(v, np.minimum.reduce(sets[name]), np.maximum.reduce(sets[name]))
+            for name, v in f.items()
+        }
     out = np.zeros((h, w, 3))
     c = chan[site]
     c_h = chan[site[0], (site[1] + 1) % 2]  # the colour of a site's row neighbours
     for ch in range(3):
         out[..., ch] = np.where(
-            c == ch, x,
-            np.where(c == 1, np.where(c_h == ch, f["row"], f["col"]),
-                     f["cross"] if ch == 1 else f["diag"]))
+            c == ch,
+            x,
+            np.where(
+                c == 1,
+                np.where(c_h == ch, f["row"], f["col"]),
+                f["cross"] if ch == 1 else f["diag"],
+            ),
+        )
     return out
 
 
@@ -673,7 +820,7 @@ def _hamilton_adams_reference(x: np.ndarray, chan: np.ndarray, site, ceiling) ->
     px = np.pad(x, 2, mode="reflect")
 
     def at(dy: int, dx: int, src: np.ndarray = px) -> np.ndarray:
-        return np.minimum(src[2 + dy:2 + dy + h, 2 + dx:2 + dx + w], cap)
+        return np.minimum(src[2 + dy : 2 + dy + h, 2 + dx : 2 + dx + w], cap)
 
     c = chan[site]
     c_h = chan[site[0], (site[1] + 1) % 2]
@@ -718,19 +865,25 @@ def _rcd_reference(x: np.ndarray, c: np.ndarray, base: np.ndarray) -> np.ndarray
 
     def at(a: np.ndarray, dy: int, dx: int, m: int) -> np.ndarray:
         """``a`` at the offset (dy, dx) over the rows and columns [m, n - m)."""
-        return a[m + dy:h - m + dy, m + dx:w - m + dx]
+        return a[m + dy : h - m + dy, m + dx : w - m + dx]
 
     def hpf(dy: int, dx: int) -> np.ndarray:  # over [3, n - 3), along (dy, dx)
-        outer = (at(x, -3 * dy, -3 * dx, 3) - at(x, -dy, -dx, 3) - at(x, dy, dx, 3)
-                 + at(x, 3 * dy, 3 * dx, 3))
-        return outer - 3 * (at(x, -2 * dy, -2 * dx, 3) + at(x, 2 * dy, 2 * dx, 3)) \
-            + 6 * at(x, 0, 0, 3)
+        outer = (
+            at(x, -3 * dy, -3 * dx, 3)
+            - at(x, -dy, -dx, 3)
+            - at(x, dy, dx, 3)
+            + at(x, 3 * dy, 3 * dx, 3)
+        )
+        return (
+            outer - 3 * (at(x, -2 * dy, -2 * dx, 3) + at(x, 2 * dy, 2 * dx, 3)) + 6 * at(x, 0, 0, 3)
+        )
 
     def stat(f: np.ndarray, dy: int, dx: int) -> np.ndarray:  # over [4, n - 4)
         q = f * f
         k = h - 6, w - 6
-        s3 = sum(q[1 + j * dy:k[0] - 1 + j * dy, 1 + j * dx:k[1] - 1 + j * dx]
-                 for j in (-1, 0, 1))
+        s3 = sum(
+            q[1 + j * dy : k[0] - 1 + j * dy, 1 + j * dx : k[1] - 1 + j * dx] for j in (-1, 0, 1)
+        )
         return np.maximum(s3, eps2)
 
     v, hz = stat(hpf(1, 0), 1, 0), stat(hpf(0, 1), 0, 1)
@@ -741,10 +894,12 @@ def _rcd_reference(x: np.ndarray, c: np.ndarray, base: np.ndarray) -> np.ndarray
     vh[inner] = v / (v + hz)
     pq[inner] = np.where(rb_site[inner], p / (p + q), 0.5)
     lpf = np.zeros((h, w))
-    lp = (at(x, 0, 0, 2) + 0.5 * (at(x, -1, 0, 2) + at(x, 1, 0, 2) + at(x, 0, -1, 2)
-                                  + at(x, 0, 1, 2))
-          + 0.25 * (at(x, -1, -1, 2) + at(x, -1, 1, 2) + at(x, 1, -1, 2) + at(x, 1, 1, 2)))
-    lpf[2:h - 2, 2:w - 2] = np.where(rb_site[2:h - 2, 2:w - 2], np.maximum(lp, 0.0), 0.0)
+    lp = (
+        at(x, 0, 0, 2)
+        + 0.5 * (at(x, -1, 0, 2) + at(x, 1, 0, 2) + at(x, 0, -1, 2) + at(x, 0, 1, 2))
+        + 0.25 * (at(x, -1, -1, 2) + at(x, -1, 1, 2) + at(x, 1, -1, 2) + at(x, 1, 1, 2))
+    )
+    lpf[2 : h - 2, 2 : w - 2] = np.where(rb_site[2 : h - 2, 2 : w - 2], np.maximum(lp, 0.0), 0.0)
 
     def refined(d: np.ndarray) -> np.ndarray:
         centre = at(d, 0, 0, 4)
@@ -753,13 +908,21 @@ def _rcd_reference(x: np.ndarray, c: np.ndarray, base: np.ndarray) -> np.ndarray
 
     # green at R and B sites
     g = base[..., 1] / scale
-    xs = {(dy, dx): at(x, dy, dx, 4) for dy in range(-4, 5) for dx in range(-4, 5)
-          if dy == 0 or dx == 0}
+    xs = {
+        (dy, dx): at(x, dy, dx, 4)
+        for dy in range(-4, 5)
+        for dx in range(-4, 5)
+        if dy == 0 or dx == 0
+    }
 
     def card(dy: int, dx: int) -> np.ndarray:
-        return (eps + np.abs(xs[dy, dx] - xs[-dy, -dx]) + np.abs(xs[0, 0] - xs[2 * dy, 2 * dx])
-                + np.abs(xs[dy, dx] - xs[3 * dy, 3 * dx])
-                + np.abs(xs[2 * dy, 2 * dx] - xs[4 * dy, 4 * dx]))
+        return (
+            eps
+            + np.abs(xs[dy, dx] - xs[-dy, -dx])
+            + np.abs(xs[0, 0] - xs[2 * dy, 2 * dx])
+            + np.abs(xs[dy, dx] - xs[3 * dy, 3 * dx])
+            + np.abs(xs[2 * dy, 2 * dx] - xs[4 * dy, 4 * dx])
+        )
 
     gn, gs, gw, ge = card(-1, 0), card(1, 0), card(0, -1), card(0, 1)
     l0 = at(lpf, 0, 0, 4)
@@ -779,9 +942,12 @@ def _rcd_reference(x: np.ndarray, c: np.ndarray, base: np.ndarray) -> np.ndarray
     blue[inner] = np.where(c[inner] == 2, at(x, 0, 0, 4), blue[inner])
 
     def diag(dy: int, dx: int) -> np.ndarray:
-        return eps + np.abs(at(x, dy, dx, 4) - at(x, -dy, -dx, 4)) + np.abs(
-            at(x, dy, dx, 4) - at(x, 3 * dy, 3 * dx, 4)) + np.abs(at(g, 0, 0, 4)
-                                                              - at(g, 2 * dy, 2 * dx, 4))
+        return (
+            eps
+            + np.abs(at(x, dy, dx, 4) - at(x, -dy, -dx, 4))
+            + np.abs(at(x, dy, dx, 4) - at(x, 3 * dy, 3 * dx, 4))
+            + np.abs(at(g, 0, 0, 4) - at(g, 2 * dy, 2 * dx, 4))
+        )
 
     gnw, gne, gsw, gse = diag(-1, -1), diag(-1, 1), diag(1, -1), diag(1, 1)
 
@@ -798,10 +964,14 @@ def _rcd_reference(x: np.ndarray, c: np.ndarray, base: np.ndarray) -> np.ndarray
     d = refined(vh)
     done = {}
     for name, a in (("r", red), ("b", blue)):
+
         def cg(dy: int, dx: int, a=a) -> np.ndarray:
-            return eps + np.abs(at(g, 0, 0, 4) - at(g, 2 * dy, 2 * dx, 4)) + np.abs(
-                at(a, dy, dx, 4) - at(a, -dy, -dx, 4)) + np.abs(at(a, dy, dx, 4)
-                                                               - at(a, 3 * dy, 3 * dx, 4))
+            return (
+                eps
+                + np.abs(at(g, 0, 0, 4) - at(g, 2 * dy, 2 * dx, 4))
+                + np.abs(at(a, dy, dx, 4) - at(a, -dy, -dx, 4))
+                + np.abs(at(a, dy, dx, 4) - at(a, 3 * dy, 3 * dx, 4))
+            )
 
         gn, gs, gw, ge = cg(-1, 0), cg(1, 0), cg(0, -1), cg(0, 1)
 

@@ -18,8 +18,15 @@ from .status import Severity
 if TYPE_CHECKING:  # pragma: no cover
     from .pipeline import PipelineResult
 
-__all__ = ["Verdict", "diagnose", "exif_pairs", "MISMATCH_STOPS", "CLIPPED_FRACTION",
-           "GHOST_FRACTION", "MAX_COLOUR_ERROR"]
+__all__ = [
+    "Verdict",
+    "diagnose",
+    "exif_pairs",
+    "MISMATCH_STOPS",
+    "CLIPPED_FRACTION",
+    "GHOST_FRACTION",
+    "MAX_COLOUR_ERROR",
+]
 
 #: EXIF and estimated ratios further apart than this (in stops) give a verdict.
 MISMATCH_STOPS = 0.15
@@ -54,28 +61,50 @@ class Verdict:
 
 
 _CAPTURE: dict[str, tuple[Severity, str]] = {
-    "iso-changed": ("info", "ISO changed between frames (a phone bracketing with exposure "
-                    "compensation): the recorded exposure is time x ISO, which is what orders "
-                    "and chains the frames; noise differs between exposures."),
-    "aperture-changed": ("warning", "The aperture changed between frames: the recorded "
-                         "exposure includes it, but depth of field and vignetting differ, which "
-                         "can show as ghosts and wrong ratios."),
-    "duplicate-exposure": ("info", "Two frames have the same exposure: they add no dynamic "
-                           "range, but both are merged (averaging lowers the noise)."),
-    "times-swapped": ("warning", "The exposure times contradict the pixels: a frame is brighter "
-                      "than one with a longer exposure. The frames were ordered by brightness and "
-                      "the ratios measured from the pixels."),
-    "out-of-order": ("warning", "The exposure times contradict the pixels (frames darker than "
-                     "shorter exposures): the frames were ordered by brightness; check the "
-                     "times or whether a file belongs to another bracket."),
-    "mixed-cameras": ("error", "The frames come from different cameras: they cannot be one "
-                      "bracket."),
-    "no-exposure-times": ("info", "No exposure times in the files: the ratios come from the "
-                          "histograms alone (the paper's method)."),
-    "no-white-balance": ("warning", "A RAW file records no as-shot white balance: the colour "
-                         "matrix's daylight neutral (or unity) was used; colours may be off."),
-    "frame-saturated": ("warning", "A frame is almost entirely saturated and contributes "
-                        "little."),
+    "iso-changed": (
+        "info",
+        "ISO changed between frames (a phone bracketing with exposure "
+        "compensation): the recorded exposure is time x ISO, which is what orders "
+        "and chains the frames; noise differs between exposures.",
+    ),
+    "aperture-changed": (
+        "warning",
+        "The aperture changed between frames: the recorded "
+        "exposure includes it, but depth of field and vignetting differ, which "
+        "can show as ghosts and wrong ratios.",
+    ),
+    "duplicate-exposure": (
+        "info",
+        "Two frames have the same exposure: they add no dynamic "
+        "range, but both are merged (averaging lowers the noise).",
+    ),
+    "times-swapped": (
+        "warning",
+        "The exposure times contradict the pixels: a frame is brighter "
+        "than one with a longer exposure. The frames were ordered by brightness and "
+        "the ratios measured from the pixels.",
+    ),
+    "out-of-order": (
+        "warning",
+        "The exposure times contradict the pixels (frames darker than "
+        "shorter exposures): the frames were ordered by brightness; check the "
+        "times or whether a file belongs to another bracket.",
+    ),
+    "mixed-cameras": (
+        "error",
+        "The frames come from different cameras: they cannot be one bracket.",
+    ),
+    "no-exposure-times": (
+        "info",
+        "No exposure times in the files: the ratios come from the "
+        "histograms alone (the paper's method).",
+    ),
+    "no-white-balance": (
+        "warning",
+        "A RAW file records no as-shot white balance: the colour "
+        "matrix's daylight neutral (or unity) was used; colours may be off.",
+    ),
+    "frame-saturated": ("warning", "A frame is almost entirely saturated and contributes little."),
     "frame-black": ("warning", "A frame is almost entirely black and contributes little."),
 }
 
@@ -101,20 +130,29 @@ def _unused_frames(result: PipelineResult) -> list[Verdict]:
     all_names = [f.name for f in full.frames]
     used = [k for k in range(len(full)) if k not in {u.index for u in unused}]
     out = []
-    for kind, meaning in (("black", "below the noise floor everywhere"),
-                          ("saturated", "clipped everywhere"),
-                          ("unlinked", "no exposure ratio to the other frames could be "
-                           "measured and the files carry no exposure times")):
+    for kind, meaning in (
+        ("black", "below the noise floor everywhere"),
+        ("saturated", "clipped everywhere"),
+        (
+            "unlinked",
+            "no exposure ratio to the other frames could be "
+            "measured and the files carry no exposure times",
+        ),
+    ):
         ks = [u.index for u in unused if u.status == kind]
         if not ks:
             continue
         verb = "is" if len(ks) == 1 else "are"
-        out.append(Verdict(
-            f"frame-{kind}-unused", "warning",
-            f"{_frame_list(ks, all_names)} {verb} {kind} ({meaning}): not used; the merge uses "
-            f"{_frame_list(used, all_names)}. Ratios across the gap come from the frames on "
-            "either side (or their EXIF times).", tuple(ks),
-        ))
+        out.append(
+            Verdict(
+                f"frame-{kind}-unused",
+                "warning",
+                f"{_frame_list(ks, all_names)} {verb} {kind} ({meaning}): not used; the merge uses "
+                f"{_frame_list(used, all_names)}. Ratios across the gap come from the frames on "
+                "either side (or their EXIF times).",
+                tuple(ks),
+            )
+        )
     return out
 
 
@@ -125,82 +163,129 @@ def _response_and_colour(result: PipelineResult) -> list[Verdict]:
     resp = result.response
     sel = None if resp is None else resp.selection
     if sel is not None and sel.fallback:
-        out.append(Verdict("response-fallback", "warning", sel.message + ". The merge uses "
-                           f"{sel.chosen}; its colours and ratios are only as right as that "
-                           "curve."))
+        out.append(
+            Verdict(
+                "response-fallback",
+                "warning",
+                sel.message + ". The merge uses "
+                f"{sel.chosen}; its colours and ratios are only as right as that "
+                "curve.",
+            )
+        )
     elif resp is not None and sel is not None:
         out.append(Verdict("response-auto", "info", sel.message + "."))
         from .response.degeneracy import degeneracy
 
         differ = [d for d in degeneracy(resp.g) if d.code == "channels-disagree"]
         if differ:
-            out.append(Verdict(
-                "response-channels-differ", "info",
-                f"The response's channels differ: {differ[0].message.split(': ', 1)[-1]}. "
-                "Held-back data support separate curves ("
-                + str(sel.parameters.get("channel_model", "separate")) + " model); the "
-                "merge's colours are checked against the frames."))
+            out.append(
+                Verdict(
+                    "response-channels-differ",
+                    "info",
+                    f"The response's channels differ: {differ[0].message.split(': ', 1)[-1]}. "
+                    "Held-back data support separate curves ("
+                    + str(sel.parameters.get("channel_model", "separate"))
+                    + " model); the "
+                    "merge's colours are checked against the frames.",
+                )
+            )
     elif resp is not None and resp.method not in ("srgb", "linear"):
         from .response.degeneracy import degeneracy
 
-        signs = degeneracy(resp.g, active=[c.active_constraints for c in resp.channels] or None,
-                           n_nodes=resp.max_level if resp.channels else None)
+        signs = degeneracy(
+            resp.g,
+            active=[c.active_constraints for c in resp.channels] or None,
+            n_nodes=resp.max_level if resp.channels else None,
+        )
         if signs:
-            out.append(Verdict(
-                "response-degenerate", "warning",
-                f"The {resp.method} response looks degenerate: "
-                + "; ".join(d.message for d in signs)
-                + ". Try --response auto (it falls back to a safe curve) or --response srgb."))
+            out.append(
+                Verdict(
+                    "response-degenerate",
+                    "warning",
+                    f"The {resp.method} response looks degenerate: "
+                    + "; ".join(d.message for d in signs)
+                    + ". Try --response auto (it falls back to a safe curve) or --response srgb.",
+                )
+            )
     check = (result.colour or {}).get("check")
     if not check:
         return out
     before, after = check["before"], check["after"]
     err = after.get("merge_error_srgb")
-    own = [f["best_error_balanced"] for f in after.get("frame_colours") or []
-           if f.get("best_error_balanced") is not None]
+    own = [
+        f["best_error_balanced"]
+        for f in after.get("frame_colours") or []
+        if f.get("best_error_balanced") is not None
+    ]
     if check.get("anchor") is not None and before.get("merge_error_srgb") is not None:
-        out.append(Verdict(
-            "colour-anchored", "info",
-            "The merge was given the frames' own colours (as a screen shows them: each pixel "
-            "the colour of the frames well exposed there, the one nearest mid-grey first): "
-            + (f"median chromaticity error against each frame where it is the best exposed "
-               f"at most {max(own):.3f}; " if own else "")
-            + f"against the reference frame {before['merge_error_srgb']:.3f} -> {err:.3f}."))
+        out.append(
+            Verdict(
+                "colour-anchored",
+                "info",
+                "The merge was given the frames' own colours (as a screen shows them: each pixel "
+                "the colour of the frames well exposed there, the one nearest mid-grey first): "
+                + (
+                    f"median chromaticity error against each frame where it is the best exposed "
+                    f"at most {max(own):.3f}; "
+                    if own
+                    else ""
+                )
+                + f"against the reference frame {before['merge_error_srgb']:.3f} -> {err:.3f}.",
+            )
+        )
     elif err is not None and err > MAX_COLOUR_ERROR:
-        out.append(Verdict(
-            "colour-drift", "warning",
-            f"The merge's colours drift from the frames': median chromaticity error "
-            f"{err:.3f} against the reference frame (over {MAX_COLOUR_ERROR}). The response's "
-            "channels disagree or the frames were rendered differently."))
+        out.append(
+            Verdict(
+                "colour-drift",
+                "warning",
+                f"The merge's colours drift from the frames': median chromaticity error "
+                f"{err:.3f} against the reference frame (over {MAX_COLOUR_ERROR}). The response's "
+                "channels disagree or the frames were rendered differently.",
+            )
+        )
     odd = after.get("white_balance_differs") or []
     if odd:
         wb = after["white_balance"]
-        out.append(Verdict(
-            "white-balance-differs", "warning",
-            "The white balance changes between frames: "
-            + ", ".join(f"frame {k} red/green x{wb[k][0]:.3f}, blue/green x{wb[k][2]:.3f}"
-                        for k in odd)
-            + " against the reference frame. A phone re-balanced each shot; "
-            + ("the merge divides it out (those frames' regions take the reference's balance)."
-               if (check.get("white_balance") or {}).get("applied")
-               else "the regions those frames expose best keep their colours."),
-            tuple(odd)))
+        out.append(
+            Verdict(
+                "white-balance-differs",
+                "warning",
+                "The white balance changes between frames: "
+                + ", ".join(
+                    f"frame {k} red/green x{wb[k][0]:.3f}, blue/green x{wb[k][2]:.3f}" for k in odd
+                )
+                + " against the reference frame. A phone re-balanced each shot; "
+                + (
+                    "the merge divides it out (those frames' regions take the reference's balance)."
+                    if (check.get("white_balance") or {}).get("applied")
+                    else "the regions those frames expose best keep their colours."
+                ),
+                tuple(odd),
+            )
+        )
     balance = check.get("white_balance") or {}
     if balance.get("unmeasured"):
-        out.append(Verdict(
-            "white-balance-unmeasured", "info",
-            f"{balance['message'][0].upper()}{balance['message'][1:]}.",
-            tuple(balance["unmeasured"])))
+        out.append(
+            Verdict(
+                "white-balance-unmeasured",
+                "info",
+                f"{balance['message'][0].upper()}{balance['message'][1:]}.",
+                tuple(balance["unmeasured"]),
+            )
+        )
     ltm = check.get("local_tone_mapping") or {}
     if ltm.get("detected"):
-        out.append(Verdict(
-            "locally-tone-mapped", "warning",
-            f"{ltm['message'][0].upper()}{ltm['message'][1:]}. No single response turns such "
-            "frames into radiance: the merged map is a compromise (exposure ratios and "
-            "contrast are approximate), its colours are taken from the frames; the preview is "
-            "an exposure fusion of the frames (Mertens et al. 2007)."))
+        out.append(
+            Verdict(
+                "locally-tone-mapped",
+                "warning",
+                f"{ltm['message'][0].upper()}{ltm['message'][1:]}. No single response turns such "
+                "frames into radiance: the merged map is a compromise (exposure ratios and "
+                "contrast are approximate), its colours are taken from the frames; the preview is "
+                "an exposure fusion of the frames (Mertens et al. 2007).",
+            )
+        )
     return out
-
 
 
 def exif_pairs(times_source: str) -> set[str]:
@@ -212,6 +297,7 @@ def exif_pairs(times_source: str) -> set[str]:
     tail = times_source.split("EXIF for pairs", 1)[1]
     return {part.strip() for part in tail.split(",") if part.strip()}
 
+
 def diagnose(result: PipelineResult) -> list[Verdict]:
     """Verdicts for one pipeline run, most severe first."""
     out: list[Verdict] = []
@@ -220,13 +306,19 @@ def diagnose(result: PipelineResult) -> list[Verdict]:
     out.extend(_unused_frames(result))
     marker = result.marker_colour
     if marker is not None:
-        out.append(Verdict(
-            "marker-colour-excluded", "info",
-            f"Pixels of the pure colour {tuple(int(c) for c in marker)} sit at the same places in "
-            "the darkest and the brightest frame (a mask or border marking, not the scene): they "
-            "were left out of every estimate, as --exclude-colour "
-            f"{','.join(str(int(c)) for c in marker)} does.", (),
-        ))
+        out.append(
+            Verdict(
+                "marker-colour-excluded",
+                "info",
+                f"Pixels of the pure colour {tuple(int(c) for c in marker)} sit at the same "
+                "places in "
+                "the darkest and the brightest frame (a mask or border marking, not the scene): "
+                "they "
+                "were left out of every estimate, as --exclude-colour "
+                f"{','.join(str(int(c)) for c in marker)} does.",
+                (),
+            )
+        )
 
     for w in b.warnings:
         if w.code in _CAPTURE:
@@ -242,43 +334,65 @@ def diagnose(result: PipelineResult) -> list[Verdict]:
             exif = ex.exif_ratios[k] if k < len(ex.exif_ratios) else None
             gap = f" ({math.log2(exif):.1f} stops apart)" if exif and exif > 0 else ""
             covered = f"{p.dark}-{p.bright}" in exif_pairs(result.times_source)
-            out.append(Verdict(
-                "no-overlap", "warning" if covered else "error",
-                f"No brightness overlap between {label}{gap}: no level is well exposed in both, "
-                "so their exposure ratio cannot be measured"
-                + ("; the EXIF ratio was used." if covered else
-                   ". Shoot with smaller steps or give the exposure times."), pair,
-            ))
-        elif p.status == "channels-disagree" or p.channels_disagree:
-            chans = ", ".join(
-                f"{c} {r:.3f}" for c, r in zip("RGB", p.channel_ratios, strict=False)
+            out.append(
+                Verdict(
+                    "no-overlap",
+                    "warning" if covered else "error",
+                    f"No brightness overlap between {label}{gap}: no level is well exposed in "
+                    "both, "
+                    "so their exposure ratio cannot be measured"
+                    + (
+                        "; the EXIF ratio was used."
+                        if covered
+                        else ". Shoot with smaller steps or give the exposure times."
+                    ),
+                    pair,
+                )
             )
-            out.append(Verdict(
-                "channels-disagree", "warning",
-                f"The colour channels disagree on the ratio of {label} ({chans}): a wrong white "
-                "level, clipping in one channel or a wrong response (a colour cast in the "
-                "merge).", pair,
-            ))
+        elif p.status == "channels-disagree" or p.channels_disagree:
+            chans = ", ".join(f"{c} {r:.3f}" for c, r in zip("RGB", p.channel_ratios, strict=False))
+            out.append(
+                Verdict(
+                    "channels-disagree",
+                    "warning",
+                    f"The colour channels disagree on the ratio of {label} ({chans}): a wrong "
+                    "white "
+                    "level, clipping in one channel or a wrong response (a colour cast in the "
+                    "merge).",
+                    pair,
+                )
+            )
         elif p.status != "ok":
-            out.append(Verdict(
-                f"ratio-{p.status}", "warning",
-                f"The exposure ratio of {label} is unreliable ({p.status}): {p.message}", pair,
-            ))
+            out.append(
+                Verdict(
+                    f"ratio-{p.status}",
+                    "warning",
+                    f"The exposure ratio of {label} is unreliable ({p.status}): {p.message}",
+                    pair,
+                )
+            )
         mism = ex.mismatch_stops[k] if k < len(ex.mismatch_stops) else None
         if mism is not None and math.isfinite(mism) and abs(mism) > MISMATCH_STOPS and p.ok:
-            out.append(Verdict(
-                "exif-mismatch", "warning",
-                f"EXIF says {label} are {ex.exif_ratios[k]:.3g}x apart but the images say "
-                f"{p.ratio:.3g}x ({mism:+.2f} stops): the EXIF time is wrong or the shutter is "
-                "inaccurate; the measured ratio is used.", pair,
-            ))
+            out.append(
+                Verdict(
+                    "exif-mismatch",
+                    "warning",
+                    f"EXIF says {label} are {ex.exif_ratios[k]:.3g}x apart but the images say "
+                    f"{p.ratio:.3g}x ({mism:+.2f} stops): the EXIF time is wrong or the shutter is "
+                    "inaccurate; the measured ratio is used.",
+                    pair,
+                )
+            )
     if "EXIF for pairs" in result.times_source:
-        out.append(Verdict(
-            "times-fallback", "warning",
-            "Some exposure ratios could not be measured reliably from the images; the "
-            "EXIF ratios were used for them in the merge "
-            f"({result.times_source.split('; ', 1)[1]}).",
-        ))
+        out.append(
+            Verdict(
+                "times-fallback",
+                "warning",
+                "Some exposure ratios could not be measured reliably from the images; the "
+                "EXIF ratios were used for them in the merge "
+                f"({result.times_source.split('; ', 1)[1]}).",
+            )
+        )
 
     reg = result.registration
     if reg is not None:
@@ -289,35 +403,52 @@ def diagnose(result: PipelineResult) -> list[Verdict]:
                 continue
             res = rp.residual
             what = res.message if res is not None else rp.message
-            out.append(Verdict(
-                "registration-weak", "warning",
-                f"Frames {rp.dark} and {rp.bright} ({names[rp.dark]}, {names[rp.bright]}) were "
-                f"aligned with the {rp.model} model, but a check independent of it finds {what}. "
-                "Edges there may be doubled in the merge"
-                + ("; the homography model (perspective) may fit better."
-                   if rp.model != "homography" else "; deghosting may help."),
-                (rp.dark, rp.bright),
-            ))
+            out.append(
+                Verdict(
+                    "registration-weak",
+                    "warning",
+                    f"Frames {rp.dark} and {rp.bright} ({names[rp.dark]}, {names[rp.bright]}) were "
+                    f"aligned with the {rp.model} model, but a check independent of it finds "
+                    f"{what}. "
+                    "Edges there may be doubled in the merge"
+                    + (
+                        "; the homography model (perspective) may fit better."
+                        if rp.model != "homography"
+                        else "; deghosting may help."
+                    ),
+                    (rp.dark, rp.bright),
+                )
+            )
         static = bool(moved) and max(moved) <= STATIC_SHIFT_PX
         for rp in failed:
             label = f"frames {rp.dark} and {rp.bright} ({names[rp.dark]}, {names[rp.bright]})"
             if static:
-                out.append(Verdict(
-                    "registration-identity", "info",
-                    f"{label} could not be registered ({rp.status}: {rp.message}); they keep the "
-                    f"identity. The other pairs moved by at most {max(moved):.2f} px, so the "
-                    "bracket looks static (tripod) and the identity is right.",
-                    (rp.dark, rp.bright),
-                ))
+                out.append(
+                    Verdict(
+                        "registration-identity",
+                        "info",
+                        f"{label} could not be registered ({rp.status}: {rp.message}); they keep "
+                        "the "
+                        f"identity. The other pairs moved by at most {max(moved):.2f} px, so the "
+                        "bracket looks static (tripod) and the identity is right.",
+                        (rp.dark, rp.bright),
+                    )
+                )
             else:
-                out.append(Verdict(
-                    "registration-failed", "warning",
-                    f"Registration failed for {label} ({rp.status}): {rp.message}. They were "
-                    "merged without alignment (identity) and may be blurred or ghosted; "
-                    + ("the other pairs moved by up to "
-                       f"{max(moved):.1f} px." if moved else "no pair could be registered."),
-                    (rp.dark, rp.bright),
-                ))
+                out.append(
+                    Verdict(
+                        "registration-failed",
+                        "warning",
+                        f"Registration failed for {label} ({rp.status}): {rp.message}. They were "
+                        "merged without alignment (identity) and may be blurred or ghosted; "
+                        + (
+                            f"the other pairs moved by up to {max(moved):.1f} px."
+                            if moved
+                            else "no pair could be registered."
+                        ),
+                        (rp.dark, rp.bright),
+                    )
+                )
 
     out.extend(_response_and_colour(result))
     m = result.merge
@@ -325,42 +456,63 @@ def diagnose(result: PipelineResult) -> list[Verdict]:
     if hist is not None and hist is not ex:
         for k, (a, c) in enumerate(zip(hist.ratios, ex.ratios, strict=False)):
             if math.isfinite(a) and math.isfinite(c) and c > 0 and abs(a / c - 1) > 0.01:
-                out.append(Verdict(
-                    "motion-biased-ratio", "info",
-                    f"Hand-held motion biased the whole-frame ratio of frames {k} and {k + 1} "
-                    f"by {100 * (a / c - 1):+.1f} %; it was measured again after registration "
-                    f"({ex.method}: {c:.4g}).", (k, k + 1),
-                ))
+                out.append(
+                    Verdict(
+                        "motion-biased-ratio",
+                        "info",
+                        f"Hand-held motion biased the whole-frame ratio of frames {k} and {k + 1} "
+                        f"by {100 * (a / c - 1):+.1f} %; it was measured again after registration "
+                        f"({ex.method}: {c:.4g}).",
+                        (k, k + 1),
+                    )
+                )
     if m is None:
         order = {"error": 0, "warning": 1, "info": 2}
         out.sort(key=lambda v: order.get(v.severity, 3))
         return out
     summary_clipped = float(m.clipped.mean()) if m.clipped.size else 0.0
     if summary_clipped > CLIPPED_FRACTION:
-        out.append(Verdict(
-            "darkest-clipped", "warning",
-            f"{100 * summary_clipped:.2f} % of the pixels are saturated even in the darkest "
-            f"frame ({names[0]}): highlights there are clipped in the HDR. Add a shorter "
-            "exposure.", (0,),
-        ))
+        out.append(
+            Verdict(
+                "darkest-clipped",
+                "warning",
+                f"{100 * summary_clipped:.2f} % of the pixels are saturated even in the darkest "
+                f"frame ({names[0]}): highlights there are clipped in the HDR. Add a shorter "
+                "exposure.",
+                (0,),
+            )
+        )
     under = float(m.underexposed.mean()) if m.underexposed.size else 0.0
     if under > UNDEREXPOSED_FRACTION:
-        out.append(Verdict(
-            "brightest-underexposed", "info",
-            f"{100 * under:.1f} % of the pixels are under the noise floor even in the brightest "
-            f"frame ({names[-1]}): shadows there are noisy. Add a longer exposure.",
-            (len(names) - 1,),
-        ))
+        out.append(
+            Verdict(
+                "brightest-underexposed",
+                "info",
+                f"{100 * under:.1f} % of the pixels are under the noise floor even in the "
+                "brightest "
+                f"frame ({names[-1]}): shadows there are noisy. Add a longer exposure.",
+                (len(names) - 1,),
+            )
+        )
     ghost = float(m.ghost.mean()) if m.ghost.size else 0.0
     if ghost > GHOST_FRACTION:
-        out.append(Verdict(
-            "ghosts", "warning",
-            f"{100 * ghost:.1f} % of the pixels disagree between aligned frames beyond their "
-            "noise: something moved (or the alignment is off). See the ghost layer.",
-        ))
+        out.append(
+            Verdict(
+                "ghosts",
+                "warning",
+                f"{100 * ghost:.1f} % of the pixels disagree between aligned frames beyond their "
+                "noise: something moved (or the alignment is off). See the ghost layer.",
+            )
+        )
     if not any(v.severity in ("error", "warning") for v in out):
-        out.append(Verdict("ok", "info", "The bracket merged cleanly: ratios measured, frames "
-                           "aligned, no clipping or ghosts beyond the thresholds."))
+        out.append(
+            Verdict(
+                "ok",
+                "info",
+                "The bracket merged cleanly: ratios measured, frames "
+                "aligned, no clipping or ghosts beyond the thresholds.",
+            )
+        )
     order = {"error": 0, "warning": 1, "info": 2}
     out.sort(key=lambda v: order.get(v.severity, 3))
     return out

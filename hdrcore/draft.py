@@ -118,8 +118,11 @@ def _block_means(src, f, tab, sat, ex, has_ex, engine):
     if engine == "numpy" or (engine == "auto" and not AVAILABLE):
         return _bin_numpy(src, f, tab, sat, ex, has_ex)
     out = np.empty((src.shape[0] // f, src.shape[1] // f, src.shape[2]), np.float64)
-    run_row_spans(out.shape[0], None, lambda r0, r1: _bin_rows(
-        src, f, tab, float(sat), ex, has_ex, out, r0, r1))
+    run_row_spans(
+        out.shape[0],
+        None,
+        lambda r0, r1: _bin_rows(src, f, tab, float(sat), ex, has_ex, out, r0, r1),
+    )
     return out
 
 
@@ -133,9 +136,16 @@ def _to_levels(table: np.ndarray, values: np.ndarray, k: int) -> np.ndarray:
     return j * k + np.rint(frac * k).astype(np.intp)
 
 
-def bin_levels(levels: np.ndarray, factor: int, *, saturation: float, max_level: int,
-               exclude_colour: tuple[int, int, int] | None = None,
-               lut: np.ndarray | None = None, engine: str = "auto") -> np.ndarray:
+def bin_levels(
+    levels: np.ndarray,
+    factor: int,
+    *,
+    saturation: float,
+    max_level: int,
+    exclude_colour: tuple[int, int, int] | None = None,
+    lut: np.ndarray | None = None,
+    engine: str = "auto",
+) -> np.ndarray:
     """Integer ``(H, W, C)`` levels binned ``factor x factor`` by the rules of the module
     docstring (the ragged edge is cropped). ``engine``: ``"numba"``, ``"numpy"`` (the
     reference) or ``"auto"``.
@@ -151,11 +161,14 @@ def bin_levels(levels: np.ndarray, factor: int, *, saturation: float, max_level:
     src = np.asarray(levels)
     f = int(factor)
     if src.ndim != 3 or not np.issubdtype(src.dtype, np.integer):
-        raise ParameterError("draft binning takes integer (H, W, C) levels",
-                             found=f"{src.dtype} {src.shape}")
+        raise ParameterError(
+            "draft binning takes integer (H, W, C) levels", found=f"{src.dtype} {src.shape}"
+        )
     if f < 1 or src.shape[0] < f or src.shape[1] < f:
-        raise ParameterError("binning factor must be >= 1 and fit the frame",
-                             found=f"{f} for {src.shape[0]}x{src.shape[1]}")
+        raise ParameterError(
+            "binning factor must be >= 1 and fit the frame",
+            found=f"{f} for {src.shape[0]}x{src.shape[1]}",
+        )
     c = src.shape[2]
     m = int(max_level)
     has_ex = exclude_colour is not None
@@ -166,11 +179,13 @@ def bin_levels(levels: np.ndarray, factor: int, *, saturation: float, max_level:
         tab = np.asarray(lut, dtype=np.float64)
         tab = np.tile(tab, (c, 1)) if tab.ndim == 1 else tab
         if tab.shape != (c, m + 1):
-            raise ParameterError("lut must be (C, max_level + 1)",
-                                 expected=str((c, m + 1)), found=str(tab.shape))
+            raise ParameterError(
+                "lut must be (C, max_level + 1)", expected=str((c, m + 1)), found=str(tab.shape)
+            )
     if int(src.max(initial=0)) > m:
-        raise ParameterError("levels above max_level", expected=f"<= {m}",
-                             found=str(int(src.max())))
+        raise ParameterError(
+            "levels above max_level", expected=f"<= {m}", found=str(int(src.max()))
+        )
     means = _block_means(src, f, tab, saturation, ex, has_ex, engine)
     clipped, excluded = means == _CLIPPED, means == _EXCLUDED
     if lut is None:
@@ -187,10 +202,15 @@ def bin_levels(levels: np.ndarray, factor: int, *, saturation: float, max_level:
     return out
 
 
-def draft_bracket(bracket: Bracket, factor: int, *, saturation: float,
-                  exclude_colour: tuple[int, int, int] | None = None,
-                  exposure_times: Sequence[float] | None = None,
-                  lut: np.ndarray | None = None) -> Bracket:
+def draft_bracket(
+    bracket: Bracket,
+    factor: int,
+    *,
+    saturation: float,
+    exclude_colour: tuple[int, int, int] | None = None,
+    exposure_times: Sequence[float] | None = None,
+    lut: np.ndarray | None = None,
+) -> Bracket:
     """``bracket`` with every frame binned ``factor x factor`` (:func:`bin_levels`); the
     metadata stay (paths, EXIF), the RAW mosaic and its optical-black read noise go (the noise
     is measured again on the binned levels). ``exposure_times``: the frames' times become
@@ -200,31 +220,57 @@ def draft_bracket(bracket: Bracket, factor: int, *, saturation: float,
     :func:`bin_levels`)."""
     m = bracket.max_level
     top = m if lut is None else max(1, FINE_TOP // m) * m
-    metas = [replace(fr.meta, read_noise=None, read_noise_source=None)
-             for fr in bracket.frames]
+    metas = [replace(fr.meta, read_noise=None, read_noise_source=None) for fr in bracket.frames]
     if lut is not None:
-        metas = [replace(mt, max_level=top, bit_depth=16, white_level=None,
-                         channel_max_levels=None) for mt in metas]
+        metas = [
+            replace(mt, max_level=top, bit_depth=16, white_level=None, channel_max_levels=None)
+            for mt in metas
+        ]
     if exposure_times is not None:
         if len(exposure_times) != len(metas):
-            raise ParameterError("one exposure time per frame",
-                                 expected=str(len(metas)), found=str(len(exposure_times)))
-        metas = [replace(mt, exposure_time=Fraction(float(t)), exposure_time_source="times-file",
-                         exposure_time_apex=None, exposure_time_sequence=None, iso=None,
-                         f_number=None, f_number_apex=None)
-                 for mt, t in zip(metas, exposure_times, strict=True)]
+            raise ParameterError(
+                "one exposure time per frame",
+                expected=str(len(metas)),
+                found=str(len(exposure_times)),
+            )
+        metas = [
+            replace(
+                mt,
+                exposure_time=Fraction(float(t)),
+                exposure_time_source="times-file",
+                exposure_time_apex=None,
+                exposure_time_sequence=None,
+                iso=None,
+                f_number=None,
+                f_number_apex=None,
+            )
+            for mt, t in zip(metas, exposure_times, strict=True)
+        ]
     frames = tuple(
-        Frame(levels=bin_levels(fr.levels, factor, saturation=saturation, max_level=m,
-                                exclude_colour=exclude_colour, lut=lut),
-              meta=mt)
+        Frame(
+            levels=bin_levels(
+                fr.levels,
+                factor,
+                saturation=saturation,
+                max_level=m,
+                exclude_colour=exclude_colour,
+                lut=lut,
+            ),
+            meta=mt,
+        )
         for fr, mt in zip(bracket.frames, metas, strict=True)
     )
     return replace(bracket, frames=frames)
 
 
-def run_draft(bracket: Bracket, params: PipelineParams, *, max_side: int = DRAFT_MAX_SIDE,
-              exposure_times: Sequence[float] | None = None,
-              progress: ProgressCallback | None = None) -> PipelineResult:
+def run_draft(
+    bracket: Bracket,
+    params: PipelineParams,
+    *,
+    max_side: int = DRAFT_MAX_SIDE,
+    exposure_times: Sequence[float] | None = None,
+    progress: ProgressCallback | None = None,
+) -> PipelineResult:
     """Run the pipeline on the binned bracket with ``params`` (checked parameters, as a
     :class:`hdrcore.pipeline.PipelineResult` holds them: explicit saturation and noise floor)
     and return its :class:`~hdrcore.pipeline.PipelineResult`; ``result.preview_factor`` is the
@@ -240,8 +286,10 @@ def run_draft(bracket: Bracket, params: PipelineParams, *, max_side: int = DRAFT
     from .response import ResponseCurve
 
     if params.saturation is None or params.noise_floor is None:
-        raise ParameterError("the draft needs the saturation and noise floor the full run used",
-                             found=f"Z={params.saturation}, N={params.noise_floor}")
+        raise ParameterError(
+            "the draft needs the saturation and noise floor the full run used",
+            found=f"Z={params.saturation}, N={params.noise_floor}",
+        )
     f = draft_factor(bracket.shape, max_side)
     m = bracket.max_level
     lut = None
@@ -249,18 +297,28 @@ def run_draft(bracket: Bracket, params: PipelineParams, *, max_side: int = DRAFT
     if isinstance(params.response, ResponseCurve) and not bracket.is_linear:
         lut = params.response.to_lut(m)
         k = max(1, FINE_TOP // m)
-    small = draft_bracket(bracket, f, saturation=float(params.saturation),
-                          exclude_colour=params.exclude_colour, exposure_times=exposure_times,
-                          lut=lut)
+    small = draft_bracket(
+        bracket,
+        f,
+        saturation=float(params.saturation),
+        exclude_colour=params.exclude_colour,
+        exposure_times=exposure_times,
+        lut=lut,
+    )
     pipe = Pipeline(small, progress=progress, pixel_size=float(f))
     # What only the verdicts or the inspector's other panels read is left out: local
     # refinement (a fraction of a binned pixel), the registration overlays and, with the
     # times given, the ratios measured again over the registered field of view.
-    p = params.replace(preview_max_side=None, local="off", registration_previews=False,
-                       saturation=float(params.saturation) * k,
-                       noise_floor=float(params.noise_floor) * k,
-                       exclude_colour=None if params.exclude_colour is None
-                       else tuple(int(v) * k for v in params.exclude_colour))
+    p = params.replace(
+        preview_max_side=None,
+        local="off",
+        registration_previews=False,
+        saturation=float(params.saturation) * k,
+        noise_floor=float(params.noise_floor) * k,
+        exclude_colour=None
+        if params.exclude_colour is None
+        else tuple(int(v) * k for v in params.exclude_colour),
+    )
     if exposure_times is not None:
         # The ratios are then only reported: the plain estimator, not the refined one.
         p = p.replace(times="exif", refine_ratios="none", exposure_method="Cerman 2006")

@@ -66,7 +66,12 @@ class FrameTooLargeError(InputError):
     """
 
     def __init__(
-        self, path: str | os.PathLike[str], *, width: int, height: int, limit: int,
+        self,
+        path: str | os.PathLike[str],
+        *,
+        width: int,
+        height: int,
+        limit: int,
         hint: str | None = None,
     ) -> None:
         self.width = int(width)

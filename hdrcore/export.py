@@ -52,15 +52,23 @@ def write_result(
     :class:`~hdrcore.errors.OutputError` when the run stopped before the merge.
     """
     if result.radiance is None:
-        raise OutputError("the run has no merged radiance (it stopped before the merge)",
-                          path=path, expected="a result of a run until 'merge' or 'preview'",
-                          found=f"a run until {result.until!r}")
+        raise OutputError(
+            "the run has no merged radiance (it stopped before the merge)",
+            path=path,
+            expected="a result of a run until 'merge' or 'preview'",
+            found=f"a run until {result.until!r}",
+        )
     return write_exr(
-        path, result.radiance, half=half, compression=compression,
+        path,
+        result.radiance,
+        half=half,
+        compression=compression,
         exposure_times=result.exposure_times,
         exposure_ratios=result.exposures.ratios,
         transforms=result.to_reference,
         sources=list(result.bracket.paths),
         metadata=exr_metadata(result),
-        force=force, inputs=inputs, workers=workers,
+        force=force,
+        inputs=inputs,
+        workers=workers,
     )

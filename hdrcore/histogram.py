@@ -33,11 +33,13 @@ def _check_levels(levels: np.ndarray, ndim: int, what: str) -> np.ndarray:
     a = np.asarray(levels)
     if a.ndim != ndim:
         shape = "(H, W)" if ndim == 2 else "(H, W, C)"
-        raise ParameterError(f"{what} must be {shape}", expected=f"{ndim} dimensions",
-                             found=str(a.shape))
+        raise ParameterError(
+            f"{what} must be {shape}", expected=f"{ndim} dimensions", found=str(a.shape)
+        )
     if not np.issubdtype(a.dtype, np.integer) and a.dtype != np.bool_:
-        raise ParameterError(f"{what} must hold integer levels", expected="an integer dtype",
-                             found=str(a.dtype))
+        raise ParameterError(
+            f"{what} must hold integer levels", expected="an integer dtype", found=str(a.dtype)
+        )
     return a
 
 
@@ -56,7 +58,8 @@ def _count(values: np.ndarray, max_level: int, what: str) -> np.ndarray:
     counts = np.bincount(values, minlength=max_level + 1)
     if counts.size > max_level + 1:
         raise ParameterError(
-            f"{what} holds levels above max_level", expected=f"<= {max_level}",
+            f"{what} holds levels above max_level",
+            expected=f"<= {max_level}",
             found=str(int(np.flatnonzero(counts)[-1])),
         )
     return counts.astype(np.int64, copy=False)
@@ -78,8 +81,11 @@ def histogram(
     if mask is not None:
         mk = np.asarray(mask, bool)
         if mk.shape != np.asarray(levels_2d).shape:
-            raise ParameterError("mask shape differs from the frame", expected=str(levels_2d.shape),
-                                 found=str(mk.shape))
+            raise ParameterError(
+                "mask shape differs from the frame",
+                expected=str(levels_2d.shape),
+                found=str(mk.shape),
+            )
         if s > 1:
             mk = mk[::s, ::s]
         values = a[mk]
@@ -101,10 +107,14 @@ def histograms(
         if mk.shape == a.shape[:2]:
             mk = np.broadcast_to(mk[..., None], a.shape)
         elif mk.shape != a.shape:
-            raise ParameterError("mask shape differs from the frame",
-                                 expected=f"{a.shape[:2]} or {a.shape}", found=str(mk.shape))
-        return np.stack([histogram(a[..., c], max_level, mk[..., c], stride=stride)
-                         for c in range(a.shape[2])])
+            raise ParameterError(
+                "mask shape differs from the frame",
+                expected=f"{a.shape[:2]} or {a.shape}",
+                found=str(mk.shape),
+            )
+        return np.stack(
+            [histogram(a[..., c], max_level, mk[..., c], stride=stride) for c in range(a.shape[2])]
+        )
     return np.stack([histogram(a[..., c], max_level, stride=stride) for c in range(a.shape[2])])
 
 

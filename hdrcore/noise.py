@@ -144,8 +144,9 @@ def robust_sigma(values: np.ndarray, *, clip: float = 4.0, iterations: int = 3) 
     return float(s)
 
 
-def _second_differences(plane: np.ndarray, low: float, high: float,
-                        max_samples: int = _MAX_SAMPLES) -> tuple[np.ndarray, np.ndarray]:
+def _second_differences(
+    plane: np.ndarray, low: float, high: float, max_samples: int = _MAX_SAMPLES
+) -> tuple[np.ndarray, np.ndarray]:
     """Second differences along rows and the mean of their three taps, where no tap is clipped
     (``<= low`` or ``>= high``); rows are subsampled to at most about ``max_samples`` samples."""
     h, w = plane.shape
@@ -160,8 +161,9 @@ def _second_differences(plane: np.ndarray, low: float, high: float,
     return d2[ok], mean[ok]
 
 
-def frame_noise(plane: np.ndarray, *, black: float = 0.0, white: float,
-                clipped_low: float | None = None) -> FrameNoise:
+def frame_noise(
+    plane: np.ndarray, *, black: float = 0.0, white: float, clipped_low: float | None = None
+) -> FrameNoise:
     """Noise of one frame from the darkest tenth of its flat regions.
 
     ``plane`` is one colour plane (a CFA site plane with the black level in it, or the green
@@ -211,16 +213,23 @@ def _level_step(plane: np.ndarray) -> float:
 
 
 def bracket_noise(
-    frames: Sequence[FrameNoise], *, max_level: int, linear: bool,
-    k_sigma: float = K_SIGMA, minimum: float | None = None,
+    frames: Sequence[FrameNoise],
+    *,
+    max_level: int,
+    linear: bool,
+    k_sigma: float = K_SIGMA,
+    minimum: float | None = None,
 ) -> BracketNoise:
     """The bracket's noise and noise floor from its frames' measurements (module docstring)."""
     if minimum is None:
         # 8-bit files are JPEGs or scans: the measured minimum (see its note). Deeper
         # non-linear files (16-bit TIFF/PNG from a raw converter) carry no JPEG compression:
         # their measured noise rules, as for RAW.
-        minimum = (NONLINEAR_MIN_FLOOR_FRACTION * max_level if not linear and max_level <= 255
-                   else RAW_MIN_FLOOR)
+        minimum = (
+            NONLINEAR_MIN_FLOOR_FRACTION * max_level
+            if not linear and max_level <= 255
+            else RAW_MIN_FLOOR
+        )
     ob = [f.sigma for f in frames if f.source == "optical-black" and math.isfinite(f.sigma)]
     measured = [f for f in frames if f.source == "dark-regions" and math.isfinite(f.sigma)]
     if ob:
@@ -233,5 +242,11 @@ def bracket_noise(
         sigma, source = 0.0, "none"
     floor = max(k_sigma * sigma, float(minimum))
     floor = min(floor, 0.25 * max_level)
-    return BracketNoise(frames=tuple(frames), sigma=sigma, k_sigma=float(k_sigma),
-                        minimum=float(minimum), floor=float(floor), source=source)
+    return BracketNoise(
+        frames=tuple(frames),
+        sigma=sigma,
+        k_sigma=float(k_sigma),
+        minimum=float(minimum),
+        floor=float(floor),
+        source=source,
+    )

@@ -99,8 +99,15 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 STAGES = (
-    "histograms", "response", "ratios", "registration", "response_registered",
-    "overlap_histograms", "overlap_ratios", "merge", "preview",
+    "histograms",
+    "response",
+    "ratios",
+    "registration",
+    "response_registered",
+    "overlap_histograms",
+    "overlap_ratios",
+    "merge",
+    "preview",
 )
 ALIGN_CHOICES = ("none", *MODELS, "auto")  # shift, euclidean, similarity, homography
 #: Local refinement after the global motion (:mod:`hdrcore.registration.local`): ``"auto"``
@@ -371,18 +378,24 @@ class PipelineResult:
             "ratios": self.ratios_json(),
             "ratios_before_registration": ratios_json(self.bracket, self.exposures_histogram),
             "times_source": self.times_source,
-            "response": None if self.response is None else {
+            "response": None
+            if self.response is None
+            else {
                 "method": self.response.method,
                 "message": getattr(self.response, "message", ""),
                 "status": getattr(self.response, "status", "ok"),
-                "selection": None if getattr(self.response, "selection", None) is None
+                "selection": None
+                if getattr(self.response, "selection", None) is None
                 else self.response.selection.to_json(),
             },
             "registration": self.registration_json(),
             "merge": None if self.merge is None else self.merge.summary(),
             "colour": self.colour,
-            "preview": None if self.preview is None else {
-                **self.preview.to_json(), "downsample_factor": self.preview_factor,
+            "preview": None
+            if self.preview is None
+            else {
+                **self.preview.to_json(),
+                "downsample_factor": self.preview_factor,
             },
             "timings": dict(self.timings),
             "stages_run": list(self.stages_run),
@@ -415,8 +428,11 @@ def ratios_json(bracket: Bracket, res: BracketExposureResult) -> dict[str, Any]:
                 "exif_ratio": res.exif_ratios[k],
                 "mismatch_stops": res.mismatch_stops[k],
                 "std_error": p.std_error,
-                **{key: value for key, value in p.to_json().items()
-                   if key.startswith("ci95") or key == "region_std_error"},
+                **{
+                    key: value
+                    for key, value in p.to_json().items()
+                    if key.startswith("ci95") or key == "region_std_error"
+                },
                 "status": p.status,
                 "message": p.message,
             }
@@ -425,8 +441,9 @@ def ratios_json(bracket: Bracket, res: BracketExposureResult) -> dict[str, Any]:
     }
 
 
-def registration_json(reg: BracketRegistration, *,
-                      ratios_source: str | None = None) -> dict[str, Any]:
+def registration_json(
+    reg: BracketRegistration, *, ratios_source: str | None = None
+) -> dict[str, Any]:
     """The registration document of ``hdrcore align --json`` and of the merge report (one
     serialiser: :meth:`BracketRegistration.to_json`, each pair's ``to_json``); ``to_reference``
     holds the homographies where the model has no 2x3 form."""
@@ -445,8 +462,13 @@ class _Context:
 
     __slots__ = ("bracket", "no_times", "pixel_size", "_noise", "_report")
 
-    def __init__(self, bracket: Bracket, pixel_size: float, noise: Callable[[], BracketNoise],
-                 report: Callable[[str, float, str], None]) -> None:
+    def __init__(
+        self,
+        bracket: Bracket,
+        pixel_size: float,
+        noise: Callable[[], BracketNoise],
+        report: Callable[[str, float, str], None],
+    ) -> None:
         self.bracket = bracket
         self.pixel_size = pixel_size
         self._noise = noise
@@ -509,8 +531,11 @@ class Pipeline:
         # Each stage cached by the key its declaration derives (GRAPH, hdrcore.stage_graph).
         self._ctx = _Context(bracket, self.pixel_size, self.noise, self._report)
         self._cache = StageCache(
-            GRAPH, self._ctx, on_start=lambda name: self._report(name, 0.0, f"{name}..."),
-            on_done=lambda name, dt: self._report(name, 1.0, f"{name} done in {dt:.2f} s"))
+            GRAPH,
+            self._ctx,
+            on_start=lambda name: self._report(name, 0.0, f"{name}..."),
+            on_done=lambda name, dt: self._report(name, 1.0, f"{name} done in {dt:.2f} s"),
+        )
 
     # -- parameter checks ------------------------------------------------------------------
 
@@ -520,30 +545,41 @@ class Pipeline:
         sat = default_saturation(m) if p.saturation is None else float(p.saturation)
         nf = default_noise_floor(m) if p.noise_floor is None else float(p.noise_floor)
         if not (np.isfinite(sat) and 0 < sat <= m):
-            raise ParameterError("saturation level out of range", expected=f"0 < Z <= {m}",
-                                 found=str(p.saturation))
+            raise ParameterError(
+                "saturation level out of range", expected=f"0 < Z <= {m}", found=str(p.saturation)
+            )
         if not (np.isfinite(nf) and 0 <= nf < sat):
-            raise ParameterError("noise floor out of range", expected=f"0 <= N < Z = {sat:g}",
-                                 found=str(p.noise_floor))
+            raise ParameterError(
+                "noise floor out of range",
+                expected=f"0 <= N < Z = {sat:g}",
+                found=str(p.noise_floor),
+            )
         if not (np.isfinite(p.threshold) and p.threshold >= 0):
             raise ParameterError("threshold t must be >= 0", found=str(p.threshold))
         align = str(p.align).lower()
         if align not in ALIGN_CHOICES:
-            raise ParameterError(f"unknown alignment {p.align!r}",
-                                 expected=f"one of {', '.join(ALIGN_CHOICES)}")
+            raise ParameterError(
+                f"unknown alignment {p.align!r}", expected=f"one of {', '.join(ALIGN_CHOICES)}"
+            )
         if str(p.local).lower() not in LOCAL_CHOICES:
-            raise ParameterError(f"unknown local refinement {p.local!r}",
-                                 expected=f"one of {', '.join(LOCAL_CHOICES)}")
+            raise ParameterError(
+                f"unknown local refinement {p.local!r}",
+                expected=f"one of {', '.join(LOCAL_CHOICES)}",
+            )
         ref = len(b) // 2 if p.reference is None else int(p.reference)
         if not 0 <= ref < len(b):
-            raise ParameterError("reference frame out of range",
-                                 expected=f"0..{len(b) - 1}", found=str(p.reference))
+            raise ParameterError(
+                "reference frame out of range", expected=f"0..{len(b) - 1}", found=str(p.reference)
+            )
         if p.refine_ratios not in REFINE_CHOICES:
-            raise ParameterError(f"unknown ratio refinement {p.refine_ratios!r}",
-                                 expected=f"one of {', '.join(REFINE_CHOICES)}")
+            raise ParameterError(
+                f"unknown ratio refinement {p.refine_ratios!r}",
+                expected=f"one of {', '.join(REFINE_CHOICES)}",
+            )
         if p.times not in ("estimated", "exif"):
-            raise ParameterError(f"unknown times source {p.times!r}",
-                                 expected="'estimated' or 'exif'")
+            raise ParameterError(
+                f"unknown times source {p.times!r}", expected="'estimated' or 'exif'"
+            )
         validate_method(p.exposure_method, EXPOSURE_METHODS, "exposure")
         validate_method(p.registration_method, REGISTRATION_METHODS, "registration")
         validate_method(p.tonemap, TONEMAP_OPERATORS, "tonemap")
@@ -563,20 +599,33 @@ class Pipeline:
                 rn = getattr(f.meta, "read_noise", None)
                 if rn is not None and math.isfinite(float(rn)) and float(rn) >= 0:
                     # The reader removes the rounding variance; the levels carry it (1/12).
-                    measured.append(FrameNoise(math.sqrt(float(rn) ** 2 + 1 / 12),
-                                               "optical-black"))
+                    measured.append(FrameNoise(math.sqrt(float(rn) ** 2 + 1 / 12), "optical-black"))
                     continue
                 cfa = f.cfa
                 if f.is_linear and cfa is not None:
-                    site = next(((r, c) for r in range(2) for c in range(2)
-                                 if cfa.colors[int(cfa.pattern[r, c])] == "G"), (0, 0))
+                    site = next(
+                        (
+                            (r, c)
+                            for r in range(2)
+                            for c in range(2)
+                            if cfa.colors[int(cfa.pattern[r, c])] == "G"
+                        ),
+                        (0, 0),
+                    )
                     idx = int(cfa.pattern[site])
-                    measured.append(frame_noise(
-                        cfa.data[site[0]::2, site[1]::2], black=float(cfa.black_level[idx]),
-                        white=float(cfa.white_level)))
+                    measured.append(
+                        frame_noise(
+                            cfa.data[site[0] :: 2, site[1] :: 2],
+                            black=float(cfa.black_level[idx]),
+                            white=float(cfa.white_level),
+                        )
+                    )
                 else:
-                    measured.append(frame_noise(f.levels[..., 1], black=0.0,
-                                                white=float(f.max_level), clipped_low=0.0))
+                    measured.append(
+                        frame_noise(
+                            f.levels[..., 1], black=0.0, white=float(f.max_level), clipped_low=0.0
+                        )
+                    )
             self._noise = bracket_noise(measured, max_level=b.max_level, linear=b.is_linear)
         return self._noise
 
@@ -602,8 +651,9 @@ class Pipeline:
                 best = 0
                 for colour in ((m, 0, 0), (0, m, 0), (0, 0, m), (m, m, 0), (m, 0, m), (0, m, m)):
                     c = np.asarray(colour, lo.dtype)
-                    n = int(np.count_nonzero(pure & np.all(lo == c, axis=2)
-                                             & np.all(hi == c, axis=2)))
+                    n = int(
+                        np.count_nonzero(pure & np.all(lo == c, axis=2) & np.all(hi == c, axis=2))
+                    )
                     if n >= need and n > best:
                         best, found = n, colour
         self._marker_key = (found,)
@@ -634,8 +684,12 @@ class Pipeline:
             return float(min(self._pedestal + base, 0.25 * self.bracket.max_level))
         return float(base)
 
-    def frame_signals(self, p: PipelineParams, ran: list[str] | None = None,
-                      timings: dict[str, float] | None = None) -> tuple[FrameSignal, ...]:
+    def frame_signals(
+        self,
+        p: PipelineParams,
+        ran: list[str] | None = None,
+        timings: dict[str, float] | None = None,
+    ) -> tuple[FrameSignal, ...]:
         """Per frame, whether it carries signal between the noise floor and ``Z`` of ``p``
         (checked parameters), from the cached whole-frame histograms."""
         return self._signals(p, self._cache.run(p, ran, timings))
@@ -643,8 +697,13 @@ class Pipeline:
     def _signals(self, p: PipelineParams, run: Any) -> tuple[FrameSignal, ...]:
         hists = run.get("histograms")
         return tuple(
-            frame_signal(hists.counts[k], noise_floor=_level(p.noise_floor),
-                         saturation=_level(p.saturation), index=k, path=f.path)
+            frame_signal(
+                hists.counts[k],
+                noise_floor=_level(p.noise_floor),
+                saturation=_level(p.saturation),
+                index=k,
+                path=f.path,
+            )
             for k, f in enumerate(self.bracket.frames)
         )
 
@@ -680,8 +739,9 @@ class Pipeline:
             sub.release(merged)  # the frames in use are the subset's
             return
         b = self.bracket
-        if (merged.radiance.shape[:2] != tuple(b.shape)
-                or getattr(merged, "n_frames", len(b)) != len(b)):
+        if merged.radiance.shape[:2] != tuple(b.shape) or getattr(
+            merged, "n_frames", len(b)
+        ) != len(b):
             return  # another bracket's: it does not fit
         with self._lock:
             entry = self._cache.entries.get("merge")
@@ -752,8 +812,9 @@ class Pipeline:
                     )
             return self._run_subset(p, reference, signals, until)
 
-    def _run_subset(self, p: PipelineParams, reference: int | None,
-                    signals: tuple[FrameSignal, ...], until: str) -> PipelineResult:
+    def _run_subset(
+        self, p: PipelineParams, reference: int | None, signals: tuple[FrameSignal, ...], until: str
+    ) -> PipelineResult:
         """Run without the frames that carry no signal (black, saturated): they are left out of
         every stage, the rest of the bracket is merged, and the result says which and why."""
         b = self.bracket
@@ -766,15 +827,18 @@ class Pipeline:
                 "fewer than two frames of the bracket carry signal between the noise floor "
                 f"({p.noise_floor:g}) and the saturation level ({p.saturation:g}): "
                 + "; ".join(f"{Path(sig.path).name} is {sig.reason}" for sig in unused)
-                + ("" if not keep else
-                   f"; only {Path(b.frames[keep[0]].path).name} is usable"),
+                + ("" if not keep else f"; only {Path(b.frames[keep[0]].path).name} is usable"),
                 expected="at least two frames with signal",
                 found=f"{len(keep)} usable of {len(b)}",
             )
         sub = self._subsets.get(keep)
         if sub is None:
-            sub = Pipeline(_sub_bracket(b, keep), progress=self.progress,
-                           reuse_buffers=self.reuse_buffers, pixel_size=self.pixel_size)
+            sub = Pipeline(
+                _sub_bracket(b, keep),
+                progress=self.progress,
+                reuse_buffers=self.reuse_buffers,
+                pixel_size=self.pixel_size,
+            )
             sub._noise = self.noise()
             self._subsets[keep] = sub
         self._active_subset = sub
@@ -788,21 +852,39 @@ class Pipeline:
             more = {keep[u.index]: replace(u, index=keep[u.index]) for u in res.unused_frames}
             signals = tuple(more.get(sig.index, sig) for sig in signals)
             unused = tuple(sig for sig in signals if not sig.usable)
-        res = replace(res, full_bracket=b, unused_frames=unused, frame_signals=signals,
-                      noise=self.noise(), marker_colour=self._marker_used)
+        res = replace(
+            res,
+            full_bracket=b,
+            unused_frames=unused,
+            frame_signals=signals,
+            noise=self.noise(),
+            marker_colour=self._marker_used,
+        )
         res = replace(res, verdicts=tuple(diagnose(res)))
         if until == STAGES[-1] or self.last_result is None:
             self.last_result = res
         return res
 
-    def _merge(self, p: PipelineParams, lut: np.ndarray | None, times: tuple[float, ...],
-               registration: BracketRegistration | None, excluded: Any = None,
-               reuse: Any = None) -> tuple:
+    def _merge(
+        self,
+        p: PipelineParams,
+        lut: np.ndarray | None,
+        times: tuple[float, ...],
+        registration: BracketRegistration | None,
+        excluded: Any = None,
+        reuse: Any = None,
+    ) -> tuple:
         """The merge step alone (``bench/bench_merge.py``, ``bench/bench_pipeline.py``)."""
         return _merge_frames(self._ctx, p, lut, times, registration, excluded, reuse=reuse)
 
-    def _run(self, p: PipelineParams, last: int, signals: tuple[FrameSignal, ...], run: Any,
-             t_start: float) -> PipelineResult:
+    def _run(
+        self,
+        p: PipelineParams,
+        last: int,
+        signals: tuple[FrameSignal, ...],
+        run: Any,
+        t_start: float,
+    ) -> PipelineResult:
         """The stages up to ``STAGES[last]``: which to ask for, never how they are keyed (each
         stage's key comes from its declaration in :data:`GRAPH`)."""
         b = self.bracket
@@ -836,13 +918,29 @@ class Pipeline:
                 preview, factor = run.get("preview")
         timings["total"] = time.perf_counter() - t_start
         res = PipelineResult(
-            bracket=b, params=p, saturation=_level(p.saturation),
-            noise_floor=_level(p.noise_floor), histograms=hists, response=response, lut=lut,
-            exposures=exposures, exposures_histogram=exposures_hist, exposure_times=times,
-            times_source=times_source, registration=registration, merge=merge_result,
-            radiance=radiance, colour=colour_info, preview=preview, preview_factor=factor,
-            timings=timings, stages_run=tuple(ran), until=upto, noise=self.noise(),
-            frame_signals=signals, marker_colour=self._marker_used,
+            bracket=b,
+            params=p,
+            saturation=_level(p.saturation),
+            noise_floor=_level(p.noise_floor),
+            histograms=hists,
+            response=response,
+            lut=lut,
+            exposures=exposures,
+            exposures_histogram=exposures_hist,
+            exposure_times=times,
+            times_source=times_source,
+            registration=registration,
+            merge=merge_result,
+            radiance=radiance,
+            colour=colour_info,
+            preview=preview,
+            preview_factor=factor,
+            timings=timings,
+            stages_run=tuple(ran),
+            until=upto,
+            noise=self.noise(),
+            frame_signals=signals,
+            marker_colour=self._marker_used,
         )
         res = replace(res, verdicts=tuple(diagnose(res)))
         if upto == STAGES[-1] or self.last_result is None:
@@ -850,8 +948,13 @@ class Pipeline:
         return res
 
 
-def _response_registered(ctx: _Context, p: PipelineParams, registration: BracketRegistration,
-                         hists: BracketHistograms, excluded: Any) -> ResponseCurve | None:
+def _response_registered(
+    ctx: _Context,
+    p: PipelineParams,
+    registration: BracketRegistration,
+    hists: BracketHistograms,
+    excluded: Any,
+) -> ResponseCurve | None:
     """The response recovered again once the motion is known: every frame sampled (nearest
     pixel: levels stay exact) on a grid of the reference frame, over the field of view all
     frames share. The histograms of moved frames see different content at their borders,
@@ -865,8 +968,7 @@ def _response_registered(ctx: _Context, p: PipelineParams, registration: Bracket
     sampled = []
     for k, f in enumerate(b.frames):
         # reference pixel -> frame k pixel (3x3: every model, homographies included)
-        xk, yk, inside = nearest_in_frame(registration.to_reference_homography[k], xs, ys,
-                                          (h, w))
+        xk, yk, inside = nearest_in_frame(registration.to_reference_homography[k], xs, ys, (h, w))
         common &= inside
         sampled.append(np.ascontiguousarray(f.levels[yk, xk]))
         if excluded is not None:
@@ -874,9 +976,14 @@ def _response_registered(ctx: _Context, p: PipelineParams, registration: Bracket
     return _response(ctx, p, hists, excluded, levels=sampled, mask=common)
 
 
-def _response(ctx: _Context, p: PipelineParams, hists: BracketHistograms, excluded: Any,
-              levels: list[np.ndarray] | None = None,
-              mask: np.ndarray | None = None) -> ResponseCurve | None:
+def _response(
+    ctx: _Context,
+    p: PipelineParams,
+    hists: BracketHistograms,
+    excluded: Any,
+    levels: list[np.ndarray] | None = None,
+    mask: np.ndarray | None = None,
+) -> ResponseCurve | None:
     b = ctx.bracket
     spec = p.response
     if isinstance(spec, str) and spec.lower() == "auto" and b.is_linear:
@@ -895,11 +1002,14 @@ def _response(ctx: _Context, p: PipelineParams, hists: BracketHistograms, exclud
         # them (the response is then fixed up to the usual exponent ambiguity, which the
         # ratios re-measured with the recovered curve absorb).
         rough = bracket_exposures_from_histograms(
-            hists, method=p.exposure_method, lut=srgb_lut(b.max_level),
+            hists,
+            method=p.exposure_method,
+            lut=srgb_lut(b.max_level),
         )
         rel = np.asarray(rough.relative_exposures, float)
-        broken = [k for k, pr in enumerate(rough.pairs)
-                  if not (np.isfinite(pr.ratio) and pr.ratio > 0)]
+        broken = [
+            k for k, pr in enumerate(rough.pairs) if not (np.isfinite(pr.ratio) and pr.ratio > 0)
+        ]
         if broken and len(b) > 2:
             _raise_unlinked(len(b), broken, rough.pairs[broken[0]].message)
         if not np.all(np.isfinite(rel) & (rel > 0)):
@@ -915,9 +1025,11 @@ def _response(ctx: _Context, p: PipelineParams, hists: BracketHistograms, exclud
         keep = _rising_from_brightest(rel)
         if len(keep) < len(rel) and len(keep) >= 2:
             left_out = [k for k in range(len(rel)) if k not in keep]
-            unused_note = (f"fitted without frames {_frame_list(left_out)}: without "
-                           "exposure times their histograms did not rise with their "
-                           "brightness (too dark or too flat to measure)")
+            unused_note = (
+                f"fitted without frames {_frame_list(left_out)}: without "
+                "exposure times their histograms did not rise with their "
+                "brightness (too dark or too flat to measure)"
+            )
             levels = [levels[k] for k in keep]
             times = tuple(times[k] for k in keep)
     extra: dict[str, Any] = {}
@@ -935,11 +1047,9 @@ def _response(ctx: _Context, p: PipelineParams, hists: BracketHistograms, exclud
         if len(distinct) < len(times):
             levels = [levels[k] for k in distinct]
             times = tuple(times[k] for k in distinct)
-    curve = resolve_response(spec, levels, times, max_level=b.max_level, n_channels=3,
-                             **extra)
+    curve = resolve_response(spec, levels, times, max_level=b.max_level, n_channels=3, **extra)
     if unused_note and curve is not None:
-        curve = replace(curve, message="; ".join(m for m in (curve.message, unused_note)
-                                                 if m))
+        curve = replace(curve, message="; ".join(m for m in (curve.message, unused_note) if m))
     return curve
 
 
@@ -950,7 +1060,8 @@ def _exclusions(ctx: _Context, p: PipelineParams):
     colour = np.asarray(p.exclude_colour, dtype=np.int64)
     if colour.shape != (3,) or np.any(colour < 0) or np.any(colour > ctx.bracket.max_level):
         raise ParameterError(
-            "exclude_colour must be three levels", expected=f"0..{ctx.bracket.max_level}",
+            "exclude_colour must be three levels",
+            expected=f"0..{ctx.bracket.max_level}",
             found=str(p.exclude_colour),
         )
     per_frame = colour_masks([f.levels for f in ctx.bracket.frames], colour)
@@ -973,13 +1084,15 @@ def _recorded_exposures(ctx: _Context) -> tuple[float | None, ...]:
     exif = ctx.bracket.exif_exposures()
     known = [e for e in exif if e is not None]
     if len(known) == len(exif) and any(
-            t2 < t1 * (1 - 1e-3) for t1, t2 in zip(known, known[1:], strict=False)):
+        t2 < t1 * (1 - 1e-3) for t1, t2 in zip(known, known[1:], strict=False)
+    ):
         return tuple(sorted(float(e) for e in known))
     return exif
 
 
-def _merge_times(ctx: _Context, exposures: BracketExposureResult,
-                 p: PipelineParams) -> tuple[tuple[float, ...], str]:
+def _merge_times(
+    ctx: _Context, exposures: BracketExposureResult, p: PipelineParams
+) -> tuple[tuple[float, ...], str]:
     exif = _recorded_exposures(ctx)
     exif_known = all(e is not None for e in exif)
     if p.times == "exif":
@@ -1007,10 +1120,16 @@ def _merge_times(ctx: _Context, exposures: BracketExposureResult,
         lo, hi = pair.interval
         # Within a tight enough interval (half-width <= 2.5 %), a measured ratio that holds
         # the EXIF ratio is the better of the two; a wider one says little either way.
-        agrees = (exif_r is not None and good and lo <= exif_r <= hi
-                  and hi / lo <= (1 + AGREE_HALF_WIDTH) / (1 - AGREE_HALF_WIDTH))
-        if exif_r is not None and (not good or (not pair.ok and not agrees and abs(
-                math.log2(r / exif_r)) >= p.ratio_fallback_stops)):
+        agrees = (
+            exif_r is not None
+            and good
+            and lo <= exif_r <= hi
+            and hi / lo <= (1 + AGREE_HALF_WIDTH) / (1 - AGREE_HALF_WIDTH)
+        )
+        if exif_r is not None and (
+            not good
+            or (not pair.ok and not agrees and abs(math.log2(r / exif_r)) >= p.ratio_fallback_stops)
+        ):
             # An unreliable estimate far from the metadata: trust the metadata here. (An
             # estimate whose 95 % interval holds the APEX-snapped EXIF ratio agrees with it
             # and is kept: it measures what the shutter really did.)
@@ -1032,31 +1151,51 @@ def _merge_times(ctx: _Context, exposures: BracketExposureResult,
     return tuple(float(v * scale) for v in rel), source
 
 
-def _pixel_ratios(ctx: _Context, p: PipelineParams, lut: np.ndarray | None,
-                  registration: BracketRegistration, fallback: BracketExposureResult,
-                  excluded: Any) -> BracketExposureResult:
+def _pixel_ratios(
+    ctx: _Context,
+    p: PipelineParams,
+    lut: np.ndarray | None,
+    registration: BracketRegistration,
+    fallback: BracketExposureResult,
+    excluded: Any,
+) -> BracketExposureResult:
     b = ctx.bracket
     masks = None if excluded is None else [~mask for mask in excluded[0]]
     # The registered-pixel estimator samples each pair through its matrix: affine, or
     # the homography of a pair registered with perspective.
     common: dict[str, Any] = dict(
-        registered=[q.usable for q in registration.pairs], fallback=fallback,
-        exposure_times=b.exif_exposures(), saturation=p.saturation, noise_floor=p.noise_floor)
+        registered=[q.usable for q in registration.pairs],
+        fallback=fallback,
+        exposure_times=b.exif_exposures(),
+        saturation=p.saturation,
+        noise_floor=p.noise_floor,
+    )
     matrices = [_pair_motion(q) for q in registration.pairs]
     cfas = [f.cfa for f in b.frames if f.cfa is not None]
-    cfa_ok = masks is None and lut is None and len(cfas) == len(b.frames) and all(
-        c.data.shape == f.levels.shape[:2] and (f.meta.orientation in (None, 1))
-        for c, f in zip(cfas, b.frames, strict=True))
+    cfa_ok = (
+        masks is None
+        and lut is None
+        and len(cfas) == len(b.frames)
+        and all(
+            c.data.shape == f.levels.shape[:2] and (f.meta.orientation in (None, 1))
+            for c, f in zip(cfas, b.frames, strict=True)
+        )
+    )
     if cfa_ok:
         # RAW: compare the sensor's own CFA sites, not demosaiced values (demosaicing is
         # not linear in the exposure; see hdrcore.exposure.registered.cfa_planes).
-        planes = [cfa_planes(c.data, c.pattern, c.colors, c.black_level, b.max_level)
-                  for c in cfas]
+        planes = [cfa_planes(c.data, c.pattern, c.colors, c.black_level, b.max_level) for c in cfas]
         return bracket_exposures_from_pixels(
-            [pl[0] for pl in planes], b.max_level, matrices, geometry=planes[0][1],
-            channel_groups=planes[0][2], **common)
+            [pl[0] for pl in planes],
+            b.max_level,
+            matrices,
+            geometry=planes[0][1],
+            channel_groups=planes[0][2],
+            **common,
+        )
     return bracket_exposures_from_pixels(
-        [f.levels for f in b.frames], b.max_level, matrices, masks=masks, lut=lut, **common)
+        [f.levels for f in b.frames], b.max_level, matrices, masks=masks, lut=lut, **common
+    )
 
 
 def _pair_motion(q: PairRegistration) -> np.ndarray:
@@ -1083,16 +1222,18 @@ def _level(value: float | None) -> float:
     return float(value)
 
 
-def _linear_level(ctx: _Context, lut: np.ndarray | None, level: float | None,
-                  channel: int = 1) -> float:
+def _linear_level(
+    ctx: _Context, lut: np.ndarray | None, level: float | None, channel: int = 1
+) -> float:
     m = ctx.bracket.max_level
     if lut is None:
         return _level(level) / m
     return float(np.interp(_level(level), np.arange(m + 1), lut[channel]))
 
 
-def _register(ctx: _Context, p: PipelineParams, lut: np.ndarray | None,
-              ratios: tuple[float, ...]) -> BracketRegistration | None:
+def _register(
+    ctx: _Context, p: PipelineParams, lut: np.ndarray | None, ratios: tuple[float, ...]
+) -> BracketRegistration | None:
     if p.align == "none":
         return None
     b = ctx.bracket
@@ -1106,8 +1247,11 @@ def _register(ctx: _Context, p: PipelineParams, lut: np.ndarray | None,
         # The green levels read in place through a table: no float copy of the frames.
         images = [f.levels[..., 1] for f in b.frames]
         m = b.max_level
-        extra["lut"] = (np.arange(m + 1, dtype=np.float32) * np.float32(1.0 / m)
-                        if lut is None else lut[1].astype(np.float32))
+        extra["lut"] = (
+            np.arange(m + 1, dtype=np.float32) * np.float32(1.0 / m)
+            if lut is None
+            else lut[1].astype(np.float32)
+        )
     else:
         # Large frames register on their green channel binned factor x factor: a quarter
         # of the memory traffic per halving, and the pyramid's finest level still resolves
@@ -1118,25 +1262,32 @@ def _register(ctx: _Context, p: PipelineParams, lut: np.ndarray | None,
             if lut is None:
                 binned *= np.float32(1.0 / f.max_level)
             else:
-                binned = np.interp(binned, np.arange(lut.shape[1]), lut[1]).astype(
-                    np.float32)
+                binned = np.interp(binned, np.arange(lut.shape[1]), lut[1]).astype(np.float32)
             images.append(binned)
 
     def progress(done: int, total: int) -> None:
         ctx.report("registration", done / total, f"registered pair {done} of {total}")
 
-    search = dict(method=p.registration_method,
-                  saturation=_linear_level(ctx, lut, p.saturation),
-                  noise_floor=_linear_level(ctx, lut, p.noise_floor),
-                  threshold=p.threshold, previews=p.registration_previews, **extra)
+    search = dict(
+        method=p.registration_method,
+        saturation=_linear_level(ctx, lut, p.saturation),
+        noise_floor=_linear_level(ctx, lut, p.noise_floor),
+        threshold=p.threshold,
+        previews=p.registration_previews,
+        **extra,
+    )
     if factor == 1:
         # each pair checked independently as it is registered, and searched again without a
         # nearer object the check finds (register_pair's check_residual; _with_residuals
         # then keeps these measurements)
         search["check_residual"] = True
     reg = register_bracket(
-        images, ratios, reference=p.reference,
-        model="similarity" if p.align == "auto" else p.align, progress=progress, **search,
+        images,
+        ratios,
+        reference=p.reference,
+        model="similarity" if p.align == "auto" else p.align,
+        progress=progress,
+        **search,
     )
     if factor == 1:
         reg = _with_residuals(ctx, reg, p, lut)
@@ -1150,32 +1301,49 @@ def _register(ctx: _Context, p: PipelineParams, lut: np.ndarray | None,
         # the motion at full resolution: the 2x3 matrix of an affine model (the homography
         # follows from it), else the homography (a perspective pair has no 2x3 form)
         affine = q.matrix is not None
-        mat = (scale_matrix(_pair_motion(q), float(factor)) if q.usable
-               else np.eye(2, 3) if affine else np.eye(3))
+        mat = (
+            scale_matrix(_pair_motion(q), float(factor))
+            if q.usable
+            else np.eye(2, 3)
+            if affine
+            else np.eye(3)
+        )
         dx, dy, angle = rigid_parameters(mat, (h, w))
         preview = q.preview
         if preview is not None:
             preview = replace(preview, scale=preview.scale / factor)
-        pairs.append(replace(
-            q, matrix=mat if affine else None, homography=None if affine else mat,
-            dx=dx, dy=dy, angle_deg=angle, shape=(h, w),
-            initial_shift=(q.initial_shift[0] * factor, q.initial_shift[1] * factor),
-            preview=preview,
-            message=q.message + f" (registered on the green channel binned {factor}x{factor})",
-        ))
+        pairs.append(
+            replace(
+                q,
+                matrix=mat if affine else None,
+                homography=None if affine else mat,
+                dx=dx,
+                dy=dy,
+                angle_deg=angle,
+                shape=(h, w),
+                initial_shift=(q.initial_shift[0] * factor, q.initial_shift[1] * factor),
+                preview=preview,
+                message=q.message + f" (registered on the green channel binned {factor}x{factor})",
+            )
+        )
     matrices = [q.matrix for q in pairs]
     if all(m is not None for m in matrices):
         chain = to_reference([m for m in matrices if m is not None], reg.reference)
         full = replace(reg, pairs=tuple(pairs), to_reference=chain)
     else:
         chain = to_reference([_pair_motion(q) for q in pairs], reg.reference)
-        full = replace(reg, pairs=tuple(pairs), to_reference=None,
-                       to_reference_homography=chain)
+        full = replace(reg, pairs=tuple(pairs), to_reference=None, to_reference_homography=chain)
     return _with_residuals(ctx, full, p, lut)
 
 
-def _refine_locally(ctx: _Context, reg: BracketRegistration, images: list, p: PipelineParams,
-                    lut: np.ndarray | None, table: np.ndarray) -> BracketRegistration:
+def _refine_locally(
+    ctx: _Context,
+    reg: BracketRegistration,
+    images: list,
+    p: PipelineParams,
+    lut: np.ndarray | None,
+    table: np.ndarray,
+) -> BracketRegistration:
     """Local refinement (:func:`hdrcore.registration.local.refine_bracket`) on the green
     levels: with ``local="auto"`` only the frames whose pair the independent residual calls
     misaligned are refined (a tripod bracket costs nothing); a field is kept where it lowers
@@ -1186,8 +1354,10 @@ def _refine_locally(ctx: _Context, reg: BracketRegistration, images: list, p: Pi
     pairs = reg.pairs
     if not pairs or not all(q.usable for q in pairs):
         return reg
-    refine = [p.local == "on" or (q.residual is not None and q.residual.status == "misaligned")
-              for q in pairs]
+    refine = [
+        p.local == "on" or (q.residual is not None and q.residual.status == "misaligned")
+        for q in pairs
+    ]
     if not any(refine):
         return reg
     exposures = [float(e) for e in np.cumprod([1.0] + [float(q.ratio) for q in pairs])]
@@ -1196,10 +1366,17 @@ def _refine_locally(ctx: _Context, reg: BracketRegistration, images: list, p: Pi
         ctx.report("registration", 1.0, f"local refinement: frame {done} of {total}")
 
     local = refine_bracket(
-        images, exposures, reg.to_reference_homography, reg.reference,
+        images,
+        exposures,
+        reg.to_reference_homography,
+        reg.reference,
         saturation=_linear_level(ctx, lut, p.saturation),
-        noise_floor=_linear_level(ctx, lut, p.noise_floor), lut=table,
-        threshold=p.threshold, refine=refine, progress=progress)
+        noise_floor=_linear_level(ctx, lut, p.noise_floor),
+        lut=table,
+        threshold=p.threshold,
+        refine=refine,
+        progress=progress,
+    )
     out = list(pairs)
     for fr in local.frames:
         i = min(fr.frame, fr.against)
@@ -1207,18 +1384,32 @@ def _refine_locally(ctx: _Context, reg: BracketRegistration, images: list, p: Pi
         if not fr.kept:
             continue
         if q.status == "weak" and fr.after_status == "aligned":
-            out[i] = replace(q, status="ok", message=(
-                f"aligned after local refinement ({fr.before:.2f} -> {fr.after:.2f} px "
-                f"median); the global model alone: {q.message}"))
+            out[i] = replace(
+                q,
+                status="ok",
+                message=(
+                    f"aligned after local refinement ({fr.before:.2f} -> {fr.after:.2f} px "
+                    f"median); the global model alone: {q.message}"
+                ),
+            )
         else:
-            out[i] = replace(q, message=q.message + (
-                f"; local refinement: {fr.before:.2f} -> {fr.after:.2f} px median"))
+            out[i] = replace(
+                q,
+                message=q.message
+                + (f"; local refinement: {fr.before:.2f} -> {fr.after:.2f} px median"),
+            )
     return replace(reg, pairs=tuple(out), local=local)
 
 
-def _upgrade_to_homography(ctx: _Context, reg: BracketRegistration, images: list, ratios: tuple,
-                           search: dict, p: PipelineParams,
-                           lut: np.ndarray | None) -> BracketRegistration:
+def _upgrade_to_homography(
+    ctx: _Context,
+    reg: BracketRegistration,
+    images: list,
+    ratios: tuple,
+    search: dict,
+    p: PipelineParams,
+    lut: np.ndarray | None,
+) -> BracketRegistration:
     """``--align auto``: a pair the residual check calls misaligned after the similarity is
     registered again with the homography model, which is kept when its own residual is
     smaller (median over the tiles, or aligned where the similarity was not). The
@@ -1233,8 +1424,15 @@ def _upgrade_to_homography(ctx: _Context, reg: BracketRegistration, images: list
         if q.status != "weak" or res is None or res.status != "misaligned":
             continue
         ctx.report("registration", 1.0, f"pair {i}: trying the homography model")
-        h = register_pair(images[i], images[i + 1], ratios[i], model="homography",
-                          dark_index=i, bright_index=i + 1, **search)
+        h = register_pair(
+            images[i],
+            images[i + 1],
+            ratios[i],
+            model="homography",
+            dark_index=i,
+            bright_index=i + 1,
+            **search,
+        )
         if not h.usable:
             continue
         h = _with_residuals(ctx, replace(reg, pairs=(h,)), p, lut).pairs[0]
@@ -1242,28 +1440,47 @@ def _upgrade_to_homography(ctx: _Context, reg: BracketRegistration, images: list
             continue
         hr = h.residual
         better = (hr.aligned and not res.aligned) or (
-            math.isfinite(hr.median) and hr.median < 0.8 * res.median)
+            math.isfinite(hr.median) and hr.median < 0.8 * res.median
+        )
         # a global pattern left by the similarity (a perspective tilt at the corners) that
         # the homography removes, the tiles no worse: the Pixel 7's darkest pair leaves a 4.0
         # px tilt, 0.45 / 1.82 px median / 90th percentile, which the homography takes to
         # 0.38 / 1.18 px with no pattern left
         left, after = _pattern_px(res), _pattern_px(hr)
-        removes = (res.kind in PATTERN_COMPONENTS and math.isfinite(left)
-                   and math.isfinite(after) and after <= 0.5 * left
-                   and hr.median <= res.median and hr.p90 <= res.p90)
+        removes = (
+            res.kind in PATTERN_COMPONENTS
+            and math.isfinite(left)
+            and math.isfinite(after)
+            and after <= 0.5 * left
+            and hr.median <= res.median
+            and hr.p90 <= res.p90
+        )
         if better or removes:
-            said = (f"{res.median:.2f} px median" if better else
-                    f"{res.median:.2f} px median and a {res.kind} pattern of {left:.1f} px")
-            pairs[i] = replace(h, message=h.message + f" (auto: the similarity left "
-                               f"{said}, the homography {hr.median:.2f} px"
-                               f"{'' if better else f' and {after:.1f} px'})")
+            said = (
+                f"{res.median:.2f} px median"
+                if better
+                else f"{res.median:.2f} px median and a {res.kind} pattern of {left:.1f} px"
+            )
+            pairs[i] = replace(
+                h,
+                message=h.message + f" (auto: the similarity left "
+                f"{said}, the homography {hr.median:.2f} px"
+                f"{'' if better else f' and {after:.1f} px'})",
+            )
             changed = True
     if not changed:
         return reg
     mats = [_pair_homography(q) if q.usable else np.eye(3) for q in pairs]
     chain = to_reference(mats, reg.reference)
-    return BracketRegistration(reg.reference, tuple(pairs), None, "auto", reg.method,
-                               to_reference_homography=tuple(chain), local=reg.local)
+    return BracketRegistration(
+        reg.reference,
+        tuple(pairs),
+        None,
+        "auto",
+        reg.method,
+        to_reference_homography=tuple(chain),
+        local=reg.local,
+    )
 
 
 def _pattern_px(res) -> float:
@@ -1274,8 +1491,9 @@ def _pattern_px(res) -> float:
     return float(max(res.pattern.component_px().values()))
 
 
-def _with_residuals(ctx: _Context, reg: BracketRegistration, p: PipelineParams,
-                    lut: np.ndarray | None) -> BracketRegistration:
+def _with_residuals(
+    ctx: _Context, reg: BracketRegistration, p: PipelineParams, lut: np.ndarray | None
+) -> BracketRegistration:
     """Each registered pair checked by a measurement that shares nothing with the search
     (:func:`hdrcore.registration.residual.residual_motion`: phase correlation of tiles of
     the aligned frames' structure): a pair is ``ok`` only when what is left is small and
@@ -1287,8 +1505,11 @@ def _with_residuals(ctx: _Context, reg: BracketRegistration, p: PipelineParams,
 
     b = ctx.bracket
     m = b.max_level
-    table = (np.arange(m + 1, dtype=np.float32) * np.float32(1.0 / m) if lut is None
-             else lut[1].astype(np.float32))
+    table = (
+        np.arange(m + 1, dtype=np.float32) * np.float32(1.0 / m)
+        if lut is None
+        else lut[1].astype(np.float32)
+    )
     sat = _linear_level(ctx, lut, p.saturation)
     floor = _linear_level(ctx, lut, p.noise_floor)
     pairs = []
@@ -1297,23 +1518,33 @@ def _with_residuals(ctx: _Context, reg: BracketRegistration, p: PipelineParams,
             pairs.append(q)
             continue
         try:
-            res = residual_motion(b.frames[q.dark].levels[..., 1],
-                                  b.frames[q.bright].levels[..., 1], float(q.ratio),
-                                  np.asarray(q.homography), saturation=sat,
-                                  noise_floor=floor, lut=table)
+            res = residual_motion(
+                b.frames[q.dark].levels[..., 1],
+                b.frames[q.bright].levels[..., 1],
+                float(q.ratio),
+                np.asarray(q.homography),
+                saturation=sat,
+                noise_floor=floor,
+                lut=table,
+            )
         except (ValueError, ParameterError) as exc:  # too small a frame to tile
             log.debug("residual of pair %d-%d not measured: %s", q.dark, q.bright, exc)
             pairs.append(q)
             continue
-        status, message = judge_residual(res, np.asarray(q.homography), q.model, q.message,
-                                         q.shape)
+        status, message = judge_residual(res, np.asarray(q.homography), q.model, q.message, q.shape)
         pairs.append(replace(q, status=status, message=message, residual=res))
     return replace(reg, pairs=tuple(pairs))
 
 
-def _merge_frames(ctx: _Context, p: PipelineParams, lut: np.ndarray | None,
-                  times: tuple[float, ...], registration: BracketRegistration | None,
-                  excluded: Any = None, reuse: Any = None):
+def _merge_frames(
+    ctx: _Context,
+    p: PipelineParams,
+    lut: np.ndarray | None,
+    times: tuple[float, ...],
+    registration: BracketRegistration | None,
+    excluded: Any = None,
+    reuse: Any = None,
+):
     b = ctx.bracket
     n = len(b)
     levels = [f.levels for f in b.frames]  # the bracket's own arrays: no copies
@@ -1324,8 +1555,8 @@ def _merge_frames(ctx: _Context, p: PipelineParams, lut: np.ndarray | None,
         # clipped there): no warped copies of the frames. 3x3: homographies too.
         chain = registration.to_reference_homography
         transforms = [
-            None if k == registration.reference or np.allclose(
-                chain[k], np.eye(3), atol=1e-9)
+            None
+            if k == registration.reference or np.allclose(chain[k], np.eye(3), atol=1e-9)
             else invert(chain[k])
             for k in range(n)
         ]
@@ -1335,20 +1566,27 @@ def _merge_frames(ctx: _Context, p: PipelineParams, lut: np.ndarray | None,
         for k in range(n):
             gone = excluded[0][k]
             if registration is not None and transforms is not None and transforms[k] is not None:
-                moved = warp_to_reference(gone.astype(np.float32),
-                                          registration.to_reference_homography[k],
-                                          fill=0.0).image
+                moved = warp_to_reference(
+                    gone.astype(np.float32), registration.to_reference_homography[k], fill=0.0
+                ).image
                 masks.append(~(moved > 0.01))
             else:
                 masks.append(~gone)
     noise = _noise_model(b, ctx.noise())
     colour, colour_info = _colour(ctx, p)
     result = merge(
-        levels, times, response=lut, max_level=b.max_level, masks=masks,
-        saturation_level=_level(p.saturation), noise_floor=_level(p.noise_floor),
-        weighting="noise-aware" if lut is None else "hat", noise=noise,
+        levels,
+        times,
+        response=lut,
+        max_level=b.max_level,
+        masks=masks,
+        saturation_level=_level(p.saturation),
+        noise_floor=_level(p.noise_floor),
+        weighting="noise-aware" if lut is None else "hat",
+        noise=noise,
         transforms=transforms,
-        fields=None if registration is None or registration.local is None
+        fields=None
+        if registration is None or registration.local is None
         else list(registration.local.fields),
         # A recovered response and 8-bit (often JPEG or scanned) data agree between frames
         # only to a few per cent; RAW data to the noise.
@@ -1361,14 +1599,19 @@ def _merge_frames(ctx: _Context, p: PipelineParams, lut: np.ndarray | None,
         # Non-linear input: the merge's colour checked against the frames and (sRGB
         # working space) anchored to them; local tone mapping tested (issue 15).
         checked = check_colour(
-            levels, result.radiance, lut, max_level=b.max_level,
+            levels,
+            result.radiance,
+            lut,
+            max_level=b.max_level,
             reference=0 if registration is None else registration.reference,
-            saturation=_level(p.saturation), noise_floor=_level(p.noise_floor),
-            to_reference=None if registration is None
-            else registration.to_reference_homography,
+            saturation=_level(p.saturation),
+            noise_floor=_level(p.noise_floor),
+            to_reference=None if registration is None else registration.to_reference_homography,
             masks=None if excluded is None else [~e for e in excluded[0]],
             anchor=bool(p.colour_anchor) and colour is None,
-            exposure_times=times, shares=result.shares)
+            exposure_times=times,
+            shares=result.shares,
+        )
         colour_info["check"] = checked.to_json()
     return result, result.radiance, colour_info
 
@@ -1379,12 +1622,11 @@ def _colour(ctx: _Context, p: PipelineParams) -> tuple[ColourConversion | None, 
     b = ctx.bracket
     info: dict[str, Any] = {"working_space": p.working_space}
     f0 = b.frames[0].meta
-    if b.is_linear and f0.rgb_xyz_matrix is not None and np.any(
-        np.asarray(f0.rgb_xyz_matrix) != 0
-    ):
+    if b.is_linear and f0.rgb_xyz_matrix is not None and np.any(np.asarray(f0.rgb_xyz_matrix) != 0):
         info["conversion"] = "camera matrix (rawpy rgb_xyz_matrix) and as-shot WB"
-        return colour_conversion(np.asarray(f0.rgb_xyz_matrix), f0.camera_whitebalance,
-                                 p.working_space), info
+        return colour_conversion(
+            np.asarray(f0.rgb_xyz_matrix), f0.camera_whitebalance, p.working_space
+        ), info
     if b.is_linear:
         info["conversion"] = (
             "no camera matrix in the file: camera RGB taken as linear sRGB primaries, "
@@ -1397,25 +1639,39 @@ def _colour(ctx: _Context, p: PipelineParams) -> tuple[ColourConversion | None, 
     return None, info
 
 
-def _preview(ctx: _Context, p: PipelineParams, radiance: np.ndarray, fusion: bool = False,
-             registration: BracketRegistration | None = None):
+def _preview(
+    ctx: _Context,
+    p: PipelineParams,
+    radiance: np.ndarray,
+    fusion: bool = False,
+    registration: BracketRegistration | None = None,
+):
     factor = downsample_factor(radiance.shape[:2], p.preview_max_side)
     if fusion:
         # Locally tone-mapped frames: no radiance map is right, so the preview is their
         # exposure fusion (Mertens et al. 2007), the frames' own colours and contrast.
         t0 = time.perf_counter()
         image = exposure_fusion(
-            [f.levels for f in ctx.bracket.frames], max_level=ctx.bracket.max_level,
-            to_reference=None if registration is None
-            else registration.to_reference_homography,
-            factor=factor)
+            [f.levels for f in ctx.bracket.frames],
+            max_level=ctx.bracket.max_level,
+            to_reference=None if registration is None else registration.to_reference_homography,
+            factor=factor,
+        )
         return TonemapResult(
-            image=image, method="exposure-fusion", exposure=0.0, key=0.0,
-            auto_exposure=False, log_average=float("nan"), scale=1.0, white=None,
-            timings={"total": time.perf_counter() - t0}), factor
+            image=image,
+            method="exposure-fusion",
+            exposure=0.0,
+            key=0.0,
+            auto_exposure=False,
+            log_average=float("nan"),
+            scale=1.0,
+            white=None,
+            timings={"total": time.perf_counter() - t0},
+        ), factor
     small = downsample_area(radiance, factor) if factor > 1 else radiance
-    return tonemap(small, p.tonemap, exposure=p.tonemap_exposure,
-                   pixel_size=factor * ctx.pixel_size), factor
+    return tonemap(
+        small, p.tonemap, exposure=p.tonemap_exposure, pixel_size=factor * ctx.pixel_size
+    ), factor
 
 
 def _sub_bracket(b: Bracket, keep: tuple[int, ...]) -> Bracket:
@@ -1429,9 +1685,12 @@ def _sub_bracket(b: Bracket, keep: tuple[int, ...]) -> Bracket:
         for w in b.warnings
         if not (w.code in about_frame and any(k not in new_index for k in w.frames))
     )
-    return Bracket(frames=tuple(b.frames[k] for k in keep), warnings=warnings,
-                   order_source=b.order_source,
-                   input_order=tuple(b.input_order[k] for k in keep))
+    return Bracket(
+        frames=tuple(b.frames[k] for k in keep),
+        warnings=warnings,
+        order_source=b.order_source,
+        input_order=tuple(b.input_order[k] for k in keep),
+    )
 
 
 def colour_masks(levels: list[np.ndarray], colour) -> list[np.ndarray]:
@@ -1452,19 +1711,23 @@ def _noise_model(bracket: Bracket, noise: BracketNoise) -> NoiseModel:
     return NoiseModel(read_noise=0.0, full_well=None, level_noise=max(sigma, 1.0))
 
 
-def _with_response_error(res: BracketExposureResult,
-                         per_stop: float) -> BracketExposureResult:
+def _with_response_error(res: BracketExposureResult, per_stop: float) -> BracketExposureResult:
     """``res`` with every pair's model-error floor raised to ``per_stop`` per stop (the
     response was recovered from a moved bracket), the pairs judged again and the chain solved
     again with their new weights."""
+
     def one(q: ExposureRatioResult) -> ExposureRatioResult:
         return judge(replace(q, response_error_per_stop=per_stop))
 
     tail = "; ratios from the registered pixels of each pair"
     return assemble_bracket(
-        len(res.relative_exposures), [one(q) for q in res.pairs],
-        [one(q) for q in res.extra_pairs], method=res.method, max_level=res.max_level,
-        exposure_times=res.exif_times, message_suffix=tail if res.message.endswith(tail) else "",
+        len(res.relative_exposures),
+        [one(q) for q in res.pairs],
+        [one(q) for q in res.extra_pairs],
+        method=res.method,
+        max_level=res.max_level,
+        exposure_times=res.exif_times,
+        message_suffix=tail if res.message.endswith(tail) else "",
     )
 
 
@@ -1498,17 +1761,24 @@ def _affine_near(h: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     s = m[2, 0] * cx + m[2, 1] * cy + 1.0
     u = (m[0, 0] * cx + m[0, 1] * cy + m[0, 2]) / s
     v = (m[1, 0] * cx + m[1, 1] * cy + m[1, 2]) / s
-    jac = np.array([[(m[0, 0] - u * m[2, 0]) / s, (m[0, 1] - u * m[2, 1]) / s],
-                    [(m[1, 0] - v * m[2, 0]) / s, (m[1, 1] - v * m[2, 1]) / s]])
+    jac = np.array(
+        [
+            [(m[0, 0] - u * m[2, 0]) / s, (m[0, 1] - u * m[2, 1]) / s],
+            [(m[1, 0] - v * m[2, 0]) / s, (m[1, 1] - v * m[2, 1]) / s],
+        ]
+    )
     t = np.array([u, v]) - jac @ np.array([cx, cy])
     return np.hstack([jac, t[:, None]])
 
 
-def _moved(registration: BracketRegistration, shift_px: float = 0.5,
-           angle_deg: float = 0.05) -> bool:
+def _moved(
+    registration: BracketRegistration, shift_px: float = 0.5, angle_deg: float = 0.05
+) -> bool:
     """Whether any registered pair moved more than ``shift_px`` or turned ``angle_deg``."""
-    return any(q.usable and (math.hypot(q.dx, q.dy) > shift_px
-                             or abs(q.angle_deg) > angle_deg) for q in registration.pairs)
+    return any(
+        q.usable and (math.hypot(q.dx, q.dy) > shift_px or abs(q.angle_deg) > angle_deg)
+        for q in registration.pairs
+    )
 
 
 # -- the stage graph ---------------------------------------------------------------------------
@@ -1527,9 +1797,13 @@ def _lut(ctx: _Context, response: ResponseCurve | None) -> np.ndarray | None:
 
 def _ratio_fit(ctx: _Context, p: PipelineParams, lut: np.ndarray | None) -> dict[str, Any]:
     """The keyword arguments of the histogram ratio fit (whole frames or overlap fields)."""
-    fit: dict[str, Any] = dict(method=p.exposure_method,
-                               exposure_times=ctx.bracket.exif_exposures(),
-                               saturation=p.saturation, noise_floor=p.noise_floor, lut=lut)
+    fit: dict[str, Any] = dict(
+        method=p.exposure_method,
+        exposure_times=ctx.bracket.exif_exposures(),
+        saturation=p.saturation,
+        noise_floor=p.noise_floor,
+        lut=lut,
+    )
     if p.exposure_method == DEFAULT_EXPOSURE_METHOD:
         # The measured noise drives the ratio fit too (noise matching of the refined
         # estimator): the seed's protocol, 4 scenes x 3 seeds, tripod, histograms: median
@@ -1546,8 +1820,11 @@ def _stage_exclusions(ctx: _Context, p: Any, up: Inputs) -> Any:
 
 def _stage_histograms(ctx: _Context, p: Any, up: Inputs) -> BracketHistograms:
     excluded = up.exclusions
-    return bracket_histograms([f.levels for f in ctx.bracket.frames], ctx.bracket.max_level,
-                              mask=None if excluded is None else ~excluded[1])
+    return bracket_histograms(
+        [f.levels for f in ctx.bracket.frames],
+        ctx.bracket.max_level,
+        mask=None if excluded is None else ~excluded[1],
+    )
 
 
 def _response_fields(ctx: _Context) -> tuple[str, ...]:
@@ -1561,8 +1838,9 @@ def _stage_response(ctx: _Context, p: Any, up: Inputs) -> ResponseCurve | None:
 
 
 def _stage_ratios(ctx: _Context, p: Any, up: Inputs) -> BracketExposureResult:
-    return bracket_exposures_from_histograms(up.histograms,
-                                             **_ratio_fit(ctx, p, _lut(ctx, up.response)))
+    return bracket_exposures_from_histograms(
+        up.histograms, **_ratio_fit(ctx, p, _lut(ctx, up.response))
+    )
 
 
 def _stage_times_histogram(ctx: _Context, p: Any, up: Inputs) -> tuple[tuple[float, ...], str]:
@@ -1587,13 +1865,16 @@ def _stage_response_registered(ctx: _Context, p: Any, up: Inputs) -> ResponseCur
     return _response_registered(ctx, p, up.registration, up.histograms, up.exclusions)
 
 
-def _stage_response_used(ctx: _Context, p: Any,
-                         up: Inputs) -> tuple[ResponseCurve | None, bool]:
+def _stage_response_used(ctx: _Context, p: Any, up: Inputs) -> tuple[ResponseCurve | None, bool]:
     """The response the stages after registration use, and whether it is the one recovered
     again from the registered frames (a recovered response of a moved bracket)."""
     response, registration = up.response, up.registration
-    if (registration is not None and response is not None and _recovered(p.response)
-            and _moved(registration)):
+    if (
+        registration is not None
+        and response is not None
+        and _recovered(p.response)
+        and _moved(registration)
+    ):
         return up.response_registered, True
     return response, False
 
@@ -1601,16 +1882,20 @@ def _stage_response_used(ctx: _Context, p: Any,
 def _overlap_matrices(registration: BracketRegistration) -> tuple[np.ndarray, ...]:
     # The common field of view: a homography's affine part is within a few pixels of it at the
     # borders, which is all the overlap fields need.
-    return tuple(np.asarray(q.matrix if q.matrix is not None
-                            else _affine_near(_pair_motion(q), q.shape))
-                 for q in registration.pairs)
+    return tuple(
+        np.asarray(q.matrix if q.matrix is not None else _affine_near(_pair_motion(q), q.shape))
+        for q in registration.pairs
+    )
 
 
 def _stage_overlap_histograms(ctx: _Context, p: Any, up: Inputs) -> BracketHistograms:
     excluded = up.exclusions
-    return bracket_histograms([f.levels for f in ctx.bracket.frames], ctx.bracket.max_level,
-                              pair_matrices=_overlap_matrices(up.registration),
-                              mask=None if excluded is None else ~excluded[1])
+    return bracket_histograms(
+        [f.levels for f in ctx.bracket.frames],
+        ctx.bracket.max_level,
+        pair_matrices=_overlap_matrices(up.registration),
+        mask=None if excluded is None else ~excluded[1],
+    )
 
 
 def _stage_overlap_ratios(ctx: _Context, p: Any, up: Inputs) -> BracketExposureResult:
@@ -1623,8 +1908,9 @@ def _stage_overlap_ratios(ctx: _Context, p: Any, up: Inputs) -> BracketExposureR
     if p.refine_ratios == "pixels":
         measured = _pixel_ratios(ctx, p, lut, up.registration, up.ratios, up.exclusions)
     else:
-        measured = bracket_exposures_from_histograms(up.overlap_histograms,
-                                                     **_ratio_fit(ctx, p, lut))
+        measured = bracket_exposures_from_histograms(
+            up.overlap_histograms, **_ratio_fit(ctx, p, lut)
+        )
     # A response recovered from a moved bracket carries a model error of its own.
     return _with_response_error(measured, MOVED_RESPONSE_ERROR_PER_STOP) if moved else measured
 
@@ -1644,8 +1930,9 @@ def _stage_merge_times(ctx: _Context, p: Any, up: Inputs) -> tuple[tuple[float, 
 def _stage_merge(ctx: _Context, p: Any, up: Inputs, reuse: Any = None) -> tuple:
     response, _ = up.response_used
     times, _ = up.merge_times
-    return _merge_frames(ctx, p, _lut(ctx, response), times, up.registration, up.exclusions,
-                         reuse=reuse)
+    return _merge_frames(
+        ctx, p, _lut(ctx, response), times, up.registration, up.exclusions, reuse=reuse
+    )
 
 
 def _stage_preview(ctx: _Context, p: Any, up: Inputs) -> tuple[TonemapResult, int]:
@@ -1659,44 +1946,108 @@ _SAT_NF = ("saturation", "noise_floor")
 #: The pipeline's stages: what each reads, in one place. The reported ones are :data:`STAGES`;
 #: the internal ones are steps between them (the merge's times, the response the later stages
 #: use) whose values the keys of later stages depend on.
-GRAPH = StageGraph([
-    Stage("exclusions", _stage_exclusions, ("exclude_colour",), internal=True),
-    Stage("histograms", _stage_histograms, (), ("exclusions",)),
-    Stage("response", _stage_response, _response_fields, ("histograms", "exclusions")),
-    Stage("ratios", _stage_ratios, (*_SAT_NF, "exposure_method", "noise_sigma"),
-          ("histograms", "response")),
-    Stage("times_histogram", _stage_times_histogram, ("times", "ratio_fallback_stops"),
-          ("ratios",), by_value=True, internal=True),
-    Stage("registration_ratios", _stage_registration_ratios, ("times",),
-          ("ratios", "times_histogram"), by_value=True, internal=True),
-    Stage("registration", _stage_registration,
-          (*_SAT_NF, "threshold", "align", "reference", "registration_method",
-           "registration_previews", "registration_max_pixels", "local"),
-          ("response", "registration_ratios")),
-    Stage("response_registered", _stage_response_registered, _response_fields,
-          ("registration", "histograms", "exclusions")),
-    Stage("response_used", _stage_response_used, ("response",), ("response", "registration"),
-          lazy=("response_registered",), internal=True),
-    Stage("overlap_histograms", _stage_overlap_histograms, (), ("registration", "exclusions")),
-    Stage("overlap_ratios", _stage_overlap_ratios,
-          ("refine_ratios", *_SAT_NF, "exposure_method", "noise_sigma"),
-          ("registration", "response_used", "ratios", "exclusions"),
-          lazy=("overlap_histograms",)),
-    Stage("exposures", _stage_exposures, ("refine_ratios",), ("ratios", "registration"),
-          lazy=("overlap_ratios",), internal=True),
-    Stage("merge_times", _stage_merge_times, ("times", "ratio_fallback_stops"), ("exposures",),
-          by_value=True, internal=True),
-    Stage("merge", _stage_merge, (*_SAT_NF, "working_space", "deghost", "colour_anchor"),
-          ("response_used", "registration", "merge_times", "exclusions")),
-    Stage("preview", _stage_preview, ("tonemap", "tonemap_exposure", "preview_max_side"),
-          ("merge", "registration")),
-], param_fields=[f.name for f in dataclass_fields(PipelineParams)])
+GRAPH = StageGraph(
+    [
+        Stage("exclusions", _stage_exclusions, ("exclude_colour",), internal=True),
+        Stage("histograms", _stage_histograms, (), ("exclusions",)),
+        Stage("response", _stage_response, _response_fields, ("histograms", "exclusions")),
+        Stage(
+            "ratios",
+            _stage_ratios,
+            (*_SAT_NF, "exposure_method", "noise_sigma"),
+            ("histograms", "response"),
+        ),
+        Stage(
+            "times_histogram",
+            _stage_times_histogram,
+            ("times", "ratio_fallback_stops"),
+            ("ratios",),
+            by_value=True,
+            internal=True,
+        ),
+        Stage(
+            "registration_ratios",
+            _stage_registration_ratios,
+            ("times",),
+            ("ratios", "times_histogram"),
+            by_value=True,
+            internal=True,
+        ),
+        Stage(
+            "registration",
+            _stage_registration,
+            (
+                *_SAT_NF,
+                "threshold",
+                "align",
+                "reference",
+                "registration_method",
+                "registration_previews",
+                "registration_max_pixels",
+                "local",
+            ),
+            ("response", "registration_ratios"),
+        ),
+        Stage(
+            "response_registered",
+            _stage_response_registered,
+            _response_fields,
+            ("registration", "histograms", "exclusions"),
+        ),
+        Stage(
+            "response_used",
+            _stage_response_used,
+            ("response",),
+            ("response", "registration"),
+            lazy=("response_registered",),
+            internal=True,
+        ),
+        Stage("overlap_histograms", _stage_overlap_histograms, (), ("registration", "exclusions")),
+        Stage(
+            "overlap_ratios",
+            _stage_overlap_ratios,
+            ("refine_ratios", *_SAT_NF, "exposure_method", "noise_sigma"),
+            ("registration", "response_used", "ratios", "exclusions"),
+            lazy=("overlap_histograms",),
+        ),
+        Stage(
+            "exposures",
+            _stage_exposures,
+            ("refine_ratios",),
+            ("ratios", "registration"),
+            lazy=("overlap_ratios",),
+            internal=True,
+        ),
+        Stage(
+            "merge_times",
+            _stage_merge_times,
+            ("times", "ratio_fallback_stops"),
+            ("exposures",),
+            by_value=True,
+            internal=True,
+        ),
+        Stage(
+            "merge",
+            _stage_merge,
+            (*_SAT_NF, "working_space", "deghost", "colour_anchor"),
+            ("response_used", "registration", "merge_times", "exclusions"),
+        ),
+        Stage(
+            "preview",
+            _stage_preview,
+            ("tonemap", "tonemap_exposure", "preview_max_side"),
+            ("merge", "registration"),
+        ),
+    ],
+    param_fields=[f.name for f in dataclass_fields(PipelineParams)],
+)
 
 if set(STAGES) != {name for name, st in GRAPH.stages.items() if not st.internal}:
     raise RuntimeError("STAGES must list the graph's reported stages")
 
 
-def run_pipeline(bracket: Bracket, params: PipelineParams | None = None,
-                 progress: ProgressCallback | None = None) -> PipelineResult:
+def run_pipeline(
+    bracket: Bracket, params: PipelineParams | None = None, progress: ProgressCallback | None = None
+) -> PipelineResult:
     """One-shot convenience: ``Pipeline(bracket, params, progress=progress).run()``."""
     return Pipeline(bracket, params, progress=progress).run()

@@ -74,8 +74,9 @@ def downsample_area(image: np.ndarray, factor: int, workers: int | None = None) 
     h, w = img.shape[:2]
     hh, ww = h // f, w // f
     if hh == 0 or ww == 0:
-        raise ParameterError("image smaller than the downsampling factor",
-                             found=f"{h}x{w} for factor {f}")
+        raise ParameterError(
+            "image smaller than the downsampling factor", found=f"{h}x{w} for factor {f}"
+        )
     if AVAILABLE and img.dtype in (np.float32, np.float64):
         src = img if img.ndim == 3 else img[..., None]
         out = np.empty((hh, ww, src.shape[2]), np.float32)
@@ -112,8 +113,9 @@ def bin_channel(image: np.ndarray, channel: int, factor: int) -> np.ndarray:
     h, w = plane.shape
     hh, ww = h // f, w // f
     if hh == 0 or ww == 0:
-        raise ParameterError("image smaller than the binning factor",
-                             found=f"{h}x{w} for factor {f}")
+        raise ParameterError(
+            "image smaller than the binning factor", found=f"{h}x{w} for factor {f}"
+        )
     plane = plane[: hh * f, : ww * f]
     rows = plane[0::f].astype(np.float32)
     for i in range(1, f):

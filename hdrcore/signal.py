@@ -53,14 +53,20 @@ class FrameSignal:
     def reason(self) -> str:
         """What the status means, in words."""
         if self.status == "black":
-            return (f"black: {self.black_fraction:.1%} of its pixels are at or below the noise "
-                    f"floor and only {self.signal_fraction:.3%} carry signal")
+            return (
+                f"black: {self.black_fraction:.1%} of its pixels are at or below the noise "
+                f"floor and only {self.signal_fraction:.3%} carry signal"
+            )
         if self.status == "unlinked":
-            return ("not linked to the other frames: no exposure ratio to them could be "
-                    "measured (no brightness overlap) and the files carry no exposure times")
+            return (
+                "not linked to the other frames: no exposure ratio to them could be "
+                "measured (no brightness overlap) and the files carry no exposure times"
+            )
         if self.status == "saturated":
-            return (f"saturated: {self.saturated_fraction:.1%} of its pixels are at or above the "
-                    f"saturation level and only {self.signal_fraction:.3%} carry signal")
+            return (
+                f"saturated: {self.saturated_fraction:.1%} of its pixels are at or above the "
+                f"saturation level and only {self.signal_fraction:.3%} carry signal"
+            )
         return f"{self.signal_fraction:.1%} of its pixels carry signal"
 
     def to_json(self) -> dict[str, Any]:
@@ -75,8 +81,15 @@ class FrameSignal:
         }
 
 
-def frame_signal(counts: np.ndarray, *, noise_floor: float, saturation: float, index: int = 0,
-                 path: str = "", min_fraction: float = MIN_SIGNAL_FRACTION) -> FrameSignal:
+def frame_signal(
+    counts: np.ndarray,
+    *,
+    noise_floor: float,
+    saturation: float,
+    index: int = 0,
+    path: str = "",
+    min_fraction: float = MIN_SIGNAL_FRACTION,
+) -> FrameSignal:
     """Classify one frame from its ``(C, L)`` histograms (see the module docstring)."""
     h = np.asarray(counts, np.float64)
     if h.ndim == 1:
@@ -87,7 +100,7 @@ def frame_signal(counts: np.ndarray, *, noise_floor: float, saturation: float, i
     lo_signal = min(n, int(np.floor(2.0 * noise_floor)) + 1)
     lo_black = min(n, int(np.floor(noise_floor)) + 1)
     hi = max(0, min(n, int(np.ceil(saturation))))
-    signal = float(np.mean(h[:, lo_signal:max(lo_signal, hi)].sum(axis=-1) / total))
+    signal = float(np.mean(h[:, lo_signal : max(lo_signal, hi)].sum(axis=-1) / total))
     black = float(np.mean(h[:, :lo_black].sum(axis=-1) / total))
     saturated = float(np.mean(h[:, hi:].sum(axis=-1) / total))
     status: SignalStatus
@@ -95,5 +108,11 @@ def frame_signal(counts: np.ndarray, *, noise_floor: float, saturation: float, i
         status = "ok"
     else:
         status = "saturated" if saturated > black else "black"
-    return FrameSignal(index=int(index), path=str(path), status=status, signal_fraction=signal,
-                       black_fraction=black, saturated_fraction=saturated)
+    return FrameSignal(
+        index=int(index),
+        path=str(path),
+        status=status,
+        signal_fraction=signal,
+        black_fraction=black,
+        saturated_fraction=saturated,
+    )

@@ -76,19 +76,25 @@ def token(value: Any) -> Any:
     if isinstance(value, (tuple, list)):
         return ("seq", tuple(token(v) for v in value))
     if isinstance(value, dict):
-        return ("map", tuple(sorted(((repr(k), token(v)) for k, v in value.items()),
-                                    key=lambda kv: kv[0])))
+        return (
+            "map",
+            tuple(sorted(((repr(k), token(v)) for k, v in value.items()), key=lambda kv: kv[0])),
+        )
     if isinstance(value, (set, frozenset)):
         return ("set", tuple(sorted(repr(token(v)) for v in value)))
     if isinstance(value, np.ndarray):
         a = np.ascontiguousarray(value)
-        digest = hashlib.blake2b(a.view(np.uint8).reshape(-1).data if a.size else b"",
-                                 digest_size=20).hexdigest()
+        digest = hashlib.blake2b(
+            a.view(np.uint8).reshape(-1).data if a.size else b"", digest_size=20
+        ).hexdigest()
         return ("array", a.dtype.str, a.shape, digest)
     if dataclasses.is_dataclass(value) and not isinstance(value, type):
-        return ("dataclass", type(value).__module__, type(value).__qualname__,
-                tuple((f.name, token(getattr(value, f.name)))
-                      for f in dataclasses.fields(value)))
+        return (
+            "dataclass",
+            type(value).__module__,
+            type(value).__qualname__,
+            tuple((f.name, token(getattr(value, f.name))) for f in dataclasses.fields(value)),
+        )
     try:
         data = pickle.dumps(value, protocol=5)
     except Exception as exc:  # no content to key on: never fall back on id()
@@ -114,7 +120,8 @@ class ParamsView:
             raise UndeclaredDependency(
                 f"stage {self._stage!r} read the parameter {name!r}, which it does not declare "
                 f"(it declares {', '.join(sorted(self._fields)) or 'none'}): add it to the "
-                "stage's params")
+                "stage's params"
+            )
         return getattr(self._params, name)
 
     def __setattr__(self, name: str, value: Any) -> None:
@@ -232,8 +239,7 @@ class Inputs:
 
     __slots__ = ("_eager", "_lazy", "_run", "_stage")
 
-    def __init__(self, stage: str, eager: dict[str, Any], lazy: tuple[str, ...],
-                 run: _Run) -> None:
+    def __init__(self, stage: str, eager: dict[str, Any], lazy: tuple[str, ...], run: _Run) -> None:
         self._stage, self._eager, self._lazy, self._run = stage, eager, lazy, run
 
     def __getitem__(self, name: str) -> Any:
@@ -243,7 +249,8 @@ class Inputs:
             return self._run.get(name)
         raise UndeclaredDependency(
             f"stage {self._stage!r} read the stage {name!r}, which it does not declare: add it "
-            "to the stage's inputs (or lazy inputs)")
+            "to the stage's inputs (or lazy inputs)"
+        )
 
     def __getattr__(self, name: str) -> Any:
         if name.startswith("__"):
@@ -257,17 +264,23 @@ class StageCache:
     life (the bracket). ``on_start(name)`` / ``on_done(name, seconds)`` are called around the
     computation of a reported (not internal) stage."""
 
-    def __init__(self, graph: StageGraph, context: Any, *,
-                 on_start: Callable[[str], None] | None = None,
-                 on_done: Callable[[str, float], None] | None = None) -> None:
+    def __init__(
+        self,
+        graph: StageGraph,
+        context: Any,
+        *,
+        on_start: Callable[[str], None] | None = None,
+        on_done: Callable[[str, float], None] | None = None,
+    ) -> None:
         self.graph = graph
         self.context = context
         self.entries: dict[str, Entry] = {}
         self.on_start = on_start
         self.on_done = on_done
 
-    def run(self, params: Any, ran: list[str] | None = None,
-            timings: dict[str, float] | None = None) -> _Run:
+    def run(
+        self, params: Any, ran: list[str] | None = None, timings: dict[str, float] | None = None
+    ) -> _Run:
         """A run with ``params``: ``get(name)`` returns a stage's value (from the cache when its
         key is unchanged), appending the reported stages computed to ``ran`` and every reported
         stage's seconds to ``timings`` (0 for a cached one)."""
@@ -281,8 +294,9 @@ class StageCache:
 
 
 class _Run:
-    def __init__(self, cache: StageCache, params: Any, ran: list[str],
-                 timings: dict[str, float]) -> None:
+    def __init__(
+        self, cache: StageCache, params: Any, ran: list[str], timings: dict[str, float]
+    ) -> None:
         self.cache, self.params, self.ran, self.timings = cache, params, ran, timings
         self._keys: dict[str, Any] = {}
         self._values: dict[str, Any] = {}  # the stages this run has resolved

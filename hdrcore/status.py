@@ -49,8 +49,16 @@ Severity = Literal["error", "warning", "info"]
 SEVERITIES: tuple[Severity, ...] = get_args(Severity)
 
 RatioStatus = Literal[
-    "ok", "uncertain", "unstable", "channels-disagree", "few-equations", "failed",
-    "no-overlap", "no-signal", "unregistered", "inconsistent",
+    "ok",
+    "uncertain",
+    "unstable",
+    "channels-disagree",
+    "few-equations",
+    "failed",
+    "no-overlap",
+    "no-signal",
+    "unregistered",
+    "inconsistent",
 ]
 RATIO_STATUSES: tuple[RatioStatus, ...] = get_args(RatioStatus)
 
@@ -67,6 +75,7 @@ BATCH_STATUSES: tuple[BatchStatus, ...] = get_args(BatchStatus)
 def is_batch_status(value: object) -> TypeGuard[BatchStatus]:
     """``value`` is one of :data:`BATCH_STATUSES` (a record read back from a file)."""
     return value in BATCH_STATUSES
+
 
 ResponseStatus = Literal["ok", "warning", "fallback"]
 RESPONSE_STATUSES: tuple[ResponseStatus, ...] = get_args(ResponseStatus)

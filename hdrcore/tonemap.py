@@ -95,8 +95,12 @@ def _colour_constants() -> tuple[np.ndarray, np.ndarray]:
         try:
             with np.load(path) as z:
                 y, lut = z["luminance"], z["srgb"]
-            if y.shape == (3,) and y.dtype == np.float32 and lut.shape == (_LUT_SIZE,) \
-                    and lut.dtype == np.uint8:
+            if (
+                y.shape == (3,)
+                and y.dtype == np.float32
+                and lut.shape == (_LUT_SIZE,)
+                and lut.dtype == np.uint8
+            ):
                 return y, lut
         except (OSError, KeyError, ValueError):
             pass
@@ -298,8 +302,18 @@ def _tonemap_numba(
     lut = _srgb_lut()
 
     def work(r0: int, r1: int) -> None:
-        _tonemap_rows(src, np.float32(scale), _OPERATOR_CODES[method], white is not None,
-                      w2, y, lut, dst, r0, r1)
+        _tonemap_rows(
+            src,
+            np.float32(scale),
+            _OPERATOR_CODES[method],
+            white is not None,
+            w2,
+            y,
+            lut,
+            dst,
+            r0,
+            r1,
+        )
 
     run_row_spans(h, workers, work)
     return dst
@@ -395,10 +409,12 @@ def tonemap(
         raise ParameterError("key must be positive", found=str(key))
     if white is not None and (not np.isfinite(white) or white <= 0):
         raise ParameterError("white must be positive or None", found=str(white))
-    if engine is not None and (engine not in ("numba", "numpy")
-                               or (engine == "numba" and numba is None)):
-        raise ParameterError("tonemap engine must be 'numba' (installed) or 'numpy'",
-                             found=str(engine))
+    if engine is not None and (
+        engine not in ("numba", "numpy") or (engine == "numba" and numba is None)
+    ):
+        raise ParameterError(
+            "tonemap engine must be 'numba' (installed) or 'numpy'", found=str(engine)
+        )
     if not np.isfinite(pixel_size) or pixel_size <= 0:
         raise ParameterError("pixel_size must be positive", found=str(pixel_size))
 
@@ -414,9 +430,11 @@ def tonemap(
 
             dr = dynamic_range_stops(rad, _luminance_weights())
             key_m = AUTO_LOCAL if dr > AUTO_LOCAL_STOPS else AUTO_GLOBAL
-            reason = (f"the scene spans {dr:.1f} stops (1st-99th percentile of luminance), "
-                      f"{'more' if key_m == AUTO_LOCAL else 'not more'} than "
-                      f"{AUTO_LOCAL_STOPS:g}: {key_m}")
+            reason = (
+                f"the scene spans {dr:.1f} stops (1st-99th percentile of luminance), "
+                f"{'more' if key_m == AUTO_LOCAL else 'not more'} than "
+                f"{AUTO_LOCAL_STOPS:g}: {key_m}"
+            )
     t1 = time.perf_counter()
     h, w, c = rad.shape
     if key_m in LOCAL_OPERATORS:
@@ -428,20 +446,43 @@ def tonemap(
         if engine == "numpy" or numba is None:
             x = np.multiply(rad, np.float32(scale), dtype=np.float32)
             np.nan_to_num(x, copy=False, nan=0.0, posinf=0.0, neginf=0.0)
-            y, st = local(x, _luminance_weights(), state=state, offset=offset,
-                          pixel_size=pixel_size, params=local_params, engine="numpy")
+            y, st = local(
+                x,
+                _luminance_weights(),
+                state=state,
+                offset=offset,
+                pixel_size=pixel_size,
+                params=local_params,
+                engine="numpy",
+            )
             image = srgb_encode_8bit(y)
         else:
-            image, st = render_durand_8bit(rad, _luminance_weights(), _srgb_lut(), scale=scale,
-                                           state=state, offset=offset, pixel_size=pixel_size,
-                                           params=local_params, workers=workers)
+            image, st = render_durand_8bit(
+                rad,
+                _luminance_weights(),
+                _srgb_lut(),
+                scale=scale,
+                state=state,
+                offset=offset,
+                pixel_size=pixel_size,
+                params=local_params,
+                workers=workers,
+            )
         t2 = time.perf_counter()
         return TonemapResult(
-            image=image, method=key_m, exposure=float(exposure), key=float(key),
-            auto_exposure=bool(auto_exposure), log_average=float(log_avg), scale=scale,
+            image=image,
+            method=key_m,
+            exposure=float(exposure),
+            key=float(key),
+            auto_exposure=bool(auto_exposure),
+            log_average=float(log_avg),
+            scale=scale,
             white=None if white is None else float(white),
             timings={"statistics": t1 - t0, "map": t2 - t1, "total": t2 - t0},
-            requested=requested, dynamic_range=dr, reason=reason, state=st,
+            requested=requested,
+            dynamic_range=dr,
+            reason=reason,
+            state=st,
         )
     if engine is None:
         engine = "numba" if numba is not None and key_m in _OPERATOR_CODES else "numpy"
@@ -449,11 +490,18 @@ def tonemap(
         image = _tonemap_numba(rad, key_m, scale, white, workers)
         t2 = time.perf_counter()
         return TonemapResult(
-            image=image, method=key_m, exposure=float(exposure), key=float(key),
-            auto_exposure=bool(auto_exposure), log_average=float(log_avg), scale=scale,
+            image=image,
+            method=key_m,
+            exposure=float(exposure),
+            key=float(key),
+            auto_exposure=bool(auto_exposure),
+            log_average=float(log_avg),
+            scale=scale,
             white=None if white is None else float(white),
             timings={"statistics": t1 - t0, "map": t2 - t1, "total": t2 - t0},
-            requested=requested, dynamic_range=dr, reason=reason,
+            requested=requested,
+            dynamic_range=dr,
+            reason=reason,
         )
     flat = rad.reshape(h * w, c)
     out = np.empty((h * w, 3), np.uint8)
@@ -477,5 +525,7 @@ def tonemap(
         scale=scale,
         white=None if white is None else float(white),
         timings={"statistics": t1 - t0, "map": t2 - t1, "total": t2 - t0},
-        requested=requested, dynamic_range=dr, reason=reason,
+        requested=requested,
+        dynamic_range=dr,
+        reason=reason,
     )

@@ -80,8 +80,14 @@ class LocalToneParams:
     def __post_init__(self) -> None:
         if int(self.cells) < 2:
             raise ParameterError("cells must be >= 2", found=str(self.cells))
-        for name in ("range_sigma", "range_bin", "shadow_stops", "highlight_stops",
-                     "detail_gain", "saturation"):
+        for name in (
+            "range_sigma",
+            "range_bin",
+            "shadow_stops",
+            "highlight_stops",
+            "detail_gain",
+            "saturation",
+        ):
             v = float(getattr(self, name))
             if not np.isfinite(v) or v <= 0:
                 raise ParameterError(f"local tonemap {name} must be positive", found=str(v))
@@ -124,8 +130,14 @@ def _log_luminance(x: np.ndarray, weights: np.ndarray) -> np.ndarray:
     return np.log2(lum)
 
 
-def dynamic_range_stops(radiance: np.ndarray, weights: np.ndarray, *, low: float = 1.0,
-                        high: float = 99.0, max_samples: int = 1 << 20) -> float:
+def dynamic_range_stops(
+    radiance: np.ndarray,
+    weights: np.ndarray,
+    *,
+    low: float = 1.0,
+    high: float = 99.0,
+    max_samples: int = 1 << 20,
+) -> float:
     """Stops between the ``low`` and ``high`` percentiles of the luminance of the pixels with
     positive, finite values (a regular subsample of at most ``max_samples`` pixels)."""
     rad = np.asarray(radiance)
@@ -134,7 +146,7 @@ def dynamic_range_stops(radiance: np.ndarray, weights: np.ndarray, *, low: float
     sub = np.ascontiguousarray(rad[::step, ::step], dtype=np.float32)
     if sub.ndim == 2:
         sub = np.repeat(sub[..., None], 3, axis=-1)
-    lum = (sub[..., 0] * weights[0] + sub[..., 1] * weights[1] + sub[..., 2] * weights[2])
+    lum = sub[..., 0] * weights[0] + sub[..., 1] * weights[1] + sub[..., 2] * weights[2]
     lum = lum[np.isfinite(lum) & (lum > 0)]
     if lum.size < 2:
         return 0.0
@@ -224,8 +236,9 @@ def _slice_numpy(lg, y0, x0, inv_cell, l0, inv_bin, grid) -> np.ndarray:
 
 
 @_njit
-def _render_rows(rad, scale, wts, grid, y0, x0, inv_cell, l0, inv_bin, c, pivot, gain, sat,
-                 lut, dst, r0, r1):  # pragma: no cover - compiled
+def _render_rows(
+    rad, scale, wts, grid, y0, x0, inv_cell, l0, inv_bin, c, pivot, gain, sat, lut, dst, r0, r1
+):  # pragma: no cover - compiled
     """Rows ``r0:r1`` of the 8-bit sRGB rendering of ``rad * scale`` in one pass: luminance,
     its log, the base read from the grid, the compressed output, the colour ratios, the 16-bit
     sRGB table (the numpy reference is :func:`tonemap_durand` then ``srgb_encode_8bit``)."""
@@ -268,25 +281,49 @@ def _render_rows(rad, scale, wts, grid, y0, x0, inv_cell, l0, inv_bin, c, pivot,
                 dst[y, xx, ch] = lut[int(q * top + 0.5)]
 
 
-def _base(lg: np.ndarray, state_grid: np.ndarray, offset: tuple[float, float], cell: float,
-          l0: float, bin_: float, engine: str) -> np.ndarray:
+def _base(
+    lg: np.ndarray,
+    state_grid: np.ndarray,
+    offset: tuple[float, float],
+    cell: float,
+    l0: float,
+    bin_: float,
+    engine: str,
+) -> np.ndarray:
     inv_cell = 1.0 / cell
     inv_bin = 1.0 / bin_
     if engine == "numba" and AVAILABLE:
         out = np.empty(lg.shape, np.float32)
         from ._threads import run_row_spans
 
-        run_row_spans(lg.shape[0], None, lambda r0, r1: _slice(
-            lg, float(offset[0]), float(offset[1]), inv_cell, l0, inv_bin, state_grid, out,
-            r0, r1))
+        run_row_spans(
+            lg.shape[0],
+            None,
+            lambda r0, r1: _slice(
+                lg,
+                float(offset[0]),
+                float(offset[1]),
+                inv_cell,
+                l0,
+                inv_bin,
+                state_grid,
+                out,
+                r0,
+                r1,
+            ),
+        )
         return out
-    return _slice_numpy(lg, float(offset[0]), float(offset[1]), inv_cell, l0, inv_bin,
-                        state_grid)
+    return _slice_numpy(lg, float(offset[0]), float(offset[1]), inv_cell, l0, inv_bin, state_grid)
 
 
-def local_tone_state(rad: np.ndarray, weights: np.ndarray, *, scale: float = 1.0,
-                     pixel_size: float = 1.0, params: LocalToneParams | None = None
-                     ) -> LocalToneState:
+def local_tone_state(
+    rad: np.ndarray,
+    weights: np.ndarray,
+    *,
+    scale: float = 1.0,
+    pixel_size: float = 1.0,
+    params: LocalToneParams | None = None,
+) -> LocalToneState:
     """The bilateral grid of the log2 luminance of ``rad * scale`` (one image ``(H, W, 3)``,
     pixels of ``pixel_size`` full-resolution pixels) and the compression it calls for."""
     from scipy import ndimage
@@ -296,7 +333,7 @@ def local_tone_state(rad: np.ndarray, weights: np.ndarray, *, scale: float = 1.0
     cell_px = max(2.0, max(h, w) / float(p.cells))  # in the pixels of ``rad``
     cell = cell_px * float(pixel_size)
     step = max(1, int(np.sqrt(h * w / 2.0e5)))  # statistics on a regular subsample
-    sub = np.asarray(rad[step // 2::step, step // 2::step], np.float32) * np.float32(scale)
+    sub = np.asarray(rad[step // 2 :: step, step // 2 :: step], np.float32) * np.float32(scale)
     sub = np.where(np.isfinite(sub) & (sub > 0), sub, 0.0).astype(np.float32)
     lg_sub = _log_luminance(sub, weights)
     lo = float(np.percentile(lg_sub, 0.01))
@@ -309,8 +346,16 @@ def local_tone_state(rad: np.ndarray, weights: np.ndarray, *, scale: float = 1.0
     counts = np.zeros((nz, ny, nx))
     wts = np.asarray(weights, np.float64)
     if AVAILABLE:
-        _splat(np.ascontiguousarray(rad), float(scale), wts, 1.0 / cell_px, l0, 1.0 / bin_,
-               sums, counts)
+        _splat(
+            np.ascontiguousarray(rad),
+            float(scale),
+            wts,
+            1.0 / cell_px,
+            l0,
+            1.0 / bin_,
+            sums,
+            counts,
+        )
     else:  # pragma: no cover - exercised only without numba
         x = np.asarray(rad, np.float64) * scale
         x = np.where(np.isfinite(x) & (x > 0), x, 0.0)
@@ -339,23 +384,36 @@ def local_tone_state(rad: np.ndarray, weights: np.ndarray, *, scale: float = 1.0
         c = min(c, float(p.highlight_stops) / (b99 - _PIVOT))
     if b1 < _PIVOT:
         c = min(c, float(p.shadow_stops) / (_PIVOT - b1))
-    return LocalToneState(grid=np.ascontiguousarray(grid), cell=float(cell), l0=float(l0),
-                          bin=bin_, c=float(c), params=p, base_range=(b1, b99))
+    return LocalToneState(
+        grid=np.ascontiguousarray(grid),
+        cell=float(cell),
+        l0=float(l0),
+        bin=bin_,
+        c=float(c),
+        params=p,
+        base_range=(b1, b99),
+    )
 
 
-def render_durand_8bit(rad: np.ndarray, weights: np.ndarray, lut: np.ndarray, *,
-                       scale: float = 1.0, state: LocalToneState | None = None,
-                       offset: tuple[float, float] = (0.0, 0.0), pixel_size: float = 1.0,
-                       params: LocalToneParams | None = None, workers: int | None = None
-                       ) -> tuple[np.ndarray, LocalToneState]:
+def render_durand_8bit(
+    rad: np.ndarray,
+    weights: np.ndarray,
+    lut: np.ndarray,
+    *,
+    scale: float = 1.0,
+    state: LocalToneState | None = None,
+    offset: tuple[float, float] = (0.0, 0.0),
+    pixel_size: float = 1.0,
+    params: LocalToneParams | None = None,
+    workers: int | None = None,
+) -> tuple[np.ndarray, LocalToneState]:
     """8-bit sRGB codes (through the 16-bit table ``lut``) of :func:`tonemap_durand` of
     ``rad * scale`` in one compiled pass (numba required), and the state."""
     from ._threads import run_row_spans
 
     src = np.ascontiguousarray(rad)
     if state is None:
-        state = local_tone_state(src, weights, scale=scale, pixel_size=pixel_size,
-                                 params=params)
+        state = local_tone_state(src, weights, scale=scale, pixel_size=pixel_size, params=params)
         off = (0.0, 0.0)
     else:
         off = (offset[0] / float(pixel_size), offset[1] / float(pixel_size))
@@ -363,17 +421,42 @@ def render_durand_8bit(rad: np.ndarray, weights: np.ndarray, lut: np.ndarray, *,
     dst = np.empty(src.shape[:2] + (3,), np.uint8)
     wts = np.asarray(weights, np.float64)
     inv_cell = float(pixel_size) / state.cell
-    run_row_spans(src.shape[0], workers, lambda r0, r1: _render_rows(
-        src, float(scale), wts, state.grid, float(off[0]), float(off[1]), inv_cell, state.l0,
-        1.0 / state.bin, state.c, _PIVOT, float(p.detail_gain), float(p.saturation), lut, dst,
-        r0, r1))
+    run_row_spans(
+        src.shape[0],
+        workers,
+        lambda r0, r1: _render_rows(
+            src,
+            float(scale),
+            wts,
+            state.grid,
+            float(off[0]),
+            float(off[1]),
+            inv_cell,
+            state.l0,
+            1.0 / state.bin,
+            state.c,
+            _PIVOT,
+            float(p.detail_gain),
+            float(p.saturation),
+            lut,
+            dst,
+            r0,
+            r1,
+        ),
+    )
     return dst, state
 
 
-def tonemap_durand(x: np.ndarray, weights: np.ndarray, *, state: LocalToneState | None = None,
-                   offset: tuple[float, float] = (0.0, 0.0), pixel_size: float = 1.0,
-                   params: LocalToneParams | None = None, engine: str | None = None
-                   ) -> tuple[np.ndarray, LocalToneState]:
+def tonemap_durand(
+    x: np.ndarray,
+    weights: np.ndarray,
+    *,
+    state: LocalToneState | None = None,
+    offset: tuple[float, float] = (0.0, 0.0),
+    pixel_size: float = 1.0,
+    params: LocalToneParams | None = None,
+    engine: str | None = None,
+) -> tuple[np.ndarray, LocalToneState]:
     """Display-linear values in [0, 1] (float32 ``(H, W, 3)``) of exposed radiance ``x``
     (already scaled so middle grey is 0.18), and the state that rendered them.
 

@@ -140,8 +140,11 @@ class InspectorApp:
     def _open_default(self, view: ClientView) -> None:
         default = self.default_paths()
         if default is None:
-            view.notify("No demo bracket", f"the demo bracket is not installed at "
-                        f"{self.demo_dir}", level="warning")
+            view.notify(
+                "No demo bracket",
+                f"the demo bracket is not installed at {self.demo_dir}",
+                level="warning",
+            )
             return
         paths, label = default
         view.request_paths(paths, label)
@@ -170,8 +173,10 @@ class InspectorApp:
             inputs = self.resolver.bracket_inputs(paths)
         except HdrError:
             return  # the page will say why when it opens them
-        key = (tuple(str(p) for p in inputs.files),
-               None if inputs.times is None else str(inputs.times))
+        key = (
+            tuple(str(p) for p in inputs.files),
+            None if inputs.times is None else str(inputs.times),
+        )
         box: list = []
         t0 = time.perf_counter()
 
@@ -181,8 +186,9 @@ class InspectorApp:
                 return
             try:
                 _ = self.defaults
-                session.load(list(inputs.files), source=label, times=inputs.times,
-                             loader=self.brackets.get)
+                session.load(
+                    list(inputs.files), source=label, times=inputs.times, loader=self.brackets.get
+                )
                 from .session import Controls
 
                 session.run(Controls())
@@ -192,8 +198,11 @@ class InspectorApp:
                 log.debug("warm-up failed", exc_info=True)
             self.ready_seconds = time.perf_counter() - t0
             if announce and not self._stopped:
-                print(f"hdrview: ready ({label} processed in {self.ready_seconds:.1f} s)",
-                      file=sys.stderr, flush=True)
+                print(
+                    f"hdrview: ready ({label} processed in {self.ready_seconds:.1f} s)",
+                    file=sys.stderr,
+                    flush=True,
+                )
 
         thread = threading.Thread(target=run, name="hdrview-warm-up", daemon=True)
         self._warm = (key, thread, box)
@@ -249,40 +258,88 @@ def build_parser() -> argparse.ArgumentParser:
         description="Browser inspector for exposure brackets: ratios from histograms, masks, "
         "registration and the merged result, with live parameters.",
     )
-    p.add_argument("files", nargs="*", metavar="FILE|DIR",
-                   help="frames of one bracket or a folder (default: the demo bracket)")
-    p.add_argument("--host", default="127.0.0.1",
-                   help="address to listen on (default 127.0.0.1: this machine only; any other "
-                        "address needs --allow-remote)")
-    p.add_argument("--allow-remote", action="store_true",
-                   help="allow --host to be an address other machines can reach (prefer SSH "
-                        "port forwarding, see the README)")
-    p.add_argument("--port", type=int, default=8080,
-                   help="port (default 8080; a busy port is an error; 0 picks a free one)")
-    p.add_argument("--root", default=".",
-                   help="the page may only open paths under this folder (default: current folder)")
-    p.add_argument("--allow-origin", action="append", default=[], metavar="URL",
-                   help="also accept pages from this origin (e.g. https://proxy.example:443); "
-                        "by default only the inspector's own address may use it")
-    p.add_argument("--no-token", action="store_true",
-                   help="do not require the access token printed at start (any local program "
-                        "and any page of an allowed origin can then use the inspector)")
+    p.add_argument(
+        "files",
+        nargs="*",
+        metavar="FILE|DIR",
+        help="frames of one bracket or a folder (default: the demo bracket)",
+    )
+    p.add_argument(
+        "--host",
+        default="127.0.0.1",
+        help="address to listen on (default 127.0.0.1: this machine only; any other "
+        "address needs --allow-remote)",
+    )
+    p.add_argument(
+        "--allow-remote",
+        action="store_true",
+        help="allow --host to be an address other machines can reach (prefer SSH "
+        "port forwarding, see the README)",
+    )
+    p.add_argument(
+        "--port",
+        type=int,
+        default=8080,
+        help="port (default 8080; a busy port is an error; 0 picks a free one)",
+    )
+    p.add_argument(
+        "--root",
+        default=".",
+        help="the page may only open paths under this folder (default: current folder)",
+    )
+    p.add_argument(
+        "--allow-origin",
+        action="append",
+        default=[],
+        metavar="URL",
+        help="also accept pages from this origin (e.g. https://proxy.example:443); "
+        "by default only the inspector's own address may use it",
+    )
+    p.add_argument(
+        "--no-token",
+        action="store_true",
+        help="do not require the access token printed at start (any local program "
+        "and any page of an allowed origin can then use the inspector)",
+    )
     d = UploadLimits()
-    p.add_argument("--max-upload-mb", type=float, default=d.file_bytes / 1e6, metavar="MB",
-                   help=f"largest uploaded file (default {d.file_bytes / 1e6:g}; 0: no limit)")
-    p.add_argument("--max-upload-total-mb", type=float, default=d.total_bytes / 1e6,
-                   metavar="MB", help=f"largest upload set, a zip once extracted (default "
-                                      f"{d.total_bytes / 1e6:g}; 0: no limit)")
-    p.add_argument("--max-upload-pixels", type=float, default=float(d.frame_pixels),
-                   metavar="N", help=f"largest uploaded frame in pixels, read from its header "
-                                     f"before decoding (default {d.frame_pixels:.0e}; 0: none)")
-    p.add_argument("--batch", metavar="OUTDIR",
-                   help="the output folder of 'hdrcore batch': list its brackets worst first "
-                        "and open them (the worst first)")
+    p.add_argument(
+        "--max-upload-mb",
+        type=float,
+        default=d.file_bytes / 1e6,
+        metavar="MB",
+        help=f"largest uploaded file (default {d.file_bytes / 1e6:g}; 0: no limit)",
+    )
+    p.add_argument(
+        "--max-upload-total-mb",
+        type=float,
+        default=d.total_bytes / 1e6,
+        metavar="MB",
+        help=f"largest upload set, a zip once extracted (default "
+        f"{d.total_bytes / 1e6:g}; 0: no limit)",
+    )
+    p.add_argument(
+        "--max-upload-pixels",
+        type=float,
+        default=float(d.frame_pixels),
+        metavar="N",
+        help=f"largest uploaded frame in pixels, read from its header "
+        f"before decoding (default {d.frame_pixels:.0e}; 0: none)",
+    )
+    p.add_argument(
+        "--batch",
+        metavar="OUTDIR",
+        help="the output folder of 'hdrcore batch': list its brackets worst first "
+        "and open them (the worst first)",
+    )
     # PipelineParams.workers, as on every hdrcore command (tests/cli/test_params_flags.py)
-    p.add_argument("--workers", type=parse_workers, default=None, metavar="N",
-                   help="threads for the compiled kernels of each run, scipy's convention: -1 "
-                        "every core, -2 all but one (default: up to 2)")
+    p.add_argument(
+        "--workers",
+        type=parse_workers,
+        default=None,
+        metavar="N",
+        help="threads for the compiled kernels of each run, scipy's convention: -1 "
+        "every core, -2 all but one (default: up to 2)",
+    )
     p.add_argument("--debug", action="store_true", help="debug logging")
     return p
 
@@ -301,10 +358,19 @@ def _port_free(host: str, port: int) -> bool:
 
 
 def create_app(
-    files: Sequence[str] = (), *, host: str = "127.0.0.1", port: int = 8080, root: str = ".",
-    verbose: bool = True, demo_dir: Path | None = DEMO_DIR, token: bool = True,
-    allow_origins: Sequence[str] = (), limits: UploadLimits | None = None,
-    announce: bool = False, batch: Sequence[Any] = (), workers: int | None = None,
+    files: Sequence[str] = (),
+    *,
+    host: str = "127.0.0.1",
+    port: int = 8080,
+    root: str = ".",
+    verbose: bool = True,
+    demo_dir: Path | None = DEMO_DIR,
+    token: bool = True,
+    allow_origins: Sequence[str] = (),
+    limits: UploadLimits | None = None,
+    announce: bool = False,
+    batch: Sequence[Any] = (),
+    workers: int | None = None,
 ) -> InspectorApp:
     """Start the server and the app; load ``files`` or the demo bracket.
 
@@ -316,20 +382,35 @@ def create_app(
     "ready" on stderr when done).
     """
     if port and not _port_free(host, port):
-        raise StartError(f"port {port} on {host} is in use (another hdrview?): choose another "
-                         f"with --port N, or --port 0 for any free port")
+        raise StartError(
+            f"port {port} on {host} is in use (another hdrview?): choose another "
+            f"with --port N, or --port 0 for any free port"
+        )
     holder: list[viser.ViserServer] = []
-    guard = ConnectionGuard(lambda: holder[0].get_port() if holder else port, bind_host=host,
-                            allow_origins=allow_origins, token="" if token else None)
+    guard = ConnectionGuard(
+        lambda: holder[0].get_port() if holder else port,
+        bind_host=host,
+        allow_origins=allow_origins,
+        token="" if token else None,
+    )
     with install_guard(guard):
         server = viser.ViserServer(host=host, port=port, label="hdrview", verbose=verbose)
     holder.append(server)
     if port and server.get_port() != port:  # taken between the check and the start
         server.stop()
-        raise StartError(f"port {port} on {host} is in use: choose another with --port N, "
-                         f"or --port 0 for any free port")
-    app = InspectorApp(server, root=root, demo_dir=demo_dir, files=files, limits=limits,
-                       batch=batch, workers=workers)
+        raise StartError(
+            f"port {port} on {host} is in use: choose another with --port N, "
+            f"or --port 0 for any free port"
+        )
+    app = InspectorApp(
+        server,
+        root=root,
+        demo_dir=demo_dir,
+        files=files,
+        limits=limits,
+        batch=batch,
+        workers=workers,
+    )
     app.guard = guard
     app.url = guard.url("127.0.0.1" if host in ("0.0.0.0", "::", "") else host)
     app.warm_up(announce=announce)
@@ -371,32 +452,49 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(batch_listing(batch), file=sys.stderr)
     remote = args.host not in LOOPBACK_HOSTS
     if remote and not args.allow_remote:
-        print(f"hdrview: --host {args.host} lets other machines reach the inspector and read "
-              f"files under {root.resolve()}: add --allow-remote if you mean it (safer: SSH "
-              f"port forwarding, see the README)", file=sys.stderr)
+        print(
+            f"hdrview: --host {args.host} lets other machines reach the inspector and read "
+            f"files under {root.resolve()}: add --allow-remote if you mean it (safer: SSH "
+            f"port forwarding, see the README)",
+            file=sys.stderr,
+        )
         return 2
     for opt in ("max_upload_mb", "max_upload_total_mb", "max_upload_pixels"):
         if not getattr(args, opt) >= 0:
             print(f"hdrview: --{opt.replace('_', '-')} must be 0 or more", file=sys.stderr)
             return 2
-    limits = UploadLimits(file_bytes=int(args.max_upload_mb * 1e6),
-                          total_bytes=int(args.max_upload_total_mb * 1e6),
-                          frame_pixels=int(args.max_upload_pixels))
+    limits = UploadLimits(
+        file_bytes=int(args.max_upload_mb * 1e6),
+        total_bytes=int(args.max_upload_total_mb * 1e6),
+        frame_pixels=int(args.max_upload_pixels),
+    )
     for stale in remove_stale_work_dirs():
         log.info("removed %s, left by an inspector that was killed", stale)
     app = None
     try:
         try:
-            app = create_app(args.files, host=args.host, port=args.port, root=str(root),
-                             token=not args.no_token, allow_origins=args.allow_origin,
-                             limits=limits, announce=True, batch=batch,
-                             workers=args.workers)
+            app = create_app(
+                args.files,
+                host=args.host,
+                port=args.port,
+                root=str(root),
+                token=not args.no_token,
+                allow_origins=args.allow_origin,
+                limits=limits,
+                announce=True,
+                batch=batch,
+                workers=args.workers,
+            )
         except (StartError, ValueError, HdrError) as exc:
             print(f"hdrview: {exc}", file=sys.stderr)
             return 2
         if remote:
-            log.warning("listening on %s: anyone who can reach this address and has the token "
-                        "can read files under %s", args.host, root.resolve())
+            log.warning(
+                "listening on %s: anyone who can reach this address and has the token "
+                "can read files under %s",
+                args.host,
+                root.resolve(),
+            )
         print(f"hdrview: open {app.url}", file=sys.stderr, flush=True)
         # Short sleeps, not viser's sleep_forever (time.sleep(3600)): a SIGTERM that the kernel
         # delivers to another thread does not interrupt the main thread's sleep, and Python

@@ -38,8 +38,9 @@ def batch_listing(records: Sequence[BracketRecord]) -> str:
     lines = [f"{'#':>3} {'status':<8} {'score':>5}  {'bracket':<28} frames  reason / verdicts"]
     for k, r in enumerate(records):
         why = r.reason or ", ".join(str(v.get("code")) for v in r.verdicts)
-        lines.append(f"{k + 1:>3} {r.status:<8} {_score(r):>5}  {r.name:<28} {len(r.files):>6}"
-                     f"  {why[:100]}")
+        lines.append(
+            f"{k + 1:>3} {r.status:<8} {_score(r):>5}  {r.name:<28} {len(r.files):>6}  {why[:100]}"
+        )
     return "\n".join(lines)
 
 
@@ -47,8 +48,13 @@ def _details(r: BracketRecord) -> str:
     q = r.quality or {}
     parts = [f"**{r.name}**: {r.status}, score {_score(r)}, {len(r.files)} frames"]
     if q.get("score") is not None and len(q) > 1:
-        parts.append(" · ".join(f"{k} {float(q[k]):.2f}" for k in
-                                ("ratio", "registration", "clipping", "ghost") if k in q))
+        parts.append(
+            " · ".join(
+                f"{k} {float(q[k]):.2f}"
+                for k in ("ratio", "registration", "clipping", "ghost")
+                if k in q
+            )
+        )
     if r.reason:
         parts.append(r.reason)
     for v in r.verdicts[:4]:
@@ -62,8 +68,12 @@ def add_batch_panel(view: Any, records: Sequence[BracketRecord]) -> Any:
     labels = [entry_label(k, r) for k, r in enumerate(records)]
     by_label = dict(zip(labels, records, strict=True))
     with gui.add_folder("Batch"):
-        dropdown = gui.add_dropdown("Bracket", tuple(labels), initial_value=labels[0],
-                                    hint="brackets of the batch, worst first")
+        dropdown = gui.add_dropdown(
+            "Bracket",
+            tuple(labels),
+            initial_value=labels[0],
+            hint="brackets of the batch, worst first",
+        )
         details = gui.add_markdown(_details(records[0]))
 
     @dropdown.on_update

@@ -30,8 +30,7 @@ def _stamp(p: str | os.PathLike) -> tuple[str, int, int]:
 class BracketCache:
     """At most ``size`` decoded brackets, least recently used dropped first."""
 
-    def __init__(self, size: int = 2,
-                 loader: Callable[..., Bracket] = load_bracket) -> None:
+    def __init__(self, size: int = 2, loader: Callable[..., Bracket] = load_bracket) -> None:
         self.size = size
         self._loader = loader
         self._lock = threading.Lock()
@@ -43,8 +42,9 @@ class BracketCache:
         stamps = tuple(_stamp(f) for f in files)
         return (stamps, None if times is None else _stamp(times))
 
-    def get(self, files: Sequence[str | os.PathLike],
-            times: str | os.PathLike | None = None) -> Bracket:
+    def get(
+        self, files: Sequence[str | os.PathLike], times: str | os.PathLike | None = None
+    ) -> Bracket:
         """The decoded bracket of these files (decoded now, or shared with another page)."""
         try:
             key = self.key(files, times)

@@ -41,8 +41,11 @@ _LOOPBACK = ("127.0.0.1", "localhost", "::1")
 def _one(headers: Any, name: str) -> str | None:
     """The single value of header ``name`` (``None`` when absent); two values are refused."""
     get_all = getattr(headers, "get_all", None)
-    values = list(get_all(name)) if get_all is not None else (
-        [] if headers.get(name) is None else [headers.get(name)])
+    values = (
+        list(get_all(name))
+        if get_all is not None
+        else ([] if headers.get(name) is None else [headers.get(name)])
+    )
     if len(values) > 1:
         raise LookupError(f"{len(values)} {name} headers")
     return values[0] if values else None
@@ -70,8 +73,14 @@ class ConnectionGuard:
     ``https://my.proxy:443``; ``token`` ``None`` for no token.
     """
 
-    def __init__(self, port: Callable[[], int], *, bind_host: str = "127.0.0.1",
-                 allow_origins: Iterable[str] = (), token: str | None = "") -> None:
+    def __init__(
+        self,
+        port: Callable[[], int],
+        *,
+        bind_host: str = "127.0.0.1",
+        allow_origins: Iterable[str] = (),
+        token: str | None = "",
+    ) -> None:
         self._port = port
         hosts = set(_LOOPBACK)
         if bind_host not in ("0.0.0.0", "::", ""):
@@ -104,8 +113,10 @@ class ConnectionGuard:
         host, port = _split_host(parts.netloc)
         if parts.scheme in ("http", "https") and host in self._hosts and port == self._port():
             return True
-        return any(parts.scheme == s and host == h and (p is None or p == port)
-                   for s, h, p in self._origins)
+        return any(
+            parts.scheme == s and host == h and (p is None or p == port)
+            for s, h, p in self._origins
+        )
 
     def _token_of(self, path: str, headers: Any) -> str | None:
         query = parse_qs(urlsplit(path).query)
@@ -135,10 +146,13 @@ class ConnectionGuard:
             return "Origin 'null' (a sandboxed or file page) may not use this inspector"
         if self.token is not None:
             given = self._token_of(path, headers)
-            if given is None or not hmac.compare_digest(given.encode("utf-8", "replace"),
-                                                        self.token.encode()):
-                return ("missing or wrong access token: open the address hdrview printed at "
-                        "start (it ends in ?token=...)")
+            if given is None or not hmac.compare_digest(
+                given.encode("utf-8", "replace"), self.token.encode()
+            ):
+                return (
+                    "missing or wrong access token: open the address hdrview printed at "
+                    "start (it ends in ?token=...)"
+                )
         return None
 
     def wrap(self, process_request: Callable[..., Any] | None) -> Callable[..., Any]:
@@ -152,18 +166,33 @@ class ConnectionGuard:
         def guarded(connection: Any, request: Any) -> Any:
             why = guard.refusal(request.path, request.headers)
             if why is not None:
-                log.warning("refused %s %s: %s", request.headers.get("Origin") or "-",
-                            request.path.partition("?")[0], why)
+                log.warning(
+                    "refused %s %s: %s",
+                    request.headers.get("Origin") or "-",
+                    request.path.partition("?")[0],
+                    why,
+                )
                 body = f"hdrview: refused: {why}\n".encode()
-                return Response(http.HTTPStatus.FORBIDDEN, "Forbidden",
-                                Headers({"Content-Type": "text/plain; charset=utf-8",
-                                         "Content-Length": str(len(body))}), body)
-            response = None if process_request is None else process_request(connection,
-                                                                             request)
-            if (response is not None and guard.token is not None
-                    and "token" in parse_qs(urlsplit(request.path).query)):
+                return Response(
+                    http.HTTPStatus.FORBIDDEN,
+                    "Forbidden",
+                    Headers(
+                        {
+                            "Content-Type": "text/plain; charset=utf-8",
+                            "Content-Length": str(len(body)),
+                        }
+                    ),
+                    body,
+                )
+            response = None if process_request is None else process_request(connection, request)
+            if (
+                response is not None
+                and guard.token is not None
+                and "token" in parse_qs(urlsplit(request.path).query)
+            ):
                 response.headers["Set-Cookie"] = (
-                    f"{COOKIE}={guard.token}; Path=/; HttpOnly; SameSite=Strict")
+                    f"{COOKIE}={guard.token}; Path=/; HttpOnly; SameSite=Strict"
+                )
             return response
 
         return guarded

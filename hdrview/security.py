@@ -86,8 +86,13 @@ class RootResolver:
     ``files``: single files the operator named on the command line.
     """
 
-    def __init__(self, root: str | Path, *, folders: Iterable[str | Path] = (),
-                 files: Iterable[str | Path] = ()) -> None:
+    def __init__(
+        self,
+        root: str | Path,
+        *,
+        folders: Iterable[str | Path] = (),
+        files: Iterable[str | Path] = (),
+    ) -> None:
         self.root = _real(Path(root), root)
         self._folders = [self.root]
         self._files: set[Path] = set()
@@ -137,7 +142,8 @@ class RootResolver:
             where = "" if str(real) == str(p) else f" (it leads to {real})"
             raise PathRefused(
                 f"path is outside the folder this inspector may read{where}",
-                path=shown, expected=f"a path under {self.root} (see --root)",
+                path=shown,
+                expected=f"a path under {self.root} (see --root)",
             )
         return real
 
@@ -221,7 +227,10 @@ def sniff_upload(name: str, content: bytes) -> str | None:
 
 
 def extract_zip_images(
-    content: bytes, dest: Path, *, members: Sequence[zipfile.ZipInfo] | None = None,
+    content: bytes,
+    dest: Path,
+    *,
+    members: Sequence[zipfile.ZipInfo] | None = None,
 ) -> list[Path]:
     """Extract the image files of a zip archive into ``dest`` (flat, safe names); return them.
 
@@ -242,7 +251,8 @@ def extract_zip_images(
         if total > MAX_EXTRACTED_BYTES:
             raise InputError(
                 "uploaded archive is too large once extracted",
-                expected=f"at most {MAX_EXTRACTED_BYTES // 1_000_000} MB", found=f"{total} bytes",
+                expected=f"at most {MAX_EXTRACTED_BYTES // 1_000_000} MB",
+                found=f"{total} bytes",
             )
         for info in infos:
             if info.is_dir() or stat.S_ISLNK(info.external_attr >> 16):

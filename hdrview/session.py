@@ -53,8 +53,9 @@ class Controls:
 
     def changes(self) -> dict[str, Any]:
         """The controls that are set, by parameter name."""
-        return {f.name: v for f in dataclasses.fields(self)
-                if (v := getattr(self, f.name)) is not None}
+        return {
+            f.name: v for f in dataclasses.fields(self) if (v := getattr(self, f.name)) is not None
+        }
 
 
 @dataclass
@@ -70,10 +71,15 @@ class Session:
     full_params: PipelineParams | None = None  # the parameters of the last run to the end
     workers: int | None = None  # PipelineParams.workers of every run (hdrview --workers)
 
-    def load(self, paths: Sequence[str | os.PathLike], *, source: str = "",
-             times: str | os.PathLike | None = None,
-             loader: Callable[[list[str | os.PathLike[str]], str | os.PathLike[str] | None],
-                              Bracket] | None = None) -> Bracket:
+    def load(
+        self,
+        paths: Sequence[str | os.PathLike],
+        *,
+        source: str = "",
+        times: str | os.PathLike | None = None,
+        loader: Callable[[list[str | os.PathLike[str]], str | os.PathLike[str] | None], Bracket]
+        | None = None,
+    ) -> Bracket:
         """Load these frame files (already checked by :class:`hdrview.security.RootResolver`,
         which also found the folder's exposure-times list, ``times``); ``loader(files, times)``
         decodes them (the inspector's shared :class:`hdrview.cache.BracketCache`)."""
@@ -101,8 +107,9 @@ class Session:
         the default, never to its previous value)."""
         return self.default_params().replace(**controls.changes())
 
-    def run(self, controls: Controls, progress: ProgressCallback | None = None,
-            until: str | None = None) -> PipelineResult:
+    def run(
+        self, controls: Controls, progress: ProgressCallback | None = None, until: str | None = None
+    ) -> PipelineResult:
         """Run (or re-run what changed in) the pipeline; return its result."""
         if self.bracket is None:
             raise InputError("no bracket loaded: load one first")
@@ -113,16 +120,18 @@ class Session:
             self.pipeline = Pipeline(self.bracket, params, progress=progress)
         elif progress is not None:
             self.pipeline.progress = progress
-        result = self.pipeline.run(params) if until is None else self.pipeline.run(
-            params, until=until)
+        result = (
+            self.pipeline.run(params) if until is None else self.pipeline.run(params, until=until)
+        )
         self.params = params
         self.result = result
         if until is None:
             self.full_params = params
         return result
 
-    def draft_wanted(self, controls: Controls, max_side: int | None = None,
-                     min_factor: int = 2) -> bool:
+    def draft_wanted(
+        self, controls: Controls, max_side: int | None = None, min_factor: int = 2
+    ) -> bool:
         """Whether a draft (:mod:`hdrcore.draft`) shows anything sooner: the bracket is at least
         ``min_factor`` times the draft's size (longer side ``max_side``) and a parameter the
         merge reads changed since the last full run (the operator and the exposure re-run the
@@ -136,12 +145,17 @@ class Session:
         if self.full_params is None:
             return True
         preview_only = ("tonemap", "tonemap_exposure")
-        new = dataclasses.replace(self.params_for(controls),
-                                  **{k: getattr(self.full_params, k) for k in preview_only})
+        new = dataclasses.replace(
+            self.params_for(controls), **{k: getattr(self.full_params, k) for k in preview_only}
+        )
         return new != self.full_params
 
-    def run_draft(self, quick: PipelineResult, progress: ProgressCallback | None = None,
-                  max_side: int | None = None) -> PipelineResult:
+    def run_draft(
+        self,
+        quick: PipelineResult,
+        progress: ProgressCallback | None = None,
+        max_side: int | None = None,
+    ) -> PipelineResult:
         """The draft of the preview (:func:`hdrcore.draft.run_draft`) for the parameters of
         ``quick``, a run until the ratios (its saturation and noise floor): with the response
         and exposure times the last full run ended with (a hand-held bracket's response is
@@ -155,15 +169,25 @@ class Session:
         last = self.pipeline.last_result if self.pipeline is not None else None
         curve = quick.response
         times: tuple[float, ...] | None = quick.exposure_times
-        if (last is not None and self.full_params is not None and last.until == "preview"
-                and self.full_params.response == p.response and last.response is not None):
+        if (
+            last is not None
+            and self.full_params is not None
+            and last.until == "preview"
+            and self.full_params.response == p.response
+            and last.response is not None
+        ):
             curve = last.response
-        if (last is not None and self.full_params is not None and last.until == "preview"
-                and len(last.exposure_times) == len(bracket)):
+        if (
+            last is not None
+            and self.full_params is not None
+            and last.until == "preview"
+            and len(last.exposure_times) == len(bracket)
+        ):
             times = last.exposure_times  # measured on the registered pixels
         if times is not None and len(times) != len(bracket):
             times = None  # a run without unusable frames: the draft measures its own
         if curve is not None:
             p = p.replace(response=curve)
-        return run_draft(bracket, p, progress=progress, exposure_times=times,
-                         max_side=max_side or DRAFT_MAX_SIDE)
+        return run_draft(
+            bracket, p, progress=progress, exposure_times=times, max_side=max_side or DRAFT_MAX_SIDE
+        )

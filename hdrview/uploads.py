@@ -38,8 +38,13 @@ from hdrcore.errors import InputError
 
 from . import security
 
-__all__ = ["UploadLimits", "UploadStore", "install_upload_limits", "make_work_dir",
-           "remove_stale_work_dirs"]
+__all__ = [
+    "UploadLimits",
+    "UploadStore",
+    "install_upload_limits",
+    "make_work_dir",
+    "remove_stale_work_dirs",
+]
 
 log = logging.getLogger(__name__)
 
@@ -56,8 +61,10 @@ class UploadLimits:
     frame_pixels: int = 64_000_000  # per frame; a 24 MP bracket of 8 frames uses ~3 GB here
 
     def describe(self) -> str:
-        return (f"{_mb(self.file_bytes)} per file, {_mb(self.total_bytes)} per set, "
-                f"{self.frame_pixels / 1e6:g} MP per frame")
+        return (
+            f"{_mb(self.file_bytes)} per file, {_mb(self.total_bytes)} per set, "
+            f"{self.frame_pixels / 1e6:g} MP per frame"
+        )
 
 
 def _mb(n: int) -> str:
@@ -95,7 +102,7 @@ def remove_stale_work_dirs(parent: str | Path | None = None) -> list[Path]:
         name = p.name
         if not name.startswith(WORK_PREFIX):
             continue
-        pid_text = name[len(WORK_PREFIX):].split("-", 1)[0]
+        pid_text = name[len(WORK_PREFIX) :].split("-", 1)[0]
         if not pid_text.isdigit():
             continue
         try:
@@ -132,15 +139,19 @@ class UploadStore:
         if size < 0:
             return f"{name}: the browser declared a negative size"
         if lim.file_bytes and size > lim.file_bytes:
-            return (f"{name} is {size / MB:.1f} MB, more than the limit of "
-                    f"{_mb(lim.file_bytes)} per file (--max-upload-mb)")
+            return (
+                f"{name} is {size / MB:.1f} MB, more than the limit of "
+                f"{_mb(lim.file_bytes)} per file (--max-upload-mb)"
+            )
         if lim.total_bytes and not name.lower().endswith(".zip"):
             held = self.open_set_bytes()
             if held + size > lim.total_bytes:
-                return (f"{name} ({size / MB:.1f} MB) would bring this upload set to "
-                        f"{(held + size) / MB:.1f} MB, more than the limit of "
-                        f"{_mb(lim.total_bytes)} (--max-upload-total-mb); "
-                        f"press New upload set to start again")
+                return (
+                    f"{name} ({size / MB:.1f} MB) would bring this upload set to "
+                    f"{(held + size) / MB:.1f} MB, more than the limit of "
+                    f"{_mb(lim.total_bytes)} (--max-upload-total-mb); "
+                    f"press New upload set to start again"
+                )
         return None
 
     def open_set_bytes(self) -> int:
@@ -172,7 +183,8 @@ class UploadStore:
         kind = security.sniff_upload(name, content)
         if kind is None or kind == "zip":
             raise InputError(
-                "uploaded file is not an image", path=security.safe_upload_name(name),
+                "uploaded file is not an image",
+                path=security.safe_upload_name(name),
                 expected="PNG, JPEG, TIFF, a camera RAW file or a .zip of them",
             )
         reason = self.refuse_transfer(name, len(content))
@@ -200,8 +212,11 @@ class UploadStore:
         d = self._new_set()
         images = security.extract_zip_images(content, d, members=members)
         if len(images) < 2:
-            raise InputError("the archive holds fewer than two images", path=name,
-                             found=f"{len(images)} image(s)")
+            raise InputError(
+                "the archive holds fewer than two images",
+                path=name,
+                found=f"{len(images)} image(s)",
+            )
         for p in images:
             self.check_pixels(p, shown=f"{name}: {p.name}")
         return d
@@ -219,7 +234,8 @@ class UploadStore:
         if w * h > limit:
             raise InputError(
                 f"frame is {w * h / 1e6:.1f} MP ({w}x{h}), more than the upload limit of "
-                f"{limit / 1e6:g} MP (--max-upload-pixels)", path=shown,
+                f"{limit / 1e6:g} MP (--max-upload-pixels)",
+                path=shown,
             )
 
     def remove(self) -> None:
@@ -246,7 +262,8 @@ def _zip_members(name: str, content: bytes, limits: UploadLimits) -> list[zipfil
     if total > cap:
         raise InputError(
             f"archive is {total / MB:.1f} MB once extracted, more than the limit of "
-            f"{_mb(cap)} per set (--max-upload-total-mb)", path=name,
+            f"{_mb(cap)} per set (--max-upload-total-mb)",
+            path=name,
         )
     return infos
 
@@ -255,7 +272,10 @@ def _zip_members(name: str, content: bytes, limits: UploadLimits) -> list[zipfil
 
 
 def install_upload_limits(
-    gui: Any, server: Any, button: Any, refuse: Callable[[str, int], str | None],
+    gui: Any,
+    server: Any,
+    button: Any,
+    refuse: Callable[[str, int], str | None],
     on_refused: Callable[[Any, str], None],
 ) -> None:
     """Check each upload of ``button`` when its transfer starts, before viser buffers it.
@@ -301,14 +321,17 @@ def _install_handlers(gui: Any, server: Any, routes: dict) -> None:
                 # End the page's transfer (so its upload button is free again), then hide the
                 # progress toast, which would otherwise say "File uploaded successfully".
                 conn = client._websock_connection
-                conn.queue_message(_messages.FileTransferPartAck(
-                    source_component_uuid=message.source_component_uuid,
-                    transfer_uuid=message.transfer_uuid,
-                    transferred_bytes=int(message.size_bytes),
-                    total_bytes=int(message.size_bytes),
-                ))
-                conn.queue_message(_messages.RemoveNotificationMessage(
-                    uuid="upload-" + message.transfer_uuid))
+                conn.queue_message(
+                    _messages.FileTransferPartAck(
+                        source_component_uuid=message.source_component_uuid,
+                        transfer_uuid=message.transfer_uuid,
+                        transferred_bytes=int(message.size_bytes),
+                        total_bytes=int(message.size_bytes),
+                    )
+                )
+                conn.queue_message(
+                    _messages.RemoveNotificationMessage(uuid="upload-" + message.transfer_uuid)
+                )
             except Exception:  # noqa: BLE001 -- a page that went away
                 log.debug("closing the refused upload's progress failed", exc_info=True)
         on_refused(client, reason)
@@ -316,7 +339,8 @@ def _install_handlers(gui: Any, server: Any, routes: dict) -> None:
     def part(client_id: Any, message: Any) -> None:
         state = gui._current_file_upload_states.get(message.transfer_uuid)
         if state is not None and (
-                state["transferred_bytes"] + len(message.content) > state["total_bytes"]):
+            state["transferred_bytes"] + len(message.content) > state["total_bytes"]
+        ):
             gui._current_file_upload_states.pop(message.transfer_uuid, None)
             log.warning("upload %r dropped: more bytes than declared", state["filename"])
             return

@@ -66,8 +66,10 @@ T = TypeVar("T")
 
 
 class _Panel(Protocol):
-    def show(self, bracket: Bracket | None, result: PipelineResult | None,
-             view: dict[str, Any]) -> None: ...
+    def show(
+        self, bracket: Bracket | None, result: PipelineResult | None, view: dict[str, Any]
+    ) -> None: ...
+
 
 __all__ = ["ClientView", "PANEL_WIDTH", "DEFAULT_MARK"]
 
@@ -86,27 +88,29 @@ def _term(word: str, paper: str) -> str:
 #: "What am I looking at", one short note per tab.
 NOTES = {
     "Frames": "The frames as loaded, darkest first, with what the camera recorded. A capture "
-              "warning means the bracket itself has a problem (settings changed, frames out "
-              "of order).",
+    "warning means the bracket itself has a problem (settings changed, frames out "
+    "of order).",
     "BTF": "How much brighter the brighter frame of a pair is. Each dot compares the same "
-           "brightness level in the two frames' histograms; a straight line through the dots "
-           "is the " + _term("exposure ratio", "k of eq. 4, fitted iteratively") + ". Dots "
-           "far off the line are " + _term("ignored", "outliers beyond 3 standard deviations "
-                                           "(3V)") + ". Below: the same comparison level by "
-           "level, with the clipping level Z and the noise floor.",
+    "brightness level in the two frames' histograms; a straight line through the dots "
+    "is the " + _term("exposure ratio", "k of eq. 4, fitted iteratively") + ". Dots "
+    "far off the line are "
+    + _term("ignored", "outliers beyond 3 standard deviations (3V)")
+    + ". Below: the same comparison level by "
+    "level, with the clipping level Z and the noise floor.",
     "Masks": "Which pixels of the chosen pair were used: well exposed in both frames (green), "
-             "too dark or clipped in one of them. Only these count for the ratio and the "
-             "alignment.",
+    "too dark or clipped in one of them. Only these count for the ratio and the "
+    "alignment.",
     "Registration": "How the hand-held frames were lined up. The overlay shows the two frames "
-                    "in red and cyan: grey where they agree, coloured fringes where they do "
-                    "not. The " + _term("difference", "normalised difference of eq. 7") +
-                    " view shows what is left after alignment.",
+    "in red and cyan: grey where they agree, coloured fringes where they do "
+    "not. The "
+    + _term("difference", "normalised difference of eq. 7")
+    + " view shows what is left after alignment.",
     "Response": "How the camera turned light into levels (JPEG, PNG and TIFF frames): the curve "
-                "the merge uses per channel, how well it explains the frames level by level, "
-                "and, when chosen automatically, the candidates it beat.",
+    "the merge uses per channel, how well it explains the frames level by level, "
+    "and, when chosen automatically, the candidates it beat.",
     "Result": "The merged HDR image shown on a normal screen. Zoom to 100 % to check edges and "
-              "text; the other layers show which frame each pixel came from, what is clipped "
-              "everywhere and where something moved.",
+    "text; the other layers show which frame each pixel came from, what is clipped "
+    "everywhere and where something moved.",
     "Diagnostics": "What went right and wrong, worst first, with one row per pair of frames.",
 }
 
@@ -143,14 +147,18 @@ def _assign(handle: _GuiInputHandle[T], value: T) -> None:
 
 
 _COLOURS: dict[Severity, Literal["red", "yellow", "blue"]] = {
-    "error": "red", "warning": "yellow", "info": "blue"}
+    "error": "red",
+    "warning": "yellow",
+    "info": "blue",
+}
 
 
 class ClientView:
     """All state of one page; methods are safe to call from any thread."""
 
-    def __init__(self, app: InspectorApp, gui: viser.GuiApi,
-                 client: viser.ClientHandle | None = None) -> None:
+    def __init__(
+        self, app: InspectorApp, gui: viser.GuiApi, client: viser.ClientHandle | None = None
+    ) -> None:
         self.app = app
         self.gui = gui
         self.client = client
@@ -187,8 +195,9 @@ class ClientView:
         app.resolver.allow_folder(self.uploads.dir)
         self.worker = LatestWorker(on_progress=self._on_progress, on_busy=self._on_busy)
         self._build_gui()
-        install_upload_limits(gui, app.server, self.upload_button, self.uploads.refuse_transfer,
-                              self._upload_refused)
+        install_upload_limits(
+            gui, app.server, self.upload_button, self.uploads.refuse_transfer, self._upload_refused
+        )
         if client is not None:
             self._hide_webgl_toast()
 
@@ -207,12 +216,14 @@ class ClientView:
             )
             self.load_button = gui.add_button("Load", icon=viser.Icon.FOLDER_OPEN)
             self.upload_button = gui.add_upload_button(
-                "Upload frame or .zip", icon=viser.Icon.UPLOAD,
+                "Upload frame or .zip",
+                icon=viser.Icon.UPLOAD,
                 hint="one image per upload (two or more make a bracket) or a .zip of a bracket; "
-                     + self.uploads.limits.describe(),
+                + self.uploads.limits.describe(),
             )
             self.new_set_button = gui.add_button(
-                "New upload set", icon=viser.Icon.TRASH,
+                "New upload set",
+                icon=viser.Icon.TRASH,
                 hint="the next uploaded frame starts a new bracket",
             )
             self.demo_button = gui.add_button("Demo bracket", icon=viser.Icon.PHOTO)
@@ -222,43 +233,59 @@ class ClientView:
 
         with gui.add_folder("Parameters"):
             self.saturation_slider = gui.add_slider(  # float values: Z is 0.97 x max level
-                "Saturation Z", 0.0, 255.0, 1.0, 250.0,
+                "Saturation Z",
+                0.0,
+                255.0,
+                1.0,
+                250.0,
                 hint="levels at or above Z count as clipped (the paper's eq. 4); in the frames' "
-                     "own levels; follows the pipeline's choice until moved",
+                "own levels; follows the pipeline's choice until moved",
             )
             self.noise_slider = gui.add_slider(
-                "Noise floor", 0.0, 64.0, 0.1, 2.0,
+                "Noise floor",
+                0.0,
+                64.0,
+                0.1,
+                2.0,
                 hint="levels at or below this are noise and not used (native levels); the "
-                     "default is 3 sigma of the noise measured in the frames",
+                "default is 3 sigma of the noise measured in the frames",
             )
             self.threshold_slider = gui.add_slider(
-                "Threshold t", 0.0, 1.0, 0.01, defaults.threshold,
+                "Threshold t",
+                0.0,
+                1.0,
+                0.01,
+                defaults.threshold,
                 hint="registration: the brightness below which differences stop being "
-                     "normalised (the paper's eq. 7), as a fraction of Z",
+                "normalised (the paper's eq. 7), as a fraction of Z",
             )
             self.alignment_dropdown = gui.add_dropdown(
-                "Alignment", tuple(_option(n, defaults.align) for n in names["align"]),
+                "Alignment",
+                tuple(_option(n, defaults.align) for n in names["align"]),
                 initial_value=_option(defaults.align, defaults.align),
                 hint="motion model between hand-held frames",
             )
             self.local_dropdown = gui.add_dropdown(
-                "Local refinement", tuple(_option(n, defaults.local) for n in names["local"]),
+                "Local refinement",
+                tuple(_option(n, defaults.local) for n in names["local"]),
                 initial_value=_option(defaults.local, defaults.local),
                 hint="after the motion model, a smooth displacement field per frame for "
-                     "parallax (auto: the frames left misaligned; kept where it lowers the "
-                     "measured residual)",
+                "parallax (auto: the frames left misaligned; kept where it lowers the "
+                "measured residual)",
             )
             self.reference_dropdown = gui.add_dropdown("Reference", ("middle",))
             self.response_dropdown = gui.add_dropdown(
-                "Response", tuple(_option(n, defaults.response) for n in names["response"]),
+                "Response",
+                tuple(_option(n, defaults.response) for n in names["response"]),
                 initial_value=_option(str(defaults.response), defaults.response),
                 hint="camera response (how levels map to light) for JPEG/PNG/TIFF brackets",
             )
             self.times_dropdown = gui.add_dropdown(
-                "Exposure times", tuple(_option(n, defaults.times) for n in names["times"]),
+                "Exposure times",
+                tuple(_option(n, defaults.times) for n in names["times"]),
                 initial_value=_option(defaults.times, defaults.times),
                 hint="estimated: measured from the pictures (the paper's method); exif: as "
-                     "recorded by the camera",
+                "recorded by the camera",
             )
             self.exposure_method_dropdown = gui.add_dropdown(
                 "Ratio method",
@@ -267,7 +294,8 @@ class ClientView:
                 hint="how the exposure ratio of a pair is measured from its histograms",
             )
             self.deghost_checkbox = gui.add_checkbox(
-                "Deghost", defaults.deghost,
+                "Deghost",
+                defaults.deghost,
                 hint="fill each region where something moved from one frame",
             )
             self.reset_button = gui.add_button("Reset to defaults", icon=viser.Icon.REFRESH)
@@ -275,12 +303,14 @@ class ClientView:
         with gui.add_folder("View"):
             self.pair_dropdown = gui.add_dropdown("Pair", ("—",))
             self.tonemap_dropdown = gui.add_dropdown(
-                "Operator", tuple(_option(n, defaults.tonemap) for n in names["tonemap"]),
+                "Operator",
+                tuple(_option(n, defaults.tonemap) for n in names["tonemap"]),
                 initial_value=_option(defaults.tonemap, defaults.tonemap),
                 hint="how the HDR result is shown on a normal screen",
             )
             self.exposure_slider = gui.add_slider(
-                "Exposure (EV)", -8.0, 8.0, 0.25, defaults.tonemap_exposure)
+                "Exposure (EV)", -8.0, 8.0, 0.25, defaults.tonemap_exposure
+            )
             self.layer_dropdown = gui.add_dropdown("Layer", result_panel.LAYERS)
             self.overlay_dropdown = gui.add_dropdown("Overlay", registration_panel.OVERLAYS)
 
@@ -303,11 +333,13 @@ class ClientView:
         self.btf_panel = in_tab("BTF", lambda tab: btf_panel.BtfPanel(gui))
         self.masks_panel = in_tab("Masks", lambda tab: masks_panel.MasksPanel(gui))
         self.registration_panel = in_tab(
-            "Registration", lambda tab: registration_panel.RegistrationPanel(gui))
+            "Registration", lambda tab: registration_panel.RegistrationPanel(gui)
+        )
         self.response_panel = in_tab("Response", lambda tab: response_panel.ResponsePanel(gui))
         self.result_panel = in_tab("Result", lambda tab: result_panel.ResultPanel(gui))
         self.diagnostics_panel = in_tab(
-            "Diagnostics", lambda tab: diagnostics_panel.DiagnosticsPanel(gui))
+            "Diagnostics", lambda tab: diagnostics_panel.DiagnosticsPanel(gui)
+        )
         self.panel.dock_left()
         self.panel.set_width(PANEL_WIDTH)
         self._wire()
@@ -323,8 +355,9 @@ class ClientView:
             self.reset_controls()
 
         def upload(e: viser.GuiEvent) -> None:
-            self.handle_upload(self.upload_button.value.name, self.upload_button.value.content,
-                               e.client)
+            self.handle_upload(
+                self.upload_button.value.name, self.upload_button.value.content, e.client
+            )
 
         self.load_button.on_click(load)
         self.demo_button.on_click(demo)
@@ -376,7 +409,8 @@ class ClientView:
                     return
                 try:
                     self.client._websock_connection.queue_message(
-                        _messages.RemoveNotificationMessage(uuid=WEBGL_TOAST))
+                        _messages.RemoveNotificationMessage(uuid=WEBGL_TOAST)
+                    )
                 except Exception:  # noqa: BLE001 -- the page went away
                     return
 
@@ -395,8 +429,14 @@ class ClientView:
 
     # -- notifications ---------------------------------------------------------------------
 
-    def notify(self, title: str, body: str, *, client: viser.ClientHandle | None = None,
-               level: Severity = "info") -> None:
+    def notify(
+        self,
+        title: str,
+        body: str,
+        *,
+        client: viser.ClientHandle | None = None,
+        level: Severity = "info",
+    ) -> None:
         """Show a notification on this page and keep it in ``notifications``."""
         self.notifications.append((level, title, body))
         color = _COLOURS[level]
@@ -407,7 +447,9 @@ class ClientView:
             return
         try:
             target.add_notification(
-                title, body, color=color,
+                title,
+                body,
+                color=color,
                 auto_close_seconds=None if level == "error" else 8.0,
             )
         except Exception:  # a page that went away
@@ -419,12 +461,15 @@ class ClientView:
         else:
             traceback.print_exception(type(exc), exc, exc.__traceback__, file=sys.stderr)
             self.notify(
-                "Internal error", f"{type(exc).__name__}: {exc} (details on the server's stderr)",
-                client=client, level="error",
+                "Internal error",
+                f"{type(exc).__name__}: {exc} (details on the server's stderr)",
+                client=client,
+                level="error",
             )
 
-    def _guarded(self, fn: Callable[[viser.ClientHandle | None], object],
-                 client: viser.ClientHandle | None) -> None:
+    def _guarded(
+        self, fn: Callable[[viser.ClientHandle | None], object], client: viser.ClientHandle | None
+    ) -> None:
         try:
             fn(client)
         except Exception as exc:  # noqa: BLE001 -- shown to the user
@@ -432,8 +477,9 @@ class ClientView:
 
     # -- requests (called from viser's callback threads or tests) ---------------------------
 
-    def request_paths(self, paths: Sequence[str | Path], label: str = "",
-                      client: viser.ClientHandle | None = None) -> bool:
+    def request_paths(
+        self, paths: Sequence[str | Path], label: str = "", client: viser.ClientHandle | None = None
+    ) -> bool:
         """Check ``paths`` (files or one folder) with the resolver, then load them."""
         try:
             inputs = self.app.resolver.bracket_inputs(list(paths))
@@ -447,8 +493,9 @@ class ClientView:
             if wanted != self._wanted:
                 # The levels of another bracket: Z, the floor and the reference start from the
                 # pipeline's choice again (the other choices are the user's and stay).
-                self.controls = self.controls.replace(saturation=None, noise_floor=None,
-                                                      reference=None)
+                self.controls = self.controls.replace(
+                    saturation=None, noise_floor=None, reference=None
+                )
             self._wanted = wanted
         self._submit("load")
         return True
@@ -457,8 +504,9 @@ class ClientView:
         """The path field: files or a folder, each checked by the resolver, then loaded."""
         parts = security.split_path_field(text)
         if not parts:
-            self.notify("Cannot load", "type a file or folder path first", client=client,
-                        level="error")
+            self.notify(
+                "Cannot load", "type a file or folder path first", client=client, level="error"
+            )
             return False
         self.uploads.close_set()
         name = Path(parts[0]).name or parts[0]
@@ -468,23 +516,27 @@ class ClientView:
     def request_demo(self, client: viser.ClientHandle | None = None) -> bool:
         demo = self.app.demo_dir
         if demo is None or not demo.is_dir():
-            self.notify("No demo bracket", f"the demo bracket is not installed at {demo}",
-                        client=client, level="warning")
+            self.notify(
+                "No demo bracket",
+                f"the demo bracket is not installed at {demo}",
+                client=client,
+                level="warning",
+            )
             return False
         self.uploads.close_set()
         return self.request_paths([demo], "demo", client)
 
     def new_upload_set(self, client: viser.ClientHandle | None = None) -> None:
         self.uploads.close_set()
-        self.notify("New upload set", "the next uploaded frame starts a new bracket",
-                    client=client)
+        self.notify("New upload set", "the next uploaded frame starts a new bracket", client=client)
 
     def _upload_refused(self, client: viser.ClientHandle | None, reason: str) -> None:
         self.uploads.close_set()
         self.notify("Upload refused", reason, client=client, level="error")
 
-    def handle_upload(self, name: str, content: bytes,
-                      client: viser.ClientHandle | None = None) -> bool:
+    def handle_upload(
+        self, name: str, content: bytes, client: viser.ClientHandle | None = None
+    ) -> bool:
         """An uploaded image joins the open upload set (two or more load); a .zip loads at once.
 
         Any refusal closes the set, so the next upload starts afresh (a bad file never keeps
@@ -495,8 +547,11 @@ class ClientView:
                 return self.request_paths([dest], security.safe_upload_name(name), client)
             frames = self.uploads.add_frame(name, content)
             if len(frames) < 2:
-                self.notify("Frame uploaded", f"{name}: upload one more frame to make a bracket",
-                            client=client)
+                self.notify(
+                    "Frame uploaded",
+                    f"{name}: upload one more frame to make a bracket",
+                    client=client,
+                )
                 return True
             return self.request_paths(frames, f"{len(frames)} uploaded frames", client)
         except HdrError as exc:
@@ -524,12 +579,14 @@ class ClientView:
             _assign(self.exposure_slider, d.tonemap_exposure)
             _assign(self.deghost_checkbox, d.deghost)
             _assign(self.reference_dropdown, "middle")
-            for handle, default in ((self.alignment_dropdown, d.align),
-                                    (self.local_dropdown, d.local),
-                                    (self.response_dropdown, d.response),
-                                    (self.times_dropdown, d.times),
-                                    (self.exposure_method_dropdown, d.exposure_method),
-                                    (self.tonemap_dropdown, d.tonemap)):
+            for handle, default in (
+                (self.alignment_dropdown, d.align),
+                (self.local_dropdown, d.local),
+                (self.response_dropdown, d.response),
+                (self.times_dropdown, d.times),
+                (self.exposure_method_dropdown, d.exposure_method),
+                (self.tonemap_dropdown, d.tonemap),
+            ):
                 _assign(handle, _option(str(default), default))
         finally:
             self._syncing = False
@@ -560,8 +617,11 @@ class ClientView:
         _assign(self.progress, round(100.0 * fraction, 1))
         if text:
             self.progress_text = text
-            note = " (first run of this installation: compiling kernels)" if (
-                self.app.first_run and fraction < 0.9) else ""
+            note = (
+                " (first run of this installation: compiling kernels)"
+                if (self.app.first_run and fraction < 0.9)
+                else ""
+            )
             self.progress_md.content = f"_{text}{note}_"
 
     def _on_busy(self, busy: bool) -> None:
@@ -591,8 +651,9 @@ class ClientView:
                 if warm is not None:
                     self.session = warm
                 else:
-                    self.session.load(list(files), source=label, times=times,
-                                      loader=self.app.brackets.get)
+                    self.session.load(
+                        list(files), source=label, times=times, loader=self.app.brackets.get
+                    )
             except BaseException:
                 with self._lock:
                     if self._wanted == wanted:  # do not retry a failed load on the next change
@@ -606,6 +667,7 @@ class ClientView:
         ctx.check()
         result: PipelineResult | None = None
         if self.session.bracket is not None and pipeline_available():
+
             def progress(stage: str, fraction: float, message: str) -> None:
                 # A newer request stops this run at the next stage boundary: the pipeline lets
                 # Cancelled through (finished stages stay cached) and the worker drops the job.
@@ -631,8 +693,9 @@ class ClientView:
                 from hdrcore.pipeline import Cancelled
 
                 try:
-                    draft = self.session.run_draft(quick, progress=progress,
-                                                   max_side=self.draft_max_side)
+                    draft = self.session.run_draft(
+                        quick, progress=progress, max_side=self.draft_max_side
+                    )
                 except Cancelled:
                     raise
                 except Exception:  # the draft never stands in the full run's way
@@ -644,8 +707,7 @@ class ClientView:
                     self.last_draft_seconds = time.perf_counter() - t0
                     self.last_draft_cpu = time.process_time() - c0
             ctx.check()
-            registered = self.session.run(self.controls, progress=progress,
-                                          until="registration")
+            registered = self.session.run(self.controls, progress=progress, until="registration")
             ctx.check()
             if getattr(registered, "registration", None) is not None:
                 self._draw(registered, stages=("registration",))
@@ -698,8 +760,7 @@ class ClientView:
     def _set_pair_options(self, b: Bracket) -> None:
         names = [f.name for f in b.frames]
         self.pair_dropdown.options = tuple(
-            f"pair {k}: frames {k}-{k + 1} ({names[k]}, {names[k + 1]})"
-            for k in range(len(b) - 1)
+            f"pair {k}: frames {k}-{k + 1} ({names[k]}, {names[k + 1]})" for k in range(len(b) - 1)
         )
         _assign(self.pair_dropdown, self.pair_dropdown.options[0])
         self.pair = 0
@@ -707,8 +768,11 @@ class ClientView:
 
     def _sync_pairs(self, b: Bracket) -> None:
         """The pair dropdown lists the pairs of the frames the result used."""
-        if self._pairs_bracket is not None and len(self._pairs_bracket) == len(b) and all(
-                x is y for x, y in zip(self._pairs_bracket.frames, b.frames, strict=True)):
+        if (
+            self._pairs_bracket is not None
+            and len(self._pairs_bracket) == len(b)
+            and all(x is y for x, y in zip(self._pairs_bracket.frames, b.frames, strict=True))
+        ):
             self._pairs_bracket = b
             return
         self._syncing = True
@@ -736,9 +800,13 @@ class ClientView:
         }
         if stages is None:
             self.status.content = self.status_markdown(result)
-        panels: dict[str, _Panel] = {"btf": self.btf_panel, "masks": self.masks_panel,
-                  "registration": self.registration_panel, "response": self.response_panel,
-                  "result": self.result_panel}
+        panels: dict[str, _Panel] = {
+            "btf": self.btf_panel,
+            "masks": self.masks_panel,
+            "registration": self.registration_panel,
+            "response": self.response_panel,
+            "result": self.result_panel,
+        }
         for name, panel in panels.items():
             if stages is None or name in stages:
                 panel.show(used, result, view)
@@ -750,8 +818,12 @@ class ClientView:
             # arrays (at 24 MP that saves faulting in 0.7 GB of fresh memory, 0.5-1 s here).
             previous, self._drawn_result = self._drawn_result, result
             pipeline = self.session.pipeline
-            if (previous is not None and pipeline is not None and result is not None
-                    and previous.merge is not result.merge):
+            if (
+                previous is not None
+                and pipeline is not None
+                and result is not None
+                and previous.merge is not result.merge
+            ):
                 pipeline.release(previous)
 
     def status_markdown(self, result: PipelineResult | None) -> str:
@@ -786,8 +858,10 @@ class ClientView:
         timings = result.timings
         ran = set(result.stages_run)
         if ran:
-            lines.append("Computed: " + ", ".join(
-                f"{k} {1000 * float(v):.0f} ms" for k, v in timings.items() if k in ran))
+            lines.append(
+                "Computed: "
+                + ", ".join(f"{k} {1000 * float(v):.0f} ms" for k, v in timings.items() if k in ran)
+            )
         else:
             lines.append("Everything came from the cache.")
         return "\n\n".join(lines)
@@ -829,8 +903,13 @@ class ClientView:
         with zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED) as zf:
             zf.writestr("report.json", json.dumps(_to_report(result), indent=2, default=str))
             for name, data in diagnostics_panel.bundle_files(
-                self.session.bracket, result, self.btf_panel, self.masks_panel,
-                self.registration_panel, self.response_panel, self.result_panel,
+                self.session.bracket,
+                result,
+                self.btf_panel,
+                self.masks_panel,
+                self.registration_panel,
+                self.response_panel,
+                self.result_panel,
             ):
                 zf.writestr(name, data)
         return buf.getvalue()

@@ -23,8 +23,9 @@ def test_identity_for_identical_histograms() -> None:
 
 def test_linear_pair_recovers_ratio_at_bit_depths() -> None:
     for bits, tol in ((8, 0.01), (12, 0.002), (14, 0.002)):
-        b = simulate_bracket(exposure_times=(1.0, 4.0), bits=bits, noise_sigma=1.0,
-                             shape=(128, 192), seed=3)
+        b = simulate_bracket(
+            exposure_times=(1.0, 4.0), bits=bits, noise_sigma=1.0, shape=(128, 192), seed=3
+        )
         m = b.max_level
         hd, hb = (histograms(f, m) for f in b.frames)
         btf = brightness_transfer_function(hd[1], hb[1])

@@ -18,16 +18,33 @@ DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 
 
 def _bracket(shape=(192, 288), bits=8, response="gamma") -> Bracket:
-    sim = simulate_bracket(scene="window", shape=shape, exposure_times=(1.0, 4.0, 16.0),
-                           bits=bits, response=response, noise_sigma=1.0, max_shift=2.0,
-                           max_rotation_deg=0.3, seed=3)
+    sim = simulate_bracket(
+        scene="window",
+        shape=shape,
+        exposure_times=(1.0, 4.0, 16.0),
+        bits=bits,
+        response=response,
+        noise_sigma=1.0,
+        max_shift=2.0,
+        max_rotation_deg=0.3,
+        seed=3,
+    )
     m = (1 << bits) - 1
     dtype = np.uint8 if bits == 8 else np.uint16
     frames = tuple(
-        Frame(levels=np.ascontiguousarray(f.astype(dtype)),
-              meta=FrameMetadata(path=f"/sim/frame{k}.png", format="png", bit_depth=bits,
-                                 max_level=m, is_linear=response == "linear", exposure_time=t))
-        for k, (f, t) in enumerate(zip(sim.frames, sim.exposure_times, strict=True)))
+        Frame(
+            levels=np.ascontiguousarray(f.astype(dtype)),
+            meta=FrameMetadata(
+                path=f"/sim/frame{k}.png",
+                format="png",
+                bit_depth=bits,
+                max_level=m,
+                is_linear=response == "linear",
+                exposure_time=t,
+            ),
+        )
+        for k, (f, t) in enumerate(zip(sim.frames, sim.exposure_times, strict=True))
+    )
     return Bracket(frames=frames, warnings=(), order_source="exposure", input_order=(0, 1, 2))
 
 
@@ -39,15 +56,22 @@ def test_compiled_binning_equals_the_numpy_reference(dtype, top, exclude) -> Non
     lv[10:14, 20:22] = (0, 0, 255)
     for f in (1, 3, 4):
         a = bin_levels(lv, f, saturation=0.9 * top, max_level=top, exclude_colour=exclude)
-        b = bin_levels(lv, f, saturation=0.9 * top, max_level=top, exclude_colour=exclude,
-                       engine="numpy")
+        b = bin_levels(
+            lv, f, saturation=0.9 * top, max_level=top, exclude_colour=exclude, engine="numpy"
+        )
         assert a.dtype == dtype and a.shape == (67 // f, 53 // f, 3)
         np.testing.assert_array_equal(a, b)
         lut = (np.arange(top + 1) / top) ** np.array([[2.2], [2.0], [1.8]])
-        a = bin_levels(lv, f, saturation=0.9 * top, max_level=top, exclude_colour=exclude,
-                       lut=lut)
-        b = bin_levels(lv, f, saturation=0.9 * top, max_level=top, exclude_colour=exclude,
-                       lut=lut, engine="numpy")
+        a = bin_levels(lv, f, saturation=0.9 * top, max_level=top, exclude_colour=exclude, lut=lut)
+        b = bin_levels(
+            lv,
+            f,
+            saturation=0.9 * top,
+            max_level=top,
+            exclude_colour=exclude,
+            lut=lut,
+            engine="numpy",
+        )
         assert a.dtype == np.uint16
         np.testing.assert_array_equal(a, b)
 
@@ -129,8 +153,12 @@ def test_real_bracket_draft_is_near_the_full_preview() -> None:
     b = load_bracket(sorted(d.glob("*.jpg")))
     pipe = Pipeline(b)
     full = pipe.run()
-    draft = run_draft(b, full.params.replace(response=full.response), max_side=320,
-                      exposure_times=full.exposure_times)
+    draft = run_draft(
+        b,
+        full.params.replace(response=full.response),
+        max_side=320,
+        exposure_times=full.exposure_times,
+    )
     img = np.asarray(draft.preview.image)
     ref = pipe.run(full.params.replace(preview_max_side=320)).preview.image
     diff = np.abs(img.astype(float) - np.asarray(ref, float)[: img.shape[0], : img.shape[1]])

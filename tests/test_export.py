@@ -17,9 +17,17 @@ from hdrview.panels.result import exr_bytes
 
 @pytest.fixture(scope="module")
 def bracket_dir(tmp_path_factory):
-    sim = simulate_bracket(scene="window", shape=(64, 96), exposure_times=(1.0, 4.0, 16.0),
-                           bits=8, response="srgb", noise_sigma=0.5, seed=5, max_shift=1.5,
-                           max_rotation_deg=0.2)
+    sim = simulate_bracket(
+        scene="window",
+        shape=(64, 96),
+        exposure_times=(1.0, 4.0, 16.0),
+        bits=8,
+        response="srgb",
+        noise_sigma=0.5,
+        seed=5,
+        max_shift=1.5,
+        max_rotation_deg=0.2,
+    )
     out = tmp_path_factory.mktemp("export") / "jpeg"
     write_bracket(out, sim, fmt="png")
     return out
@@ -28,8 +36,11 @@ def bracket_dir(tmp_path_factory):
 def _attributes(path) -> tuple[np.ndarray, dict]:
     rgb, attrs = read_exr(path)
     # written by OpenEXR itself, not by us
-    keep = {k: v for k, v in attrs.items()
-            if k.startswith("hdrview") or k in ("exposureTimes", "exposureRatios")}
+    keep = {
+        k: v
+        for k, v in attrs.items()
+        if k.startswith("hdrview") or k in ("exposureTimes", "exposureRatios")
+    }
     return rgb, keep
 
 
@@ -41,8 +52,13 @@ def test_cli_and_inspector_write_the_same_file(bracket_dir, tmp_path) -> None:
     ins_out.write_bytes(exr_bytes(result, work_dir=tmp_path))
     cli_rgb, cli_attrs = _attributes(cli_out)
     ins_rgb, ins_attrs = _attributes(ins_out)
-    for key in ("exposureTimes", "exposureRatios", "hdrviewTransforms", "hdrviewSources",
-                "hdrview"):
+    for key in (
+        "exposureTimes",
+        "exposureRatios",
+        "hdrviewTransforms",
+        "hdrviewSources",
+        "hdrview",
+    ):
         assert key in ins_attrs, key
     assert ins_attrs == cli_attrs
     np.testing.assert_array_equal(ins_rgb, cli_rgb)

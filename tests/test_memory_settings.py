@@ -27,8 +27,9 @@ def test_setting_applies_in_a_program_and_memory_still_works() -> None:
         "b = np.zeros(60_000_000, np.uint8); assert not b.any()\n"
         "print(ok)\n"
     )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                         timeout=120, check=True).stdout.strip()
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=True
+    ).stdout.strip()
     glibc = platform.libc_ver()[0] == "glibc"
     assert out == ("True" if glibc else "False")
 
@@ -56,8 +57,14 @@ def test_freed_memory_is_kept_and_reused_only_with_the_setting(retain: bool) -> 
     """What the setting is for: a freed 200 MB buffer stays with the process and the next one
     reuses its pages (no new memory touched); switched off, glibc gives it back at once."""
     env = dict(os.environ, HDRCORE_RETAIN_MEMORY="1" if retain else "0")
-    out = subprocess.run([sys.executable, "-c", _RSS_PROBE], capture_output=True, text=True,
-                         timeout=120, check=True, env=env).stdout.split()
+    out = subprocess.run(
+        [sys.executable, "-c", _RSS_PROBE],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=True,
+        env=env,
+    ).stdout.split()
     was_set, freed, again = out[0] == "True", int(out[1]), int(out[2])
     assert was_set is retain
     if retain:

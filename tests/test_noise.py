@@ -56,15 +56,16 @@ def test_clipped_samples_are_left_out():
 
 
 def test_bracket_floor_rules():
-    frames = (FrameNoise(1.0, "dark-regions", 5000, 3.0),
-              FrameNoise(4.0, "dark-regions", 5000, 300.0))
+    frames = (
+        FrameNoise(1.0, "dark-regions", 5000, 3.0),
+        FrameNoise(4.0, "dark-regions", 5000, 300.0),
+    )
     raw = bracket_noise(frames, max_level=4095, linear=True)
     assert raw.sigma == 1.0  # the estimate made nearest black
     assert raw.floor == pytest.approx(max(K_SIGMA * 1.0, RAW_MIN_FLOOR))
     ob = bracket_noise(frames + (FrameNoise(0.5, "optical-black"),), max_level=4095, linear=True)
     assert ob.source == "optical-black" and ob.sigma == 0.5 and ob.floor == RAW_MIN_FLOOR
-    jpeg = bracket_noise((FrameNoise(0.2, "dark-regions", 5000, 2.0),), max_level=255,
-                         linear=False)
+    jpeg = bracket_noise((FrameNoise(0.2, "dark-regions", 5000, 2.0),), max_level=255, linear=False)
     assert jpeg.floor == pytest.approx(NONLINEAR_MIN_FLOOR_FRACTION * 255)
     none = bracket_noise((FrameNoise(float("nan"), "none"),), max_level=4095, linear=True)
     assert none.floor == RAW_MIN_FLOOR and none.source == "none"

@@ -17,9 +17,17 @@ def bracket(tmp_path_factory: pytest.TempPathFactory):
     from hdrcore.io import load_bracket
     from hdrcore.synthetic import write_bracket
 
-    sim = simulate_bracket(scene="window", shape=(96, 144), exposure_times=(1 / 64, 1 / 16, 1 / 4),
-                           bits=8, response="gamma", noise_sigma=1.0, seed=4, max_shift=2,
-                           max_rotation_deg=0.2)
+    sim = simulate_bracket(
+        scene="window",
+        shape=(96, 144),
+        exposure_times=(1 / 64, 1 / 16, 1 / 4),
+        bits=8,
+        response="gamma",
+        noise_sigma=1.0,
+        seed=4,
+        max_shift=2,
+        max_rotation_deg=0.2,
+    )
     out = tmp_path_factory.mktemp("registries")
     write_bracket(out, sim, fmt="png")
     return load_bracket([out])
@@ -80,8 +88,9 @@ def test_a_registration_method_is_one_entry(bracket, monkeypatch) -> None:
         return register_pair_fast(dark, bright, ratio, **options)
 
     monkeypatch.setitem(reg.REGISTRATION_METHODS, "counted", counted)
-    res = Pipeline(bracket).run(PipelineParams(registration_method="counted", align="similarity",
-                                               local="off"))
+    res = Pipeline(bracket).run(
+        PipelineParams(registration_method="counted", align="similarity", local="off")
+    )
     assert calls == ["similarity", "similarity"]  # one search per consecutive pair
     assert [q.method for q in res.registration.pairs] == ["fast", "fast"]
     assert all(q.usable for q in res.registration.pairs)

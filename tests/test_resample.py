@@ -47,7 +47,7 @@ def test_compiled_pass_matches_the_numpy_path(monkeypatch, shape, factor) -> Non
     compiled = downsample_area(x, factor)
     x_nan = x.copy()
     x_nan[0, 1] = np.nan
-    x_nan[factor:2 * factor, factor:2 * factor] = np.nan
+    x_nan[factor : 2 * factor, factor : 2 * factor] = np.nan
     compiled_nan = downsample_area(x_nan, factor)
     monkeypatch.setattr(resample, "AVAILABLE", False)
     np.testing.assert_array_equal(compiled, downsample_area(x, factor))

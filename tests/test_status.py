@@ -28,14 +28,17 @@ from hdrcore.synthetic.faults import (
 SMALL = SEED_PROTOCOL.replace(shape=(48, 64), exposure_times=(1.0, 4.0, 16.0, 64.0))
 
 
-@pytest.mark.parametrize("cls,field,alias", [
-    (Verdict, "severity", status.Severity),
-    (ExposureRatioResult, "status", status.RatioStatus),
-    (BracketExposureResult, "status", status.ChainStatus),
-    (FrameSignal, "status", status.SignalStatus),
-    (BracketRecord, "status", status.BatchStatus),
-    (ResponseCurve, "status", status.ResponseStatus),
-])
+@pytest.mark.parametrize(
+    "cls,field,alias",
+    [
+        (Verdict, "severity", status.Severity),
+        (ExposureRatioResult, "status", status.RatioStatus),
+        (BracketExposureResult, "status", status.ChainStatus),
+        (FrameSignal, "status", status.SignalStatus),
+        (BracketRecord, "status", status.BatchStatus),
+        (ResponseCurve, "status", status.ResponseStatus),
+    ],
+)
 def test_result_fields_use_the_declared_aliases(cls, field, alias) -> None:
     assert typing.get_type_hints(cls)[field] == alias
 
@@ -43,8 +46,12 @@ def test_result_fields_use_the_declared_aliases(cls, field, alias) -> None:
 def test_the_tuples_list_the_aliases_words() -> None:
     assert status.SEVERITIES == ("error", "warning", "info")
     assert set(status.RATIO_STATUSES) >= {"ok", "uncertain", "no-overlap", "no-signal"}
-    for words in (status.SEVERITIES, status.RATIO_STATUSES, status.CHAIN_STATUSES,
-                  status.SIGNAL_STATUSES):
+    for words in (
+        status.SEVERITIES,
+        status.RATIO_STATUSES,
+        status.CHAIN_STATUSES,
+        status.SIGNAL_STATUSES,
+    ):
         assert len(set(words)) == len(words) and all(isinstance(w, str) for w in words)
 
 

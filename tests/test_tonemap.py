@@ -78,7 +78,8 @@ def test_fused_tonemap_matches_the_numpy_reference(method, white):
     fused = tonemap(rad, method, white=white, exposure=0.5, engine="numba", workers=2)
     np.testing.assert_array_equal(fused.image, ref.image)
     grey = tonemap(rad[..., 1], method, white=white, engine="numba")
-    np.testing.assert_array_equal(grey.image, tonemap(rad[..., 1], method, white=white,
-                                                      engine="numpy").image)
+    np.testing.assert_array_equal(
+        grey.image, tonemap(rad[..., 1], method, white=white, engine="numpy").image
+    )
     with pytest.raises(ParameterError, match="tonemap engine"):
         tonemap(rad, method, engine="gpu")

@@ -23,7 +23,7 @@ def _room_and_window(stops: float = 11.0, shape=(240, 360), seed: int = 0) -> np
 
     tex = ndimage.gaussian_filter(rng.normal(size=(h, w)), 2.0)
     tex *= 0.7 / tex.std()
-    lum = 2.0 ** tex
+    lum = 2.0**tex
     win = np.zeros((h, w), bool)
     win[20:110, 30:170] = True
     lum[win] *= 2.0**stops
@@ -110,14 +110,29 @@ def test_a_crop_renders_as_the_image_around_it(engine):
     rad, _ = _room_and_window(11.0, shape=(240, 360))
     full = tonemap(rad, "auto", engine=engine)
     crop = np.ascontiguousarray(rad[70:170, 100:300])
-    again = tonemap(crop, full.method, exposure=float(np.log2(full.scale)),
-                    auto_exposure=False, state=full.state, offset=(70, 100), engine=engine)
+    again = tonemap(
+        crop,
+        full.method,
+        exposure=float(np.log2(full.scale)),
+        auto_exposure=False,
+        state=full.state,
+        offset=(70, 100),
+        engine=engine,
+    )
     np.testing.assert_array_equal(again.image, full.image[70:170, 100:300])
     # a preview at half size: its state serves the full-resolution crop
     small = rad.reshape(120, 2, 180, 2, 3).mean(axis=(1, 3))
     prev = tonemap(small, "durand", pixel_size=2, engine=engine)
-    loupe = tonemap(crop, "durand", exposure=float(np.log2(prev.scale)), auto_exposure=False,
-                    state=prev.state, offset=(70, 100), pixel_size=1, engine=engine)
+    loupe = tonemap(
+        crop,
+        "durand",
+        exposure=float(np.log2(prev.scale)),
+        auto_exposure=False,
+        state=prev.state,
+        offset=(70, 100),
+        pixel_size=1,
+        engine=engine,
+    )
     down = _luma(loupe.image).reshape(50, 2, 100, 2).mean(axis=(1, 3))
     assert np.abs(down - _luma(prev.image[35:85, 50:150])).mean() < 3.0
 

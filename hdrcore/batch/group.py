@@ -187,9 +187,12 @@ def _segment_stream(shots: Sequence[Shot], max_frames: int, thumbnails: bool) ->
     # the metered exposure near each shot: the median of its neighbours' (a bracket is
     # centred on it, single shots are taken at it)
     known_ev = np.array([np.nan if v is None else v for v in evs], dtype=float)
-    metered_at = [float(np.nanmedian(known_ev[max(0, k - METERED_WINDOW):k + METERED_WINDOW + 1]))
-                  if np.isfinite(known_ev[max(0, k - METERED_WINDOW):k + METERED_WINDOW + 1]).any()
-                  else 0.0 for k in range(n)]
+    metered_at = [
+        float(np.nanmedian(known_ev[max(0, k - METERED_WINDOW) : k + METERED_WINDOW + 1]))
+        if np.isfinite(known_ev[max(0, k - METERED_WINDOW) : k + METERED_WINDOW + 1]).any()
+        else 0.0
+        for k in range(n)
+    ]
     best = [0.0] + [math.inf] * n
     back = [0] * (n + 1)
     orders: dict[tuple[int, int], str] = {}
@@ -208,9 +211,13 @@ def _segment_stream(shots: Sequence[Shot], max_frames: int, thumbnails: bool) ->
                 orders[(i, j)] = order
                 centre = 0.5 * (max(ev) + min(ev))
                 metered = metered_at[(i + j - 1) // 2]
-                cost = (1.0 + (PAIR_COST if size == 2 else 0.0) + _shape_cost(ev, order)
-                        + CENTRE_COST * min(1.0, abs(centre - metered))
-                        + float(inner[j - 1] - inner[i]))
+                cost = (
+                    1.0
+                    + (PAIR_COST if size == 2 else 0.0)
+                    + _shape_cost(ev, order)
+                    + CENTRE_COST * min(1.0, abs(centre - metered))
+                    + float(inner[j - 1] - inner[i])
+                )
             if best[i] + cost < best[j] - 1e-12:
                 best[j], back[j] = best[i] + cost, i
     groups: list[Group] = []
@@ -222,8 +229,11 @@ def _segment_stream(shots: Sequence[Shot], max_frames: int, thumbnails: bool) ->
         else:
             evs_g = [e for k in range(i, j) if (e := evs[k]) is not None]
             span = max(evs_g) - min(evs_g)
-            groups.append(Group(tuple(shots[i:j]),
-                                f"{j - i} exposures {orders[(i, j)]} over {span:.1f} stops"))
+            groups.append(
+                Group(
+                    tuple(shots[i:j]), f"{j - i} exposures {orders[(i, j)]} over {span:.1f} stops"
+                )
+            )
         j = i
     return groups[::-1]
 
@@ -245,41 +255,53 @@ def _streams(shots: Sequence[Shot]) -> list[list[Shot]]:
     by: dict[tuple, list[Shot]] = {}
     for s in shots:
         by.setdefault(s.stream, []).append(s)
-    return [sorted(v, key=lambda s: (s.time is None, s.time or 0.0, s.path))
-            for _, v in sorted(by.items(), key=lambda kv: str(kv[0]))]
+    return [
+        sorted(v, key=lambda s: (s.time is None, s.time or 0.0, s.path))
+        for _, v in sorted(by.items(), key=lambda kv: str(kv[0]))
+    ]
 
 
-def group_by_signals(shots: Sequence[Shot], *, max_frames: int = MAX_FRAMES,
-                     thumbnails: bool = True, **_: object) -> list[Group]:
+def group_by_signals(
+    shots: Sequence[Shot], *, max_frames: int = MAX_FRAMES, thumbnails: bool = True, **_: object
+) -> list[Group]:
     out: list[Group] = []
     for stream in _streams(shots):
         with_ev = [s for s in stream if _shot_ev(s) is not None]
         if len(with_ev) == len(stream):
             out += _segment_stream(stream, max_frames, thumbnails)
         elif not with_ev and all(s.time is not None for s in stream) and len(stream) > 1:
-            out += _by_time_gap(stream, HDRMERGE_GAP,
-                                f"no exposures recorded: time gaps <= {HDRMERGE_GAP:g} s")
+            out += _by_time_gap(
+                stream, HDRMERGE_GAP, f"no exposures recorded: time gaps <= {HDRMERGE_GAP:g} s"
+            )
         elif not with_ev:
-            out.append(Group(tuple(stream), "no exposures or times recorded: the whole folder"
-                             " (same camera and size)") if len(stream) > 1
-                       else Group(tuple(stream), "single shot"))
+            out.append(
+                Group(
+                    tuple(stream),
+                    "no exposures or times recorded: the whole folder (same camera and size)",
+                )
+                if len(stream) > 1
+                else Group(tuple(stream), "single shot")
+            )
         else:
             out += _segment_stream(with_ev, max_frames, thumbnails)
-            out += [Group((s,), "single shot (no exposure recorded)")
-                    for s in stream if _shot_ev(s) is None]
+            out += [
+                Group((s,), "single shot (no exposure recorded)")
+                for s in stream
+                if _shot_ev(s) is None
+            ]
     return out
 
 
 def group_by_gap(shots: Sequence[Shot], *, gap: float | None = None, **_: object) -> list[Group]:
     g = HDRMERGE_GAP if gap is None else float(gap)
     if not (g >= 0 and math.isfinite(g)):
-        raise ParameterError("the time gap must be a non-negative number of seconds",
-                             found=repr(gap))
+        raise ParameterError(
+            "the time gap must be a non-negative number of seconds", found=repr(gap)
+        )
     return _by_time_gap(shots, g, f"time gaps <= {g:g} s")
 
 
-def group_by_count(shots: Sequence[Shot], *, size: int | None = None,
-                   **_: object) -> list[Group]:
+def group_by_count(shots: Sequence[Shot], *, size: int | None = None, **_: object) -> list[Group]:
     if size is None or int(size) < 1:
         raise ParameterError("a group size of at least 1 is needed", found=repr(size))
     n = int(size)
@@ -290,7 +312,7 @@ def group_by_count(shots: Sequence[Shot], *, size: int | None = None,
     for folder in sorted(by_folder):
         items = sorted(by_folder[folder], key=lambda s: s.path)
         for k in range(0, len(items), n):
-            part = tuple(items[k:k + n])
+            part = tuple(items[k : k + n])
             why = f"every {n} files" if len(part) == n else f"last {len(part)} of every {n}"
             out.append(Group(part, why if len(part) > 1 else "single shot"))
     return out
@@ -307,5 +329,6 @@ def group_shots(shots: Sequence[Shot], method: str = "signals", **kwargs: Any) -
     """Group ``shots`` with one of :data:`GROUPING_METHODS`, in capture order."""
     fn = GROUPING_METHODS[validate_method(method, GROUPING_METHODS, "grouping")]
     groups = fn(list(shots), **kwargs)
-    return sorted(groups, key=lambda g: (g.shots[0].time is None, g.shots[0].time or 0.0,
-                                         g.shots[0].path))
+    return sorted(
+        groups, key=lambda g: (g.shots[0].time is None, g.shots[0].time or 0.0, g.shots[0].path)
+    )

@@ -42,16 +42,18 @@ class Plan:
     method: str = "signals"
 
     def to_json(self) -> dict[str, Any]:
-        return {"version": PLAN_VERSION, "method": self.method,
-                "brackets": [b.to_json() for b in self.brackets],
-                "singles": list(self.singles)}
+        return {
+            "version": PLAN_VERSION,
+            "method": self.method,
+            "brackets": [b.to_json() for b in self.brackets],
+            "singles": list(self.singles),
+        }
 
 
 def _name_for(files: Sequence[str]) -> str:
     first, last = Path(files[0]).stem, Path(files[-1]).stem
     digits = re.search(r"(\d+)$", last)
-    tail = digits.group(1) if digits and last[: digits.start()] == first[: digits.start()] \
-        else last
+    tail = digits.group(1) if digits and last[: digits.start()] == first[: digits.start()] else last
     name = first if tail == first else f"{first}-{tail}"
     return _SAFE.sub("_", name).strip("._") or "bracket"
 
@@ -71,8 +73,10 @@ def make_plan(groups: Sequence[Group], method: str = "signals") -> Plan:
     brackets = [g for g in groups if g.is_bracket]
     names = _unique([_name_for(g.paths) for g in brackets])
     return Plan(
-        brackets=tuple(PlannedBracket(n, tuple(g.paths), g.reason)
-                       for n, g in zip(names, brackets, strict=False)),
+        brackets=tuple(
+            PlannedBracket(n, tuple(g.paths), g.reason)
+            for n, g in zip(names, brackets, strict=False)
+        ),
         singles=tuple(g.paths[0] for g in groups if not g.is_bracket),
         method=method,
     )
@@ -92,8 +96,11 @@ def read_plan(path: str | os.PathLike) -> Plan:
     except ValueError as exc:
         raise InputError(f"the plan file is not JSON ({exc})", path=p) from None
     if not isinstance(doc, dict) or not isinstance(doc.get("brackets"), list):
-        raise InputError("not a batch plan", path=p,
-                         expected="an object with a 'brackets' list (hdrcore batch --plan --json)")
+        raise InputError(
+            "not a batch plan",
+            path=p,
+            expected="an object with a 'brackets' list (hdrcore batch --plan --json)",
+        )
     out: list[PlannedBracket] = []
     seen_files: dict[str, str] = {}
     for k, b in enumerate(doc["brackets"]):
@@ -120,12 +127,19 @@ def read_plan(path: str | os.PathLike) -> Plan:
             seen_files[key] = where
             files.append(entry)
         if len(files) < 2:
-            raise InputError(f"{where} has {len(files)} file(s)", path=p,
-                             expected="at least two frames per bracket")
+            raise InputError(
+                f"{where} has {len(files)} file(s)",
+                path=p,
+                expected="at least two frames per bracket",
+            )
         name = b.get("name") or _name_for(files)
         if not isinstance(name, str) or _SAFE.sub("_", name) != name or name.startswith("."):
-            raise InputError(f"{where}: the name cannot be a file name", path=p,
-                             expected="letters, digits, '.', '_', '+', '-'", found=repr(name))
+            raise InputError(
+                f"{where}: the name cannot be a file name",
+                path=p,
+                expected="letters, digits, '.', '_', '+', '-'",
+                found=repr(name),
+            )
         out.append(PlannedBracket(name, tuple(files), str(b.get("reason") or "from plan file")))
     names = [b.name for b in out]
     dup = sorted({n for n in names if names.count(n) > 1})
@@ -140,14 +154,15 @@ def plan_table(plan: Plan) -> str:
     lines = [f"{'bracket':<28} {'frames':>6}  files / why"]
     for b in plan.brackets:
         names = [Path(f).name for f in b.files]
-        shown = ", ".join(names) if len(names) <= 4 else \
-            f"{names[0]}, {names[1]} ... {names[-1]}"
+        shown = ", ".join(names) if len(names) <= 4 else f"{names[0]}, {names[1]} ... {names[-1]}"
         lines.append(f"{b.name:<28} {len(b.files):>6}  {shown}  ({b.reason})")
     if plan.singles:
         names = [Path(f).name for f in plan.singles]
         shown = ", ".join(names[:8]) + (f" ... ({len(names)} in all)" if len(names) > 8 else "")
         lines.append(f"{'single shots (not merged)':<28} {len(names):>6}  {shown}")
-    lines.append(f"{len(plan.brackets)} bracket(s), "
-                 f"{sum(len(b.files) for b in plan.brackets)} frames, "
-                 f"{len(plan.singles)} single shot(s); grouping: {plan.method}")
+    lines.append(
+        f"{len(plan.brackets)} bracket(s), "
+        f"{sum(len(b.files) for b in plan.brackets)} frames, "
+        f"{len(plan.singles)} single shot(s); grouping: {plan.method}"
+    )
     return "\n".join(lines)

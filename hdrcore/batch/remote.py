@@ -36,15 +36,47 @@ from typing import Any
 
 from ..errors import InputError, OutputError
 
-__all__ = ["STAMP_FIELDS", "is_url", "filesystem", "check_url", "join", "parent", "basename",
-           "list_images", "info_of", "stamp", "digest", "stage", "put_atomic",
-           "write_text_atomic", "read_text", "listing", "remove", "same_folder", "atomicity",
-           "process_local", "makedirs", "Infos"]
+__all__ = [
+    "STAMP_FIELDS",
+    "is_url",
+    "filesystem",
+    "check_url",
+    "join",
+    "parent",
+    "basename",
+    "list_images",
+    "info_of",
+    "stamp",
+    "digest",
+    "stage",
+    "put_atomic",
+    "write_text_atomic",
+    "read_text",
+    "listing",
+    "remove",
+    "same_folder",
+    "atomicity",
+    "process_local",
+    "makedirs",
+    "Infos",
+]
 
 #: Fields of a filesystem's listing that change when a file's content does, in the order
 #: tried: content hashes first (S3 ETag, GCS md5Hash/crc32c, Azure etag), then times.
-STAMP_FIELDS = ("ETag", "etag", "md5Hash", "crc32c", "content_md5", "checksum",
-                "mtime", "LastModified", "last_modified", "updated", "modified", "created")
+STAMP_FIELDS = (
+    "ETag",
+    "etag",
+    "md5Hash",
+    "crc32c",
+    "content_md5",
+    "checksum",
+    "mtime",
+    "LastModified",
+    "last_modified",
+    "updated",
+    "modified",
+    "created",
+)
 
 _PROTOCOL = re.compile(r"^([A-Za-z][A-Za-z0-9+.-]+)://")
 _CHUNK = 1 << 22
@@ -79,27 +111,33 @@ def filesystem(url: str) -> tuple[Any, str]:
     try:
         import fsspec
     except ImportError:
-        raise InputError("reading URLs needs the Python package fsspec (pip install fsspec)",
-                         path=url) from None
+        raise InputError(
+            "reading URLs needs the Python package fsspec (pip install fsspec)", path=url
+        ) from None
     proto = _protocol(url)
     try:
         fsspec.get_filesystem_class(proto)
         return fsspec.core.url_to_fs(url)
     except ImportError as exc:
         pkg = _package_for(proto, exc)
-        raise InputError(f"the {proto}:// filesystem needs the Python package {pkg}, which is "
-                         f"not installed (pip install {pkg})", path=url) from None
+        raise InputError(
+            f"the {proto}:// filesystem needs the Python package {pkg}, which is "
+            f"not installed (pip install {pkg})",
+            path=url,
+        ) from None
     except ValueError as exc:
         if "Protocol not known" in str(exc):
             from fsspec.registry import known_implementations
 
-            raise InputError(f"unknown filesystem {proto!r} in this URL", path=url,
-                             expected="a protocol fsspec knows (s3, gcs, az, memory, file, "
-                                      f"... {len(known_implementations)} in all)") from None
+            raise InputError(
+                f"unknown filesystem {proto!r} in this URL",
+                path=url,
+                expected="a protocol fsspec knows (s3, gcs, az, memory, file, "
+                f"... {len(known_implementations)} in all)",
+            ) from None
         raise InputError(f"not a usable URL ({exc})", path=url) from None
     except Exception as exc:  # credentials, a malformed bucket name, ...
-        raise InputError(f"cannot open this URL ({type(exc).__name__}: {exc})",
-                         path=url) from None
+        raise InputError(f"cannot open this URL ({type(exc).__name__}: {exc})", path=url) from None
 
 
 def check_url(url: str) -> None:
@@ -158,19 +196,19 @@ def list_images(url: str, *, recursive: bool, is_image) -> list[str]:  # noqa: A
     except FileNotFoundError:
         raise InputError("no such file or folder", path=url) from None
     except Exception as exc:
-        raise InputError(f"cannot read this URL ({type(exc).__name__}: {exc})",
-                         path=url) from None
+        raise InputError(f"cannot read this URL ({type(exc).__name__}: {exc})", path=url) from None
     if info.get("type") != "directory":
         return [url]
     try:
         found = fs.find(root, maxdepth=None if recursive else 1, detail=False)
     except Exception as exc:
-        raise InputError(f"cannot list this folder ({type(exc).__name__}: {exc})",
-                         path=url) from None
+        raise InputError(
+            f"cannot list this folder ({type(exc).__name__}: {exc})", path=url
+        ) from None
     base = root.rstrip("/")
     out = []
     for p in found:
-        rel = p[len(base):] if p.startswith(base) else posixpath.basename(p)
+        rel = p[len(base) :] if p.startswith(base) else posixpath.basename(p)
         if not _hidden(rel) and is_image(Path(posixpath.basename(p))):
             out.append(fs.unstrip_protocol(p))
     return out
@@ -205,8 +243,9 @@ class Infos:
             try:
                 fs, path = filesystem(folder)
                 _fresh(fs, path)
-                self._folders[folder] = {posixpath.basename(e["name"].rstrip("/")): e
-                                         for e in fs.ls(path, detail=True)}
+                self._folders[folder] = {
+                    posixpath.basename(e["name"].rstrip("/")): e for e in fs.ls(path, detail=True)
+                }
             except Exception:  # noqa: BLE001 - a folder that cannot be listed: no entries
                 self._folders[folder] = {}
         return self._folders[folder].get(basename(url))
@@ -251,14 +290,17 @@ def stage(urls: Sequence[str], folder: str | os.PathLike) -> list[Path]:
         try:
             fs.get(rpaths, lpaths)
         except FileNotFoundError as exc:
-            missing = next((u for u, lp in zip(urls, local, strict=True)
-                            if not lp.is_file()), str(exc))
+            missing = next(
+                (u for u, lp in zip(urls, local, strict=True) if not lp.is_file()), str(exc)
+            )
             raise InputError("no such file", path=missing) from None
         except Exception as exc:  # network, permissions, credentials: name the file
-            first = next((u for u, lp in zip(urls, local, strict=True)
-                          if not lp.is_file()), urls[0])
-            raise InputError(f"cannot read this file ({type(exc).__name__}: {exc})",
-                             path=first) from None
+            first = next(
+                (u for u, lp in zip(urls, local, strict=True) if not lp.is_file()), urls[0]
+            )
+            raise InputError(
+                f"cannot read this file ({type(exc).__name__}: {exc})", path=first
+            ) from None
     for u, lp in zip(urls, local, strict=True):
         if not lp.is_file():
             raise InputError("could not be read", path=u)
@@ -292,12 +334,13 @@ def atomicity(url: str) -> str:
         return "rename: atomic (old file or new one, never part of one)"
     if proto == "memory":
         return "dict entry moved: atomic within this process"
-    return ("object store: copy then delete; an object appears only whole, so the final name "
-            "never holds a partial file; a crash may leave a .tmp object (removed next run)")
+    return (
+        "object store: copy then delete; an object appears only whole, so the final name "
+        "never holds a partial file; a crash may leave a .tmp object (removed next run)"
+    )
 
 
-def put_atomic(local: str | os.PathLike, url: str,
-               inputs: Iterable[str] = ()) -> str:
+def put_atomic(local: str | os.PathLike, url: str, inputs: Iterable[str] = ()) -> str:
     """Upload a local file to ``url``: to a hidden temporary name in the same folder, then
     moved onto ``url`` (see :func:`atomicity`). Refuses to replace one of ``inputs``."""
     if url in set(inputs):
@@ -314,8 +357,9 @@ def put_atomic(local: str | os.PathLike, url: str,
         except Exception:  # noqa: BLE001 - it may never have been written
             pass
         if isinstance(exc, Exception):
-            raise OutputError(f"cannot write the output ({type(exc).__name__}: {exc})",
-                              path=url) from None
+            raise OutputError(
+                f"cannot write the output ({type(exc).__name__}: {exc})", path=url
+            ) from None
         raise
     return url
 
@@ -340,5 +384,6 @@ def makedirs(url: str) -> None:
     except OutputError:
         raise
     except Exception as exc:
-        raise OutputError(f"cannot create the output folder ({type(exc).__name__}: {exc})",
-                          path=url) from None
+        raise OutputError(
+            f"cannot create the output folder ({type(exc).__name__}: {exc})", path=url
+        ) from None

@@ -51,18 +51,29 @@ class BatchRun:
         return sum(r.failed for r in self.records)
 
 
-def tasks_from_plan(plan: Plan, outdir: str | os.PathLike, options: dict[str, Any] | None = None,
-                    *, preview: bool = False, dng: bool = False,
-                    extra_key: str = "") -> list[BracketTask]:
-    out = os.fspath(outdir).rstrip("/") if remote.is_url(outdir) else \
-        str(Path(outdir).absolute())
-    return [BracketTask(b.name, tuple(b.files), out, dict(options or {}), preview, extra_key,
-                        dng) for b in plan.brackets]
+def tasks_from_plan(
+    plan: Plan,
+    outdir: str | os.PathLike,
+    options: dict[str, Any] | None = None,
+    *,
+    preview: bool = False,
+    dng: bool = False,
+    extra_key: str = "",
+) -> list[BracketTask]:
+    out = os.fspath(outdir).rstrip("/") if remote.is_url(outdir) else str(Path(outdir).absolute())
+    return [
+        BracketTask(b.name, tuple(b.files), out, dict(options or {}), preview, extra_key, dng)
+        for b in plan.brackets
+    ]
 
 
-def up_to_date(task: BracketTask, *, retry_failed: bool = False,
-               present: set[str] | None = None,
-               infos: Callable[[str], dict | None] | None = None) -> BracketRecord | None:
+def up_to_date(
+    task: BracketTask,
+    *,
+    retry_failed: bool = False,
+    present: set[str] | None = None,
+    infos: Callable[[str], dict | None] | None = None,
+) -> BracketRecord | None:
     """The sidecar's record (``merged=False``) when the bracket needs no merge, else ``None``.
 
     For a remote output folder, ``present`` (the names :func:`remote.listing` found in it)
@@ -94,8 +105,11 @@ def up_to_date(task: BracketTask, *, retry_failed: bool = False,
             if info is None:
                 return None
             now = remote.stamp(info)
-            same = now.get("stamp") is not None and now.get("stamp") == f.get("stamp") \
+            same = (
+                now.get("stamp") is not None
+                and now.get("stamp") == f.get("stamp")
                 and now.get("size") == f.get("size")
+            )
             try:
                 digests.append(f["sha256"] if same else remote.digest(path))
             except Exception:  # noqa: BLE001 - unreadable now: merge again (and fail there)
@@ -111,8 +125,10 @@ def up_to_date(task: BracketTask, *, retry_failed: bool = False,
         return None
     wanted = [rec.outputs.get(k) for k in ("exr", "preview", "dng")]
     if rec.status != "failed":
-        wanted += [task.target(f"{task.name}.png") if task.preview else None,
-                   task.target(f"{task.name}.dng") if task.dng else None]
+        wanted += [
+            task.target(f"{task.name}.png") if task.preview else None,
+            task.target(f"{task.name}.dng") if task.dng else None,
+        ]
     for path in wanted:
         if path and not _exists(path, task, present):
             return None
@@ -187,22 +203,35 @@ def _worker_setup(limit_bytes: int | None = None) -> None:
 
 
 def _lost(task: BracketTask, exc: BaseException, hint: str = "") -> BracketRecord:
-    return BracketRecord(task.name, task.files, "failed",
-                         reason=f"the worker failed: {type(exc).__name__}: "
-                                f"{str(exc).splitlines()[0] if str(exc) else ''}{hint}",
-                         quality={"score": 0.0}, outputs={"sidecar": None})
+    return BracketRecord(
+        task.name,
+        task.files,
+        "failed",
+        reason=f"the worker failed: {type(exc).__name__}: "
+        f"{str(exc).splitlines()[0] if str(exc) else ''}{hint}",
+        quality={"score": 0.0},
+        outputs={"sidecar": None},
+    )
 
 
-def _run_local(todo: list[BracketTask], workers: int, memory_limit: int | None,
-               done: Callable[[BracketTask, BracketRecord], None]) -> None:
+def _run_local(
+    todo: list[BracketTask],
+    workers: int,
+    memory_limit: int | None,
+    done: Callable[[BracketTask, BracketRecord], None],
+) -> None:
     if workers <= 1:  # this process: a library caller's allocator is left alone
         if memory_limit:
             _worker_setup(memory_limit)
         for t in todo:
             done(t, run_task(t))
         return
-    pool = ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn"),
-                               initializer=_worker_setup, initargs=(memory_limit,))
+    pool = ProcessPoolExecutor(
+        max_workers=workers,
+        mp_context=get_context("spawn"),
+        initializer=_worker_setup,
+        initargs=(memory_limit,),
+    )
     try:
         futures = {pool.submit(run_task, t): t for t in todo}
         for fut in as_completed(futures):
@@ -210,8 +239,14 @@ def _run_local(todo: list[BracketTask], workers: int, memory_limit: int | None,
             try:
                 rec = fut.result()
             except Exception as exc:  # BrokenProcessPool: a worker was killed (OOM killer)
-                rec = _lost(t, exc, f" (each worker is limited to {memory_limit / 1e9:g} GB: "
-                                    f"a higher --worker-memory may help)" if memory_limit else "")
+                rec = _lost(
+                    t,
+                    exc,
+                    f" (each worker is limited to {memory_limit / 1e9:g} GB: "
+                    f"a higher --worker-memory may help)"
+                    if memory_limit
+                    else "",
+                )
             done(t, rec)
     except BaseException:
         pool.shutdown(wait=False, cancel_futures=True)
@@ -219,13 +254,15 @@ def _run_local(todo: list[BracketTask], workers: int, memory_limit: int | None,
     pool.shutdown(wait=True)
 
 
-def _run_dask(todo: list[BracketTask], client: Any,
-              done: Callable[[BracketTask, BracketRecord], None]) -> None:
+def _run_dask(
+    todo: list[BracketTask], client: Any, done: Callable[[BracketTask, BracketRecord], None]
+) -> None:
     from distributed import as_completed as dask_completed
 
     run = uuid.uuid4().hex[:8]
-    futures = client.map(run_task, todo, key=[f"hdrcore-merge-{t.name}-{run}" for t in todo],
-                         pure=False)
+    futures = client.map(
+        run_task, todo, key=[f"hdrcore-merge-{t.name}-{run}" for t in todo], pure=False
+    )
     by_key = {f.key: t for f, t in zip(futures, todo, strict=False)}
     try:
         for fut in dask_completed(futures):
@@ -240,8 +277,9 @@ def _run_dask(todo: list[BracketTask], client: Any,
         raise
 
 
-def _check_shared(tasks: Sequence[BracketTask], workers: int, scheduler: str | None,
-                  client: Any) -> None:
+def _check_shared(
+    tasks: Sequence[BracketTask], workers: int, scheduler: str | None, client: Any
+) -> None:
     """``memory://`` lives in one process: refuse it where worker processes would write into
     their own memory and the run would lose every output."""
     if not (workers > 1 and client is None or scheduler is not None):
@@ -249,16 +287,23 @@ def _check_shared(tasks: Sequence[BracketTask], workers: int, scheduler: str | N
     for t in tasks:
         for u in (t.outdir, *t.files):
             if remote.is_url(u) and remote.process_local(u):
-                raise InputError("memory:// exists in one process only; worker processes "
-                                 "would not see it", path=u,
-                                 expected="--workers 1, or a filesystem every worker sees "
-                                          "(file://, s3://, ...)")
+                raise InputError(
+                    "memory:// exists in one process only; worker processes would not see it",
+                    path=u,
+                    expected="--workers 1, or a filesystem every worker sees (file://, s3://, ...)",
+                )
 
 
 def run_batch(
-    tasks: Sequence[BracketTask], *, workers: int = 1, scheduler: str | None = None,
-    client: Any = None, progress: Progress | None = None, retry_failed: bool = False,
-    force: bool = False, memory_limit: int | None = None,
+    tasks: Sequence[BracketTask],
+    *,
+    workers: int = 1,
+    scheduler: str | None = None,
+    client: Any = None,
+    progress: Progress | None = None,
+    retry_failed: bool = False,
+    force: bool = False,
+    memory_limit: int | None = None,
 ) -> BatchRun:
     """Run ``tasks`` (brackets whose sidecar is up to date are skipped unless ``force``).
 
@@ -277,8 +322,13 @@ def run_batch(
     for t in tasks:
         if remote.is_url(t.outdir) and t.outdir not in present:
             present[t.outdir] = remote.listing(t.outdir) or set()
-        rec = None if force else up_to_date(t, retry_failed=retry_failed,
-                                            present=present.get(t.outdir), infos=infos)
+        rec = (
+            None
+            if force
+            else up_to_date(
+                t, retry_failed=retry_failed, present=present.get(t.outdir), infos=infos
+            )
+        )
         if rec is None:
             todo.append(t)
         else:
@@ -310,8 +360,12 @@ def run_batch(
                     # all queued at once) and with slower monitors: the workers' time goes to
                     # the merges (see LOCAL_CLUSTER_CONFIG)
                     with dask.config.set(LOCAL_CLUSTER_CONFIG):
-                        own = LocalCluster(n_workers=max(1, workers), threads_per_worker=1,
-                                           processes=True, dashboard_address=None)
+                        own = LocalCluster(
+                            n_workers=max(1, workers),
+                            threads_per_worker=1,
+                            processes=True,
+                            dashboard_address=None,
+                        )
                     client = Client(own)
                     client.run(_worker_setup)  # our own workers: as the pool's
                 else:

@@ -23,8 +23,7 @@ from ..io import frame_pixels, is_raw_path, read_exif
 from ..io.bracket import IMAGE_EXTENSIONS
 from . import remote
 
-__all__ = ["Shot", "find_images", "scan_shots", "read_shot", "read_shots",
-           "thumbnail_similarity"]
+__all__ = ["Shot", "find_images", "scan_shots", "read_shot", "read_shots", "thumbnail_similarity"]
 
 #: Side of the grey thumbnail kept per shot (pixels).
 THUMB_SIDE = 24
@@ -73,9 +72,14 @@ class Shot:
 
     def to_json(self) -> dict:
         return {
-            "path": self.path, "time": self.time, "exposure_time": self.exposure_time,
-            "iso": self.iso, "f_number": self.f_number, "exposure_bias": self.exposure_bias,
-            "exposure_ev": self.exposure_ev, "camera": self.camera,
+            "path": self.path,
+            "time": self.time,
+            "exposure_time": self.exposure_time,
+            "iso": self.iso,
+            "f_number": self.f_number,
+            "exposure_bias": self.exposure_bias,
+            "exposure_ev": self.exposure_ev,
+            "camera": self.camera,
             "size": None if self.size is None else list(self.size),
         }
 
@@ -90,8 +94,7 @@ def _folder_and_name(f: Path | str) -> tuple[str, str]:
     return str(f.parent), f.name
 
 
-def find_images(paths: list[str | os.PathLike], *,
-                recursive: bool = False) -> list[Path | str]:
+def find_images(paths: list[str | os.PathLike], *, recursive: bool = False) -> list[Path | str]:
     """The image files named (files as given, folders listed; sub-folders with ``recursive``),
     absolute, hidden files (``.name``) left out, sorted by folder then name. fsspec URLs
     (``s3://bucket/shots``) are listed through their filesystem and given back as URLs
@@ -99,8 +102,7 @@ def find_images(paths: list[str | os.PathLike], *,
     out: list[Path | str] = []
     for item in paths:
         if remote.is_url(item):
-            out.extend(remote.list_images(os.fspath(item), recursive=recursive,
-                                          is_image=_is_image))
+            out.extend(remote.list_images(os.fspath(item), recursive=recursive, is_image=_is_image))
             continue
         p = Path(item)
         if p.is_dir():
@@ -117,9 +119,11 @@ def find_images(paths: list[str | os.PathLike], *,
             raise InputError("no such file or folder", path=p)
     out = sorted(set(out), key=_folder_and_name)
     if not out:
-        raise InputError("no JPEG, PNG, TIFF or RAW files found",
-                         path=", ".join(str(p) for p in paths),
-                         expected="a folder of images (add --recursive for sub-folders)")
+        raise InputError(
+            "no JPEG, PNG, TIFF or RAW files found",
+            path=", ".join(str(p) for p in paths),
+            expected="a folder of images (add --recursive for sub-folders)",
+        )
     return out
 
 
@@ -180,10 +184,17 @@ def read_shot(path: str | os.PathLike, *, thumbnail: bool = True) -> Shot:
             iso = iso or (float(other.iso_speed) if other.iso_speed > 0 else None)
             fnum = fnum or (float(other.aperture) if other.aperture > 0 else None)
     return Shot(
-        path=str(p), folder=str(p.parent), time=t, subsec=exif.capture_subsec is not None,
-        exposure_time=et, iso=iso, f_number=fnum,
+        path=str(p),
+        folder=str(p.parent),
+        time=t,
+        subsec=exif.capture_subsec is not None,
+        exposure_time=et,
+        iso=iso,
+        f_number=fnum,
         exposure_bias=None if exif.exposure_bias is None else float(exif.exposure_bias),
-        camera=camera, size=size, thumbnail=_thumbnail(p) if thumbnail else None,
+        camera=camera,
+        size=size,
+        thumbnail=_thumbnail(p) if thumbnail else None,
     )
 
 
@@ -198,8 +209,10 @@ def _read_remote(urls: list[str], thumbnail: bool) -> list[Shot]:
 
     with tempfile.TemporaryDirectory(prefix="hdrcore-scan-") as d:
         local = remote.stage(urls, d)
-        return [replace(read_shot(lp, thumbnail=thumbnail), path=u, folder=remote.parent(u))
-                for u, lp in zip(urls, local, strict=True)]
+        return [
+            replace(read_shot(lp, thumbnail=thumbnail), path=u, folder=remote.parent(u))
+            for u, lp in zip(urls, local, strict=True)
+        ]
 
 
 def read_shots(files: list[Path | str], *, thumbnails: bool = True) -> list[Shot]:
@@ -210,14 +223,15 @@ def read_shots(files: list[Path | str], *, thumbnails: bool = True) -> list[Shot
         if not (isinstance(f, str) and remote.is_url(f)):
             shots[k] = read_shot(f, thumbnail=thumbnails)
     for i in range(0, len(urls), SCAN_CHUNK):
-        part = urls[i:i + SCAN_CHUNK]
+        part = urls[i : i + SCAN_CHUNK]
         for (k, _), s in zip(part, _read_remote([u for _, u in part], thumbnails), strict=True):
             shots[k] = s
     return [shots[k] for k in range(len(files))]
 
 
-def scan_shots(paths: list[str | os.PathLike], *, recursive: bool = False,
-               thumbnails: bool = True) -> list[Shot]:
+def scan_shots(
+    paths: list[str | os.PathLike], *, recursive: bool = False, thumbnails: bool = True
+) -> list[Shot]:
     """:func:`read_shot` of every image :func:`find_images` finds."""
     return read_shots(find_images(paths, recursive=recursive), thumbnails=thumbnails)
 

@@ -21,8 +21,14 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["SimShot", "bracket_offsets", "simulate_session", "write_session", "true_groups",
-           "ORDERS"]
+__all__ = [
+    "SimShot",
+    "bracket_offsets",
+    "simulate_session",
+    "write_session",
+    "true_groups",
+    "ORDERS",
+]
 
 ORDERS = ("darker", "brighter", "centre-out")
 _START = datetime(2026, 6, 1, 18, 0, 0)
@@ -63,10 +69,18 @@ def bracket_offsets(n: int, order: str, step: int = 1) -> list[int]:
     return out
 
 
-def simulate_session(seed: int, *, n_brackets: int = 12, sizes: tuple[int, ...] = (3, 5, 7, 9),
-                     orders: tuple[str, ...] = ORDERS, singles: float = 0.3,
-                     bursts: float = 0.15, gap_range: tuple[float, float] = (0.2, 5.0),
-                     step: int = 1, prefix: str = "IMG_") -> list[SimShot]:
+def simulate_session(
+    seed: int,
+    *,
+    n_brackets: int = 12,
+    sizes: tuple[int, ...] = (3, 5, 7, 9),
+    orders: tuple[str, ...] = ORDERS,
+    singles: float = 0.3,
+    bursts: float = 0.15,
+    gap_range: tuple[float, float] = (0.2, 5.0),
+    step: int = 1,
+    prefix: str = "IMG_",
+) -> list[SimShot]:
     """A timeline of ``n_brackets`` brackets with single shots and bursts between them."""
     rng = np.random.default_rng(seed)
     shots: list[SimShot] = []
@@ -80,9 +94,17 @@ def simulate_session(seed: int, *, n_brackets: int = 12, sizes: tuple[int, ...] 
             if i:
                 t += float(rng.uniform(0.05, 0.25))
             et = BASE_TIME * Fraction(2) ** s
-            shots.append(SimShot(f"{prefix}{number:04d}.jpg", float(s), t,
-                                 group if kind == "bracket" else group + i, kind, et,
-                                 Fraction(s)))
+            shots.append(
+                SimShot(
+                    f"{prefix}{number:04d}.jpg",
+                    float(s),
+                    t,
+                    group if kind == "bracket" else group + i,
+                    kind,
+                    et,
+                    Fraction(s),
+                )
+            )
             number += 1
             t += float(et)
         group += 1 if kind == "bracket" else len(stops_list)
@@ -119,10 +141,17 @@ def _exif(shot: SimShot, subsec: bool, camera: tuple[str, str]) -> bytes:
     return exif.tobytes()
 
 
-def write_session(folder: str | os.PathLike, shots: list[SimShot], *, seed: int = 0,
-                  shape: tuple[int, int] = (48, 64), same_scene: bool = True,
-                  subsec: bool = True, camera: tuple[str, str] = ("SimCam", "S1"),
-                  scene: str = "window") -> list[Path]:
+def write_session(
+    folder: str | os.PathLike,
+    shots: list[SimShot],
+    *,
+    seed: int = 0,
+    shape: tuple[int, int] = (48, 64),
+    same_scene: bool = True,
+    subsec: bool = True,
+    camera: tuple[str, str] = ("SimCam", "S1"),
+    scene: str = "window",
+) -> list[Path]:
     """Write each shot as a small JPEG with its EXIF; returns the paths (in ``shots`` order)."""
     from PIL import Image
 
@@ -137,10 +166,15 @@ def write_session(folder: str | os.PathLike, shots: list[SimShot], *, seed: int 
         key = 0 if same_scene else s.group
         if key not in scenes:
             scenes[key] = make_scene(scene, shape, seed=seed + key)
-        sim = simulate_bracket(scenes[key], exposure_times=(float(s.exposure_time),),
-                               response="srgb", bits=8, noise_sigma=0.5,
-                               key=0.18 / float(BASE_TIME) / float(np.median(scenes[key])),
-                               seed=seed + int(1000 * s.time) % 100000)
+        sim = simulate_bracket(
+            scenes[key],
+            exposure_times=(float(s.exposure_time),),
+            response="srgb",
+            bits=8,
+            noise_sigma=0.5,
+            key=0.18 / float(BASE_TIME) / float(np.median(scenes[key])),
+            seed=seed + int(1000 * s.time) % 100000,
+        )
         img = np.clip(sim.frames[0], 0, 255).astype(np.uint8)
         p = out / s.name
         Image.fromarray(img).save(p, "JPEG", quality=95, exif=_exif(s, subsec, camera))

@@ -30,8 +30,16 @@ from ..io import atomic_write
 from ..status import BATCH_STATUSES, BatchStatus, is_batch_status
 from . import remote
 
-__all__ = ["BracketTask", "BracketRecord", "run_task", "file_digest", "bracket_key",
-           "quality_from_report", "frame_stamp", "SIDECAR_VERSION"]
+__all__ = [
+    "BracketTask",
+    "BracketRecord",
+    "run_task",
+    "file_digest",
+    "bracket_key",
+    "quality_from_report",
+    "frame_stamp",
+    "SIDECAR_VERSION",
+]
 
 SIDECAR_VERSION = 1
 _CHUNK = 1 << 22
@@ -46,12 +54,19 @@ def file_digest(path: str | os.PathLike) -> str:
     return h.hexdigest()
 
 
-def bracket_key(digests: list[str], options: dict[str, Any], preview: bool,
-                extra: str = "", dng: bool = False) -> str:
+def bracket_key(
+    digests: list[str], options: dict[str, Any], preview: bool, extra: str = "", dng: bool = False
+) -> str:
     """The bracket's content key: frames' digests in order, merge options, outputs, version
     and ``extra`` (the digests of the option files: ``--times``, a ``--response`` curve)."""
-    doc = {"frames": digests, "options": options, "preview": bool(preview),
-           "hdrcore": __version__, "sidecar": SIDECAR_VERSION, "extra": extra}
+    doc = {
+        "frames": digests,
+        "options": options,
+        "preview": bool(preview),
+        "hdrcore": __version__,
+        "sidecar": SIDECAR_VERSION,
+        "extra": extra,
+    }
     if dng:  # keys of runs without a DNG stay as they were
         doc["dng"] = True
     return hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()
@@ -140,11 +155,19 @@ class BracketRecord:
 
     def to_json(self) -> dict[str, Any]:
         return {
-            "name": self.name, "files": list(self.files), "status": self.status,
-            "reason": self.reason, "key": self.key, "quality": self.quality,
-            "verdicts": list(self.verdicts), "outputs": self.outputs, "merged": self.merged,
-            "seconds": self.seconds, "cpu_seconds": self.cpu_seconds,
-            "peak_rss_mb": self.peak_rss_mb, "worker": self.worker,
+            "name": self.name,
+            "files": list(self.files),
+            "status": self.status,
+            "reason": self.reason,
+            "key": self.key,
+            "quality": self.quality,
+            "verdicts": list(self.verdicts),
+            "outputs": self.outputs,
+            "merged": self.merged,
+            "seconds": self.seconds,
+            "cpu_seconds": self.cpu_seconds,
+            "peak_rss_mb": self.peak_rss_mb,
+            "worker": self.worker,
             "messages": list(self.messages),
         }
 
@@ -153,16 +176,23 @@ class BracketRecord:
         """A record read back (a sidecar, the index); ``ValueError`` for an unknown status."""
         status = doc.get("status", "failed")
         if not is_batch_status(status):
-            raise ValueError(f"unknown bracket status {status!r}, expected one of "
-                             + ", ".join(BATCH_STATUSES))
+            raise ValueError(
+                f"unknown bracket status {status!r}, expected one of " + ", ".join(BATCH_STATUSES)
+            )
         return cls(
-            name=str(doc["name"]), files=tuple(doc.get("files", ())),
-            status=status, reason=str(doc.get("reason", "")),
-            key=str(doc.get("key", "")), quality=dict(doc.get("quality") or {}),
-            verdicts=tuple(doc.get("verdicts") or ()), outputs=dict(doc.get("outputs") or {}),
-            merged=bool(doc.get("merged", True)), seconds=float(doc.get("seconds") or 0.0),
+            name=str(doc["name"]),
+            files=tuple(doc.get("files", ())),
+            status=status,
+            reason=str(doc.get("reason", "")),
+            key=str(doc.get("key", "")),
+            quality=dict(doc.get("quality") or {}),
+            verdicts=tuple(doc.get("verdicts") or ()),
+            outputs=dict(doc.get("outputs") or {}),
+            merged=bool(doc.get("merged", True)),
+            seconds=float(doc.get("seconds") or 0.0),
             cpu_seconds=float(doc.get("cpu_seconds") or 0.0),
-            peak_rss_mb=doc.get("peak_rss_mb"), worker=str(doc.get("worker", "")),
+            peak_rss_mb=doc.get("peak_rss_mb"),
+            worker=str(doc.get("worker", "")),
             messages=tuple(doc.get("messages") or ()),
         )
 
@@ -211,10 +241,14 @@ def quality_from_report(report: dict[str, Any] | None) -> dict[str, Any]:
     ghosting = _clamp01(1.0 - ghost / GHOST_ZERO)
     return {
         "score": ratio * registration * clipping * ghosting,
-        "ratio": ratio, "registration": registration, "clipping": clipping, "ghost": ghosting,
+        "ratio": ratio,
+        "registration": registration,
+        "clipping": clipping,
+        "ghost": ghosting,
         "worst_ratio_ci95": worst_ci if pairs else None,
         "registration_statuses": reg_statuses,
-        "clipped_fraction": clipped, "ghost_fraction": ghost,
+        "clipped_fraction": clipped,
+        "ghost_fraction": ghost,
     }
 
 
@@ -270,16 +304,20 @@ def _merge(task: BracketTask) -> tuple[BracketRecord, dict[str, Any] | None, lis
     try:
         digests = [file_digest(f) for f in task.files]
         ns = _merge_namespace(task, report_path)
-        with contextlib.redirect_stderr(said), contextlib.redirect_stdout(said), \
-                warnings.catch_warnings():
+        with (
+            contextlib.redirect_stderr(said),
+            contextlib.redirect_stdout(said),
+            warnings.catch_warnings(),
+        ):
             warnings.simplefilter("ignore")
             code = merge_cli.run(ns)
         report = json.loads(report_path.read_text())
         worst = {v.get("severity") for v in report.get("verdicts", [])}
         status = "error" if code == 1 else "warning" if "warning" in worst else "ok"
         if code == 1:
-            errs = [v["message"] for v in report.get("verdicts", [])
-                    if v.get("severity") == "error"]
+            errs = [
+                v["message"] for v in report.get("verdicts", []) if v.get("severity") == "error"
+            ]
             reason = errs[0] if errs else "a stage failed"
     except HdrError as exc:
         reason = str(exc)
@@ -293,18 +331,28 @@ def _merge(task: BracketTask) -> tuple[BracketRecord, dict[str, Any] | None, lis
         report_path.unlink(missing_ok=True)
     merged = status != "failed"
     record = BracketRecord(
-        name=task.name, files=task.files, status=status, reason=reason,
+        name=task.name,
+        files=task.files,
+        status=status,
+        reason=reason,
         key=bracket_key(digests, *task.key_args) if digests else "",
         quality=quality_from_report(report) if merged else {"score": 0.0},
-        verdicts=tuple({k: v.get(k) for k in ("code", "severity", "message")}
-                       for v in (report or {}).get("verdicts", [])
-                       if v.get("severity") in ("warning", "error")),
-        outputs={"exr": str(task.exr) if merged else None,
-                 "preview": str(task.png) if merged and task.preview else None,
-                 "dng": str(task.dng_path) if merged and task.dng else None,
-                 "sidecar": str(task.sidecar)},
-        merged=True, seconds=time.perf_counter() - t0, cpu_seconds=time.process_time() - c0,
-        peak_rss_mb=_peak_rss_mb(), worker=f"{os.uname().nodename}:{os.getpid()}",
+        verdicts=tuple(
+            {k: v.get(k) for k in ("code", "severity", "message")}
+            for v in (report or {}).get("verdicts", [])
+            if v.get("severity") in ("warning", "error")
+        ),
+        outputs={
+            "exr": str(task.exr) if merged else None,
+            "preview": str(task.png) if merged and task.preview else None,
+            "dng": str(task.dng_path) if merged and task.dng else None,
+            "sidecar": str(task.sidecar),
+        },
+        merged=True,
+        seconds=time.perf_counter() - t0,
+        cpu_seconds=time.process_time() - c0,
+        peak_rss_mb=_peak_rss_mb(),
+        worker=f"{os.uname().nodename}:{os.getpid()}",
         messages=tuple(line for line in said.getvalue().splitlines() if line.strip())[:20],
     )
     return record, report, digests
@@ -336,15 +384,27 @@ def _run_remote(task: BracketTask) -> BracketRecord:
         try:
             staged = dict(zip(urls, remote.stage(urls, Path(tmp) / "in"), strict=True))
         except Exception as exc:  # a missing or unreadable frame: this bracket fails
-            reason = str(exc) if isinstance(exc, HdrError) else \
-                f"cannot read the frames ({type(exc).__name__}: {exc})"
-            record = BracketRecord(task.name, task.files, "failed", reason=reason,
-                                   quality={"score": 0.0},
-                                   outputs={"exr": None, "preview": None, "dng": None,
-                                            "sidecar": task.target(task.sidecar_name)},
-                                   seconds=time.perf_counter() - t0,
-                                   cpu_seconds=time.process_time() - c0,
-                                   worker=f"{os.uname().nodename}:{os.getpid()}")
+            reason = (
+                str(exc)
+                if isinstance(exc, HdrError)
+                else f"cannot read the frames ({type(exc).__name__}: {exc})"
+            )
+            record = BracketRecord(
+                task.name,
+                task.files,
+                "failed",
+                reason=reason,
+                quality={"score": 0.0},
+                outputs={
+                    "exr": None,
+                    "preview": None,
+                    "dng": None,
+                    "sidecar": task.target(task.sidecar_name),
+                },
+                seconds=time.perf_counter() - t0,
+                cpu_seconds=time.process_time() - c0,
+                worker=f"{os.uname().nodename}:{os.getpid()}",
+            )
             problem = write_sidecar(task, record, None, [])
             return replace(record, messages=(problem,)) if problem else record
         files = tuple(str(staged[f]) if f in staged else f for f in task.files)
@@ -353,26 +413,33 @@ def _run_remote(task: BracketTask) -> BracketRecord:
         local_out.mkdir(exist_ok=True)
         local = replace(task, files=files, outdir=str(local_out))
         record, report, digests = _merge(local)
-        pairs = sorted([(str(staged[u]), u) for u in urls]
-                       + ([(str(local_out), task.outdir.rstrip("/"))] if out_remote else []),
-                       key=lambda p: -len(p[0]))
+        pairs = sorted(
+            [(str(staged[u]), u) for u in urls]
+            + ([(str(local_out), task.outdir.rstrip("/"))] if out_remote else []),
+            key=lambda p: -len(p[0]),
+        )
         outputs = dict(record.outputs)
         try:
             if out_remote:
                 for kind in ("exr", "preview", "dng"):
                     if outputs.get(kind):
                         name = Path(str(outputs[kind])).name
-                        outputs[kind] = remote.put_atomic(local_out / name, task.target(name),
-                                                          inputs=task.files)
+                        outputs[kind] = remote.put_atomic(
+                            local_out / name, task.target(name), inputs=task.files
+                        )
         except HdrError as exc:  # the upload failed: nothing of this bracket counts as done
-            record = replace(record, status="failed", reason=str(exc),
-                             quality={"score": 0.0}, key="")
+            record = replace(
+                record, status="failed", reason=str(exc), quality={"score": 0.0}, key=""
+            )
             outputs = {k: None for k in ("exr", "preview", "dng")}
         outputs["sidecar"] = task.target(task.sidecar_name)
-        record = replace(BracketRecord.from_json(_swap(record.to_json(), pairs)),
-                         files=task.files, outputs=outputs,
-                         seconds=time.perf_counter() - t0,
-                         cpu_seconds=time.process_time() - c0)
+        record = replace(
+            BracketRecord.from_json(_swap(record.to_json(), pairs)),
+            files=task.files,
+            outputs=outputs,
+            seconds=time.perf_counter() - t0,
+            cpu_seconds=time.process_time() - c0,
+        )
         report = _swap(report, pairs)
     problem = write_sidecar(task, record, report, digests if record.key else [])
     if problem:
@@ -394,22 +461,31 @@ def frame_stamp(path: str) -> dict[str, Any] | None:
     return {"size": st.st_size, "mtime_ns": st.st_mtime_ns}
 
 
-def write_sidecar(task: BracketTask, record: BracketRecord, report: dict[str, Any] | None,
-                  digests: list[str]) -> str | None:
+def write_sidecar(
+    task: BracketTask, record: BracketRecord, report: dict[str, Any] | None, digests: list[str]
+) -> str | None:
     """``NAME.json``: the record, each frame's size, time stamp and digest, and the report.
     Returns what went wrong writing it (the record still reaches the index), else ``None``."""
     frames = []
     for f, d in zip(task.files, digests, strict=False):
         frames.append({"path": f, **(frame_stamp(f) or {}), "sha256": d})
-    doc = {"version": SIDECAR_VERSION, "batch": record.to_json(), "frames": frames,
-           "options": task.options, "preview": task.preview, "dng": task.dng, "report": report}
+    doc = {
+        "version": SIDECAR_VERSION,
+        "batch": record.to_json(),
+        "frames": frames,
+        "options": task.options,
+        "preview": task.preview,
+        "dng": task.dng,
+        "report": report,
+    }
     text = json.dumps(doc, indent=1, default=str)
     try:
         if remote.is_url(task.outdir):
             remote.write_text_atomic(task.target(task.sidecar_name), text)
         else:
-            atomic_write(task.sidecar, lambda tmp: tmp.write_text(text), force=True,
-                         inputs=task.files)
+            atomic_write(
+                task.sidecar, lambda tmp: tmp.write_text(text), force=True, inputs=task.files
+            )
     except HdrError as exc:
         return f"sidecar not written: {exc}"
     return None

@@ -96,8 +96,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"hdrcore: error: {exc}", file=sys.stderr)
         return 2
     except Terminated as exc:
-        print(f"hdrcore: terminated (signal {exc.signum}); no partial output was left",
-              file=sys.stderr)
+        print(
+            f"hdrcore: terminated (signal {exc.signum}); no partial output was left",
+            file=sys.stderr,
+        )
         return 128 + exc.signum
     except KeyboardInterrupt:
         print("hdrcore: interrupted", file=sys.stderr)

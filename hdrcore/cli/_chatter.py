@@ -46,8 +46,10 @@ def warning_words(message: object, category: type[Warning], filename: str) -> st
         return None  # for the developers, not the user
     if module.startswith("PIL") or "/PIL/" in source:
         if _EXIF_WORDS.search(text):
-            return (f"its EXIF metadata is damaged (Pillow: {text}); its exposure time, ISO or "
-                    "orientation may be missing")
+            return (
+                f"its EXIF metadata is damaged (Pillow: {text}); its exposure time, ISO or "
+                "orientation may be missing"
+            )
         return f"Pillow: {text}"
     if module.startswith("colour"):
         if name == "ColourUsageWarning":
@@ -121,8 +123,11 @@ class _Handler(logging.Handler):
             own = record.name == "hdrcore" or record.name.startswith("hdrcore.")
             if own or self.debug:
                 where = "" if own else f"{record.name}: "
-                print(f"hdrcore: {record.levelname.lower()}: {where}{record.getMessage()}",
-                      file=sys.stderr, flush=True)
+                print(
+                    f"hdrcore: {record.levelname.lower()}: {where}{record.getMessage()}",
+                    file=sys.stderr,
+                    flush=True,
+                )
                 return
             words = log_words(record)
             if words is not None:
@@ -155,8 +160,8 @@ def library_chatter(debug: bool = False) -> Iterator[None]:
                     words = warning_words(message, category, filename)
                     if words is None:
                         logging.getLogger(__name__).debug(
-                            "silenced %s: %s (%s:%s)", category.__name__, message, filename,
-                            lineno)
+                            "silenced %s: %s (%s:%s)", category.__name__, message, filename, lineno
+                        )
                         return
                     sayer.say(words, file_being_read())
 

@@ -41,7 +41,8 @@ def parse_pixel_count(text: str) -> int:
         value = float("nan")
     if not (math.isfinite(value) and value >= 0):
         raise argparse.ArgumentTypeError(
-            f"expected a number of pixels such as 2e8 (0 for no limit), found {text!r}")
+            f"expected a number of pixels such as 2e8 (0 for no limit), found {text!r}"
+        )
     return int(round(value))
 
 
@@ -53,7 +54,8 @@ def parse_workers(text: str) -> int:
     except (ValueError, ParameterError):
         raise argparse.ArgumentTypeError(
             f"expected a number of threads (1, 2, ...; -1 for every core, -2 all but one), "
-            f"found {text!r}") from None
+            f"found {text!r}"
+        ) from None
     return value
 
 
@@ -70,17 +72,23 @@ def suggest_pixel_limit(pixels: int) -> str:
 def add_bracket_arguments(parser: argparse.ArgumentParser) -> None:
     """``FILE...`` (files or directories), ``--times FILE`` and ``--max-pixels N``."""
     parser.add_argument(
-        "files", nargs="+", metavar="FILE",
+        "files",
+        nargs="+",
+        metavar="FILE",
         help="frames of one bracket (JPEG, PNG, TIFF, RAW) or a directory holding them",
     )
     parser.add_argument(
-        "--times", metavar="FILE",
+        "--times",
+        metavar="FILE",
         help="exposure times as 'name seconds' lines (replace EXIF)",
     )
     parser.add_argument(
-        "--max-pixels", dest="max_pixels", type=parse_pixel_count, metavar="N",
+        "--max-pixels",
+        dest="max_pixels",
+        type=parse_pixel_count,
+        metavar="N",
         help=f"largest frame to decode, in pixels, read from each file's header first "
-             f"(default {MAX_FRAME_PIXELS / 1e6:g} MP; 2e8 is 200 MP; 0: no limit)",
+        f"(default {MAX_FRAME_PIXELS / 1e6:g} MP; 2e8 is 200 MP; 0: no limit)",
     )
 
 
@@ -90,10 +98,12 @@ def parse_colour(text: str) -> tuple[int, int, int]:
         parts = tuple(int(v) for v in str(text).split(","))
     except ValueError:
         raise argparse.ArgumentTypeError(
-            f"expected three integer levels R,G,B (e.g. 0,0,255), found {text!r}") from None
+            f"expected three integer levels R,G,B (e.g. 0,0,255), found {text!r}"
+        ) from None
     if len(parts) != 3 or min(parts) < 0:
         raise argparse.ArgumentTypeError(
-            f"expected three non-negative integer levels R,G,B, found {text!r}")
+            f"expected three non-negative integer levels R,G,B, found {text!r}"
+        )
     return parts
 
 
@@ -121,17 +131,21 @@ def check_outputs_first(outputs: list[str], args: argparse.Namespace) -> None:
     inputs are the loader's to report."""
     paths = [Path(o) for o in outputs]
     for i, a in enumerate(paths):
-        for b in paths[i + 1:]:
+        for b in paths[i + 1 :]:
             if same_file(a, b):
-                raise OutputError("the same file is given for two outputs",
-                                  found=f"{outputs[i]} and {b}")
+                raise OutputError(
+                    "the same file is given for two outputs", found=f"{outputs[i]} and {b}"
+                )
     inputs = input_files(args)
     for out in outputs:
         path = check_output_path(out, force=getattr(args, "force", False), inputs=inputs)
         parent = path.parent if str(path.parent) else Path(".")
         if not os.access(parent, os.W_OK | os.X_OK):
-            raise OutputError("cannot write in the output folder", path=parent,
-                              expected="a folder you may write in")
+            raise OutputError(
+                "cannot write in the output folder",
+                path=parent,
+                expected="a folder you may write in",
+            )
 
 
 def load_bracket_from_args(args: argparse.Namespace, **kwargs: Any) -> Bracket:
@@ -140,11 +154,13 @@ def load_bracket_from_args(args: argparse.Namespace, **kwargs: Any) -> Bracket:
     kwargs.setdefault("max_pixels", getattr(args, "max_pixels", None))
     try:
         with holding_file_warnings():
-            return load_bracket(args.files, exposure_times=getattr(args, "times", None),
-                                **kwargs)
+            return load_bracket(args.files, exposure_times=getattr(args, "times", None), **kwargs)
     except FrameTooLargeError as exc:
         raise FrameTooLargeError(
-            exc.path or "", width=exc.width, height=exc.height, limit=exc.limit,
+            exc.path or "",
+            width=exc.width,
+            height=exc.height,
+            limit=exc.limit,
             hint=f"--max-pixels {suggest_pixel_limit(exc.width * exc.height)} raises it",
         ) from None
 

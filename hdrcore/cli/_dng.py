@@ -49,20 +49,27 @@ def dng_layout(result: Any, requested: str = "auto") -> str:
     why = None
     if not b.is_linear or any(c is None for c in cfas):
         why = "the frames are not all RAW files with their CFA data"
-    elif any(c.data.shape != cfas[0].data.shape or not np.array_equal(c.pattern, cfas[0].pattern)
-             for c in cfas):
+    elif any(
+        c.data.shape != cfas[0].data.shape or not np.array_equal(c.pattern, cfas[0].pattern)
+        for c in cfas
+    ):
         why = "the frames' CFA layouts differ"
     else:
-        moved = max(float(np.max(corner_error(np.asarray(m), np.eye(3), b.shape)))
-                    for m in result.to_reference)
+        moved = max(
+            float(np.max(corner_error(np.asarray(m), np.eye(3), b.shape)))
+            for m in result.to_reference
+        )
         if moved > TRIPOD_PX:
-            why = (f"the frames moved (up to {moved:.2f} px at a corner; a CFA merge needs a "
-                   f"tripod bracket, at most {TRIPOD_PX} px)")
+            why = (
+                f"the frames moved (up to {moved:.2f} px at a corner; a CFA merge needs a "
+                f"tripod bracket, at most {TRIPOD_PX} px)"
+            )
     if requested == "linear" or (requested == "auto" and why is not None):
         return "linear"
     if requested == "cfa" and why is not None:
-        raise ParameterError(f"no CFA DNG for this bracket: {why}", expected="--dng-layout "
-                             "linear or auto")
+        raise ParameterError(
+            f"no CFA DNG for this bracket: {why}", expected="--dng-layout linear or auto"
+        )
     return "cfa"
 
 
@@ -84,9 +91,15 @@ def _camera_colour(result: Any) -> tuple[np.ndarray, tuple, tuple]:
     return np.eye(3), SRGB_XYZ_TO_CAMERA, (1.0, 1.0, 1.0)
 
 
-def write_result_dng(path: str | os.PathLike, result: Any, *, bits: int = 32,
-                     layout: str = "auto", force: bool = False,
-                     inputs: Iterable[str | os.PathLike] = ()) -> tuple[Path, str]:
+def write_result_dng(
+    path: str | os.PathLike,
+    result: Any,
+    *,
+    bits: int = 32,
+    layout: str = "auto",
+    force: bool = False,
+    inputs: Iterable[str | os.PathLike] = (),
+) -> tuple[Path, str]:
     """Write ``result.radiance`` (a :class:`~hdrcore.pipeline.PipelineResult`) as a float DNG
     with the reference frame's EXIF and orientation and the merge's provenance in XMP; for the
     ``"cfa"`` layout, the frames' mosaics merged. Returns the path and the layout written."""
@@ -107,7 +120,7 @@ def write_result_dng(path: str | os.PathLike, result: Any, *, bits: int = 32,
         "sources": [Path(p).name for p in b.paths],
         "workingSpace": result.params.working_space,
         "units": "camera RGB, no white balance; sample / scale = the reference frame's "
-                 "linear value (1 = its white level)",
+        "linear value (1 = its white level)",
     }
     if kind == "cfa":
         # The camera's own colour: the mosaic is camera raw, white balance not applied.
@@ -116,16 +129,29 @@ def write_result_dng(path: str | os.PathLike, result: Any, *, bits: int = 32,
         cam_matrix = f0.rgb_xyz_matrix if has_matrix else SRGB_XYZ_TO_CAMERA
         wb = tuple(f0.camera_whitebalance or (1.0, 1.0, 1.0))[:3]
     dng_meta = DngMetadata(
-        make=meta.make, model=meta.model, color_matrix=tuple(map(tuple, cam_matrix)),
-        white_balance=wb, orientation=int(meta.orientation or 1),
-        exposure_time=meta.exposure_time, f_number=meta.f_number, iso=meta.iso,
-        capture_time=meta.capture_time, software=f"hdrcore {__version__}",
+        make=meta.make,
+        model=meta.model,
+        color_matrix=tuple(map(tuple, cam_matrix)),
+        white_balance=wb,
+        orientation=int(meta.orientation or 1),
+        exposure_time=meta.exposure_time,
+        f_number=meta.f_number,
+        iso=meta.iso,
+        capture_time=meta.capture_time,
+        software=f"hdrcore {__version__}",
         provenance={**provenance, "layout": kind},
     )
     if kind == "linear":
-        return write_float_dng(path, result.radiance, dng_meta, kind="linear",
-                               matrix=to_camera * t_ref, bits=bits, force=force,
-                               inputs=inputs), kind
+        return write_float_dng(
+            path,
+            result.radiance,
+            dng_meta,
+            kind="linear",
+            matrix=to_camera * t_ref,
+            bits=bits,
+            force=force,
+            inputs=inputs,
+        ), kind
     from ..merge.mosaic import merge_mosaic
     from ..merge.weights import NoiseModel
 
@@ -133,11 +159,19 @@ def write_result_dng(path: str | os.PathLike, result: Any, *, bits: int = 32,
     # of max_level, at least one level.
     sigma = result.noise.sigma if result.noise is not None else float("nan")
     m = b.max_level
-    noise = NoiseModel(read_noise=max(sigma if np.isfinite(sigma) else 0.0, 1.0) / m,
-                       full_well=None, level_noise=0.0)
-    mos = merge_mosaic([f.cfa for f in b.frames], result.exposure_times, max_level=m,
-                       saturation_level=float(result.saturation),
-                       noise_floor=float(result.noise_floor), noise=noise)
+    noise = NoiseModel(
+        read_noise=max(sigma if np.isfinite(sigma) else 0.0, 1.0) / m,
+        full_well=None,
+        level_noise=0.0,
+    )
+    mos = merge_mosaic(
+        [f.cfa for f in b.frames],
+        result.exposure_times,
+        max_level=m,
+        saturation_level=float(result.saturation),
+        noise_floor=float(result.noise_floor),
+        noise=noise,
+    )
     # A cell clipped in every frame holds the darkest frame's (noisy, near-white) levels, a
     # lower bound: written at the darkest frame's white on all four sites, so the editor sees
     # it clipped (at the file's WhiteLevel) and reconstructs it as a highlight (darktable
@@ -146,6 +180,13 @@ def write_result_dng(path: str | os.PathLike, result: Any, *, bits: int = 32,
     mosaic = mos.mosaic.copy()
     clipped = np.repeat(np.repeat(mos.merge.clipped, 2, axis=0), 2, axis=1)
     mosaic[clipped] = np.float32(1.0 / min(result.exposure_times))
-    return write_float_dng(path, mosaic * np.float32(t_ref), dng_meta, kind="cfa",
-                           cfa_pattern=mos.channels, bits=bits, force=force,
-                           inputs=inputs), kind
+    return write_float_dng(
+        path,
+        mosaic * np.float32(t_ref),
+        dng_meta,
+        kind="cfa",
+        cfa_pattern=mos.channels,
+        bits=bits,
+        force=force,
+        inputs=inputs,
+    ), kind

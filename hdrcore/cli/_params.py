@@ -26,8 +26,15 @@ from ..registration import REGISTRATION_METHODS
 from ..tonemap import TONEMAP_OPERATORS
 from ._common import parse_colour, parse_pixel_count, parse_workers
 
-__all__ = ["DEFAULTS", "DEPRECATED", "DESTS", "FLAGS", "NOT_ON_COMMAND_LINE", "add_param_arguments",
-           "params_from_args"]
+__all__ = [
+    "DEFAULTS",
+    "DEPRECATED",
+    "DESTS",
+    "FLAGS",
+    "NOT_ON_COMMAND_LINE",
+    "add_param_arguments",
+    "params_from_args",
+]
 
 #: every field's default, read from the dataclass (the command line never states its own)
 DEFAULTS: dict[str, Any] = {f.name: f.default for f in dataclasses.fields(PipelineParams)}
@@ -65,18 +72,18 @@ DESTS: dict[str, str] = {field: "times_source" if field == "times" else field fo
 NOT_ON_COMMAND_LINE: dict[str, str] = {
     "working_space": "library only for now: the command line writes sRGB radiance maps",
     "registration_previews": "the inspector's overlays; the command line always switches "
-                             "them off (they cost about 0.3 s a pair at 24 MP)",
+    "them off (they cost about 0.3 s a pair at 24 MP)",
 }
 
 #: old flag -> (field, value translation) for each command that had it; kept for one release
 DEPRECATED: dict[str, dict[str, tuple[str, dict[str, str]]]] = {
-    "merge": {"--exposure": ("tonemap_exposure", {}),
-              "--preview-size": ("preview_max_side", {})},
-    "align": {"--model": ("align", {}),
-              "--method": ("registration_method", {}),
-              "--ratios": ("times", {"histogram": "estimated", "exif": "exif"})},
-    "ratios": {"--method": ("exposure_method", {}),
-               "--mask-colour": ("exclude_colour", {})},
+    "merge": {"--exposure": ("tonemap_exposure", {}), "--preview-size": ("preview_max_side", {})},
+    "align": {
+        "--model": ("align", {}),
+        "--method": ("registration_method", {}),
+        "--ratios": ("times", {"histogram": "estimated", "exif": "exif"}),
+    },
+    "ratios": {"--method": ("exposure_method", {}), "--mask-colour": ("exclude_colour", {})},
 }
 
 
@@ -99,81 +106,128 @@ def _limit(text: str) -> int | None:
 def _spec(field: str, *, choices: Iterable[str] | None = None) -> dict[str, Any]:
     """``add_argument`` keywords of a field: type, choices, metavar and help."""
     specs: dict[str, dict[str, Any]] = {
-        "saturation": dict(type=float, metavar="Z",
-                           help="saturation level Z in levels (default 97%% of the largest "
-                                "level)"),
-        "noise_floor": dict(type=float, metavar="N",
-                            help="noise floor in levels (default: 3 x the read noise measured "
-                                 "from the frames (RAW: optical-black pixels or the darkest "
-                                 "flat regions), at least 2 levels; JPEG/PNG/TIFF: at least 2%% "
-                                 "of the largest level; raised above a black pedestal of the "
-                                 "darkest frame)"),
-        "threshold": dict(type=float, metavar="t",
-                          help="normalisation threshold t of eq. 7, fraction of Z (default "
-                               "%(default)s)"),
-        "align": dict(choices=ALIGN_CHOICES,
-                      help="motion model for hand-held frames (default: auto, the similarity "
-                           "(shift, rotation, scale), and the homography for the pairs where "
-                           "perspective is left; none: a tripod bracket)"),
-        "local": dict(choices=LOCAL_CHOICES,
-                      help="local refinement after the motion model: a smooth displacement "
-                           "field per frame for parallax (auto: the frames whose pair is left "
-                           "misaligned, kept where it lowers the measured residual; default "
-                           "auto)"),
-        "reference": dict(type=int, metavar="N",
-                          help="frame the others are aligned to, darkest = 0 (default: the "
-                               "middle one)"),
-        "response": dict(metavar="NAME|FILE",
-                         help="'auto' (linear for RAW, recovered from the histograms "
-                              "otherwise), 'linear', 'srgb', a method (debevec1997, "
-                              "debevec-histogram, mitsunaga1999, grossberg2003) or a saved "
-                              "curve .json (default auto)"),
-        "times": dict(choices=("estimated", "exif"),
-                      help="exposure times: estimated from the histograms (default; EXIF "
-                           "where they cannot be measured) or the EXIF/--times values "
-                           "(formerly --ratios histogram|exif of align)"),
-        "exposure_method": dict(choices=tuple(EXPOSURE_METHODS),
-                                help="exposure ratio estimator (default: %(default)s)"),
-        "registration_method": dict(choices=tuple(REGISTRATION_METHODS),
-                                    help="registration search (default: %(default)s; 'Cerman 2006' "
-                                         "is the seed's simplex)"),
-        "tonemap": dict(choices=tuple(sorted(TONEMAP_OPERATORS)),
-                        help="preview operator (default: auto, the local durand for scenes "
-                             "of more than 8 stops, else reinhard)"),
-        "tonemap_exposure": dict(type=float, metavar="EV",
-                                 help="preview exposure in stops (default %(default)s, auto key; "
-                                      "formerly --exposure)"),
-        "preview_max_side": dict(type=int, metavar="PX",
-                                 help="longest side of the preview PNG (default %(default)s; "
-                                      "0 = full resolution; formerly --preview-size)"),
-        "exclude_colour": dict(type=parse_colour, metavar="R,G,B",
-                               help="pixels of exactly this colour carry no data (e.g. "
-                                    "0,0,255: the blue border marks of the Debevec-Malik "
-                                    "memorial scans)"),
-        "ratio_fallback_stops": dict(type=float, metavar="STOPS",
-                                     help="a pair whose ratio is not ok and differs from the "
-                                          "EXIF ratio by more than this uses the EXIF ratio "
-                                          "(default %(default)s: every such pair)"),
-        "registration_max_pixels": dict(type=_limit, metavar="N",
-                                        help="register frames larger than this on their green "
-                                             "channel binned 2x2 (4x4, ...) until they fit "
-                                             "(default: always full resolution; 0 the same)"),
-        "refine_ratios": dict(choices=REFINE_CHOICES,
-                              help="after registration, measure the ratios again over each "
-                                   "pair's common field from the registered pixels, the "
-                                   "histograms of that field, or not (default %(default)s)"),
-        "deghost": dict(action=argparse.BooleanOptionalAction,
-                        help="fill each region where the frames disagree (moving objects) "
-                             "from one frame instead of the weighted average"),
-        "colour_anchor": dict(action=argparse.BooleanOptionalAction,
-                              help="non-linear input: give the merge the colour of the frames "
-                                   "that expose each region best"),
-        "noise_sigma": dict(type=_levels, metavar="S",
-                            help="additive noise in levels for the noise matching of the "
-                                 "default ratio estimator (default: measured from the frames)"),
-        "workers": dict(type=parse_workers, metavar="N",
-                        help="threads for the compiled kernels, scipy's convention: -1 every "
-                             "core, -2 all but one (default: up to 2)"),
+        "saturation": dict(
+            type=float,
+            metavar="Z",
+            help="saturation level Z in levels (default 97%% of the largest level)",
+        ),
+        "noise_floor": dict(
+            type=float,
+            metavar="N",
+            help="noise floor in levels (default: 3 x the read noise measured "
+            "from the frames (RAW: optical-black pixels or the darkest "
+            "flat regions), at least 2 levels; JPEG/PNG/TIFF: at least 2%% "
+            "of the largest level; raised above a black pedestal of the "
+            "darkest frame)",
+        ),
+        "threshold": dict(
+            type=float,
+            metavar="t",
+            help="normalisation threshold t of eq. 7, fraction of Z (default %(default)s)",
+        ),
+        "align": dict(
+            choices=ALIGN_CHOICES,
+            help="motion model for hand-held frames (default: auto, the similarity "
+            "(shift, rotation, scale), and the homography for the pairs where "
+            "perspective is left; none: a tripod bracket)",
+        ),
+        "local": dict(
+            choices=LOCAL_CHOICES,
+            help="local refinement after the motion model: a smooth displacement "
+            "field per frame for parallax (auto: the frames whose pair is left "
+            "misaligned, kept where it lowers the measured residual; default "
+            "auto)",
+        ),
+        "reference": dict(
+            type=int,
+            metavar="N",
+            help="frame the others are aligned to, darkest = 0 (default: the middle one)",
+        ),
+        "response": dict(
+            metavar="NAME|FILE",
+            help="'auto' (linear for RAW, recovered from the histograms "
+            "otherwise), 'linear', 'srgb', a method (debevec1997, "
+            "debevec-histogram, mitsunaga1999, grossberg2003) or a saved "
+            "curve .json (default auto)",
+        ),
+        "times": dict(
+            choices=("estimated", "exif"),
+            help="exposure times: estimated from the histograms (default; EXIF "
+            "where they cannot be measured) or the EXIF/--times values "
+            "(formerly --ratios histogram|exif of align)",
+        ),
+        "exposure_method": dict(
+            choices=tuple(EXPOSURE_METHODS), help="exposure ratio estimator (default: %(default)s)"
+        ),
+        "registration_method": dict(
+            choices=tuple(REGISTRATION_METHODS),
+            help="registration search (default: %(default)s; 'Cerman 2006' is the seed's simplex)",
+        ),
+        "tonemap": dict(
+            choices=tuple(sorted(TONEMAP_OPERATORS)),
+            help="preview operator (default: auto, the local durand for scenes "
+            "of more than 8 stops, else reinhard)",
+        ),
+        "tonemap_exposure": dict(
+            type=float,
+            metavar="EV",
+            help="preview exposure in stops (default %(default)s, auto key; formerly --exposure)",
+        ),
+        "preview_max_side": dict(
+            type=int,
+            metavar="PX",
+            help="longest side of the preview PNG (default %(default)s; "
+            "0 = full resolution; formerly --preview-size)",
+        ),
+        "exclude_colour": dict(
+            type=parse_colour,
+            metavar="R,G,B",
+            help="pixels of exactly this colour carry no data (e.g. "
+            "0,0,255: the blue border marks of the Debevec-Malik "
+            "memorial scans)",
+        ),
+        "ratio_fallback_stops": dict(
+            type=float,
+            metavar="STOPS",
+            help="a pair whose ratio is not ok and differs from the "
+            "EXIF ratio by more than this uses the EXIF ratio "
+            "(default %(default)s: every such pair)",
+        ),
+        "registration_max_pixels": dict(
+            type=_limit,
+            metavar="N",
+            help="register frames larger than this on their green "
+            "channel binned 2x2 (4x4, ...) until they fit "
+            "(default: always full resolution; 0 the same)",
+        ),
+        "refine_ratios": dict(
+            choices=REFINE_CHOICES,
+            help="after registration, measure the ratios again over each "
+            "pair's common field from the registered pixels, the "
+            "histograms of that field, or not (default %(default)s)",
+        ),
+        "deghost": dict(
+            action=argparse.BooleanOptionalAction,
+            help="fill each region where the frames disagree (moving objects) "
+            "from one frame instead of the weighted average",
+        ),
+        "colour_anchor": dict(
+            action=argparse.BooleanOptionalAction,
+            help="non-linear input: give the merge the colour of the frames "
+            "that expose each region best",
+        ),
+        "noise_sigma": dict(
+            type=_levels,
+            metavar="S",
+            help="additive noise in levels for the noise matching of the "
+            "default ratio estimator (default: measured from the frames)",
+        ),
+        "workers": dict(
+            type=parse_workers,
+            metavar="N",
+            help="threads for the compiled kernels, scipy's convention: -1 every "
+            "core, -2 all but one (default: up to 2)",
+        ),
     }
     spec = dict(specs[field])
     if choices is not None:
@@ -184,23 +238,45 @@ def _spec(field: str, *, choices: Iterable[str] | None = None) -> dict[str, Any]
 class _Deprecated(argparse.Action):
     """An old flag: sets the field like the new one and says so on stderr."""
 
-    def __init__(self, option_strings: list[str], dest: str, *, new: str,
-                 translate: dict[str, str], **kwargs: Any) -> None:
+    def __init__(
+        self,
+        option_strings: list[str],
+        dest: str,
+        *,
+        new: str,
+        translate: dict[str, str],
+        **kwargs: Any,
+    ) -> None:
         self.new, self.translate = new, translate
         super().__init__(option_strings, dest, **kwargs)
 
-    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace,
-                 values: Any, option_string: str | None = None) -> None:
+    def __call__(
+        self,
+        parser: argparse.ArgumentParser,
+        namespace: argparse.Namespace,
+        values: Any,
+        option_string: str | None = None,
+    ) -> None:
         program = parser.prog.split()[0]
-        print(f"{program}: warning: {option_string} is deprecated and goes in the next "
-              f"release: use {self.new}", file=sys.stderr)
-        setattr(namespace, self.dest, self.translate.get(values, values)
-                if isinstance(values, str) else values)
+        print(
+            f"{program}: warning: {option_string} is deprecated and goes in the next "
+            f"release: use {self.new}",
+            file=sys.stderr,
+        )
+        setattr(
+            namespace,
+            self.dest,
+            self.translate.get(values, values) if isinstance(values, str) else values,
+        )
 
 
-def add_param_arguments(parser: argparse.ArgumentParser | Any, fields: Iterable[str], *,
-                        command: str = "", choices: dict[str, Iterable[str]] | None = None,
-                        ) -> None:
+def add_param_arguments(
+    parser: argparse.ArgumentParser | Any,
+    fields: Iterable[str],
+    *,
+    command: str = "",
+    choices: dict[str, Iterable[str]] | None = None,
+) -> None:
     """Add the flags of ``fields`` (their defaults are the fields'), and the command's
     deprecated aliases of them (hidden from ``--help``). ``choices`` narrows a field's."""
     fields = list(fields)
@@ -216,9 +292,16 @@ def add_param_arguments(parser: argparse.ArgumentParser | Any, fields: Iterable[
             raise ValueError(f"no alias for the switch {FLAGS[field]}")
         if translate and "choices" in spec:
             spec["choices"] = tuple(translate)
-        parser.add_argument(old, dest=DESTS[field], default=argparse.SUPPRESS,
-                            help=argparse.SUPPRESS,
-                            action=_Deprecated, new=FLAGS[field], translate=translate, **spec)
+        parser.add_argument(
+            old,
+            dest=DESTS[field],
+            default=argparse.SUPPRESS,
+            help=argparse.SUPPRESS,
+            action=_Deprecated,
+            new=FLAGS[field],
+            translate=translate,
+            **spec,
+        )
 
 
 #: the command line's spelling of a library value (``0`` = no limit -> ``None``)
@@ -227,8 +310,9 @@ _FROM_COMMAND_LINE: dict[str, Callable[[Any], Any]] = {
 }
 
 
-def params_from_args(args: argparse.Namespace, fields: Iterable[str],
-                     **fixed: Any) -> PipelineParams:
+def params_from_args(
+    args: argparse.Namespace, fields: Iterable[str], **fixed: Any
+) -> PipelineParams:
     """``PipelineParams`` of the flags of ``fields`` (as parsed) and ``fixed`` values."""
     values: dict[str, Any] = {}
     for field in fields:

@@ -26,19 +26,38 @@ __all__ = ["ALIGN_FIELDS", "add_parser", "run"]
 
 #: the pipeline's parameters ``hdrcore align`` offers: those the stages up to the registration
 #: read, with the same defaults as ``hdrcore merge``
-ALIGN_FIELDS = ("saturation", "noise_floor", "threshold", "align", "local", "reference",
-                "response", "times", "exposure_method", "noise_sigma", "registration_method",
-                "registration_max_pixels", "exclude_colour", "workers")
+ALIGN_FIELDS = (
+    "saturation",
+    "noise_floor",
+    "threshold",
+    "align",
+    "local",
+    "reference",
+    "response",
+    "times",
+    "exposure_method",
+    "noise_sigma",
+    "registration_method",
+    "registration_max_pixels",
+    "exclude_colour",
+    "workers",
+)
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
-        "align", help="register hand-held frames: sub-pixel shift and rotation per pair",
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
+        "align",
+        help="register hand-held frames: sub-pixel shift and rotation per pair",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     add_bracket_arguments(p)
-    add_param_arguments(p, ALIGN_FIELDS, command="align",
-                        choices={"align": [c for c in ALIGN_CHOICES if c != "none"]})
+    add_param_arguments(
+        p,
+        ALIGN_FIELDS,
+        command="align",
+        choices={"align": [c for c in ALIGN_CHOICES if c != "none"]},
+    )
     p.add_argument("--json", action="store_true", help="print JSON on stdout")
     p.set_defaults(run=run)
 
@@ -58,7 +77,9 @@ def run(args: argparse.Namespace) -> int:
         print_json(out)
     else:
         for p in reg.pairs:
-            print(f"{p.dark}-{p.bright}: dx {p.dx:+.3f} dy {p.dy:+.3f} angle {p.angle_deg:+.4f} "
-                  f"deg  cost {p.cost_before:.5f} -> {p.cost_after:.5f}  {p.status}: "
-                  f"{p.message}")
+            print(
+                f"{p.dark}-{p.bright}: dx {p.dx:+.3f} dy {p.dy:+.3f} angle {p.angle_deg:+.4f} "
+                f"deg  cost {p.cost_before:.5f} -> {p.cost_after:.5f}  {p.status}: "
+                f"{p.message}"
+            )
     return 0 if reg.ok else 1

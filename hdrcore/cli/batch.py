@@ -42,8 +42,7 @@ __all__ = ["add_parser", "run"]
 
 #: merge options a batch sets per bracket itself (or means otherwise: its --workers counts
 #: processes; each merge keeps the default threads)
-_OWN = {"help", "files", "output", "preview", "dng", "report", "json", "quiet", "force",
-        "workers"}
+_OWN = {"help", "files", "output", "preview", "dng", "report", "json", "quiet", "force", "workers"}
 
 
 def _merge_actions() -> list[argparse.Action]:
@@ -92,60 +91,121 @@ def _gigabytes(text: str) -> int:
     if not (math.isfinite(value) and value >= 1.0):
         raise argparse.ArgumentTypeError(
             f"expected gigabytes, at least 1 (a worker limited to 0.3 GB of address space "
-            f"cannot even load its libraries), found {text!r}")
+            f"cannot even load its libraries), found {text!r}"
+        )
     return int(value * 1e9)
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
-        "batch", help="group a folder's images into brackets and merge them all (resumable, "
-                      "parallel, Dask)",
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
+        "batch",
+        help="group a folder's images into brackets and merge them all (resumable, parallel, Dask)",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("inputs", nargs="+", metavar="DIR",
-                   help="folders (or files) of images; or fsspec URLs (s3://bucket/shots, "
-                        "file:///data/shots, memory://...; s3:// needs s3fs, gcs:// gcsfs)")
-    p.add_argument("-o", "--output", metavar="OUTDIR",
-                   help="output folder (created if missing), or an fsspec URL (outputs are "
-                        "uploaded to a temporary name, then moved); required unless --plan")
+    p.add_argument(
+        "inputs",
+        nargs="+",
+        metavar="DIR",
+        help="folders (or files) of images; or fsspec URLs (s3://bucket/shots, "
+        "file:///data/shots, memory://...; s3:// needs s3fs, gcs:// gcsfs)",
+    )
+    p.add_argument(
+        "-o",
+        "--output",
+        metavar="OUTDIR",
+        help="output folder (created if missing), or an fsspec URL (outputs are "
+        "uploaded to a temporary name, then moved); required unless --plan",
+    )
     p.add_argument("--recursive", action="store_true", help="also read sub-folders")
     g = p.add_argument_group("grouping")
-    g.add_argument("--group-size", dest="group_size", type=_positive_int, metavar="N",
-                   help="force: every N files (in name order, per folder) are one bracket")
-    g.add_argument("--gap", type=_seconds, metavar="SECONDS",
-                   help="force HDRMerge's rule: a new bracket after a pause of more than this "
-                        "from the end of one exposure to the start of the next")
-    g.add_argument("--max-frames", dest="max_frames", type=_positive_int, default=15,
-                   metavar="N", help="largest bracket the grouping forms (default 15)")
-    g.add_argument("--no-thumbnails", dest="thumbnails", action="store_false",
-                   help="do not read thumbnails (their likeness only breaks ties)")
-    g.add_argument("--plan", action="store_true",
-                   help="only print the grouping (with --json: a plan file to edit)")
-    g.add_argument("--plan-file", dest="plan_file", metavar="PLAN.json",
-                   help="merge the brackets of this (edited) plan instead of grouping")
+    g.add_argument(
+        "--group-size",
+        dest="group_size",
+        type=_positive_int,
+        metavar="N",
+        help="force: every N files (in name order, per folder) are one bracket",
+    )
+    g.add_argument(
+        "--gap",
+        type=_seconds,
+        metavar="SECONDS",
+        help="force HDRMerge's rule: a new bracket after a pause of more than this "
+        "from the end of one exposure to the start of the next",
+    )
+    g.add_argument(
+        "--max-frames",
+        dest="max_frames",
+        type=_positive_int,
+        default=15,
+        metavar="N",
+        help="largest bracket the grouping forms (default 15)",
+    )
+    g.add_argument(
+        "--no-thumbnails",
+        dest="thumbnails",
+        action="store_false",
+        help="do not read thumbnails (their likeness only breaks ties)",
+    )
+    g.add_argument(
+        "--plan",
+        action="store_true",
+        help="only print the grouping (with --json: a plan file to edit)",
+    )
+    g.add_argument(
+        "--plan-file",
+        dest="plan_file",
+        metavar="PLAN.json",
+        help="merge the brackets of this (edited) plan instead of grouping",
+    )
     r = p.add_argument_group("running")
-    r.add_argument("--workers", type=_positive_int, default=1, metavar="N",
-                   help="worker processes on this machine (default 1)")
-    r.add_argument("--dask", action="store_true",
-                   help="run on a Dask LocalCluster of --workers processes")
-    r.add_argument("--scheduler", metavar="ADDRESS",
-                   help="run on an existing Dask cluster (tcp://host:8786); paths must be the "
-                        "same on every worker (or give URLs every worker can reach: s3://...)")
-    r.add_argument("--worker-memory", dest="worker_memory", type=_gigabytes, metavar="GB",
-                   help="address-space limit of each worker process (a bracket that needs more "
-                        "fails with 'out of memory' instead of swapping; default with --workers "
-                        "N > 1: the machine's memory divided by N, at least 1 GB); not for Dask, "
-                        "whose workers have their own memory_limit")
+    r.add_argument(
+        "--workers",
+        type=_positive_int,
+        default=1,
+        metavar="N",
+        help="worker processes on this machine (default 1)",
+    )
+    r.add_argument(
+        "--dask", action="store_true", help="run on a Dask LocalCluster of --workers processes"
+    )
+    r.add_argument(
+        "--scheduler",
+        metavar="ADDRESS",
+        help="run on an existing Dask cluster (tcp://host:8786); paths must be the "
+        "same on every worker (or give URLs every worker can reach: s3://...)",
+    )
+    r.add_argument(
+        "--worker-memory",
+        dest="worker_memory",
+        type=_gigabytes,
+        metavar="GB",
+        help="address-space limit of each worker process (a bracket that needs more "
+        "fails with 'out of memory' instead of swapping; default with --workers "
+        "N > 1: the machine's memory divided by N, at least 1 GB); not for Dask, "
+        "whose workers have their own memory_limit",
+    )
     r.add_argument("--preview", action="store_true", help="also write NAME.png per bracket")
-    r.add_argument("--dng", action="store_true",
-                   help="also write NAME.dng per bracket (hdrcore merge --dng: float linear DNG)")
-    r.add_argument("--force", action="store_true",
-                   help="merge every bracket again, even those up to date")
-    r.add_argument("--retry-failed", dest="retry_failed", action="store_true",
-                   help="try again the brackets that failed (by default a failed bracket "
-                        "with unchanged frames and options is not tried again)")
-    r.add_argument("--json", action="store_true",
-                   help="print the index (with --plan: the plan) as JSON on stdout")
+    r.add_argument(
+        "--dng",
+        action="store_true",
+        help="also write NAME.dng per bracket (hdrcore merge --dng: float linear DNG)",
+    )
+    r.add_argument(
+        "--force", action="store_true", help="merge every bracket again, even those up to date"
+    )
+    r.add_argument(
+        "--retry-failed",
+        dest="retry_failed",
+        action="store_true",
+        help="try again the brackets that failed (by default a failed bracket "
+        "with unchanged frames and options is not tried again)",
+    )
+    r.add_argument(
+        "--json",
+        action="store_true",
+        help="print the index (with --plan: the plan) as JSON on stdout",
+    )
     r.add_argument("--quiet", action="store_true", help="no progress bar")
     m = p.add_argument_group("merge options (as hdrcore merge, for every bracket)")
     for action in _merge_actions():
@@ -173,8 +233,10 @@ class _Progress:
         left = total - done
         eta = dt / self.merged * left if self.merged else math.nan
         eta_s = time.strftime("%H:%M:%S", time.gmtime(eta)) if math.isfinite(eta) else "--:--:--"
-        sys.stderr.write(f"\r[{'#' * n}{'-' * (width - n)}] {done}/{total} brackets, "
-                         f"{self.failed} failed, ETA {eta_s} ")
+        sys.stderr.write(
+            f"\r[{'#' * n}{'-' * (width - n)}] {done}/{total} brackets, "
+            f"{self.failed} failed, ETA {eta_s} "
+        )
         sys.stderr.flush()
 
     def close(self) -> None:
@@ -199,8 +261,11 @@ def _in_output(f: Path | str, outdir: Path | str | None) -> bool:
     if outdir is None:
         return False
     if isinstance(f, str) or isinstance(outdir, str):
-        return isinstance(f, str) and isinstance(outdir, str) and \
-            remote.same_folder(remote.parent(f), outdir)
+        return (
+            isinstance(f, str)
+            and isinstance(outdir, str)
+            and remote.same_folder(remote.parent(f), outdir)
+        )
     return outdir.is_dir() and (f.parent == outdir or same_file(f.parent, outdir))
 
 
@@ -236,8 +301,9 @@ def run(args: argparse.Namespace) -> int:
             remote.check_url(url)
     outdir: Path | str | None = None
     if args.output is not None:
-        outdir = args.output.rstrip("/") if remote.is_url(args.output) \
-            else Path(args.output).absolute()
+        outdir = (
+            args.output.rstrip("/") if remote.is_url(args.output) else Path(args.output).absolute()
+        )
     if args.plan:
         plan = _plan(args, outdir)
         if args.json:
@@ -256,41 +322,64 @@ def run(args: argparse.Namespace) -> int:
         try:
             outdir.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
-            raise OutputError(f"cannot create the output folder ({exc.strerror or exc})",
-                              path=outdir) from None
+            raise OutputError(
+                f"cannot create the output folder ({exc.strerror or exc})", path=outdir
+            ) from None
     options, extra = _options(args)
-    tasks = tasks_from_plan(plan, outdir, options, preview=args.preview, dng=args.dng,
-                            extra_key=extra)
+    tasks = tasks_from_plan(
+        plan, outdir, options, preview=args.preview, dng=args.dng, extra_key=extra
+    )
     progress = _Progress(not args.quiet)
     scheduler = args.scheduler or ("local" if args.dask else None)
     memory_limit = args.worker_memory
     if memory_limit is None and scheduler is None and args.workers > 1:
         memory_limit = default_worker_memory(args.workers)
     try:
-        result = run_batch(tasks, workers=args.workers, scheduler=scheduler,
-                           progress=progress, retry_failed=args.retry_failed, force=args.force,
-                           memory_limit=memory_limit)
+        result = run_batch(
+            tasks,
+            workers=args.workers,
+            scheduler=scheduler,
+            progress=progress,
+            retry_failed=args.retry_failed,
+            force=args.force,
+            memory_limit=memory_limit,
+        )
     finally:
         progress.close()
-    write_index(outdir, result.records, plan.singles,
-                summary={"grouping": plan.method, "seconds": result.seconds,
-                         "interrupted": result.interrupted, "workers": args.workers,
-                         "scheduler": scheduler})
+    write_index(
+        outdir,
+        result.records,
+        plan.singles,
+        summary={
+            "grouping": plan.method,
+            "seconds": result.seconds,
+            "interrupted": result.interrupted,
+            "workers": args.workers,
+            "scheduler": scheduler,
+        },
+    )
     recs = result.records
     counts = {s: sum(r.status == s for r in recs) for s in ("ok", "warning", "error", "failed")}
     skipped = sum(not r.merged for r in recs)
-    index_csv = remote.join(outdir, "index.csv") if isinstance(outdir, str) \
-        else outdir / "index.csv"
-    print(f"hdrcore batch: {len(recs)} of {len(tasks)} brackets: "
-          + ", ".join(f"{n} {s}" for s, n in counts.items() if n)
-          + f" ({skipped} up to date, not merged again); {len(plan.singles)} single shot(s) "
-            f"left out; index: {index_csv}", file=sys.stderr)
+    index_csv = (
+        remote.join(outdir, "index.csv") if isinstance(outdir, str) else outdir / "index.csv"
+    )
+    print(
+        f"hdrcore batch: {len(recs)} of {len(tasks)} brackets: "
+        + ", ".join(f"{n} {s}" for s, n in counts.items() if n)
+        + f" ({skipped} up to date, not merged again); {len(plan.singles)} single shot(s) "
+        f"left out; index: {index_csv}",
+        file=sys.stderr,
+    )
     for r in recs:
         if r.failed:
             print(f"hdrcore batch: {r.status}: {r.name}: {r.reason}", file=sys.stderr)
     if args.json:
-        index_json = remote.read_text(remote.join(outdir, "index.json")) \
-            if isinstance(outdir, str) else (outdir / "index.json").read_text()
+        index_json = (
+            remote.read_text(remote.join(outdir, "index.json"))
+            if isinstance(outdir, str)
+            else (outdir / "index.json").read_text()
+        )
         print_json(json.loads(index_json))
     if result.interrupted:
         raise KeyboardInterrupt

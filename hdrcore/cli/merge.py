@@ -37,28 +37,47 @@ MERGE_FIELDS = tuple(FLAGS)
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
-        "merge", help="merge a bracket into an OpenEXR radiance map (ratios, alignment, merge)",
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
+        "merge",
+        help="merge a bracket into an OpenEXR radiance map (ratios, alignment, merge)",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     add_bracket_arguments(p)
     add_param_arguments(p, MERGE_FIELDS, command="merge")
     p.add_argument("-o", "--output", required=True, metavar="OUT.exr", help="OpenEXR output")
     p.add_argument("--preview", metavar="OUT.png", help="also write a tonemapped 8-bit preview")
     p.add_argument("--report", metavar="OUT.json", help="write the JSON report of every stage")
-    p.add_argument("--dng", metavar="OUT.dng",
-                   help="also write the radiance map as a floating-point DNG 1.4 (LinearRaw "
-                        "camera RGB, black 0 / white 1) for a raw editor")
-    p.add_argument("--dng-bits", dest="dng_bits", type=int, default=32, choices=(16, 32),
-                   help="float sample size of the DNG (default 32)")
-    p.add_argument("--dng-layout", dest="dng_layout", default="auto",
-                   choices=("auto", "linear", "cfa"),
-                   help="DNG samples: cfa = the frames' mosaics merged before demosaicing "
-                        "(tripod RAW brackets), linear = demosaiced camera RGB (any bracket); "
-                        "auto picks cfa when it can (default)")
+    p.add_argument(
+        "--dng",
+        metavar="OUT.dng",
+        help="also write the radiance map as a floating-point DNG 1.4 (LinearRaw "
+        "camera RGB, black 0 / white 1) for a raw editor",
+    )
+    p.add_argument(
+        "--dng-bits",
+        dest="dng_bits",
+        type=int,
+        default=32,
+        choices=(16, 32),
+        help="float sample size of the DNG (default 32)",
+    )
+    p.add_argument(
+        "--dng-layout",
+        dest="dng_layout",
+        default="auto",
+        choices=("auto", "linear", "cfa"),
+        help="DNG samples: cfa = the frames' mosaics merged before demosaicing "
+        "(tripod RAW brackets), linear = demosaiced camera RGB (any bracket); "
+        "auto picks cfa when it can (default)",
+    )
     p.add_argument("--float32", action="store_true", help="write float32 instead of half")
-    p.add_argument("--exr-compression", dest="exr_compression", default="piz",
-                   choices=sorted(EXR_COMPRESSIONS),
-                   help="lossless EXR compression (default piz: fast, small for photographs)")
+    p.add_argument(
+        "--exr-compression",
+        dest="exr_compression",
+        default="piz",
+        choices=sorted(EXR_COMPRESSIONS),
+        help="lossless EXR compression (default piz: fast, small for photographs)",
+    )
     p.add_argument("--force", action="store_true", help="replace existing output files")
     p.add_argument("--json", action="store_true", help="print the report on stdout")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -91,11 +110,15 @@ class _Progress:
 def run(args: argparse.Namespace) -> int:
     outputs = [args.output] + [p for p in (args.preview, args.report, args.dng) if p]
     if args.dng and not str(args.dng).lower().endswith(".dng"):
-        raise OutputError("the DNG output must be a .dng file", path=args.dng,
-                          expected="a name ending in .dng")
+        raise OutputError(
+            "the DNG output must be a .dng file", path=args.dng, expected="a name ending in .dng"
+        )
     if not str(args.output).lower().endswith(".exr"):
-        raise OutputError("the HDR output must be an OpenEXR file", path=args.output,
-                          expected="a name ending in .exr")
+        raise OutputError(
+            "the HDR output must be an OpenEXR file",
+            path=args.output,
+            expected="a name ending in .exr",
+        )
     check_outputs_first(outputs, args)
     t_load = time.perf_counter()
     bracket = load_bracket_from_args(args)
@@ -117,25 +140,40 @@ def run(args: argparse.Namespace) -> int:
         progress.close()
 
     t_write = time.perf_counter()
-    write_result(args.output, result, half=not args.float32, compression=args.exr_compression,
-                 force=args.force, inputs=inputs)
+    write_result(
+        args.output,
+        result,
+        half=not args.float32,
+        compression=args.exr_compression,
+        force=args.force,
+        inputs=inputs,
+    )
     if args.dng:
         from ._dng import write_result_dng
 
-        _, dng_layout = write_result_dng(args.dng, result, bits=args.dng_bits,
-                                         layout=args.dng_layout, force=args.force,
-                                         inputs=inputs)
+        _, dng_layout = write_result_dng(
+            args.dng,
+            result,
+            bits=args.dng_bits,
+            layout=args.dng_layout,
+            force=args.force,
+            inputs=inputs,
+        )
     if args.preview and result.preview is not None:
         write_png(args.preview, result.preview.image, force=args.force, inputs=inputs)
     report = result.to_report()
     report["timings"]["decode"] = decode_seconds
     report["timings"]["write"] = time.perf_counter() - t_write
-    report["outputs"] = {"exr": args.output, "preview": args.preview, "report": args.report,
-                         "dng": args.dng, "dng_layout": dng_layout if args.dng else None}
+    report["outputs"] = {
+        "exr": args.output,
+        "preview": args.preview,
+        "report": args.report,
+        "dng": args.dng,
+        "dng_layout": dng_layout if args.dng else None,
+    }
     if args.report:
         text = json.dumps(to_jsonable(report), indent=2)
-        atomic_write(args.report, lambda tmp: tmp.write_text(text), force=args.force,
-                     inputs=inputs)
+        atomic_write(args.report, lambda tmp: tmp.write_text(text), force=args.force, inputs=inputs)
     for v in result.verdicts:
         if v.severity in ("error", "warning"):
             print(f"hdrcore: {v.severity}: {v.message}", file=sys.stderr)

@@ -46,19 +46,25 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     )
     add_bracket_arguments(p)
     p.add_argument(
-        "--method", default=DEFAULT_METHOD, metavar="NAME",
+        "--method",
+        default=DEFAULT_METHOD,
+        metavar="NAME",
         help=f"one of {', '.join(RESPONSE_METHODS)} (default {DEFAULT_METHOD})",
     )
     p.add_argument(
-        "--cutoff", type=float, default=0.98,
+        "--cutoff",
+        type=float,
+        default=0.98,
         help="only levels below cutoff*max enter the fit (seed's fix; 1.0 = naive)",
     )
     p.add_argument(
-        "--order", default=None,
+        "--order",
+        default=None,
         help="polynomial order for mitsunaga1999/grossberg2003 (integer or 'auto')",
     )
     p.add_argument(
-        "--no-monotone", action="store_true",
+        "--no-monotone",
+        action="store_true",
         help="do not constrain the fit to a non-decreasing curve (for comparison only)",
     )
     # the pipeline's flags for what it shares with the other commands (same parsing)
@@ -88,8 +94,9 @@ def run(args: argparse.Namespace) -> int:
         check_output_path(out, force=args.force, inputs=input_files(args, bracket.paths))
     frames = [f.levels for f in bracket.frames]
     recorded = bracket.exposure_times
-    times = (None if any(t is None for t in recorded)
-             else [float(t) for t in recorded if t is not None])
+    times = (
+        None if any(t is None for t in recorded) else [float(t) for t in recorded if t is not None]
+    )
     params: dict[str, Any] = {"max_level": bracket.max_level, "cutoff": args.cutoff}
     if args.no_monotone:
         params["monotone"] = False
@@ -131,8 +138,10 @@ def run(args: argparse.Namespace) -> int:
             print(f"  {curve.channel_names[c]}:{order} residual {fit.residual_rms:.3g}  {g}")
         print_warnings(bracket)
     if bracket.is_linear:
-        print("hdrcore: warning: the frames are linear (RAW); the response should be the "
-              "identity", file=sys.stderr)
+        print(
+            "hdrcore: warning: the frames are linear (RAW); the response should be the identity",
+            file=sys.stderr,
+        )
     return 0
 
 

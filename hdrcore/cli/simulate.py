@@ -45,7 +45,8 @@ def parse_times(text: str) -> tuple[Fraction, ...]:
             t = Fraction(item)
         except (ValueError, ZeroDivisionError) as exc:
             raise ParameterError(
-                "bad exposure time in --times", expected="seconds such as 0.01 or 1/100",
+                "bad exposure time in --times",
+                expected="seconds such as 0.01 or 1/100",
                 found=repr(item),
             ) from exc
         if t <= 0:
@@ -53,8 +54,11 @@ def parse_times(text: str) -> tuple[Fraction, ...]:
         try:
             check_seconds(t)
         except ValueError as exc:
-            raise ParameterError(f"bad exposure time in --times, {exc}",
-                                 expected=EXPOSURE_TIME_RANGE, found=repr(item)) from None
+            raise ParameterError(
+                f"bad exposure time in --times, {exc}",
+                expected=EXPOSURE_TIME_RANGE,
+                found=repr(item),
+            ) from None
         out.append(t)
     if not out:
         raise ParameterError("--times lists no exposure times", found=repr(text))
@@ -94,34 +98,53 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--frames", type=int, default=3, metavar="K", help="frames with --stops (3)")
     p.add_argument(
-        "--base-time", default="1/256", metavar="T",
+        "--base-time",
+        default="1/256",
+        metavar="T",
         help="shortest exposure with --stops, seconds (default 1/256)",
     )
     p.add_argument(
-        "--bits", type=int, choices=(8, 10, 12, 14, 16),
+        "--bits",
+        type=int,
+        choices=(8, 10, 12, 14, 16),
         help="output bit depth (default 8; 12 for dng)",
     )
     p.add_argument(
         "--response", default="linear", choices=sorted(RESPONSES), help="camera response (linear)"
     )
     p.add_argument(
-        "--noise", type=float, default=1.0, metavar="SIGMA",
+        "--noise",
+        type=float,
+        default=1.0,
+        metavar="SIGMA",
         help="Gaussian noise in output levels (raw numbers for dng); default 1",
     )
     p.add_argument(
-        "--shot-noise", type=float, default=None, metavar="FULLWELL",
+        "--shot-noise",
+        type=float,
+        default=None,
+        metavar="FULLWELL",
         help="add photon shot noise for this full-well capacity (electrons at saturation)",
     )
     p.add_argument(
-        "--shift", type=float, default=0.0, metavar="PX",
+        "--shift",
+        type=float,
+        default=0.0,
+        metavar="PX",
         help="hand-held motion: random shift of up to PX pixels per axis (reference: middle frame)",
     )
     p.add_argument(
-        "--rotation", type=float, default=0.0, metavar="DEG",
+        "--rotation",
+        type=float,
+        default=0.0,
+        metavar="DEG",
         help="hand-held motion: random rotation of up to DEG degrees",
     )
     p.add_argument(
-        "--key", type=float, default=None, metavar="K",
+        "--key",
+        type=float,
+        default=None,
+        metavar="K",
         help="exposure scale: a frame of time t records radiance * t * K (1.0 = saturation); "
         "default puts the median radiance at 0.18 for the geometric-mean time",
     )
@@ -130,14 +153,18 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "--cfa", default="RGGB", choices=sorted(CFA_PATTERNS), help="Bayer pattern for dng (RGGB)"
     )
     p.add_argument(
-        "--sixteen-bit", default="scale", choices=("scale", "keep"),
+        "--sixteen-bit",
+        default="scale",
+        choices=("scale", "keep"),
         help="frames deeper than 8 bits in 16-bit PNG/TIFF: scale to 0..65535 (default) or keep",
     )
     p.add_argument(
-        "--rendering", default="area", choices=("area", "log-cubic"),
+        "--rendering",
+        default="area",
+        choices=("area", "log-cubic"),
         help="how frames are drawn from the scene: area (every pixel integrates the scene, "
-             "motion keeps the brightness; default) or log-cubic (the earlier renderer: moved "
-             "frames interpolated in log radiance, their brightness off by up to 1 %%)",
+        "motion keeps the brightness; default) or log-cubic (the earlier renderer: moved "
+        "frames interpolated in log radiance, their brightness off by up to 1 %%)",
     )
     p.add_argument("--seed", type=int, default=0, help="scene, noise and motion seed (0)")
     p.add_argument("--force", action="store_true", help="replace existing files")
@@ -159,11 +186,11 @@ def run(args: argparse.Namespace) -> int:
     if fmt == "dng" and args.response != "linear":
         raise ParameterError(
             "DNG frames need a linear response (RAW data is linear)",
-            expected="--response linear", found=args.response,
+            expected="--response linear",
+            found=args.response,
         )
     if fmt == "jpeg" and bits != 8:
-        raise ParameterError("JPEG holds 8-bit frames only", expected="--bits 8",
-                             found=str(bits))
+        raise ParameterError("JPEG holds 8-bit frames only", expected="--bits 8", found=str(bits))
     if args.shift < 0 or args.rotation < 0:
         raise ParameterError("--shift and --rotation are maxima and must be >= 0")
     if args.key is not None and not args.key > 0:
@@ -187,7 +214,11 @@ def run(args: argparse.Namespace) -> int:
         keep_linear=fmt == "dng",
     )
     written = write_bracket(
-        args.outdir, sim, fmt, force=args.force, sixteen_bit=args.sixteen_bit,
+        args.outdir,
+        sim,
+        fmt,
+        force=args.force,
+        sixteen_bit=args.sixteen_bit,
         cfa_pattern=args.cfa,
     )
     truth = sim.truth()

@@ -83,7 +83,10 @@ DEFAULT_METHOD = "Cerman 2006 refined"
 
 
 def exposure_ratio(
-    hist_dark: np.ndarray, hist_bright: np.ndarray, *, method: str = DEFAULT_METHOD,
+    hist_dark: np.ndarray,
+    hist_bright: np.ndarray,
+    *,
+    method: str = DEFAULT_METHOD,
     **kwargs: Any,
 ) -> ExposureRatioResult:
     """Exposure ratio ``t_bright / t_dark`` of a pair from ``(C, L)`` (or ``(L,)``) histograms.
@@ -100,31 +103,55 @@ def exposure_ratio(
 
 
 def exposure_ratio_frames(
-    dark: np.ndarray, bright: np.ndarray, max_level: int, *, mask: np.ndarray | None = None,
-    method: str = DEFAULT_METHOD, **kwargs: Any,
+    dark: np.ndarray,
+    bright: np.ndarray,
+    max_level: int,
+    *,
+    mask: np.ndarray | None = None,
+    method: str = DEFAULT_METHOD,
+    **kwargs: Any,
 ) -> ExposureRatioResult:
     """As :func:`exposure_ratio` from two ``(H, W, C)`` integer frames."""
-    return exposure_ratio(histograms(dark, max_level, mask), histograms(bright, max_level, mask),
-                          method=method, **kwargs)
+    return exposure_ratio(
+        histograms(dark, max_level, mask),
+        histograms(bright, max_level, mask),
+        method=method,
+        **kwargs,
+    )
 
 
 def bracket_exposures_from_histograms(
-    hists: BracketHistograms, *, method: str = DEFAULT_METHOD,
-    exposure_times: Sequence[float | None] | None = None, non_consecutive: bool = True,
+    hists: BracketHistograms,
+    *,
+    method: str = DEFAULT_METHOD,
+    exposure_times: Sequence[float | None] | None = None,
+    non_consecutive: bool = True,
     **kwargs: Any,
 ) -> BracketExposureResult:
     """Relative exposures of a bracket from cached histograms (fast re-fit)."""
     key = validate_method(method, EXPOSURE_METHODS, "exposure")
-    return chain_bracket(hists, EXPOSURE_METHODS[key], method=key, exposure_times=exposure_times,
-                         non_consecutive=non_consecutive, **kwargs)
+    return chain_bracket(
+        hists,
+        EXPOSURE_METHODS[key],
+        method=key,
+        exposure_times=exposure_times,
+        non_consecutive=non_consecutive,
+        **kwargs,
+    )
 
 
 def bracket_exposures(
-    frames: Sequence[np.ndarray], max_level: int, *, method: str = DEFAULT_METHOD,
-    exposure_times: Sequence[float | None] | None = None, mask: np.ndarray | None = None,
-    stride: int | None = None, non_consecutive: bool = True,
+    frames: Sequence[np.ndarray],
+    max_level: int,
+    *,
+    method: str = DEFAULT_METHOD,
+    exposure_times: Sequence[float | None] | None = None,
+    mask: np.ndarray | None = None,
+    stride: int | None = None,
+    non_consecutive: bool = True,
     regions: tuple[int, int] | None = DEFAULT_REGIONS,
-    pair_matrices: Sequence[np.ndarray] | None = None, margin: float = 2.0,
+    pair_matrices: Sequence[np.ndarray] | None = None,
+    margin: float = 2.0,
     **kwargs: Any,
 ) -> BracketExposureResult:
     """Relative exposures (darkest = 1) of ``frames`` (darkest first, integer ``(H, W, C)``).
@@ -133,15 +160,31 @@ def bracket_exposures(
     ``pair_matrices`` restricts every pair's histograms to its common field of view (see
     :func:`bracket_exposures_registered`).
     """
-    hists = bracket_histograms(frames, max_level, mask=mask, stride=stride, regions=regions,
-                               pair_matrices=pair_matrices, margin=margin)
-    return bracket_exposures_from_histograms(hists, method=method, exposure_times=exposure_times,
-                                             non_consecutive=non_consecutive, **kwargs)
+    hists = bracket_histograms(
+        frames,
+        max_level,
+        mask=mask,
+        stride=stride,
+        regions=regions,
+        pair_matrices=pair_matrices,
+        margin=margin,
+    )
+    return bracket_exposures_from_histograms(
+        hists,
+        method=method,
+        exposure_times=exposure_times,
+        non_consecutive=non_consecutive,
+        **kwargs,
+    )
 
 
 def bracket_exposures_registered(
-    frames: Sequence[np.ndarray], max_level: int, pair_matrices: Sequence[np.ndarray], *,
-    margin: float = 2.0, **kwargs: Any,
+    frames: Sequence[np.ndarray],
+    max_level: int,
+    pair_matrices: Sequence[np.ndarray],
+    *,
+    margin: float = 2.0,
+    **kwargs: Any,
 ) -> BracketExposureResult:
     """Relative exposures of a hand-held bracket from histograms of each pair's common field of
     view.
@@ -153,5 +196,6 @@ def bracket_exposures_registered(
     borders no longer biases the ratio; no pixel value is warped. Other arguments as
     :func:`bracket_exposures`.
     """
-    return bracket_exposures(frames, max_level, pair_matrices=pair_matrices, margin=margin,
-                             **kwargs)
+    return bracket_exposures(
+        frames, max_level, pair_matrices=pair_matrices, margin=margin, **kwargs
+    )

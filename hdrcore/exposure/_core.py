@@ -63,19 +63,23 @@ def default_noise_floor(max_level: int) -> float:
     return max(3.0, 0.02 * max_level)
 
 
-def check_levels(max_level: int, saturation: float | None,
-                 noise_floor: float | None) -> tuple[float, float]:
+def check_levels(
+    max_level: int, saturation: float | None, noise_floor: float | None
+) -> tuple[float, float]:
     """``(Z, noise floor)`` in levels, defaults filled in and their order checked."""
     z = default_saturation(max_level) if saturation is None else float(saturation)
     floor = default_noise_floor(max_level) if noise_floor is None else float(noise_floor)
     if not 0 <= floor < z <= max_level + 1:
-        raise ParameterError("need 0 <= noise floor < saturation <= max_level + 1",
-                             found=f"noise floor {floor:g}, saturation {z:g}")
+        raise ParameterError(
+            "need 0 <= noise floor < saturation <= max_level + 1",
+            found=f"noise floor {floor:g}, saturation {z:g}",
+        )
     return z, floor
 
 
-def channels_disagree(ratios: np.ndarray, std_errors: np.ndarray, k: float,
-                      tolerance: float) -> bool:
+def channels_disagree(
+    ratios: np.ndarray, std_errors: np.ndarray, k: float, tolerance: float
+) -> bool:
     """Whether a colour channel's ratio is off the joint ``k`` by more than ``tolerance`` and
     four of its standard errors (a white-level, colour-cast or response problem)."""
     finite = np.isfinite(ratios)
@@ -97,7 +101,8 @@ def as_lut(lut: np.ndarray | None, n_channels: int, max_level: int) -> np.ndarra
     if g.ndim != 2 or g.shape[1] != n or g.shape[0] not in (1, n_channels):
         raise ParameterError(
             "linearisation table has the wrong shape",
-            expected=f"({n},) or ({n_channels}, {n})", found=str(np.asarray(lut).shape),
+            expected=f"({n},) or ({n_channels}, {n})",
+            found=str(np.asarray(lut).shape),
         )
     if g.shape[0] == 1:
         g = np.broadcast_to(g, (n_channels, n))
@@ -114,9 +119,10 @@ def check_histograms(hist_dark: np.ndarray, hist_bright: np.ndarray) -> tuple[np
     if hb.ndim == 1:
         hb = hb[None]
     if hd.ndim != 2 or hd.shape != hb.shape or hd.shape[1] < 2:
-        raise ParameterError("histograms of a pair must have the same shape (C, max_level + 1)",
-                             found=f"{np.asarray(hist_dark).shape} and "
-                                   f"{np.asarray(hist_bright).shape}")
+        raise ParameterError(
+            "histograms of a pair must have the same shape (C, max_level + 1)",
+            found=f"{np.asarray(hist_dark).shape} and {np.asarray(hist_bright).shape}",
+        )
     if np.any(hd < 0) or np.any(hb < 0):
         raise ParameterError("histogram counts must be non-negative")
     return hd, hb
@@ -142,21 +148,40 @@ def _unusable(hist: np.ndarray, saturation: float, noise_floor: float) -> str | 
     return "black (at or below the noise floor)" if low >= total / 2 else "saturated"
 
 
-def _no_signal(which: str, kind: str, *, method: str, n_ch: int, saturation: float,
-               noise_floor: float, max_level: int, dark: int, bright: int,
-               tolerance: float) -> ExposureRatioResult:
+def _no_signal(
+    which: str,
+    kind: str,
+    *,
+    method: str,
+    n_ch: int,
+    saturation: float,
+    noise_floor: float,
+    max_level: int,
+    dark: int,
+    bright: int,
+    tolerance: float,
+) -> ExposureRatioResult:
     """The result of a pair one of whose frames is black, saturated or empty (no ratio)."""
     index = dark if which == "darker" else bright
     if kind == "no pixels":
         what = f"the {which} frame (frame {index}) has no pixels to count"
     else:
-        what = (f"the {which} frame is entirely {kind}; no exposure ratio can be estimated "
-                f"from it (expected pixels between noise floor {noise_floor:g} and saturation "
-                f"{saturation:g}, found none)")
+        what = (
+            f"the {which} frame is entirely {kind}; no exposure ratio can be estimated "
+            f"from it (expected pixels between noise floor {noise_floor:g} and saturation "
+            f"{saturation:g}, found none)"
+        )
     return ExposureRatioResult.unmeasured(
-        status="no-signal", message=f"frames {dark} and {bright}: {what}", n_channels=n_ch,
-        method=method, saturation=saturation, noise_floor=noise_floor, max_level=int(max_level),
-        dark=dark, bright=bright, tolerance=tolerance,
+        status="no-signal",
+        message=f"frames {dark} and {bright}: {what}",
+        n_channels=n_ch,
+        method=method,
+        saturation=saturation,
+        noise_floor=noise_floor,
+        max_level=int(max_level),
+        dark=dark,
+        bright=bright,
+        tolerance=tolerance,
     )
 
 
@@ -177,8 +202,13 @@ def group_statistics(
 
 
 def solve_3v_groups(
-    sxx: np.ndarray, sxy: np.ndarray, syy: np.ndarray, n: np.ndarray, *,
-    precision: float = 1e-7, max_iterations: int = 100,
+    sxx: np.ndarray,
+    sxy: np.ndarray,
+    syy: np.ndarray,
+    n: np.ndarray,
+    *,
+    precision: float = 1e-7,
+    max_iterations: int = 100,
 ) -> tuple[float, tuple[float, ...], np.ndarray, int, float]:
     """The seed's least squares + 3V iteration (section 5.1) on grouped equations.
 
@@ -229,8 +259,13 @@ def solve_3v_groups(
 
 
 def solve_3v_batch(
-    sxx: np.ndarray, sxy: np.ndarray, syy: np.ndarray, n: np.ndarray, *,
-    precision: float = 1e-7, max_iterations: int = 50,
+    sxx: np.ndarray,
+    sxy: np.ndarray,
+    syy: np.ndarray,
+    n: np.ndarray,
+    *,
+    precision: float = 1e-7,
+    max_iterations: int = 50,
 ) -> np.ndarray:
     """:func:`solve_3v_groups` for a batch ``(B, G)`` of independent problems at once: ``k (B,)``.
 
@@ -266,8 +301,13 @@ def solve_3v_batch(
 
 
 def solve_3v(
-    x: np.ndarray, y: np.ndarray, w: np.ndarray, *, precision: float = 1e-7,
-    max_iterations: int = 100, groups: np.ndarray | None = None,
+    x: np.ndarray,
+    y: np.ndarray,
+    w: np.ndarray,
+    *,
+    precision: float = 1e-7,
+    max_iterations: int = 100,
+    groups: np.ndarray | None = None,
 ) -> tuple[float, tuple[float, ...], np.ndarray, np.ndarray, int, float]:
     """Solve ``w k x = w y`` by least squares, then the seed's 3V iteration (section 5.1).
 
@@ -286,7 +326,8 @@ def solve_3v(
     n_groups = int(groups.max()) + 1 if groups.size else 0
     stats = group_statistics(wx, wy, groups, n_groups)
     k, iterates, gmask, iterations, se = solve_3v_groups(
-        *stats, precision=precision, max_iterations=max_iterations)
+        *stats, precision=precision, max_iterations=max_iterations
+    )
     mask = gmask[groups] if groups.size else np.zeros(0, bool)
     return k, iterates, mask, wy - k * wx, iterations, se
 
@@ -318,12 +359,16 @@ def _sampled_btf(btf: BrightnessTransferFunction, at_edges: bool) -> tuple[np.nd
 
 def _select(base: np.ndarray, lo: int, hi: int) -> np.ndarray:
     """Entries of the sorted index array ``base`` in ``[lo, hi)``."""
-    return base[np.searchsorted(base, lo):np.searchsorted(base, max(lo, hi))]
+    return base[np.searchsorted(base, lo) : np.searchsorted(base, max(lo, hi))]
 
 
 def _equations_for_channel(
-    btf: BrightnessTransferFunction, g: np.ndarray | None, saturation: float, noise_floor: float,
-    options: FitOptions, channel: int,
+    btf: BrightnessTransferFunction,
+    g: np.ndarray | None,
+    saturation: float,
+    noise_floor: float,
+    options: FitOptions,
+    channel: int,
 ) -> tuple[np.ndarray, ...]:
     """Rows of eq. 4 for one channel: forward rows from dark levels ``noise floor < M_A < Z``
     with ``T(M_A) < Z``, inverse rows from bright levels ``noise floor < M_B < Z`` with
@@ -341,24 +386,29 @@ def _equations_for_channel(
     z, floor = saturation, noise_floor
     above_floor = int(np.searchsorted(pos, floor, side="right"))
     below_z = int(np.searchsorted(pos, z, side="left"))
-    fwd = _select(base_d, above_floor,
-                  min(below_z, int(np.searchsorted(t_fwd, z, side="left"))))
-    inv = _select(base_b, max(above_floor, int(np.searchsorted(t_inv, floor, side="right"))),
-                  below_z)
+    fwd = _select(base_d, above_floor, min(below_z, int(np.searchsorted(t_fwd, z, side="left"))))
+    inv = _select(
+        base_b, max(above_floor, int(np.searchsorted(t_inv, floor, side="right"))), below_z
+    )
     hd, hb = btf.hist_dark, btf.hist_bright
     x = np.concatenate([lin(pos[fwd]), lin(t_inv[inv])])
     y = np.concatenate([lin(t_fwd[fwd]), lin(pos[inv])])
     counts = np.concatenate([hd[fwd], hb[inv]]).astype(np.float64)
     w = counts**options.weight_power
-    direction = np.concatenate([np.full(fwd.size, FORWARD, np.int8),
-                                np.full(inv.size, INVERSE, np.int8)])
+    direction = np.concatenate(
+        [np.full(fwd.size, FORWARD, np.int8), np.full(inv.size, INVERSE, np.int8)]
+    )
     level = np.concatenate([pos[fwd], pos[inv]])
     ch = np.full(x.size, channel, np.int8)
     return x, y, w, direction, ch, level
 
 
-def _overlap(hd: np.ndarray, btfs: tuple[BrightnessTransferFunction, ...], saturation: float,
-             noise_floor: float) -> float:
+def _overlap(
+    hd: np.ndarray,
+    btfs: tuple[BrightnessTransferFunction, ...],
+    saturation: float,
+    noise_floor: float,
+) -> float:
     """Fraction of the darker frame's pixels above the floor whose transfer stays below ``Z``."""
     fractions = []
     lo, hi = _level_range(hd.shape[1], noise_floor, saturation)
@@ -420,15 +470,26 @@ def estimate_pair(
     for which, hist in (("darker", hd), ("brighter", hb)):
         kind = _unusable(hist, z, floor)
         if kind is not None:
-            return _no_signal(which, kind, method=options.name, n_ch=n_ch, saturation=z,
-                              noise_floor=floor, max_level=max_level, dark=dark,
-                              bright=bright, tolerance=max_relative_error)
+            return _no_signal(
+                which,
+                kind,
+                method=options.name,
+                n_ch=n_ch,
+                saturation=z,
+                noise_floor=floor,
+                max_level=max_level,
+                dark=dark,
+                bright=bright,
+                tolerance=max_relative_error,
+            )
     g = None if lut is None else as_lut(lut, n_ch, max_level)
 
     if btfs is None or len(btfs) != n_ch:
         btfs = pair_btfs(hd, hb)
-    parts = [_equations_for_channel(btfs[c], None if g is None else g[c], z, floor, options, c)
-             for c in range(n_ch)]
+    parts = [
+        _equations_for_channel(btfs[c], None if g is None else g[c], z, floor, options, c)
+        for c in range(n_ch)
+    ]
     x, y, w, direction, ch, level = (np.concatenate(p) for p in zip(*parts, strict=True))
     if options.relative_error:
         keep = x > 0
@@ -437,9 +498,19 @@ def estimate_pair(
     eqs = ExposureEquations(x=x, y=y, weights=w, direction=direction, channel=ch, level=level)
     overlap = _overlap(hd, btfs, z, floor)
 
-    common = dict(method=options.name, equations=eqs, overlap=overlap, btfs=btfs, saturation=z,
-                  noise_floor=floor, max_level=max_level, dark=dark, bright=bright,
-                  non_linear=lut is not None, tolerance=max_relative_error)
+    common = dict(
+        method=options.name,
+        equations=eqs,
+        overlap=overlap,
+        btfs=btfs,
+        saturation=z,
+        noise_floor=floor,
+        max_level=max_level,
+        dark=dark,
+        bright=bright,
+        non_linear=lut is not None,
+        tolerance=max_relative_error,
+    )
     if x.size < min_equations or overlap < min_overlap:
         return ExposureRatioResult.unmeasured(
             status="no-overlap",
@@ -449,19 +520,21 @@ def estimate_pair(
                 f"({floor:g}) and stay below saturation ({z:g}) in the brighter frame, "
                 f"{x.size} equations; use frames closer in exposure or lower the noise floor"
             ),
-            n_channels=n_ch, **common,
+            n_channels=n_ch,
+            **common,
         )
 
     # Neighbouring levels of one channel and direction form a group (eq. 4 rows merged).
     f = level_group_size(n, max_groups)
     n_g = -(-n // f)
     lvl = np.clip(np.floor(level).astype(np.int64), 0, n - 1)
-    groups = ((ch.astype(np.int64) * 2 + direction) * n_g + lvl // f)
+    groups = (ch.astype(np.int64) * 2 + direction) * n_g + lvl // f
     n_groups = n_ch * 2 * n_g
     wx, wy = w * x, w * y
     stats = group_statistics(wx, wy, groups, n_groups)
     k, iterates, gmask, iterations, se = solve_3v_groups(
-        *stats, precision=precision, max_iterations=max_iterations)
+        *stats, precision=precision, max_iterations=max_iterations
+    )
     mask = gmask[groups]
     if refine is not None:
         k = refine(eqs, mask, k)
@@ -471,8 +544,9 @@ def estimate_pair(
     for c in range(n_ch):
         sel = group_channel == c
         if np.count_nonzero(ch == c) >= min_equations:
-            kc, _, _, _, sec = solve_3v_groups(*(a[sel] for a in stats), precision=precision,
-                                               max_iterations=max_iterations)
+            kc, _, _, _, sec = solve_3v_groups(
+                *(a[sel] for a in stats), precision=precision, max_iterations=max_iterations
+            )
         else:
             kc, sec = float("nan"), float("inf")
         channel_ratios.append(kc)
@@ -484,30 +558,47 @@ def estimate_pair(
     n_inliers = int(np.count_nonzero(mask))
     bands = brightness_band_ratios(eqs, mask, ratio_of_sums=False)
     result = ExposureRatioResult(
-        ratio=float(k), initial_ratio=float(iterates[0]), iterates=iterates, iterations=iterations,
-        inlier_mask=mask, residuals=residuals, std_error=float(se), status="ok", message="",
+        ratio=float(k),
+        initial_ratio=float(iterates[0]),
+        iterates=iterates,
+        iterations=iterations,
+        inlier_mask=mask,
+        residuals=residuals,
+        std_error=float(se),
+        status="ok",
+        message="",
         channel_ratios=tuple(float(v) for v in cr),
-        channel_std_errors=tuple(float(v) for v in cse), channels_disagree=disagree,
-        level_group_size=f, band_ratios=bands, **common,
+        channel_std_errors=tuple(float(v) for v in cse),
+        channels_disagree=disagree,
+        level_group_size=f,
+        band_ratios=bands,
+        **common,
     )
     status: RatioStatus
     if not np.isfinite(k) or k <= 0:
         status, message = "failed", f"the fit of frames {dark} and {bright} gave no positive ratio"
     elif n_inliers < min_equations:
         status = "few-equations"
-        message = (f"only {n_inliers} of {x.size} equations survived the 3V outlier "
-                   f"removal for frames {dark} and {bright}")
+        message = (
+            f"only {n_inliers} of {x.size} equations survived the 3V outlier "
+            f"removal for frames {dark} and {bright}"
+        )
     elif disagree:
         status = "channels-disagree"
-        message = ("the colour channels give different ratios ("
-                   + ", ".join(f"{v:.4f}" for v in cr)
-                   + f") for frames {dark} and {bright}: a wrong white level, a colour cast or "
-                   "a wrong response")
+        message = (
+            "the colour channels give different ratios ("
+            + ", ".join(f"{v:.4f}" for v in cr)
+            + f") for frames {dark} and {bright}: a wrong white level, a colour cast or "
+            "a wrong response"
+        )
     else:
         # The interval rule (ok / uncertain); the region jack-knife, when a bracket function
         # adds it, widens the interval and the pair is judged again (interval.judge).
-        evidence = (f"from a small overlap ({overlap:.1%} of the darker frame's pixels)"
-                    if overlap < 5 * min_overlap else f"from {n_inliers} equations")
+        evidence = (
+            f"from a small overlap ({overlap:.1%} of the darker frame's pixels)"
+            if overlap < 5 * min_overlap
+            else f"from {n_inliers} equations"
+        )
         result = replace(result, evidence=evidence)
         status, message = verdict(result, max_relative_error, evidence)
     return replace(result, status=status, message=message)

@@ -47,5 +47,12 @@ def exposure_ratio_cerman2006(
     linearisation table ``g`` (``(L,)`` or ``(C, L)``, ``g(max_level) = 1``).
     """
     kwargs.pop("noise_sigma", None)
-    return estimate_pair(hist_dark, hist_bright, CERMAN2006, saturation=saturation,
-                         noise_floor=noise_floor, lut=lut, **kwargs)
+    return estimate_pair(
+        hist_dark,
+        hist_bright,
+        CERMAN2006,
+        saturation=saturation,
+        noise_floor=noise_floor,
+        lut=lut,
+        **kwargs,
+    )

@@ -29,12 +29,19 @@ from .result import BracketExposureResult, ExposureRatioResult
 from .stability import region_jackknife
 
 __all__ = [
-    "BracketHistograms", "bracket_histograms", "solve_chain", "chain_bracket", "assemble_bracket",
+    "BracketHistograms",
+    "bracket_histograms",
+    "solve_chain",
+    "chain_bracket",
+    "assemble_bracket",
 ]
 
 
 def solve_chain(
-    n: int, pairs: Sequence[ExposureRatioResult], *, min_relative_error: float = 2e-4,
+    n: int,
+    pairs: Sequence[ExposureRatioResult],
+    *,
+    min_relative_error: float = 2e-4,
     non_consecutive_weight: float = 0.01,
 ) -> tuple[np.ndarray, dict[tuple[int, int], float]]:
     """Relative exposures (frame 0 = 1) from pair ratios by weighted least squares in log2.
@@ -84,8 +91,9 @@ def solve_chain(
     cols = np.flatnonzero(connected)[1:]
     keep_rows = np.array([connected[i] and connected[j] for i, j in used])
     if cols.size:
-        sol, *_ = np.linalg.lstsq(a[keep_rows][:, cols] * wv[keep_rows, None],
-                                  b[keep_rows] * wv[keep_rows], rcond=None)
+        sol, *_ = np.linalg.lstsq(
+            a[keep_rows][:, cols] * wv[keep_rows, None], b[keep_rows] * wv[keep_rows], rcond=None
+        )
         log_e[cols] = sol
     residuals = {}
     for (i, j), bi in zip(used, b, strict=True):
@@ -98,8 +106,13 @@ _REGION_OVERRIDES = ("ok", "channels-disagree", "uncertain")
 
 
 def _with_diagnostics(
-    r: ExposureRatioResult, ph: PairHistograms, *, lut: np.ndarray | None, jackknife: bool,
-    max_region_error: float, jackknife_groups: int,
+    r: ExposureRatioResult,
+    ph: PairHistograms,
+    *,
+    lut: np.ndarray | None,
+    jackknife: bool,
+    max_region_error: float,
+    jackknife_groups: int,
 ) -> ExposureRatioResult:
     """Add the overlap restriction and the region jack-knife to a pair's result."""
     changes: dict = {}
@@ -107,10 +120,13 @@ def _with_diagnostics(
     if sk is not None:
         ks, se = region_jackknife(sk, saturation=r.saturation, noise_floor=r.noise_floor, lut=lut)
         # The calibrated interval rests on the jack-knife: ok / uncertain decided again on it.
-        judged = judge(replace(r, region_ratios=tuple(float(v) for v in ks),
-                               region_std_error=se))
-        changes.update(region_ratios=judged.region_ratios, region_std_error=se,
-                       status=judged.status, message=judged.message)
+        judged = judge(replace(r, region_ratios=tuple(float(v) for v in ks), region_std_error=se))
+        changes.update(
+            region_ratios=judged.region_ratios,
+            region_std_error=se,
+            status=judged.status,
+            message=judged.message,
+        )
         r = judged
         rel = se / r.ratio if r.ratio > 0 else float("inf")
         # Motion explains disagreeing channels and a poor fit too, and the remedy differs:
@@ -118,24 +134,31 @@ def _with_diagnostics(
         if r.status in _REGION_OVERRIDES and np.isfinite(rel) and rel > max_region_error:
             changes["status"] = "unstable"
             if ph.overlap_restricted:
-                hint = ("even within the common field of view: a moving object, a poor "
-                        "registration or a scene change")
+                hint = (
+                    "even within the common field of view: a moving object, a poor "
+                    "registration or a scene change"
+                )
             else:
-                hint = ("content entering or leaving at the borders (hand-held motion) or a "
-                        "moving object disturbs the histograms; register the frames first and "
-                        "measure from the registered pixels ('hdrcore ratios --registered', "
-                        "hdrcore.exposure.registered)")
+                hint = (
+                    "content entering or leaving at the borders (hand-held motion) or a "
+                    "moving object disturbs the histograms; register the frames first and "
+                    "measure from the registered pixels ('hdrcore ratios --registered', "
+                    "hdrcore.exposure.registered)"
+                )
             changes["message"] = (
                 f"ratio {r.ratio:.4f} of frames {r.dark} and {r.bright} is unstable: leaving out "
                 f"one of {sk.n_regions} image regions moves it by {rel:.2%} (jack-knife standard "
                 f"error, over {max_region_error:.2%}); {hint}"
-                + ("" if r.ok else f" (the fit alone reported: {r.status})"))
+                + ("" if r.ok else f" (the fit alone reported: {r.status})")
+            )
     if ph.overlap_restricted:
         changes.update(overlap_restricted=True, common_fraction=ph.common_fraction)
         if np.isfinite(r.ratio):
-            changes["message"] = (f"{changes.get('message', r.message)}; histograms restricted "
-                                  f"to the common field of view ({ph.common_fraction:.1%} of "
-                                  "the bright frame)")
+            changes["message"] = (
+                f"{changes.get('message', r.message)}; histograms restricted "
+                f"to the common field of view ({ph.common_fraction:.1%} of "
+                "the bright frame)"
+            )
     return replace(r, **changes) if changes else r
 
 
@@ -161,14 +184,16 @@ def chain_bracket(
     """
     n = hists.n_frames
     lut = kwargs.get("lut")
-    diag: dict[str, Any] = dict(lut=lut, jackknife=jackknife,
-                                max_region_error=max_region_error,
-                                jackknife_groups=jackknife_groups)
+    diag: dict[str, Any] = dict(
+        lut=lut,
+        jackknife=jackknife,
+        max_region_error=max_region_error,
+        jackknife_groups=jackknife_groups,
+    )
 
     def one(i: int, j: int) -> ExposureRatioResult:
         ph = hists.pair(i, j)
-        r = estimate(ph.counts_dark, ph.counts_bright, dark=i, bright=j, btfs=ph.btfs(),
-                     **kwargs)
+        r = estimate(ph.counts_dark, ph.counts_bright, dark=i, bright=j, btfs=ph.btfs(), **kwargs)
         return _with_diagnostics(r, ph, **diag)
 
     pairs = [one(i, i + 1) for i in range(n - 1)]
@@ -179,11 +204,21 @@ def chain_bracket(
                 r = one(i, i + span)
                 if r.status not in ("no-overlap", "no-signal"):
                     extra.append(r)
-    message_suffix = ("; histograms restricted to each pair's common field of view"
-                      if hists.overlap_restricted else "")
-    return assemble_bracket(n, pairs, extra, method=method, exposure_times=exposure_times,
-                            max_level=hists.max_level, consistency_stops=consistency_stops,
-                            message_suffix=message_suffix)
+    message_suffix = (
+        "; histograms restricted to each pair's common field of view"
+        if hists.overlap_restricted
+        else ""
+    )
+    return assemble_bracket(
+        n,
+        pairs,
+        extra,
+        method=method,
+        exposure_times=exposure_times,
+        max_level=hists.max_level,
+        consistency_stops=consistency_stops,
+        message_suffix=message_suffix,
+    )
 
 
 def assemble_bracket(
@@ -213,19 +248,26 @@ def assemble_bracket(
 
     # Mark consecutive pairs that a closed loop contradicts: a non-consecutive pair (i, j) whose
     # ratio differs from the chain over i..j by more than ``consistency_stops``.
-    broken_loops = [e for e in extra if e.ok and abs(residuals.get((e.dark, e.bright), 0.0))
-                    > consistency_stops]
+    broken_loops = [
+        e for e in extra if e.ok and abs(residuals.get((e.dark, e.bright), 0.0)) > consistency_stops
+    ]
     checked = []
     for p in pairs:
         loops = [e for e in broken_loops if e.dark <= p.dark and e.bright >= p.bright]
         if p.ok and loops:
             worst = max(loops, key=lambda e: abs(residuals[(e.dark, e.bright)]))
             res = residuals[(worst.dark, worst.bright)]
-            p = replace(p, status="inconsistent", message=(
-                f"ratio {p.ratio:.4f} of frames {p.dark} and {p.bright}: the direct estimate of "
-                f"frames {worst.dark} and {worst.bright} differs from the chain by {res:+.3f} "
-                "stops; a histogram is disturbed (motion at the borders, a moving object, a "
-                "wrong response)"))
+            p = replace(
+                p,
+                status="inconsistent",
+                message=(
+                    f"ratio {p.ratio:.4f} of frames {p.dark} and {p.bright}: the direct estimate "
+                    "of "
+                    f"frames {worst.dark} and {worst.bright} differs from the chain by {res:+.3f} "
+                    "stops; a histogram is disturbed (motion at the borders, a moving object, a "
+                    "wrong response)"
+                ),
+            )
         checked.append(p)
     pairs = checked
 
@@ -233,8 +275,9 @@ def assemble_bracket(
         times: tuple[float | None, ...] = (None,) * n
     else:
         if len(exposure_times) != n:
-            raise ParameterError("one exposure time per frame", expected=str(n),
-                                 found=str(len(exposure_times)))
+            raise ParameterError(
+                "one exposure time per frame", expected=str(n), found=str(len(exposure_times))
+            )
         times = tuple(None if t is None else float(t) for t in exposure_times)
     exif_ratios: list[float | None] = []
     mismatch: list[float | None] = []
@@ -252,13 +295,14 @@ def assemble_bracket(
     status: ChainStatus
     if np.any(~np.isfinite(exposures)):
         status = "broken-chain"
-        message = ("the chain of exposures is broken: "
-                   + "; ".join(p.message for p in bad
-                               if p.status in ("no-overlap", "no-signal")))
+        message = "the chain of exposures is broken: " + "; ".join(
+            p.message for p in bad if p.status in ("no-overlap", "no-signal")
+        )
     elif bad:
         status = "not-ok"
         message = f"{len(bad)} of {len(pairs)} pairs are not ok: " + "; ".join(
-            f"{p.dark}-{p.bright} {p.status}" for p in bad)
+            f"{p.dark}-{p.bright} {p.status}" for p in bad
+        )
     else:
         status = "ok"
         message = f"{n} frames, {len(pairs)} consecutive and {len(extra)} further pairs, all ok"
@@ -267,8 +311,16 @@ def assemble_bracket(
     return BracketExposureResult(
         relative_exposures=tuple(float(v) for v in exposures),
         chained_exposures=tuple(float(v) for v in chained),
-        pairs=tuple(pairs), extra_pairs=tuple(extra), exif_times=times,
-        exif_ratios=tuple(exif_ratios), mismatch_stops=tuple(mismatch),
-        chain_residuals_stops=residuals, status=status, message=message, method=method,
-        saturation=first.saturation, noise_floor=first.noise_floor, max_level=max_level,
+        pairs=tuple(pairs),
+        extra_pairs=tuple(extra),
+        exif_times=times,
+        exif_ratios=tuple(exif_ratios),
+        mismatch_stops=tuple(mismatch),
+        chain_residuals_stops=residuals,
+        status=status,
+        message=message,
+        method=method,
+        saturation=first.saturation,
+        noise_floor=first.noise_floor,
+        max_level=max_level,
     )

@@ -117,7 +117,10 @@ FIT_ONLY_FACTOR = 25.0
 """Factor on the fit's standard error when no jack-knife was computed (not calibrated)."""
 
 MODEL_ERROR_PER_STOP: dict[str, float] = {
-    "non-linear": 0.002, "linear histograms": 0.0005, "linear pixels": 0.0}
+    "non-linear": 0.002,
+    "linear histograms": 0.0005,
+    "linear pixels": 0.0,
+}
 """Floor ``f`` of the relative half-width for model error per stop of the pair's ratio
 (``f = e |log2 k|``), by kind of input: non-linear levels (a linearisation table), linear levels
 seen by the histograms (demosaiced RAW, the noise of low levels), linear levels compared pixel by
@@ -157,7 +160,10 @@ def model_error_floor(ratio: float, *, non_linear: bool, method: str) -> float:
 
 
 def brightness_band_ratios(
-    equations: ExposureEquations, inlier_mask: np.ndarray, *, ratio_of_sums: bool,
+    equations: ExposureEquations,
+    inlier_mask: np.ndarray,
+    *,
+    ratio_of_sums: bool,
     n_bands: int = N_BANDS,
 ) -> tuple[float, ...]:
     """The ratio fitted on each of ``n_bands`` bands of the inlier equations, darkest first.
@@ -215,13 +221,21 @@ def interval_std_error(std_error: float, region_std_error: float) -> tuple[float
     and what it is, ``"jack-knife"`` or ``"fit"`` (the fit's error times
     :data:`FIT_ONLY_FACTOR`, when no jack-knife was computed)."""
     if np.isfinite(region_std_error):
-        return float(max(region_std_error, std_error if np.isfinite(std_error) else 0.0)), \
-            "jack-knife"
+        return float(
+            max(region_std_error, std_error if np.isfinite(std_error) else 0.0)
+        ), "jack-knife"
     return float(FIT_ONLY_FACTOR * std_error), "fit"
 
 
-def ci95_relative(ratio: float, std_error: float, region_std_error: float, *, method: str,
-                  band_ratios: tuple[float, ...] = (), model_error: float = 0.0) -> float:
+def ci95_relative(
+    ratio: float,
+    std_error: float,
+    region_std_error: float,
+    *,
+    method: str,
+    band_ratios: tuple[float, ...] = (),
+    model_error: float = 0.0,
+) -> float:
     """``h``, the relative half-width of the 95 % interval (in log ratio; ``inf`` when the ratio
     or its error is not finite)."""
     if not (np.isfinite(ratio) and ratio > 0):
@@ -246,8 +260,9 @@ def _fmt_interval(lo: float, hi: float) -> str:
     return f"{lo:.{decimals}f}-{hi:.{decimals}f}"
 
 
-def verdict(result: ExposureRatioResult, tolerance: float,
-            evidence: str) -> tuple[RatioStatus, str]:
+def verdict(
+    result: ExposureRatioResult, tolerance: float, evidence: str
+) -> tuple[RatioStatus, str]:
     """``(status, message)`` of a pair that passed every other check: ``"ok"`` when its
     interval's relative half-width is at most ``tolerance``, else ``"uncertain"`` with what
     widens it most."""
@@ -266,24 +281,35 @@ def verdict(result: ExposureRatioResult, tolerance: float,
     }
     worst = max(parts, key=lambda p: parts[p] if np.isfinite(parts[p]) else float("inf"))
     if worst == "bands":
-        why = (f"the ratio changes with brightness (±{parts['bands']:.2%} across "
-               f"{len(result.band_ratios)} brightness bands): a wrong response or linearisation")
+        why = (
+            f"the ratio changes with brightness (±{parts['bands']:.2%} across "
+            f"{len(result.band_ratios)} brightness bands): a wrong response or linearisation"
+        )
     elif worst == "floor":
-        why = (f"the model-error floor of non-linear input (±{parts['floor']:.2%}) leaves no "
-               "room for its measurement error")
+        why = (
+            f"the model-error floor of non-linear input (±{parts['floor']:.2%}) leaves no "
+            "room for its measurement error"
+        )
     elif basis == "jack-knife":
-        why = (f"leaving out one image region moves the ratio by {s / k:.2%} (jack-knife): the "
-               "frames do not match well everywhere (a moving object, a poor registration, "
-               "noise or a wrong response)")
+        why = (
+            f"leaving out one image region moves the ratio by {s / k:.2%} (jack-knife): the "
+            "frames do not match well everywhere (a moving object, a poor registration, "
+            "noise or a wrong response)"
+        )
     else:
-        why = (f"the fit's standard error ({result.std_error / k:.3%}) x {FIT_ONLY_FACTOR:g}; no "
-               "region jack-knife was computed")
+        why = (
+            f"the fit's standard error ({result.std_error / k:.3%}) x {FIT_ONLY_FACTOR:g}; no "
+            "region jack-knife was computed"
+        )
     if not np.isfinite(h):
-        return "uncertain", (f"ratio {k:.4f} of frames {result.dark} and {result.bright} has no "
-                             "finite error")
-    return "uncertain", (f"ratio {k:.4f} of frames {result.dark} and {result.bright}: 95 % "
-                         f"interval {span} (±{h:.2%}) is wider than the ±{tolerance:.2%} an ok "
-                         f"pair may have; {why}")
+        return "uncertain", (
+            f"ratio {k:.4f} of frames {result.dark} and {result.bright} has no finite error"
+        )
+    return "uncertain", (
+        f"ratio {k:.4f} of frames {result.dark} and {result.bright}: 95 % "
+        f"interval {span} (±{h:.2%}) is wider than the ±{tolerance:.2%} an ok "
+        f"pair may have; {why}"
+    )
 
 
 def judge(result: ExposureRatioResult, tolerance: float | None = None) -> ExposureRatioResult:

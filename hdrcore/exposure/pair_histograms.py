@@ -99,8 +99,7 @@ class PairHistograms:
         if key not in self._cache:
             from .stability import jackknife_skeleton
 
-            self._cache[key] = jackknife_skeleton(dark, bright,
-                                                  max_groups=max_groups)
+            self._cache[key] = jackknife_skeleton(dark, bright, max_groups=max_groups)
         return self._cache[key]
 
 
@@ -138,7 +137,9 @@ class BracketHistograms:
         if key not in self._pairs:
             rc = self.region_counts
             self._pairs[key] = PairHistograms(
-                dark=key[0], bright=key[1], counts_dark=self.counts[key[0]],
+                dark=key[0],
+                bright=key[1],
+                counts_dark=self.counts[key[0]],
                 counts_bright=self.counts[key[1]],
                 regions_dark=None if rc is None else rc[key[0]],
                 regions_bright=None if rc is None else rc[key[1]],
@@ -152,11 +153,13 @@ def _check_grid(regions: tuple[int, int] | None) -> tuple[int, int]:
     try:
         gy, gx = (int(v) for v in regions)
     except (TypeError, ValueError):
-        raise ParameterError("regions must be a (rows, columns) grid",
-                             found=repr(regions)) from None
+        raise ParameterError(
+            "regions must be a (rows, columns) grid", found=repr(regions)
+        ) from None
     if gy < 1 or gx < 1:
-        raise ParameterError("regions must be a (rows, columns) grid of positive sizes",
-                             found=repr(regions))
+        raise ParameterError(
+            "regions must be a (rows, columns) grid of positive sizes", found=repr(regions)
+        )
     return gy, gx
 
 
@@ -166,8 +169,12 @@ def _as_hwc(levels: np.ndarray) -> np.ndarray:
 
 
 def region_histograms(
-    levels: np.ndarray, max_level: int, regions: tuple[int, int] = DEFAULT_REGIONS, *,
-    mask: np.ndarray | None = None, stride: int = 1,
+    levels: np.ndarray,
+    max_level: int,
+    regions: tuple[int, int] = DEFAULT_REGIONS,
+    *,
+    mask: np.ndarray | None = None,
+    stride: int = 1,
 ) -> np.ndarray:
     """Histograms ``(R, C, max_level + 1)`` of a grid of image regions, row by row.
 
@@ -181,8 +188,11 @@ def region_histograms(
     if mask is not None:
         mk = np.asarray(mask, bool)
         if mk.shape != np.asarray(levels).shape[:2]:
-            raise ParameterError("mask shape differs from the frame",
-                                 expected=str(np.asarray(levels).shape[:2]), found=str(mk.shape))
+            raise ParameterError(
+                "mask shape differs from the frame",
+                expected=str(np.asarray(levels).shape[:2]),
+                found=str(mk.shape),
+            )
         mk = mk[::s, ::s]
     h, w = a.shape[:2]
     ys = [(i * h) // gy for i in range(gy + 1)]
@@ -190,8 +200,8 @@ def region_histograms(
     out = []
     for i in range(gy):
         for j in range(gx):
-            block = a[ys[i]:ys[i + 1], xs[j]:xs[j + 1]]
-            bm = None if mk is None else mk[ys[i]:ys[i + 1], xs[j]:xs[j + 1]]
+            block = a[ys[i] : ys[i + 1], xs[j] : xs[j + 1]]
+            bm = None if mk is None else mk[ys[i] : ys[i + 1], xs[j] : xs[j + 1]]
             out.append(histograms(block, max_level, bm))
     return np.stack(out)
 
@@ -199,8 +209,7 @@ def region_histograms(
 def _homogeneous(m: np.ndarray) -> np.ndarray:
     a = np.asarray(m, np.float64)
     if a.shape != (2, 3) or not np.all(np.isfinite(a)):
-        raise ParameterError("a pair matrix must be a finite 2x3 affine matrix",
-                             found=str(a.shape))
+        raise ParameterError("a pair matrix must be a finite 2x3 affine matrix", found=str(a.shape))
     out = np.vstack([a, [0.0, 0.0, 1.0]])
     if abs(np.linalg.det(out)) < 1e-12:
         raise ParameterError("the pair matrix is singular")
@@ -238,22 +247,30 @@ def common_field_masks(
     return mask_dark, mask_bright
 
 
-def _bright_set(a: np.ndarray, x: np.ndarray, y: np.ndarray, shape: tuple[int, int],
-                margin: float) -> np.ndarray:
+def _bright_set(
+    a: np.ndarray, x: np.ndarray, y: np.ndarray, shape: tuple[int, int], margin: float
+) -> np.ndarray:
     """Bright pixels ``(x, y)`` (integers, broadcastable) inside their own frame and seen by
     the dark frame, both by ``margin``."""
     h, w = shape
     eps = 1e-6
     sx = a[0, 0] * x + a[0, 1] * y + a[0, 2]
     sy = a[1, 0] * x + a[1, 1] * y + a[1, 2]
-    return ((x >= margin - eps) & (x <= w - 1 - margin + eps)
-            & (y >= margin - eps) & (y <= h - 1 - margin + eps)
-            & (sx >= margin - eps) & (sx <= w - 1 - margin + eps)
-            & (sy >= margin - eps) & (sy <= h - 1 - margin + eps))
+    return (
+        (x >= margin - eps)
+        & (x <= w - 1 - margin + eps)
+        & (y >= margin - eps)
+        & (y <= h - 1 - margin + eps)
+        & (sx >= margin - eps)
+        & (sx <= w - 1 - margin + eps)
+        & (sy >= margin - eps)
+        & (sy <= h - 1 - margin + eps)
+    )
 
 
-def _dark_set(a: np.ndarray, xs: np.ndarray, ys: np.ndarray, shape: tuple[int, int],
-              margin: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _dark_set(
+    a: np.ndarray, xs: np.ndarray, ys: np.ndarray, shape: tuple[int, int], margin: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Dark pixels of the grid ``xs x ys`` whose owner, the bright pixel nearest to ``A^-1 q``,
     is in the bright set; also the owners' coordinates. For a translation this is exactly the
     image of the bright set, so both frames count the same content even when the shift is not
@@ -265,8 +282,9 @@ def _dark_set(a: np.ndarray, xs: np.ndarray, ys: np.ndarray, shape: tuple[int, i
     return _bright_set(a, ux, uy, shape, margin), ux, uy
 
 
-def _labelled_histograms(a: np.ndarray, labels: np.ndarray, n_regions: int,
-                         max_level: int) -> np.ndarray:
+def _labelled_histograms(
+    a: np.ndarray, labels: np.ndarray, n_regions: int, max_level: int
+) -> np.ndarray:
     """``(R, C, L)`` counts of ``a`` ``(h, w, C)`` by region label (``-1``: not counted)."""
     n = max_level + 1
     keep = labels >= 0
@@ -275,14 +293,16 @@ def _labelled_histograms(a: np.ndarray, labels: np.ndarray, n_regions: int,
     for c in range(a.shape[2]):
         v = a[..., c][keep]
         if v.size and v.max() > max_level:
-            raise ParameterError("levels above max_level", expected=f"<= {max_level}",
-                                 found=str(int(v.max())))
+            raise ParameterError(
+                "levels above max_level", expected=f"<= {max_level}", found=str(int(v.max()))
+            )
         out.append(np.bincount(lab + v, minlength=n_regions * n).reshape(n_regions, n))
     return np.stack(out, axis=1).astype(np.int64, copy=False)
 
 
-def _grid_label(sx: np.ndarray, sy: np.ndarray, shape: tuple[int, int],
-                grid: tuple[int, int]) -> np.ndarray:
+def _grid_label(
+    sx: np.ndarray, sy: np.ndarray, shape: tuple[int, int], grid: tuple[int, int]
+) -> np.ndarray:
     h, w = shape
     gy, gx = grid
     r = np.clip(np.floor((sy + 0.5) * gy / h), 0, gy - 1).astype(np.int64)
@@ -318,8 +338,9 @@ def pair_histograms_in_overlap(
     d = _as_hwc(levels_dark)
     b = _as_hwc(levels_bright)
     if d.shape != b.shape or d.ndim != 3:
-        raise ParameterError("frames of a pair must have the same (H, W, C) shape",
-                             found=f"{d.shape} and {b.shape}")
+        raise ParameterError(
+            "frames of a pair must have the same (H, W, C) shape", found=f"{d.shape} and {b.shape}"
+        )
     if not (np.issubdtype(d.dtype, np.integer) and np.issubdtype(b.dtype, np.integer)):
         raise ParameterError("frames must hold integer levels", found=f"{d.dtype}, {b.dtype}")
     a = _homogeneous(matrix)
@@ -335,8 +356,9 @@ def pair_histograms_in_overlap(
     if mask is not None:
         mk = np.asarray(mask, bool)
         if mk.shape != (h, w):
-            raise ParameterError("mask shape differs from the frames", expected=str((h, w)),
-                                 found=str(mk.shape))
+            raise ParameterError(
+                "mask shape differs from the frames", expected=str((h, w)), found=str(mk.shape)
+            )
         in_dark = in_dark & mk[::s, ::s]
         in_bright = in_bright & mk[::s, ::s]
     lab_b = np.where(in_dark, _grid_label(gx_full, gy_full, (h, w), grid), -1)
@@ -348,18 +370,28 @@ def pair_histograms_in_overlap(
     hd, hb = reg_d.sum(axis=0), reg_b.sum(axis=0)
     keep_regions = regions is not None and n_regions >= 3
     return PairHistograms(
-        dark=int(dark), bright=int(bright), counts_dark=hd, counts_bright=hb,
+        dark=int(dark),
+        bright=int(bright),
+        counts_dark=hd,
+        counts_bright=hb,
         regions_dark=reg_d if keep_regions else None,
         regions_bright=reg_b if keep_regions else None,
         matrix=np.asarray(matrix, np.float64).copy(),
-        common_fraction=float(np.count_nonzero(in_dark) / in_dark.size), margin=float(margin),
+        common_fraction=float(np.count_nonzero(in_dark) / in_dark.size),
+        margin=float(margin),
     )
 
 
 def bracket_histograms(
-    frames: Sequence[np.ndarray], max_level: int, *, mask: np.ndarray | None = None,
-    stride: int | None = None, regions: tuple[int, int] | None = DEFAULT_REGIONS,
-    pair_matrices: Sequence[np.ndarray] | None = None, margin: float = 2.0, max_span: int = 3,
+    frames: Sequence[np.ndarray],
+    max_level: int,
+    *,
+    mask: np.ndarray | None = None,
+    stride: int | None = None,
+    regions: tuple[int, int] | None = DEFAULT_REGIONS,
+    pair_matrices: Sequence[np.ndarray] | None = None,
+    margin: float = 2.0,
+    max_span: int = 3,
 ) -> BracketHistograms:
     """Histograms of every frame (``(H, W, C)`` integer levels), darkest first.
 
@@ -383,8 +415,9 @@ def bracket_histograms(
         s = max(int(stride), 1)
     grid = _check_grid(regions)
     if grid[0] * grid[1] >= 3:
-        region_counts = np.stack([region_histograms(f, max_level, grid, mask=mask, stride=s)
-                                  for f in frames])
+        region_counts = np.stack(
+            [region_histograms(f, max_level, grid, mask=mask, stride=s) for f in frames]
+        )
         region_counts.setflags(write=False)
         counts = region_counts.sum(axis=1)
     else:
@@ -395,14 +428,31 @@ def bracket_histograms(
     if pair_matrices is not None:
         n = len(frames)
         if len(pair_matrices) != n - 1:
-            raise ParameterError("one pair matrix per consecutive pair", expected=str(n - 1),
-                                 found=str(len(pair_matrices)))
+            raise ParameterError(
+                "one pair matrix per consecutive pair",
+                expected=str(n - 1),
+                found=str(len(pair_matrices)),
+            )
         for span in range(1, max(1, min(max_span, n - 1)) + 1):
             for i in range(n - span):
                 mat = chain_pair_matrix(pair_matrices, i, i + span)
                 overlap[(i, i + span)] = pair_histograms_in_overlap(
-                    frames[i], frames[i + span], max_level, mat, margin=margin, stride=s,
-                    regions=regions, mask=mask, dark=i, bright=i + span)
-    return BracketHistograms(counts=counts, max_level=int(max_level), stride=s,
-                             region_counts=region_counts, region_grid=grid,
-                             overlap_pairs=overlap)
+                    frames[i],
+                    frames[i + span],
+                    max_level,
+                    mat,
+                    margin=margin,
+                    stride=s,
+                    regions=regions,
+                    mask=mask,
+                    dark=i,
+                    bright=i + span,
+                )
+    return BracketHistograms(
+        counts=counts,
+        max_level=int(max_level),
+        stride=s,
+        region_counts=region_counts,
+        region_grid=grid,
+        overlap_pairs=overlap,
+    )

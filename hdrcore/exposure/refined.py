@@ -62,7 +62,8 @@ def blur_histogram(hist: np.ndarray, sigma_levels: float) -> np.ndarray:
 BLUR_SIGMA_STEP = 0.01
 _BLUR_CACHE_SIZE = 24
 _blur_cache: OrderedDict[tuple, tuple[np.ndarray, tuple[BrightnessTransferFunction, ...]]] = (
-    OrderedDict())
+    OrderedDict()
+)
 _blur_lock = threading.Lock()
 
 
@@ -76,12 +77,14 @@ def quantised_sigma(sigma: float) -> float:
 
 def _digest(a: np.ndarray) -> bytes:
     a = np.ascontiguousarray(a)
-    return hashlib.blake2b(a.data.cast("B"), digest_size=16,
-                           person=str((a.dtype.str, a.shape)).encode()[:16]).digest()
+    return hashlib.blake2b(
+        a.data.cast("B"), digest_size=16, person=str((a.dtype.str, a.shape)).encode()[:16]
+    ).digest()
 
 
-def blurred_transfer(hd: np.ndarray, hb: np.ndarray,
-                     sigma: float) -> tuple[np.ndarray, tuple[BrightnessTransferFunction, ...]]:
+def blurred_transfer(
+    hd: np.ndarray, hb: np.ndarray, sigma: float
+) -> tuple[np.ndarray, tuple[BrightnessTransferFunction, ...]]:
     """``hb`` blurred by ``sigma`` levels and the pair's transfer functions against ``hd``,
     from a small cache keyed on the histograms' contents and ``sigma`` (a deterministic digest,
     never an object's identity: a cached value is what a fresh computation gives)."""
@@ -114,8 +117,15 @@ def exposure_ratio_refined(
 
     ``noise_sigma`` (output levels) switches on noise matching; ``None`` or 0 leaves it off.
     """
-    result = estimate_pair(hist_dark, hist_bright, REFINED, saturation=saturation,
-                           noise_floor=noise_floor, lut=lut, **kwargs)
+    result = estimate_pair(
+        hist_dark,
+        hist_bright,
+        REFINED,
+        saturation=saturation,
+        noise_floor=noise_floor,
+        lut=lut,
+        **kwargs,
+    )
     if not noise_sigma or noise_sigma <= 0 or not np.isfinite(result.ratio):
         return result
     hd, hb = check_histograms(hist_dark, hist_bright)
@@ -125,11 +135,19 @@ def exposure_ratio_refined(
         s = quantised_sigma(float(noise_sigma) * np.sqrt(max(k * k - 1.0, 0.0)))
         # Float counts: the BTF normalises them anyway.
         blurred, btfs = blurred_transfer(hd, hb, s)
-        result_b = estimate_pair(hd, blurred, REFINED, saturation=saturation,
-                                 noise_floor=noise_floor, lut=lut, btfs=btfs,
-                                 **kwargs)
+        result_b = estimate_pair(
+            hd,
+            blurred,
+            REFINED,
+            saturation=saturation,
+            noise_floor=noise_floor,
+            lut=lut,
+            btfs=btfs,
+            **kwargs,
+        )
         if not np.isfinite(result_b.ratio):
             return result
         k = result_b.ratio
-    return replace(result_b, initial_ratio=result.initial_ratio,
-                   iterates=result.iterates + result_b.iterates)
+    return replace(
+        result_b, initial_ratio=result.initial_ratio, iterates=result.iterates + result_b.iterates
+    )

@@ -79,8 +79,9 @@ METHOD = "registered pixels"
 
 
 @_njit
-def _tile_sums(grid, other, use_g, use_o, has_mask, lut_g, lut_o, mat, lo, hi, tiles,
-               tile):  # pragma: no cover - numba
+def _tile_sums(
+    grid, other, use_g, use_o, has_mask, lut_g, lut_o, mat, lo, hi, tiles, tile
+):  # pragma: no cover - numba
     """Per tile and channel: sum of grid values, sum of bilinear samples of ``other`` at
     ``mat[c] @ p`` (one 3x3 matrix per channel, a homography or an affine map), pixel count.
     Pixels enter when their 3x3 grid
@@ -158,8 +159,9 @@ def _mask(m: np.ndarray | None, shape: tuple[int, int]) -> np.ndarray:
         return np.ones(shape, np.uint8)
     a = np.asarray(m)
     if a.shape != shape:
-        raise ParameterError("a pixel mask must have the frames' shape", expected=str(shape),
-                             found=str(a.shape))
+        raise ParameterError(
+            "a pixel mask must have the frames' shape", expected=str(shape), found=str(a.shape)
+        )
     return np.ascontiguousarray(a, dtype=bool).view(np.uint8)
 
 
@@ -205,8 +207,9 @@ def _robust_sigma(e: np.ndarray, w: np.ndarray) -> float:
     return 1.4826 * float(a[order][min(i, a.size - 1)])
 
 
-def _direction_fit(g: np.ndarray, o: np.ndarray, n: np.ndarray, forward: bool,
-                   reject: float, max_iterations: int) -> tuple[float, np.ndarray, list[float]]:
+def _direction_fit(
+    g: np.ndarray, o: np.ndarray, n: np.ndarray, forward: bool, reject: float, max_iterations: int
+) -> tuple[float, np.ndarray, list[float]]:
     """Ratio of one direction from tile sums (all channels), with the tile outlier test.
 
     ``g``/``o``: grid and sampled sums per tile (channels summed); returns the ratio
@@ -291,15 +294,21 @@ def exposure_ratio_registered(
     d = np.asarray(dark)
     b = np.asarray(bright)
     if d.shape != b.shape or d.ndim != 3:
-        raise ParameterError("a pair needs two (H, W, C) frames of one shape",
-                             found=f"{d.shape} and {b.shape}")
+        raise ParameterError(
+            "a pair needs two (H, W, C) frames of one shape", found=f"{d.shape} and {b.shape}"
+        )
     if not (np.issubdtype(d.dtype, np.integer) and np.issubdtype(b.dtype, np.integer)):
         raise ParameterError("frames must hold integer levels", found=f"{d.dtype}, {b.dtype}")
     raw = np.asarray(matrix, np.float64)
-    if raw.shape not in ((2, 3), (3, 3), (6,)) or not np.all(np.isfinite(raw)) or (
-            raw.shape == (3, 3) and raw[2, 2] == 0):
-        raise ParameterError("pair matrix must be a finite 2x3 affine matrix or 3x3 homography",
-                             found=str(raw.tolist()))
+    if (
+        raw.shape not in ((2, 3), (3, 3), (6,))
+        or not np.all(np.isfinite(raw))
+        or (raw.shape == (3, 3) and raw[2, 2] == 0)
+    ):
+        raise ParameterError(
+            "pair matrix must be a finite 2x3 affine matrix or 3x3 homography",
+            found=str(raw.tolist()),
+        )
     full = _homogeneous(raw.reshape(2, 3) if raw.shape == (6,) else raw)
     if abs(np.linalg.det(full)) < 1e-6:
         raise ParameterError("pair matrix must be invertible", found=str(full.tolist()))
@@ -309,27 +318,41 @@ def exposure_ratio_registered(
         kind = _frame_unusable(frame, z, floor)
         if kind is not None:
             nc0 = nk if channel_groups is None else int(np.max(channel_groups)) + 1
-            return _no_signal(which, kind, method=METHOD, n_ch=nc0, saturation=z,
-                              noise_floor=floor, max_level=max_level, dark=int(dark_index),
-                              bright=int(bright_index), tolerance=max_relative_error)
+            return _no_signal(
+                which,
+                kind,
+                method=METHOD,
+                n_ch=nc0,
+                saturation=z,
+                noise_floor=floor,
+                max_level=max_level,
+                dark=int(dark_index),
+                bright=int(bright_index),
+                tolerance=max_relative_error,
+            )
     g = np.ascontiguousarray(as_lut(lut, nk, max_level), np.float64)
     if geometry is None:
         mats = np.repeat(full[None], nk, axis=0)
     else:
         scale, offsets = float(geometry[0]), np.asarray(geometry[1], np.float64).reshape(-1, 2)
         if offsets.shape[0] != nk or not scale > 0:
-            raise ParameterError("one (x, y) offset per channel and a positive scale",
-                                 expected=f"({nk}, 2)", found=str(offsets.shape))
+            raise ParameterError(
+                "one (x, y) offset per channel and a positive scale",
+                expected=f"({nk}, 2)",
+                found=str(offsets.shape),
+            )
         mats = np.empty((nk, 3, 3))
         for c in range(nk):
-            sc = np.array([[scale, 0.0, offsets[c, 0]], [0.0, scale, offsets[c, 1]],
-                           [0.0, 0.0, 1.0]])
+            sc = np.array(
+                [[scale, 0.0, offsets[c, 0]], [0.0, scale, offsets[c, 1]], [0.0, 0.0, 1.0]]
+            )
             mats[c] = np.linalg.inv(sc) @ full @ sc
     invs = np.stack([_homogeneous(np.linalg.inv(m_)) for m_ in mats])
     groups = np.arange(nk) if channel_groups is None else np.asarray(channel_groups, np.int64)
     if groups.shape != (nk,) or groups.min() < 0:
-        raise ParameterError("one channel group per channel", expected=str(nk),
-                             found=str(groups.shape))
+        raise ParameterError(
+            "one channel group per channel", expected=str(nk), found=str(groups.shape)
+        )
     nc = int(groups.max()) + 1
     if tiles is None:
         lattice = _tile_lattice((h, w), tile, max_samples)
@@ -344,41 +367,67 @@ def exposure_ratio_registered(
     else:
         ud = ub = np.ones((1, 1), np.uint8)
     # forward: grid = bright, sampled = dark at mat @ p; inverse: grid = dark, sampled = bright.
-    sf = _group(_tile_sums(bb, dd, ub, ud, has_mask, g, g, np.ascontiguousarray(mats), floor, z,
-                           tf, tile), groups, nc)
-    si = _group(_tile_sums(dd, bb, ud, ub, has_mask, g, g, np.ascontiguousarray(invs), floor, z,
-                           ti, tile), groups, nc)
+    sf = _group(
+        _tile_sums(bb, dd, ub, ud, has_mask, g, g, np.ascontiguousarray(mats), floor, z, tf, tile),
+        groups,
+        nc,
+    )
+    si = _group(
+        _tile_sums(dd, bb, ud, ub, has_mask, g, g, np.ascontiguousarray(invs), floor, z, ti, tile),
+        groups,
+        nc,
+    )
 
     n_f, n_i = sf[:, :, 2].sum(axis=1), si[:, :, 2].sum(axis=1)
     pixels = int(min(n_f.sum(), n_i.sum()) / max(nk, 1))
     common: dict[str, Any] = dict(
-        method=METHOD, saturation=z, noise_floor=floor, max_level=int(max_level),
-        dark=int(dark_index), bright=int(bright_index), overlap_restricted=True,
-        non_linear=lut is not None, tolerance=max_relative_error)
+        method=METHOD,
+        saturation=z,
+        noise_floor=floor,
+        max_level=int(max_level),
+        dark=int(dark_index),
+        bright=int(bright_index),
+        overlap_restricted=True,
+        non_linear=lut is not None,
+        tolerance=max_relative_error,
+    )
     eqs = _equations(sf, si)
     # The fraction of the read pixels (of the sampled tiles) that entered the sums.
     examined = float(np.sum(np.minimum(tile, h - tf[:, 0]) * np.minimum(tile, w - tf[:, 1])))
     overlap = pixels / max(examined, 1.0)
-    if pixels < min_pixels or np.count_nonzero(n_f) < min_tiles or np.count_nonzero(
-            n_i) < min_tiles:
+    if (
+        pixels < min_pixels
+        or np.count_nonzero(n_f) < min_tiles
+        or np.count_nonzero(n_i) < min_tiles
+    ):
         return ExposureRatioResult.unmeasured(
             status="no-overlap",
-            message=(f"frames {dark_index} and {bright_index} share too few registered pixels "
-                     f"between the noise floor ({floor:g}) and saturation ({z:g}): {pixels} "
-                     f"(at least {min_pixels} needed); use frames closer in exposure or check "
-                     "the registration"),
-            n_channels=nc, equations=eqs, overlap=overlap, common_fraction=overlap, **common,
+            message=(
+                f"frames {dark_index} and {bright_index} share too few registered pixels "
+                f"between the noise floor ({floor:g}) and saturation ({z:g}): {pixels} "
+                f"(at least {min_pixels} needed); use frames closer in exposure or check "
+                "the registration"
+            ),
+            n_channels=nc,
+            equations=eqs,
+            overlap=overlap,
+            common_fraction=overlap,
+            **common,
         )
 
-    kf, in_f, it_f = _direction_fit(sf[:, :, 0].sum(1), sf[:, :, 1].sum(1), n_f, True, reject,
-                                    max_iterations)
-    ki, in_i, it_i = _direction_fit(si[:, :, 0].sum(1), si[:, :, 1].sum(1), n_i, False, reject,
-                                    max_iterations)
+    kf, in_f, it_f = _direction_fit(
+        sf[:, :, 0].sum(1), sf[:, :, 1].sum(1), n_f, True, reject, max_iterations
+    )
+    ki, in_i, it_i = _direction_fit(
+        si[:, :, 0].sum(1), si[:, :, 1].sum(1), n_i, False, reject, max_iterations
+    )
     k = float(np.sqrt(kf * ki))
     k0 = float(np.sqrt(it_f[0] * it_i[0])) if it_f and it_i else float("nan")
     n_iter = max(len(it_f), len(it_i))
-    iterates = tuple(float(np.sqrt(it_f[min(j, len(it_f) - 1)] * it_i[min(j, len(it_i) - 1)]))
-                     for j in range(n_iter))
+    iterates = tuple(
+        float(np.sqrt(it_f[min(j, len(it_f) - 1)] * it_i[min(j, len(it_i) - 1)]))
+        for j in range(n_iter)
+    )
 
     def combined(mf: np.ndarray, mi: np.ndarray, c: slice | int = slice(None)) -> float:
         fb = sf[mf][:, c, 0].sum()
@@ -393,12 +442,16 @@ def exposure_ratio_registered(
     # content, so their errors are correlated; the regions' are much less so).
     rf = _region_of(tf, (h, w), regions)
     ri = _region_of(ti, (h, w), regions)
-    present = [r for r in range(regions[0] * regions[1])
-               if ((rf == r) & in_f).any() or ((ri == r) & in_i).any()]
+    present = [
+        r
+        for r in range(regions[0] * regions[1])
+        if ((rf == r) & in_f).any() or ((ri == r) & in_i).any()
+    ]
 
     def jackknife(c: slice | int = slice(None)) -> float:
-        se_c, m = jackknife_std_error(np.array(
-            [combined(in_f & (rf != r), in_i & (ri != r), c) for r in present]))
+        se_c, m = jackknife_std_error(
+            np.array([combined(in_f & (rf != r), in_i & (ri != r), c) for r in present])
+        )
         return se_c if m >= 2 else float("inf")
 
     se = jackknife()
@@ -406,33 +459,55 @@ def exposure_ratio_registered(
     cse = np.array([jackknife(c) if np.isfinite(cr[c]) else float("inf") for c in range(nc)])
     disagree = channels_disagree(cr, cse, k, disagreement_tolerance)
 
-    inlier_mask = np.concatenate([np.repeat(in_f[:, None], nc, 1).ravel(),
-                                  np.repeat(in_i[:, None], nc, 1).ravel()])[_eqs_keep(sf, si)]
+    inlier_mask = np.concatenate(
+        [np.repeat(in_f[:, None], nc, 1).ravel(), np.repeat(in_i[:, None], nc, 1).ravel()]
+    )[_eqs_keep(sf, si)]
     residuals = eqs.weights * (eqs.y - k * eqs.x)
     n_in = int(np.count_nonzero(in_f) + np.count_nonzero(in_i))
     n_tiles = int(np.count_nonzero(n_f) + np.count_nonzero(n_i))
     spread = abs(np.log(kf / ki)) if kf > 0 and ki > 0 else float("inf")
     result = ExposureRatioResult(
-        ratio=k, initial_ratio=k0, iterates=iterates, iterations=n_iter, equations=eqs,
-        inlier_mask=inlier_mask, residuals=residuals, std_error=se, overlap=overlap,
-        status="ok", message="", channel_ratios=tuple(float(v) for v in cr),
-        channel_std_errors=tuple(float(v) for v in cse), channels_disagree=disagree,
-        region_std_error=se, common_fraction=overlap,
-        band_ratios=brightness_band_ratios(eqs, inlier_mask, ratio_of_sums=True), **common,
+        ratio=k,
+        initial_ratio=k0,
+        iterates=iterates,
+        iterations=n_iter,
+        equations=eqs,
+        inlier_mask=inlier_mask,
+        residuals=residuals,
+        std_error=se,
+        overlap=overlap,
+        status="ok",
+        message="",
+        channel_ratios=tuple(float(v) for v in cr),
+        channel_std_errors=tuple(float(v) for v in cse),
+        channels_disagree=disagree,
+        region_std_error=se,
+        common_fraction=overlap,
+        band_ratios=brightness_band_ratios(eqs, inlier_mask, ratio_of_sums=True),
+        **common,
     )
     status: RatioStatus
     if not np.isfinite(k) or k <= 0:
-        status, message = "failed", (f"the registered pixels of frames {dark_index} and "
-                                     f"{bright_index} gave no positive ratio")
+        status, message = (
+            "failed",
+            (
+                f"the registered pixels of frames {dark_index} and "
+                f"{bright_index} gave no positive ratio"
+            ),
+        )
     elif disagree:
         status = "channels-disagree"
-        message = ("the colour channels give different ratios ("
-                   + ", ".join(f"{v:.4f}" for v in cr)
-                   + f") for frames {dark_index} and {bright_index}: a wrong white level, a "
-                   "colour cast or a wrong response")
+        message = (
+            "the colour channels give different ratios ("
+            + ", ".join(f"{v:.4f}" for v in cr)
+            + f") for frames {dark_index} and {bright_index}: a wrong white level, a "
+            "colour cast or a wrong response"
+        )
     else:
-        evidence = (f"from {pixels} registered pixels ({n_in} of {n_tiles} tiles kept; the two "
-                    f"sampling directions differ by {spread:.2%})")
+        evidence = (
+            f"from {pixels} registered pixels ({n_in} of {n_tiles} tiles kept; the two "
+            f"sampling directions differ by {spread:.2%})"
+        )
         result = replace(result, evidence=evidence)
         status, message = verdict(result, max_relative_error, evidence)
     return replace(result, status=status, message=message)
@@ -464,13 +539,24 @@ def _equations(sf: np.ndarray, si: np.ndarray) -> ExposureEquations:
         x = np.concatenate([sf[:, :, 1].ravel() / nf, si[:, :, 0].ravel() / ni])
         y = np.concatenate([sf[:, :, 0].ravel() / nf, si[:, :, 1].ravel() / ni])
     n = np.concatenate([nf, ni])
-    direction = np.concatenate([np.full(nf.size, FORWARD, np.int8),
-                                np.full(ni.size, INVERSE, np.int8)])
-    channel = np.concatenate([np.tile(np.arange(nc, dtype=np.int8), sf.shape[0]),
-                              np.tile(np.arange(nc, dtype=np.int8), si.shape[0])])
+    direction = np.concatenate(
+        [np.full(nf.size, FORWARD, np.int8), np.full(ni.size, INVERSE, np.int8)]
+    )
+    channel = np.concatenate(
+        [
+            np.tile(np.arange(nc, dtype=np.int8), sf.shape[0]),
+            np.tile(np.arange(nc, dtype=np.int8), si.shape[0]),
+        ]
+    )
     level = np.zeros(n.size)
-    return ExposureEquations(x=x[keep], y=y[keep], weights=np.sqrt(n[keep]),
-                             direction=direction[keep], channel=channel[keep], level=level[keep])
+    return ExposureEquations(
+        x=x[keep],
+        y=y[keep],
+        weights=np.sqrt(n[keep]),
+        direction=direction[keep],
+        channel=channel[keep],
+        level=level[keep],
+    )
 
 
 def bracket_exposures_from_pixels(
@@ -507,12 +593,16 @@ def bracket_exposures_from_pixels(
     if n < 2:
         raise ParameterError("a bracket needs at least two frames", found=str(n))
     if len(pair_matrices) != n - 1:
-        raise ParameterError("one matrix per consecutive pair", expected=str(n - 1),
-                             found=str(len(pair_matrices)))
+        raise ParameterError(
+            "one matrix per consecutive pair", expected=str(n - 1), found=str(len(pair_matrices))
+        )
     ok_reg = [True] * (n - 1) if registered is None else [bool(v) for v in registered]
     if len(ok_reg) != n - 1:
-        raise ParameterError("one registration flag per consecutive pair", expected=str(n - 1),
-                             found=str(len(ok_reg)))
+        raise ParameterError(
+            "one registration flag per consecutive pair",
+            expected=str(n - 1),
+            found=str(len(ok_reg)),
+        )
     if masks is not None and len(masks) != n:
         raise ParameterError("one mask per frame", expected=str(n), found=str(len(masks)))
     mats = [_homogeneous(m) for m in pair_matrices]
@@ -522,27 +612,40 @@ def bracket_exposures_from_pixels(
     # A frame with no level strictly between the floor and Z gives no ratio: its pairs get
     # status "no-signal" (or keep the fallback's "no-signal" result), never an exception.
     unusable = [_frame_unusable(f, zl, fl) for f in frames]
-    fallback_no_signal = [fallback is not None and fallback.pairs[i].status == "no-signal"
-                          for i in range(n - 1)]
+    fallback_no_signal = [
+        fallback is not None and fallback.pairs[i].status == "no-signal" for i in range(n - 1)
+    ]
 
     def one(i: int, j: int) -> ExposureRatioResult:
         extra_kw: dict[str, Any] = {}
         if masks is not None:
             extra_kw = dict(mask_dark=masks[i], mask_bright=masks[j])
-        return exposure_ratio_registered(frames[i], frames[j], max_level,
-                                         _chain(mats, i, j), dark_index=i,
-                                         bright_index=j, **extra_kw,
-                                         **kwargs)
+        return exposure_ratio_registered(
+            frames[i],
+            frames[j],
+            max_level,
+            _chain(mats, i, j),
+            dark_index=i,
+            bright_index=j,
+            **extra_kw,
+            **kwargs,
+        )
 
     def signal(i: int, j: int) -> bool:
         return unusable[i] is None and unusable[j] is None
 
-    todo = [(i, i + 1) for i in range(n - 1)
-            if ok_reg[i] and signal(i, i + 1) and not fallback_no_signal[i]]
+    todo = [
+        (i, i + 1)
+        for i in range(n - 1)
+        if ok_reg[i] and signal(i, i + 1) and not fallback_no_signal[i]
+    ]
     if non_consecutive:
         for span in range(2, min(max_span, n - 1) + 1):
-            todo += [(i, i + span) for i in range(n - span)
-                     if all(ok_reg[i:i + span]) and signal(i, i + span)]
+            todo += [
+                (i, i + span)
+                for i in range(n - span)
+                if all(ok_reg[i : i + span]) and signal(i, i + span)
+            ]
     done = dict(zip(todo, thread_map(lambda ij: one(*ij), todo, workers), strict=True))
 
     pairs = []
@@ -552,48 +655,80 @@ def bracket_exposures_from_pixels(
         if fallback is not None and fallback_no_signal[i]:
             pairs.append(fallback.pairs[i])
         elif (i, i + 1) in done and not (
-                done[(i, i + 1)].status in ("no-overlap", "few-equations")
-                and fallback is not None and np.isfinite(fallback.pairs[i].ratio)):
+            done[(i, i + 1)].status in ("no-overlap", "few-equations")
+            and fallback is not None
+            and np.isfinite(fallback.pairs[i].ratio)
+        ):
             pairs.append(done[(i, i + 1)])
         elif (i, i + 1) in done and fallback is not None:
             # Too few registered pixels to compare, but the histograms (which need no pixel
             # correspondence) measured the pair: their estimate, with its own interval.
             h = judge(fallback.pairs[i])
-            pairs.append(replace(h, message=f"{h.message} (too few registered pixels: "
-                                            f"{done[(i, i + 1)].message}; the histogram "
-                                            "estimate)"))
+            pairs.append(
+                replace(
+                    h,
+                    message=f"{h.message} (too few registered pixels: "
+                    f"{done[(i, i + 1)].message}; the histogram "
+                    "estimate)",
+                )
+            )
         elif not signal(i, i + 1):
-            which, kind = next((w, u) for w, u in (("darker", unusable[i]),
-                                                   ("brighter", unusable[i + 1]))
-                               if u is not None)  # not signal(i, i + 1): one is unusable
-            pairs.append(_no_signal(which, kind, method=METHOD, n_ch=nc,
-                                    saturation=zl, noise_floor=fl, max_level=max_level, dark=i,
-                                    bright=i + 1, tolerance=tol))
+            which, kind = next(
+                (w, u)
+                for w, u in (("darker", unusable[i]), ("brighter", unusable[i + 1]))
+                if u is not None
+            )  # not signal(i, i + 1): one is unusable
+            pairs.append(
+                _no_signal(
+                    which,
+                    kind,
+                    method=METHOD,
+                    n_ch=nc,
+                    saturation=zl,
+                    noise_floor=fl,
+                    max_level=max_level,
+                    dark=i,
+                    bright=i + 1,
+                    tolerance=tol,
+                )
+            )
         elif fallback is not None:
             h = judge(fallback.pairs[i])  # its interval with the region jack-knife
-            pairs.append(replace(h, message=f"{h.message} (frames not registered: the "
-                                            "histogram estimate)"))
+            pairs.append(
+                replace(h, message=f"{h.message} (frames not registered: the histogram estimate)")
+            )
         else:
             pairs.append(_unregistered(i, nc, max_level, zl, fl))
     extra = [r for (i, j), r in done.items() if j - i > 1 and r.status != "no-overlap"]
-    return assemble_bracket(n, pairs, extra, method=METHOD, exposure_times=exposure_times,
-                            max_level=max_level, consistency_stops=consistency_stops,
-                            message_suffix="; ratios from the registered pixels of each pair")
+    return assemble_bracket(
+        n,
+        pairs,
+        extra,
+        method=METHOD,
+        exposure_times=exposure_times,
+        max_level=max_level,
+        consistency_stops=consistency_stops,
+        message_suffix="; ratios from the registered pixels of each pair",
+    )
 
 
 def _unregistered(i: int, nc: int, max_level: int, z: float, floor: float) -> ExposureRatioResult:
     return ExposureRatioResult.unmeasured(
         status="unregistered",
-        message=(f"frames {i} and {i + 1} are not registered, so their pixels cannot be "
-                 "compared"),
-        n_channels=nc, method=METHOD, saturation=z, noise_floor=floor, max_level=int(max_level),
-        dark=i, bright=i + 1,
+        message=(f"frames {i} and {i + 1} are not registered, so their pixels cannot be compared"),
+        n_channels=nc,
+        method=METHOD,
+        saturation=z,
+        noise_floor=floor,
+        max_level=int(max_level),
+        dark=i,
+        bright=i + 1,
     )
 
 
-def cfa_planes(data: np.ndarray, pattern: np.ndarray, colors: str,
-               black_level: Sequence[float], max_level: int
-               ) -> tuple[np.ndarray, tuple[float, np.ndarray], tuple[int, ...]]:
+def cfa_planes(
+    data: np.ndarray, pattern: np.ndarray, colors: str, black_level: Sequence[float], max_level: int
+) -> tuple[np.ndarray, tuple[float, np.ndarray], tuple[int, ...]]:
     """The four sites of a 2x2 colour filter array as the channels of a half-size frame.
 
     Returns ``(planes, geometry, channel_groups)`` for :func:`exposure_ratio_registered`:
@@ -615,8 +750,9 @@ def cfa_planes(data: np.ndarray, pattern: np.ndarray, colors: str,
         idx = int(pattern[r][c])
         letter = colors[idx] if idx < len(colors) else "?"
         if letter not in names:
-            raise ParameterError("colour filter array site is not R, G or B",
-                                 found=f"{letter!r} in {colors!r}")
+            raise ParameterError(
+                "colour filter array site is not R, G or B", found=f"{letter!r} in {colors!r}"
+            )
         blacks.append(int(round(black_level[idx])))
         offsets[k] = (c, r)
         groups.append(names[letter])

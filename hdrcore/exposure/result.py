@@ -15,9 +15,20 @@ from ..btf import BrightnessTransferFunction
 from ..status import ChainStatus, RatioStatus
 from . import interval as _interval
 
-__all__ = ["ExposureEquations", "ExposureRatioResult", "BracketExposureResult", "PairKey",
-           "FORWARD", "INVERSE", "LEVEL_CLASSES", "UNUSED", "INLIER", "OUTLIER", "UNDER",
-           "SATURATED"]
+__all__ = [
+    "ExposureEquations",
+    "ExposureRatioResult",
+    "BracketExposureResult",
+    "PairKey",
+    "FORWARD",
+    "INVERSE",
+    "LEVEL_CLASSES",
+    "UNUSED",
+    "INLIER",
+    "OUTLIER",
+    "UNDER",
+    "SATURATED",
+]
 
 PairKey = tuple[int, int]
 
@@ -125,24 +136,47 @@ class ExposureRatioResult:
     response_error_per_stop: float = 0.0
 
     @classmethod
-    def unmeasured(cls, *, status: RatioStatus, message: str, n_channels: int,
-                   equations: ExposureEquations | None = None, overlap: float = 0.0,
-                   **fields: Any) -> ExposureRatioResult:
+    def unmeasured(
+        cls,
+        *,
+        status: RatioStatus,
+        message: str,
+        n_channels: int,
+        equations: ExposureEquations | None = None,
+        overlap: float = 0.0,
+        **fields: Any,
+    ) -> ExposureRatioResult:
         """A pair whose ratio could not be measured (no overlap, no signal, not registered):
         ratio ``nan``, infinite errors, no inliers; ``fields`` fill the rest (``method``,
         ``saturation``, ``noise_floor``, ``max_level``, ``dark``, ``bright``, ...)."""
         if equations is None:
             empty = np.zeros(0)
-            equations = ExposureEquations(x=empty, y=empty, weights=empty,
-                                          direction=empty.astype(np.int8),
-                                          channel=empty.astype(np.int8), level=empty)
+            equations = ExposureEquations(
+                x=empty,
+                y=empty,
+                weights=empty,
+                direction=empty.astype(np.int8),
+                channel=empty.astype(np.int8),
+                level=empty,
+            )
         n = len(equations)
-        return cls(ratio=float("nan"), initial_ratio=float("nan"), iterates=(), iterations=0,
-                   equations=equations, inlier_mask=np.zeros(n, bool), residuals=np.zeros(n),
-                   std_error=float("inf"), overlap=overlap, status=status, message=message,
-                   channel_ratios=(float("nan"),) * n_channels,
-                   channel_std_errors=(float("inf"),) * n_channels, channels_disagree=False,
-                   **fields)
+        return cls(
+            ratio=float("nan"),
+            initial_ratio=float("nan"),
+            iterates=(),
+            iterations=0,
+            equations=equations,
+            inlier_mask=np.zeros(n, bool),
+            residuals=np.zeros(n),
+            std_error=float("inf"),
+            overlap=overlap,
+            status=status,
+            message=message,
+            channel_ratios=(float("nan"),) * n_channels,
+            channel_std_errors=(float("inf"),) * n_channels,
+            channels_disagree=False,
+            **fields,
+        )
 
     @property
     def ok(self) -> bool:
@@ -176,8 +210,9 @@ class ExposureRatioResult:
         estimator's (:func:`~hdrcore.exposure.interval.model_error_floor`), or
         ``response_error_per_stop`` per stop when the caller knows the linearisation is less
         certain (a response recovered from a moved bracket), whichever is larger."""
-        table = _interval.model_error_floor(self.ratio, non_linear=self.non_linear,
-                                            method=self.method)
+        table = _interval.model_error_floor(
+            self.ratio, non_linear=self.non_linear, method=self.method
+        )
         if self.response_error_per_stop > 0 and np.isfinite(self.ratio) and self.ratio > 0:
             return float(max(table, self.response_error_per_stop * abs(np.log2(self.ratio))))
         return table
@@ -186,8 +221,13 @@ class ExposureRatioResult:
     def ci95_relative(self) -> float:
         """Relative half-width ``h`` of the calibrated 95 % interval (``inf`` when unknown)."""
         return _interval.ci95_relative(
-            self.ratio, self.std_error, self.region_std_error, method=self.method,
-            band_ratios=self.band_ratios, model_error=self.model_error)
+            self.ratio,
+            self.std_error,
+            self.region_std_error,
+            method=self.method,
+            band_ratios=self.band_ratios,
+            model_error=self.model_error,
+        )
 
     @property
     def interval(self) -> tuple[float, float]:
@@ -297,12 +337,12 @@ class BracketExposureResult:
         else the median step. (Registration tolerates ratio errors of a few percent, which is
         what motion leaves in the histogram-only estimate, but not a wild one.)
         """
-        est = np.array([p.ratio if np.isfinite(p.ratio) and p.ratio > 0 else np.nan
-                        for p in self.pairs])
+        est = np.array(
+            [p.ratio if np.isfinite(p.ratio) and p.ratio > 0 else np.nan for p in self.pairs]
+        )
         finite = est[np.isfinite(est)]
         exif = [r for r in self.exif_ratios if r]
-        med = float(np.median(finite)) if finite.size else (
-            float(np.median(exif)) if exif else 1.0)
+        med = float(np.median(finite)) if finite.size else (float(np.median(exif)) if exif else 1.0)
         out = []
         for k, r in enumerate(est):
             exif_k = self.exif_ratios[k]

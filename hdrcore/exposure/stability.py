@@ -109,16 +109,27 @@ def jackknife_skeleton(
             t_inv[r, c] = quantile_levels(cd[r, c], cb[r, c, top])
     qd, qb = cd[..., top], cb[..., top]
     return JackknifeSkeleton(
-        pos=np.broadcast_to(top + 0.5, (n_r, n_ch, n_g)), t_fwd=t_fwd, t_inv=t_inv,
-        count_dark=grouped(loo_d), count_bright=grouped(loo_b),
-        inner_dark=(qd > 0) & (qd < 1), inner_bright=(qb > 0) & (qb < 1),
-        group_size=f, n_regions=n_r, n_levels=n,
+        pos=np.broadcast_to(top + 0.5, (n_r, n_ch, n_g)),
+        t_fwd=t_fwd,
+        t_inv=t_inv,
+        count_dark=grouped(loo_d),
+        count_bright=grouped(loo_b),
+        inner_dark=(qd > 0) & (qd < 1),
+        inner_bright=(qb > 0) & (qb < 1),
+        group_size=f,
+        n_regions=n_r,
+        n_levels=n,
     )
 
 
 def region_jackknife(
-    skeleton: JackknifeSkeleton, *, saturation: float, noise_floor: float,
-    lut: np.ndarray | None = None, weight_power: float = 0.5, precision: float = 1e-6,
+    skeleton: JackknifeSkeleton,
+    *,
+    saturation: float,
+    noise_floor: float,
+    lut: np.ndarray | None = None,
+    weight_power: float = 0.5,
+    precision: float = 1e-6,
     max_iterations: int = 10,
 ) -> tuple[np.ndarray, float]:
     """Leave-one-region-out ratios ``k_(-r)`` ``(R,)`` and their jack-knife standard error.
@@ -141,9 +152,8 @@ def region_jackknife(
 
     z, floor = float(saturation), float(noise_floor)
     pos = sk.pos
-    fwd = ((sk.count_dark > 0) & sk.inner_dark & (pos > floor) & (pos < z) & (sk.t_fwd < z))
-    inv = ((sk.count_bright > 0) & sk.inner_bright & (pos < z) & (pos > floor)
-           & (sk.t_inv > floor))
+    fwd = (sk.count_dark > 0) & sk.inner_dark & (pos > floor) & (pos < z) & (sk.t_fwd < z)
+    inv = (sk.count_bright > 0) & sk.inner_bright & (pos < z) & (pos > floor) & (sk.t_inv > floor)
     x: np.ndarray = np.empty((n_r, n_ch, 2, n_g))
     y: np.ndarray = np.empty((n_r, n_ch, 2, n_g))
     for c in range(n_ch):
@@ -157,7 +167,8 @@ def region_jackknife(
     x = x.reshape(n_r, -1)
     y = y.reshape(n_r, -1)
     n = use.reshape(n_r, -1).astype(np.float64)
-    k = solve_3v_batch(w2 * x * x, w2 * x * y, w2 * y * y, n, precision=precision,
-                       max_iterations=max_iterations)
+    k = solve_3v_batch(
+        w2 * x * x, w2 * x * y, w2 * y * y, n, precision=precision, max_iterations=max_iterations
+    )
     se, m = jackknife_std_error(k)
     return k, se if m >= 3 else float("nan")

@@ -115,7 +115,7 @@ class _Fd2Capture:
             line = raw.decode("utf-8", "replace").rstrip("\r\n")
             owner = next((n for n in names if line.startswith(n + ":")), None)
             if owner is not None:
-                text = line[len(owner) + 1:].strip()
+                text = line[len(owner) + 1 :].strip()
                 if text and text not in self._lines[owner]:
                     self._lines[owner].append(text)
             elif line.strip():

@@ -46,15 +46,18 @@ def input_file(path: str | os.PathLike, what: str = "file") -> Path:
     except OSError as exc:
         problem = path_problem(p, exc)
         if problem.startswith("file not found"):
-            problem = what + problem[len("file"):]
+            problem = what + problem[len("file") :]
         elif what != "file":
             problem = f"{what}: {problem}"
         raise InputError(problem, path=p) from None
     if stat.S_ISDIR(st.st_mode):
         raise InputError(f"{what} is a folder, not a regular file", path=p)
     if not stat.S_ISREG(st.st_mode):
-        raise InputError(f"{what} is not a regular file", path=p,
-                         expected="a file (not a device, pipe or socket)")
+        raise InputError(
+            f"{what} is not a regular file",
+            path=p,
+            expected="a file (not a device, pipe or socket)",
+        )
     return p
 
 

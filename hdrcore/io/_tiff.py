@@ -159,5 +159,3 @@ def exif_tags(
     if capture_time is not None:
         tags.append(TiffTag(36867, 2, _exif_time(capture_time)))
     return tags
-
-

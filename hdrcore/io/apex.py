@@ -108,8 +108,9 @@ def nominal_f_numbers(sequence: str) -> tuple[Fraction, ...]:
     return _F_NUMBERS[sequence]
 
 
-def _snap(value: Fraction, tables: dict[str, tuple[Fraction, ...]], grid,
-          prefer: str | None) -> tuple[float, str | None]:
+def _snap(
+    value: Fraction, tables: dict[str, tuple[Fraction, ...]], grid, prefer: str | None
+) -> tuple[float, str | None]:
     _check_sequence(prefer)
     order = SEQUENCES if prefer is None else (prefer, *(s for s in SEQUENCES if s != prefer))
     for seq in order:

@@ -66,11 +66,13 @@ def atomic_write(
     out = check_output_path(path, force=force, inputs=inputs)
     parent = out.parent if str(out.parent) else Path(".")
     try:
-        fd, tmp_name = tempfile.mkstemp(prefix=f".{out.name}.", suffix=f".tmp{out.suffix}",
-                                        dir=parent)
+        fd, tmp_name = tempfile.mkstemp(
+            prefix=f".{out.name}.", suffix=f".tmp{out.suffix}", dir=parent
+        )
     except OSError as exc:  # a read-only folder or file system, no space, ...
-        raise OutputError(f"cannot write in the output folder ({exc.strerror or exc})",
-                          path=out) from exc
+        raise OutputError(
+            f"cannot write in the output folder ({exc.strerror or exc})", path=out
+        ) from exc
     os.close(fd)
     tmp = Path(tmp_name)
     try:

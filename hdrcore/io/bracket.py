@@ -169,8 +169,9 @@ def expand_paths(paths: Iterable[str | os.PathLike]) -> list[Path]:
             try:
                 entries = sorted(p.iterdir())
             except OSError as exc:
-                raise InputError(f"cannot list the folder: {path_problem(p, exc)}",
-                                 path=p) from None
+                raise InputError(
+                    f"cannot list the folder: {path_problem(p, exc)}", path=p
+                ) from None
             found = []
             for c in entries:
                 if not (c.suffix.lower() in IMAGE_EXTENSIONS or is_raw_path(c)):
@@ -212,7 +213,8 @@ def load_frame(
             frame = read_raw(p, half_size=raw_half_size, max_pixels=max_pixels)
         elif fmt is None:
             raise ImageReadError(
-                "not a recognised image", path=p,
+                "not a recognised image",
+                path=p,
                 expected="JPEG, PNG, TIFF or a camera RAW file (.dng, .cr2, .nef, ...)",
             )
         else:
@@ -227,8 +229,7 @@ def snap_frames(frames: Sequence[Frame]) -> list[Frame]:
     APEX value); the bracket's sequence (:func:`~hdrcore.io.apex.bracket_sequence`) decides the
     values nominal in both sequences, and f-numbers are snapped on that sequence only.
     """
-    exif = [f.meta.exposure_time if f.meta.exposure_time_source == "exif" else None
-            for f in frames]
+    exif = [f.meta.exposure_time if f.meta.exposure_time_source == "exif" else None for f in frames]
     seq = bracket_sequence(exif)
     out = []
     for f, t in zip(frames, exif, strict=True):
@@ -241,8 +242,11 @@ def snap_frames(frames: Sequence[Frame]) -> list[Frame]:
             value, which = snap_f_number(f.meta.f_number, seq)
             if which == seq:
                 n_apex = value
-        out.append(f.with_meta(exposure_time_apex=t_apex, exposure_time_sequence=t_seq,
-                               f_number_apex=n_apex))
+        out.append(
+            f.with_meta(
+                exposure_time_apex=t_apex, exposure_time_sequence=t_seq, f_number_apex=n_apex
+            )
+        )
     return out
 
 
@@ -297,8 +301,9 @@ def _seconds(t: Fraction | None) -> str:
 
 def _brightness_samples(frame: Frame) -> np.ndarray:
     """The frame's levels summed over channels on a regular grid of about 65k pixels."""
-    step = max(1, int(math.sqrt(frame.levels.shape[0] * frame.levels.shape[1]
-                                / _BRIGHTNESS_SAMPLES)))
+    step = max(
+        1, int(math.sqrt(frame.levels.shape[0] * frame.levels.shape[1] / _BRIGHTNESS_SAMPLES))
+    )
     return frame.levels[::step, ::step].astype(np.int32).sum(axis=-1)
 
 
@@ -338,7 +343,8 @@ def brightness_order(
     order = list(order)
     contradicted = [
         (order[i], order[j])
-        for i in range(len(order)) for j in range(i + 1, len(order))
+        for i in range(len(order))
+        for j in range(i + 1, len(order))
         if brighter(order[j], order[i])
     ]
     if not contradicted:
@@ -356,8 +362,11 @@ def brightness_order(
 
 
 def _order_warning(
-    frames: Sequence[Frame], by_exposure: list[int], by_brightness: list[int],
-    contradicted: list[tuple[int, int]], describe: Callable[[int], str],
+    frames: Sequence[Frame],
+    by_exposure: list[int],
+    by_brightness: list[int],
+    contradicted: list[tuple[int, int]],
+    describe: Callable[[int], str],
 ) -> BracketWarning:
     """``times-swapped`` when the pixels' order is the recorded one with two frames exchanged,
     else ``out-of-order``. ``by_exposure``, ``by_brightness`` and ``contradicted`` hold indices
@@ -390,8 +399,13 @@ def _order_warning(
 
 
 _ORIENTATION_WORDS = {
-    1: "as stored", 2: "mirrored", 3: "turned 180°", 4: "flipped upside down",
-    5: "transposed", 6: "turned 90° clockwise", 7: "transverse",
+    1: "as stored",
+    2: "mirrored",
+    3: "turned 180°",
+    4: "flipped upside down",
+    5: "transposed",
+    6: "turned 90° clockwise",
+    7: "transverse",
     8: "turned 90° counter-clockwise",
 }
 
@@ -447,7 +461,9 @@ def _unify_orientation(frames: list[Frame]) -> tuple[list[Frame], BracketWarning
             odd.setdefault(t, []).append(f.name)
     shown = "; ".join(
         f"{', '.join(names)} {'has' if len(names) == 1 else 'have'} orientation tag {t} "
-        f"({_ORIENTATION_WORDS[t]})" for t, names in odd.items())
+        f"({_ORIENTATION_WORDS[t]})"
+        for t, names in odd.items()
+    )
     stored_h, stored_w = _stored_shape(frames[0])
     warning = BracketWarning(
         "orientation-differs",
@@ -475,11 +491,14 @@ def _check_consistent(frames: list[Frame]) -> None:
         ref = alike[0]
         turned = ""
         if _orientation_tag(f) != _orientation_tag(ref):
-            turned = (f" once turned by its orientation tag {_orientation_tag(f)} "
-                      f"({_ORIENTATION_WORDS[_orientation_tag(f)]})")
+            turned = (
+                f" once turned by its orientation tag {_orientation_tag(f)} "
+                f"({_ORIENTATION_WORDS[_orientation_tag(f)]})"
+            )
         others = "the first frame" if len(frames) == 2 else "the other frames"
         raise BracketError(
-            f"frame size differs from {others}{turned}", path=f.path,
+            f"frame size differs from {others}{turned}",
+            path=f.path,
             expected=f"{ref.shape[1]}x{ref.shape[0]} like {_names(alike)}",
             found=f"{f.shape[1]}x{f.shape[0]}",
         )
@@ -488,7 +507,8 @@ def _check_consistent(frames: list[Frame]) -> None:
         f, alike = found
         raise BracketError(
             "cannot mix RAW and non-linear (JPEG/PNG/TIFF) frames in one bracket",
-            path=f.path, expected=f"{alike[0].meta.format} like {_names(alike)}",
+            path=f.path,
+            expected=f"{alike[0].meta.format} like {_names(alike)}",
             found=f.meta.format,
         )
     if not frames[0].is_linear:
@@ -496,7 +516,8 @@ def _check_consistent(frames: list[Frame]) -> None:
         if found:
             f, alike = found
             raise BracketError(
-                "bit depth differs from the other frames", path=f.path,
+                "bit depth differs from the other frames",
+                path=f.path,
                 expected=f"{alike[0].bit_depth} bits like {_names(alike)}",
                 found=f"{f.bit_depth} bits",
             )
@@ -508,33 +529,41 @@ def _capture_warnings(frames: list[Frame]) -> list[BracketWarning]:
     names = [f.name for f in frames]
     times = [f.meta.exposure_time for f in frames]
     if all(t is None for t in times):
-        warns.append(BracketWarning(
-            "no-exposure-times",
-            "no frame records an exposure time; frames were ordered by brightness and the ratios "
-            "come from the histograms alone",
-        ))
+        warns.append(
+            BracketWarning(
+                "no-exposure-times",
+                "no frame records an exposure time; frames were ordered by brightness and the "
+                "ratios "
+                "come from the histograms alone",
+            )
+        )
     elif any(t is None for t in times):
         missing = tuple(k for k, t in enumerate(times) if t is None)
-        warns.append(BracketWarning(
-            "partial-exposure-times",
-            "exposure time unknown for " + ", ".join(names[k] for k in missing),
-            missing,
-        ))
+        warns.append(
+            BracketWarning(
+                "partial-exposure-times",
+                "exposure time unknown for " + ", ".join(names[k] for k in missing),
+                missing,
+            )
+        )
     timed = [k for k, t in enumerate(times) if t is not None]
 
-    def changed(attr: str, code: str, label: str, fmt: Callable[[Any], str],
-                term: str) -> None:
+    def changed(attr: str, code: str, label: str, fmt: Callable[[Any], str], term: str) -> None:
         values = [getattr(f.meta, attr) for f in frames]
         known = [(k, v) for k, v in enumerate(values) if v is not None]
         if len({v for _, v in known}) <= 1:
             return
         desc = ", ".join(f"{names[k]} {fmt(v)}" for k, v in known)
         if timed and all(values[k] is not None for k in timed):
-            used = (f"the exposure used to order and chain the frames is time x {term}, so it "
-                    f"includes the {label} change")
+            used = (
+                f"the exposure used to order and chain the frames is time x {term}, so it "
+                f"includes the {label} change"
+            )
         else:
-            used = (f"the {label} is not recorded for every frame, so the exposure used to "
-                    f"order and chain the frames leaves it out")
+            used = (
+                f"the {label} is not recorded for every frame, so the exposure used to "
+                f"order and chain the frames leaves it out"
+            )
         # Frames that share one exposure time differ by this setting alone.
         shared = []
         for t in sorted({t for k in timed if (t := times[k]) is not None}):
@@ -542,21 +571,26 @@ def _capture_warnings(frames: list[Frame]) -> list[BracketWarning]:
             if len(same) > 1 and len({values[k] for k in same}) > 1:
                 shared.append(f"{', '.join(names[k] for k in same)} share {_seconds(t)}")
         also = f" ({'; '.join(shared)}: only their {label} differs)" if shared else ""
-        warns.append(BracketWarning(
-            code, f"{label} changed between frames ({desc}){also}; {used}",
-            tuple(k for k, _ in known),
-        ))
+        warns.append(
+            BracketWarning(
+                code,
+                f"{label} changed between frames ({desc}){also}; {used}",
+                tuple(k for k, _ in known),
+            )
+        )
 
-    changed("f_number", "aperture-changed", "aperture", lambda v: f"f/{float(v):g}",
-            "(N_0 / N)^2")
+    changed("f_number", "aperture-changed", "aperture", lambda v: f"f/{float(v):g}", "(N_0 / N)^2")
     changed("iso", "iso-changed", "ISO", lambda v: f"ISO {v}", "ISO / ISO_0")
     cams = [f.meta.camera for f in frames]
     known_cams = {c for c in cams if c}
     if len(known_cams) > 1:
-        warns.append(BracketWarning(
-            "mixed-cameras", "frames come from different cameras: " + ", ".join(sorted(known_cams)),
-            tuple(range(n)),
-        ))
+        warns.append(
+            BracketWarning(
+                "mixed-cameras",
+                "frames come from different cameras: " + ", ".join(sorted(known_cams)),
+                tuple(range(n)),
+            )
+        )
     # Duplicate exposures: the same recorded exposure (time x ISO x aperture, APEX-snapped).
     exposures = recorded_exposures([f.meta for f in frames])
     for k in range(n):
@@ -565,12 +599,15 @@ def _capture_warnings(frames: list[Frame]) -> list[BracketWarning]:
             if ej is None or ek is None:
                 continue
             if abs(math.log2(ek / ej)) < DUPLICATE_EXPOSURE_STOPS:
-                warns.append(BracketWarning(
-                    "duplicate-exposure",
-                    f"{names[j]} and {names[k]} have the same exposure ({_describe(frames[j])}; "
-                    f"{_describe(frames[k])}): a valid pair with ratio 1",
-                    (j, k),
-                ))
+                warns.append(
+                    BracketWarning(
+                        "duplicate-exposure",
+                        f"{names[j]} and {names[k]} have the same exposure "
+                        f"({_describe(frames[j])}; "
+                        f"{_describe(frames[k])}): a valid pair with ratio 1",
+                        (j, k),
+                    )
+                )
                 break
     return warns
 
@@ -596,17 +633,23 @@ def _white_balance_warnings(frames: list[Frame]) -> list[BracketWarning]:
         ks = tuple(k for k, f in enumerate(frames) if f.meta.whitebalance_source == source)
         if not ks:
             continue
-        wbs = {tuple(round(v, 3) for v in (frames[k].meta.camera_whitebalance or ())[:3])
-               for k in ks}
-        used = (", ".join(f"{c} x {v:.3g}" for c, v in zip("RGB", next(iter(wbs)), strict=True))
-                if len(wbs) == 1 else "per frame")
-        warns.append(BracketWarning(
-            "no-white-balance",
-            f"{', '.join(frames[k].name for k in ks)} "
-            f"{'records' if len(ks) == 1 else 'record'} no as-shot white balance (LibRaw "
-            f"reports zero multipliers); {what} is used instead ({used})",
-            ks,
-        ))
+        wbs = {
+            tuple(round(v, 3) for v in (frames[k].meta.camera_whitebalance or ())[:3]) for k in ks
+        }
+        used = (
+            ", ".join(f"{c} x {v:.3g}" for c, v in zip("RGB", next(iter(wbs)), strict=True))
+            if len(wbs) == 1
+            else "per frame"
+        )
+        warns.append(
+            BracketWarning(
+                "no-white-balance",
+                f"{', '.join(frames[k].name for k in ks)} "
+                f"{'records' if len(ks) == 1 else 'record'} no as-shot white balance (LibRaw "
+                f"reports zero multipliers); {what} is used instead ({used})",
+                ks,
+            )
+        )
     return warns
 
 
@@ -657,7 +700,8 @@ def load_bracket(
     # Two files decoded at a time (LibRaw and Pillow release the GIL while they decode; the
     # first error in file order is the one raised).
     frames = thread_map(
-        lambda p: load_frame(p, raw_half_size=raw_half_size, max_pixels=max_pixels), files)
+        lambda p: load_frame(p, raw_half_size=raw_half_size, max_pixels=max_pixels), files
+    )
     warns: list[BracketWarning] = []
     if times_map is not None:
         missing = [f.name for f in frames if f.name not in times_map]
@@ -673,11 +717,13 @@ def load_bracket(
             exif_t = f.meta.exposure_time
             if exif_t is not None and f.meta.exposure_time_source == "exif":
                 if abs(float(exif_t) / float(t) - 1.0) > 0.02:
-                    warns.append(BracketWarning(
-                        "exif-times-mismatch",
-                        f"{f.name}: EXIF says {float(exif_t):g} s, the times list says "
-                        f"{float(t):g} s; using the list",
-                    ))
+                    warns.append(
+                        BracketWarning(
+                            "exif-times-mismatch",
+                            f"{f.name}: EXIF says {float(exif_t):g} s, the times list says "
+                            f"{float(t):g} s; using the list",
+                        )
+                    )
             updated.append(f.with_exposure_time(t, "times-file"))
         frames = updated
     frames = snap_frames(frames)
@@ -697,7 +743,10 @@ def load_bracket(
             iso = len({f.meta.iso for f in frames}) > 1
             aperture = len({f.meta.f_number for f in frames}) > 1
             reorder = _order_warning(
-                frames, order, by_brightness, contradicted,
+                frames,
+                order,
+                by_brightness,
+                contradicted,
                 lambda k: _describe(frames[k], iso=iso, aperture=aperture),
             )
             order, order_source = by_brightness, "brightness"
@@ -705,41 +754,56 @@ def load_bracket(
         order = sorted(range(n), key=lambda k: means[k])
         order_source = "brightness"
     if order != list(range(n)) and order != list(range(n))[::-1]:
-        warns.append(BracketWarning(
-            "input-unsorted",
-            "files were not given in exposure order; they were sorted darkest first",
-        ))
+        warns.append(
+            BracketWarning(
+                "input-unsorted",
+                "files were not given in exposure order; they were sorted darkest first",
+            )
+        )
     if reorder is not None:
         warns.append(reorder)
     position = {k: i for i, k in enumerate(order)}
     if orientation is not None:  # its frames are file positions: to the sorted order
-        warns.append(BracketWarning(orientation.code, orientation.message,
-                                    tuple(sorted(position[k] for k in orientation.frames))))
+        warns.append(
+            BracketWarning(
+                orientation.code,
+                orientation.message,
+                tuple(sorted(position[k] for k in orientation.frames)),
+            )
+        )
     sorted_frames = [frames[k] for k in order]
     # Indices in warnings refer to the sorted order.
     warns.extend(_capture_warnings(sorted_frames))
     warns.extend(_white_balance_warnings(sorted_frames))
     for k, f in enumerate(sorted_frames):
         if f.meta.decoder_messages:
-            warns.append(BracketWarning(
-                "decoder-messages",
-                f"{f.name}: {'; '.join(f.meta.decoder_messages)}; it was decoded anyway, but "
-                "its pixels may be wrong",
-                (k,),
-            ))
+            warns.append(
+                BracketWarning(
+                    "decoder-messages",
+                    f"{f.name}: {'; '.join(f.meta.decoder_messages)}; it was decoded anyway, but "
+                    "its pixels may be wrong",
+                    (k,),
+                )
+            )
     for k, f in enumerate(sorted_frames):
         step = max(1, int(np.sqrt(f.levels.size / 3 / 262144)))
         sub = f.levels[::step, ::step]
         if float(np.mean(sub >= f.max_level)) > 0.98:
-            warns.append(BracketWarning(
-                "frame-saturated", f"{f.name} is almost entirely saturated",
-                (k,),
-            ))
+            warns.append(
+                BracketWarning(
+                    "frame-saturated",
+                    f"{f.name} is almost entirely saturated",
+                    (k,),
+                )
+            )
         elif float(np.mean(sub == 0)) > 0.98:
-            warns.append(BracketWarning(
-                "frame-black", f"{f.name} is almost entirely black",
-                (k,),
-            ))
+            warns.append(
+                BracketWarning(
+                    "frame-black",
+                    f"{f.name} is almost entirely black",
+                    (k,),
+                )
+            )
     return Bracket(
         frames=tuple(sorted_frames),
         warnings=tuple(warns),

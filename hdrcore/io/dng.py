@@ -151,19 +151,29 @@ def _check_image(image: np.ndarray, kind: str) -> np.ndarray:
     arr = np.asarray(image)
     if kind == "linear":
         if arr.ndim != 3 or arr.shape[2] != 3:
-            raise ParameterError("a LinearRaw DNG needs an RGB image", expected="(H, W, 3)",
-                                 found=str(arr.shape))
+            raise ParameterError(
+                "a LinearRaw DNG needs an RGB image", expected="(H, W, 3)", found=str(arr.shape)
+            )
     elif arr.ndim != 2 or arr.shape[0] < 2 or arr.shape[1] < 2:
-        raise ParameterError("a CFA DNG needs a mosaic", expected="(H, W), H, W >= 2",
-                             found=str(arr.shape))
+        raise ParameterError(
+            "a CFA DNG needs a mosaic", expected="(H, W), H, W >= 2", found=str(arr.shape)
+        )
     if arr.dtype.kind != "f":
         raise ParameterError("DNG float samples need a float image", found=str(arr.dtype))
     return arr
 
 
-def _ifd0(h: int, w: int, kind: str, bits: int, meta: DngMetadata,
-          cfa_pattern: np.ndarray | Sequence[Sequence[int]] | None, rows_per_strip: int,
-          scale: float, provenance: Mapping[str, Any]) -> list[TiffTag]:
+def _ifd0(
+    h: int,
+    w: int,
+    kind: str,
+    bits: int,
+    meta: DngMetadata,
+    cfa_pattern: np.ndarray | Sequence[Sequence[int]] | None,
+    rows_per_strip: int,
+    scale: float,
+    provenance: Mapping[str, Any],
+) -> list[TiffTag]:
     spp = 3 if kind == "linear" else 1
     now = datetime.now().strftime("%Y:%m:%d %H:%M:%S")
     make = meta.make or "unknown"
@@ -196,25 +206,32 @@ def _ifd0(h: int, w: int, kind: str, bits: int, meta: DngMetadata,
     if meta.color_matrix is not None:
         m = np.asarray(meta.color_matrix, np.float64)[:3]
         if m.shape != (3, 3) or not np.all(np.isfinite(m)) or not np.any(m != 0):
-            raise ParameterError("the colour matrix must be a finite, non-zero 3x3",
-                                 found=str(m.tolist()))
-        tags.append(TiffTag(50721, 10, tuple(Fraction(round(float(v) * 10000), 10000)
-                                             for v in m.ravel())))
+            raise ParameterError(
+                "the colour matrix must be a finite, non-zero 3x3", found=str(m.tolist())
+            )
+        tags.append(
+            TiffTag(50721, 10, tuple(Fraction(round(float(v) * 10000), 10000) for v in m.ravel()))
+        )
     if meta.white_balance is not None:
         wb = np.asarray(meta.white_balance, np.float64).ravel()[:3]
         if wb.size != 3 or not np.all(np.isfinite(wb)) or np.any(wb <= 0):
-            raise ParameterError("white balance multipliers must be 3 positive values",
-                                 found=str(wb.tolist()))
+            raise ParameterError(
+                "white balance multipliers must be 3 positive values", found=str(wb.tolist())
+            )
         neutral = wb[1] / wb
-        tags.append(TiffTag(50728, 5, tuple(as_rational(v, what="AsShotNeutral")
-                                            for v in neutral)))
+        tags.append(TiffTag(50728, 5, tuple(as_rational(v, what="AsShotNeutral") for v in neutral)))
     if kind == "cfa":
         pat = np.asarray(cfa_pattern, np.int64)
         if pat.shape != (2, 2) or sorted(pat.ravel().tolist()) != [0, 1, 1, 2]:
-            raise ParameterError("the CFA pattern must be a 2x2 Bayer map of 0 R, 1 G, 2 B",
-                                 found=str(pat.tolist()))
-        tags += [TiffTag(33421, 3, (2, 2)), TiffTag(33422, 1, bytes(pat.ravel().tolist())),
-                 TiffTag(50710, 1, bytes((0, 1, 2))), TiffTag(50711, 3, (1,))]
+            raise ParameterError(
+                "the CFA pattern must be a 2x2 Bayer map of 0 R, 1 G, 2 B", found=str(pat.tolist())
+            )
+        tags += [
+            TiffTag(33421, 3, (2, 2)),
+            TiffTag(33422, 1, bytes(pat.ravel().tolist())),
+            TiffTag(50710, 1, bytes((0, 1, 2))),
+            TiffTag(50711, 3, (1,)),
+        ]
     return tags
 
 
@@ -235,8 +252,11 @@ def _largest(src, mat, apply):  # pragma: no cover - numba
         for x in range(w):
             for k in range(c):
                 if apply:
-                    v = (mat[k, 0] * src[y, x, 0] + mat[k, 1] * src[y, x, 1]
-                         + mat[k, 2] * src[y, x, 2])
+                    v = (
+                        mat[k, 0] * src[y, x, 0]
+                        + mat[k, 1] * src[y, x, 1]
+                        + mat[k, 2] * src[y, x, 2]
+                    )
                 else:
                     v = src[y, x, k]
                 v = _clean(np.float32(v))
@@ -253,8 +273,11 @@ def _samples(src, mat, apply, scale, out):  # pragma: no cover - numba
         for x in range(w):
             for k in range(c):
                 if apply:
-                    v = (mat[k, 0] * src[y, x, 0] + mat[k, 1] * src[y, x, 1]
-                         + mat[k, 2] * src[y, x, 2])
+                    v = (
+                        mat[k, 0] * src[y, x, 0]
+                        + mat[k, 1] * src[y, x, 1]
+                        + mat[k, 2] * src[y, x, 2]
+                    )
                 else:
                     v = src[y, x, k]
                 out[y, x, k] = _clean(np.float32(v)) * scale
@@ -302,14 +325,19 @@ def write_float_dng(
     ``log2(max) + meta.baseline_exposure`` and ``scale`` in the XMP packet.
     """
     if kind not in DNG_KINDS:
-        raise ParameterError(f"unknown DNG layout {kind!r}", expected=", ".join(DNG_KINDS),
-                             found=repr(kind))
+        raise ParameterError(
+            f"unknown DNG layout {kind!r}", expected=", ".join(DNG_KINDS), found=repr(kind)
+        )
     if bits not in DNG_SAMPLE_BITS:
-        raise ParameterError("unsupported DNG float sample size",
-                             expected=", ".join(map(str, DNG_SAMPLE_BITS)), found=str(bits))
+        raise ParameterError(
+            "unsupported DNG float sample size",
+            expected=", ".join(map(str, DNG_SAMPLE_BITS)),
+            found=str(bits),
+        )
     if int(meta.orientation) not in range(1, 9):
-        raise ParameterError("orientation must be an EXIF value", expected="1..8",
-                             found=str(meta.orientation))
+        raise ParameterError(
+            "orientation must be an EXIF value", expected="1..8", found=str(meta.orientation)
+        )
     arr = _check_image(image, kind)
     if kind == "linear":
         arr = _stored_view(arr, meta.orientation)
@@ -317,8 +345,9 @@ def write_float_dng(
     if matrix is not None:
         m = np.asarray(matrix, np.float32)
         if kind != "linear" or m.shape != (3, 3) or not np.all(np.isfinite(m)):
-            raise ParameterError("the pixel matrix must be a finite 3x3 (LinearRaw only)",
-                                 found=str(m.shape))
+            raise ParameterError(
+                "the pixel matrix must be a finite 3x3 (LinearRaw only)", found=str(m.shape)
+            )
     h, w = arr.shape[:2]
     dtype = np.dtype("<f2" if bits == 16 else "<f4")
     row_bytes = w * (3 if kind == "linear" else 1) * dtype.itemsize
@@ -339,8 +368,13 @@ def write_float_dng(
     if not top > 0:
         raise ParameterError("the image holds no positive finite value", found=str(top))
     scale = 1.0 / top
-    meta_out = meta if meta.baseline_exposure == math.log2(top) else DngMetadata(
-        **{**meta.__dict__, "baseline_exposure": meta.baseline_exposure + math.log2(top)})
+    meta_out = (
+        meta
+        if meta.baseline_exposure == math.log2(top)
+        else DngMetadata(
+            **{**meta.__dict__, "baseline_exposure": meta.baseline_exposure + math.log2(top)}
+        )
+    )
     tags = _ifd0(h, w, kind, bits, meta_out, cfa_pattern, rows, scale, meta.provenance)
     exif = exif_tags(meta.exposure_time, meta.f_number, meta.iso, meta.capture_time)
     # Header, IFD0 at 8, the EXIF IFD after it, then the strips: the lengths of the IFDs do not
@@ -350,14 +384,25 @@ def write_float_dng(
 
     def header(exif_at: int, first: int) -> bytes:
         offsets = tuple(first + sum(counts[:k]) for k in range(len(counts)))
-        ifd0 = tags + [TiffTag(273, 4, offsets), TiffTag(279, 4, tuple(counts)),
-                       TiffTag(34665, 4, (exif_at,))]
+        ifd0 = tags + [
+            TiffTag(273, 4, offsets),
+            TiffTag(279, 4, tuple(counts)),
+            TiffTag(34665, 4, (exif_at,)),
+        ]
         body = _encode_ifd(ifd0, 8)
         return b"II*\x00" + struct.pack("<I", 8) + body + _encode_ifd(exif, 8 + len(body))
 
-    exif_at = 8 + len(_encode_ifd(tags + [TiffTag(273, 4, (0,) * len(counts)),
-                                          TiffTag(279, 4, tuple(counts)),
-                                          TiffTag(34665, 4, (0,))], 8))
+    exif_at = 8 + len(
+        _encode_ifd(
+            tags
+            + [
+                TiffTag(273, 4, (0,) * len(counts)),
+                TiffTag(279, 4, tuple(counts)),
+                TiffTag(34665, 4, (0,)),
+            ],
+            8,
+        )
+    )
     probe = header(exif_at, 0)
     first = len(probe) + (len(probe) % 2)
     head = header(exif_at, first)
@@ -368,8 +413,7 @@ def write_float_dng(
             fh.write(head)
             for r0, r1 in strips:
                 block = values(r0, r1, scale)
-                fh.write(block.tobytes() if dtype == np.float32 else
-                         block.astype(dtype).tobytes())
+                fh.write(block.tobytes() if dtype == np.float32 else block.astype(dtype).tobytes())
 
     return atomic_write(path, writer, force=force, inputs=inputs)
 
@@ -394,7 +438,7 @@ def _read_ifd(data: bytes, offset: int) -> dict[int, Any]:
         at = offset + 2 + 12 * k + 8
         if size > 4:
             (at,) = struct.unpack_from("<I", data, at)
-        raw = data[at:at + size]
+        raw = data[at : at + size]
         if typ == 2:
             out[tag] = raw.rstrip(b"\x00").decode("latin-1")
         elif typ in (1, 7):
@@ -402,8 +446,10 @@ def _read_ifd(data: bytes, offset: int) -> dict[int, Any]:
         elif typ in (5, 10):
             fmt = "<" + ("I" if typ == 5 else "i") * (2 * count)
             v = struct.unpack(fmt, raw)
-            out[tag] = tuple(Fraction(v[2 * i], v[2 * i + 1]) if v[2 * i + 1] else Fraction(0)
-                             for i in range(count))
+            out[tag] = tuple(
+                Fraction(v[2 * i], v[2 * i + 1]) if v[2 * i + 1] else Fraction(0)
+                for i in range(count)
+            )
         else:
             fmt = {3: "H", 4: "I", 11: "f", 12: "d"}[typ]
             out[tag] = struct.unpack("<" + fmt * count, raw)
@@ -418,23 +464,26 @@ def read_float_dng(path: str | os.PathLike) -> FloatDng:
     except OSError as exc:
         raise ImageReadError(f"cannot read file: {exc.strerror}", path=p) from exc
     if data[:4] != b"II*\x00":
-        raise ImageReadError("not a little-endian TIFF/DNG", path=p,
-                             found=repr(data[:4]))
+        raise ImageReadError("not a little-endian TIFF/DNG", path=p, found=repr(data[:4]))
     try:
         (ifd,) = struct.unpack_from("<I", data, 4)
         tags = _read_ifd(data, ifd)
         w, h = tags[256][0], tags[257][0]
         bits, photometric, fmt = tags[258][0], tags[262][0], tags[339][0]
         if fmt != 3 or tags[259][0] != 1 or photometric not in (_LINEAR_RAW, _CFA):
-            raise ImageReadError("not an uncompressed float DNG", path=p,
-                                 found=f"SampleFormat {fmt}, Compression {tags[259][0]}, "
-                                       f"PhotometricInterpretation {photometric}")
+            raise ImageReadError(
+                "not an uncompressed float DNG",
+                path=p,
+                found=f"SampleFormat {fmt}, Compression {tags[259][0]}, "
+                f"PhotometricInterpretation {photometric}",
+            )
         spp = tags[277][0]
         dtype = np.dtype("<f2" if bits == 16 else "<f4")
-        parts = [np.frombuffer(data, dtype, c // dtype.itemsize, o)
-                 for o, c in zip(tags[273], tags[279], strict=True)]
+        parts = [
+            np.frombuffer(data, dtype, c // dtype.itemsize, o)
+            for o, c in zip(tags[273], tags[279], strict=True)
+        ]
     except (KeyError, struct.error, ValueError) as exc:
         raise ImageReadError(f"damaged DNG ({exc})", path=p) from exc
     img = np.concatenate(parts).astype(np.float32).reshape((h, w, spp) if spp > 1 else (h, w))
-    return FloatDng(image=img, kind="linear" if photometric == _LINEAR_RAW else "cfa",
-                    tags=tags)
+    return FloatDng(image=img, kind="linear" if photometric == _LINEAR_RAW else "cfa", tags=tags)

@@ -111,9 +111,7 @@ def parse_exif_tags(tags: dict[str, Any]) -> ExifData:
     fnum = _fraction(get("EXIF FNumber", "Image FNumber"))
     if fnum is not None and fnum <= 0:
         fnum = None
-    iso = _int(
-        get("EXIF ISOSpeedRatings", "EXIF PhotographicSensitivity", "Image ISOSpeedRatings")
-    )
+    iso = _int(get("EXIF ISOSpeedRatings", "EXIF PhotographicSensitivity", "Image ISOSpeedRatings"))
     if iso is not None and iso <= 0:
         iso = None
     return ExifData(

@@ -48,11 +48,12 @@ def _storage(arr: np.ndarray, dtype: type, workers: int | None) -> tuple[np.ndar
     half = dtype == np.float16
 
     def block(r0: int) -> int:
-        tmp = np.nan_to_num(arr[r0:r0 + _ROWS].astype(np.float32), nan=0.0, posinf=HALF_MAX,
-                            neginf=0.0)
+        tmp = np.nan_to_num(
+            arr[r0 : r0 + _ROWS].astype(np.float32), nan=0.0, posinf=HALF_MAX, neginf=0.0
+        )
         over = int(np.count_nonzero(tmp > HALF_MAX)) if half else 0
         np.clip(tmp, 0.0, HALF_MAX if half else None, out=tmp)
-        out[r0:r0 + _ROWS] = tmp
+        out[r0 : r0 + _ROWS] = tmp
         return over
 
     clipped = sum(thread_map(block, range(0, arr.shape[0], _ROWS), workers))
@@ -93,8 +94,12 @@ def write_exr(
 
     arr = _validate_rgb(rgb)
     key = validate_method(compression, EXR_COMPRESSIONS, "EXR compression")
-    codes = {"piz": OpenEXR.PIZ_COMPRESSION, "zip": OpenEXR.ZIP_COMPRESSION,
-             "zstd": OpenEXR.ZSTD_COMPRESSION, "none": OpenEXR.NO_COMPRESSION}
+    codes = {
+        "piz": OpenEXR.PIZ_COMPRESSION,
+        "zip": OpenEXR.ZIP_COMPRESSION,
+        "zstd": OpenEXR.ZSTD_COMPRESSION,
+        "none": OpenEXR.NO_COMPRESSION,
+    }
     data, clipped = _storage(arr, np.float16 if half else np.float32, workers)
 
     header: dict[str, Any] = {

@@ -95,6 +95,7 @@ class FrameMetadata:
 
     def to_json(self) -> dict:
         """JSON-ready dictionary (fractions as strings and floats)."""
+
         def frac(v: Fraction | None) -> str | None:
             return None if v is None else str(v)
 
@@ -275,8 +276,12 @@ class Frame:
         """The frame with its time replaced (e.g. from a times file): such a time is exact, so
         any APEX-snapped value of the old tag goes."""
         t = seconds if isinstance(seconds, Fraction) else Fraction(str(seconds))
-        return self.with_meta(exposure_time=t, exposure_time_source=source,
-                              exposure_time_apex=None, exposure_time_sequence=None)
+        return self.with_meta(
+            exposure_time=t,
+            exposure_time_source=source,
+            exposure_time_apex=None,
+            exposure_time_sequence=None,
+        )
 
     def with_meta(self, **changes: Any) -> Frame:
         """The same levels with some metadata fields replaced."""

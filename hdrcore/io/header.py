@@ -76,12 +76,12 @@ def _jpeg_size(path: Path) -> tuple[int, int]:
                     break
                 height, width = struct.unpack(">HH", body[1:5])
                 if width == 0 or height == 0:  # height in a later DNL marker: rare, unsupported
-                    raise ImageReadError("JPEG header gives no image size", path=path,
-                                         found=f"{width}x{height}")
+                    raise ImageReadError(
+                        "JPEG header gives no image size", path=path, found=f"{width}x{height}"
+                    )
                 return width, height
             fh.seek(length - 2, os.SEEK_CUR)
-    raise ImageReadError("JPEG header is damaged or truncated (no frame header found)",
-                         path=path)
+    raise ImageReadError("JPEG header is damaged or truncated (no frame header found)", path=path)
 
 
 def _tiff_size(path: Path) -> tuple[int, int]:
@@ -141,12 +141,16 @@ def frame_pixels(path: str | os.PathLike) -> tuple[int, int]:
             raise ImageReadError(f"cannot read file ({exc.strerror})", path=p) from exc
         if fmt is not None:
             return image_size(p, fmt)
-    raise ImageReadError("not a recognised image", path=p,
-                         expected="JPEG, PNG, TIFF or a camera RAW file (.dng, .cr2, .nef, ...)")
+    raise ImageReadError(
+        "not a recognised image",
+        path=p,
+        expected="JPEG, PNG, TIFF or a camera RAW file (.dng, .cr2, .nef, ...)",
+    )
 
 
-def check_frame_pixels(path: str | os.PathLike, width: int, height: int,
-                       max_pixels: int | None) -> None:
+def check_frame_pixels(
+    path: str | os.PathLike, width: int, height: int, max_pixels: int | None
+) -> None:
     """Raise :class:`~hdrcore.errors.FrameTooLargeError` when ``width x height`` is more than
     the limit (:func:`pixel_limit` of ``max_pixels``)."""
     limit = pixel_limit(max_pixels)

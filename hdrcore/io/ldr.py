@@ -81,8 +81,9 @@ def _decode_pillow(path: Path, max_pixels: int | None) -> np.ndarray:
     except UnidentifiedImageError as exc:
         raise ImageReadError("not an image Pillow can read", path=path) from exc
     except Image.DecompressionBombError as exc:  # only if Pillow's limit was lowered meanwhile
-        raise ImageReadError(f"Pillow refuses to decode it as too large ({exc})",
-                             path=path) from exc
+        raise ImageReadError(
+            f"Pillow refuses to decode it as too large ({exc})", path=path
+        ) from exc
     except (OSError, SyntaxError, ValueError) as exc:
         raise ImageReadError(f"image data is damaged or truncated ({exc})", path=path) from exc
     return arr
@@ -111,8 +112,7 @@ def _decode_tiff(path: Path) -> tuple[np.ndarray, int | None]:
     return arr, orientation
 
 
-def read_ldr(path: str | Path, fmt: str | None = None, *,
-             max_pixels: int | None = None) -> Frame:
+def read_ldr(path: str | Path, fmt: str | None = None, *, max_pixels: int | None = None) -> Frame:
     """Read a JPEG, PNG or TIFF frame as integer levels ``(H, W, 3)`` uint16, upright.
 
     ``max_pixels``: the pixel limit (:func:`hdrcore.io.header.pixel_limit`; ``None`` the
@@ -141,7 +141,9 @@ def read_ldr(path: str | Path, fmt: str | None = None, *,
         bit_depth = 16
     else:
         raise ImageReadError(
-            "unsupported sample type", path=p, expected="8- or 16-bit integers",
+            "unsupported sample type",
+            path=p,
+            expected="8- or 16-bit integers",
             found=str(arr.dtype),
         )
     if arr.size == 0 or min(arr.shape[:2]) < 2:

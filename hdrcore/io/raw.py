@@ -82,8 +82,14 @@ RAW_EXTENSIONS = frozenset(
 
 #: Demosaic methods of :func:`read_raw`: ours (:data:`hdrcore.demosaic.DEMOSAIC_METHODS`) and
 #: LibRaw's AHD through ``postprocess``.
-RAW_DEMOSAIC_METHODS = ("malvar2004", "hamilton-adams", "rcd", "malvar2004-clamped", "bilinear",
-                        "libraw-ahd")
+RAW_DEMOSAIC_METHODS = (
+    "malvar2004",
+    "hamilton-adams",
+    "rcd",
+    "malvar2004-clamped",
+    "bilinear",
+    "libraw-ahd",
+)
 DEFAULT_RAW_DEMOSAIC = "malvar2004"
 
 # LibRaw flip codes to EXIF orientation values (bit 4 transposes, bit 2 flips the rows, bit 1
@@ -112,8 +118,9 @@ def _valid_multipliers(wb: Sequence[float]) -> bool:
     return v.size == 3 and bool(np.all(np.isfinite(v)) and np.all(v > 0))
 
 
-def matrix_neutral(rgb_xyz_matrix: np.ndarray | Sequence[Sequence[float]] | None,
-                   ) -> tuple[float, float, float] | None:
+def matrix_neutral(
+    rgb_xyz_matrix: np.ndarray | Sequence[Sequence[float]] | None,
+) -> tuple[float, float, float] | None:
     """White-balance multipliers (R, G, B; G = 1) that make the camera's D65 response neutral.
 
     ``rgb_xyz_matrix`` is rawpy's camera <- XYZ matrix (3x3, or the first 3 rows of 4x3); the
@@ -319,8 +326,14 @@ def libraw_error(path: str | Path, exc: BaseException, said: Sequence[str] = ())
     return ImageReadError(message, path=path)
 
 
-def read_raw(path: str | Path, *, half_size: bool = False, keep_cfa: bool = True,
-             max_pixels: int | None = None, demosaic: str | None = None) -> Frame:
+def read_raw(
+    path: str | Path,
+    *,
+    half_size: bool = False,
+    keep_cfa: bool = True,
+    max_pixels: int | None = None,
+    demosaic: str | None = None,
+) -> Frame:
     """Read a camera RAW file as a linear :class:`Frame` (see module docstring).
 
     ``half_size`` demosaics by 2x2 binning (fast, for previews); ``keep_cfa`` keeps the raw mosaic.
@@ -338,8 +351,11 @@ def read_raw(path: str | Path, *, half_size: bool = False, keep_cfa: bool = True
     method = demosaic or os.environ.get("HDRCORE_RAW_DEMOSAIC") or DEFAULT_RAW_DEMOSAIC
     if method not in RAW_DEMOSAIC_METHODS:
         where = "" if demosaic else " (environment variable HDRCORE_RAW_DEMOSAIC)"
-        raise ParameterError(f"unknown RAW demosaic method {method!r}{where}",
-                             expected=", ".join(RAW_DEMOSAIC_METHODS), found=repr(method))
+        raise ParameterError(
+            f"unknown RAW demosaic method {method!r}{where}",
+            expected=", ".join(RAW_DEMOSAIC_METHODS),
+            found=repr(method),
+        )
     p = Path(path)
     failure: rawpy.LibRawError | None = None
     with c_stderr(p) as said:  # filled when the block ends
@@ -349,7 +365,9 @@ def read_raw(path: str | Path, *, half_size: bool = False, keep_cfa: bool = True
                 check_frame_pixels(p, int(sizes.width), int(sizes.height), max_pixels)
                 if raw.num_colors < 3 or raw.raw_type != rawpy.RawType.Flat:
                     raise ImageReadError(
-                        "unsupported RAW layout", path=p, expected="a Bayer CFA sensor",
+                        "unsupported RAW layout",
+                        path=p,
+                        expected="a Bayer CFA sensor",
                         found=f"{raw.num_colors} colours, {raw.raw_type}",
                     )
                 white = int(raw.white_level)
@@ -361,11 +379,20 @@ def read_raw(path: str | Path, *, half_size: bool = False, keep_cfa: bool = True
                 wb_source = "as-shot"
                 if not _valid_multipliers(cam_wb):
                     cam_wb, wb_source = _fallback_whitebalance(raw, xyz)
-                    log.info("%s: no as-shot white balance (LibRaw reports %s); using %s %s",
-                             p.name, list(raw.camera_whitebalance), wb_source, cam_wb)
+                    log.info(
+                        "%s: no as-shot white balance (LibRaw reports %s); using %s %s",
+                        p.name,
+                        list(raw.camera_whitebalance),
+                        wb_source,
+                        cam_wb,
+                    )
                 ob = optical_black_noise(
-                    raw.raw_image, top=int(sizes.top_margin), left=int(sizes.left_margin),
-                    height=int(sizes.height), width=int(sizes.width), black_level=black,
+                    raw.raw_image,
+                    top=int(sizes.top_margin),
+                    left=int(sizes.left_margin),
+                    height=int(sizes.height),
+                    width=int(sizes.width),
+                    black_level=black,
                     pattern=pattern,
                 )
                 flip = int(sizes.flip)
@@ -379,14 +406,23 @@ def read_raw(path: str | Path, *, half_size: bool = False, keep_cfa: bool = True
                         black_level=black,
                         white_level=white,
                     )
-                ours = (method != "libraw-ahd" and not half_size
-                        and float(sizes.pixel_aspect) in (0.0, 1.0))
+                ours = (
+                    method != "libraw-ahd"
+                    and not half_size
+                    and float(sizes.pixel_aspect) in (0.0, 1.0)
+                )
                 if ours:
                     # The mosaic only: no LibRaw postprocess (GIL released in our kernel).
                     mosaic = raw.raw_image_visible if cfa is None else cfa.data
                     rgb = demosaic_mosaic(
-                        mosaic, pattern, colors, method=method, black_level=black,
-                        max_level=max(white - min(black), 1), dtype=np.uint16)
+                        mosaic,
+                        pattern,
+                        colors,
+                        method=method,
+                        black_level=black,
+                        max_level=max(white - min(black), 1),
+                        dtype=np.uint16,
+                    )
                     rgb = apply_orientation(rgb, _FLIP_TO_ORIENTATION.get(flip, 1))
                 else:
                     rgb = raw.postprocess(
@@ -414,7 +450,8 @@ def read_raw(path: str | Path, *, half_size: bool = False, keep_cfa: bool = True
     max_level = int(min(channel_max))
     if max_level <= 0:
         raise ImageReadError(
-            "RAW white level is not above the black level", path=p,
+            "RAW white level is not above the black level",
+            path=p,
             found=f"white {white}, black {black}",
         )
     bit_depth = int(np.ceil(np.log2(white + 1)))

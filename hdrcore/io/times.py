@@ -69,7 +69,8 @@ def times_from_mapping(times: Mapping[str, Fraction | float | str]) -> dict[str,
         except ValueError as exc:
             raise InputError(
                 f"bad exposure time for {Path(name).name}, {exc}",
-                expected=EXPOSURE_TIME_RANGE, found=repr(value),
+                expected=EXPOSURE_TIME_RANGE,
+                found=repr(value),
             ) from None
     return out
 
@@ -84,9 +85,11 @@ def read_exposure_times(path: str | os.PathLike) -> dict[str, Fraction]:
     try:
         text = data.decode("utf-8")
     except UnicodeDecodeError as exc:
-        bad_line = data[:exc.start].count(b"\n") + 1
+        bad_line = data[: exc.start].count(b"\n") + 1
         raise InputError(
-            f"line {bad_line} is not UTF-8 text", path=p, expected="a plain text file",
+            f"line {bad_line} is not UTF-8 text",
+            path=p,
+            expected="a plain text file",
             found=f"byte 0x{data[exc.start]:02x}",
         ) from None
     times: dict[str, Fraction] = {}
@@ -104,8 +107,10 @@ def read_exposure_times(path: str | os.PathLike) -> dict[str, Fraction]:
             times[Path(name).name] = parse_seconds(value)
         except ValueError as exc:
             raise InputError(
-                f"line {number}: bad exposure time, {exc}", path=p,
-                expected=EXPOSURE_TIME_RANGE, found=repr(value),
+                f"line {number}: bad exposure time, {exc}",
+                path=p,
+                expected=EXPOSURE_TIME_RANGE,
+                found=repr(value),
             ) from None
     if not times:
         raise InputError("exposure-times file lists no frames", path=p)

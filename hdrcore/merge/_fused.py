@@ -169,9 +169,7 @@ def warm_up() -> float:
     for dtype in (np.uint16, np.uint8):
         frames = [np.full((2, 3, 3), 10 * (k + 1), dtype) for k in range(3)]
         merge(frames, (1.0, 2.0, 4.0), max_level=255, engine="numba", workers=1)
-        merge(
-            frames, (1.0, 2.0, 4.0), response=np.linspace(0, 1, 256), engine="numba", workers=1
-        )
+        merge(frames, (1.0, 2.0, 4.0), response=np.linspace(0, 1, 256), engine="numba", workers=1)
     frames = [np.full((2, 3, 3), 0.1 * (k + 1), np.float32) for k in range(3)]
     merge(frames, (1.0, 2.0, 4.0), engine="numba", workers=1)
     mask = np.ones((2, 3), bool)
@@ -181,10 +179,23 @@ def warm_up() -> float:
     for dtype in (np.uint16, np.uint8):
         frames = [np.full((2, 3, 3), 10 * (k + 1), dtype) for k in range(3)]
         merge(frames, (1.0, 2.0, 4.0), max_level=255, transforms=tf, engine="numba", workers=1)
-        merge(frames, (1.0, 2.0, 4.0), response=np.linspace(0, 1, 256), transforms=tf,
-              engine="numba", workers=1)
-        merge(frames, (1.0, 2.0, 4.0), max_level=255, transforms=tf, engine="numba",
-              workers=1, resample="bilinear")
+        merge(
+            frames,
+            (1.0, 2.0, 4.0),
+            response=np.linspace(0, 1, 256),
+            transforms=tf,
+            engine="numba",
+            workers=1,
+        )
+        merge(
+            frames,
+            (1.0, 2.0, 4.0),
+            max_level=255,
+            transforms=tf,
+            engine="numba",
+            workers=1,
+            resample="bilinear",
+        )
         # read-only frames (a decoded bracket's levels) are another type to numba
         for f in frames:
             f.setflags(write=False)
@@ -192,8 +203,9 @@ def warm_up() -> float:
         merge(frames, (1.0, 2.0, 4.0), max_level=255, transforms=tf, engine="numba", workers=1)
     from .colour import camera_to_working
 
-    camera_to_working(np.ones((2, 3, 3), np.float32), None, None, clipped=np.zeros((2, 3), bool),
-                      workers=1)
+    camera_to_working(
+        np.ones((2, 3, 3), np.float32), None, None, clipped=np.zeros((2, 3), bool), workers=1
+    )
     return time.perf_counter() - t0
 
 
@@ -229,8 +241,33 @@ def tap_thresholds(sat: np.ndarray, dtype: np.dtype) -> np.ndarray:
 
 @_njit
 def _finish_block(
-    y, x0, x1, n, order, den, num, s2, sv, share, fv, lo, nbad, me2, thr,
-    wsum_out, shares, clipped_out, under_out, gscore, ghost, pick, invw, zflag, radf, bb, cc,
+    y,
+    x0,
+    x1,
+    n,
+    order,
+    den,
+    num,
+    s2,
+    sv,
+    share,
+    fv,
+    lo,
+    nbad,
+    me2,
+    thr,
+    wsum_out,
+    shares,
+    clipped_out,
+    under_out,
+    gscore,
+    ghost,
+    pick,
+    invw,
+    zflag,
+    radf,
+    bb,
+    cc,
     eb,
 ):
     """Radiance, ghost score, shares and fallback values of one block (the reference's
@@ -245,7 +282,7 @@ def _finish_block(
     one = np.float32(1.0)
     nbk = x1 - x0
     ne = 3 * nbk
-    ro = radf[y, 3 * x0:3 * x1]
+    ro = radf[y, 3 * x0 : 3 * x1]
     for e in range(ne):
         d = den[e]
         inv = one / (d if d >= _TINY else _TINY)
@@ -326,8 +363,24 @@ def _finish_block(
 
 @_njit
 def _accumulate_run(
-    xk, okf, ne, wcode, wfn, inv_max, shot, const_var, floor_norm, itk, it2, t2k, den, num, s2,
-    sv, wbuf, eb,
+    xk,
+    okf,
+    ne,
+    wcode,
+    wfn,
+    inv_max,
+    shot,
+    const_var,
+    floor_norm,
+    itk,
+    it2,
+    t2k,
+    den,
+    num,
+    s2,
+    sv,
+    wbuf,
+    eb,
 ):
     """The sums of one frame over ``ne`` interleaved samples of linear data (no LUT): straight
     SIMD loops for the built-in weightings (:func:`hdrcore.merge.weights.weight_by_code`, one
@@ -390,8 +443,26 @@ def _accumulate_run(
 
 @_njit
 def _accumulate_lut_run(
-    xk, okf, nbk, wcode, wfn, inv_max, shot, const_var, floor_norm, itk, it2, t2k, lut, lut_var,
-    den, num, s2, sv, wbuf, eb,
+    xk,
+    okf,
+    nbk,
+    wcode,
+    wfn,
+    inv_max,
+    shot,
+    const_var,
+    floor_norm,
+    itk,
+    it2,
+    t2k,
+    lut,
+    lut_var,
+    den,
+    num,
+    s2,
+    sv,
+    wbuf,
+    eb,
 ):
     """The sums of one resampled frame with a LUT over ``nbk`` pixels: each channel's
     interpolated level read linearly between the entries of its LUT row (the reference's
@@ -423,8 +494,11 @@ def _accumulate_lut_run(
             ev = xv * itk
             ok = okf[e]
             eb[e] = ev
-            wk = (weight_by_code(wcode, level, xv, t2k, var) if wcode >= 0
-                  else wfn(level, xv, t2k, var))
+            wk = (
+                weight_by_code(wcode, level, xv, t2k, var)
+                if wcode >= 0
+                else wfn(level, xv, t2k, var)
+            )
             wk = wk * (ok if level > floor_norm else zero)
             wbuf[e] = wk
             den[e] += wk
@@ -436,8 +510,9 @@ def _accumulate_lut_run(
 
 
 @_njit
-def _accumulate_levels_table(src, choff, tk, lmax, has_lut, inv_max, itk, okf, ne, den,
-                             num, s2, sv, wbuf, eb):
+def _accumulate_levels_table(
+    src, choff, tk, lmax, has_lut, inv_max, itk, okf, ne, den, num, s2, sv, wbuf, eb
+):
     """The sums of one frame of integer levels read in place through its per-level table
     ``tk (C L, 8)`` (:func:`hdrcore.merge.engine.level_tables`: ``E_k, w, w var(E_k), w E_k,
     w E_k**2`` of every level, the numpy engine's arithmetic, the noise floor applied; channel
@@ -481,10 +556,10 @@ def _taps_run(flat, iy0, b, e0, e1, ntap, wxe, wye, acc, xk, hi):
         wx2 = wxe[2, e0:e1]
         wx3 = wxe[3, e0:e1]
         # the 4 source rows in one pass (the same order of operations as row by row)
-        ra = flat[iy0][s0:s0 + m + 9]
-        rb = flat[iy0 + 1][s0:s0 + m + 9]
-        rc = flat[iy0 + 2][s0:s0 + m + 9]
-        rd = flat[iy0 + 3][s0:s0 + m + 9]
+        ra = flat[iy0][s0 : s0 + m + 9]
+        rb = flat[iy0 + 1][s0 : s0 + m + 9]
+        rc = flat[iy0 + 2][s0 : s0 + m + 9]
+        rd = flat[iy0 + 3][s0 : s0 + m + 9]
         wy0 = wye[0, e0:e1]
         wy1 = wye[1, e0:e1]
         wy2 = wye[2, e0:e1]
@@ -521,10 +596,10 @@ def _taps_run(flat, iy0, b, e0, e1, ntap, wxe, wye, acc, xk, hi):
         wy1 = wye[1, e0:e1]
         r0 = flat[iy0]
         r1 = flat[iy0 + 1]
-        t0 = r0[s0:s0 + m]
-        t1 = r0[s0 + 3:s0 + 3 + m]
-        u0 = r1[s0:s0 + m]
-        u1 = r1[s0 + 3:s0 + 3 + m]
+        t0 = r0[s0 : s0 + m]
+        t1 = r0[s0 + 3 : s0 + 3 + m]
+        u0 = r1[s0 : s0 + m]
+        u1 = r1[s0 + 3 : s0 + 3 + m]
         for q in range(m):
             t = np.float32(t0[q]) * wx0[q] + np.float32(t1[q]) * wx1[q]
             u = np.float32(u0[q]) * wx0[q] + np.float32(u1[q]) * wx1[q]
@@ -535,8 +610,33 @@ def _taps_run(flat, iy0, b, e0, e1, ntap, wxe, wye, acc, xk, hi):
 
 
 @_njit
-def _warp_setup(m00, m01, m02, m10, m11, m12, m20, m21, m22, x0, yf, nbk, ntap, o, wlim, hlim,
-                wxp, wyp, ins, ixs, iys, same, fld, use_fld, fgeo):
+def _warp_setup(
+    m00,
+    m01,
+    m02,
+    m10,
+    m11,
+    m12,
+    m20,
+    m21,
+    m22,
+    x0,
+    yf,
+    nbk,
+    ntap,
+    o,
+    wlim,
+    hlim,
+    wxp,
+    wyp,
+    ins,
+    ixs,
+    iys,
+    same,
+    fld,
+    use_fld,
+    fgeo,
+):
     """For pixels ``x0 .. x0 + nbk - 1`` of row ``yf`` mapped by the 3x3 matrix ``m`` (with
     the perspective divide; affine motions have ``m2 = (0, 0, 1)``): the
     weights ``wxp[j, i]``, ``wyp[j, i]`` of the ``ntap`` taps per axis (Keys cubic in float64,
@@ -563,10 +663,12 @@ def _warp_setup(m00, m01, m02, m10, m11, m12, m20, m21, m22, x0, yf, nbk, ntap, 
             fx = min(max((xf - fgeo[1]) * fgeo[0], 0.0), gw - 1.0)
             gj = min(int(fx), gw - 2)
             gu = fx - gj
-            sx += ((fld[gi, gj, 0] * (1 - gu) + fld[gi, gj + 1, 0] * gu) * (1 - gv)
-                   + (fld[gi + 1, gj, 0] * (1 - gu) + fld[gi + 1, gj + 1, 0] * gu) * gv)
-            sy += ((fld[gi, gj, 1] * (1 - gu) + fld[gi, gj + 1, 1] * gu) * (1 - gv)
-                   + (fld[gi + 1, gj, 1] * (1 - gu) + fld[gi + 1, gj + 1, 1] * gu) * gv)
+            sx += (fld[gi, gj, 0] * (1 - gu) + fld[gi, gj + 1, 0] * gu) * (1 - gv) + (
+                fld[gi + 1, gj, 0] * (1 - gu) + fld[gi + 1, gj + 1, 0] * gu
+            ) * gv
+            sy += (fld[gi, gj, 1] * (1 - gu) + fld[gi, gj + 1, 1] * gu) * (1 - gv) + (
+                fld[gi + 1, gj, 1] * (1 - gu) + fld[gi + 1, gj + 1, 1] * gu
+            ) * gv
         fx0 = np.floor(sx)
         fy0 = np.floor(sy)
         if ntap == 4:
@@ -619,7 +721,7 @@ def _clipped_supports(flat, iy0, c0, m, ntap, t0, t1, t2, cf, out):
         cf[q] = False
     for jy in range(ntap):
         row = flat[iy0 + jy]
-        r = row[3 * c0:3 * (c0 + ncol)]
+        r = row[3 * c0 : 3 * (c0 + ncol)]
         for q in range(ncol):
             e = 3 * q
             cf[q] = cf[q] | ((r[e] >= t0) | (r[e + 1] >= t1) | (r[e + 2] >= t2))
@@ -748,7 +850,7 @@ def merge_rows(fr, warp, model, wfn, fin, out, r0, r1):
             flat = flats[k]
             warped = has_mat[k]
             vrow = masks[k][y, x0:x1] if has_mask[k] else ones[:nbk]  # valid (mask)
-            frf = flat[y, 3 * x0:3 * x1]  # the row block in place (zero-based: vectorises)
+            frf = flat[y, 3 * x0 : 3 * x1]  # the row block in place (zero-based: vectorises)
             if warped:
                 m00 = mats[k, 0, 0]
                 m01 = mats[k, 0, 1]
@@ -756,10 +858,33 @@ def merge_rows(fr, warp, model, wfn, fin, out, r0, r1):
                 m10 = mats[k, 1, 0]
                 m11 = mats[k, 1, 1]
                 m12 = mats[k, 1, 2]
-                _warp_setup(m00, m01, m02, m10, m11, m12, mats[k, 2, 0], mats[k, 2, 1],
-                            mats[k, 2, 2], x0, yf, nbk, ntap, o,
-                            np.float64(w - (ntap - o)), np.float64(h - (ntap - o)), wxp, wyp,
-                            ins, ixs, iys, same, flds[k], has_fld[k], fgeo)
+                _warp_setup(
+                    m00,
+                    m01,
+                    m02,
+                    m10,
+                    m11,
+                    m12,
+                    mats[k, 2, 0],
+                    mats[k, 2, 1],
+                    mats[k, 2, 2],
+                    x0,
+                    yf,
+                    nbk,
+                    ntap,
+                    o,
+                    np.float64(w - (ntap - o)),
+                    np.float64(h - (ntap - o)),
+                    wxp,
+                    wyp,
+                    ins,
+                    ixs,
+                    iys,
+                    same,
+                    flds[k],
+                    has_fld[k],
+                    fgeo,
+                )
                 _expand3(ntap, nbk, wxp, wxe)
                 _expand3(ntap, nbk, wyp, wye)
                 # runs of pixels whose supports share their rows and column offset: the taps
@@ -787,8 +912,7 @@ def merge_rows(fr, warp, model, wfn, fin, out, r0, r1):
                     if 3 * dx + e1 + 3 * ntap > row_len:
                         e1 = 3 * i
                     _taps_run(flat, iy0, 3 * dx, 3 * s, e1, ntap, wxe, wye, acc, xk, hi)
-                    _clipped_supports(flat, iy0, dx + s, i - s, ntap, th0, th1, th2, cf,
-                                      tc[s:i])
+                    _clipped_supports(flat, iy0, dx + s, i - s, ntap, th0, th1, th2, cf, tc[s:i])
                 if oor[k]:  # levels past the LUT are clipped: count them
                     for i in range(nbk):
                         if ins[i] and tc[i]:
@@ -830,19 +954,88 @@ def merge_rows(fr, warp, model, wfn, fin, out, r0, r1):
             t2k = t2[k]
             ebj = eb[j]
             if has_lut and warped:
-                _accumulate_lut_run(xk, okf, nbk, wcode, wfn, inv_max, shot, const_var,
-                                    floor_norm, itk, it2, t2k, lut, lut_var, den, num, s2, sv,
-                                    wbuf, ebj)
+                _accumulate_lut_run(
+                    xk,
+                    okf,
+                    nbk,
+                    wcode,
+                    wfn,
+                    inv_max,
+                    shot,
+                    const_var,
+                    floor_norm,
+                    itk,
+                    it2,
+                    t2k,
+                    lut,
+                    lut_var,
+                    den,
+                    num,
+                    s2,
+                    sv,
+                    wbuf,
+                    ebj,
+                )
             elif use_tab:
                 out_of_range += _accumulate_levels_table(
-                    frf, choff, tabs[k], tab_max, has_lut, inv_max, itk, okf, ne, den, num,
-                    s2, sv, wbuf, ebj)
+                    frf,
+                    choff,
+                    tabs[k],
+                    tab_max,
+                    has_lut,
+                    inv_max,
+                    itk,
+                    okf,
+                    ne,
+                    den,
+                    num,
+                    s2,
+                    sv,
+                    wbuf,
+                    ebj,
+                )
             elif warped:
-                _accumulate_run(xk, okf, ne, wcode, wfn, inv_max, shot, const_var, floor_norm,
-                                itk, it2, t2k, den, num, s2, sv, wbuf, ebj)
+                _accumulate_run(
+                    xk,
+                    okf,
+                    ne,
+                    wcode,
+                    wfn,
+                    inv_max,
+                    shot,
+                    const_var,
+                    floor_norm,
+                    itk,
+                    it2,
+                    t2k,
+                    den,
+                    num,
+                    s2,
+                    sv,
+                    wbuf,
+                    ebj,
+                )
             else:  # the frame's own dtype (a specialisation per dtype)
-                _accumulate_run(frf, okf, ne, wcode, wfn, inv_max, shot, const_var, floor_norm,
-                                itk, it2, t2k, den, num, s2, sv, wbuf, ebj)
+                _accumulate_run(
+                    frf,
+                    okf,
+                    ne,
+                    wcode,
+                    wfn,
+                    inv_max,
+                    shot,
+                    const_var,
+                    floor_norm,
+                    itk,
+                    it2,
+                    t2k,
+                    den,
+                    num,
+                    s2,
+                    sv,
+                    wbuf,
+                    ebj,
+                )
             # the brightest usable frame that gave the pixel weight (a usable frame without
             # any, e.g. a black one, only while no frame has)
             jj = np.int32(j)
@@ -857,11 +1050,36 @@ def merge_rows(fr, warp, model, wfn, fin, out, r0, r1):
                 last = lo[i]
                 lo[i] = jj if upd else last
         _finish_block(
-            y, x0, x1, n, order, den, num, s2, sv, share, fv, lo, nbad, me2, thr,
-            wsum_out, shares, clipped_out, under_out, gscore, ghost, pick, invw, zflag, radf,
-            bb, cc, eb,
+            y,
+            x0,
+            x1,
+            n,
+            order,
+            den,
+            num,
+            s2,
+            sv,
+            share,
+            fv,
+            lo,
+            nbad,
+            me2,
+            thr,
+            wsum_out,
+            shares,
+            clipped_out,
+            under_out,
+            gscore,
+            ghost,
+            pick,
+            invw,
+            zflag,
+            radf,
+            bb,
+            cc,
+            eb,
         )
-        ro = radf[y, 3 * x0:3 * x1]
+        ro = radf[y, 3 * x0 : 3 * x1]
         if has_colour:
             convert_pixels(ro, clipped_out[y, x0:x1], True, cm, cwb, cneu)
     return out_of_range

@@ -34,8 +34,12 @@ from .._threads import run_row_spans
 from ..errors import ParameterError, validate_method
 
 __all__ = [
-    "WORKING_SPACES", "ColourConversion", "apply_colour", "camera_to_working_matrix",
-    "camera_to_working", "colour_conversion",
+    "WORKING_SPACES",
+    "ColourConversion",
+    "apply_colour",
+    "camera_to_working_matrix",
+    "camera_to_working",
+    "colour_conversion",
 ]
 
 WORKING_SPACES: dict[str, str] = {
@@ -152,8 +156,11 @@ def colour_conversion(
     """The :class:`ColourConversion` of :func:`camera_to_working_matrix`'s arguments."""
     matrix = camera_to_working_matrix(rgb_xyz_matrix, camera_whitebalance, working_space)
     wb = _white_balance(camera_whitebalance)
-    return ColourConversion(np.ascontiguousarray(matrix, np.float64), wb,
-                            np.ascontiguousarray(matrix @ (1.0 / wb), np.float64))
+    return ColourConversion(
+        np.ascontiguousarray(matrix, np.float64),
+        wb,
+        np.ascontiguousarray(matrix @ (1.0 / wb), np.float64),
+    )
 
 
 @_njit
@@ -219,8 +226,9 @@ def camera_to_working(
     threads (default: up to 2) does it; without, numpy matrix products over chunks.
     """
     conversion = colour_conversion(rgb_xyz_matrix, camera_whitebalance, working_space)
-    return apply_colour(radiance, conversion, clipped=clipped, chunk_pixels=chunk_pixels,
-                        out=out, workers=workers)
+    return apply_colour(
+        radiance, conversion, clipped=clipped, chunk_pixels=chunk_pixels, out=out, workers=workers
+    )
 
 
 def apply_colour(
@@ -242,7 +250,8 @@ def apply_colour(
         mask = np.asarray(clipped, dtype=bool)
         if mask.shape != (h, w):
             raise ParameterError(
-                "clipped mask does not match the radiance", expected=str((h, w)),
+                "clipped mask does not match the radiance",
+                expected=str((h, w)),
                 found=str(mask.shape),
             )
     if out is not None and (
@@ -250,7 +259,8 @@ def apply_colour(
     ):
         raise ParameterError(
             "out must be a C-contiguous float32 array of the radiance's shape",
-            expected=str((h, w, 3)), found=f"{out.shape} {out.dtype}",
+            expected=str((h, w, 3)),
+            found=f"{out.shape} {out.dtype}",
         )
     matrix, wb, neutral = conversion
     if AVAILABLE and h * w > 0:

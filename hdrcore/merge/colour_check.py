@@ -103,8 +103,12 @@ class FramePairColour:
     n_pixels: int
 
     def to_json(self) -> dict[str, Any]:
-        return {"dark": self.dark, "bright": self.bright,
-                "median_difference": _num(self.median_difference), "n_pixels": self.n_pixels}
+        return {
+            "dark": self.dark,
+            "bright": self.bright,
+            "median_difference": _num(self.median_difference),
+            "n_pixels": self.n_pixels,
+        }
 
 
 @dataclass(frozen=True)
@@ -136,21 +140,20 @@ class ColourCheck:
     @property
     def frame_consistency_wb(self) -> float:
         """:attr:`frame_consistency` with each frame's white balance divided out."""
-        v = [p.median_difference for p in self.frame_pairs_wb
-             if np.isfinite(p.median_difference)]
+        v = [p.median_difference for p in self.frame_pairs_wb if np.isfinite(p.median_difference)]
         return float(np.median(v)) if v else float("nan")
 
     @property
     def frame_consistency_blocks(self) -> float:
         """:attr:`frame_consistency` on block means (:func:`block_consistency`)."""
-        v = [p.median_difference for p in self.frame_pairs_blocks
-             if np.isfinite(p.median_difference)]
+        v = [
+            p.median_difference for p in self.frame_pairs_blocks if np.isfinite(p.median_difference)
+        ]
         return float(np.median(v)) if v else float("nan")
 
     @property
     def frame_consistency_srgb(self) -> float:
-        v = [p.median_difference for p in self.frame_pairs_srgb
-             if np.isfinite(p.median_difference)]
+        v = [p.median_difference for p in self.frame_pairs_srgb if np.isfinite(p.median_difference)]
         return float(np.median(v)) if v else float("nan")
 
     @property
@@ -159,9 +162,13 @@ class ColourCheck:
         :class:`~hdrcore.merge.white_balance.FrameBalance` measurement when one was given)."""
         if self.balance_differs is not None:
             return self.balance_differs
-        return tuple(k for k, (r, _, b) in enumerate(self.white_balance)
-                     if np.isfinite(r) and np.isfinite(b)
-                     and max(abs(r - 1.0), abs(b - 1.0)) > MAX_WB_DIFFERENCE)
+        return tuple(
+            k
+            for k, (r, _, b) in enumerate(self.white_balance)
+            if np.isfinite(r)
+            and np.isfinite(b)
+            and max(abs(r - 1.0), abs(b - 1.0)) > MAX_WB_DIFFERENCE
+        )
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -181,8 +188,8 @@ class ColourCheck:
             "white_balance_differs": list(self.white_balance_differs),
             "well_exposed": list(self.well_exposed),
             "best_frame_errors": [
-                {"frame": k, "median_error": _num(e), "median_error_srgb": _num(es),
-                 "n_pixels": n} for k, (e, es, n) in enumerate(self.best_frame_errors)
+                {"frame": k, "median_error": _num(e), "median_error_srgb": _num(es), "n_pixels": n}
+                for k, (e, es, n) in enumerate(self.best_frame_errors)
             ],
             "frame_colours": [f.to_json() for f in self.frame_colours],
             "status": self.status,
@@ -223,11 +230,15 @@ class FrameColour:
     best_error_balanced: float
 
     def to_json(self) -> dict[str, Any]:
-        return {"frame": self.frame, "well_error": _num(self.well_error),
-                "well_pixels": self.well_pixels, "best_error": _num(self.best_error),
-                "best_pixels": self.best_pixels,
-                "well_error_balanced": _num(self.well_error_balanced),
-                "best_error_balanced": _num(self.best_error_balanced)}
+        return {
+            "frame": self.frame,
+            "well_error": _num(self.well_error),
+            "well_pixels": self.well_pixels,
+            "best_error": _num(self.best_error),
+            "best_pixels": self.best_pixels,
+            "well_error_balanced": _num(self.well_error_balanced),
+            "best_error_balanced": _num(self.best_error_balanced),
+        }
 
 
 def frame_colours(
@@ -253,13 +264,17 @@ def frame_colours(
 
     n = len(frames)
     if n < 1 or not 0 <= reference < n:
-        raise ParameterError("reference frame out of range", expected=f"0..{n - 1}",
-                             found=str(reference))
+        raise ParameterError(
+            "reference frame out of range", expected=f"0..{n - 1}", found=str(reference)
+        )
     rad = np.asarray(radiance)
     h, w = np.asarray(frames[reference]).shape[:2]
     if rad.shape != (h, w, 3):
-        raise ParameterError("radiance must be (H, W, 3) like the frames",
-                             expected=str((h, w, 3)), found=str(rad.shape))
+        raise ParameterError(
+            "radiance must be (H, W, 3) like the frames",
+            expected=str((h, w, 3)),
+            found=str(rad.shape),
+        )
     g = np.ones((n, 3)) if gains is None else np.asarray(gains, dtype=np.float64)
     if g.shape != (n, 3):
         raise ParameterError("gains must be (N, 3)", expected=str((n, 3)), found=str(g.shape))
@@ -283,9 +298,12 @@ def frame_colours(
             ok &= np.asarray(masks[k], bool)[yk, xk]
         levels.append(z)
         valid.append(ok)
-    score = np.stack([
-        np.where(valid[k], -np.max(np.abs(levels[k] / max_level - 0.5), axis=-1), -np.inf)
-        for k in range(n)])
+    score = np.stack(
+        [
+            np.where(valid[k], -np.max(np.abs(levels[k] / max_level - 0.5), axis=-1), -np.inf)
+            for k in range(n)
+        ]
+    )
     best = np.argmax(score, axis=0)
     out = []
     for k in range(n):
@@ -294,12 +312,17 @@ def frame_colours(
         c_bal = chromaticity(lin / g[k])
         well = valid[k]
         sel = well & (best == k)
-        out.append(FrameColour(
-            frame=k,
-            well_error=_median_distance(cm[well], c_plain[well]), well_pixels=int(well.sum()),
-            best_error=_median_distance(cm[sel], c_plain[sel]), best_pixels=int(sel.sum()),
-            well_error_balanced=_median_distance(cm[well], c_bal[well]),
-            best_error_balanced=_median_distance(cm[sel], c_bal[sel])))
+        out.append(
+            FrameColour(
+                frame=k,
+                well_error=_median_distance(cm[well], c_plain[well]),
+                well_pixels=int(well.sum()),
+                best_error=_median_distance(cm[sel], c_plain[sel]),
+                best_pixels=int(sel.sum()),
+                well_error_balanced=_median_distance(cm[well], c_bal[well]),
+                best_error_balanced=_median_distance(cm[sel], c_bal[sel]),
+            )
+        )
     return tuple(out)
 
 
@@ -332,7 +355,7 @@ def block_consistency(
     h, w = frames[reference].shape[:2]
     b = max(1, int(block))
     step = max(b, int(np.ceil(np.sqrt(h * w / max_blocks))))
-    oy, ox = np.mgrid[0:h - b + 1:step, 0:w - b + 1:step]
+    oy, ox = np.mgrid[0 : h - b + 1 : step, 0 : w - b + 1 : step]
     dy, dx = np.mgrid[0:b, 0:b]
     ys = (oy.ravel()[:, None] + dy.ravel()[None, :]).ravel()
     xs = (ox.ravel()[:, None] + dx.ravel()[None, :]).ravel()
@@ -354,8 +377,14 @@ def block_consistency(
     out = []
     for k in range(len(frames) - 1):
         both = oks[k] & oks[k + 1]
-        out.append(FramePairColour(k, k + 1, _median_distance(
-            chromaticity(lins[k][both]), chromaticity(lins[k + 1][both])), int(both.sum())))
+        out.append(
+            FramePairColour(
+                k,
+                k + 1,
+                _median_distance(chromaticity(lins[k][both]), chromaticity(lins[k + 1][both])),
+                int(both.sum()),
+            )
+        )
     return tuple(out)
 
 
@@ -389,19 +418,26 @@ def colour_check(
 
     n = len(frames)
     if n < 1 or not 0 <= reference < n:
-        raise ParameterError("reference frame out of range", expected=f"0..{n - 1}",
-                             found=str(reference))
+        raise ParameterError(
+            "reference frame out of range", expected=f"0..{n - 1}", found=str(reference)
+        )
     rad = np.asarray(radiance)
     h, w = frames[reference].shape[:2]
     if rad.shape[:2] != (h, w) or rad.ndim != 3 or rad.shape[2] != 3:
-        raise ParameterError("radiance must be (H, W, 3) like the frames",
-                             expected=str((h, w, 3)), found=str(rad.shape))
+        raise ParameterError(
+            "radiance must be (H, W, 3) like the frames",
+            expected=str((h, w, 3)),
+            found=str(rad.shape),
+        )
     table = np.asarray(lut, dtype=np.float64)
     if table.ndim == 1:
         table = np.tile(table, (3, 1))
     if table.shape != (3, max_level + 1):
-        raise ParameterError("lut must be (3, max_level + 1)",
-                             expected=str((3, max_level + 1)), found=str(table.shape))
+        raise ParameterError(
+            "lut must be (3, max_level + 1)",
+            expected=str((3, max_level + 1)),
+            found=str(table.shape),
+        )
     step = max(1, int(np.ceil(np.sqrt(h * w / max_samples))))
     ys, xs = np.mgrid[0:h:step, 0:w:step]
     ys = ys.ravel()
@@ -437,29 +473,47 @@ def colour_check(
     err_srgb = _median_distance(cm, chromaticity(linear(reference, srgb)[ref_ok]))
 
     # every frame against the merge where it is the best exposed (nearest mid-grey) frame
-    score = np.stack([
-        np.where(valid[k], -np.max(np.abs(levels[k] / max_level - 0.5), axis=-1), -np.inf)
-        for k in range(n)
-    ])
+    score = np.stack(
+        [
+            np.where(valid[k], -np.max(np.abs(levels[k] / max_level - 0.5), axis=-1), -np.inf)
+            for k in range(n)
+        ]
+    )
     best = np.argmax(score, axis=0)
     mok = np.all(np.isfinite(merged), axis=-1) & (merged.sum(axis=-1) > 0)
     best_errors = []
     for k in range(n):
         sel = (best == k) & valid[k] & mok
-        best_errors.append((
-            _median_distance(chromaticity(merged[sel]), chromaticity(linear(k)[sel])),
-            _median_distance(chromaticity(merged[sel]), chromaticity(linear(k, srgb)[sel])),
-            int(sel.sum()),
-        ))
+        best_errors.append(
+            (
+                _median_distance(chromaticity(merged[sel]), chromaticity(linear(k)[sel])),
+                _median_distance(chromaticity(merged[sel]), chromaticity(linear(k, srgb)[sel])),
+                int(sel.sum()),
+            )
+        )
 
     pairs, pairs_srgb = [], []
     for k in range(n - 1):
         both = valid[k] & valid[k + 1]
         cnt = int(both.sum())
-        pairs.append(FramePairColour(k, k + 1, _median_distance(
-            chromaticity(linear(k)[both]), chromaticity(linear(k + 1)[both])), cnt))
-        pairs_srgb.append(FramePairColour(k, k + 1, _median_distance(
-            chromaticity(linear(k, srgb)[both]), chromaticity(linear(k + 1, srgb)[both])), cnt))
+        pairs.append(
+            FramePairColour(
+                k,
+                k + 1,
+                _median_distance(chromaticity(linear(k)[both]), chromaticity(linear(k + 1)[both])),
+                cnt,
+            )
+        )
+        pairs_srgb.append(
+            FramePairColour(
+                k,
+                k + 1,
+                _median_distance(
+                    chromaticity(linear(k, srgb)[both]), chromaticity(linear(k + 1, srgb)[both])
+                ),
+                cnt,
+            )
+        )
 
     own_gains = None
     wb: list[tuple[float, float, float]]
@@ -486,42 +540,77 @@ def colour_check(
     pairs_wb = []
     for k in range(n - 1):
         both = valid[k] & valid[k + 1]
-        pairs_wb.append(FramePairColour(k, k + 1, _median_distance(
-            chromaticity(linear(k)[both] / gains[k]),
-            chromaticity(linear(k + 1)[both] / gains[k + 1])), int(both.sum())))
-    own = frame_colours(frames, rad, max_level=max_level, reference=reference,
-                        to_reference=to_reference, masks=masks,
-                        gains=np.asarray(gains) if own_gains is None else own_gains,
-                        max_samples=max_samples, well_exposed=well_exposed)
+        pairs_wb.append(
+            FramePairColour(
+                k,
+                k + 1,
+                _median_distance(
+                    chromaticity(linear(k)[both] / gains[k]),
+                    chromaticity(linear(k + 1)[both] / gains[k + 1]),
+                ),
+                int(both.sum()),
+            )
+        )
+    own = frame_colours(
+        frames,
+        rad,
+        max_level=max_level,
+        reference=reference,
+        to_reference=to_reference,
+        masks=masks,
+        gains=np.asarray(gains) if own_gains is None else own_gains,
+        max_samples=max_samples,
+        well_exposed=well_exposed,
+    )
 
     status = "ok"
-    parts = [f"merge vs reference frame {reference}: median chromaticity error {err:.4f} "
-             f"(against its sRGB decoding {err_srgb:.4f}) over {int(ref_ok.sum())} pixels"]
+    parts = [
+        f"merge vs reference frame {reference}: median chromaticity error {err:.4f} "
+        f"(against its sRGB decoding {err_srgb:.4f}) over {int(ref_ok.sum())} pixels"
+    ]
     if np.isfinite(err) and err > MAX_MERGE_ERROR:
         status = "drift"
         parts.append(f"the merge's colours drift from the frame's (over {MAX_MERGE_ERROR})")
     check = ColourCheck(
-        reference=reference, merge_error=err, merge_error_srgb=err_srgb,
-        n_pixels=int(ref_ok.sum()), frame_pairs=tuple(pairs), frame_pairs_srgb=tuple(pairs_srgb),
-        white_balance=tuple(wb), status=status, message="",
+        reference=reference,
+        merge_error=err,
+        merge_error_srgb=err_srgb,
+        n_pixels=int(ref_ok.sum()),
+        frame_pairs=tuple(pairs),
+        frame_pairs_srgb=tuple(pairs_srgb),
+        white_balance=tuple(wb),
+        status=status,
+        message="",
         well_exposed=(well_exposed[0], well_exposed[1]),
-        best_frame_errors=tuple(best_errors), frame_pairs_wb=tuple(pairs_wb),
+        best_frame_errors=tuple(best_errors),
+        frame_pairs_wb=tuple(pairs_wb),
         frame_colours=own,
         balance_differs=None if balance is None else tuple(balance.differs),
-        frame_pairs_blocks=frame_pairs_blocks if frame_pairs_blocks is not None
-        else block_consistency(frames, table, max_level=max_level, reference=reference,
-                               to_reference=to_reference, masks=masks,
-                               well_exposed=well_exposed),
+        frame_pairs_blocks=frame_pairs_blocks
+        if frame_pairs_blocks is not None
+        else block_consistency(
+            frames,
+            table,
+            max_level=max_level,
+            reference=reference,
+            to_reference=to_reference,
+            masks=masks,
+            well_exposed=well_exposed,
+        ),
     )
     cons = check.frame_consistency
     if np.isfinite(cons):
-        parts.append(f"consecutive frames agree to {cons:.4f} (on {CONSISTENCY_BLOCK}x"
-                     f"{CONSISTENCY_BLOCK}-pixel means {check.frame_consistency_blocks:.4f}; "
-                     f"sRGB-decoded: {check.frame_consistency_srgb:.4f})")
+        parts.append(
+            f"consecutive frames agree to {cons:.4f} (on {CONSISTENCY_BLOCK}x"
+            f"{CONSISTENCY_BLOCK}-pixel means {check.frame_consistency_blocks:.4f}; "
+            f"sRGB-decoded: {check.frame_consistency_srgb:.4f})"
+        )
     odd = check.white_balance_differs
     if odd:
-        parts.append("white balance differs from the reference in frame(s) "
-                     + ", ".join(f"{k} (R/G x{wb[k][0]:.3f}, B/G x{wb[k][2]:.3f})" for k in odd))
+        parts.append(
+            "white balance differs from the reference in frame(s) "
+            + ", ".join(f"{k} (R/G x{wb[k][0]:.3f}, B/G x{wb[k][2]:.3f})" for k in odd)
+        )
     return ColourCheck(**{**check.__dict__, "message": "; ".join(parts)})
 
 
@@ -571,11 +660,15 @@ class ColourAnchor:
     own_colour_fraction: float = 0.0
 
     def to_json(self) -> dict[str, Any]:
-        return {"step": self.step, "max_shift": _num(self.max_shift),
-                "median_shift": _num(self.median_shift),
-                "frame_shares": [float(v) for v in self.frame_shares], "decode": self.decode,
-                "white_balance": [list(g) for g in self.white_balance],
-                "own_colour_fraction": self.own_colour_fraction}
+        return {
+            "step": self.step,
+            "max_shift": _num(self.max_shift),
+            "median_shift": _num(self.median_shift),
+            "frame_shares": [float(v) for v in self.frame_shares],
+            "decode": self.decode,
+            "white_balance": [list(g) for g in self.white_balance],
+            "own_colour_fraction": self.own_colour_fraction,
+        }
 
 
 def _redecode_table(lut: np.ndarray, decode: np.ndarray, size: int = 16384) -> np.ndarray:
@@ -609,8 +702,22 @@ def _redecode(values: np.ndarray, log_time: np.ndarray, table: np.ndarray) -> np
 _LUMA = (0.2126, 0.7152, 0.0722)
 
 
-def _apply_numpy(rad, fields, step, shares, log_t, redecode, ref_frame, table, noise_floor,
-                 saturation, max_level, rows_per_chunk, pixel_log_time, band) -> None:
+def _apply_numpy(
+    rad,
+    fields,
+    step,
+    shares,
+    log_t,
+    redecode,
+    ref_frame,
+    table,
+    noise_floor,
+    saturation,
+    max_level,
+    rows_per_chunk,
+    pixel_log_time,
+    band,
+) -> None:
     """The full-resolution pass of :func:`anchor_colour` in numpy (the numba kernel's spec)."""
     h, w = rad.shape[:2]
     shape = fields.shape[:2]
@@ -646,8 +753,9 @@ def _apply_numpy(rad, fields, step, shares, log_t, redecode, ref_frame, table, n
             s_ref = lin.sum(axis=-1, keepdims=True)
             s_col = col.sum(axis=-1, keepdims=True)
             a = np.where((s_ref[..., 0] > 0) & (s_col[..., 0] > 0), a, 0.0)[..., None]
-            col = (1 - a) * col / np.where(s_col > 0, s_col, 1) \
-                + a * lin / np.where(s_ref > 0, s_ref, 1)
+            col = (1 - a) * col / np.where(s_col > 0, s_col, 1) + a * lin / np.where(
+                s_ref > 0, s_ref, 1
+            )
         y_new = col @ lum
         usable = np.isfinite(y_new) & (y_new > 0) & np.isfinite(y_old) & (y_old > 0)
         scale = np.where(usable, y_old / np.where(usable, y_new, 1.0), 0.0)
@@ -655,9 +763,25 @@ def _apply_numpy(rad, fields, step, shares, log_t, redecode, ref_frame, table, n
 
 
 @_njit
-def _anchor_rows(rad, fields, step, shares, log_t, redecode, ref, table, noise_floor,
-                 saturation, max_level, use_redecode, use_ref, r0, r1, sh_off,
-                 band):  # pragma: no cover
+def _anchor_rows(
+    rad,
+    fields,
+    step,
+    shares,
+    log_t,
+    redecode,
+    ref,
+    table,
+    noise_floor,
+    saturation,
+    max_level,
+    use_redecode,
+    use_ref,
+    r0,
+    r1,
+    sh_off,
+    band,
+):  # pragma: no cover
     w = rad.shape[1]
     gh, gw = fields.shape[0], fields.shape[1]
     n = shares.shape[0]
@@ -747,8 +871,20 @@ def _anchor_rows(rad, fields, step, shares, log_t, redecode, ref, table, noise_f
                     rad[y, x, c] = col[c] * sc
 
 
-def _apply_numba(rad, fields, step, shares, log_t, redecode, ref_frame, table, noise_floor,
-                 saturation, max_level, band) -> None:
+def _apply_numba(
+    rad,
+    fields,
+    step,
+    shares,
+    log_t,
+    redecode,
+    ref_frame,
+    table,
+    noise_floor,
+    saturation,
+    max_level,
+    band,
+) -> None:
     """The full-resolution pass of :func:`anchor_colour` with the numba kernel, row spans on
     up to two threads (it releases the GIL)."""
     use_redecode = redecode is not None
@@ -763,9 +899,25 @@ def _apply_numba(rad, fields, step, shares, log_t, redecode, ref_frame, table, n
     def rows(r0: int, r1: int) -> None:
         # numba has no float16: the shares of these rows as float32
         part = sh[:, r0:r1].astype(np.float32) if use_redecode else sh.astype(np.float32)
-        _anchor_rows(rad, fields, int(step), part, lt, rd, ref, tab, float(noise_floor),
-                     float(saturation), int(max_level), use_redecode, use_ref, r0, r1,
-                     r0 if use_redecode else 0, bands)
+        _anchor_rows(
+            rad,
+            fields,
+            int(step),
+            part,
+            lt,
+            rd,
+            ref,
+            tab,
+            float(noise_floor),
+            float(saturation),
+            int(max_level),
+            use_redecode,
+            use_ref,
+            r0,
+            r1,
+            r0 if use_redecode else 0,
+            bands,
+        )
 
     run_row_spans(rad.shape[0], None, rows)
 
@@ -786,8 +938,27 @@ FRAME_SIGMA = 0.1
 
 
 @_njit
-def _frame_band_rows(acc, wsum, amax, frame, hmat, has_h, mask, has_mask, table, gains, lo,
-                     hi, ramp, inv_2s2, floor, sat, max_level, r0, r1):  # pragma: no cover
+def _frame_band_rows(
+    acc,
+    wsum,
+    amax,
+    frame,
+    hmat,
+    has_h,
+    mask,
+    has_mask,
+    table,
+    gains,
+    lo,
+    hi,
+    ramp,
+    inv_2s2,
+    floor,
+    sat,
+    max_level,
+    r0,
+    r1,
+):  # pragma: no cover
     """One frame's contribution to :func:`_frame_band` over output rows ``r0..r1``."""
     fh, fw = frame.shape[0], frame.shape[1]
     w = acc.shape[1]
@@ -864,8 +1035,22 @@ def _blend_rows(rad, acc, wsum, amax, r0, r1):  # pragma: no cover - compiled
                 rad[y, x, 2] = np.float32(q2 * k)
 
 
-def _band_numpy(acc, wsum, amax, frame, hmat, mask, table, gains, band, inv_2s2, floor, sat,
-                max_level, rows_per_chunk) -> None:
+def _band_numpy(
+    acc,
+    wsum,
+    amax,
+    frame,
+    hmat,
+    mask,
+    table,
+    gains,
+    band,
+    inv_2s2,
+    floor,
+    sat,
+    max_level,
+    rows_per_chunk,
+) -> None:
     """:func:`_frame_band_rows` in numpy (the spec, and the path without numba)."""
     h, w = acc.shape[:2]
     fh, fw = frame.shape[:2]
@@ -893,7 +1078,8 @@ def _band_numpy(acc, wsum, amax, frame, hmat, mask, table, gains, band, inv_2s2,
         ok &= (bw > 0) & (tot > 0)
         wk = np.where(ok, bw * np.exp(-np.sum((v - 0.5) ** 2, axis=-1) * inv_2s2), 0.0)
         acc[r0:r1] += (wk[..., None] * lin / np.where(tot > 0, tot, 1.0)[..., None]).astype(
-            np.float32)
+            np.float32
+        )
         wsum[r0:r1] += wk.astype(np.float32)
         np.maximum(amax[r0:r1], np.where(ok, bw, 0.0).astype(np.float32), out=amax[r0:r1])
 
@@ -909,16 +1095,31 @@ def _blend_numpy(rad, acc, wsum, amax, rows_per_chunk) -> None:
         a = amax[r0:r1].astype(np.float64)
         ws = wsum[r0:r1].astype(np.float64)
         use = (a > 0) & (ws > 0) & (y_old > 0) & (s > 0) & np.isfinite(y_old)
-        q = ((1 - a)[..., None] * col / np.where(s > 0, s, 1.0)[..., None]
-             + a[..., None] * acc[r0:r1] / np.where(ws > 0, ws, 1.0)[..., None])
+        q = (1 - a)[..., None] * col / np.where(s > 0, s, 1.0)[..., None] + a[..., None] * acc[
+            r0:r1
+        ] / np.where(ws > 0, ws, 1.0)[..., None]
         y_new = q @ lum
         use &= y_new > 0
         k = np.where(use, y_old / np.where(use, y_new, 1.0), 0.0)
         rad[r0:r1] = np.where(use[..., None], q * k[..., None], col).astype(np.float32)
 
 
-def _frame_band(rad, frames, table, gains, *, max_level, noise_floor, saturation, reference,
-                to_reference, masks, band, sigma, rows_per_chunk=256) -> float:
+def _frame_band(
+    rad,
+    frames,
+    table,
+    gains,
+    *,
+    max_level,
+    noise_floor,
+    saturation,
+    reference,
+    to_reference,
+    masks,
+    band,
+    sigma,
+    rows_per_chunk=256,
+) -> float:
     """Step 3 of :func:`anchor_colour` with ``frame_band``: every pixel's chromaticity from the
     frames well exposed there (each frame's decoded colour, its white balance divided out),
     mixed with weights that favour the frame nearest mid-grey; luminance kept. Returns the
@@ -944,16 +1145,56 @@ def _frame_band(rad, frames, table, gains, *, max_level, noise_floor, saturation
             hm = hmat if hmat is not None else np.eye(3)
             mk = np.ascontiguousarray(mask) if mask is not None else np.zeros((1, 1), bool)
 
-            def rows(r0: int, r1: int, frame=frame, hm=hm, mk=mk, g=g,
-                     has_h=hmat is not None, has_m=mask is not None) -> None:
-                _frame_band_rows(acc, wsum, amax, frame, hm, has_h, mk, has_m, tab, g,
-                                 float(band[0]), float(band[1]), float(band[2]), inv_2s2,
-                                 float(noise_floor), float(saturation), int(max_level), r0, r1)
+            def rows(
+                r0: int,
+                r1: int,
+                frame=frame,
+                hm=hm,
+                mk=mk,
+                g=g,
+                has_h=hmat is not None,
+                has_m=mask is not None,
+            ) -> None:
+                _frame_band_rows(
+                    acc,
+                    wsum,
+                    amax,
+                    frame,
+                    hm,
+                    has_h,
+                    mk,
+                    has_m,
+                    tab,
+                    g,
+                    float(band[0]),
+                    float(band[1]),
+                    float(band[2]),
+                    inv_2s2,
+                    float(noise_floor),
+                    float(saturation),
+                    int(max_level),
+                    r0,
+                    r1,
+                )
 
             run_row_spans(h, None, rows)
         else:  # pragma: no cover - exercised only without numba
-            _band_numpy(acc, wsum, amax, frame, hmat, mask, tab, g, band, inv_2s2,
-                        float(noise_floor), float(saturation), int(max_level), rows_per_chunk)
+            _band_numpy(
+                acc,
+                wsum,
+                amax,
+                frame,
+                hmat,
+                mask,
+                tab,
+                g,
+                band,
+                inv_2s2,
+                float(noise_floor),
+                float(saturation),
+                int(max_level),
+                rows_per_chunk,
+            )
     if AVAILABLE:
         run_row_spans(h, None, lambda r0, r1: _blend_rows(rad, acc, wsum, amax, r0, r1))
     else:  # pragma: no cover - exercised only without numba
@@ -1031,10 +1272,16 @@ def anchor_colour(
     gains_in = None
     if gains is not None:
         gains_in = np.asarray(gains, dtype=np.float64)
-        if gains_in.shape != (len(frames), 3) or not np.all(np.isfinite(gains_in)) \
-                or np.any(gains_in <= 0):
-            raise ParameterError("gains must be (N, 3), finite and positive",
-                                 expected=f"({len(frames)}, 3)", found=str(gains_in.shape))
+        if (
+            gains_in.shape != (len(frames), 3)
+            or not np.all(np.isfinite(gains_in))
+            or np.any(gains_in <= 0)
+        ):
+            raise ParameterError(
+                "gains must be (N, 3), finite and positive",
+                expected=f"({len(frames)}, 3)",
+                found=str(gains_in.shape),
+            )
     table = np.asarray(decode, dtype=np.float64)
     if table.ndim == 1:
         table = np.tile(table, (3, 1))
@@ -1127,8 +1374,11 @@ def anchor_colour(
     d = blur(den)
     target = np.stack([blur(num_t[:, c]) for c in range(3)], axis=-1)
     own = np.stack([blur(num_m[:, c]) for c in range(3)], axis=-1)
-    good = (d > 1e-6 * max(float(d.max()), 1e-300)) & np.all(own > 0, axis=-1) \
+    good = (
+        (d > 1e-6 * max(float(d.max()), 1e-300))
+        & np.all(own > 0, axis=-1)
         & np.all(target > 0, axis=-1)
+    )
     gain = np.ones((ys.size, 3))
     gain[good] = target[good] / own[good]
     shift = np.hypot(*(target[good, :2] / d[good, None] - own[good, :2] / d[good, None]).T)
@@ -1137,21 +1387,58 @@ def anchor_colour(
         alpha[good] = np.clip(blur(ref_weight)[good] / d[good], 0.0, 1.0)
     fields = np.concatenate([gain, alpha[:, None]], axis=-1).reshape(*shape, 4)
 
-    ref_frame = None if reference is None or frame_band is not None \
-        else np.asarray(frames[reference])
+    ref_frame = (
+        None if reference is None or frame_band is not None else np.asarray(frames[reference])
+    )
     if AVAILABLE:
-        _apply_numba(rad, fields.astype(np.float32), step, shares, log_t, redecode, ref_frame,
-                     table, noise_floor, saturation, max_level, reference_band)
+        _apply_numba(
+            rad,
+            fields.astype(np.float32),
+            step,
+            shares,
+            log_t,
+            redecode,
+            ref_frame,
+            table,
+            noise_floor,
+            saturation,
+            max_level,
+            reference_band,
+        )
     else:  # pragma: no cover - exercised only without numba
-        _apply_numpy(rad, fields, step, shares, log_t, redecode, ref_frame, table,
-                     noise_floor, saturation, max_level, rows_per_chunk, pixel_log_time,
-                     reference_band)
+        _apply_numpy(
+            rad,
+            fields,
+            step,
+            shares,
+            log_t,
+            redecode,
+            ref_frame,
+            table,
+            noise_floor,
+            saturation,
+            max_level,
+            rows_per_chunk,
+            pixel_log_time,
+            reference_band,
+        )
     own_fraction = 0.0
     if frame_band is not None:
-        own_fraction = _frame_band(rad, frames, table, frame_gains, max_level=max_level,
-                          noise_floor=noise_floor, saturation=saturation, reference=reference,
-                          to_reference=to_reference, masks=masks, band=frame_band,
-                          sigma=frame_sigma, rows_per_chunk=rows_per_chunk)
+        own_fraction = _frame_band(
+            rad,
+            frames,
+            table,
+            frame_gains,
+            max_level=max_level,
+            noise_floor=noise_floor,
+            saturation=saturation,
+            reference=reference,
+            to_reference=to_reference,
+            masks=masks,
+            band=frame_band,
+            sigma=frame_sigma,
+            rows_per_chunk=rows_per_chunk,
+        )
     total = max(sum(shares_out), 1e-300)
     return ColourAnchor(
         step=step,
@@ -1180,12 +1467,12 @@ class ColourResult:
 
     def to_json(self) -> dict[str, Any]:
         return {
-            "white_balance": None if self.white_balance is None
-            else self.white_balance.to_json(),
+            "white_balance": None if self.white_balance is None else self.white_balance.to_json(),
             "before": self.before.to_json(),
             "after": self.after.to_json(),
             "anchor": None if self.anchor is None else self.anchor.to_json(),
-            "local_tone_mapping": None if self.local_tone_mapping is None
+            "local_tone_mapping": None
+            if self.local_tone_mapping is None
             else self.local_tone_mapping.to_json(),
             "message": self.message,
         }
@@ -1219,12 +1506,14 @@ def check_colour(
     from ..response.local_tonemap import local_tone_mapping
     from .white_balance import correct_merge, measure_white_balance
 
-    kw: dict[str, Any] = dict(max_level=max_level, reference=reference,
-                              to_reference=to_reference, masks=masks)
+    kw: dict[str, Any] = dict(
+        max_level=max_level, reference=reference, to_reference=to_reference, masks=masks
+    )
     balance = measure_white_balance(frames, lut, **kw)
     before = colour_check(frames, radiance, lut, **kw, balance=balance)
-    ltm = local_tone_mapping(frames, lut, max_level=max_level, to_reference=to_reference,
-                             reference=reference)
+    ltm = local_tone_mapping(
+        frames, lut, max_level=max_level, to_reference=to_reference, reference=reference
+    )
     correction = balance.correction()
     if white_balance and balance.differs and shares is not None:
         correct_merge(radiance, shares, correction)
@@ -1232,34 +1521,57 @@ def check_colour(
     done = None
     after = before
     if anchor:
-        done = anchor_colour(radiance, frames, srgb_decode_lut(max_level), max_level=max_level,
-                             saturation=saturation, noise_floor=noise_floor,
-                             to_reference=to_reference, masks=masks, reference=reference,
-                             lut=lut, exposure_times=exposure_times, shares=shares,
-                             reference_band=reference_band,
-                             gains=balance.correction(every_measured=False)
-                             if balance.applied else None,
-                             frame_band=frame_band)
+        done = anchor_colour(
+            radiance,
+            frames,
+            srgb_decode_lut(max_level),
+            max_level=max_level,
+            saturation=saturation,
+            noise_floor=noise_floor,
+            to_reference=to_reference,
+            masks=masks,
+            reference=reference,
+            lut=lut,
+            exposure_times=exposure_times,
+            shares=shares,
+            reference_band=reference_band,
+            gains=balance.correction(every_measured=False) if balance.applied else None,
+            frame_band=frame_band,
+        )
     if anchor or balance.applied:
-        after = colour_check(frames, radiance, lut, **kw, balance=balance,
-                             frame_pairs_blocks=before.frame_pairs_blocks)
+        after = colour_check(
+            frames,
+            radiance,
+            lut,
+            **kw,
+            balance=balance,
+            frame_pairs_blocks=before.frame_pairs_blocks,
+        )
     parts = []
     if balance.applied:
         parts.append("white balance corrected: " + balance.message)
     else:
         parts.append(balance.message)
     if done is not None:
-        best = [f.best_error_balanced for f in after.frame_colours
-                if np.isfinite(f.best_error_balanced)]
+        best = [
+            f.best_error_balanced for f in after.frame_colours if np.isfinite(f.best_error_balanced)
+        ]
         parts.append(
             "colour anchored to the frames (sRGB-decoded: each pixel the colour of the frames "
             "well exposed there, the one nearest mid-grey first): median error against each "
             "frame where it is the best exposed at most "
             + (f"{max(best):.4f}" if best else "n/a")
             + f"; against reference frame {reference} "
-            f"{before.merge_error_srgb:.4f} -> {after.merge_error_srgb:.4f}")
+            f"{before.merge_error_srgb:.4f} -> {after.merge_error_srgb:.4f}"
+        )
     else:
         parts.append(after.message)
     parts.append(ltm.message)
-    return ColourResult(before=before, after=after, anchor=done, local_tone_mapping=ltm,
-                        message="; ".join(parts), white_balance=balance)
+    return ColourResult(
+        before=before,
+        after=after,
+        anchor=done,
+        local_tone_mapping=ltm,
+        message="; ".join(parts),
+        white_balance=balance,
+    )

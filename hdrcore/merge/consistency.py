@@ -143,22 +143,34 @@ class GhostTestParams:
     def __post_init__(self) -> None:
         for name in ("block", "min_blocks", "level_bins", "sample_pixels", "min_bin_samples"):
             if int(getattr(self, name)) < 1:
-                raise ParameterError(f"ghost test {name} must be >= 1",
-                                     found=str(getattr(self, name)))
+                raise ParameterError(
+                    f"ghost test {name} must be >= 1", found=str(getattr(self, name))
+                )
         if not 0.0 <= float(self.edge_margin) < 0.5:
-            raise ParameterError("ghost test edge_margin must be in [0, 0.5)",
-                                 found=str(self.edge_margin))
+            raise ParameterError(
+                "ghost test edge_margin must be in [0, 0.5)", found=str(self.edge_margin)
+            )
         if not 0.0 < float(self.min_shared) <= 1.0:
-            raise ParameterError("ghost test min_shared must be in (0, 1]",
-                                 found=str(self.min_shared))
-        for name in ("z", "min_change", "registration_error", "direct_error", "scale_floor",
-                     "level_error", "max_bias"):
+            raise ParameterError(
+                "ghost test min_shared must be in (0, 1]", found=str(self.min_shared)
+            )
+        for name in (
+            "z",
+            "min_change",
+            "registration_error",
+            "direct_error",
+            "scale_floor",
+            "level_error",
+            "max_bias",
+        ):
             v = float(getattr(self, name))
             if not np.isfinite(v) or v < 0:
                 raise ParameterError(f"ghost test {name} must be finite and >= 0", found=str(v))
         if int(self.pixel_step) < 1 or int(self.block) % int(self.pixel_step):
-            raise ParameterError("ghost test pixel_step must be >= 1 and divide the block",
-                                 found=f"pixel_step {self.pixel_step}, block {self.block}")
+            raise ParameterError(
+                "ghost test pixel_step must be >= 1 and divide the block",
+                found=f"pixel_step {self.pixel_step}, block {self.block}",
+            )
         if int(self.pixel_grow) < 0:
             raise ParameterError("ghost test pixel_grow must be >= 0", found=str(self.pixel_grow))
 
@@ -194,22 +206,50 @@ class _Tables:
         the bin -1 where the level is not compared (the compiled kernel's one lookup)."""
         if not self.integer:
             return np.zeros((1, 1, 4))
-        return np.ascontiguousarray(np.stack(
-            [self.ln_x, self.rel_var, self.add_var,
-             np.where(self.ok, self.lbin, -1).astype(np.float64)], axis=-1))
+        return np.ascontiguousarray(
+            np.stack(
+                [
+                    self.ln_x,
+                    self.rel_var,
+                    self.add_var,
+                    np.where(self.ok, self.lbin, -1).astype(np.float64),
+                ],
+                axis=-1,
+            )
+        )
 
 
-def _tables(frames: Sequence[np.ndarray], c: int, lut: np.ndarray | None, max_level: int | None,
-            noise: NoiseModel, saturation: Sequence[float], floor: float, margin: float,
-            bins: int, level_error: float = 0.0) -> _Tables:
+def _tables(
+    frames: Sequence[np.ndarray],
+    c: int,
+    lut: np.ndarray | None,
+    max_level: int | None,
+    noise: NoiseModel,
+    saturation: Sequence[float],
+    floor: float,
+    margin: float,
+    bins: int,
+    level_error: float = 0.0,
+) -> _Tables:
     integer = frames[0].dtype.kind == "u"
     sat = np.broadcast_to(np.asarray(saturation, np.float64).ravel(), (c,)).copy()
     const = noise.read_noise**2
     shot = float(noise.shot_gain)
     if not integer:
         z = np.zeros((1, 1))
-        return _Tables(False, z, z, z, np.zeros((1, 1), np.int64), np.zeros((1, 1), bool), sat,
-                       float(floor), shot, float(max(const, 1e-12)), int(bins))
+        return _Tables(
+            False,
+            z,
+            z,
+            z,
+            np.zeros((1, 1), np.int64),
+            np.zeros((1, 1), bool),
+            sat,
+            float(floor),
+            shot,
+            float(max(const, 1e-12)),
+            int(bins),
+        )
     g = None
     if lut is not None:
         g = np.asarray(lut, np.float64)
@@ -223,8 +263,11 @@ def _tables(frames: Sequence[np.ndarray], c: int, lut: np.ndarray | None, max_le
     levels = g.shape[1] if g is not None else int(max_level) + 1
     if top >= levels:
         if g is not None:
-            raise ParameterError("levels above max_level have no response LUT entry",
-                                 expected=f"levels 0..{levels - 1}", found=str(top))
+            raise ParameterError(
+                "levels above max_level have no response LUT entry",
+                expected=f"levels 0..{levels - 1}",
+                found=str(top),
+            )
         levels = top + 1
     lv = np.arange(levels, dtype=np.float64)
     inv_max = 1.0 / float(max_level)
@@ -245,10 +288,19 @@ def _tables(frames: Sequence[np.ndarray], c: int, lut: np.ndarray | None, max_le
         rel = np.where(x > 0, var / np.where(x > 0, x, 1.0) ** 2, 0.0)
         add = np.where(x > 0, add / np.where(x > 0, x, 1.0) ** 2, 0.0)
     lbin = np.clip((lv * inv_max * bins).astype(np.int64), 0, bins - 1)
-    return _Tables(True, np.ascontiguousarray(ln_x), np.ascontiguousarray(rel),
-                   np.ascontiguousarray(add), np.ascontiguousarray(np.tile(lbin, (c, 1))),
-                   np.ascontiguousarray(ok), sat, float(floor), shot, float(max(const, 1e-12)),
-                   int(bins))
+    return _Tables(
+        True,
+        np.ascontiguousarray(ln_x),
+        np.ascontiguousarray(rel),
+        np.ascontiguousarray(add),
+        np.ascontiguousarray(np.tile(lbin, (c, 1))),
+        np.ascontiguousarray(ok),
+        sat,
+        float(floor),
+        shot,
+        float(max(const, 1e-12)),
+        int(bins),
+    )
 
 
 #: Most frames the compiled ghost test takes (more: the numpy reference).
@@ -262,9 +314,31 @@ def _read_only(a: np.ndarray, dtype) -> np.ndarray:
 
 
 @_njit
-def _chain_rows(n, fl, ml, integer, tab, sat, floor, shot, const_var, bins, has_t, ts, has_mask,
-                ln_t, y0, gh, gw, stride, hist, bias, b, sums,
-                count):  # pragma: no cover - compiled
+def _chain_rows(
+    n,
+    fl,
+    ml,
+    integer,
+    tab,
+    sat,
+    floor,
+    shot,
+    const_var,
+    bins,
+    has_t,
+    ts,
+    has_mask,
+    ln_t,
+    y0,
+    gh,
+    gw,
+    stride,
+    hist,
+    bias,
+    b,
+    sums,
+    count,
+):  # pragma: no cover - compiled
     """Every frame (``fl[s]``, ``s < n``, rank ``s`` in exposure order, ``ml[s]`` its mask in
     output coordinates) over the output pixels ``(y0 + stride // 2 + i * stride, stride // 2 + j *
     stride)``, ``i < gh``, ``j < gw``: one output row at a time, the frames in exposure order
@@ -439,30 +513,36 @@ def _chains_numpy(fs, order, t: _Tables, has_t, ts, ms, ln_t, ys, xs):
 
 def _transfer_hist_numpy(fs, order, t: _Tables, has_t, ts, ms, ln_t, stride, hist) -> None:
     h, w = fs[0].shape[:2]
-    ys, xs = np.mgrid[stride // 2:h:stride, stride // 2:w:stride]
+    ys, xs = np.mgrid[stride // 2 : h : stride, stride // 2 : w : stride]
     hb = hist.shape[3]
-    for q, s, sel, ln_a, _, _, lb_a, ln_b, _, _ in _chains_numpy(fs, order, t, has_t, ts, ms,
-                                                                 ln_t, ys, xs):
+    for q, s, sel, ln_a, _, _, lb_a, ln_b, _, _ in _chains_numpy(
+        fs, order, t, has_t, ts, ms, ln_t, ys, xs
+    ):
         if q != s - 1:
             continue
-        j = np.clip(np.floor((ln_b - ln_a + _HIST_RANGE) * (hb / (2.0 * _HIST_RANGE)))
-                    .astype(np.int64), 0, hb - 1)
+        j = np.clip(
+            np.floor((ln_b - ln_a + _HIST_RANGE) * (hb / (2.0 * _HIST_RANGE))).astype(np.int64),
+            0,
+            hb - 1,
+        )
         for ch in range(ln_a.shape[-1]):
             m = sel[..., ch]
             np.add.at(hist[q, ch], (lb_a[..., ch][m], j[..., ch][m]), 1)
 
 
-def _residuals_numpy(fs, order, t: _Tables, has_t, ts, ms, ln_t, bias, b, swr, sw, sa, la, lb,
-                     count, step: int = 1) -> None:
+def _residuals_numpy(
+    fs, order, t: _Tables, has_t, ts, ms, ln_t, bias, b, swr, sw, sa, la, lb, count, step: int = 1
+) -> None:
     hb, wb = count.shape[2:]
-    ys, xs = np.mgrid[step // 2:hb * b:step, step // 2:wb * b:step]
+    ys, xs = np.mgrid[step // 2 : hb * b : step, step // 2 : wb * b : step]
     bs = b // step
 
     def bsum(a: np.ndarray) -> np.ndarray:
         return np.moveaxis(a.reshape(hb, bs, wb, bs, a.shape[-1]).sum(axis=(1, 3)), -1, 0)
 
     for q, s, sel, ln_a, rv_a, ad_a, lb_a, ln_b, rv_b, ad_b in _chains_numpy(
-            fs, order, t, has_t, ts, ms, ln_t, ys, xs):
+        fs, order, t, has_t, ts, ms, ln_t, ys, xs
+    ):
         c = ln_a.shape[-1]
         corr = np.stack([bias[q, ch][lb_a[..., ch]] for ch in range(c)], -1)
         if q != s - 1:
@@ -489,8 +569,10 @@ def _hist_median(h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     cum = np.cumsum(h, axis=-1)
     half = 0.5 * n
     j = np.argmax(cum >= half[..., None], axis=-1)
-    before = np.take_along_axis(cum, j[..., None], axis=-1)[..., 0] - np.take_along_axis(
-        h, j[..., None], axis=-1)[..., 0]
+    before = (
+        np.take_along_axis(cum, j[..., None], axis=-1)[..., 0]
+        - np.take_along_axis(h, j[..., None], axis=-1)[..., 0]
+    )
     inside = np.take_along_axis(h, j[..., None], axis=-1)[..., 0]
     width = 2.0 * _HIST_RANGE / h.shape[-1]
     frac = np.where(inside > 0, (half - before) / np.maximum(inside, 1), 0.5)
@@ -517,8 +599,9 @@ def _transfer_bias(hist: np.ndarray, p: GhostTestParams) -> tuple[np.ndarray, li
             for i in range(nb):
                 dist = np.abs(own - i)
                 k = max(3, int(np.sum(dist <= 2)))
-                bias[q, ch, i] = float(np.median(med[q, ch, own[np.argsort(dist,
-                                                                          kind="stable")[:k]]]))
+                bias[q, ch, i] = float(
+                    np.median(med[q, ch, own[np.argsort(dist, kind="stable")[:k]]])
+                )
         if np.any(cnt[q] >= p.min_bin_samples):
             source[q] = "measured"
             measured.append(q)
@@ -579,11 +662,11 @@ def pair_residuals(
 ) -> PairResiduals:
     """:class:`PairResiduals` of ``frames`` (steps 1-3 of the module docstring).
 
-    ``frames``: integer levels (with ``lut``/``max_level``) or float linear values, one shape;
-X
-    output grid) as :func:`hdrcore.merge.merge` takes them; ``saturation`` (per channel) and
-    ``floor`` in the frames' units. ``engine``: ``"numba"`` (default when installed) or
-    ``"numpy"`` (the reference).
+        ``frames``: integer levels (with ``lut``/``max_level``) or float linear values, one shape;
+    X
+        output grid) as :func:`hdrcore.merge.merge` takes them; ``saturation`` (per channel) and
+        ``floor`` in the frames' units. ``engine``: ``"numba"`` (default when installed) or
+        ``"numpy"`` (the reference).
     """
     p = params or GhostTestParams()
     fs = [np.asarray(f) for f in frames]
@@ -595,8 +678,18 @@ X
     times = np.asarray(exposure_times, np.float64)
     order = np.argsort(times, kind="stable").astype(np.int64)
     ln_t = np.log(times)
-    t = _tables(fs, c, lut, max_level, noise or NoiseModel(), saturation, floor,
-                p.edge_margin, p.level_bins, p.level_error)
+    t = _tables(
+        fs,
+        c,
+        lut,
+        max_level,
+        noise or NoiseModel(),
+        saturation,
+        floor,
+        p.edge_margin,
+        p.level_bins,
+        p.level_error,
+    )
     ts = np.zeros((n, 3, 3))  # homogeneous: affine motions and homographies alike
     has_t = np.zeros(n, bool)
     tf = list(transforms) if transforms is not None else [None] * n
@@ -630,14 +723,37 @@ X
         ml = tuple(_read_only(mask_t[k], bool) for k in order)
         fl += (_read_only(np.zeros((1, 1, c), dtype), dtype),) * (MAX_KERNEL_FRAMES - n)
         ml += (_read_only(np.ones((1, 1), bool), bool),) * (MAX_KERNEL_FRAMES - n)
-        per = (n, fl, ml, t.integer, t.packed(), t.sat, t.floor, t.shot, t.const_var, t.bins,
-               np.ascontiguousarray(has_t[order]), np.ascontiguousarray(ts[order]),
-               np.ascontiguousarray(has_mask[order]), np.ascontiguousarray(ln_t[order]))
+        per = (
+            n,
+            fl,
+            ml,
+            t.integer,
+            t.packed(),
+            t.sat,
+            t.floor,
+            t.shot,
+            t.const_var,
+            t.bins,
+            np.ascontiguousarray(has_t[order]),
+            np.ascontiguousarray(ts[order]),
+            np.ascontiguousarray(has_mask[order]),
+            np.ascontiguousarray(ln_t[order]),
+        )
     if slots and hb and wb:
         if fast:
             gh, gw = len(range(stride // 2, h, stride)), len(range(stride // 2, w, stride))
-            _chain_rows(*per, 0, gh, gw, stride, hist, no_bias, b,
-                        np.zeros((1, 1, 1, c, 5)), np.zeros((1, 1, 1, c), np.int32))
+            _chain_rows(
+                *per,
+                0,
+                gh,
+                gw,
+                stride,
+                hist,
+                no_bias,
+                b,
+                np.zeros((1, 1, 1, c, 5)),
+                np.zeros((1, 1, 1, c), np.int32),
+            )
         else:
             _transfer_hist_numpy(fs, order, t, has_t, ts, ms, ln_t, stride, hist)
     bias, source = _transfer_bias(hist, p) if slots else (np.zeros((0, c, p.level_bins)), [])
@@ -646,7 +762,8 @@ X
         sums = np.zeros((hb, wb, slots, c, 5))
         counts = np.zeros((hb, wb, slots, c), np.int32)
         weighted, weights, additive, first, second = (
-            np.moveaxis(sums[..., i], (0, 1), (2, 3)) for i in range(5))
+            np.moveaxis(sums[..., i], (0, 1), (2, 3)) for i in range(5)
+        )
         count = np.moveaxis(counts, (0, 1), (2, 3))
     else:
         weighted = np.zeros((slots, c, hb, wb))
@@ -665,17 +782,52 @@ X
 
             def work(r0: int) -> None:
                 r1 = min(hb, r0 + span)
-                _chain_rows(*per, r0 * b, (r1 - r0) * b // step, wb * b // step, step, no_hist,
-                            bias, b, sums, counts)
+                _chain_rows(
+                    *per,
+                    r0 * b,
+                    (r1 - r0) * b // step,
+                    wb * b // step,
+                    step,
+                    no_hist,
+                    bias,
+                    b,
+                    sums,
+                    counts,
+                )
 
             thread_map(work, range(0, hb, span), workers)
         else:
-            _residuals_numpy(fs, order, t, has_t, ts, ms, ln_t, bias, b, weighted, weights,
-                             additive, first, second, count, int(p.pixel_step))
-    return PairResiduals(weighted=weighted, weights=weights, additive=additive, first=first,
-                         second=second,
-                         count=count, bias=bias, bias_source=tuple(source), order=order,
-                         block=b, samples=int(hist.sum()))
+            _residuals_numpy(
+                fs,
+                order,
+                t,
+                has_t,
+                ts,
+                ms,
+                ln_t,
+                bias,
+                b,
+                weighted,
+                weights,
+                additive,
+                first,
+                second,
+                count,
+                int(p.pixel_step),
+            )
+    return PairResiduals(
+        weighted=weighted,
+        weights=weights,
+        additive=additive,
+        first=first,
+        second=second,
+        count=count,
+        bias=bias,
+        bias_source=tuple(source),
+        order=order,
+        block=b,
+        samples=int(hist.sum()),
+    )
 
 
 @dataclass(frozen=True, eq=False)
@@ -699,10 +851,13 @@ class PairConsistency:
 
     def to_json(self) -> dict:
         return {
-            "frames": list(self.frames), "blocks": self.blocks, "flagged": self.flagged,
+            "frames": list(self.frames),
+            "blocks": self.blocks,
+            "flagged": self.flagged,
             "transfer_error": [float(v) for v in np.median(self.bias, axis=1)],
             "transfer_error_source": self.bias_source,
-            "scale": [float(v) for v in self.scale], "misregistration_px": self.delta,
+            "scale": [float(v) for v in self.scale],
+            "misregistration_px": self.delta,
         }
 
 
@@ -753,15 +908,21 @@ def _log_contrast(log_mean: np.ndarray, use: np.ndarray) -> np.ndarray:
         for dx in (-1, 0, 1):
             if dy == 0 and dx == 0:
                 continue
-            nb = pad[1 + dy:1 + dy + hb, 1 + dx:1 + dx + wb]
-            nok = ok[1 + dy:1 + dy + hb, 1 + dx:1 + dx + wb]
+            nb = pad[1 + dy : 1 + dy + hb, 1 + dx : 1 + dx + wb]
+            nok = ok[1 + dy : 1 + dy + hb, 1 + dx : 1 + dx + wb]
             np.maximum(out, np.where(nok, np.abs(nb - log_mean), 0.0), out=out)
     return out
 
 
-def _pixel_map(blocks: np.ndarray, candidates: np.ndarray | None, shape: tuple[int, int],
-               b: int, grow: int, score: np.ndarray | None = None,
-               core_score: float = 0.0) -> np.ndarray:
+def _pixel_map(
+    blocks: np.ndarray,
+    candidates: np.ndarray | None,
+    shape: tuple[int, int],
+    b: int,
+    grow: int,
+    score: np.ndarray | None = None,
+    core_score: float = 0.0,
+) -> np.ndarray:
     """Pixels of the ghost regions: each region's blocks (where ``score``, when given, is at
     least ``core_score``), and the pixels within ``grow`` blocks of it that the per-pixel test
     flagged (``candidates``), holes inside filled; region by region over their bounding
@@ -772,8 +933,11 @@ def _pixel_map(blocks: np.ndarray, candidates: np.ndarray | None, shape: tuple[i
     out = np.zeros((h, w), bool)
     if not blocks.any():
         return out
-    grown = ndimage.binary_dilation(blocks, structure=np.ones((3, 3), bool),
-                                    iterations=int(grow)) if grow > 0 else blocks
+    grown = (
+        ndimage.binary_dilation(blocks, structure=np.ones((3, 3), bool), iterations=int(grow))
+        if grow > 0
+        else blocks
+    )
     labels, _ = ndimage.label(grown, structure=np.ones((3, 3), bool))
     hb, wb = blocks.shape
     for i, sl in enumerate(ndimage.find_objects(labels), start=1):
@@ -788,8 +952,9 @@ def _pixel_map(blocks: np.ndarray, candidates: np.ndarray | None, shape: tuple[i
 
         def up(m: np.ndarray, y0=y0, y1=y1, x0=x0, x1=x1) -> np.ndarray:
             full = np.repeat(np.repeat(m, b, axis=0), b, axis=1)
-            return np.pad(full, ((0, y1 - y0 - full.shape[0]), (0, x1 - x0 - full.shape[1])),
-                          mode="edge")
+            return np.pad(
+                full, ((0, y1 - y0 - full.shape[0]), (0, x1 - x0 - full.shape[1])), mode="edge"
+            )
 
         zone = up(zone_b)
         if candidates is None:
@@ -808,8 +973,9 @@ def _pixel_map(blocks: np.ndarray, candidates: np.ndarray | None, shape: tuple[i
     return out
 
 
-def _block_test_numpy(res: PairResiduals, q: int, use: np.ndarray, delta: float,
-                      p: GhostTestParams) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _block_test_numpy(
+    res: PairResiduals, q: int, use: np.ndarray, delta: float, p: GhostTestParams
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Step 4 for pair slot ``q``: ``(scale per channel, z (C, hb, wb), disagreeing blocks)``
     (the reference of :func:`_block_test`)."""
     b = res.block
@@ -817,14 +983,23 @@ def _block_test_numpy(res: PairResiduals, q: int, use: np.ndarray, delta: float,
     mean = res.weighted[q] / sw
     # 4 / sum(w): about a quarter of a block's pixels are independent
     var = (4.0 / p.pixel_step**2) / sw
-    scale = np.array([1.4826 * float(np.median(np.abs(m[u] - np.median(m[u]))))
-                      if u.any() else 0.0 for m, u in zip(mean, use, strict=True)])
+    scale = np.array(
+        [
+            1.4826 * float(np.median(np.abs(m[u] - np.median(m[u])))) if u.any() else 0.0
+            for m, u in zip(mean, use, strict=True)
+        ]
+    )
     nn = np.maximum(res.count[q], 1)
     la = res.first[q] / nn  # each frame's geometric-mean radiance over the block (ln)
     lb = res.second[q] / nn
-    reg = delta / b * np.minimum(
-        np.stack([_log_contrast(la[ch], use[ch]) for ch in range(len(la))]),
-        np.stack([_log_contrast(lb[ch], use[ch]) for ch in range(len(lb))]))
+    reg = (
+        delta
+        / b
+        * np.minimum(
+            np.stack([_log_contrast(la[ch], use[ch]) for ch in range(len(la))]),
+            np.stack([_log_contrast(lb[ch], use[ch]) for ch in range(len(lb))]),
+        )
+    )
     # an offset of the levels (black level, a scan's film base) is the same over a block:
     # its variance is the block's mean, not divided by the pixels
     add = res.additive[q] / nn
@@ -836,8 +1011,23 @@ def _block_test_numpy(res: PairResiduals, q: int, use: np.ndarray, delta: float,
 
 
 @_njit
-def _block_test(weighted, weights, additive, first, second, count, need, scale, reg_scale,
-                floor2, z_min, min_change, indep, z, hit):  # pragma: no cover - compiled
+def _block_test(
+    weighted,
+    weights,
+    additive,
+    first,
+    second,
+    count,
+    need,
+    scale,
+    reg_scale,
+    floor2,
+    z_min,
+    min_change,
+    indep,
+    z,
+    hit,
+):  # pragma: no cover - compiled
     """Step 4 of the module docstring for one pair slot, block by block (``z`` and ``hit``
     written; reference :func:`_block_test_numpy`, the same arithmetic in the same order)."""
     c, hb, wb = count.shape
@@ -915,15 +1105,38 @@ def consistency_regions(
     cand_frac = 0.0 if candidates is None else float(np.mean(candidates))
     if n < 2 or hb == 0 or wb == 0:
         return GhostRegions(
-            blocks=np.zeros((hb, wb), bool), z=np.zeros((hb, wb), np.float32),
-            tested=np.zeros((hb, wb), bool), ghost=np.zeros((h, w), bool), regions=0,
-            pairs=(), params=p, candidate_fraction=cand_frac, message="no block to test")
+            blocks=np.zeros((hb, wb), bool),
+            z=np.zeros((hb, wb), np.float32),
+            tested=np.zeros((hb, wb), bool),
+            ghost=np.zeros((h, w), bool),
+            regions=0,
+            pairs=(),
+            params=p,
+            candidate_fraction=cand_frac,
+            message="no block to test",
+        )
     tf = list(transforms) if transforms is not None else [None] * n
-    resampled = [m is not None and not np.allclose(
-        np.asarray(m, np.float64), np.eye(3)[: np.asarray(m).shape[0]], atol=1e-12) for m in tf]
-    res = pair_residuals(frames, exposure_times, saturation=saturation, floor=floor, lut=lut,
-                         max_level=max_level, noise=noise, transforms=tf, masks=masks, params=p,
-                         workers=workers, engine=engine)
+    resampled = [
+        m is not None
+        and not np.allclose(
+            np.asarray(m, np.float64), np.eye(3)[: np.asarray(m).shape[0]], atol=1e-12
+        )
+        for m in tf
+    ]
+    res = pair_residuals(
+        frames,
+        exposure_times,
+        saturation=saturation,
+        floor=floor,
+        lut=lut,
+        max_level=max_level,
+        noise=noise,
+        transforms=tf,
+        masks=masks,
+        params=p,
+        workers=workers,
+        engine=engine,
+    )
     t1 = time.perf_counter()
     need = max(1, int(np.ceil(p.min_shared * (b // p.pixel_step) ** 2)))
     indep = 4.0 / p.pixel_step**2  # 4 / sum(w) for every pixel of a block
@@ -940,22 +1153,49 @@ def consistency_regions(
         tested |= use.any(axis=0)
         delta = p.registration_error if (resampled[a] or resampled[k]) else p.direct_error
         if fast:
-            scale = np.array([1.4826 * float(np.median(np.abs(m - np.median(m))))
-                              if m.size else 0.0 for m in (
-                                  res.weighted[q, ch][use[ch]] / res.weights[q, ch][use[ch]]
-                                  for ch in range(use.shape[0]))])
+            scale = np.array(
+                [
+                    1.4826 * float(np.median(np.abs(m - np.median(m)))) if m.size else 0.0
+                    for m in (
+                        res.weighted[q, ch][use[ch]] / res.weights[q, ch][use[ch]]
+                        for ch in range(use.shape[0])
+                    )
+                ]
+            )
             z = np.zeros(use.shape)
             hit = np.zeros((hb, wb), bool)
-            _block_test(res.weighted[q], res.weights[q], res.additive[q], res.first[q],
-                        res.second[q], res.count[q], need, scale, delta / b,
-                        p.scale_floor**2, float(p.z), float(p.min_change), indep, z, hit)
+            _block_test(
+                res.weighted[q],
+                res.weights[q],
+                res.additive[q],
+                res.first[q],
+                res.second[q],
+                res.count[q],
+                need,
+                scale,
+                delta / b,
+                p.scale_floor**2,
+                float(p.z),
+                float(p.min_change),
+                indep,
+                z,
+                hit,
+            )
         else:
             scale, z, hit = _block_test_numpy(res, q, use, delta, p)
         np.maximum(zmax, z.max(axis=0), out=zmax)
         flagged |= hit
-        pairs.append(PairConsistency(
-            frames=(a, k), blocks=int(use.any(axis=0).sum()), flagged=int(hit.sum()),
-            bias=res.bias[q], bias_source=res.bias_source[q], scale=scale, delta=float(delta)))
+        pairs.append(
+            PairConsistency(
+                frames=(a, k),
+                blocks=int(use.any(axis=0).sum()),
+                flagged=int(hit.sum()),
+                bias=res.bias[q],
+                bias_source=res.bias_source[q],
+                scale=scale,
+                delta=float(delta),
+            )
+        )
     labels, count = ndimage.label(flagged, structure=np.ones((3, 3), bool))
     area = np.bincount(labels.ravel(), minlength=count + 1)
     keep = area >= int(p.min_blocks)
@@ -966,11 +1206,20 @@ def consistency_regions(
     ghost = _pixel_map(blocks, candidates, (h, w), b, p.pixel_grow, score, p.core_score)
     t3 = time.perf_counter()
     nt = max(int(tested.sum()), 1)
-    msg = (f"{regions} ghost region(s): {100.0 * blocks.sum() / nt:.2f} % of the {nt} blocks "
-           f"compared; {100.0 * flagged.sum() / nt:.2f} % disagreed before the "
-           f"{p.min_blocks}-block minimum")
+    msg = (
+        f"{regions} ghost region(s): {100.0 * blocks.sum() / nt:.2f} % of the {nt} blocks "
+        f"compared; {100.0 * flagged.sum() / nt:.2f} % disagreed before the "
+        f"{p.min_blocks}-block minimum"
+    )
     return GhostRegions(
-        blocks=blocks, z=zmax, tested=tested, ghost=ghost, regions=regions, pairs=tuple(pairs),
-        params=p, candidate_fraction=cand_frac, message=msg,
+        blocks=blocks,
+        z=zmax,
+        tested=tested,
+        ghost=ghost,
+        regions=regions,
+        pairs=tuple(pairs),
+        params=p,
+        candidate_fraction=cand_frac,
+        message=msg,
         timings={"sums": t1 - t0, "test": t2 - t1, "pixels": t3 - t2, "total": t3 - t0},
     )

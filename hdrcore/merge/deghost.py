@@ -69,8 +69,12 @@ def fill_ghost_regions(
     area = np.bincount(lab, minlength=count + 1)
     n = shares.shape[0]
     # the frame with the largest total share over each region (one pass per frame)
-    totals = np.stack([np.bincount(lab, weights=shares[k].ravel()[idx].astype(np.float64),
-                                   minlength=count + 1) for k in range(n)])
+    totals = np.stack(
+        [
+            np.bincount(lab, weights=shares[k].ravel()[idx].astype(np.float64), minlength=count + 1)
+            for k in range(n)
+        ]
+    )
     best = np.argmax(totals, axis=0)
     if prefer is not None and np.any(prefer) and not np.all(prefer):
         pref = np.where(np.asarray(prefer, bool)[:, None], totals, -1.0)

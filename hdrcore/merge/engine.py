@@ -28,8 +28,6 @@ def default_engine() -> str:
     return "numba" if _fused.AVAILABLE else "numpy"
 
 
-
-
 def fused_supported(plan: Plan) -> str | None:
     """Why the fused kernel cannot run this plan, or ``None`` when it can."""
     if not _fused.AVAILABLE:
@@ -99,8 +97,13 @@ def level_tables(p: Plan, m: SampleModel) -> np.ndarray:
 
 
 def run_fused(
-    p: Plan, out: Outputs, m: SampleModel, spans: list[tuple[int, int]], workers: int,
-    force_tables: bool = False, colour: ColourConversion | None = None,
+    p: Plan,
+    out: Outputs,
+    m: SampleModel,
+    spans: list[tuple[int, int]],
+    workers: int,
+    force_tables: bool = False,
+    colour: ColourConversion | None = None,
 ) -> None:
     """The fused kernel (:func:`hdrcore.merge._fused.merge_rows`) over ``spans`` of
     rows, ``colour`` applied inside it. Integer frames read in place go through per-level
@@ -117,12 +120,21 @@ def run_fused(
     me2 = m.model_error2
     thr = m.ghost_threshold
     outs = (
-        out.radiance, out.weight_sum, out.shares.view(np.uint16), out.clip_count, out.clipped,
-        out.underexposed, out.ghost_score.view(np.uint16), out.ghost,
+        out.radiance,
+        out.weight_sum,
+        out.shares.view(np.uint16),
+        out.clip_count,
+        out.clipped,
+        out.underexposed,
+        out.ghost_score.view(np.uint16),
+        out.ghost,
     )
     inv_t = np.array([1.0 / t for t in p.times], np.float32)
-    use_tab = bool(p.integer and (p.lut is not None or force_tables)
-                   and not all(tf is not None for tf in p.transforms))
+    use_tab = bool(
+        p.integer
+        and (p.lut is not None or force_tables)
+        and not all(tf is not None for tf in p.transforms)
+    )
     if use_tab:
         tabs = level_tables(p, m)
     else:
@@ -147,8 +159,9 @@ def run_fused(
     else:
         flds = np.zeros((len(frames), 2, 2, 2))
         fgeo = np.array([1.0, 0.0, 0.0])
-    has_fld = np.array([bool(p.fields) and p.fields[k] is not None
-                        for k in range(len(frames))], np.bool_)
+    has_fld = np.array(
+        [bool(p.fields) and p.fields[k] is not None for k in range(len(frames))], np.bool_
+    )
     has_lut = p.lut is not None and p.lut_var is not None
     lut = p.lut if p.lut is not None else np.zeros((3, 2), np.float32)
     lut_var = p.lut_var if p.lut_var is not None else lut
@@ -157,10 +170,13 @@ def run_fused(
     ntap = 4 if p.resample == "cubic" else 2
     # levels past the LUT (refused): only a frame that holds any is searched for them
     lmax = lut.shape[1] - 1
-    oor = np.array([
-        bool(has_lut and has_mat[k] and np.iinfo(f.dtype).max > lmax and f.max() > lmax)
-        for k, f in enumerate(frames_t)
-    ], np.bool_)
+    oor = np.array(
+        [
+            bool(has_lut and has_mat[k] and np.iinfo(f.dtype).max > lmax and f.max() > lmax)
+            for k, f in enumerate(frames_t)
+        ],
+        np.bool_,
+    )
 
     flats = tuple(f.reshape(f.shape[0], -1) for f in frames_t)
     # padded to a multiple of TUPLE_SLOTS: one compiled kernel serves every frame count
@@ -172,8 +188,20 @@ def run_fused(
 
     fr = _fused.FusedFrames(frames_t, flats, masks_t, has_mask, order, inv_t, inv_t2, t2)
     warp = _fused.FusedWarp(mats, has_mat, ntap, oor, flds, has_fld, fgeo)
-    model = _fused.FusedModel(wcode, m.shot, m.const_var, m.floor_norm, m.inv_max, hi, has_lut,
-                              lut, lut_var, tap_thr, use_tab, tabs)
+    model = _fused.FusedModel(
+        wcode,
+        m.shot,
+        m.const_var,
+        m.floor_norm,
+        m.inv_max,
+        hi,
+        has_lut,
+        lut,
+        lut_var,
+        tap_thr,
+        use_tab,
+        tabs,
+    )
     fin = _fused.FusedFinish(me2, thr, colour is not None, cm, cwb, cneu)
     dst = _fused.FusedOutputs(*outs)
 

@@ -27,15 +27,15 @@ __all__ = ["exposure_fusion", "fusion_weights"]
 WELL_EXPOSED_SIGMA = 0.2
 
 
-def fusion_weights(image: np.ndarray, *, contrast: float = 1.0, saturation: float = 1.0,
-                   exposedness: float = 1.0) -> np.ndarray:
+def fusion_weights(
+    image: np.ndarray, *, contrast: float = 1.0, saturation: float = 1.0, exposedness: float = 1.0
+) -> np.ndarray:
     """Mertens et al.'s weight map of one display-referred ``(H, W, 3)`` image in [0, 1]."""
     grey = image.mean(axis=-1)
     c = np.abs(ndimage.laplace(grey))
     s = image.std(axis=-1)
     e = np.exp(-np.sum((image - 0.5) ** 2, axis=-1) / (2 * WELL_EXPOSED_SIGMA**2))
-    return ((c + 1e-6) ** contrast * (s + 1e-6) ** saturation * e**exposedness).astype(
-        np.float32)
+    return ((c + 1e-6) ** contrast * (s + 1e-6) ** saturation * e**exposedness).astype(np.float32)
 
 
 _KERNEL = np.array([0.25, 0.5, 0.25], np.float32)
@@ -105,8 +105,9 @@ def exposure_fusion(
             gw.append(_down(gw[-1]))
         lap = [gi[i] - _up(gi[i + 1], gi[i].shape) for i in range(levels - 1)] + [gi[-1]]
         blended = [lp * g[..., None] for lp, g in zip(lap, gw, strict=True)]
-        result = blended if result is None else [r + b for r, b in zip(result, blended,
-                                                                         strict=True)]
+        result = (
+            blended if result is None else [r + b for r, b in zip(result, blended, strict=True)]
+        )
     assert result is not None
     out = result[-1]
     for i in range(levels - 2, -1, -1):

@@ -181,8 +181,11 @@ def provenance_summary(shares: np.ndarray, workers: int | None = None) -> dict:
         bits = np.ascontiguousarray(s).view(np.uint16)
         h = s.shape[1]
         step = max(1, -(-h // 16))
-        parts = thread_map(lambda r0: _provenance_rows(bits, _HALF_VALUES, r0, min(h, r0 + step)),
-                           range(0, h, step), workers)
+        parts = thread_map(
+            lambda r0: _provenance_rows(bits, _HALF_VALUES, r0, min(h, r0 + step)),
+            range(0, h, step),
+            workers,
+        )
         counts = sum(p[0] for p in parts)
         totals = sum(p[1] for p in parts)
     else:

@@ -47,7 +47,6 @@ P. E. Debevec, J. Malik, "Recovering high dynamic range radiance maps from photo
 SIGGRAPH 1997, eq. 6. doi:10.1145/258734.258884
 """
 
-
 from __future__ import annotations
 
 import logging
@@ -93,7 +92,7 @@ logger = logging.getLogger(__name__)
 
 GHOST_TESTS = {
     "regions": "blocks that disagree beyond noise, misregistration and the response's own "
-               "error, in connected regions (hdrcore.merge.consistency)",
+    "error, in connected regions (hdrcore.merge.consistency)",
     "pixels": "every pixel whose score exceeds the threshold (hdrcore.merge.maps)",
 }
 """How the ``ghost`` map is decided (``merge(..., ghost_test=...)``)."""
@@ -115,8 +114,11 @@ def _merge_one_frame(plan: Plan, k: int, y0: int, y1: int, **kw) -> MergeResult:
         w = plan.shape[1]
         ys = np.array([y0, y1 - 1], float)
         xs = np.array([0.0, w - 1.0])
-        sy = [(t[1, 0] * x + t[1, 1] * y + t[1, 2]) / (t[2, 0] * x + t[2, 1] * y + t[2, 2])
-              for x in xs for y in ys]
+        sy = [
+            (t[1, 0] * x + t[1, 1] * y + t[1, 2]) / (t[2, 0] * x + t[2, 1] * y + t[2, 2])
+            for x in xs
+            for y in ys
+        ]
         pad = 0 if fld is None else int(np.ceil(float(np.abs(fld.offsets[..., 1]).max())))
         b0 = max(0, min(y0, int(np.floor(min(sy))) - 3 - pad))
         b1 = min(h, max(y1, int(np.ceil(max(sy))) + 4 + pad))
@@ -125,20 +127,29 @@ def _merge_one_frame(plan: Plan, k: int, y0: int, y1: int, **kw) -> MergeResult:
         t[1] -= b0 * t[2]  # ... and the frame's band starts at its row b0
     mask = plan.masks[k]
     res = merge(
-        [plan.frames[k][b0:b1]], [float(plan.times[k])], max_level=plan.max_level,
+        [plan.frames[k][b0:b1]],
+        [float(plan.times[k])],
+        max_level=plan.max_level,
         masks=None if mask is None else [mask[b0:b1]],
-        saturation_level=tuple(float(v) for v in plan.saturation), noise_floor=plan.floor,
-        weighting=plan.weighting, noise=plan.noise,
+        saturation_level=tuple(float(v) for v in plan.saturation),
+        noise_floor=plan.floor,
+        weighting=plan.weighting,
+        noise=plan.noise,
         transforms=None if t is None else [t],
         fields=None if fld is None else [fld.shifted(0.0, float(b0))],
-        resample=plan.resample, **kw,
+        resample=plan.resample,
+        **kw,
     )
     if (b0, b1) == (y0, y1):
         return res
     rows = slice(y0 - b0, y1 - b0)
-    return replace(res, radiance=res.radiance[rows], weight_sum=res.weight_sum[rows],
-                   clipped=res.clipped[rows], underexposed=res.underexposed[rows])
-
+    return replace(
+        res,
+        radiance=res.radiance[rows],
+        weight_sum=res.weight_sum[rows],
+        clipped=res.clipped[rows],
+        underexposed=res.underexposed[rows],
+    )
 
 
 def merge(
@@ -257,8 +268,17 @@ def merge(
     """
     t0 = time.perf_counter()
     plan = make_plan(
-        frames, exposure_times, response, max_level, masks, saturation_level, noise_floor,
-        weighting, noise, transforms, fields,
+        frames,
+        exposure_times,
+        response,
+        max_level,
+        masks,
+        saturation_level,
+        noise_floor,
+        weighting,
+        noise,
+        transforms,
+        fields,
     )
     resample = validate_method(resample, RESAMPLING, "resampling")
     if resample != plan.resample:
@@ -281,14 +301,14 @@ def merge(
         why = fused_supported(plan) if engine == "numba" else None
         if why is not None:
             raise ParameterError(
-                "the numba merge engine cannot run this input", expected="engine='numpy'",
+                "the numba merge engine cannot run this input",
+                expected="engine='numpy'",
                 found=why,
             )
     h, w, c = plan.shape
     n = len(plan.frames)
     t1 = time.perf_counter()
-    out = (new_outputs((h, w, c), n) if reuse is None
-           else reused_outputs(reuse, (h, w, c), n))
+    out = new_outputs((h, w, c), n) if reuse is None else reused_outputs(reuse, (h, w, c), n)
     rows = max(1, int(chunk_pixels) // w)
     if engine == "numba":
         # no per-chunk scratch: chunks only balance the threads' work
@@ -299,9 +319,15 @@ def merge(
         # exp() of the Gaussian weight, vectorised, may differ from the numpy engine's in the
         # last bit: integer levels take it from the per-level tables (that engine's
         # arithmetic), so they stay bit for bit the same
-        run_fused(plan, out, sample_model(plan, float(ghost_threshold), float(model_error)),
-                  spans, workers, force_tables=plan.integer and plan.weighting == "gaussian",
-                  colour=colour)
+        run_fused(
+            plan,
+            out,
+            sample_model(plan, float(ghost_threshold), float(model_error)),
+            spans,
+            workers,
+            force_tables=plan.integer and plan.weighting == "gaussian",
+            colour=colour,
+        )
     else:
         kernel = ReferenceKernel(plan, out, float(ghost_threshold), float(model_error))
         try:
@@ -309,37 +335,57 @@ def merge(
         except IndexError as exc:  # np.take of a level past the end of the LUT
             raise ParameterError(
                 "levels above max_level have no response LUT entry",
-                expected=f"levels 0..{plan.max_level}", found=str(exc),
+                expected=f"levels 0..{plan.max_level}",
+                found=str(exc),
             ) from exc
     if colour is not None and engine != "numba":
-        apply_colour(out.radiance, colour, clipped=out.clipped, out=out.radiance,
-                     workers=workers)
+        apply_colour(out.radiance, colour, clipped=out.clipped, out=out.radiance, workers=workers)
     t2 = time.perf_counter()
     ghost_score, ghost = out.ghost_score, out.ghost
     ghost_regions = None
     if ghost_test == "regions":
         ghost_regions = consistency_regions(
-            plan.frames, [float(t) for t in plan.times],
-            saturation=[float(v) for v in plan.saturation], floor=plan.floor,
-            lut=plan.lut, max_level=plan.max_level, noise=plan.noise, masks=plan.masks,
-            transforms=plan.transforms or None, candidates=ghost, score=ghost_score,
-            params=ghost_params, workers=workers,
-            engine="numba" if engine == "numba" else "numpy")
+            plan.frames,
+            [float(t) for t in plan.times],
+            saturation=[float(v) for v in plan.saturation],
+            floor=plan.floor,
+            lut=plan.lut,
+            max_level=plan.max_level,
+            noise=plan.noise,
+            masks=plan.masks,
+            transforms=plan.transforms or None,
+            candidates=ghost,
+            score=ghost_score,
+            params=ghost_params,
+            workers=workers,
+            engine="numba" if engine == "numba" else "numpy",
+        )
         np.copyto(ghost, ghost_regions.ghost)
     t_ghost = time.perf_counter()
     deghosted = None
     if deghost:
+
         def single(k: int, y0: int, y1: int) -> MergeResult:
-            return _merge_one_frame(plan, k, y0, y1, response=response, engine=engine,
-                                    workers=workers, ghost_threshold=ghost_threshold,
-                                    model_error=model_error, colour=colour,
-                                    ghost_test="pixels")
+            return _merge_one_frame(
+                plan,
+                k,
+                y0,
+                y1,
+                response=response,
+                engine=engine,
+                workers=workers,
+                ghost_threshold=ghost_threshold,
+                model_error=model_error,
+                colour=colour,
+                ghost_test="pixels",
+            )
 
         # frames not resampled are preferred where nearly as well exposed (no interpolation
         # error in their values)
-        prefer = (np.array([t is None for t in plan.transforms]) if plan.warped else None)
-        deghosted = fill_ghost_regions(out.radiance, out.weight_sum, out.shares, ghost, single,
-                                       prefer=prefer)
+        prefer = np.array([t is None for t in plan.transforms]) if plan.warped else None
+        deghosted = fill_ghost_regions(
+            out.radiance, out.weight_sum, out.shares, ghost, single, prefer=prefer
+        )
     t3 = time.perf_counter()
 
     n_pix = h * w
@@ -360,8 +406,10 @@ def merge(
     if n_ghost:
         notes.append(f"{100.0 * n_ghost / n_pix:.2f}% of pixels disagree between frames (ghosts)")
     if deghosted is not None and deghosted.any():
-        notes.append(f"{100.0 * np.count_nonzero(deghosted) / n_pix:.2f}% of pixels filled "
-                     "from one frame (deghost)")
+        notes.append(
+            f"{100.0 * np.count_nonzero(deghosted) / n_pix:.2f}% of pixels filled "
+            "from one frame (deghost)"
+        )
     status = "warning" if notes else "ok"
     message = "; ".join(notes) if notes else f"merged {n} frames"
     logger.debug("merge: %s", message)
@@ -385,8 +433,13 @@ def merge(
         model_error=float(model_error),
         status=status,
         message=message,
-        timings={"validate": t1 - t0, "merge": t2 - t1, "ghosts": t_ghost - t2,
-                 "maps": t3 - t_ghost, "total": t3 - t0},
+        timings={
+            "validate": t1 - t0,
+            "merge": t2 - t1,
+            "ghosts": t_ghost - t2,
+            "maps": t3 - t_ghost,
+            "total": t3 - t0,
+        },
         engine=engine,
         deghosted=deghosted,
         ghost_test=ghost_test,

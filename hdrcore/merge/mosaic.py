@@ -69,8 +69,12 @@ def interleave_sites(planes: np.ndarray) -> np.ndarray:
     return out
 
 
-def site_ceiling(planes: Sequence[np.ndarray], exposure_times: Sequence[float],
-                 max_level: int, saturation_level: float | None = None) -> np.ndarray:
+def site_ceiling(
+    planes: Sequence[np.ndarray],
+    exposure_times: Sequence[float],
+    max_level: int,
+    saturation_level: float | None = None,
+) -> np.ndarray:
     """Per site, the clipping level (per unit time, ``saturation / max_level / t``) of the
     longest frame in which the site itself is unclipped (the darkest frame's where it is
     clipped in all). float32, the shape of one frame's site planes.
@@ -80,8 +84,9 @@ def site_ceiling(planes: Sequence[np.ndarray], exposure_times: Sequence[float],
     ceiling at least at the site's merged value."""
     sat = 0.98 * max_level if saturation_level is None else float(saturation_level)
     order = np.argsort(np.asarray(exposure_times, np.float64))
-    out = np.full(planes[0].shape, np.float32(sat / max_level / exposure_times[order[0]]),
-                  np.float32)
+    out = np.full(
+        planes[0].shape, np.float32(sat / max_level / exposure_times[order[0]]), np.float32
+    )
     for k in order[1:]:
         level = np.float32(sat / max_level / exposure_times[k])
         np.copyto(out, level, where=planes[k] < sat)
@@ -127,17 +132,26 @@ def merge_mosaic(
         raise ParameterError("a mosaic merge needs at least two frames", found=str(len(cfas)))
     first = cfas[0]
     for c in cfas[1:]:
-        if c.data.shape != first.data.shape or not np.array_equal(c.pattern, first.pattern) \
-                or c.colors != first.colors:
-            raise ParameterError("the frames' CFA layouts differ",
-                                 expected=f"{first.data.shape} {first.pattern.tolist()}",
-                                 found=f"{c.data.shape} {np.asarray(c.pattern).tolist()}")
+        if (
+            c.data.shape != first.data.shape
+            or not np.array_equal(c.pattern, first.pattern)
+            or c.colors != first.colors
+        ):
+            raise ParameterError(
+                "the frames' CFA layouts differ",
+                expected=f"{first.data.shape} {first.pattern.tolist()}",
+                found=f"{c.data.shape} {np.asarray(c.pattern).tolist()}",
+            )
     channels = bayer_channels(first.pattern, first.colors)
-    planes = [cfa_planes(c.data, c.pattern, c.colors, c.black_level, max_level)[0]
-              for c in cfas]
-    common: dict[str, Any] = dict(max_level=max_level, saturation_level=saturation_level,
-                  noise_floor=noise_floor, weighting="noise-aware", noise=noise,
-                  workers=workers)
+    planes = [cfa_planes(c.data, c.pattern, c.colors, c.black_level, max_level)[0] for c in cfas]
+    common: dict[str, Any] = dict(
+        max_level=max_level,
+        saturation_level=saturation_level,
+        noise_floor=noise_floor,
+        weighting="noise-aware",
+        noise=noise,
+        workers=workers,
+    )
     moved = transforms is not None and any(t is not None for t in transforms)
     res: MergeResult | None = None
     site_merges: tuple[MergeResult, ...] = ()
@@ -146,37 +160,59 @@ def merge_mosaic(
         mosaic = interleave_sites(res.radiance)
         ceiling = None
         if hdr_edges:
-            ceiling = interleave_sites(site_ceiling(planes, exposure_times, max_level,
-                                                    saturation_level))
+            ceiling = interleave_sites(
+                site_ceiling(planes, exposure_times, max_level, saturation_level)
+            )
     else:
         assert transforms is not None  # moved
         if orientation not in (None, 1):
-            raise ParameterError("a hand-held mosaic merge needs the sensor's orientation",
-                                 expected="orientation 1", found=str(orientation))
+            raise ParameterError(
+                "a hand-held mosaic merge needs the sensor's orientation",
+                expected="orientation 1",
+                found=str(orientation),
+            )
         if len(transforms) != len(cfas):
-            raise ParameterError("one transform per frame", expected=str(len(cfas)),
-                                 found=str(len(transforms)))
+            raise ParameterError(
+                "one transform per frame", expected=str(len(cfas)), found=str(len(transforms))
+            )
         site_merges = tuple(
-            merge([np.ascontiguousarray(pl[..., 2 * r + c:2 * r + c + 1]) for pl in planes],
-                  exposure_times, transforms=[_site_matrix(t, r, c) for t in transforms],
-                  **common)
-            for r in range(2) for c in range(2))
+            merge(
+                [np.ascontiguousarray(pl[..., 2 * r + c : 2 * r + c + 1]) for pl in planes],
+                exposure_times,
+                transforms=[_site_matrix(t, r, c) for t in transforms],
+                **common,
+            )
+            for r in range(2)
+            for c in range(2)
+        )
         mosaic = interleave_sites(np.concatenate([m.radiance for m in site_merges], axis=2))
         ceiling = None
         if hdr_edges:
-            ceiling = interleave_sites(np.stack(
-                [_used_ceiling(m, exposure_times, max_level, saturation_level)
-                 for m in site_merges], axis=2))
+            ceiling = interleave_sites(
+                np.stack(
+                    [
+                        _used_ceiling(m, exposure_times, max_level, saturation_level)
+                        for m in site_merges
+                    ],
+                    axis=2,
+                )
+            )
     if ceiling is not None:
         np.maximum(ceiling, mosaic, out=ceiling)
     # The merged sites are already black-subtracted: one colour per site, black 0.
     pattern = np.array([[0, 1], [2, 3]])
     colors = "".join("RGB"[int(v)] for v in channels.ravel())
-    rgb = demosaic(mosaic, pattern, colors, method=method, dtype=np.float32, workers=workers,
-                   ceiling=ceiling)
-    return MosaicMerge(mosaic=mosaic, channels=channels,
-                       rgb=apply_orientation(rgb, orientation), merge=res,
-                       orientation=orientation, site_merges=site_merges)
+    rgb = demosaic(
+        mosaic, pattern, colors, method=method, dtype=np.float32, workers=workers, ceiling=ceiling
+    )
+    return MosaicMerge(
+        mosaic=mosaic,
+        channels=channels,
+        rgb=apply_orientation(rgb, orientation),
+        merge=res,
+        orientation=orientation,
+        site_merges=site_merges,
+    )
 
 
 def _site_matrix(a: np.ndarray | None, r: int, c: int) -> np.ndarray | None:
@@ -193,15 +229,19 @@ def _site_matrix(a: np.ndarray | None, r: int, c: int) -> np.ndarray | None:
     return out[:2] if m.shape == (2, 3) else out
 
 
-def _used_ceiling(res: MergeResult, exposure_times: Sequence[float], max_level: int,
-                  saturation_level: float | None) -> np.ndarray:
+def _used_ceiling(
+    res: MergeResult,
+    exposure_times: Sequence[float],
+    max_level: int,
+    saturation_level: float | None,
+) -> np.ndarray:
     """Per pixel of a site's merge, the clipping level (per unit time) of the longest frame
     with a share of its weight (the darkest frame's where none has): float32 ``(h, w)``."""
     sat = 0.98 * max_level if saturation_level is None else float(saturation_level)
     order = np.argsort(np.asarray(exposure_times, np.float64))
-    out = np.full(res.radiance.shape[:2],
-                  np.float32(sat / max_level / exposure_times[order[0]]), np.float32)
+    out = np.full(
+        res.radiance.shape[:2], np.float32(sat / max_level / exposure_times[order[0]]), np.float32
+    )
     for k in order[1:]:
-        np.copyto(out, np.float32(sat / max_level / exposure_times[k]),
-                  where=res.shares[k] > 0)
+        np.copyto(out, np.float32(sat / max_level / exposure_times[k]), where=res.shares[k] > 0)
     return out

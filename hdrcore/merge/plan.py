@@ -21,8 +21,19 @@ if TYPE_CHECKING:
     from .result import MergeResult
 
 __all__ = [
-    "DEFAULT_SATURATION", "IDENTITY", "RESAMPLING", "Outputs", "Plan", "SampleModel", "as_fields",
-    "as_frames", "as_transforms", "make_plan", "new_outputs", "output_layout", "reused_outputs",
+    "DEFAULT_SATURATION",
+    "IDENTITY",
+    "RESAMPLING",
+    "Outputs",
+    "Plan",
+    "SampleModel",
+    "as_fields",
+    "as_frames",
+    "as_transforms",
+    "make_plan",
+    "new_outputs",
+    "output_layout",
+    "reused_outputs",
     "sample_model",
 ]
 
@@ -34,7 +45,6 @@ RESAMPLING: dict[str, str] = {
     "bilinear": "bilinear, 2x2 taps: faster, slightly softer (opt-in)",
 }
 """Interpolations of frames with a transform, by name (``merge(..., resample=...)``)."""
-
 
 
 @dataclass(frozen=True, eq=False)
@@ -79,17 +89,22 @@ class SampleModel:
 
 
 def sample_model(plan: Plan, ghost_threshold: float, model_error: float) -> SampleModel:
-    inv_max = (np.float32(1.0 / plan.max_level) if plan.integer and plan.max_level
-               else np.float32(1.0))
+    inv_max = (
+        np.float32(1.0 / plan.max_level) if plan.integer and plan.max_level else np.float32(1.0)
+    )
     nm = plan.noise
     const = nm.read_noise**2
     if plan.integer and plan.lut is None:
         # linear levels: level noise and quantisation scale by 1 / max_level
         const += nm.level_variance() * float(inv_max) ** 2
     return SampleModel(
-        inv_max=inv_max, floor_norm=np.float32(plan.floor * float(inv_max)),
-        shot=np.float32(nm.shot_gain), const_var=np.float32(max(const, 1e-12)),
-        ghost_threshold=np.float32(ghost_threshold), model_error2=np.float32(model_error**2))
+        inv_max=inv_max,
+        floor_norm=np.float32(plan.floor * float(inv_max)),
+        shot=np.float32(nm.shot_gain),
+        const_var=np.float32(max(const, 1e-12)),
+        ghost_threshold=np.float32(ghost_threshold),
+        model_error2=np.float32(model_error**2),
+    )
 
 
 def as_frames(frames: Sequence[np.ndarray]) -> tuple[tuple[np.ndarray, ...], bool]:
@@ -153,9 +168,7 @@ def make_plan(
     h, w, c = arrs[0].shape
     times = np.asarray(exposure_times, dtype=np.float64).ravel()
     if times.size != n:
-        raise ParameterError(
-            "one exposure time per frame", expected=str(n), found=str(times.size)
-        )
+        raise ParameterError("one exposure time per frame", expected=str(n), found=str(times.size))
     if not np.all(np.isfinite(times)) or np.any(times <= 0):
         raise ParameterError(
             "exposure times must be finite and positive",
@@ -278,8 +291,10 @@ def make_plan(
     tf_list = as_transforms(transforms, n)
     fld_list = as_fields(fields, n)
     # a frame with a field is resampled even where its transform is the identity
-    tf_list = tuple(IDENTITY.copy() if t is None and fld is not None else t
-                    for t, fld in zip(tf_list, fld_list, strict=True))
+    tf_list = tuple(
+        IDENTITY.copy() if t is None and fld is not None else t
+        for t, fld in zip(tf_list, fld_list, strict=True)
+    )
 
     return Plan(
         frames=arrs,
@@ -307,27 +322,33 @@ def as_fields(fields: Sequence[Any] | None, n: int) -> tuple[Any, ...]:
     if fields is None:
         return (None,) * n
     if len(fields) != n:
-        raise ParameterError("one displacement field (or None) per frame", expected=str(n),
-                             found=str(len(fields)))
+        raise ParameterError(
+            "one displacement field (or None) per frame", expected=str(n), found=str(len(fields))
+        )
     grid = None
     for k, fld in enumerate(fields):
         if fld is None:
             continue
         off = getattr(fld, "offsets", None)
         if off is None or not hasattr(fld, "step") or not hasattr(fld, "origin"):
-            raise ParameterError(f"field {k} is not a displacement field",
-                                 expected="DisplacementField (step, offsets, origin)",
-                                 found=type(fld).__name__)
+            raise ParameterError(
+                f"field {k} is not a displacement field",
+                expected="DisplacementField (step, offsets, origin)",
+                found=type(fld).__name__,
+            )
         key = (float(fld.step), tuple(fld.origin), tuple(np.shape(off)))
         if grid is not None and key != grid:
-            raise ParameterError("the displacement fields of one merge must share their grid",
-                                 expected=str(grid), found=f"field {k}: {key}")
+            raise ParameterError(
+                "the displacement fields of one merge must share their grid",
+                expected=str(grid),
+                found=f"field {k}: {key}",
+            )
         grid = key
     return tuple(fields)
 
 
-
 IDENTITY = np.eye(3)
+
 
 def as_transforms(
     transforms: Sequence[np.ndarray | None] | None, n: int
@@ -339,7 +360,8 @@ def as_transforms(
         return (None,) * n
     if len(transforms) != n:
         raise ParameterError(
-            "one transform (2x3 matrix, 3x3 homography or None) per frame", expected=str(n),
+            "one transform (2x3 matrix, 3x3 homography or None) per frame",
+            expected=str(n),
             found=str(len(transforms)),
         )
     out: list[np.ndarray | None] = []
@@ -348,18 +370,22 @@ def as_transforms(
             out.append(None)
             continue
         a = np.asarray(t, dtype=np.float64)
-        if a.shape not in ((2, 3), (3, 3)) or not np.all(np.isfinite(a)) or (
-                a.shape == (3, 3) and abs(a[2, 2]) < 1e-12):
+        if (
+            a.shape not in ((2, 3), (3, 3))
+            or not np.all(np.isfinite(a))
+            or (a.shape == (3, 3) and abs(a[2, 2]) < 1e-12)
+        ):
             raise ParameterError(
                 f"transform {k} must be a finite 2x3 affine matrix or 3x3 homography "
-                "(output -> frame pixels)", expected="(2, 3) or (3, 3)", found=str(a.shape),
+                "(output -> frame pixels)",
+                expected="(2, 3) or (3, 3)",
+                found=str(a.shape),
             )
         m = np.eye(3)
         m[: a.shape[0]] = a
         m /= m[2, 2]
         out.append(None if np.max(np.abs(m - IDENTITY)) <= 1e-9 else np.ascontiguousarray(m))
     return tuple(out)
-
 
 
 @dataclass
@@ -374,21 +400,25 @@ class Outputs:
     ghost: np.ndarray
 
 
-
 def output_layout(shape: tuple[int, int, int], n: int) -> dict[str, tuple[tuple, type]]:
     """Shape and dtype of every output array of a merge of ``n`` frames of ``shape``."""
     h, w, c = shape
     return {
-        "radiance": ((h, w, c), np.float32), "weight_sum": ((h, w), np.float32),
-        "shares": ((n, h, w), np.float16), "clip_count": ((h, w), np.uint8),
-        "clipped": ((h, w), np.bool_), "underexposed": ((h, w), np.bool_),
-        "ghost_score": ((h, w), np.float16), "ghost": ((h, w), np.bool_),
+        "radiance": ((h, w, c), np.float32),
+        "weight_sum": ((h, w), np.float32),
+        "shares": ((n, h, w), np.float16),
+        "clip_count": ((h, w), np.uint8),
+        "clipped": ((h, w), np.bool_),
+        "underexposed": ((h, w), np.bool_),
+        "ghost_score": ((h, w), np.float16),
+        "ghost": ((h, w), np.bool_),
     }
 
 
 def new_outputs(shape: tuple[int, int, int], n: int) -> Outputs:
-    return Outputs(**{name: np.empty(shp, dtype)
-                       for name, (shp, dtype) in output_layout(shape, n).items()})
+    return Outputs(
+        **{name: np.empty(shp, dtype) for name, (shp, dtype) in output_layout(shape, n).items()}
+    )
 
 
 def reused_outputs(res: MergeResult, shape: tuple[int, int, int], n: int) -> Outputs:
@@ -396,14 +426,17 @@ def reused_outputs(res: MergeResult, shape: tuple[int, int, int], n: int) -> Out
     arrays = {}
     for name, (shp, dtype) in output_layout(shape, n).items():
         a = getattr(res, name, None)
-        if not (isinstance(a, np.ndarray) and a.shape == shp and a.dtype == dtype
-                and a.flags.c_contiguous and a.flags.writeable):
+        if not (
+            isinstance(a, np.ndarray)
+            and a.shape == shp
+            and a.dtype == dtype
+            and a.flags.c_contiguous
+            and a.flags.writeable
+        ):
             raise ParameterError(
                 f"reuse: the previous result's {name} does not fit this merge",
                 expected=f"C-contiguous writeable {np.dtype(dtype).name} {shp}",
-                found="missing" if not isinstance(a, np.ndarray)
-                else f"{a.dtype} {a.shape}",
+                found="missing" if not isinstance(a, np.ndarray) else f"{a.dtype} {a.shape}",
             )
         arrays[name] = a
     return Outputs(**arrays)
-

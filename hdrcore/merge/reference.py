@@ -18,6 +18,7 @@ from .weights import WEIGHTS
 
 __all__ = ["LUT_MODE", "ReferenceKernel", "Scratch", "run_reference"]
 
+
 def _bilinear_weights(f: np.ndarray) -> np.ndarray:
     return np.stack([1.0 - f, f])
 
@@ -29,8 +30,6 @@ fused kernel's) interpolates the levels and reads the LUT linearly between entri
 ``bench/bench_merge.py``) linearises the 16 taps and interpolates linear values. On simulated
 gamma brackets with the true motion "levels" is as accurate or slightly better (the scene is
 smoother in the gamma domain than in linear values) and needs one table read, not 16."""
-
-
 
 
 class Scratch:
@@ -382,8 +381,7 @@ class ReferenceKernel:
         has_clip = clip_o.any(axis=0)
         first = np.where(has_clip, np.argmax(clip_o, axis=0), 0)
         usable_o = ~s.bad[np.ix_(order, need)]
-        last_usable = np.where(usable_o.any(axis=0), n - 1 - np.argmax(usable_o[::-1], axis=0),
-                               -1)
+        last_usable = np.where(usable_o.any(axis=0), n - 1 - np.argmax(usable_o[::-1], axis=0), -1)
         # 1) no frame gave the pixel weight, some valid frame is clipped there and every usable
         #    frame (below the floor) is a shorter exposure than the darkest clipped one: that
         #    frame's value, a lower bound (a frame too short to see the pixel, or black, says
@@ -424,7 +422,6 @@ class ReferenceKernel:
                     shares[:, wholes] = 0.0
                     shares[k, wholes] = 1.0
             under[rest] = True
-
 
 
 def run_reference(

@@ -108,9 +108,9 @@ class MergeResult:
             "underexposed_fraction": float(np.count_nonzero(self.underexposed)) / n_pix,
             "ghost_test": self.ghost_test,
             "ghost_fraction": float(np.count_nonzero(self.ghost)) / n_pix,
-            "ghost_regions": None if self.ghost_regions is None
-            else self.ghost_regions.to_json(),
-            "deghosted_fraction": None if self.deghosted is None
+            "ghost_regions": None if self.ghost_regions is None else self.ghost_regions.to_json(),
+            "deghosted_fraction": None
+            if self.deghosted is None
             else float(np.count_nonzero(self.deghosted)) / n_pix,
             "provenance": provenance_summary(self.shares),
             "timings": dict(self.timings),

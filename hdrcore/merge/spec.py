@@ -128,8 +128,7 @@ def merge_spec(plan: Plan, *, ghost_threshold: float, model_error: float) -> dic
     noise += (model_error * rad) ** 2
     score = spread.sum(axis=2) / np.maximum(noise.sum(axis=2), 1e-30)
     weight_sum = den.sum(axis=2)
-    shares = np.divide(wk.sum(axis=3), weight_sum, out=np.zeros((n, h, w)),
-                       where=weight_sum > 0)
+    shares = np.divide(wk.sum(axis=3), weight_sum, out=np.zeros((n, h, w)), where=weight_sum > 0)
 
     # fallbacks, in exposure order j (frame order[j])
     gave = wk.sum(axis=3)[order] > 0  # (N, H, W): frame j gave the pixel weight
@@ -156,7 +155,12 @@ def merge_spec(plan: Plan, *, ghost_threshold: float, model_error: float) -> dic
             shares[:, py, px] = 0.0
             shares[k, py, px] = 1.0
     return {
-        "radiance": rad, "weight_sum": weight_sum, "shares": shares,
-        "clip_count": clipped_k.sum(axis=0), "clipped": clipped_px, "underexposed": under,
-        "ghost_score": score, "ghost": score > ghost_threshold,
+        "radiance": rad,
+        "weight_sum": weight_sum,
+        "shares": shares,
+        "clip_count": clipped_k.sum(axis=0),
+        "clipped": clipped_px,
+        "underexposed": under,
+        "ghost_score": score,
+        "ghost": score > ghost_threshold,
     }

@@ -89,14 +89,10 @@ class NoiseModel:
     def __post_init__(self) -> None:
         if not np.isfinite(self.read_noise) or self.read_noise < 0:
             raise ParameterError("read noise must be finite and >= 0", found=str(self.read_noise))
-        if self.full_well is not None and not (
-            np.isfinite(self.full_well) and self.full_well > 0
-        ):
+        if self.full_well is not None and not (np.isfinite(self.full_well) and self.full_well > 0):
             raise ParameterError("full well must be positive or None", found=str(self.full_well))
         if not np.isfinite(self.level_noise) or self.level_noise < 0:
-            raise ParameterError(
-                "level noise must be finite and >= 0", found=str(self.level_noise)
-            )
+            raise ParameterError("level noise must be finite and >= 0", found=str(self.level_noise))
 
     @property
     def shot_gain(self) -> float:
@@ -207,13 +203,15 @@ class Weighting:
         kernel serves them all."""
         if self._pointer is None:
             if not AVAILABLE:
-                raise ParameterError("numba is needed to compile a weighting",
-                                     found="numba not installed")
+                raise ParameterError(
+                    "numba is needed to compile a weighting", found="numba not installed"
+                )
             self._pointer = numba.cfunc(_SIGNATURE, cache=True)(self.fn)
         return self._pointer
 
-    def __call__(self, level: np.ndarray, linear: np.ndarray, exposure_time: float,
-                 variance: np.ndarray) -> np.ndarray:
+    def __call__(
+        self, level: np.ndarray, linear: np.ndarray, exposure_time: float, variance: np.ndarray
+    ) -> np.ndarray:
         lv = np.ascontiguousarray(level, np.float32)
         shape = lv.shape
         lv = lv.ravel()

@@ -108,16 +108,22 @@ class PairBalance:
     @property
     def measured(self) -> bool:
         """Measured, and the same balance at every level (else it is the response's)."""
-        return bool(np.all(np.isfinite(self.gains))
-                    and np.nanmax(self.level_spread) <= LEVEL_TOLERANCE)
+        return bool(
+            np.all(np.isfinite(self.gains)) and np.nanmax(self.level_spread) <= LEVEL_TOLERANCE
+        )
 
     def to_json(self) -> dict[str, Any]:
-        return {"dark": self.dark, "bright": self.bright,
-                "gains": [_num(v) for v in self.gains],
-                "std_error": [_num(v) for v in self.std_error], "n_pixels": self.n_pixels,
-                "n_regions": self.n_regions, "regions_kept": self.regions_kept,
-                "level_spread": [_num(v) for v in self.level_spread],
-                "measured": self.measured}
+        return {
+            "dark": self.dark,
+            "bright": self.bright,
+            "gains": [_num(v) for v in self.gains],
+            "std_error": [_num(v) for v in self.std_error],
+            "n_pixels": self.n_pixels,
+            "n_regions": self.n_regions,
+            "regions_kept": self.regions_kept,
+            "level_spread": [_num(v) for v in self.level_spread],
+            "measured": self.measured,
+        }
 
 
 @dataclass(frozen=True)
@@ -183,7 +189,7 @@ def _sample(frames, reference, to_reference, masks, max_samples, max_level, band
 
     h, w = np.asarray(frames[reference]).shape[:2]
     step = max(1, int(np.ceil(np.sqrt(h * w / max_samples))))
-    ys, xs = (a.ravel() for a in np.mgrid[step // 2:h:step, step // 2:w:step])
+    ys, xs = (a.ravel() for a in np.mgrid[step // 2 : h : step, step // 2 : w : step])
     lo, hi = band[0] * max_level, band[1] * max_level
     out = []
     for k, f in enumerate(frames):
@@ -238,12 +244,22 @@ def _pair(lin_a, lin_b, z_a, both, region, n_regions, dark, bright) -> PairBalan
     use = np.isin(reg, np.asarray(members)[kept])
     zg, du = za[use], d[use]
     edges = np.quantile(zg, [0.0, 1 / 3, 2 / 3, 1.0])
-    thirds = [np.median(du[(zg >= lo) & (zg <= hi)], axis=0)
-              for lo, hi in zip(edges[:-1], edges[1:], strict=True)]
+    thirds = [
+        np.median(du[(zg >= lo) & (zg <= hi)], axis=0)
+        for lo, hi in zip(edges[:-1], edges[1:], strict=True)
+    ]
     spread = np.ptp(np.asarray(thirds), axis=0)
     gains = _triple(np.exp(med))
-    return PairBalance(dark, bright, gains, _triple(se), int(lr.shape[0]),
-                       len(bal), int(kept.sum()), _triple(spread))
+    return PairBalance(
+        dark,
+        bright,
+        gains,
+        _triple(se),
+        int(lr.shape[0]),
+        len(bal),
+        int(kept.sum()),
+        _triple(spread),
+    )
 
 
 def measure_white_balance(
@@ -268,8 +284,9 @@ def measure_white_balance(
     """
     n = len(frames)
     if n < 1 or not 0 <= reference < n:
-        raise ParameterError("reference frame out of range", expected=f"0..{n - 1}",
-                             found=str(reference))
+        raise ParameterError(
+            "reference frame out of range", expected=f"0..{n - 1}", found=str(reference)
+        )
     shapes = {np.asarray(f).shape for f in frames}
     if len(shapes) != 1 or len(next(iter(shapes))) != 3 or next(iter(shapes))[2] != 3:
         raise ParameterError("frames must all be (H, W, 3)", found=str(sorted(shapes)))
@@ -277,17 +294,32 @@ def measure_white_balance(
     if table.ndim == 1:
         table = np.tile(table, (3, 1))
     if table.shape != (3, max_level + 1):
-        raise ParameterError("lut must be (3, max_level + 1)",
-                             expected=str((3, max_level + 1)), found=str(table.shape))
+        raise ParameterError(
+            "lut must be (3, max_level + 1)",
+            expected=str((3, max_level + 1)),
+            found=str(table.shape),
+        )
     if not (0.0 <= threshold < 1.0):
         raise ParameterError("white balance threshold must be in [0, 1)", found=str(threshold))
-    ys, xs, (h, w), sam = _sample(frames, reference, to_reference, masks, max_samples,
-                                  max_level, well_exposed)
+    ys, xs, (h, w), sam = _sample(
+        frames, reference, to_reference, masks, max_samples, max_level, well_exposed
+    )
     gr, gc = int(grid[0]), int(grid[1])
     region = np.minimum(ys * gr // h, gr - 1) * gc + np.minimum(xs * gc // w, gc - 1)
     lins = [np.stack([table[c][z[:, c]] for c in range(3)], axis=-1) for z, _ in sam]
-    pairs = tuple(_pair(lins[k], lins[k + 1], sam[k][0][:, 1], sam[k][1] & sam[k + 1][1],
-                        region, gr * gc, k, k + 1) for k in range(n - 1))
+    pairs = tuple(
+        _pair(
+            lins[k],
+            lins[k + 1],
+            sam[k][0][:, 1],
+            sam[k][1] & sam[k + 1][1],
+            region,
+            gr * gc,
+            k,
+            k + 1,
+        )
+        for k in range(n - 1)
+    )
     # step 5: what every pair shares is the response's (a channel's curve too steep or too
     # flat shifts every pair's balance the same way); only what is left is the frames'
     # (every pair with a balance counts here, the level test's too: a curve's error is what
@@ -316,37 +348,61 @@ def measure_white_balance(
     unmeasured = tuple(k for k in range(n) if not np.all(np.isfinite(gains[k])))
     lim = np.log1p(threshold)
     differs = tuple(
-        k for k in range(n) if k not in unmeasured and k != reference
-        and any(abs(log_g[k, c]) > lim and abs(log_g[k, c]) > 3.0 * se[k, c] for c in (0, 2)))
+        k
+        for k in range(n)
+        if k not in unmeasured
+        and k != reference
+        and any(abs(log_g[k, c]) > lim and abs(log_g[k, c]) > 3.0 * se[k, c] for c in (0, 2))
+    )
     parts = []
     if differs:
-        parts.append("white balance differs from reference frame "
-                     f"{reference} in frame(s) " + ", ".join(
-                         f"{k} (R/G x{gains[k, 0]:.3f}, B/G x{gains[k, 2]:.3f})"
-                         for k in differs))
+        parts.append(
+            "white balance differs from reference frame "
+            f"{reference} in frame(s) "
+            + ", ".join(f"{k} (R/G x{gains[k, 0]:.3f}, B/G x{gains[k, 2]:.3f})" for k in differs)
+        )
     else:
-        parts.append(f"every measured frame has reference frame {reference}'s white balance "
-                     f"(within {100 * threshold:.0f} %)")
+        parts.append(
+            f"every measured frame has reference frame {reference}'s white balance "
+            f"(within {100 * threshold:.0f} %)"
+        )
     if unmeasured:
-        level = [f"{p.dark}-{p.bright}" for p in pairs
-                 if np.all(np.isfinite(p.gains)) and not p.measured]
-        parts.append("white balance not measured for frame(s) "
-                     + ", ".join(str(k) for k in unmeasured)
-                     + (" (pair(s) " + ", ".join(level) + ": the balance changes with the "
-                        "level, the response's error rather than a balance)" if level else "")
-                     + (" (too few pixels well exposed in a frame and its neighbour)"
-                        if len(level) < sum(1 for p in pairs if not p.measured) else ""))
+        level = [
+            f"{p.dark}-{p.bright}" for p in pairs if np.all(np.isfinite(p.gains)) and not p.measured
+        ]
+        parts.append(
+            "white balance not measured for frame(s) "
+            + ", ".join(str(k) for k in unmeasured)
+            + (
+                " (pair(s) " + ", ".join(level) + ": the balance changes with the "
+                "level, the response's error rather than a balance)"
+                if level
+                else ""
+            )
+            + (
+                " (too few pixels well exposed in a frame and its neighbour)"
+                if len(level) < sum(1 for p in pairs if not p.measured)
+                else ""
+            )
+        )
     if np.any(np.abs(drift) > lim):
-        parts.append(f"every pair shifts the balance alike (R/G x{np.exp(drift[0]):.3f}, "
-                     f"B/G x{np.exp(drift[2]):.3f} a pair): the response's channels, not "
-                     "corrected here")
+        parts.append(
+            f"every pair shifts the balance alike (R/G x{np.exp(drift[0]):.3f}, "
+            f"B/G x{np.exp(drift[2]):.3f} a pair): the response's channels, not "
+            "corrected here"
+        )
     return FrameBalance(
         reference=reference,
         gains=tuple(_triple(g) for g in gains),
         std_error=tuple(_triple(s) for s in se),
-        pairs=pairs, differs=differs, unmeasured=unmeasured, threshold=float(threshold),
-        applied=False, message="; ".join(parts),
-        drift=_triple(np.exp(drift)))
+        pairs=pairs,
+        differs=differs,
+        unmeasured=unmeasured,
+        threshold=float(threshold),
+        applied=False,
+        message="; ".join(parts),
+        drift=_triple(np.exp(drift)),
+    )
 
 
 def correct_merge(
@@ -366,12 +422,17 @@ def correct_merge(
     if rad.ndim != 3 or rad.shape[2] != 3:
         raise ParameterError("radiance must be (H, W, 3)", found=str(rad.shape))
     if sh.ndim != 3 or sh.shape[1:] != rad.shape[:2]:
-        raise ParameterError("shares must be (N, H, W) like the radiance",
-                             expected=f"(N, {rad.shape[0]}, {rad.shape[1]})",
-                             found=str(sh.shape))
+        raise ParameterError(
+            "shares must be (N, H, W) like the radiance",
+            expected=f"(N, {rad.shape[0]}, {rad.shape[1]})",
+            found=str(sh.shape),
+        )
     if g.shape != (sh.shape[0], 3) or not np.all(np.isfinite(g)) or np.any(g <= 0):
-        raise ParameterError("gains must be (N, 3), finite and positive",
-                             expected=f"({sh.shape[0]}, 3)", found=str(g.shape))
+        raise ParameterError(
+            "gains must be (N, 3), finite and positive",
+            expected=f"({sh.shape[0]}, 3)",
+            found=str(g.shape),
+        )
     moving = np.flatnonzero(np.any(g != 1.0, axis=1))
     if moving.size == 0:
         return rad

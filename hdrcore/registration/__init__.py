@@ -132,8 +132,14 @@ def register_pair(
     """
     key = validate_method(method, REGISTRATION_METHODS, "registration")
     return REGISTRATION_METHODS[key](
-        dark, bright, ratio, saturation=saturation, noise_floor=noise_floor,
-        threshold=threshold, model=model, **options,
+        dark,
+        bright,
+        ratio,
+        saturation=saturation,
+        noise_floor=noise_floor,
+        threshold=threshold,
+        model=model,
+        **options,
     )
 
 
@@ -165,17 +171,25 @@ def register_bracket(
         )
     ref = n // 2 if reference is None else int(reference)
     if not 0 <= ref < n:
-        raise ParameterError("reference frame out of range", expected=f"0..{n - 1}",
-                             found=str(reference))
+        raise ParameterError(
+            "reference frame out of range", expected=f"0..{n - 1}", found=str(reference)
+        )
     key = validate_method(method, REGISTRATION_METHODS, "registration")
     model = validate_method(model, MODELS, "motion model")
     pairs = []
     for i in range(n - 1):
         pairs.append(
             REGISTRATION_METHODS[key](
-                frames[i], frames[i + 1], ratios[i], saturation=saturation,
-                noise_floor=noise_floor, threshold=threshold, model=model,
-                dark_index=i, bright_index=i + 1, **options,
+                frames[i],
+                frames[i + 1],
+                ratios[i],
+                saturation=saturation,
+                noise_floor=noise_floor,
+                threshold=threshold,
+                model=model,
+                dark_index=i,
+                bright_index=i + 1,
+                **options,
             )
         )
         if progress is not None:
@@ -184,8 +198,7 @@ def register_bracket(
         chain = to_reference([_present(p.matrix) for p in pairs], ref)
         return BracketRegistration(ref, tuple(pairs), chain, model, key)
     chain = to_reference([_present(p.homography) for p in pairs], ref)
-    return BracketRegistration(ref, tuple(pairs), None, model, key,
-                               to_reference_homography=chain)
+    return BracketRegistration(ref, tuple(pairs), None, model, key, to_reference_homography=chain)
 
 
 def _present(m: np.ndarray | None) -> np.ndarray:

@@ -39,9 +39,15 @@ from .._numba import AVAILABLE
 from .._numba import inline as _inline
 from .._numba import njit as _njit
 
-__all__ = ["AVAILABLE", "bin_clip", "reduce2", "gauss_newton_sums", "score_candidates",
-           "support_valid", "warp_rows"]
-
+__all__ = [
+    "AVAILABLE",
+    "bin_clip",
+    "reduce2",
+    "gauss_newton_sums",
+    "score_candidates",
+    "support_valid",
+    "warp_rows",
+]
 
 
 @_njit
@@ -83,8 +89,7 @@ def _linear(img, lut, y, x):
 
 
 @_njit
-def score_candidates(img, lut, n_cand, margin, phase, lo, hi, eps2, gradient, ys, xs, vs,
-                     scores):
+def score_candidates(img, lut, n_cand, margin, phase, lo, hi, eps2, gradient, ys, xs, vs, scores):
     """Stratified candidate pixels of ``img`` (dark frame or a level of ``k * dark``) and their
     relative-gradient scores; returns how many were well exposed.
 
@@ -191,8 +196,9 @@ def reduce2(src, out):
         y0 = 2 * i
         for j in range(w2):
             x0 = 2 * j
-            out[i, j] = (((src[y0, x0] + src[y0 + 1, x0]) + src[y0, x0 + 1])
-                         + src[y0 + 1, x0 + 1]) * q
+            out[i, j] = (
+                ((src[y0, x0] + src[y0 + 1, x0]) + src[y0, x0 + 1]) + src[y0 + 1, x0 + 1]
+            ) * q
 
 
 @_inline
@@ -229,8 +235,7 @@ def keys_at(src, sx, sy):  # pragma: no cover - compiled
     for dy in range(4):
         yy = min(max(iy - 1 + dy, 0), h - 1)
         wy = wy0 if dy == 0 else (wy1 if dy == 1 else (wy2 if dy == 2 else wy3))
-        acc += wy * (wx0 * src[yy, x0] + wx1 * src[yy, x1] + wx2 * src[yy, x2]
-                     + wx3 * src[yy, x3])
+        acc += wy * (wx0 * src[yy, x0] + wx1 * src[yy, x1] + wx2 * src[yy, x2] + wx3 * src[yy, x3])
     return acc
 
 
@@ -244,8 +249,9 @@ def _dkeys(f, w):
 
 
 @_njit
-def gauss_newton_sums(img, lut, xs, ys, bs, m, frame, n_par, gradient, hess, grad, gain, n_gain,
-                      robust):
+def gauss_newton_sums(
+    img, lut, xs, ys, bs, m, frame, n_par, gradient, hess, grad, gain, n_gain, robust
+):
     """Eq. 6 weighted sum of squared eq. 7 residuals and the sum of the weights at the samples;
     with ``gradient`` also the Gauss-Newton normal equations of the first ``n_par`` motion
     generators added into ``hess`` (8x8, upper triangle mirrored) and ``grad`` (8).
@@ -345,8 +351,12 @@ def gauss_newton_sums(img, lut, xs, ys, bs, m, frame, n_par, gradient, hess, gra
             _keys(fx, wx)
             _keys(fy, wy)
             for j in range(4):
-                rows[j] = taps[j, 0] * wx[0] + taps[j, 1] * wx[1] + taps[j, 2] * wx[2] \
+                rows[j] = (
+                    taps[j, 0] * wx[0]
+                    + taps[j, 1] * wx[1]
+                    + taps[j, 2] * wx[2]
                     + taps[j, 3] * wx[3]
+                )
             gx = (qxs[q] - cx) * inv_unit
             gy = (qys[q] - cy) * inv_unit
             gfac = math.exp(g0 + g1 * gx + g2 * gy) if uses_gain else math.exp(g0)
@@ -377,8 +387,12 @@ def gauss_newton_sums(img, lut, xs, ys, bs, m, frame, n_par, gradient, hess, gra
             _dkeys(fy, dwy)
             sx = 0.0
             for j in range(4):
-                sx += (taps[j, 0] * dwx[0] + taps[j, 1] * dwx[1] + taps[j, 2] * dwx[2]
-                       + taps[j, 3] * dwx[3]) * wy[j]
+                sx += (
+                    taps[j, 0] * dwx[0]
+                    + taps[j, 1] * dwx[1]
+                    + taps[j, 2] * dwx[2]
+                    + taps[j, 3] * dwx[3]
+                ) * wy[j]
             sy = rows[0] * dwy[0] + rows[1] * dwy[1] + rows[2] * dwy[2] + rows[3] * dwy[3]
             dn_da = 2.0 * b / (denom * denom) if above else inv_t
             j0 = dn_da * sx * gfac

@@ -84,8 +84,16 @@ from .transform import (
 )
 
 __all__ = [
-    "MODELS", "AFFINE_MODELS", "PairData", "prepare", "register_with", "Samples",
-    "RefineResult", "cost", "normal_equations", "motion_update",
+    "MODELS",
+    "AFFINE_MODELS",
+    "PairData",
+    "prepare",
+    "register_with",
+    "Samples",
+    "RefineResult",
+    "cost",
+    "normal_equations",
+    "motion_update",
 ]
 
 log = logging.getLogger(__name__)
@@ -153,8 +161,7 @@ class PairData:
         if self.levels[level] is None:  # full resolution of a large frame: clip on demand
             k = self.ratio
             a = np.clip(self.linear(self.bright), self.lo, self.hi).astype(np.float32)
-            b = np.clip(self.linear(self.dark) * np.float32(k), self.lo, self.hi).astype(
-                np.float32)
+            b = np.clip(self.linear(self.dark) * np.float32(k), self.lo, self.hi).astype(np.float32)
             return a, b
         return self.levels[level]
 
@@ -171,7 +178,8 @@ def _as_image(x: np.ndarray, name: str, lut: np.ndarray | None = None) -> np.nda
         if arr.dtype not in (np.uint8, np.uint16):
             raise ParameterError(
                 f"with a linearisation table the {name} frame must hold integer levels",
-                expected="uint8 or uint16", found=str(arr.dtype),
+                expected="uint8 or uint16",
+                found=str(arr.dtype),
             )
         return arr
     if arr.dtype not in (np.float32, np.float64):
@@ -215,19 +223,24 @@ def prepare(
     bright = _as_image(bright, "bright", lut)
     if lut is not None:
         if dark.dtype != bright.dtype:
-            raise ParameterError("dark and bright levels differ in type",
-                                 expected=str(bright.dtype), found=str(dark.dtype))
+            raise ParameterError(
+                "dark and bright levels differ in type",
+                expected=str(bright.dtype),
+                found=str(dark.dtype),
+            )
         lut = _as_lut(lut, dark.dtype)
         if not _kernels.AVAILABLE:  # the numpy reference works on linear frames
             dark, bright, lut = lut[dark], lut[bright], None
     if dark.shape != bright.shape:
         raise ParameterError(
-            "dark and bright frames differ in size", expected=str(bright.shape),
+            "dark and bright frames differ in size",
+            expected=str(bright.shape),
             found=str(dark.shape),
         )
     if min(dark.shape) < 16:
-        raise ParameterError("frames too small to register", expected=">= 16x16",
-                             found=str(dark.shape))
+        raise ParameterError(
+            "frames too small to register", expected=">= 16x16", found=str(dark.shape)
+        )
     k = float(ratio)
     if not np.isfinite(k) or k <= 0:
         raise ParameterError("exposure ratio must be finite and positive", found=str(ratio))
@@ -238,7 +251,8 @@ def prepare(
     if not (np.isfinite(nf) and 0 <= nf < sat):
         raise ParameterError(
             "noise floor must be >= 0 and below the saturation level",
-            expected=f"0 <= noise_floor < {sat}", found=str(noise_floor),
+            expected=f"0 <= noise_floor < {sat}",
+            found=str(noise_floor),
         )
     if not (np.isfinite(threshold) and threshold >= 0):
         raise ParameterError("normalisation threshold t must be >= 0", found=str(threshold))
@@ -292,9 +306,17 @@ class Samples:
 
 
 def select_samples(
-    data: PairData, level: int, max_samples: int, *, motion: np.ndarray | None = None,
-    by_gradient: bool = True, seed: int = 0, compiled: bool | None = None,
-    max_contrast: float = MAX_CONTRAST, check_bright: bool = True, reach: int = 0,
+    data: PairData,
+    level: int,
+    max_samples: int,
+    *,
+    motion: np.ndarray | None = None,
+    by_gradient: bool = True,
+    seed: int = 0,
+    compiled: bool | None = None,
+    max_contrast: float = MAX_CONTRAST,
+    check_bright: bool = True,
+    reach: int = 0,
     exclude: np.ndarray | None = None,
 ) -> Samples:
     """Up to ``max_samples`` valid eq. 6 samples on the dark frame's grid of ``level``, in raster
@@ -356,8 +378,19 @@ def select_samples(
         x, y = xx.astype(np.float64), yy.astype(np.float64)
         if compiled:
             out = np.empty(x.size, np.bool_)
-            _kernels.support_valid(bright, lut, x, y, m_motion, level == 0, data.noise_floor,
-                                   data.saturation, contrast, int(reach), out)
+            _kernels.support_valid(
+                bright,
+                lut,
+                x,
+                y,
+                m_motion,
+                level == 0,
+                data.noise_floor,
+                data.saturation,
+                contrast,
+                int(reach),
+                out,
+            )
             return out
         den = m_motion[2, 0] * x + m_motion[2, 1] * y + m_motion[2, 2]
         qx, qy = apply(m_motion, x, y)
@@ -392,8 +425,9 @@ def select_samples(
             xx = np.empty(n_cand, np.int64)
             v = np.empty(n_cand)
             score = np.empty(n_cand if by_gradient else 0)
-            n = _kernels.score_candidates(img, lut, n_cand, m, phase, lo, hi, eps2, by_gradient,
-                                          yy, xx, v, score)
+            n = _kernels.score_candidates(
+                img, lut, n_cand, m, phase, lo, hi, eps2, by_gradient, yy, xx, v, score
+            )
             yy, xx, v, score = yy[:n], xx[:n], v[:n], score[:n]
         else:
             kk = np.arange(n_cand, dtype=np.float64)
@@ -477,8 +511,16 @@ def _frame(data: PairData, level: int, ramp: float = BORDER_RAMP) -> np.ndarray:
 def _generators(gx: np.ndarray, gy: np.ndarray, n_par: int) -> list[tuple]:
     """Motion generators ``g(X, Y)`` (x and y parts) at normalised bright-frame positions."""
     one, zero = np.ones_like(gx), np.zeros_like(gx)
-    gens = [(one, zero), (zero, one), (-gy, gx), (gx, gy), (gx, -gy), (gy, gx),
-            (-gx * gx, -gx * gy), (-gx * gy, -gy * gy)]
+    gens = [
+        (one, zero),
+        (zero, one),
+        (-gy, gx),
+        (gx, gy),
+        (gx, -gy),
+        (gy, gx),
+        (-gx * gx, -gx * gy),
+        (-gx * gy, -gy * gy),
+    ]
     return gens[:n_par]
 
 
@@ -491,10 +533,15 @@ def _gain_factor(gain: np.ndarray | None, ux: np.ndarray, uy: np.ndarray) -> np.
 
 
 def residuals(
-    data: PairData, level: int, inverse: np.ndarray, s: Samples, *, gradient: bool = True,
-    ramp: float = BORDER_RAMP, gain: np.ndarray | None = None,
-) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None, np.ndarray, np.ndarray,
-           np.ndarray]:
+    data: PairData,
+    level: int,
+    inverse: np.ndarray,
+    s: Samples,
+    *,
+    gradient: bool = True,
+    ramp: float = BORDER_RAMP,
+    gain: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None, np.ndarray, np.ndarray, np.ndarray]:
     """Eq. 7 normalised differences at the samples (the numpy reference of the kernel).
 
     ``inverse`` (2x3 or 3x3, level coordinates) maps dark-frame coordinates to the bright frame,
@@ -532,9 +579,18 @@ def residuals(
 
 
 def normal_equations(
-    data: PairData, level: int, inverse: np.ndarray, s: Samples, *, n_par: int = 3,
-    gradient: bool = True, compiled: bool | None = None, ramp: float = BORDER_RAMP,
-    gain: np.ndarray | None = None, n_gain: int = 0, robust: float = 0.0,
+    data: PairData,
+    level: int,
+    inverse: np.ndarray,
+    s: Samples,
+    *,
+    n_par: int = 3,
+    gradient: bool = True,
+    compiled: bool | None = None,
+    ramp: float = BORDER_RAMP,
+    gain: np.ndarray | None = None,
+    n_gain: int = 0,
+    robust: float = 0.0,
 ) -> tuple[float, float, np.ndarray, np.ndarray]:
     """Eq. 6 sum over the samples and its Gauss-Newton normal equations in one pass.
 
@@ -567,12 +623,23 @@ def normal_equations(
         grad = np.zeros(n_tot)
         img = data.bright if level == 0 else data.levels[level][0]
         ssum, wsum = _kernels.gauss_newton_sums(
-            img, data.lut if level == 0 else None, s.x, s.y, s.b, m, frame, n_par, gradient,
-            hess, grad, g, n_gain, float(robust),
+            img,
+            data.lut if level == 0 else None,
+            s.x,
+            s.y,
+            s.b,
+            m,
+            frame,
+            n_par,
+            gradient,
+            hess,
+            grad,
+            g,
+            n_gain,
+            float(robust),
         )
         return float(ssum), float(wsum), hess, grad
-    n, gx, gy, weight, qx, qy = residuals(data, level, m, s, gradient=gradient, ramp=ramp,
-                                          gain=g)
+    n, gx, gy, weight, qx, qy = residuals(data, level, m, s, gradient=gradient, ramp=ramp, gain=g)
     wsum = float(weight.sum())
     if robust > 0:
         r2 = (n / robust) ** 2
@@ -597,8 +664,9 @@ def normal_equations(
     return ssum, wsum, wj.T @ jac, wj.T @ n
 
 
-def _gained_values(data: PairData, level: int, qx: np.ndarray, qy: np.ndarray, gain: np.ndarray,
-                   frame: np.ndarray) -> np.ndarray:
+def _gained_values(
+    data: PairData, level: int, qx: np.ndarray, qy: np.ndarray, gain: np.ndarray, frame: np.ndarray
+) -> np.ndarray:
     """The bright frame's clipped, interpolated values times the gain (numpy reference)."""
     img = data.linear(data.bright) if level == 0 else data.levels[level][0]
     sm = sample(img, qx, qy, gradient=False, clip=(frame[0], frame[1]))
@@ -634,16 +702,20 @@ def motion_update(delta: np.ndarray, shape_l: tuple[int, int]) -> np.ndarray:
     if len(delta) <= 4:
         sc = np.exp(d[3])
         c, s = sc * np.cos(d[2]), sc * np.sin(d[2])
-        return np.array([
-            [c, -s, cx - (c * cx - s * cy) + d[0]],
-            [s, c, cy - (s * cx + c * cy) + d[1]],
-            [0.0, 0.0, 1.0],
-        ])
-    g = np.array([
-        [1.0 + d[3] + d[4], -d[2] + d[5], d[0] / unit],
-        [d[2] + d[5], 1.0 + d[3] - d[4], d[1] / unit],
-        [d[6], d[7], 1.0],
-    ])
+        return np.array(
+            [
+                [c, -s, cx - (c * cx - s * cy) + d[0]],
+                [s, c, cy - (s * cx + c * cy) + d[1]],
+                [0.0, 0.0, 1.0],
+            ]
+        )
+    g = np.array(
+        [
+            [1.0 + d[3] + d[4], -d[2] + d[5], d[0] / unit],
+            [d[2] + d[5], 1.0 + d[3] - d[4], d[1] / unit],
+            [d[6], d[7], 1.0],
+        ]
+    )
     norm = np.array([[1 / unit, 0.0, -cx / unit], [0.0, 1 / unit, -cy / unit], [0.0, 0.0, 1.0]])
     back = np.array([[unit, 0.0, cx], [0.0, unit, cy], [0.0, 0.0, 1.0]])
     out = back @ g @ norm
@@ -655,8 +727,9 @@ def corner_move(a: np.ndarray, b: np.ndarray, shape_l: tuple[int, int]) -> float
     return float(corner_error(a, b, shape_l).max())
 
 
-def cost(data: PairData, level: int, inverse: np.ndarray, s: Samples,
-         gain: np.ndarray | None = None) -> tuple[float, float]:
+def cost(
+    data: PairData, level: int, inverse: np.ndarray, s: Samples, gain: np.ndarray | None = None
+) -> tuple[float, float]:
     """Eq. 6 cost (weighted mean squared eq. 7 difference) and the sum of the sample weights
     (the number of samples that the motion keeps inside the bright frame).
 
@@ -704,9 +777,7 @@ def make_preview(data: PairData, matrix: np.ndarray, size: int = 320) -> PairPre
     if data.levels[0] is None and len(data.levels) == 1:
         return None
     level = 0
-    while (
-        level + 1 < len(data.levels) and max(data.level_shape(level)) > size
-    ):
+    while level + 1 < len(data.levels) and max(data.level_shape(level)) > size:
         level += 1
     a, b = data.clipped(level)
     h, w = a.shape
@@ -738,24 +809,49 @@ def _fft_level(data: PairData, fft_size: int) -> int:
 
 
 def _failed(
-    data: PairData, status: str, message: str, *, method: str, model: str, dark_index: int,
-    bright_index: int, t0: float, shift: FourierShift | None = None, cost_before: float = np.nan,
-    valid_fraction: float = 0.0, previews: bool = False, overlap: float = float("nan"),
+    data: PairData,
+    status: str,
+    message: str,
+    *,
+    method: str,
+    model: str,
+    dark_index: int,
+    bright_index: int,
+    t0: float,
+    shift: FourierShift | None = None,
+    cost_before: float = np.nan,
+    valid_fraction: float = 0.0,
+    previews: bool = False,
+    overlap: float = float("nan"),
 ) -> PairRegistration:
     log.info("pair %d-%d: %s: %s", dark_index, bright_index, status, message)
     preview = make_preview(data, identity()) if previews and data.lo < data.hi else None
     return PairRegistration(
-        dark=dark_index, bright=bright_index,
-        matrix=identity() if model in AFFINE_MODELS else None, homography=np.eye(3),
-        dx=0.0, dy=0.0, angle_deg=0.0,
-        ratio=data.ratio, model=model, method=method, cost_before=cost_before,
-        cost_after=cost_before, overlap=overlap, valid_fraction=valid_fraction, iterations=0,
-        cost_history=(), level_history=(),
+        dark=dark_index,
+        bright=bright_index,
+        matrix=identity() if model in AFFINE_MODELS else None,
+        homography=np.eye(3),
+        dx=0.0,
+        dy=0.0,
+        angle_deg=0.0,
+        ratio=data.ratio,
+        model=model,
+        method=method,
+        cost_before=cost_before,
+        cost_after=cost_before,
+        overlap=overlap,
+        valid_fraction=valid_fraction,
+        iterations=0,
+        cost_history=(),
+        level_history=(),
         initial_shift=(float(shift.dx), float(shift.dy)) if shift else (0.0, 0.0),
         peak_ncc=shift.ncc if shift else float("nan"),
         peak_psr=shift.psr if shift else float("nan"),
-        status=status, message=message, shape=data.shape,
-        seconds=time.perf_counter() - t0, preview=preview,
+        status=status,
+        message=message,
+        shape=data.shape,
+        seconds=time.perf_counter() - t0,
+        preview=preview,
     )
 
 
@@ -800,8 +896,11 @@ def register_with(
     is kept when the tiles outside that area are left no worse.
     """
     t0 = time.perf_counter()
-    accepted = [n for n, prm in inspect.signature(refine).parameters.items()
-                if prm.kind is inspect.Parameter.KEYWORD_ONLY]
+    accepted = [
+        n
+        for n, prm in inspect.signature(refine).parameters.items()
+        if prm.kind is inspect.Parameter.KEYWORD_ONLY
+    ]
     unknown = sorted(set(refine_options) - set(accepted))
     if unknown:
         raise ParameterError(
@@ -812,23 +911,33 @@ def register_with(
     if models is not None and model not in models:
         raise ParameterError(
             f"registration method {method!r} does not support the {model!r} motion model",
-            expected=", ".join(models), found=model,
+            expected=", ".join(models),
+            found=model,
         )
     data = prepare(
-        dark, bright, ratio, saturation=saturation, noise_floor=noise_floor, threshold=threshold,
+        dark,
+        bright,
+        ratio,
+        saturation=saturation,
+        noise_floor=noise_floor,
+        threshold=threshold,
         lut=lut,
     )
-    common: dict[str, Any] = dict(method=method, model=model, dark_index=dark_index,
-                  bright_index=bright_index, t0=t0)
+    common: dict[str, Any] = dict(
+        method=method, model=model, dark_index=dark_index, bright_index=bright_index, t0=t0
+    )
     if data.lo >= data.hi:
         return _failed(
-            data, "saturated",
+            data,
+            "saturated",
             f"no exposure range shared by the frames: noise floor x ratio {data.lo:.4g} >= "
-            f"saturation {data.hi:.4g}", **common,
+            f"saturation {data.hi:.4g}",
+            **common,
         )
     # Well-exposed pixels in both frames (eq. 6's V): enough to register?
-    shared = select_samples(data, 0, evaluation_samples, by_gradient=False, seed=1,
-                            check_bright=False)
+    shared = select_samples(
+        data, 0, evaluation_samples, by_gradient=False, seed=1, check_bright=False
+    )
     rng = np.random.default_rng(2)
     h, w = data.shape
     ys, xs = rng.integers(0, h, 20_000), rng.integers(0, w, 20_000)
@@ -838,12 +947,14 @@ def register_with(
     dark_ok = float(np.mean((probe > data.noise_floor) & (probe < data.saturation)))
     if shared.b.size < 64 or dark_ok * bright_ok < min_valid_fraction:
         return _failed(
-            data, "saturated",
+            data,
+            "saturated",
             f"too few well-exposed pixels: {100 * bright_ok:.2f}% of the bright frame and "
             f"{100 * dark_ok:.2f}% of the dark frame lie between the noise floor and "
             f"saturation, {100 * shared.well_exposed:.2f}% of the dark frame (times the ratio) "
             f"in the range both frames expose",
-            valid_fraction=dark_ok * bright_ok, **common,
+            valid_fraction=dark_ok * bright_ok,
+            **common,
         )
     ev = select_samples(data, 0, evaluation_samples, by_gradient=False, seed=1)
     cost_before, n_before = cost(data, 0, identity(), ev)
@@ -857,16 +968,24 @@ def register_with(
         if shift.ncc < min_ncc:
             if rel_contrast < 0.02:
                 return _failed(
-                    data, "flat",
+                    data,
+                    "flat",
                     f"no texture: relative contrast {rel_contrast:.4f} at 1/{2**lf} resolution "
-                    f"(flat or featureless frame)", shift=shift, cost_before=cost_before,
-                    previews=previews, **common,
+                    f"(flat or featureless frame)",
+                    shift=shift,
+                    cost_before=cost_before,
+                    previews=previews,
+                    **common,
                 )
             return _failed(
-                data, "weak-peak",
+                data,
+                "weak-peak",
                 f"eq. 5 correlation peak too weak: NCC {shift.ncc:.3f} < {min_ncc} "
                 f"(PSR {shift.psr:.1f}); frames unrelated, repetitive or too noisy",
-                shift=shift, cost_before=cost_before, previews=previews, **common,
+                shift=shift,
+                cost_before=cost_before,
+                previews=previews,
+                **common,
             )
         scale = 2.0**lf
         init = identity()
@@ -874,18 +993,26 @@ def register_with(
     else:
         init = np.asarray(initial, float)
         if init.shape not in ((2, 3), (3, 3)) or not np.all(np.isfinite(init)):
-            raise ParameterError("initial matrix must be a finite 2x3 or 3x3 matrix",
-                                 found=str(init.shape))
+            raise ParameterError(
+                "initial matrix must be a finite 2x3 or 3x3 matrix", found=str(init.shape)
+            )
         init = homogeneous(init)
         if model in AFFINE_MODELS and not (abs(init[2, 0]) < 1e-12 and abs(init[2, 1]) < 1e-12):
-            raise ParameterError(f"the {model!r} model needs an affine initial matrix",
-                                 found=f"perspective row {init[2].tolist()}")
+            raise ParameterError(
+                f"the {model!r} model needs an affine initial matrix",
+                found=f"perspective row {init[2].tolist()}",
+            )
     overlap0 = overlap_fraction(init, data.shape)
     if overlap0 < min_overlap:
         return _failed(
-            data, "no-overlap",
+            data,
+            "no-overlap",
             f"the initial shift leaves {overlap0:.0%} overlap (< {min_overlap:.0%})",
-            shift=shift, cost_before=cost_before, previews=previews, overlap=overlap0, **common,
+            shift=shift,
+            cost_before=cost_before,
+            previews=previews,
+            overlap=overlap0,
+            **common,
         )
 
     # The searches work on the inverse (dark -> bright) matrix: see select_samples.
@@ -893,14 +1020,17 @@ def register_with(
     inverse, homography = _search_motion(res.matrix, model)
 
     def evaluated(inverse: np.ndarray, homography: np.ndarray):
-        ev = select_samples(data, 0, evaluation_samples, motion=inverse, by_gradient=False,
-                            seed=1)
+        ev = select_samples(data, 0, evaluation_samples, motion=inverse, by_gradient=False, seed=1)
         c, n = cost(data, 0, inverse, ev)
-        return (ev, c, n, overlap_fraction(homography, data.shape),
-                similarity_parameters(homography, data.shape))
+        return (
+            ev,
+            c,
+            n,
+            overlap_fraction(homography, data.shape),
+            similarity_parameters(homography, data.shape),
+        )
 
-    ev_after, cost_after, n_after, overlap, (dx, dy, angle, scale) = evaluated(inverse,
-                                                                              homography)
+    ev_after, cost_after, n_after, overlap, (dx, dy, angle, scale) = evaluated(inverse, homography)
     status, message = "ok", res.message or "converged"
     if not np.all(np.isfinite(homography)) or not np.isfinite(cost_after):
         status, message = "diverged", "the search left the frames (no valid pixels)"
@@ -913,49 +1043,87 @@ def register_with(
             f"({cost_after:.4g} > {cost_before:.4g})",
         )
     if status != "ok":
-        return _failed(data, status, message, shift=shift, cost_before=cost_before,
-                       previews=previews, overlap=overlap, **common)
+        return _failed(
+            data,
+            status,
+            message,
+            shift=shift,
+            cost_before=cost_before,
+            previews=previews,
+            overlap=overlap,
+            **common,
+        )
     residual = None
     if check_residual:
         status, message, residual = _checked(data, homography, model, message)
         again = None
-        if refit_local and "exclude" in accepted and residual is not None and (
-                residual.kind == "local"):
-            again = _refit_without_local(refine, data, inverse, model, residual,
-                                         refine_options, min_overlap)
+        if (
+            refit_local
+            and "exclude" in accepted
+            and residual is not None
+            and (residual.kind == "local")
+        ):
+            again = _refit_without_local(
+                refine, data, inverse, model, residual, refine_options, min_overlap
+            )
             if again is not None:
                 res, inverse, homography, status, message, residual = again
-        elif refit_local and "exclude" in accepted and (
-                residual is None or residual.status == "unmeasured"):
+        elif (
+            refit_local
+            and "exclude" in accepted
+            and (residual is None or residual.status == "unmeasured")
+        ):
             # nothing measured the pair independently: the search's own residuals per
             # block find a nearer plane (see _refit_by_blocks)
-            again = _refit_by_blocks(refine, data, inverse, model, res,
-                                     refine_options, min_overlap,
-                                     start=homogeneous(invert(init)))
+            again = _refit_by_blocks(
+                refine,
+                data,
+                inverse,
+                model,
+                res,
+                refine_options,
+                min_overlap,
+                start=homogeneous(invert(init)),
+            )
             if again is not None:
                 res, inverse, homography, message = again
                 if residual is not None:
-                    status, message = judge_residual(residual, homography, model, message,
-                                                     data.shape)
+                    status, message = judge_residual(
+                        residual, homography, model, message, data.shape
+                    )
         if again is not None:  # what the pair reports is the re-fitted motion's
             ev_after, cost_after, n_after, overlap, (dx, dy, angle, scale) = evaluated(
-                inverse, homography)
+                inverse, homography
+            )
     return PairRegistration(
-        dark=dark_index, bright=bright_index,
+        dark=dark_index,
+        bright=bright_index,
         matrix=affine_part(homography) if model in AFFINE_MODELS else None,
-        homography=homography, dx=dx, dy=dy, angle_deg=angle, scale=scale,
-        ratio=data.ratio, model=model, method=method, cost_before=cost_before,
-        cost_after=cost_after, overlap=overlap,
+        homography=homography,
+        dx=dx,
+        dy=dy,
+        angle_deg=angle,
+        scale=scale,
+        ratio=data.ratio,
+        model=model,
+        method=method,
+        cost_before=cost_before,
+        cost_after=cost_after,
+        overlap=overlap,
         valid_fraction=n_after / max(1, ev_after.b.size) * ev_after.well_exposed,
-        iterations=res.iterations, cost_history=tuple(res.cost_history),
+        iterations=res.iterations,
+        cost_history=tuple(res.cost_history),
         level_history=tuple(res.level_history),
         initial_shift=(float(init[0, 2]), float(init[1, 2])),
         peak_ncc=shift.ncc if shift else float("nan"),
         peak_psr=shift.psr if shift else float("nan"),
-        status=status, message=message, shape=data.shape,
+        status=status,
+        message=message,
+        shape=data.shape,
         seconds=time.perf_counter() - t0,
         preview=make_preview(data, homography) if previews else None,
-        residual=residual, gain=tuple(float(g) for g in getattr(res, "gain", ())),
+        residual=residual,
+        gain=tuple(float(g) for g in getattr(res, "gain", ())),
     )
 
 
@@ -988,8 +1156,11 @@ def local_regions(res, margin: float = LOCAL_MARGIN) -> np.ndarray:
     side = res.tile * (1 << res.level)
     half = (0.5 + margin) * side
     c = res.centres[off]
-    return np.stack([c[:, 0] - half, c[:, 1] - half, c[:, 0] + half, c[:, 1] + half],
-                    axis=1) if c.size else np.zeros((0, 4))
+    return (
+        np.stack([c[:, 0] - half, c[:, 1] - half, c[:, 0] + half, c[:, 1] + half], axis=1)
+        if c.size
+        else np.zeros((0, 4))
+    )
 
 
 def _outside_median(res, rects: np.ndarray) -> tuple[float, int]:
@@ -1004,8 +1175,15 @@ def _outside_median(res, rects: np.ndarray) -> tuple[float, int]:
     return float(np.median(np.hypot(*res.shifts[keep].T))), int(keep.sum())
 
 
-def _refit_without_local(refine, data: PairData, inverse: np.ndarray, model: str, residual,
-                         refine_options: dict, min_overlap: float):
+def _refit_without_local(
+    refine,
+    data: PairData,
+    inverse: np.ndarray,
+    model: str,
+    residual,
+    refine_options: dict,
+    min_overlap: float,
+):
     """The search again from ``inverse`` with the residual's local-motion area left out, or
     None when that does not leave the rest of the frame at least as well aligned (median of
     the tiles outside the area within 0.01 px plus 2 %, and at most one of them or 5 % no
@@ -1029,8 +1207,9 @@ def _refit_without_local(refine, data: PairData, inverse: np.ndarray, model: str
         return None
     before, n_before = _outside_median(residual, rects)
     after, n_after = _outside_median(res2, rects)
-    if not (np.isfinite(before) and np.isfinite(after)) or n_after < min(0.95 * n_before,
-                                                                           n_before - 1):
+    if not (np.isfinite(before) and np.isfinite(after)) or n_after < min(
+        0.95 * n_before, n_before - 1
+    ):
         return None
     if after > 1.02 * before + 0.01:
         return None
@@ -1081,8 +1260,12 @@ def _off_blocks(data: PairData, probe: np.ndarray, gain: np.ndarray, side: int):
     rms = np.sqrt(sq / np.maximum(cnt, 1e-12))
     off = enough & (rms > BLOCK_OFF * np.median(rms[enough]))
     pad = np.pad(off, 1)
-    neighbours = sum(pad[1 + dy: 1 + dy + ny, 1 + dx: 1 + dx + nx]
-                     for dy in (-1, 0, 1) for dx in (-1, 0, 1) if dy or dx)
+    neighbours = sum(
+        pad[1 + dy : 1 + dy + ny, 1 + dx : 1 + dx + nx]
+        for dy in (-1, 0, 1)
+        for dx in (-1, 0, 1)
+        if dy or dx
+    )
     return off & (neighbours > 0), cnt, s, gy, gx
 
 
@@ -1090,9 +1273,16 @@ def _finite_gain(r) -> np.ndarray:
     return np.asarray(getattr(r, "gain", ()) or (0.0, 0.0, 0.0), float)
 
 
-def _refit_by_blocks(refine, data: PairData, inverse: np.ndarray, model: str, res,
-                     refine_options: dict, min_overlap: float,
-                     start: np.ndarray | None = None):
+def _refit_by_blocks(
+    refine,
+    data: PairData,
+    inverse: np.ndarray,
+    model: str,
+    res,
+    refine_options: dict,
+    min_overlap: float,
+    start: np.ndarray | None = None,
+):
     """Where the independent check measured nothing (too little structure in the range both
     frames share), a nearer plane can still pull the global fit: the search's own eq. 7
     residuals, as RMS per block of about a twelfth of the short side, show it as a group of
@@ -1137,12 +1327,16 @@ def _refit_by_blocks(refine, data: PairData, inverse: np.ndarray, model: str, re
             break
         total = grown
         by, bx = np.nonzero(total)
-        rects = np.stack([bx * side, by * side, (bx + 1) * side, (by + 1) * side],
-                         axis=1).astype(np.float64)
+        rects = np.stack([bx * side, by * side, (bx + 1) * side, (by + 1) * side], axis=1).astype(
+            np.float64
+        )
         try:
             again = refine(data, inverse, model, exclude=rects, **refine_options)
-            probe = similarity_probe(rects) or (homogeneous(again.matrix), _finite_gain(again),
-                                                None)
+            probe = similarity_probe(rects) or (
+                homogeneous(again.matrix),
+                _finite_gain(again),
+                None,
+            )
         except ParameterError:
             break
         inv2 = homogeneous(again.matrix)
@@ -1165,8 +1359,12 @@ def _refit_by_blocks(refine, data: PairData, inverse: np.ndarray, model: str, re
     before, _ = cost(data, 0, inverse, kept, gain)
     after, _ = cost(data, 0, inv2, kept, _finite_gain(again))
     if not after <= (1.0 - BLOCK_GAIN) * before:
-        log.debug("block re-fit without %d blocks does not pay: %.4g -> %.4g",
-                  int(total.sum()), before, after)
+        log.debug(
+            "block re-fit without %d blocks does not pay: %.4g -> %.4g",
+            int(total.sum()),
+            before,
+            after,
+        )
         return None
     share = cnt[total].sum() / cnt.sum()
     note = ""
@@ -1174,25 +1372,36 @@ def _refit_by_blocks(refine, data: PairData, inverse: np.ndarray, model: str, re
         # nothing independent verifies this pair: keep the perspective only where the frames
         # support it, i.e. where it lowers eq. 6 on samples the searches did not use
         by, bx = np.nonzero(total)
-        rects = np.stack([bx * side, by * side, (bx + 1) * side, (by + 1) * side],
-                         axis=1).astype(np.float64)
-        ev = select_samples(data, 0, 30_000, motion=inv2, by_gradient=False, seed=1,
-                            exclude=rects)
+        rects = np.stack([bx * side, by * side, (bx + 1) * side, (by + 1) * side], axis=1).astype(
+            np.float64
+        )
+        ev = select_samples(data, 0, 30_000, motion=inv2, by_gradient=False, seed=1, exclude=rects)
         c_h, _ = cost(data, 0, inv2, ev, _finite_gain(again))
         inv_s, _ = _search_motion(similar.matrix, "similarity")
         c_s, _ = cost(data, 0, inv_s, ev, _finite_gain(similar))
         if not c_h < (1.0 - PERSPECTIVE_GAIN) * c_s:
-            again, note = similar, (
-                f"; its perspective is not supported by the frames (eq. 7 cost on held-out "
-                f"samples {c_h:.4g} against the similarity's {c_s:.4g}): similarity kept")
+            again, note = (
+                similar,
+                (
+                    f"; its perspective is not supported by the frames (eq. 7 cost on held-out "
+                    f"samples {c_h:.4g} against the similarity's {c_s:.4g}): similarity kept"
+                ),
+            )
             inv2, hom2 = inv_s, homogeneous(invert(inv_s))
             hom2[2] = (0.0, 0.0, 1.0)
             if overlap_fraction(hom2, data.shape) < min_overlap:
                 return None
-    return again, inv2, hom2, (f"{again.message or 'converged'}; re-fitted without "
-                               f"{int(total.sum())} blocks ({share:.0%} of the samples) that "
-                               f"moved on their own (eq. 7 cost of the rest "
-                               f"{before:.4g} -> {after:.4g}){note}")
+    return (
+        again,
+        inv2,
+        hom2,
+        (
+            f"{again.message or 'converged'}; re-fitted without "
+            f"{int(total.sum())} blocks ({share:.0%} of the samples) that "
+            f"moved on their own (eq. 7 cost of the rest "
+            f"{before:.4g} -> {after:.4g}){note}"
+        ),
+    )
 
 
 def _checked(data: PairData, homography: np.ndarray, model: str, message: str):
@@ -1201,17 +1410,24 @@ def _checked(data: PairData, homography: np.ndarray, model: str, message: str):
     from .residual import residual_motion
 
     try:
-        res = residual_motion(data.dark, data.bright, data.ratio, homography,
-                              saturation=data.saturation, noise_floor=data.noise_floor,
-                              lut=data.lut)
+        res = residual_motion(
+            data.dark,
+            data.bright,
+            data.ratio,
+            homography,
+            saturation=data.saturation,
+            noise_floor=data.noise_floor,
+            lut=data.lut,
+        )
     except ParameterError as exc:  # too small a frame to tile
         return "ok", f"{message}; residual not measured: {exc}", None
     status, message = judge_residual(res, homography, model, message, data.shape)
     return status, message, res
 
 
-def judge_residual(res, homography: np.ndarray, model: str, message: str,
-                   shape: tuple[int, int]) -> tuple[str, str]:
+def judge_residual(
+    res, homography: np.ndarray, model: str, message: str, shape: tuple[int, int]
+) -> tuple[str, str]:
     """``(status, message)`` of a registered pair from its residual motion (the words of the
     registration and the pipeline): ``weak`` when misaligned, or when nothing can verify a
     motion of more than ``UNVERIFIED_PX``; otherwise ``ok``, the message saying what was found
@@ -1219,16 +1435,20 @@ def judge_residual(res, homography: np.ndarray, model: str, message: str,
     if res.status == "misaligned":
         what = res.describe()
         if model == "homography":  # the words of the residual assume a simpler model
-            what = what.replace("the motion model has no perspective",
-                                "the homography did not remove it (parallax or a poor optimum)")
+            what = what.replace(
+                "the motion model has no perspective",
+                "the homography did not remove it (parallax or a poor optimum)",
+            )
         return "weak", f"{what} (the search itself: {message})"
     if res.status == "unmeasured":
         # Nothing verifies the motion: a sub-pixel one is harmless either way; a larger one
         # found on frames without measurable structure (near black, flat) is not called ok.
         moved = float(corner_error(homography, np.eye(3), shape).max())
         if moved > UNVERIFIED_PX:
-            return "weak", (f"its motion ({moved:.1f} px at the corners) cannot be verified: "
-                            f"{res.describe()} (the search itself: {message})")
+            return "weak", (
+                f"its motion ({moved:.1f} px at the corners) cannot be verified: "
+                f"{res.describe()} (the search itself: {message})"
+            )
         return "ok", f"{message}; {res.describe()}"
     return "ok", message
 

@@ -37,8 +37,13 @@ class Sampled:
 
 
 def sample(
-    image: np.ndarray, x: np.ndarray, y: np.ndarray, *, gradient: bool = True,
-    tap_range: bool = False, clip: tuple[float, float] | None = None,
+    image: np.ndarray,
+    x: np.ndarray,
+    y: np.ndarray,
+    *,
+    gradient: bool = True,
+    tap_range: bool = False,
+    clip: tuple[float, float] | None = None,
 ) -> Sampled:
     """Cubic-convolution value (and d/dx, d/dy) of a 2-D ``image`` at points ``(x, y)``.
 

@@ -56,8 +56,9 @@ def refine_nelder_mead(
     dx0, dy0, a0, sc0 = similarity_parameters(initial, shape)
 
     def matrix(p: np.ndarray) -> np.ndarray:
-        return similarity_matrix(p[0], p[1], p[2] if n_par > 2 else a0,
-                                 p[3] if n_par > 3 else sc0, shape)
+        return similarity_matrix(
+            p[0], p[1], p[2] if n_par > 2 else a0, p[3] if n_par > 3 else sc0, shape
+        )
 
     p = np.array([dx0, dy0, a0, sc0][:n_par])
     step = np.array([initial_step[0], initial_step[0], initial_step[1], initial_step[2]][:n_par])
@@ -65,8 +66,9 @@ def refine_nelder_mead(
     for _ in range(2):
         # The samples and their validity are fixed during a search (a continuous cost), decided
         # at its start; a search that moved by more than half a pixel runs again from its result.
-        s = select_samples(data, 0, max_samples, motion=matrix(p), by_gradient=False, seed=3,
-                           reach=0)
+        s = select_samples(
+            data, 0, max_samples, motion=matrix(p), by_gradient=False, seed=3, reach=0
+        )
 
         def f(q: np.ndarray, s=s) -> float:
             c, _ = cost(data, 0, matrix(q), s)  # eq. 6
@@ -74,10 +76,16 @@ def refine_nelder_mead(
 
         simplex = np.vstack([p] + [p + np.eye(p.size)[i] * step[i] for i in range(p.size)])
         res = minimize(
-            f, p, method="Nelder-Mead",
+            f,
+            p,
+            method="Nelder-Mead",
             callback=lambda xk, f=f: history.append(f(xk)),
-            options={"initial_simplex": simplex, "xatol": xatol, "fatol": 1e-12,
-                     "maxiter": max_iterations},
+            options={
+                "initial_simplex": simplex,
+                "xatol": xatol,
+                "fatol": 1e-12,
+                "maxiter": max_iterations,
+            },
         )
         iterations += int(res.nit)
         message = "converged" if res.success else f"Nelder-Mead: {res.message}"
@@ -97,5 +105,6 @@ def register_pair_cerman2006(
     Arguments as :func:`hdrcore.registration.fast.register_pair_fast`; refinement options are
     those of :func:`refine_nelder_mead`.
     """
-    return register_with(refine_nelder_mead, "Cerman 2006", dark, bright, ratio, models=MODELS,
-                         **options)
+    return register_with(
+        refine_nelder_mead, "Cerman 2006", dark, bright, ratio, models=MODELS, **options
+    )

@@ -84,8 +84,9 @@ GAIN_TERMS = 3
 ROBUST = 2.0
 
 
-def _level_cost(data: PairData, level: int, m: np.ndarray, s: Samples,
-                gain: np.ndarray | None = None) -> float:
+def _level_cost(
+    data: PairData, level: int, m: np.ndarray, s: Samples, gain: np.ndarray | None = None
+) -> float:
     ssum, count, _, _ = normal_equations(data, level, m, s, gradient=False, gain=gain)
     return ssum / count if count > 0 else np.inf
 
@@ -158,8 +159,7 @@ def refine_gauss_newton(
         n_samples = max_samples if level == 0 else coarse_samples
         m = to_level(matrix, level)
         # The samples and their validity are fixed while the motion changes: a continuous cost.
-        s = select_samples(data, level, n_samples, motion=m, reach=REACH,
-                           exclude=exclude)
+        s = select_samples(data, level, n_samples, motion=m, reach=REACH, exclude=exclude)
         if s.b.size < 4 * n_par:
             continue
         if level < top:  # a coarse level can mislead (photometric mismatch, little detail):
@@ -167,31 +167,42 @@ def refine_gauss_newton(
             sub = s  # the choice needs a rough cost only: at most ~coarse_samples points
             stride = s.b.size // max(coarse_samples, 1)
             if stride > 1:
-                sub = Samples(np.ascontiguousarray(s.x[::stride]),
-                              np.ascontiguousarray(s.y[::stride]),
-                              np.ascontiguousarray(s.b[::stride]))
+                sub = Samples(
+                    np.ascontiguousarray(s.x[::stride]),
+                    np.ascontiguousarray(s.y[::stride]),
+                    np.ascontiguousarray(s.b[::stride]),
+                )
             if _level_cost(data, level, m0, sub, gain) < _level_cost(data, level, m, sub, gain):
                 m = m0
-                s = select_samples(data, level, n_samples, motion=m, reach=REACH,
-                           exclude=exclude)
+                s = select_samples(data, level, n_samples, motion=m, reach=REACH, exclude=exclude)
         budget = max_iterations if level == 0 else coarse_iterations
         start = m
         c = robust * np.sqrt(_level_cost(data, level, m, s, gain)) if robust > 0 else 0.0
-        m, gain = _search(data, level, m, gain, s, n_par, gain_terms, budget, tolerance,
-                          history, levels, c)
+        m, gain = _search(
+            data, level, m, gain, s, n_par, gain_terms, budget, tolerance, history, levels, c
+        )
         if corner_move(m, start, data.level_shape(level)) > RESELECT:
             # the search left the zone where the samples' validity was decided: decide again
-            s = select_samples(data, level, n_samples, motion=m, reach=REACH,
-                           exclude=exclude)
-            m, gain = _search(data, level, m, gain, s, n_par, gain_terms, budget, tolerance,
-                              history, levels, c)
+            s = select_samples(data, level, n_samples, motion=m, reach=REACH, exclude=exclude)
+            m, gain = _search(
+                data, level, m, gain, s, n_par, gain_terms, budget, tolerance, history, levels, c
+            )
         matrix = to_full(m, level)
     return RefineResult(matrix, len(history), history, levels, gain=tuple(float(g) for g in gain))
 
 
 def _search(
-    data: PairData, level: int, m: np.ndarray, gain: np.ndarray, s: Samples, n_par: int,
-    n_gain: int, budget: int, tolerance: float, history: list[float], levels: list[int],
+    data: PairData,
+    level: int,
+    m: np.ndarray,
+    gain: np.ndarray,
+    s: Samples,
+    n_par: int,
+    n_gain: int,
+    budget: int,
+    tolerance: float,
+    history: list[float],
+    levels: list[int],
     robust: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Gauss-Newton iterations on one level from ``m`` (3x3, level coordinates) and ``gain``,
@@ -203,8 +214,9 @@ def _search(
     step = None
     best_c, best_m, best_g = np.inf, m, gain
     for _ in range(budget):
-        ssum, count, hess, grad = normal_equations(data, level, m, s, n_par=n_par, gain=gain,
-                                                   n_gain=n_gain, robust=robust)
+        ssum, count, hess, grad = normal_equations(
+            data, level, m, s, n_par=n_par, gain=gain, n_gain=n_gain, robust=robust
+        )
         c = ssum / count if count > 0 else np.inf
         history.append(c)
         levels.append(level)

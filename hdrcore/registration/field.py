@@ -37,14 +37,17 @@ class DisplacementField:
     def __post_init__(self) -> None:
         off = np.ascontiguousarray(self.offsets, dtype=np.float32)
         if off.ndim != 3 or off.shape[2] != 2 or min(off.shape[:2]) < 2:
-            raise ParameterError("a displacement field needs (rows, columns, 2) offsets",
-                                 expected="at least a 2 x 2 grid of (dx, dy)",
-                                 found=str(off.shape))
+            raise ParameterError(
+                "a displacement field needs (rows, columns, 2) offsets",
+                expected="at least a 2 x 2 grid of (dx, dy)",
+                found=str(off.shape),
+            )
         if not np.all(np.isfinite(off)):
             raise ParameterError("a displacement field's offsets must be finite")
         if not (np.isfinite(self.step) and self.step > 0):
-            raise ParameterError("a displacement field's node spacing must be positive",
-                                 found=str(self.step))
+            raise ParameterError(
+                "a displacement field's node spacing must be positive", found=str(self.step)
+            )
         off.setflags(write=False)
         object.__setattr__(self, "offsets", off)
         object.__setattr__(self, "step", float(self.step))
@@ -101,15 +104,19 @@ class DisplacementField:
     def shifted(self, dx: float = 0.0, dy: float = 0.0) -> DisplacementField:
         """The same field for an output grid whose pixel ``(0, 0)`` is this one's ``(dx, dy)``
         (a band of rows: ``dy`` = the band's first row)."""
-        return DisplacementField(self.step, self.offsets,
-                                 (self.origin[0] - dx, self.origin[1] - dy))
+        return DisplacementField(
+            self.step, self.offsets, (self.origin[0] - dx, self.origin[1] - dy)
+        )
 
     def scaled(self, factor: float) -> DisplacementField:
         """The field of the same motion on frames ``factor`` times larger (binned registration
         scaled back; pixel centres: ``x_full = factor * x + (factor - 1) / 2``)."""
         c = (factor - 1) / 2.0
-        return DisplacementField(self.step * factor, self.offsets * np.float32(factor),
-                                 (self.origin[0] * factor + c, self.origin[1] * factor + c))
+        return DisplacementField(
+            self.step * factor,
+            self.offsets * np.float32(factor),
+            (self.origin[0] * factor + c, self.origin[1] * factor + c),
+        )
 
     @property
     def magnitudes(self) -> np.ndarray:
@@ -134,8 +141,9 @@ class DisplacementField:
         }
 
 
-def map_points(homography: np.ndarray, field: DisplacementField | None, x: np.ndarray,
-               y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def map_points(
+    homography: np.ndarray, field: DisplacementField | None, x: np.ndarray, y: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Output pixels ``(x, y)`` mapped into a frame: ``H (x, y) + d(x, y)`` (3x3 ``H``,
     perspective divide; ``field`` None: the homography alone)."""
     m = np.asarray(homography, np.float64)

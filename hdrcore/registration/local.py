@@ -149,15 +149,20 @@ class LocalFrame:
 
         cand = self.candidate
         return {
-            "frame": self.frame, "against": self.against, "kept": self.kept,
-            "residual_before_px": f(self.before), "residual_after_px": f(self.after),
+            "frame": self.frame,
+            "against": self.against,
+            "kept": self.kept,
+            "residual_before_px": f(self.before),
+            "residual_after_px": f(self.after),
             "residual_p90_before_px": f(self.before_p90),
             "residual_p90_after_px": f(self.after_p90),
-            "status_before": self.before_status, "status_after": self.after_status,
+            "status_before": self.before_status,
+            "status_after": self.after_status,
             "field_median_px": None if cand is None else f(cand.median_px),
             "field_max_px": None if cand is None else f(cand.max_px),
             "field": None if self.field is None else self.field.to_json(),
-            "message": self.message, "seconds": round(self.seconds, 3),
+            "message": self.message,
+            "seconds": round(self.seconds, 3),
         }
 
 
@@ -182,15 +187,22 @@ class LocalRefinement:
         if not self.frames:
             return "local refinement: nothing to refine"
         if not kept:
-            return (f"local refinement: no field kept ({len(self.frames)} frames tried; the "
-                    "global motion alone leaves as little)")
+            return (
+                f"local refinement: no field kept ({len(self.frames)} frames tried; the "
+                "global motion alone leaves as little)"
+            )
         parts = ", ".join(f"frame {f.frame} {f.before:.2f} -> {f.after:.2f} px" for f in kept)
         return f"local refinement ({self.tile} px tiles): {parts}"
 
     def to_json(self) -> dict:
-        return {"reference": self.reference, "tile": self.tile, "level": self.level,
-                "seconds": round(self.seconds, 3), "summary": self.summary(),
-                "frames": [f.to_json() for f in self.frames]}
+        return {
+            "reference": self.reference,
+            "tile": self.tile,
+            "level": self.level,
+            "seconds": round(self.seconds, 3),
+            "summary": self.summary(),
+            "frames": [f.to_json() for f in self.frames],
+        }
 
 
 def choose_tile(shape: tuple[int, int]) -> int:
@@ -278,11 +290,13 @@ def _prepare(img: np.ndarray, lut: np.ndarray | None, f: int, saturation: float)
         sat = np.float32(saturation)  # the comparison of the float32 reference
         if lut is None:
             src = np.asarray(img, np.float32)
-            run_row_spans(out.shape[0], None,
-                          lambda r0, r1: _prepare_rows(src, f, sat, out, r0, r1))
+            run_row_spans(
+                out.shape[0], None, lambda r0, r1: _prepare_rows(src, f, sat, out, r0, r1)
+            )
         else:
-            run_row_spans(out.shape[0], None,
-                          lambda r0, r1: _prepare_rows_lut(img, lut, f, sat, out, r0, r1))
+            run_row_spans(
+                out.shape[0], None, lambda r0, r1: _prepare_rows_lut(img, lut, f, sat, out, r0, r1)
+            )
         return out
     lin = _linear(img, lut)
     out = _reduce(lin, f)
@@ -317,8 +331,9 @@ class _Grid:
         """The field ``nodes (gh, gw, 2)`` at every level pixel (full-resolution px)."""
         return DisplacementField(self.tile, nodes).on_grid(self.xs, self.ys)
 
-    def mapped(self, homography: np.ndarray, nodes: np.ndarray | None,
-               inside: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    def mapped(
+        self, homography: np.ndarray, nodes: np.ndarray | None, inside: bool = False
+    ) -> tuple[np.ndarray, np.ndarray]:
         """The level's pixels mapped by ``H(x) + d(x)`` (``inside``: ``H(x + d(x))``)."""
         xx, yy = np.meshgrid(self.xs, self.ys)
         if nodes is None:
@@ -330,16 +345,18 @@ class _Grid:
         return sx + dx, sy + dy
 
 
-def _sample(frame: np.ndarray, sx: np.ndarray, sy: np.ndarray, f: int,
-            order: int = 1) -> np.ndarray:
+def _sample(
+    frame: np.ndarray, sx: np.ndarray, sy: np.ndarray, f: int, order: int = 1
+) -> np.ndarray:
     """``frame`` (a level image) at full-resolution positions ``(sx, sy)``: NaN outside the
     frame, +inf where the interpolation touches a clipped block."""
     off = (f - 1) / 2.0
     lx = (sx - off) / f
     ly = (sy - off) / f
     h, w = frame.shape
-    out = ndimage.map_coordinates(frame, [ly, lx], order=order, mode="nearest",
-                                  prefilter=False).astype(np.float32)
+    out = ndimage.map_coordinates(
+        frame, [ly, lx], order=order, mode="nearest", prefilter=False
+    ).astype(np.float32)
     out[~np.isfinite(out)] = np.inf
     out[~((lx >= 0) & (lx <= w - 1) & (ly >= 0) & (ly <= h - 1))] = np.nan
     return out
@@ -375,10 +392,18 @@ def _warp_rows(src, m, nodes, tile, f, inside, cubic, clipped, out, r0, r1):  # 
             j = cj[x]
             u = cu[x]
             a00, a01, a10, a11 = (1 - u) * (1 - v), u * (1 - v), (1 - u) * v, u * v
-            dx = (nodes[i, j, 0] * a00 + nodes[i, j + 1, 0] * a01
-                  + nodes[i + 1, j, 0] * a10 + nodes[i + 1, j + 1, 0] * a11)
-            dy = (nodes[i, j, 1] * a00 + nodes[i, j + 1, 1] * a01
-                  + nodes[i + 1, j, 1] * a10 + nodes[i + 1, j + 1, 1] * a11)
+            dx = (
+                nodes[i, j, 0] * a00
+                + nodes[i, j + 1, 0] * a01
+                + nodes[i + 1, j, 0] * a10
+                + nodes[i + 1, j + 1, 0] * a11
+            )
+            dy = (
+                nodes[i, j, 1] * a00
+                + nodes[i, j + 1, 1] * a01
+                + nodes[i + 1, j, 1] * a10
+                + nodes[i + 1, j + 1, 1] * a11
+            )
             px, py = xf, yf
             if inside:
                 px += dx
@@ -406,14 +431,22 @@ def _warp_rows(src, m, nodes, tile, f, inside, cubic, clipped, out, r0, r1):  # 
             ax = lx - ix
             ay = ly - iy
             t0 = src[iy, ix] * (1 - ax) + src[iy, ix + 1] * ax if ax > 0 else src[iy, ix]
-            t1 = src[iy + 1, ix] * (1 - ax) + src[iy + 1, ix + 1] * ax if ax > 0 \
-                else src[iy + 1, ix]
+            t1 = (
+                src[iy + 1, ix] * (1 - ax) + src[iy + 1, ix + 1] * ax if ax > 0 else src[iy + 1, ix]
+            )
             val = t0 * (1 - ay) + t1 * ay if ay > 0 else t0
             out[y, x] = val if np.isfinite(val) else clipped
 
 
-def _warped(fr: np.ndarray, grid: _Grid, homography: np.ndarray, nodes: np.ndarray | None,
-            inside: bool = False, cubic: bool = False, clipped: float = np.inf) -> np.ndarray:
+def _warped(
+    fr: np.ndarray,
+    grid: _Grid,
+    homography: np.ndarray,
+    nodes: np.ndarray | None,
+    inside: bool = False,
+    cubic: bool = False,
+    clipped: float = np.inf,
+) -> np.ndarray:
     """A level frame read at ``H(x) + d(x)`` (``inside``: ``H(x + d(x))``) for the level's
     reference pixels: NaN outside the frame, ``clipped`` (default +inf) where the taps touch
     a clipped block (the measurements pass the saturation level: a clipped read counts as
@@ -425,18 +458,44 @@ def _warped(fr: np.ndarray, grid: _Grid, homography: np.ndarray, nodes: np.ndarr
         out = _sample(fr, sx, sy, grid.f)
         return np.where(np.isinf(out), np.float32(clipped), out) if clipped != np.inf else out
     out = np.empty((grid.hl, grid.wl), np.float32)
-    nd = (np.zeros((grid.gh, grid.gw, 2)) if nodes is None
-          else np.ascontiguousarray(nodes, np.float64))
+    nd = (
+        np.zeros((grid.gh, grid.gw, 2))
+        if nodes is None
+        else np.ascontiguousarray(nodes, np.float64)
+    )
     m = np.ascontiguousarray(homography, np.float64)
-    run_row_spans(grid.hl, None, lambda r0, r1: _warp_rows(
-        fr, m, nd, float(grid.tile), float(grid.f), bool(inside), bool(cubic), float(clipped),
-        out, r0, r1))
+    run_row_spans(
+        grid.hl,
+        None,
+        lambda r0, r1: _warp_rows(
+            fr,
+            m,
+            nd,
+            float(grid.tile),
+            float(grid.f),
+            bool(inside),
+            bool(cubic),
+            float(clipped),
+            out,
+            r0,
+            r1,
+        ),
+    )
     return out
 
 
-def _pair_residual(a: np.ndarray, b: np.ndarray, a_is_dark: bool, ratio: float, lo: float,
-                   hi: float, pair: tuple[int, int], memo: dict | None = None,
-                   keep_b: bool = False, **kw):
+def _pair_residual(
+    a: np.ndarray,
+    b: np.ndarray,
+    a_is_dark: bool,
+    ratio: float,
+    lo: float,
+    hi: float,
+    pair: tuple[int, int],
+    memo: dict | None = None,
+    keep_b: bool = False,
+    **kw,
+):
     """The residual motion between two frames read onto the reference grid (clipped reads
     already at the saturation level ``hi``, see :func:`_warped`; NaN outside the frame stays
     out), or None where the pair cannot be measured (too small to tile). ``memo``: the
@@ -446,8 +505,9 @@ def _pair_residual(a: np.ndarray, b: np.ndarray, a_is_dark: bool, ratio: float, 
 
     dark, bright = (a, b) if a_is_dark else (b, a)
     try:
-        return residual_motion(dark, bright, ratio, None, saturation=hi, noise_floor=lo,
-                               memo=memo, **kw)
+        return residual_motion(
+            dark, bright, ratio, None, saturation=hi, noise_floor=lo, memo=memo, **kw
+        )
     except (ParameterError, ValueError) as exc:
         log.debug("residual of frames %d-%d not measured: %s", *pair, exc)
         return None
@@ -479,14 +539,22 @@ def _interpolation(points: np.ndarray, gh: int, gw: int, tile: int) -> sparse.cs
     i = np.minimum(fy.astype(np.intp), gh - 2)
     u, v = fx - j, fy - i
     rows = np.repeat(np.arange(len(points)), 4)
-    cols = np.stack([i * gw + j, i * gw + j + 1, (i + 1) * gw + j, (i + 1) * gw + j + 1],
-                    axis=1).ravel()
+    cols = np.stack(
+        [i * gw + j, i * gw + j + 1, (i + 1) * gw + j, (i + 1) * gw + j + 1], axis=1
+    ).ravel()
     vals = np.stack([(1 - u) * (1 - v), u * (1 - v), (1 - u) * v, u * v], axis=1).ravel()
     return sparse.csr_matrix((vals, (rows, cols)), shape=(len(points), gh * gw))
 
 
-def _fit_nodes(points: np.ndarray, targets: np.ndarray, sigma: np.ndarray, gh: int, gw: int,
-               tile: int, smoothness: float) -> tuple[np.ndarray, np.ndarray]:
+def _fit_nodes(
+    points: np.ndarray,
+    targets: np.ndarray,
+    sigma: np.ndarray,
+    gh: int,
+    gw: int,
+    tile: int,
+    smoothness: float,
+) -> tuple[np.ndarray, np.ndarray]:
     """Node displacements ``(gh, gw, 2)`` whose bilinear interpolation meets ``targets``
     ``(N, 2)`` at ``points`` (weights ``1 / sigma^2``), smooth (membrane, ``smoothness`` times
     the median weight) and pulled weakly to zero where no point constrains them. With
@@ -559,22 +627,29 @@ def refine_bracket(
     t_start = time.perf_counter()
     n = len(images)
     if n != len(exposures) or n != len(to_reference_homography):
-        raise ParameterError("one exposure and one motion per frame",
-                             expected=str(n),
-                             found=f"{len(exposures)} exposures, "
-                                   f"{len(to_reference_homography)} motions")
+        raise ParameterError(
+            "one exposure and one motion per frame",
+            expected=str(n),
+            found=f"{len(exposures)} exposures, {len(to_reference_homography)} motions",
+        )
     if not 0 <= reference < n:
-        raise ParameterError("reference frame out of range", expected=f"0..{n - 1}",
-                             found=str(reference))
+        raise ParameterError(
+            "reference frame out of range", expected=f"0..{n - 1}", found=str(reference)
+        )
     shape = tuple(np.asarray(images[0]).shape)
     if len(shape) != 2 or any(np.asarray(im).shape != shape for im in images):
-        raise ParameterError("local refinement needs single-channel frames of one size",
-                             found=", ".join(str(np.asarray(im).shape) for im in images))
+        raise ParameterError(
+            "local refinement needs single-channel frames of one size",
+            found=", ".join(str(np.asarray(im).shape) for im in images),
+        )
     lut_arr = None if lut is None else np.ascontiguousarray(lut, np.float32)
     t = int(tile) if tile is not None else choose_tile(shape)
     if t < 16 or t & (t - 1) or t > min(shape) // 2:
-        raise ParameterError("local refinement tile out of range",
-                             expected=f"a power of two, 16..{min(shape) // 2}", found=str(t))
+        raise ParameterError(
+            "local refinement tile out of range",
+            expected=f"a power of two, 16..{min(shape) // 2}",
+            found=str(t),
+        )
     level = _level_for(shape, t)
     f = 1 << level
     mats = []
@@ -592,12 +667,14 @@ def refine_bracket(
         return frames[k]
 
     if refine is not None and len(refine) != n - 1:
-        raise ParameterError("one refine flag per consecutive pair", expected=str(n - 1),
-                             found=str(len(refine)))
+        raise ParameterError(
+            "one refine flag per consecutive pair", expected=str(n - 1), found=str(len(refine))
+        )
     fields: list[DisplacementField | None] = [None] * n
     moved: dict[int, np.ndarray] = {}  # per frame with a field: its nodes u (reference px)
     order = [(k, k - 1) for k in range(reference + 1, n)] + [
-        (k, k + 1) for k in range(reference - 1, -1, -1)]
+        (k, k + 1) for k in range(reference - 1, -1, -1)
+    ]
     details: list[LocalFrame] = []
     grid = _Grid(shape, f, t)
     est_tile = max(16, t // f)  # analysed pixels: one measured tile per cell of nodes
@@ -626,24 +703,54 @@ def refine_bracket(
         # How the check reads the level (measured against the full-resolution Keys check of
         # the first version, see CHECK_CUBIC_FACTORS): Keys at half size, bilinear otherwise.
         cubic = f in CHECK_CUBIC_FACTORS
-        a_chk = (_warped(level_frame(j), grid, mats[j], prev_off, cubic=True, clipped=hi)
-                 if cubic else a_lev)
+        a_chk = (
+            _warped(level_frame(j), grid, mats[j], prev_off, cubic=True, clipped=hi)
+            if cubic
+            else a_lev
+        )
         # frame j's structure is computed once per read, and with a bilinear check frame k's
         # unrefined one is shared by the first check and the first round (the residual's memo)
         memo: dict = {}
 
-        def measure(a: np.ndarray, bk: np.ndarray, memo: dict = memo, j: int = j, k: int = k,
-                    dark_first: bool = dark_first, ratio: float = ratio,
-                    b_first: np.ndarray = b, on_level: dict = on_level, **kw):
-            return _pair_residual(a, bk, dark_first, ratio, lo, hi, (j, k), memo=memo,
-                                  keep_b=bk is b_first, **on_level, **kw)
+        def measure(
+            a: np.ndarray,
+            bk: np.ndarray,
+            memo: dict = memo,
+            j: int = j,
+            k: int = k,
+            dark_first: bool = dark_first,
+            ratio: float = ratio,
+            b_first: np.ndarray = b,
+            on_level: dict = on_level,
+            **kw,
+        ):
+            return _pair_residual(
+                a,
+                bk,
+                dark_first,
+                ratio,
+                lo,
+                hi,
+                (j, k),
+                memo=memo,
+                keep_b=bk is b_first,
+                **on_level,
+                **kw,
+            )
 
-        def check(offsets: np.ndarray | None, k: int = k, b_first: np.ndarray = b,
-                  a_chk: np.ndarray = a_chk, cubic: bool = cubic, measure=measure):
+        def check(
+            offsets: np.ndarray | None,
+            k: int = k,
+            b_first: np.ndarray = b,
+            a_chk: np.ndarray = a_chk,
+            cubic: bool = cubic,
+            measure=measure,
+        ):
             if offsets is None and not cubic:
                 return measure(a_chk, b_first)
-            return measure(a_chk, _warped(level_frame(k), grid, mats[k], offsets,
-                                          cubic=cubic, clipped=hi))
+            return measure(
+                a_chk, _warped(level_frame(k), grid, mats[k], offsets, cubic=cubic, clipped=hi)
+            )
 
         r0 = check(None)
         nodes = np.zeros((grid.gh, grid.gw, 2))
@@ -662,15 +769,20 @@ def refine_bracket(
             v = rt.valid
             if confident is None:  # the confident tiles and their neighbours that nearly are
                 nx = int(np.unique(rt.centres[:, 0]).size)
-                near = ndimage.binary_dilation(v.reshape(-1, nx),
-                                               structure=np.ones((3, 3), bool)).ravel()
+                near = ndimage.binary_dilation(
+                    v.reshape(-1, nx), structure=np.ones((3, 3), bool)
+                ).ravel()
                 min_conf, max_sigma = _tile_thresholds(est_tile)
-                confident = v | (near & (rt.confidence >= NEAR_CONFIDENCE * min_conf)
-                                 & (rt.sigma <= NEAR_SIGMA * max_sigma))
+                confident = v | (
+                    near
+                    & (rt.confidence >= NEAR_CONFIDENCE * min_conf)
+                    & (rt.sigma <= NEAR_SIGMA * max_sigma)
+                )
             pts = rt.centres[v] * f + (f - 1) / 2.0
             cur = _interpolation(pts, grid.gh, grid.gw, t) @ nodes.reshape(-1, 2)
-            nodes, _ = _fit_nodes(pts, cur + sign * rt.shifts[v] * f, rt.sigma[v] * f,
-                                  grid.gh, grid.gw, t, smoothness)
+            nodes, _ = _fit_nodes(
+                pts, cur + sign * rt.shifts[v] * f, rt.sigma[v] * f, grid.gh, grid.gw, t, smoothness
+            )
             if rnd + 1 < ROUNDS:  # the next round reads frame k through the field
                 b = _warped(level_frame(k), grid, mats[k], nodes, inside=True, clipped=hi)
         cand = _as_source_field(mats[k], nodes, t)
@@ -679,8 +791,10 @@ def refine_bracket(
         med1, p90_1 = (float("nan"),) * 2 if r1 is None else (r1.median * f, r1.p90 * f)
         st0 = "unmeasured" if r0 is None else r0.status
         st1 = "unmeasured" if r1 is None else r1.status
-        said = (f"residual {med0:.2f} -> {med1:.2f} px median, {p90_0:.2f} -> {p90_1:.2f} px "
-                f"90th percentile ({st0} -> {st1})")
+        said = (
+            f"residual {med0:.2f} -> {med1:.2f} px median, {p90_0:.2f} -> {p90_1:.2f} px "
+            f"90th percentile ({st0} -> {st1})"
+        )
         if not (np.isfinite(med0) and np.isfinite(med1)):
             keep = False
             why = "the residual cannot be measured on this pair: global motion kept"
@@ -691,19 +805,28 @@ def refine_bracket(
             # a field that scrambles part of the frame makes its tiles unmeasurable, which
             # flatters the statistics of the rest: the measured tiles must not drop
             lost = r1.n_valid < 0.95 * r0.n_valid
-            keep = not lost and ((st1 == "aligned" and st0 != "aligned") or (
-                gain >= min_gain and med1 <= 1.1 * med0 + 0.02 * f))
+            keep = not lost and (
+                (st1 == "aligned" and st0 != "aligned")
+                or (gain >= min_gain and med1 <= 1.1 * med0 + 0.02 * f)
+            )
             if lost:
                 said += f"; {r0.n_valid} -> {r1.n_valid} tiles measurable"
-            why = (f"{said}; field {cand.median_px:.2f} px median, {cand.max_px:.2f} px max"
-                   if keep else f"the field does not pay: {said}")
+            why = (
+                f"{said}; field {cand.median_px:.2f} px median, {cand.max_px:.2f} px max"
+                if keep
+                else f"the field does not pay: {said}"
+            )
         if keep:
             fields[k] = cand
             moved[k] = nodes
-        details.append(LocalFrame(k, j, cand, keep, med0, med1, st0,
-                                  st1, why, time.perf_counter() - t0, p90_0, p90_1))
+        details.append(
+            LocalFrame(
+                k, j, cand, keep, med0, med1, st0, st1, why, time.perf_counter() - t0, p90_0, p90_1
+            )
+        )
         if progress is not None:
             progress(done + 1, len(order))
     details.sort(key=lambda d: d.frame)
-    return LocalRefinement(reference, t, level, tuple(fields), tuple(details),
-                           time.perf_counter() - t_start)
+    return LocalRefinement(
+        reference, t, level, tuple(fields), tuple(details), time.perf_counter() - t_start
+    )

@@ -61,8 +61,14 @@ from .._threads import run_row_spans, worker_count
 from ..errors import ParameterError
 from ._kernels import keys_at
 
-__all__ = ["ResidualMotion", "ResidualPattern", "residual_motion", "region_name", "coherent_tiles",
-           "RESIDUAL_STATUSES"]
+__all__ = [
+    "ResidualMotion",
+    "ResidualPattern",
+    "residual_motion",
+    "region_name",
+    "coherent_tiles",
+    "RESIDUAL_STATUSES",
+]
 
 #: ``aligned``: nothing above the thresholds; ``misaligned``: a global pattern or a local
 #: residual is left (``kind`` says which); ``unmeasured``: too few textured tiles in the range
@@ -126,9 +132,13 @@ class ResidualPattern:
 
     def component_px(self) -> dict[str, float]:
         """Displacement at the corners of each component, in :data:`PATTERN_COMPONENTS` order."""
-        return {"shift": self.shift_px, "zoom": abs(self.zoom_px),
-                "rotation": abs(self.rotation_px), "affine": self.affine_px,
-                "perspective": self.perspective_px}
+        return {
+            "shift": self.shift_px,
+            "zoom": abs(self.zoom_px),
+            "rotation": abs(self.rotation_px),
+            "affine": self.affine_px,
+            "perspective": self.perspective_px,
+        }
 
     def predict(self, x: np.ndarray, y: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
         """The pattern's shift ``(N, 2)`` at full-resolution points ``(x, y)``."""
@@ -137,11 +147,18 @@ class ResidualPattern:
 
     def to_json(self) -> dict:
         return {
-            "shift_x": self.shift_x, "shift_y": self.shift_y, "zoom": self.zoom,
-            "rotation_deg": self.rotation_deg, "shift_px": self.shift_px,
-            "zoom_px": self.zoom_px, "rotation_px": self.rotation_px,
-            "affine_px": self.affine_px, "perspective_px": self.perspective_px,
-            "radius": self.radius, "parameters": list(self.parameters), "rms": self.rms,
+            "shift_x": self.shift_x,
+            "shift_y": self.shift_y,
+            "zoom": self.zoom,
+            "rotation_deg": self.rotation_deg,
+            "shift_px": self.shift_px,
+            "zoom_px": self.zoom_px,
+            "rotation_px": self.rotation_px,
+            "affine_px": self.affine_px,
+            "perspective_px": self.perspective_px,
+            "radius": self.radius,
+            "parameters": list(self.parameters),
+            "rms": self.rms,
             "terms": self.terms,
         }
 
@@ -339,8 +356,10 @@ def _homogeneous(matrix: np.ndarray) -> np.ndarray:
     if m.shape == (2, 3):
         m = np.vstack([m, [0.0, 0.0, 1.0]])
     if m.shape != (3, 3) or not np.all(np.isfinite(m)) or abs(np.linalg.det(m)) < 1e-12:
-        raise ParameterError("the pair matrix must be a finite, invertible 2x3 or 3x3 matrix",
-                             found=str(np.asarray(matrix).shape))
+        raise ParameterError(
+            "the pair matrix must be a finite, invertible 2x3 or 3x3 matrix",
+            found=str(np.asarray(matrix).shape),
+        )
     return m / m[2, 2] if m[2, 2] != 0 else m
 
 
@@ -352,17 +371,18 @@ def _reduce(img: np.ndarray, f: int, lut: np.ndarray | None, workers: int | None
         return _reduce_numpy(a, f, lut)
     out = np.empty((a.shape[0] // f, a.shape[1] // f), np.float32)
     if lut is not None:
-        run_row_spans(out.shape[0], workers,
-                      lambda r0, r1: _reduce_lut_rows(a, lut, f, out, r0, r1))
+        run_row_spans(
+            out.shape[0], workers, lambda r0, r1: _reduce_lut_rows(a, lut, f, out, r0, r1)
+        )
     else:
         src = a if a.dtype in (np.float32, np.float64) else a.astype(np.float32)
-        run_row_spans(out.shape[0], workers,
-                      lambda r0, r1: _reduce_float_rows(src, f, out, r0, r1))
+        run_row_spans(out.shape[0], workers, lambda r0, r1: _reduce_float_rows(src, f, out, r0, r1))
     return out
 
 
-def _warp(src: np.ndarray, m: np.ndarray, shape: tuple[int, int],
-          workers: int | None) -> np.ndarray:
+def _warp(
+    src: np.ndarray, m: np.ndarray, shape: tuple[int, int], workers: int | None
+) -> np.ndarray:
     if not AVAILABLE:
         return _warp_numpy(src, m, shape)
     out = np.empty(shape, np.float32)
@@ -400,7 +420,8 @@ def _structure_numpy(img: np.ndarray, lo: float, hi: float) -> np.ndarray:
         g = _sobel_magnitude(log)
         u = log - np.float32(np.log(lo))
         g *= _smoothstep(u / np.log(TAPER_LOW)) * _smoothstep(
-            (np.float32(np.log(hi / lo)) - u) / np.log(TAPER_HIGH))
+            (np.float32(np.log(hi / lo)) - u) / np.log(TAPER_HIGH)
+        )
         saturated = img >= hi
     if saturated.any():
         near = saturated.copy()  # 3x3 dilation
@@ -441,18 +462,31 @@ def _gradient_rows(log, llo, lhi, tl, th, out, r0, r1):  # pragma: no cover - co
             if sat:
                 out[y, x] = 0.0
                 continue
-            gx = (log[y - 1, x + 1] + 2.0 * log[y, x + 1] + log[y + 1, x + 1]
-                  - log[y - 1, x - 1] - 2.0 * log[y, x - 1] - log[y + 1, x - 1])
-            gy = (log[y + 1, x - 1] + 2.0 * log[y + 1, x] + log[y + 1, x + 1]
-                  - log[y - 1, x - 1] - 2.0 * log[y - 1, x] - log[y - 1, x + 1])
+            gx = (
+                log[y - 1, x + 1]
+                + 2.0 * log[y, x + 1]
+                + log[y + 1, x + 1]
+                - log[y - 1, x - 1]
+                - 2.0 * log[y, x - 1]
+                - log[y + 1, x - 1]
+            )
+            gy = (
+                log[y + 1, x - 1]
+                + 2.0 * log[y + 1, x]
+                + log[y + 1, x + 1]
+                - log[y - 1, x - 1]
+                - 2.0 * log[y - 1, x]
+                - log[y - 1, x + 1]
+            )
             a = min(max((log[y, x] - llo) / tl, 0.0), 1.0)
             b = min(max((lhi - log[y, x]) / th, 0.0), 1.0)
             fade = a * a * (3.0 - 2.0 * a) * b * b * (3.0 - 2.0 * b)
             out[y, x] = np.sqrt(gx * gx + gy * gy) * 0.125 * fade
 
 
-def _structure(img: np.ndarray, lo: float, hi: float,
-               workers: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+def _structure(
+    img: np.ndarray, lo: float, hi: float, workers: int | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """Exposure-invariant structure image of a frame on the common scale, and its in-range mask.
 
     The gradient magnitude (3x3 Sobel) of the log of the frame clipped to ``[lo, hi]``, faded
@@ -472,8 +506,9 @@ def _structure(img: np.ndarray, lo: float, hi: float,
     log = np.empty(src.shape, np.float32)
     g = np.empty(src.shape, np.float32)
     h = src.shape[0]
-    run_row_spans(h, workers, lambda r0, r1: _log_rows(src, np.float32(lo), np.float32(hi),
-                                                       log, r0, r1))
+    run_row_spans(
+        h, workers, lambda r0, r1: _log_rows(src, np.float32(lo), np.float32(hi), log, r0, r1)
+    )
     llo, lhi = float(np.log(np.float32(lo))), float(np.log(np.float32(hi)))
     tl, th = float(np.log(TAPER_LOW)), float(np.log(TAPER_HIGH))
     run_row_spans(h, workers, lambda r0, r1: _gradient_rows(log, llo, lhi, tl, th, g, r0, r1))
@@ -489,9 +524,11 @@ def region_name(x: float, y: float, shape: tuple[int, int]) -> str:
     h, w = shape
     col = min(2, max(0, int(3 * (x + 0.5) / w)))
     row = min(2, max(0, int(3 * (y + 0.5) / h)))
-    names = (("upper left", "top", "upper right"),
-             ("left", "centre", "right"),
-             ("lower left", "bottom", "lower right"))
+    names = (
+        ("upper left", "top", "upper right"),
+        ("left", "centre", "right"),
+        ("lower left", "bottom", "lower right"),
+    )
     return names[row][col]
 
 
@@ -511,8 +548,9 @@ def _design(x: np.ndarray, y: np.ndarray, shape: tuple[int, int], radius: float)
     return np.vstack([top, bottom])
 
 
-def _predict(params: np.ndarray, x: np.ndarray, y: np.ndarray, shape: tuple[int, int],
-             radius: float) -> np.ndarray:
+def _predict(
+    params: np.ndarray, x: np.ndarray, y: np.ndarray, shape: tuple[int, int], radius: float
+) -> np.ndarray:
     d = _design(np.atleast_1d(x), np.atleast_1d(y), shape, radius) @ params
     n = d.size // 2
     return np.stack([d[:n], d[n:]], axis=1)
@@ -538,8 +576,7 @@ def _tukey(res: np.ndarray) -> np.ndarray:
     return np.where(res < c, (1.0 - (res / c) ** 2) ** 2, 0.0)
 
 
-def _robust_lstsq(aw: np.ndarray, bw: np.ndarray, wt: np.ndarray
-                  ) -> tuple[np.ndarray, np.ndarray]:
+def _robust_lstsq(aw: np.ndarray, bw: np.ndarray, wt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """IRLS with Tukey biweights on the per-tile whitened residual norm from the weights
     ``wt``; ``(coef, weights)``. Redescending: tiles of a second plane or a moving object
     (up to nearly half of them) end with weight 0 instead of bending the pattern."""
@@ -547,8 +584,9 @@ def _robust_lstsq(aw: np.ndarray, bw: np.ndarray, wt: np.ndarray
     coef = np.zeros(aw.shape[2])
     for _ in range(10):
         sw = np.sqrt(wt)[:, None, None]
-        coef = np.linalg.lstsq((aw * sw).reshape(2 * n, -1), (bw * sw[..., 0]).ravel(),
-                               rcond=None)[0]
+        coef = np.linalg.lstsq((aw * sw).reshape(2 * n, -1), (bw * sw[..., 0]).ravel(), rcond=None)[
+            0
+        ]
         new = _tukey(np.linalg.norm(bw - aw @ coef, axis=1))
         if np.allclose(new, wt, atol=1e-6):
             break
@@ -556,8 +594,13 @@ def _robust_lstsq(aw: np.ndarray, bw: np.ndarray, wt: np.ndarray
     return coef, wt
 
 
-def _fit_pattern(centres: np.ndarray, shifts: np.ndarray, shape: tuple[int, int],
-                 cov: np.ndarray | None = None, floor: float = 0.02) -> ResidualPattern:
+def _fit_pattern(
+    centres: np.ndarray,
+    shifts: np.ndarray,
+    shape: tuple[int, int],
+    cov: np.ndarray | None = None,
+    floor: float = 0.02,
+) -> ResidualPattern:
     """Robust least-squares fit of the pattern to the valid tiles' shifts.
 
     Each tile's two equations are weighted by the inverse of its covariance (plus ``floor``
@@ -612,12 +655,19 @@ def _fit_pattern(centres: np.ndarray, shifts: np.ndarray, shape: tuple[int, int]
     # the perspective terms move a corner (u, v) by (u, v) (p u + q v): at most this
     uc, vc = (shape[1] - 1) / 2.0 / radius, (shape[0] - 1) / 2.0 / radius
     return ResidualPattern(
-        shift_x=tx, shift_y=ty, zoom=zoom_px / radius,
+        shift_x=tx,
+        shift_y=ty,
+        zoom=zoom_px / radius,
         rotation_deg=float(np.degrees(rot_px / radius)),
-        shift_px=float(np.hypot(tx, ty)), zoom_px=zoom_px, rotation_px=rot_px,
+        shift_px=float(np.hypot(tx, ty)),
+        zoom_px=zoom_px,
+        rotation_px=rot_px,
         affine_px=float(np.hypot(0.5 * (a11 - a22), 0.5 * (a12 + a21))),
-        perspective_px=abs(p) * uc + abs(q) * vc, radius=radius,
-        parameters=tuple(float(v) for v in params), rms=rms, terms=chosen,
+        perspective_px=abs(p) * uc + abs(q) * vc,
+        radius=radius,
+        parameters=tuple(float(v) for v in params),
+        rms=rms,
+        terms=chosen,
     )
 
 
@@ -647,8 +697,9 @@ class _PhasePlane:
         # Independent frequencies: the Hann window correlates neighbours (about 1 in 4 free).
         self.neff = max(self.band.sum() / 4.0, 1.0)
 
-    def fit(self, cross: np.ndarray, d: np.ndarray, iterations: int, workers: int = 1
-            ) -> tuple[np.ndarray, np.ndarray]:
+    def fit(
+        self, cross: np.ndarray, d: np.ndarray, iterations: int, workers: int = 1
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Shifts ``(N, 2)`` refined from ``d`` and their covariances ``(N, 2, 2)``.
 
         ``iterations`` Gauss-Newton steps on the phase plane (the phase wrapped to
@@ -664,13 +715,18 @@ class _PhasePlane:
         d0 = np.ascontiguousarray(d, np.float64)
         out = np.empty((n, 2))
         cov = np.empty((n, 2, 2))
-        run_row_spans(n, workers, lambda i0, i1: _plane_rows(
-            flat, self.index, self.fx, self.fy, d0, int(iterations), self.neff, out, cov,
-            i0, i1))
+        run_row_spans(
+            n,
+            workers,
+            lambda i0, i1: _plane_rows(
+                flat, self.index, self.fx, self.fy, d0, int(iterations), self.neff, out, cov, i0, i1
+            ),
+        )
         return out, cov
 
-    def fit_numpy(self, cross: np.ndarray, d: np.ndarray, iterations: int
-                  ) -> tuple[np.ndarray, np.ndarray]:
+    def fit_numpy(
+        self, cross: np.ndarray, d: np.ndarray, iterations: int
+    ) -> tuple[np.ndarray, np.ndarray]:
         """The reference of :meth:`fit` (whole arrays)."""
         cb = cross[:, self.band]
         wb = np.abs(cb)
@@ -699,8 +755,9 @@ class _PhasePlane:
 
 
 @_njit
-def _plane_rows(cross, index, fx, fy, d0, iterations, neff, out, cov, i0, i1
-                ):  # pragma: no cover - compiled
+def _plane_rows(
+    cross, index, fx, fy, d0, iterations, neff, out, cov, i0, i1
+):  # pragma: no cover - compiled
     """Tiles ``i0:i1`` of :meth:`_PhasePlane.fit`: ``cross`` ``(N, t * (t // 2 + 1))``, the band
     at flat ``index`` with frequencies ``fx, fy``; shifts into ``out``, covariances ``cov``."""
     nb = index.size
@@ -812,13 +869,18 @@ def _extract_tiles(img, oy, ox, dy, dx, win, out, i0, i1):  # pragma: no cover -
             yd = min(max(y0 + r + 3, 0), h - 1)
             for c in range(t + 3):
                 xx = min(max(x0 + c, 0), w - 1)
-                tmp[r, c] = (wy0 * img[ya, xx] + wy1 * img[yb, xx] + wy2 * img[yc, xx]
-                             + wy3 * img[yd, xx])
+                tmp[r, c] = (
+                    wy0 * img[ya, xx] + wy1 * img[yb, xx] + wy2 * img[yc, xx] + wy3 * img[yd, xx]
+                )
         mean = 0.0
         for r in range(t):
             for c in range(t):
-                v = wx0 * tmp[r, c] + wx1 * tmp[r, c + 1] + wx2 * tmp[r, c + 2] \
+                v = (
+                    wx0 * tmp[r, c]
+                    + wx1 * tmp[r, c + 1]
+                    + wx2 * tmp[r, c + 2]
                     + wx3 * tmp[r, c + 3]
+                )
                 out[i, r, c] = v
                 mean += v * win[r, c]
         mean /= wsum
@@ -829,12 +891,19 @@ def _extract_tiles(img, oy, ox, dy, dx, win, out, i0, i1):  # pragma: no cover -
 
 def _keys4(f: np.ndarray) -> np.ndarray:
     """Keys cubic weights ``(4, N)`` of taps -1, 0, 1, 2 at fractional positions ``f``."""
-    return np.stack([((-0.5 * f + 1.0) * f - 0.5) * f, (1.5 * f - 2.5) * f * f + 1.0,
-                     ((-1.5 * f + 2.0) * f + 0.5) * f, (0.5 * f - 0.5) * f * f])
+    return np.stack(
+        [
+            ((-0.5 * f + 1.0) * f - 0.5) * f,
+            (1.5 * f - 2.5) * f * f + 1.0,
+            ((-1.5 * f + 2.0) * f + 0.5) * f,
+            (0.5 * f - 0.5) * f * f,
+        ]
+    )
 
 
-def _extract_numpy(img: np.ndarray, oy: np.ndarray, ox: np.ndarray, dy: np.ndarray,
-                   dx: np.ndarray, win: np.ndarray) -> np.ndarray:
+def _extract_numpy(
+    img: np.ndarray, oy: np.ndarray, ox: np.ndarray, dy: np.ndarray, dx: np.ndarray, win: np.ndarray
+) -> np.ndarray:
     """The reference of :func:`_extract_tiles` (all tiles)."""
     h, w = img.shape
     t = win.shape[0]
@@ -844,14 +913,15 @@ def _extract_numpy(img: np.ndarray, oy: np.ndarray, ox: np.ndarray, dy: np.ndarr
     ix = (ox + fx0.astype(int))[:, None] + np.arange(-1, t + 2)[None]
     patch = img[np.clip(iy, 0, h - 1)[:, :, None], np.clip(ix, 0, w - 1)[:, None, :]]
     patch = patch.astype(np.float64)
-    rows = sum(wy[k][:, None, None] * patch[:, k:k + t, :] for k in range(4))
-    tiles = sum(wx[k][:, None, None] * rows[:, :, k:k + t] for k in range(4))
+    rows = sum(wy[k][:, None, None] * patch[:, k : k + t, :] for k in range(4))
+    tiles = sum(wx[k][:, None, None] * rows[:, :, k : k + t] for k in range(4))
     mean = np.sum(tiles * win, axis=(1, 2)) / np.sum(win)
     return ((tiles - mean[:, None, None]) * win).astype(np.float32)
 
 
-def _tiles(img: np.ndarray, oy: np.ndarray, ox: np.ndarray, d: np.ndarray, win: np.ndarray,
-           workers: int) -> np.ndarray:
+def _tiles(
+    img: np.ndarray, oy: np.ndarray, ox: np.ndarray, d: np.ndarray, win: np.ndarray, workers: int
+) -> np.ndarray:
     """Windowed, mean-free tiles ``(N, t, t)`` of ``img`` at ``(oy, ox) + d`` (``d``: dx, dy)."""
     dy = np.ascontiguousarray(d[:, 1], np.float64)
     dx = np.ascontiguousarray(d[:, 0], np.float64)
@@ -861,13 +931,21 @@ def _tiles(img: np.ndarray, oy: np.ndarray, ox: np.ndarray, d: np.ndarray, win: 
     out = np.empty((n, t, t), np.float32)
     oy64, ox64 = oy.astype(np.int64), ox.astype(np.int64)
     win64 = win.astype(np.float64)
-    run_row_spans(n, workers,
-                  lambda i0, i1: _extract_tiles(img, oy64, ox64, dy, dx, win64, out, i0, i1))
+    run_row_spans(
+        n, workers, lambda i0, i1: _extract_tiles(img, oy64, ox64, dy, dx, win64, out, i0, i1)
+    )
     return out
 
 
-def _ncc_at(ga: np.ndarray, gb: np.ndarray, oy: np.ndarray, ox: np.ndarray, d: np.ndarray,
-            t: int, workers: int) -> np.ndarray:
+def _ncc_at(
+    ga: np.ndarray,
+    gb: np.ndarray,
+    oy: np.ndarray,
+    ox: np.ndarray,
+    d: np.ndarray,
+    t: int,
+    workers: int,
+) -> np.ndarray:
     """Normalised cross-correlation of the bright tiles with the dark tiles taken at ``d``."""
     win = np.outer(_hann(t), _hann(t)).astype(np.float32)
     ta = _tiles(ga, oy, ox, d, win, workers)
@@ -875,7 +953,8 @@ def _ncc_at(ga: np.ndarray, gb: np.ndarray, oy: np.ndarray, ox: np.ndarray, d: n
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.einsum("nij,nij->n", ta, tb, dtype=np.float64) / np.sqrt(
             np.einsum("nij,nij->n", ta, ta, dtype=np.float64)
-            * np.einsum("nij,nij->n", tb, tb, dtype=np.float64))
+            * np.einsum("nij,nij->n", tb, tb, dtype=np.float64)
+        )
 
 
 #: A tile is re-centred again only while its last re-centring moved it by more than this
@@ -884,8 +963,16 @@ def _ncc_at(ga: np.ndarray, gb: np.ndarray, oy: np.ndarray, ox: np.ndarray, d: n
 RECENTRE_TOL = 0.01
 
 
-def _tile_shifts(ga: np.ndarray, gb: np.ndarray, oy: np.ndarray, ox: np.ndarray, t: int,
-                 workers: int, *, recentre: int = 2) -> _TileShifts:
+def _tile_shifts(
+    ga: np.ndarray,
+    gb: np.ndarray,
+    oy: np.ndarray,
+    ox: np.ndarray,
+    t: int,
+    workers: int,
+    *,
+    recentre: int = 2,
+) -> _TileShifts:
     """Shift per tile between the structure images ``ga`` (dark) and ``gb`` (bright).
 
     Phase correlation (integer peak, parabolic start, phase-plane fit); then the dark tile is
@@ -959,8 +1046,9 @@ def _nan_to_mean(x: np.ndarray) -> np.ndarray:
     """A copy of ``x`` whose non-finite values are the mean of its finite ones (a structure
     image outside a warped frame: flat, so it adds no phase-correlation peak)."""
     if not AVAILABLE or x.ndim != 2:
-        return np.where(np.isfinite(x), x, np.float32(np.nanmean(np.where(np.isfinite(x), x,
-                                                                              np.nan))))
+        return np.where(
+            np.isfinite(x), x, np.float32(np.nanmean(np.where(np.isfinite(x), x, np.nan)))
+        )
     out = np.empty_like(x)
     _finite_mean_fill(x, out)
     return out
@@ -1058,26 +1146,38 @@ def residual_motion(
     a = np.asarray(dark)
     b = np.asarray(bright)
     if a.ndim != 2 or a.shape != b.shape:
-        raise ParameterError("residual motion needs two single-channel frames of the same size",
-                             expected="two (H, W) arrays", found=f"{a.shape} and {b.shape}")
+        raise ParameterError(
+            "residual motion needs two single-channel frames of the same size",
+            expected="two (H, W) arrays",
+            found=f"{a.shape} and {b.shape}",
+        )
     if not (np.isfinite(ratio) and ratio > 0):
         raise ParameterError("the exposure ratio must be positive and finite", found=str(ratio))
     if not (saturation > 0 and 0 <= noise_floor < saturation):
-        raise ParameterError("need 0 <= noise_floor < saturation",
-                             found=f"noise_floor {noise_floor}, saturation {saturation}")
+        raise ParameterError(
+            "need 0 <= noise_floor < saturation",
+            found=f"noise_floor {noise_floor}, saturation {saturation}",
+        )
     if lut is not None:
         lut = np.ascontiguousarray(lut, np.float32)
         if a.dtype.kind not in "ui" or b.dtype.kind not in "ui":
-            raise ParameterError("frames read through a lut must be integer levels",
-                                 found=f"{a.dtype} and {b.dtype}")
+            raise ParameterError(
+                "frames read through a lut must be integer levels", found=f"{a.dtype} and {b.dtype}"
+            )
         top = max(int(a.max(initial=0)), int(b.max(initial=0)))
         if top >= lut.size:
-            raise ParameterError("a level is beyond the end of the lut",
-                                 expected=f"levels < {lut.size}", found=str(top))
+            raise ParameterError(
+                "a level is beyond the end of the lut",
+                expected=f"levels < {lut.size}",
+                found=str(top),
+            )
     h, w = a.shape
     if min(h, w) < 64:
-        raise ParameterError("frames too small to measure residual motion",
-                             expected="at least 64 x 64 pixels", found=f"{h}x{w}")
+        raise ParameterError(
+            "frames too small to measure residual motion",
+            expected="at least 64 x 64 pixels",
+            found=f"{h}x{w}",
+        )
     nw = worker_count(workers)
     level = _choose_level((h, w), max_pixels)
     f = 1 << level
@@ -1093,8 +1193,10 @@ def residual_motion(
     k = float(ratio)
     lo = max(float(noise_floor), 1e-3 * float(saturation))
     hi = float(saturation)
-    def structure(src: np.ndarray, level: np.ndarray, scale: float | None,
-                  warped: bool) -> tuple[np.ndarray, np.ndarray]:
+
+    def structure(
+        src: np.ndarray, level: np.ndarray, scale: float | None, warped: bool
+    ) -> tuple[np.ndarray, np.ndarray]:
         key = (id(src), scale, k * lo, hi, f, id(lut))
         if memo is not None and not warped and key in memo:
             return memo[key][1]
@@ -1109,8 +1211,9 @@ def residual_motion(
 
     t = int(tile) if tile is not None else _choose_tile((hl, wl))
     if t < 16 or t > min(hl, wl) - 2:
-        raise ParameterError("tile size out of range", expected=f"16..{min(hl, wl) - 2}",
-                             found=str(t))
+        raise ParameterError(
+            "tile size out of range", expected=f"16..{min(hl, wl) - 2}", found=str(t)
+        )
     ny, nx = max(1, (hl - 2) // t), max(1, (wl - 2) // t)
     ys = np.rint(np.linspace(1, hl - 1 - t, ny)).astype(int)
     xs = np.rint(np.linspace(1, wl - 1 - t, nx)).astype(int)
@@ -1128,28 +1231,41 @@ def residual_motion(
     if only is not None:
         only = np.asarray(only, bool)
         if only.shape != can.shape:
-            raise ParameterError("one flag per tile of the grid", expected=str(can.size),
-                                 found=str(only.size))
+            raise ParameterError(
+                "one flag per tile of the grid", expected=str(can.size), found=str(only.size)
+            )
         can &= only
     measurable = np.flatnonzero(can)
     ts = _TileShifts(np.full((n, 2), np.nan), np.zeros(n), np.full((n, 2, 2), np.nan))
     if measurable.size:
         part = _tile_shifts(ga, gb, oy[measurable], ox[measurable], t, nw)
         ts.shifts[measurable], ts.ncc[measurable], ts.cov[measurable] = (
-            part.shifts, part.ncc, part.cov)
-    min_conf = (max(CONFIDENCE_PER_TILE / t, MIN_CONFIDENCE) if min_confidence is None
-                else float(min_confidence))
+            part.shifts,
+            part.ncc,
+            part.cov,
+        )
+    min_conf = (
+        max(CONFIDENCE_PER_TILE / t, MIN_CONFIDENCE)
+        if min_confidence is None
+        else float(min_confidence)
+    )
     conf = np.nan_to_num(ts.ncc, nan=0.0)
     with np.errstate(invalid="ignore"):  # worst-direction standard error, analysed pixels
         tr = ts.cov[:, 0, 0] + ts.cov[:, 1, 1]
         dt = ts.cov[:, 0, 0] * ts.cov[:, 1, 1] - ts.cov[:, 0, 1] ** 2
         sig_l = np.sqrt(np.maximum(0.5 * tr + np.sqrt(np.maximum(0.25 * tr * tr - dt, 0)), 0))
     sig_l = np.where(np.isfinite(sig_l), sig_l, np.inf)
-    valid = ((conf >= min_conf) & (sig_l <= MAX_SIGMA) & (frac_in >= min_in_range)
-             & (frac_nan <= 0.1) & np.all(np.isfinite(ts.shifts), axis=1)
-             & (np.abs(ts.shifts).max(axis=1) < t / 4))
-    centres = np.stack([(ox + (t - 1) / 2.0) * f + (f - 1) / 2.0,
-                        (oy + (t - 1) / 2.0) * f + (f - 1) / 2.0], axis=1)
+    valid = (
+        (conf >= min_conf)
+        & (sig_l <= MAX_SIGMA)
+        & (frac_in >= min_in_range)
+        & (frac_nan <= 0.1)
+        & np.all(np.isfinite(ts.shifts), axis=1)
+        & (np.abs(ts.shifts).max(axis=1) < t / 4)
+    )
+    centres = np.stack(
+        [(ox + (t - 1) / 2.0) * f + (f - 1) / 2.0, (oy + (t - 1) / 2.0) * f + (f - 1) / 2.0], axis=1
+    )
     shifts = ts.shifts * f
     sigma = sig_l * f
     cov = ts.cov * (f * f)
@@ -1168,8 +1284,11 @@ def residual_motion(
             # itself, H^-1 c - c, and says nothing about the scene's alignment.
             fixed = _field(np.linalg.inv(hm), centres)
             apart = np.hypot(*(fixed - pred).T)
-            sensor = valid & (apart > 3.0 * f) & (
-                np.hypot(*(shifts - fixed).T) <= np.maximum(1.0 * f, 0.1 * apart))
+            sensor = (
+                valid
+                & (apart > 3.0 * f)
+                & (np.hypot(*(shifts - fixed).T) <= np.maximum(1.0 * f, 0.1 * apart))
+            )
         # A tile far off the pattern that matches about as well where the pattern says is
         # ambiguous (the wrong period of a repetitive texture), not a local motion.
         far = np.flatnonzero(valid & ~sensor & (local > 3.0 * f))
@@ -1192,25 +1311,52 @@ def residual_motion(
         med = float(np.median(mags[valid]))
         p90 = float(np.percentile(mags[valid], 90))
         mx = float(mags[valid].max())
-        status, kind, message = _verdict(pattern, med, p90, mags, local, valid, coherent, off,
-                                         region, aligned_px, local_px)
+        status, kind, message = _verdict(
+            pattern, med, p90, mags, local, valid, coherent, off, region, aligned_px, local_px
+        )
         if sensor.any():
             k = int(sensor.sum())
-            message += (f"; {k} tile{'s follow' if k > 1 else ' follows'} the sensor, not the "
-                        f"scene (fixed-pattern noise or dust), left out")
+            message += (
+                f"; {k} tile{'s follow' if k > 1 else ' follows'} the sensor, not the "
+                f"scene (fixed-pattern noise or dust), left out"
+            )
     else:
         med = p90 = mx = float("nan")
         status, kind = "unmeasured", ""
-        why = ("no tile is textured" if not np.any(frac_in >= min_in_range) or not np.any(conf > 0)
-               else "no tile matches")
-        message = (f"{nv} of {n} tiles confident ({why} in the exposure range both frames "
-                   f"share): the residual motion cannot be measured")
+        why = (
+            "no tile is textured"
+            if not np.any(frac_in >= min_in_range) or not np.any(conf > 0)
+            else "no tile matches"
+        )
+        message = (
+            f"{nv} of {n} tiles confident ({why} in the exposure range both frames "
+            f"share): the residual motion cannot be measured"
+        )
     return ResidualMotion(
-        shape=(h, w), level=level, tile=t, centres=centres, shifts=shifts, confidence=conf,
-        sigma=sigma, in_range=frac_in, valid=valid, local=local, median=med, p90=p90, max=mx,
-        pattern=pattern, worst=worst, worst_region=region, status=status, kind=kind,
-        message=message, aligned_px=float(aligned_px), local_px=float(local_px),
-        sensor=sensor, ambiguous=ambiguous, seconds=time.perf_counter() - t0,
+        shape=(h, w),
+        level=level,
+        tile=t,
+        centres=centres,
+        shifts=shifts,
+        confidence=conf,
+        sigma=sigma,
+        in_range=frac_in,
+        valid=valid,
+        local=local,
+        median=med,
+        p90=p90,
+        max=mx,
+        pattern=pattern,
+        worst=worst,
+        worst_region=region,
+        status=status,
+        kind=kind,
+        message=message,
+        aligned_px=float(aligned_px),
+        local_px=float(local_px),
+        sensor=sensor,
+        ambiguous=ambiguous,
+        seconds=time.perf_counter() - t0,
     )
 
 
@@ -1218,8 +1364,13 @@ def _field(m: np.ndarray, points: np.ndarray) -> np.ndarray:
     """Displacement ``m(p) - p`` (3x3) at ``points`` ``(N, 2)``."""
     x, y = points[:, 0], points[:, 1]
     zw = m[2, 0] * x + m[2, 1] * y + m[2, 2]
-    return np.stack([(m[0, 0] * x + m[0, 1] * y + m[0, 2]) / zw - x,
-                     (m[1, 0] * x + m[1, 1] * y + m[1, 2]) / zw - y], axis=1)
+    return np.stack(
+        [
+            (m[0, 0] * x + m[0, 1] * y + m[0, 2]) / zw - x,
+            (m[1, 0] * x + m[1, 1] * y + m[1, 2]) / zw - y,
+        ],
+        axis=1,
+    )
 
 
 def coherent_tiles(res: ResidualMotion) -> np.ndarray:
@@ -1246,15 +1397,29 @@ def _coherent(off: np.ndarray, resid: np.ndarray, ny: int, nx: int, tol: float) 
         for rr in range(max(r - 1, 0), min(r + 2, ny)):
             for cc in range(max(c - 1, 0), min(c + 2, nx)):
                 j = rr * nx + cc
-                if j != i and off[j] and np.hypot(*(resid[i] - resid[j])) <= max(
-                        tol, 0.3 * float(max(np.hypot(*resid[i]), np.hypot(*resid[j])))):
+                if (
+                    j != i
+                    and off[j]
+                    and np.hypot(*(resid[i] - resid[j]))
+                    <= max(tol, 0.3 * float(max(np.hypot(*resid[i]), np.hypot(*resid[j]))))
+                ):
                     out[i] = True
     return out
 
 
-def _verdict(pattern: ResidualPattern, med: float, p90: float, mags: np.ndarray,
-             local: np.ndarray, valid: np.ndarray, coherent: np.ndarray, off: np.ndarray,
-             region: str, aligned_px: float, local_px: float) -> tuple[str, str, str]:
+def _verdict(
+    pattern: ResidualPattern,
+    med: float,
+    p90: float,
+    mags: np.ndarray,
+    local: np.ndarray,
+    valid: np.ndarray,
+    coherent: np.ndarray,
+    off: np.ndarray,
+    region: str,
+    aligned_px: float,
+    local_px: float,
+) -> tuple[str, str, str]:
     """``(status, kind, message)`` from the summarised field (see :func:`residual_motion`).
 
     A local residual needs neighbouring tiles that agree (:func:`_coherent`); tiles off on their
@@ -1266,20 +1431,27 @@ def _verdict(pattern: ResidualPattern, med: float, p90: float, mags: np.ndarray,
     n_local = int(np.count_nonzero(coherent))
     local_worst = float(local[coherent].max()) if n_local else 0.0
     n_alone = int(np.count_nonzero(off & ~coherent))
-    alone = (f" ({n_alone} isolated tile{'s' if n_alone > 1 else ''} off by up to "
-             f"{float(mags[off & ~coherent].max()):.1f} px)" if n_alone else "")
+    alone = (
+        f" ({n_alone} isolated tile{'s' if n_alone > 1 else ''} off by up to "
+        f"{float(mags[off & ~coherent].max()):.1f} px)"
+        if n_alone
+        else ""
+    )
     if med <= aligned_px and big <= 2 * aligned_px and local_worst <= local_px:
-        return ("aligned", "",
-                f"{med:.2f} px median over {int(valid.sum())} tiles: aligned{alone}")
+        return ("aligned", "", f"{med:.2f} px median over {int(valid.sum())} tiles: aligned{alone}")
     if big > 2 * aligned_px and big >= local_worst:
         if name == "zoom":
             what = f"a zoom of {100 * pattern.zoom:+.2f} % is left ({big:.1f} px at the corners)"
         elif name == "rotation":
-            what = (f"a rotation of {pattern.rotation_deg:+.3f} deg is left ({big:.1f} px at "
-                    f"the corners)")
+            what = (
+                f"a rotation of {pattern.rotation_deg:+.3f} deg is left ({big:.1f} px at "
+                f"the corners)"
+            )
         elif name == "shift":
-            what = (f"a shift of {big:.1f} px is left (dx {pattern.shift_x:+.2f}, "
-                    f"dy {pattern.shift_y:+.2f})")
+            what = (
+                f"a shift of {big:.1f} px is left (dx {pattern.shift_x:+.2f}, "
+                f"dy {pattern.shift_y:+.2f})"
+            )
         elif name == "perspective":
             what = f"a perspective tilt of {big:.1f} px at the corners is left"
         else:
@@ -1287,9 +1459,15 @@ def _verdict(pattern: ResidualPattern, med: float, p90: float, mags: np.ndarray,
         return "misaligned", name, f"{what}: {_HINTS[name]}"
     if local_worst > local_px:
         size = float(np.median(mags[coherent]))
-        return ("misaligned", "local",
-                f"{size:.1f} px of residual motion at the {region} ({n_local} tiles): "
-                f"parallax, a moving object or flare")
-    return ("misaligned", "scattered",
-            f"{med:.2f} px median residual motion (90 % under {p90:.2f} px), no global pattern: "
-            f"noise, blur or a poor match{alone}")
+        return (
+            "misaligned",
+            "local",
+            f"{size:.1f} px of residual motion at the {region} ({n_local} tiles): "
+            f"parallax, a moving object or flare",
+        )
+    return (
+        "misaligned",
+        "scattered",
+        f"{med:.2f} px median residual motion (90 % under {p90:.2f} px), no global pattern: "
+        f"noise, blur or a poor match{alone}",
+    )

@@ -102,8 +102,7 @@ class PairRegistration:
         """How much the brightness ratio of the pair changes from the centre to the corners,
         as a factor (``exp(|(g1, g2)|)``; 1 for a uniform ratio): a phone's local tone
         mapping or vignetting that differs between the frames."""
-        return float(np.exp(np.hypot(self.gain[1], self.gain[2]))) if len(self.gain) == 3 \
-            else 1.0
+        return float(np.exp(np.hypot(self.gain[1], self.gain[2]))) if len(self.gain) == 3 else 1.0
 
     def __post_init__(self) -> None:
         if self.matrix is not None:
@@ -179,8 +178,9 @@ class BracketRegistration:
 
     def __post_init__(self) -> None:
         if self.to_reference is not None:
-            object.__setattr__(self, "to_reference_homography",
-                               tuple(homogeneous(m) for m in self.to_reference))
+            object.__setattr__(
+                self, "to_reference_homography", tuple(homogeneous(m) for m in self.to_reference)
+            )
 
     @property
     def ok(self) -> bool:
@@ -192,9 +192,11 @@ class BracketRegistration:
             "model": self.model,
             "method": self.method,
             "pairs": [p.to_json() for p in self.pairs],
-            "to_reference": None if self.to_reference is None
+            "to_reference": None
+            if self.to_reference is None
             else [np.asarray(m).tolist() for m in self.to_reference],
-            "to_reference_homography": [np.asarray(m).tolist()
-                                        for m in self.to_reference_homography],
+            "to_reference_homography": [
+                np.asarray(m).tolist() for m in self.to_reference_homography
+            ],
             "local": None if self.local is None else self.local.to_json(),
         }

@@ -48,9 +48,7 @@ __all__ = [
 _AFFINE_TOL = 1e-12
 
 
-def rigid_matrix(
-    dx: float, dy: float, angle_deg: float, shape: tuple[int, int]
-) -> np.ndarray:
+def rigid_matrix(dx: float, dy: float, angle_deg: float, shape: tuple[int, int]) -> np.ndarray:
     """2x3 matrix of a rotation by ``angle_deg`` about the image centre followed by a shift.
 
     ``shape`` is ``(H, W)``; positive angles turn the x axis towards y (clockwise on screen).
@@ -73,8 +71,9 @@ def identity() -> np.ndarray:
 def _check(m: np.ndarray) -> np.ndarray:
     arr = np.asarray(m, float)
     if arr.shape not in ((2, 3), (3, 3)):
-        raise ParameterError("a motion matrix must be 2x3 (affine) or 3x3 (homography)",
-                             found=f"shape {arr.shape}")
+        raise ParameterError(
+            "a motion matrix must be 2x3 (affine) or 3x3 (homography)", found=f"shape {arr.shape}"
+        )
     return arr
 
 
@@ -106,8 +105,10 @@ def affine_part(matrix: np.ndarray, tol: float = _AFFINE_TOL) -> np.ndarray:
     if m.shape == (2, 3):
         return m.copy()
     if not is_affine(m, tol):
-        raise ParameterError("the homography has a perspective part; it has no 2x3 form",
-                             found=f"last row {np.round(_normalised(m)[2], 12).tolist()}")
+        raise ParameterError(
+            "the homography has a perspective part; it has no 2x3 form",
+            found=f"last row {np.round(_normalised(m)[2], 12).tolist()}",
+        )
     return _normalised(m)[:2].copy()
 
 
@@ -229,9 +230,7 @@ def to_reference(pairs: Sequence[np.ndarray], reference: int) -> tuple[np.ndarra
     return tuple(np.asarray(m) if affine else homogeneous(m) for m in out)
 
 
-def pair_from_reference(
-    to_ref: Sequence[np.ndarray], dark: int, bright: int
-) -> np.ndarray:
+def pair_from_reference(to_ref: Sequence[np.ndarray], dark: int, bright: int) -> np.ndarray:
     """Matrix mapping coordinates of frame ``bright`` to frame ``dark``."""
     return compose(invert(to_ref[dark]), to_ref[bright])
 
@@ -257,8 +256,11 @@ def nearest_in_frame(
     index it) and ``inside``, whether the point falls in the frame at all.
     """
     h, w = int(shape[0]), int(shape[1])
-    fx, fy = apply(invert(np.asarray(to_reference, np.float64)),
-                   np.asarray(xs, np.float64), np.asarray(ys, np.float64))
+    fx, fy = apply(
+        invert(np.asarray(to_reference, np.float64)),
+        np.asarray(xs, np.float64),
+        np.asarray(ys, np.float64),
+    )
     xk = np.rint(fx).astype(np.intp)
     yk = np.rint(fy).astype(np.intp)
     inside = (xk >= 0) & (xk < w) & (yk >= 0) & (yk < h)

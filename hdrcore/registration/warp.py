@@ -85,7 +85,9 @@ def _row_intervals(
 
 
 def valid_mask(
-    matrix: np.ndarray, output_shape: tuple[int, int], source_shape: tuple[int, int],
+    matrix: np.ndarray,
+    output_shape: tuple[int, int],
+    source_shape: tuple[int, int],
     margin: float = 0.0,
 ) -> np.ndarray:
     """True where ``matrix`` (2x3 or 3x3, output -> source coordinates) lands inside the source
@@ -125,8 +127,11 @@ def _x_pass(src: np.ndarray, rows: np.ndarray, offsets: np.ndarray, out_w: int) 
         tmp = np.empty_like(dst)
         for j in range(4):
             c0 = pad_l + i + j - 1
-            np.multiply(src[r, c0 : c0 + out_w], wts[a:b, j][(slice(None),) + extra],
-                        out=dst if j == 0 else tmp)
+            np.multiply(
+                src[r, c0 : c0 + out_w],
+                wts[a:b, j][(slice(None),) + extra],
+                out=dst if j == 0 else tmp,
+            )
             if j:
                 dst += tmp
     return out
@@ -153,8 +158,11 @@ def _y_pass(src: np.ndarray, cols: np.ndarray, offsets: np.ndarray, out_h: int) 
         tmp = np.empty_like(dst)
         for j in range(4):
             r0 = pad_t + i + j - 1
-            np.multiply(src[r0 : r0 + out_h, c], wts[j, a:b][(None, slice(None)) + extra],
-                        out=dst if j == 0 else tmp)
+            np.multiply(
+                src[r0 : r0 + out_h, c],
+                wts[j, a:b][(None, slice(None)) + extra],
+                out=dst if j == 0 else tmp,
+            )
             if j:
                 dst += tmp
     return out
@@ -164,8 +172,10 @@ def _as_matrix(matrix: np.ndarray) -> np.ndarray:
     """A finite 2x3 matrix, or a 3x3 one when it has a perspective part."""
     m = np.asarray(matrix, float)
     if m.shape not in ((2, 3), (3, 3)) or not np.all(np.isfinite(m)):
-        raise ParameterError("warp matrix must be a finite 2x3 (affine) or 3x3 (homography) "
-                             "matrix", found=str(m.shape))
+        raise ParameterError(
+            "warp matrix must be a finite 2x3 (affine) or 3x3 (homography) matrix",
+            found=str(m.shape),
+        )
     if m.shape == (3, 3):
         if abs(m[2, 2]) < 1e-300:
             raise ParameterError("warp homography has H[2, 2] = 0", found=str(m.tolist()))
@@ -222,11 +232,15 @@ def warp(
             method = "spline"
             yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
             den = 1.0 if m.shape == (2, 3) else m[2, 0] * xx + m[2, 1] * yy + m[2, 2]
-            coords = [(m[1, 0] * xx + m[1, 1] * yy + m[1, 2]) / den,
-                      (m[0, 0] * xx + m[0, 1] * yy + m[0, 2]) / den]
+            coords = [
+                (m[1, 0] * xx + m[1, 1] * yy + m[1, 2]) / den,
+                (m[0, 0] * xx + m[0, 1] * yy + m[0, 2]) / den,
+            ]
             chans = [src] if src.ndim == 2 else [src[..., c] for c in range(src.shape[2])]
-            res = [ndimage.map_coordinates(c, coords, order=3, mode="nearest").astype(
-                np.float32) for c in chans]
+            res = [
+                ndimage.map_coordinates(c, coords, order=3, mode="nearest").astype(np.float32)
+                for c in chans
+            ]
             out = res[0] if src.ndim == 2 else np.stack(res, axis=-1)
     elif np.allclose(lin, np.eye(2), atol=1e-12):
         if abs(cx - round(cx)) < 1e-9 and abs(cy - round(cy)) < 1e-9:

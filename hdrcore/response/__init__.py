@@ -104,7 +104,8 @@ def recover_response(
         key = validate_method(method, {AUTO: None, **RESPONSE_METHODS}, "response")
         fn = RESPONSE_METHODS[key]
     accepted = [
-        name for name, p in inspect.signature(fn).parameters.items()
+        name
+        for name, p in inspect.signature(fn).parameters.items()
         if p.kind is inspect.Parameter.KEYWORD_ONLY
     ]
     unknown = sorted(set(parameters) - set(accepted))

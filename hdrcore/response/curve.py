@@ -134,7 +134,8 @@ class ResponseCurve:
             raise ParameterError("response must be non-decreasing in the level")
         if not (np.allclose(g[:, 0], 0.0, atol=1e-9) and np.allclose(g[:, -1], 1.0, atol=1e-9)):
             raise ParameterError(
-                "response must be normalised", expected="g(0) = 0 and g(max_level) = 1",
+                "response must be normalised",
+                expected="g(0) = 0 and g(max_level) = 1",
                 found=f"g(0) = {g[:, 0].tolist()}, g(max) = {g[:, -1].tolist()}",
             )
         g = g.copy()
@@ -143,8 +144,11 @@ class ResponseCurve:
         if self.residuals is not None:
             r = np.array(self.residuals, dtype=np.float64)
             if r.shape != g.shape:
-                raise ParameterError("residuals must be (channels, levels) like g",
-                                     expected=str(g.shape), found=str(r.shape))
+                raise ParameterError(
+                    "residuals must be (channels, levels) like g",
+                    expected=str(g.shape),
+                    found=str(r.shape),
+                )
             r.setflags(write=False)
             object.__setattr__(self, "residuals", r)
         if not self.channel_names:
@@ -181,7 +185,8 @@ class ResponseCurve:
         if self.n_channels == 1:
             return [0] * n
         raise ParameterError(
-            "levels must end in the channel axis", expected=f"{self.n_channels} channels",
+            "levels must end in the channel axis",
+            expected=f"{self.n_channels} channels",
             found=f"{n}",
         )
 
@@ -288,9 +293,9 @@ class ResponseCurve:
                     "levels": self.levels.tolist(),
                     "g": [float(v) for v in self.g[c]],
                     "fit": self.channels[c].to_json() if c < len(self.channels) else None,
-                    "residuals": None if self.residuals is None else [
-                        None if not np.isfinite(v) else float(v) for v in self.residuals[c]
-                    ],
+                    "residuals": None
+                    if self.residuals is None
+                    else [None if not np.isfinite(v) else float(v) for v in self.residuals[c]],
                 }
                 for c in range(self.n_channels)
             ],
@@ -302,13 +307,13 @@ class ResponseCurve:
         try:
             chans = d["channels"]
             g = np.array([c["g"] for c in chans], dtype=np.float64)
-            fits = tuple(
-                ChannelFit.from_json(c["fit"]) for c in chans if c.get("fit") is not None
-            )
+            fits = tuple(ChannelFit.from_json(c["fit"]) for c in chans if c.get("fit") is not None)
             res = None
             if all(c.get("residuals") is not None for c in chans):
-                res = np.array([[np.nan if v is None else float(v) for v in c["residuals"]]
-                                for c in chans], dtype=np.float64)
+                res = np.array(
+                    [[np.nan if v is None else float(v) for v in c["residuals"]] for c in chans],
+                    dtype=np.float64,
+                )
             status = d.get("status", "ok")
             if not is_response_status(status):
                 raise ValueError(f"unknown status {status!r}")
@@ -327,12 +332,19 @@ class ResponseCurve:
             if isinstance(exc, ParameterError):
                 raise InputError(f"not a valid response curve: {exc.reason}", path=path) from exc
             raise InputError(
-                "not a response curve JSON", path=path,
-                expected="an object with 'channels': [{'g': [...]}, ...]", found=repr(exc),
+                "not a response curve JSON",
+                path=path,
+                expected="an object with 'channels': [{'g': [...]}, ...]",
+                found=repr(exc),
             ) from exc
 
-    def save(self, path: str | os.PathLike, *, force: bool = False,
-             inputs: Sequence[str | os.PathLike] = ()) -> Path:
+    def save(
+        self,
+        path: str | os.PathLike,
+        *,
+        force: bool = False,
+        inputs: Sequence[str | os.PathLike] = (),
+    ) -> Path:
         """Write JSON atomically; refuses to replace an existing file unless ``force``."""
         from ..io.atomic import atomic_write
 
@@ -352,13 +364,22 @@ class ResponseCurve:
             raise InputError("not a response curve JSON", path=p, found=type(d).__name__)
         return cls.from_json(d, path=p)
 
-    def plot(self, path: str | os.PathLike, *, force: bool = False, title: str | None = None,
-             inputs: Sequence[str | os.PathLike] = ()) -> Path:
+    def plot(
+        self,
+        path: str | os.PathLike,
+        *,
+        force: bool = False,
+        title: str | None = None,
+        inputs: Sequence[str | os.PathLike] = (),
+    ) -> Path:
         """Draw ``g`` of every channel (levels on x, linear exposure on y) into a PNG."""
         from .plot import plot_curves
 
         return plot_curves(
-            [(self, self.method)], path, force=force, title=title or f"response: {self.method}",
+            [(self, self.method)],
+            path,
+            force=force,
+            title=title or f"response: {self.method}",
             inputs=inputs,
         )
 

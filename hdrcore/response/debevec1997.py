@@ -71,9 +71,7 @@ class LogCurveGrid:
         """Smoothness weight per node: ``strength * max(hat(z), floor)`` (DM eq. 3)."""
         return strength * np.maximum(hat_weight(self.nodes, lo, hi), floor)
 
-    def to_levels(
-        self, u: np.ndarray, hi: float, above_cutoff: str = "extrapolate"
-    ) -> np.ndarray:
+    def to_levels(self, u: np.ndarray, hi: float, above_cutoff: str = "extrapolate") -> np.ndarray:
         """Normalised linear ``g`` at every level 0..max from node values of ``ln g``."""
         levels = np.arange(self.max_level + 1, dtype=np.float64)
         u_all = np.interp(levels, self.nodes, u)
@@ -83,7 +81,8 @@ class LogCurveGrid:
                 u_all[top] = u_all[np.flatnonzero(~top)[-1]]
         elif above_cutoff != "extrapolate":
             raise ParameterError(
-                "unknown above_cutoff", expected="'extrapolate' or 'constant'",
+                "unknown above_cutoff",
+                expected="'extrapolate' or 'constant'",
                 found=repr(above_cutoff),
             )
         g = np.exp(u_all - u_all.max())
@@ -91,8 +90,9 @@ class LogCurveGrid:
         return normalise_curve(g)[0]
 
 
-def _status(fits: Sequence[ChannelFit], n_nodes: int,
-            coverage: Sequence[float]) -> tuple[ResponseStatus, str]:
+def _status(
+    fits: Sequence[ChannelFit], n_nodes: int, coverage: Sequence[float]
+) -> tuple[ResponseStatus, str]:
     msgs = []
     for c, (f, cov) in enumerate(zip(fits, coverage, strict=True)):
         if f.active_constraints > 0.1 * n_nodes:
@@ -179,8 +179,11 @@ def debevec1997(
         coverage.append(float((zs.max() - zs.min()) / max(hi - lo, 1.0)))
         fits.append(
             ChannelFit(
-                residual_rms=rms, n_constraints=int(rows.sum()), exposure_ratios=ratios,
-                active_constraints=active, iterations=1,
+                residual_rms=rms,
+                n_constraints=int(rows.sum()),
+                exposure_ratios=ratios,
+                active_constraints=active,
+                iterations=1,
                 non_monotone_steps=int(np.sum(np.diff(u) < 0)),
             )
         )
@@ -193,8 +196,13 @@ def debevec1997(
         status=status,
         message=message,
         parameters={
-            "smoothing": smoothing, "cutoff": cutoff, "low_cut": low_cut,
-            "n_samples": n_samples, "monotone": monotone, "n_nodes": grid.size,
-            "above_cutoff": above_cutoff, "seed": seed,
+            "smoothing": smoothing,
+            "cutoff": cutoff,
+            "low_cut": low_cut,
+            "n_samples": n_samples,
+            "monotone": monotone,
+            "n_nodes": grid.size,
+            "above_cutoff": above_cutoff,
+            "seed": seed,
         },
     )

@@ -87,8 +87,10 @@ def debevec_histogram(
         fits.append(
             ChannelFit(
                 residual_rms=rms / max(float(np.sqrt(np.mean(w**2))), 1e-300),
-                n_constraints=int(keep.sum()), exposure_ratios=ratios,
-                active_constraints=active, iterations=1,
+                n_constraints=int(keep.sum()),
+                exposure_ratios=ratios,
+                active_constraints=active,
+                iterations=1,
                 non_monotone_steps=int(np.sum(np.diff(u) < 0)),
             )
         )
@@ -101,7 +103,12 @@ def debevec_histogram(
         status=status,
         message=message,
         parameters={
-            "smoothing": smoothing, "cutoff": cutoff, "low_cut": low_cut, "monotone": monotone,
-            "n_nodes": grid.size, "above_cutoff": above_cutoff, "stride": stride,
+            "smoothing": smoothing,
+            "cutoff": cutoff,
+            "low_cut": low_cut,
+            "monotone": monotone,
+            "n_nodes": grid.size,
+            "above_cutoff": above_cutoff,
+            "stride": stride,
         },
     )

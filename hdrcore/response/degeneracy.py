@@ -57,8 +57,12 @@ class Degeneracy:
     value: float = float("nan")
 
     def to_json(self) -> dict[str, Any]:
-        return {"code": self.code, "message": self.message, "channel": self.channel,
-                "value": None if not np.isfinite(self.value) else float(self.value)}
+        return {
+            "code": self.code,
+            "message": self.message,
+            "channel": self.channel,
+            "value": None if not np.isfinite(self.value) else float(self.value),
+        }
 
 
 def neutral_drift(g: np.ndarray, lo: float = 0.1, hi: float = 0.9) -> tuple[float, int]:
@@ -125,24 +129,41 @@ def degeneracy(
         if active is not None and n_nodes:
             inside = max(1, int(round(n_nodes * (hi - lo) / m)))
             if active[c] > MAX_BINDING_FRACTION * inside:
-                out.append(Degeneracy(
-                    "binding", f"channel {names[c]}: monotonicity binding at {active[c]} "
-                    f"nodes of {inside} (the data want the curve to go down)", c,
-                    float(active[c])))
+                out.append(
+                    Degeneracy(
+                        "binding",
+                        f"channel {names[c]}: monotonicity binding at {active[c]} "
+                        f"nodes of {inside} (the data want the curve to go down)",
+                        c,
+                        float(active[c]),
+                    )
+                )
         run, start = _flat_runs(g[c], lo, hi)
         if run >= max(3, FLAT_RUN * m):
-            out.append(Degeneracy(
-                "flat", f"channel {names[c]}: flat from level {start} to {start + run} "
-                "(those levels decode to one exposure)", c, float(run)))
+            out.append(
+                Degeneracy(
+                    "flat",
+                    f"channel {names[c]}: flat from level {start} to {start + run} "
+                    "(those levels decode to one exposure)",
+                    c,
+                    float(run),
+                )
+            )
     if channels_fitted_apart and n_ch == 3:
         drift, at = neutral_drift(g)
         if drift > MAX_NEUTRAL_DRIFT:
             v = g[:, at]
             rg = v[:2] / v.sum()
-            out.append(Degeneracy(
-                "channels-disagree", f"the channels' curves disagree: grey level {at} decodes "
-                f"to chromaticity ({rg[0]:.3f}, {rg[1]:.3f}), {drift:.3f} from neutral "
-                "(a colour cast)", None, drift))
+            out.append(
+                Degeneracy(
+                    "channels-disagree",
+                    f"the channels' curves disagree: grey level {at} decodes "
+                    f"to chromaticity ({rg[0]:.3f}, {rg[1]:.3f}), {drift:.3f} from neutral "
+                    "(a colour cast)",
+                    None,
+                    drift,
+                )
+            )
     return out
 
 
@@ -150,7 +171,10 @@ def channel_fits_status(fit: Any) -> tuple[ResponseStatus, str]:
     """``(status, message)`` of a :class:`.joint.JointFit`: ``"warning"`` with the signs of
     degeneracy, else ``"ok"``."""
     found = degeneracy(
-        fit.g, data_range=fit.data_range, active=fit.active, n_nodes=fit.nodes.size,
+        fit.g,
+        data_range=fit.data_range,
+        active=fit.active,
+        n_nodes=fit.nodes.size,
         channels_fitted_apart=False,
     )
     if not found:

@@ -56,16 +56,32 @@ def grossberg2003(
     for c in range(frames[0].shape[2]):
         corr = btf_pairs(frames, c, max_level, lo, hi, mask=mask, stride=stride)
         g, fit = fit_polynomial_channel(
-            corr, max_level, start, domain=hi, order=order, max_order=max_order,
-            monotone=monotone, refine_ratios=refine_ratios, seed=seed, channel=c,
+            corr,
+            max_level,
+            start,
+            domain=hi,
+            order=order,
+            max_order=max_order,
+            monotone=monotone,
+            refine_ratios=refine_ratios,
+            seed=seed,
+            channel=c,
         )
         curves.append(g)
         fits.append(fit)
     return finish_polynomial(
-        "grossberg2003", curves, fits,
+        "grossberg2003",
+        curves,
+        fits,
         {
-            "order": order, "max_order": max_order, "monotone": monotone,
-            "refine_ratios": refine_ratios, "cutoff": cutoff, "low_cut": low_cut,
-            "stride": stride, "seed": seed, "initial_ratios": list(start),
+            "order": order,
+            "max_order": max_order,
+            "monotone": monotone,
+            "refine_ratios": refine_ratios,
+            "cutoff": cutoff,
+            "low_cut": low_cut,
+            "stride": stride,
+            "seed": seed,
+            "initial_ratios": list(start),
         },
     )

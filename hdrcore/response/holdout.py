@@ -42,8 +42,9 @@ __all__ = [
 FOLD_GRID = 8
 
 
-def fold_masks(n_folds: int = 2, grid: int = FOLD_GRID) -> list[Callable[[tuple[int, int]],
-                                                                        np.ndarray]]:
+def fold_masks(
+    n_folds: int = 2, grid: int = FOLD_GRID
+) -> list[Callable[[tuple[int, int]], np.ndarray]]:
     """``n_folds`` functions ``shape -> (H, W) bool``: region ``(i, j)`` of a ``grid x grid``
     cut belongs to fold ``(i + j) % n_folds``."""
 
@@ -60,7 +61,10 @@ def fold_masks(n_folds: int = 2, grid: int = FOLD_GRID) -> list[Callable[[tuple[
 
 
 def pair_residuals(
-    g: np.ndarray, pairs: Sequence[Correspondences], lo: float, hi: float,
+    g: np.ndarray,
+    pairs: Sequence[Correspondences],
+    lo: float,
+    hi: float,
     log_ratios: np.ndarray | None = None,
 ) -> tuple[list[np.ndarray], list[np.ndarray], np.ndarray]:
     """Per channel the residuals and weights of the pairs inside ``(lo, hi)``, and the log
@@ -92,7 +96,10 @@ def pair_residuals(
 
 
 def heldout_residual(
-    g: np.ndarray, pairs: Sequence[Correspondences], lo: float, hi: float,
+    g: np.ndarray,
+    pairs: Sequence[Correspondences],
+    lo: float,
+    hi: float,
     log_ratios: np.ndarray | None = None,
 ) -> tuple[float, float]:
     """Weighted RMS residual (ln units) of curve ``g`` on ``pairs`` and the total squared
@@ -110,8 +117,9 @@ def heldout_residual(
 COLOUR_LEVELS = (0.10, 0.90)
 
 
-def sample_levels(frames: Sequence[np.ndarray], mask: np.ndarray | None = None,
-                  max_samples: int = 200_000) -> list[np.ndarray]:
+def sample_levels(
+    frames: Sequence[np.ndarray], mask: np.ndarray | None = None, max_samples: int = 200_000
+) -> list[np.ndarray]:
     """The frames' levels ``(P, C)`` on a regular grid of at most ``max_samples`` pixels
     (those of ``mask`` only), for :func:`colour_consistency`."""
     h, w = frames[0].shape[:2]
@@ -127,8 +135,9 @@ def sample_levels(frames: Sequence[np.ndarray], mask: np.ndarray | None = None,
     return out
 
 
-def colour_consistency(g: np.ndarray, levels: Sequence[np.ndarray],
-                       well: tuple[float, float] = COLOUR_LEVELS) -> float:
+def colour_consistency(
+    g: np.ndarray, levels: Sequence[np.ndarray], well: tuple[float, float] = COLOUR_LEVELS
+) -> float:
     """How well curve ``g`` gives a pixel one colour in consecutive frames: the median over
     the pairs of the median rg-chromaticity distance between the two linearised frames, over
     pixels whose channels are all inside ``well`` of the range in both (NaN: too few, or not

@@ -142,8 +142,10 @@ def _interpolation(z: np.ndarray, nodes: np.ndarray) -> scipy.sparse.csr_matrix:
     f = pos - i0
     rows = np.arange(z.size)
     return scipy.sparse.csr_matrix(
-        (np.concatenate([1.0 - f, f]), (np.concatenate([rows, rows]),
-                                        np.concatenate([i0, i0 + 1]))),
+        (
+            np.concatenate([1.0 - f, f]),
+            (np.concatenate([rows, rows]), np.concatenate([i0, i0 + 1])),
+        ),
         shape=(z.size, k),
     )
 
@@ -160,8 +162,10 @@ def _smoothness(nodes: np.ndarray, max_level: int) -> scipy.sparse.csr_matrix:
     k = nodes.size
     j = np.arange(k - 2)
     return scipy.sparse.csr_matrix(
-        (np.concatenate([a * w, -(a + c) * w, c * w]),
-         (np.concatenate([j, j, j]), np.concatenate([j, j + 1, j + 2]))),
+        (
+            np.concatenate([a * w, -(a + c) * w, c * w]),
+            (np.concatenate([j, j, j]), np.concatenate([j, j + 1, j + 2])),
+        ),
         shape=(k - 2, k),
     )
 
@@ -170,8 +174,9 @@ def checked_mask(mask: np.ndarray | None, shape: tuple[int, int]) -> np.ndarray 
     """``mask`` as booleans of the frames' ``shape`` (``None``: every pixel)."""
     base = None if mask is None else np.asarray(mask, bool)
     if base is not None and base.shape != tuple(shape):
-        raise ParameterError("mask must match the frame size", expected=str(tuple(shape)),
-                             found=str(base.shape))
+        raise ParameterError(
+            "mask must match the frame size", expected=str(tuple(shape)), found=str(base.shape)
+        )
     return base
 
 
@@ -183,8 +188,9 @@ def fold_mask(base: np.ndarray | None, fold, shape: tuple[int, int]) -> np.ndarr
     return f if base is None else (base & f)
 
 
-def _solve(data: scipy.sparse.spmatrix, target: np.ndarray, smooth: scipy.sparse.spmatrix,
-           monotone: bool) -> tuple[np.ndarray, int]:
+def _solve(
+    data: scipy.sparse.spmatrix, target: np.ndarray, smooth: scipy.sparse.spmatrix, monotone: bool
+) -> tuple[np.ndarray, int]:
     """Node values ``u`` (``u[0] = 0``) minimising ``|data u - target|^2 + |smooth u|^2``,
     non-decreasing when ``monotone`` (then as non-negative increments, :func:`nnls`)."""
     k = data.shape[1]
@@ -257,8 +263,9 @@ def fit_joint(
     one of :data:`JOINT_MODELS`.
     """
     if model not in JOINT_MODELS:
-        raise ParameterError(f"unknown joint model {model!r}",
-                             expected=f"one of {', '.join(JOINT_MODELS)}")
+        raise ParameterError(
+            f"unknown joint model {model!r}", expected=f"one of {', '.join(JOINT_MODELS)}"
+        )
     if smoothing < 0:
         raise ParameterError("smoothing must be >= 0", found=str(smoothing))
     lo, hi = valid_range(max_level, cutoff, low_cut)
@@ -274,8 +281,8 @@ def fit_joint(
                 found=f"{r.weight.size} pair(s)",
             )
     mats = [
-        scipy.sparse.diags(r.weight) @ (_interpolation(r.bright, nodes)
-                                        - _interpolation(r.dark, nodes))
+        scipy.sparse.diags(r.weight)
+        @ (_interpolation(r.bright, nodes) - _interpolation(r.dark, nodes))
         for r in rows
     ]
     targets = [r.weight * log_r[r.pair] for r in rows]
@@ -332,17 +339,24 @@ def fit_joint(
         n_rows.append(int(rows[c].weight.size))
         both = np.concatenate([rows[c].dark, rows[c].bright])
         ranges.append((float(both.min()), float(both.max())))
-    per_level = (level_residuals(g, pairs, log_r, lo, hi) if residuals
-                 else np.full(g.shape, np.nan))
+    per_level = level_residuals(g, pairs, log_r, lo, hi) if residuals else np.full(g.shape, np.nan)
     return JointFit(
-        g=g, model=model, nodes=nodes, u=u_all, gains=tuple(float(v) for v in gains),
-        active=tuple(int(a) for a in active), rms=tuple(rms), n_rows=tuple(n_rows),
-        residuals=per_level, data_range=tuple(ranges),
+        g=g,
+        model=model,
+        nodes=nodes,
+        u=u_all,
+        gains=tuple(float(v) for v in gains),
+        active=tuple(int(a) for a in active),
+        rms=tuple(rms),
+        n_rows=tuple(n_rows),
+        residuals=per_level,
+        data_range=tuple(ranges),
     )
 
 
-def level_residuals(g: np.ndarray, pairs: Sequence[Correspondences], log_ratios: np.ndarray,
-                    lo: float, hi: float) -> np.ndarray:
+def level_residuals(
+    g: np.ndarray, pairs: Sequence[Correspondences], log_ratios: np.ndarray, lo: float, hi: float
+) -> np.ndarray:
     """Weighted mean residual of ``ln g`` at every level, per channel, ``(C, L)``.
 
     A pair ``(z, T(z))`` with residual ``r = ln g(T) - ln g(z) - ln R`` counts ``+r/2`` at its
@@ -376,14 +390,18 @@ def level_residuals(g: np.ndarray, pairs: Sequence[Correspondences], log_ratios:
     return out
 
 
-def _fit_to_curve(fit: JointFit, method: str, ratios: tuple[float, ...], parameters: dict,
-                  extra_message: str = "") -> ResponseCurve:
+def _fit_to_curve(
+    fit: JointFit, method: str, ratios: tuple[float, ...], parameters: dict, extra_message: str = ""
+) -> ResponseCurve:
     from .degeneracy import channel_fits_status
 
     fits = tuple(
         ChannelFit(
-            residual_rms=fit.rms[c], n_constraints=fit.n_rows[c], exposure_ratios=ratios,
-            active_constraints=fit.active[c], iterations=1,
+            residual_rms=fit.rms[c],
+            n_constraints=fit.n_rows[c],
+            exposure_ratios=ratios,
+            active_constraints=fit.active[c],
+            iterations=1,
         )
         for c in range(fit.g.shape[0])
     )
@@ -391,9 +409,13 @@ def _fit_to_curve(fit: JointFit, method: str, ratios: tuple[float, ...], paramet
     if extra_message:
         message = f"{extra_message}; {message}" if message else extra_message
     return ResponseCurve(
-        g=fit.g, method=method, exposure_ratios=ratios, channels=fits, status=status,
-        message=message, parameters={**parameters, "model": fit.model,
-                                     "gains": list(fit.gains)},
+        g=fit.g,
+        method=method,
+        exposure_ratios=ratios,
+        channels=fits,
+        status=status,
+        message=message,
+        parameters={**parameters, "model": fit.model, "gains": list(fit.gains)},
         residuals=fit.residuals,
     )
 
@@ -409,7 +431,12 @@ def _choose_model(fold_fits: dict[str, float], models: Sequence[str]) -> tuple[s
 
 
 def _select_and_fit(
-    make_pairs, n_ch: int, log_r: np.ndarray, max_level: int, model: str, fit_kw: dict,
+    make_pairs,
+    n_ch: int,
+    log_r: np.ndarray,
+    max_level: int,
+    model: str,
+    fit_kw: dict,
 ) -> tuple[JointFit, str, dict[str, float]]:
     """Fit ``model`` (or choose it by 2-fold held-back residuals when ``"auto"``)."""
     from .holdout import fold_masks, heldout_residual
@@ -426,8 +453,7 @@ def _select_and_fit(
         total, weight = 0.0, 0.0
         for i in range(2):
             try:
-                f = fit_joint(fold_pairs[i], log_r, max_level, model=m, residuals=False,
-                              **fit_kw)
+                f = fit_joint(fold_pairs[i], log_r, max_level, model=m, residuals=False, **fit_kw)
             except EstimationError:
                 total, weight = np.inf, 1.0
                 break
@@ -460,11 +486,13 @@ def joint_histogram(
     not be registered. ``mask`` ``(H, W)`` selects the pixels counted; ``stride`` subsamples.
     """
     frames, max_level = check_bracket(frames, max_level)
-    ratios = consecutive_ratios(exposure_times, len(frames), required=True,
-                                method="joint-histogram")
+    ratios = consecutive_ratios(
+        exposure_times, len(frames), required=True, method="joint-histogram"
+    )
     if model != "auto" and model not in JOINT_MODELS:
-        raise ParameterError(f"unknown joint model {model!r}",
-                             expected=f"'auto' or one of {', '.join(JOINT_MODELS)}")
+        raise ParameterError(
+            f"unknown joint model {model!r}", expected=f"'auto' or one of {', '.join(JOINT_MODELS)}"
+        )
     lo, hi = valid_range(max_level, cutoff, low_cut)
     n_ch = frames[0].shape[2]
     h, w = frames[0].shape[:2]
@@ -472,15 +500,13 @@ def joint_histogram(
 
     def make_pairs(fold):
         m = fold_mask(base, fold, (h, w))
-        return [btf_pairs(frames, c, max_level, lo, hi, mask=m, stride=stride)
-                for c in range(n_ch)]
+        return [btf_pairs(frames, c, max_level, lo, hi, mask=m, stride=stride) for c in range(n_ch)]
 
-    fit_kw = dict(smoothing=smoothing, cutoff=cutoff, low_cut=low_cut, monotone=monotone,
-                  n_nodes=n_nodes)
-    fit, text, scores = _select_and_fit(make_pairs, n_ch, np.log(ratios), max_level, model,
-                                        fit_kw)
-    params = {**fit_kw, "stride": stride, "model_requested": model,
-              "model_scores": scores}
+    fit_kw = dict(
+        smoothing=smoothing, cutoff=cutoff, low_cut=low_cut, monotone=monotone, n_nodes=n_nodes
+    )
+    fit, text, scores = _select_and_fit(make_pairs, n_ch, np.log(ratios), max_level, model, fit_kw)
+    params = {**fit_kw, "stride": stride, "model_requested": model, "model_scores": scores}
     return _fit_to_curve(fit, "joint-histogram", ratios, params, text)
 
 
@@ -502,8 +528,7 @@ def joint_pixels(
     """The joint fit from sampled pixels of registered frames (consecutive-frame level pairs
     of every sampled pixel, DM 1997's data) instead of histograms."""
     frames, max_level = check_bracket(frames, max_level)
-    ratios = consecutive_ratios(exposure_times, len(frames), required=True,
-                                method="joint-pixels")
+    ratios = consecutive_ratios(exposure_times, len(frames), required=True, method="joint-pixels")
     lo, hi = valid_range(max_level, cutoff, low_cut)
     n_ch = frames[0].shape[2]
     h, w = frames[0].shape[:2]
@@ -517,10 +542,15 @@ def joint_pixels(
             out.append(pixel_pairs(z, lo, hi))
         return out
 
-    fit_kw = dict(smoothing=smoothing, cutoff=cutoff, low_cut=low_cut, monotone=monotone,
-                  n_nodes=n_nodes)
-    fit, text, scores = _select_and_fit(make_pairs, n_ch, np.log(ratios), max_level, model,
-                                        fit_kw)
-    params = {**fit_kw, "n_samples": n_samples, "seed": seed, "model_requested": model,
-              "model_scores": scores}
+    fit_kw = dict(
+        smoothing=smoothing, cutoff=cutoff, low_cut=low_cut, monotone=monotone, n_nodes=n_nodes
+    )
+    fit, text, scores = _select_and_fit(make_pairs, n_ch, np.log(ratios), max_level, model, fit_kw)
+    params = {
+        **fit_kw,
+        "n_samples": n_samples,
+        "seed": seed,
+        "model_requested": model,
+        "model_scores": scores,
+    }
     return _fit_to_curve(fit, "joint-pixels", ratios, params, text)

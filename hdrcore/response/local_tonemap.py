@@ -55,8 +55,7 @@ class LocalToneMapping:
         return {
             "detected": bool(self.detected),
             "spread": None if not np.isfinite(self.spread) else float(self.spread),
-            "pair_spreads": [None if not np.isfinite(v) else float(v)
-                             for v in self.pair_spreads],
+            "pair_spreads": [None if not np.isfinite(v) else float(v) for v in self.pair_spreads],
             "grid": list(self.grid),
             "n_bins": int(self.n_bins),
             "threshold": LTM_SPREAD,
@@ -99,7 +98,7 @@ def local_tone_mapping(
     ys = ys.ravel()
     xs = xs.ravel()
     gr, gc = int(grid[0]), int(grid[1])
-    region = (np.minimum(ys * gr // h, gr - 1) * gc + np.minimum(xs * gc // w, gc - 1))
+    region = np.minimum(ys * gr // h, gr - 1) * gc + np.minimum(xs * gc // w, gc - 1)
     lo, hi = well_exposed[0] * max_level, well_exposed[1] * max_level
     width = max(1, int(round(max_level / 32))) if bin_width is None else int(bin_width)
 
@@ -135,8 +134,11 @@ def local_tone_mapping(
             if len(meds) < 3:
                 continue
             med = np.asarray(meds)
-            lo_v, hi_v = ((np.percentile(med, 10), np.percentile(med, 90)) if med.size > 5
-                          else (med.min(), med.max()))
+            lo_v, hi_v = (
+                (np.percentile(med, 10), np.percentile(med, 90))
+                if med.size > 5
+                else (med.min(), med.max())
+            )
             if lo_v > 0:
                 per_bin.append(hi_v / lo_v)
         total_bins += len(per_bin)
@@ -147,13 +149,21 @@ def local_tone_mapping(
     if not finite:
         message = "too few pixels well exposed in consecutive frames to test for local tone mapping"
     elif detected:
-        message = (f"the frames look locally tone-mapped: at one dark-frame level the "
-                   f"next frame's exposure varies by {spread:.2f}x across the image (a global "
-                   f"response gives 1x; over {threshold:.2f}x is not one curve)")
+        message = (
+            f"the frames look locally tone-mapped: at one dark-frame level the "
+            f"next frame's exposure varies by {spread:.2f}x across the image (a global "
+            f"response gives 1x; over {threshold:.2f}x is not one curve)"
+        )
     else:
-        message = (f"one global response fits: at one dark-frame level the next frame's "
-                   f"exposure varies by {spread:.2f}x across the image")
+        message = (
+            f"one global response fits: at one dark-frame level the next frame's "
+            f"exposure varies by {spread:.2f}x across the image"
+        )
     return LocalToneMapping(
-        detected=detected, spread=spread, pair_spreads=tuple(spreads), grid=(gr, gc),
-        n_bins=total_bins, message=message,
+        detected=detected,
+        spread=spread,
+        pair_spreads=tuple(spreads),
+        grid=(gr, gc),
+        n_bins=total_bins,
+        message=message,
     )

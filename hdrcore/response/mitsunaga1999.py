@@ -58,13 +58,20 @@ def initial_ratios(
     if r is None:
         raise ParameterError(
             f"{method} needs rough exposure ratios to start from",
-            expected="exposure_times (EXIF or --times FILE) or initial_ratios", found="none",
+            expected="exposure_times (EXIF or --times FILE) or initial_ratios",
+            found="none",
         )
     return r
 
 
-def _cv_score(corr: Correspondences, ratios: tuple[float, ...], order: int, monotone: bool,
-              folds: np.ndarray, n_folds: int) -> float:
+def _cv_score(
+    corr: Correspondences,
+    ratios: tuple[float, ...],
+    order: int,
+    monotone: bool,
+    folds: np.ndarray,
+    n_folds: int,
+) -> float:
     err = 0.0
     count = 0
     for f in range(n_folds):
@@ -72,8 +79,14 @@ def _cv_score(corr: Correspondences, ratios: tuple[float, ...], order: int, mono
         if not test.any() or train.sum() < order + 1:
             continue
         fit = fit_bernstein_homogeneous(
-            corr.dark[train], corr.bright[train], corr.pair[train], corr.weight[train], ratios,
-            order, monotone=monotone, refine_ratios=False,
+            corr.dark[train],
+            corr.bright[train],
+            corr.pair[train],
+            corr.weight[train],
+            ratios,
+            order,
+            monotone=monotone,
+            refine_ratios=False,
         )
         r = np.asarray(ratios)[corr.pair[test]]
         gd = bernstein_cumulative(corr.dark[test], order) @ fit.increments
@@ -112,10 +125,13 @@ def fit_polynomial_channel(
     if len(corr) < 3:
         raise EstimationError(
             f"channel {channel}: too few corresponding levels for a polynomial fit",
-            expected=">= 3 level pairs inside the valid range", found=str(len(corr)),
+            expected=">= 3 level pairs inside the valid range",
+            found=str(len(corr)),
         )
     norm = Correspondences(
-        dark=corr.dark / top, bright=corr.bright / top, pair=corr.pair,
+        dark=corr.dark / top,
+        bright=corr.bright / top,
+        pair=corr.pair,
         weight=corr.weight,
     )
     scores: list[tuple[int, float]] = []
@@ -135,7 +151,13 @@ def fit_polynomial_channel(
         if chosen < 1:
             raise ParameterError("polynomial order must be >= 1", found=str(order))
     fit = fit_bernstein_homogeneous(
-        norm.dark, norm.bright, norm.pair, norm.weight, ratios, chosen, monotone=monotone,
+        norm.dark,
+        norm.bright,
+        norm.pair,
+        norm.weight,
+        ratios,
+        chosen,
+        monotone=monotone,
         refine_ratios=refine_ratios,
     )
     levels = np.arange(max_level + 1, dtype=np.float64)
@@ -151,9 +173,14 @@ def fit_polynomial_channel(
     g[0] = 0.0
     steps = int(np.sum(np.diff(g) < 0))
     diag = ChannelFit(
-        residual_rms=fit.residual_rms, n_constraints=len(norm), exposure_ratios=fit.ratios,
-        order=chosen, active_constraints=fit.active_constraints, iterations=fit.iterations,
-        order_scores=tuple(scores), non_monotone_steps=steps,
+        residual_rms=fit.residual_rms,
+        n_constraints=len(norm),
+        exposure_ratios=fit.ratios,
+        order=chosen,
+        active_constraints=fit.active_constraints,
+        iterations=fit.iterations,
+        order_scores=tuple(scores),
+        non_monotone_steps=steps,
     )
     return g, diag
 
@@ -182,8 +209,13 @@ def finish_polynomial(
     g = normalise_curve(np.clip(g, 0.0, None))
     ratios = np.exp(np.mean([np.log(f.exposure_ratios) for f in fits], axis=0))
     return ResponseCurve(
-        g=g, method=method, exposure_ratios=tuple(float(r) for r in ratios),
-        channels=tuple(fits), status=status, message="; ".join(msgs), parameters=parameters,
+        g=g,
+        method=method,
+        exposure_ratios=tuple(float(r) for r in ratios),
+        channels=tuple(fits),
+        status=status,
+        message="; ".join(msgs),
+        parameters=parameters,
     )
 
 
@@ -217,16 +249,32 @@ def mitsunaga1999(
         z = pixel_samples(frames, c, max_level, n_samples=n_samples, mask=mask, seed=seed)
         corr = pixel_pairs(z, lo, hi)
         g, fit = fit_polynomial_channel(
-            corr, max_level, start, domain=hi, order=order, max_order=max_order, monotone=monotone,
-            refine_ratios=refine_ratios, seed=seed, channel=c,
+            corr,
+            max_level,
+            start,
+            domain=hi,
+            order=order,
+            max_order=max_order,
+            monotone=monotone,
+            refine_ratios=refine_ratios,
+            seed=seed,
+            channel=c,
         )
         curves.append(g)
         fits.append(fit)
     return finish_polynomial(
-        "mitsunaga1999", curves, fits,
+        "mitsunaga1999",
+        curves,
+        fits,
         {
-            "order": order, "max_order": max_order, "monotone": monotone,
-            "refine_ratios": refine_ratios, "cutoff": cutoff, "low_cut": low_cut,
-            "n_samples": n_samples, "seed": seed, "initial_ratios": list(start),
+            "order": order,
+            "max_order": max_order,
+            "monotone": monotone,
+            "refine_ratios": refine_ratios,
+            "cutoff": cutoff,
+            "low_cut": low_cut,
+            "n_samples": n_samples,
+            "seed": seed,
+            "initial_ratios": list(start),
         },
     )

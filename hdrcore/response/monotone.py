@@ -197,6 +197,9 @@ def fit_bernstein_homogeneous(
     res = a @ d
     rms = float(np.sqrt(np.mean(res**2))) if res.size else float("nan")
     return PolynomialFit(
-        increments=d, ratios=tuple(float(v) for v in r), residual_rms=rms,
-        active_constraints=active, iterations=it,
+        increments=d,
+        ratios=tuple(float(v) for v in r),
+        residual_rms=rms,
+        active_constraints=active,
+        iterations=it,
     )

@@ -87,17 +87,29 @@ class Family:
 
 FAMILIES: dict[str, Family] = {
     "gamma": Family(_gamma, (2.2,), (1.0,), (4.0,), ("gamma",), "power law x^gamma"),
-    "srgb-toe": Family(_srgb_toe, (2.4, 0.055, 0.0), (1.5, 0.0, -0.05), (3.5, 0.3, 0.2),
-                       ("gamma", "offset", "pedestal"),
-                       "sRGB shape with free exponent, offset and black pedestal"),
-    "filmic": Family(_filmic, (2.0,), (0.3,), (16.0,), ("white",),
-                     "inverse ACES-like filmic curve (Narkowicz fit), sensor white k"),
+    "srgb-toe": Family(
+        _srgb_toe,
+        (2.4, 0.055, 0.0),
+        (1.5, 0.0, -0.05),
+        (3.5, 0.3, 0.2),
+        ("gamma", "offset", "pedestal"),
+        "sRGB shape with free exponent, offset and black pedestal",
+    ),
+    "filmic": Family(
+        _filmic,
+        (2.0,),
+        (0.3,),
+        (16.0,),
+        ("white",),
+        "inverse ACES-like filmic curve (Narkowicz fit), sensor white k",
+    ),
 }
 """The fallback families by name."""
 
 
-def family_curve(name: str, params: Sequence[float], max_level: int,
-                 n_channels: int = 3) -> np.ndarray:
+def family_curve(
+    name: str, params: Sequence[float], max_level: int, n_channels: int = 3
+) -> np.ndarray:
     """``(C, max_level + 1)`` normalised ``g`` of family ``name`` with ``params``."""
     fam = FAMILIES[name]
     x = np.arange(max_level + 1, dtype=np.float64) / max_level
@@ -132,8 +144,9 @@ def fit_family(
     """Fit family ``name`` (shared by the channels) to the level pairs of every channel with
     the known ``log_ratios``; returns the curve with its parameters and residual."""
     if name not in FAMILIES:
-        raise ParameterError(f"unknown response family {name!r}",
-                             expected=f"one of {', '.join(FAMILIES)}")
+        raise ParameterError(
+            f"unknown response family {name!r}", expected=f"one of {', '.join(FAMILIES)}"
+        )
     fam = FAMILIES[name]
     d, b, p, w = _stack(pairs, lo, hi, max_level)
     if w.size < 2:
@@ -159,7 +172,9 @@ def fit_family(
     params = {n: float(v) for n, v in zip(fam.names, best.x, strict=True)}
     text = ", ".join(f"{n} {v:.3g}" for n, v in params.items())
     return ResponseCurve(
-        g=family_curve(name, best.x, max_level, n_channels), method=name,
-        status="ok", message=f"{fam.description}: {text}; residual {100 * rms:.2f} %",
+        g=family_curve(name, best.x, max_level, n_channels),
+        method=name,
+        status="ok",
+        message=f"{fam.description}: {text}; residual {100 * rms:.2f} %",
         parameters={"family": name, **params, "residual_rms": rms},
     )

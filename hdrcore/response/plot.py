@@ -19,8 +19,16 @@ from .curve import ResponseCurve
 __all__ = ["plot_curves", "render_curves"]
 
 _PALETTE = [
-    (31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189),
-    (140, 86, 75), (227, 119, 194), (127, 127, 127), (188, 189, 34), (23, 190, 207),
+    (31, 119, 180),
+    (255, 127, 14),
+    (44, 160, 44),
+    (214, 39, 40),
+    (148, 103, 189),
+    (140, 86, 75),
+    (227, 119, 194),
+    (127, 127, 127),
+    (188, 189, 34),
+    (23, 190, 207),
 ]
 _CHANNEL_COLOURS = [(200, 30, 30), (20, 140, 20), (30, 60, 220)]
 
@@ -32,9 +40,16 @@ def _font(size: int) -> ImageFont.ImageFont | ImageFont.FreeTypeFont:
         return ImageFont.load_default()
 
 
-def _panel(draw: ImageDraw.ImageDraw, box: tuple[int, int, int, int], title: str,
-           series: list[tuple[np.ndarray, np.ndarray, tuple[int, int, int], int]],
-           max_level: int, font, small, y_max: float = 1.0) -> None:
+def _panel(
+    draw: ImageDraw.ImageDraw,
+    box: tuple[int, int, int, int],
+    title: str,
+    series: list[tuple[np.ndarray, np.ndarray, tuple[int, int, int], int]],
+    max_level: int,
+    font,
+    small,
+    y_max: float = 1.0,
+) -> None:
     x0, y0, x1, y1 = box
     left, bottom, top, right = x0 + 48, y1 - 34, y0 + 26, x1 - 22
     draw.text(((x0 + x1) // 2, y0 + 4), title, fill=(0, 0, 0), font=font, anchor="ma")
@@ -44,10 +59,10 @@ def _panel(draw: ImageDraw.ImageDraw, box: tuple[int, int, int, int], title: str
         gy = bottom - f * (bottom - top)
         draw.line([(gx, top), (gx, bottom)], fill=(225, 225, 225))
         draw.line([(left, gy), (right, gy)], fill=(225, 225, 225))
-        draw.text((gx, bottom + 4), f"{round(f * max_level)}", fill=(60, 60, 60), font=small,
-                  anchor="ma")
-        draw.text((left - 4, gy), f"{f * y_max:.2g}", fill=(60, 60, 60), font=small,
-                  anchor="rm")
+        draw.text(
+            (gx, bottom + 4), f"{round(f * max_level)}", fill=(60, 60, 60), font=small, anchor="ma"
+        )
+        draw.text((left - 4, gy), f"{f * y_max:.2g}", fill=(60, 60, 60), font=small, anchor="rm")
     draw.rectangle([left, top, right, bottom], outline=(0, 0, 0))
     draw.text(((left + right) // 2, y1 - 14), "level", fill=(0, 0, 0), font=small, anchor="ma")
     for lv, g, colour, width in series:
@@ -88,8 +103,7 @@ def render_curves(
             colour = _CHANNEL_COLOURS[c] if curve.n_channels == 3 else _PALETTE[c % 10]
             series.append((curve.levels.astype(float), curve.g[c], colour, 2))
             legend.append((f"{label} {curve.channel_names[c]}", colour))
-        _panel(draw, (0, 30, pw, 30 + ph), "g(level)", series, curve.max_level, font, small,
-               y_max)
+        _panel(draw, (0, 30, pw, 30 + ph), "g(level)", series, curve.max_level, font, small, y_max)
     else:
         for p in range(n_panels):
             series = []
@@ -101,8 +115,16 @@ def render_curves(
                 series.append((curve.levels / curve.max_level, curve.g[c], _PALETTE[i % 10], 2))
                 max_level = max(max_level, curve.max_level)
             series = [(lv * max_level, g, col, w) for lv, g, col, w in series]
-            _panel(draw, (p * pw, 30, (p + 1) * pw, 30 + ph), f"channel {name}", series,
-                   max_level, font, small, y_max)
+            _panel(
+                draw,
+                (p * pw, 30, (p + 1) * pw, 30 + ph),
+                f"channel {name}",
+                series,
+                max_level,
+                font,
+                small,
+                y_max,
+            )
         legend = [(label, _PALETTE[i % 10]) for i, (_c, label) in enumerate(curves)]
     y = 30 + ph + 6
     for label, colour in legend:

@@ -52,14 +52,16 @@ def check_bracket(
     if len(frames) < 2:
         raise BracketError(
             "response recovery needs a bracket of at least two frames",
-            expected=">= 2 frames of different exposure", found=f"{len(frames)} frame(s)",
+            expected=">= 2 frames of different exposure",
+            found=f"{len(frames)} frame(s)",
         )
     out = []
     for k, f in enumerate(frames):
         a = np.asarray(f)
         if not np.issubdtype(a.dtype, np.integer):
             raise ParameterError(
-                f"frame {k} must hold integer levels", expected="an integer dtype",
+                f"frame {k} must hold integer levels",
+                expected="an integer dtype",
                 found=str(a.dtype),
             )
         if a.ndim == 2:
@@ -69,9 +71,7 @@ def check_bracket(
         out.append(a)
     shapes = {a.shape for a in out}
     if len(shapes) != 1:
-        raise BracketError(
-            "frames of a bracket must have the same size", found=str(sorted(shapes))
-        )
+        raise BracketError("frames of a bracket must have the same size", found=str(sorted(shapes)))
     if max_level is None:
         max_level = 255 if out[0].dtype == np.uint8 else int(max(int(a.max()) for a in out))
     max_level = int(max_level)
@@ -80,7 +80,8 @@ def check_bracket(
     top = max(int(a.max()) for a in out)
     if top > max_level or min(int(a.min()) for a in out) < 0:
         raise ParameterError(
-            "frame levels outside 0..max_level", expected=f"0..{max_level}",
+            "frame levels outside 0..max_level",
+            expected=f"0..{max_level}",
             found=f"levels up to {top}",
         )
     return out, max_level
@@ -88,8 +89,7 @@ def check_bracket(
 
 @overload
 def consecutive_ratios(
-    exposure_times: Sequence[float] | None, n_frames: int, *, required: Literal[True],
-    method: str
+    exposure_times: Sequence[float] | None, n_frames: int, *, required: Literal[True], method: str
 ) -> tuple[float, ...]: ...
 @overload
 def consecutive_ratios(
@@ -104,7 +104,8 @@ def consecutive_ratios(
             raise ParameterError(
                 f"{method} needs the exposure times of the frames",
                 expected="exposure_times (seconds, darkest first; --times FILE on the command "
-                "line)", found="none",
+                "line)",
+                found="none",
             )
         return None
     t = [float(v) if v is not None else float("nan") for v in exposure_times]
@@ -119,12 +120,14 @@ def consecutive_ratios(
             raise BracketError(
                 f"frames {k} and {k + 1} have the same exposure time {t[k]:g} s; "
                 "response recovery needs different exposures",
-                expected="strictly increasing exposure times", found=str(t),
+                expected="strictly increasing exposure times",
+                found=str(t),
             )
         if t[k + 1] < t[k]:
             raise BracketError(
                 "frames must be ordered darkest first",
-                expected="strictly increasing exposure times", found=str(t),
+                expected="strictly increasing exposure times",
+                found=str(t),
             )
     return tuple(t[k + 1] / t[k] for k in range(n_frames - 1))
 
@@ -133,7 +136,8 @@ def check_ratios(ratios: Sequence[float], n_frames: int) -> tuple[float, ...]:
     r = tuple(float(v) for v in ratios)
     if len(r) != n_frames - 1:
         raise ParameterError(
-            "one exposure ratio per consecutive pair", expected=str(n_frames - 1),
+            "one exposure ratio per consecutive pair",
+            expected=str(n_frames - 1),
             found=str(len(r)),
         )
     for k, v in enumerate(r):
@@ -141,7 +145,8 @@ def check_ratios(ratios: Sequence[float], n_frames: int) -> tuple[float, ...]:
             raise BracketError(
                 f"exposure ratio of frames {k} and {k + 1} is {v:g}; response recovery needs "
                 "frames of different exposure, darkest first",
-                expected="ratios > 1", found=str(r),
+                expected="ratios > 1",
+                found=str(r),
             )
     return r
 
@@ -185,8 +190,11 @@ def pair_weight(corr: Correspondences, lo: float, hi: float, max_level: int) -> 
     """The weight of every level pair in the fits and scores of :mod:`.joint`,
     :mod:`.parametric` and :mod:`.holdout`: its own (pixel count) times the hat weight of both
     levels (DM eq. 4) times :func:`log_noise_weight`."""
-    return (corr.weight * np.sqrt(hat_weight(corr.dark, lo, hi) * hat_weight(corr.bright, lo, hi))
-            * log_noise_weight(corr.dark, corr.bright, max_level))
+    return (
+        corr.weight
+        * np.sqrt(hat_weight(corr.dark, lo, hi) * hat_weight(corr.bright, lo, hi))
+        * log_noise_weight(corr.dark, corr.bright, max_level)
+    )
 
 
 @dataclass(frozen=True, eq=False)
@@ -225,8 +233,9 @@ def pixel_samples(
     stack = np.stack([np.asarray(f)[..., channel] for f in frames])  # (P, H, W)
     usable = np.ones((h, w), bool) if mask is None else np.asarray(mask, bool)
     if usable.shape != (h, w):
-        raise ParameterError("mask must match the frame size", expected=str((h, w)),
-                             found=str(usable.shape))
+        raise ParameterError(
+            "mask must match the frame size", expected=str((h, w)), found=str(usable.shape)
+        )
     if not usable.any():
         raise EstimationError("the mask excludes every pixel")
     # flatness: gradient magnitude of the middle frame
@@ -259,9 +268,7 @@ def pixel_samples(
     return stack.reshape(p, -1)[:, idx].T.astype(np.int64)
 
 
-def pixel_pairs(
-    z: np.ndarray, lo: float, hi: float
-) -> Correspondences:
+def pixel_pairs(z: np.ndarray, lo: float, hi: float) -> Correspondences:
     """Consecutive-frame level pairs of pixel samples ``z`` ``(N, P)`` inside ``(lo, hi)``."""
     n, p = z.shape
     dark = z[:, :-1]
@@ -298,9 +305,7 @@ def btf_pairs(
     from ..btf import brightness_transfer_function
     from ..histogram import histogram
 
-    hists = [
-        histogram(np.asarray(f)[..., channel], max_level, mask, stride=stride) for f in frames
-    ]
+    hists = [histogram(np.asarray(f)[..., channel], max_level, mask, stride=stride) for f in frames]
     dark, bright, pair, weight = [], [], [], []
     edge = np.arange(max_level + 1, dtype=np.float64) + 0.5
     for k in range(len(frames) - 1):
@@ -316,6 +321,8 @@ def btf_pairs(
         pair.append(np.full(int(ok.sum()), k, np.intp))
         weight.append(np.sqrt(count[ok]))
     return Correspondences(
-        dark=np.concatenate(dark), bright=np.concatenate(bright),
-        pair=np.concatenate(pair), weight=np.concatenate(weight),
+        dark=np.concatenate(dark),
+        bright=np.concatenate(bright),
+        pair=np.concatenate(pair),
+        weight=np.concatenate(weight),
     )

@@ -73,8 +73,9 @@ COLOUR_TOLERANCE = 0.20
 
 
 def _less_consistent(value: float, reference: float, tolerance: float) -> bool:
-    return bool(np.isfinite(value) and np.isfinite(reference)
-                and value > (1.0 + tolerance) * reference)
+    return bool(
+        np.isfinite(value) and np.isfinite(reference) and value > (1.0 + tolerance) * reference
+    )
 
 
 @dataclass(frozen=True)
@@ -153,14 +154,19 @@ class ResponseSelection:
             "message": self.message,
             "candidates": [c.to_json() for c in self.candidates],
             "curves": {k: np.asarray(v, float).tolist() for k, v in self.curves.items()},
-            "residuals": {k: [[None if not np.isfinite(x) else float(x) for x in row]
-                              for row in np.asarray(v, float)]
-                          for k, v in self.residuals.items()},
+            "residuals": {
+                k: [
+                    [None if not np.isfinite(x) else float(x) for x in row]
+                    for row in np.asarray(v, float)
+                ]
+                for k, v in self.residuals.items()
+            },
         }
 
 
-def _score(g: np.ndarray, pairs, lo: float, hi: float,
-           log_ratios: np.ndarray) -> tuple[float, tuple[float, ...], float, int]:
+def _score(
+    g: np.ndarray, pairs, lo: float, hi: float, log_ratios: np.ndarray
+) -> tuple[float, tuple[float, ...], float, int]:
     """Held-back residual of ``g`` with free shared ratios, on the given ratios' scale:
     ``(score, per channel, squared weight, pairs)``."""
     res, weights, rho = pair_residuals(g, pairs, lo, hi, None)
@@ -175,7 +181,8 @@ def _score(g: np.ndarray, pairs, lo: float, hi: float,
     given = float(np.sqrt(np.sum(rw * log_ratios[: rho.size] ** 2) / max(np.sum(rw), 1e-300)))
     scale = given / fitted if fitted > 0 else 1.0
     per = tuple(
-        float(np.sqrt(np.sum(w**2 * r**2) / np.sum(w**2))) * scale if np.sum(w**2) > 0
+        float(np.sqrt(np.sum(w**2 * r**2) / np.sum(w**2))) * scale
+        if np.sum(w**2) > 0
         else float("nan")
         for r, w in zip(res, weights, strict=True)
     )
@@ -208,15 +215,16 @@ def select_response(
     from . import srgb_response
 
     frames, max_level = check_bracket(frames, max_level)
-    ratios = consecutive_ratios(exposure_times, len(frames), required=True,
-                                method="auto response")
+    ratios = consecutive_ratios(exposure_times, len(frames), required=True, method="auto response")
     if source not in ("histograms", "pixels"):
-        raise ParameterError(f"unknown correspondence source {source!r}",
-                             expected="'histograms' or 'pixels'")
+        raise ParameterError(
+            f"unknown correspondence source {source!r}", expected="'histograms' or 'pixels'"
+        )
     unknown = [f for f in families if f not in FAMILIES]
     if unknown:
-        raise ParameterError(f"unknown response family {unknown[0]!r}",
-                             expected=f"some of {', '.join(FAMILIES)}")
+        raise ParameterError(
+            f"unknown response family {unknown[0]!r}", expected=f"some of {', '.join(FAMILIES)}"
+        )
     log_r = np.log(np.asarray(ratios))
     lo, hi = valid_range(max_level, cutoff, low_cut)
     n_ch = frames[0].shape[2]
@@ -226,11 +234,15 @@ def select_response(
     def make_pairs(fold):
         m = fold_mask(base, fold, (h, w))
         if source == "pixels":
-            return [pixel_pairs(pixel_samples(frames, c, max_level, n_samples=n_samples,
-                                              mask=m, seed=seed), lo, hi)
-                    for c in range(n_ch)]
-        return [btf_pairs(frames, c, max_level, lo, hi, mask=m, stride=stride)
-                for c in range(n_ch)]
+            return [
+                pixel_pairs(
+                    pixel_samples(frames, c, max_level, n_samples=n_samples, mask=m, seed=seed),
+                    lo,
+                    hi,
+                )
+                for c in range(n_ch)
+            ]
+        return [btf_pairs(frames, c, max_level, lo, hi, mask=m, stride=stride) for c in range(n_ch)]
 
     recovered = "joint-histogram" if source == "histograms" else "joint-pixels"
     all_pairs = make_pairs(None)
@@ -241,8 +253,7 @@ def select_response(
     # --- held-back scores: fit on one fold, score on the other, pool -------------------------
     def fitted(name: str, pairs) -> np.ndarray:
         if name in models:
-            return fit_joint(pairs, log_r, max_level, model=name, residuals=False,
-                             **fit_kw).g
+            return fit_joint(pairs, log_r, max_level, model=name, residuals=False, **fit_kw).g
         return fit_family(name, pairs, log_r, max_level, lo, hi, n_channels=n_ch).g
 
     pooled: dict[str, list[tuple[float, tuple[float, ...], float, int]] | None] = {}
@@ -263,8 +274,9 @@ def select_response(
         if den <= 0:
             return float("inf"), (), 0
         s = float(np.sqrt(sum(p[0] ** 2 * p[2] for p in parts) / den))
-        per = tuple(float(np.sqrt(np.mean([p[1][c] ** 2 for p in parts if p[1]])))
-                    for c in range(n_ch))
+        per = tuple(
+            float(np.sqrt(np.mean([p[1][c] ** 2 for p in parts if p[1]]))) for c in range(n_ch)
+        )
         return s, per, sum(p[3] for p in parts)
 
     srgb = srgb_response(max_level, n_ch)
@@ -285,8 +297,9 @@ def select_response(
     for fam in families:
         if pooled[fam]:
             try:
-                family_curves[fam] = fit_family(fam, all_pairs, log_r, max_level, lo, hi,
-                                                n_channels=n_ch)
+                family_curves[fam] = fit_family(
+                    fam, all_pairs, log_r, max_level, lo, hi, n_channels=n_ch
+                )
             except ParameterError:
                 pooled[fam] = None
     colour = {m: colour_consistency(f.g, sampled) for m, f in full_fits.items()}
@@ -298,42 +311,77 @@ def select_response(
     model_scores = {m: pool(pooled[m])[0] if pooled[m] else float("inf") for m in models}
     chosen_model = next(m for m in models if m in full_fits)
     for m in models[1:]:
-        if m in full_fits and model_scores[m] < (1.0 - SEPARATE_GAIN) * model_scores[
-                chosen_model] and not _less_consistent(colour[m], colour[chosen_model], 0.05):
+        if (
+            m in full_fits
+            and model_scores[m] < (1.0 - SEPARATE_GAIN) * model_scores[chosen_model]
+            and not _less_consistent(colour[m], colour[chosen_model], 0.05)
+        ):
             chosen_model = m
     full = full_fits[chosen_model]
     colour[recovered] = colour[chosen_model]
-    signs = tuple(degeneracy(full.g, data_range=full.data_range, active=full.active,
-                             n_nodes=full.nodes.size, channels_fitted_apart=False))
+    signs = tuple(
+        degeneracy(
+            full.g,
+            data_range=full.data_range,
+            active=full.active,
+            n_nodes=full.nodes.size,
+            channels_fitted_apart=False,
+        )
+    )
 
     cands: list[CandidateScore] = []
     s, per, n = pool(pooled[chosen_model]) if pooled[chosen_model] else (float("inf"), (), 0)
     text = ", ".join(f"{m} {100 * v:.2f} %" for m, v in model_scores.items())
-    cands.append(CandidateScore(recovered, s, per, n,
-                                f"joint recovery, channel model {chosen_model} ({text})",
-                                signs, colour=colour[recovered]))
+    cands.append(
+        CandidateScore(
+            recovered,
+            s,
+            per,
+            n,
+            f"joint recovery, channel model {chosen_model} ({text})",
+            signs,
+            colour=colour[recovered],
+        )
+    )
     for fam in families:
         s, per, n = pool(pooled[fam]) if pooled[fam] else (float("inf"), (), 0)
-        cands.append(CandidateScore(fam, s, per, n, FAMILIES[fam].description,
-                                    colour=colour.get(fam, float("nan"))))
+        cands.append(
+            CandidateScore(
+                fam, s, per, n, FAMILIES[fam].description, colour=colour.get(fam, float("nan"))
+            )
+        )
     s, per, n = pool(srgb_parts)
-    cands.append(CandidateScore("srgb", s, per, n, "sRGB decoding (IEC 61966-2-1)",
-                                colour=colour["srgb"]))
+    cands.append(
+        CandidateScore("srgb", s, per, n, "sRGB decoding (IEC 61966-2-1)", colour=colour["srgb"])
+    )
 
     srgb_score = cands[-1].score
     finite_colours = [c.colour for c in cands if np.isfinite(c.colour) and np.isfinite(c.score)]
     best_colour = min(finite_colours) if finite_colours else float("nan")
     best_by_colour = next((c.name for c in cands if c.colour == best_colour), "")
     if np.isfinite(srgb_score) and cands[0].score > (1.0 + SRGB_MARGIN) * srgb_score:
-        signs = (*signs, Degeneracy(
-            "worse-than-srgb", f"the recovered curve explains held-back pairs worse than "
-            f"sRGB ({100 * cands[0].score:.2f} % against {100 * srgb_score:.2f} %)", None,
-            cands[0].score))
+        signs = (
+            *signs,
+            Degeneracy(
+                "worse-than-srgb",
+                f"the recovered curve explains held-back pairs worse than "
+                f"sRGB ({100 * cands[0].score:.2f} % against {100 * srgb_score:.2f} %)",
+                None,
+                cands[0].score,
+            ),
+        )
     if _less_consistent(cands[0].colour, best_colour, COLOUR_TOLERANCE):
-        signs = (*signs, Degeneracy(
-            "colours-inconsistent", f"the recovered curve gives a pixel different colours in "
-            f"consecutive frames (median chromaticity difference {cands[0].colour:.4f}, "
-            f"{best_by_colour} {best_colour:.4f})", None, cands[0].colour))
+        signs = (
+            *signs,
+            Degeneracy(
+                "colours-inconsistent",
+                f"the recovered curve gives a pixel different colours in "
+                f"consecutive frames (median chromaticity difference {cands[0].colour:.4f}, "
+                f"{best_by_colour} {best_colour:.4f})",
+                None,
+                cands[0].colour,
+            ),
+        )
     cands[0] = replace(cands[0], degenerate=signs)
 
     def why_not(c: CandidateScore) -> str:
@@ -342,23 +390,33 @@ def select_response(
         if c.name == recovered and signs:
             return "degenerate: " + "; ".join(d.message for d in signs)
         if _less_consistent(c.colour, best_colour, COLOUR_TOLERANCE):
-            return (f"colours less consistent between frames than with {best_by_colour} "
-                    f"({c.colour:.4f} against {best_colour:.4f})")
+            return (
+                f"colours less consistent between frames than with {best_by_colour} "
+                f"({c.colour:.4f} against {best_colour:.4f})"
+            )
         return ""
 
     cands = [replace(c, excluded=why_not(c)) for c in cands]
     pool_ok = [c for c in cands if not c.excluded] or [cands[-1]]
     best = min(pool_ok, key=lambda c: c.score)
     srgb_ok = not cands[-1].excluded
-    if best.name != "srgb" and srgb_ok and np.isfinite(srgb_score) and not (
-            best.score < (1.0 - SRGB_MARGIN) * srgb_score):
+    if (
+        best.name != "srgb"
+        and srgb_ok
+        and np.isfinite(srgb_score)
+        and not (best.score < (1.0 - SRGB_MARGIN) * srgb_score)
+    ):
         best = cands[-1]
     ordered = sorted(cands, key=lambda c: (bool(c.excluded), c.score))
     others = [c for c in ordered if c.name != best.name and not c.excluded] or [
-        c for c in ordered if c.name != best.name and np.isfinite(c.score)]
+        c for c in ordered if c.name != best.name and np.isfinite(c.score)
+    ]
     runner = others[0] if others else None
-    margin = (1.0 - best.score / runner.score) if runner is not None and runner.score > 0 \
+    margin = (
+        (1.0 - best.score / runner.score)
+        if runner is not None and runner.score > 0
         else float("nan")
+    )
     fallback = bool(signs)
 
     # every candidate's curve and its residual per level, for the report and the inspector
@@ -369,8 +427,9 @@ def select_response(
     if best.name == recovered:
         from .joint import _fit_to_curve
 
-        curve = _fit_to_curve(full, recovered, ratios, {**fit_kw, "source": source},
-                              f"channel model {chosen_model}")
+        curve = _fit_to_curve(
+            full, recovered, ratios, {**fit_kw, "source": source}, f"channel model {chosen_model}"
+        )
     elif best.name == "srgb":
         curve = srgb
     else:
@@ -383,23 +442,45 @@ def select_response(
         msg += f" ({100 * margin:.0f} % better)"
     n_out = sum(1 for c in cands if c.excluded and c.name != recovered)
     if n_out:
-        msg += (f"; {n_out} candidate(s) left out for colours less consistent between frames"
-                if any("colours less consistent" in c.excluded for c in cands) else "")
+        msg += (
+            f"; {n_out} candidate(s) left out for colours less consistent between frames"
+            if any("colours less consistent" in c.excluded for c in cands)
+            else ""
+        )
     if fallback:
-        msg = ("auto: the recovered curve is degenerate ("
-               + "; ".join(d.message for d in signs) + f"); fell back to {best.name} "
-               f"({100 * best.score:.2f} %{vs})")
+        msg = (
+            "auto: the recovered curve is degenerate ("
+            + "; ".join(d.message for d in signs)
+            + f"); fell back to {best.name} "
+            f"({100 * best.score:.2f} %{vs})"
+        )
     selection = ResponseSelection(
-        chosen=best.name, candidates=tuple(ordered),
-        runner_up=None if runner is None else runner.name, margin=margin,
-        fallback=fallback, recovered=recovered, degenerate=signs, source=source,
-        message=msg, parameters={"cutoff": cutoff, "low_cut": low_cut,
-                                 "smoothing": smoothing, "channel_model": chosen_model},
-        curves=curves, residuals=residuals,
+        chosen=best.name,
+        candidates=tuple(ordered),
+        runner_up=None if runner is None else runner.name,
+        margin=margin,
+        fallback=fallback,
+        recovered=recovered,
+        degenerate=signs,
+        source=source,
+        message=msg,
+        parameters={
+            "cutoff": cutoff,
+            "low_cut": low_cut,
+            "smoothing": smoothing,
+            "channel_model": chosen_model,
+        },
+        curves=curves,
+        residuals=residuals,
     )
     status = "fallback" if fallback else curve.status
     message = msg if not curve.message or curve.method == "srgb" else f"{msg}; {curve.message}"
-    return replace(curve, selection=selection, status=status, message=message,
-                   parameters={**curve.parameters, "auto": True},
-                   exposure_ratios=curve.exposure_ratios or ratios,
-                   residuals=residuals[best.name])
+    return replace(
+        curve,
+        selection=selection,
+        status=status,
+        message=message,
+        parameters={**curve.parameters, "auto": True},
+        exposure_ratios=curve.exposure_ratios or ratios,
+        residuals=residuals[best.name],
+    )

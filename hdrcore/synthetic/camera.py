@@ -185,8 +185,9 @@ class SimulatedBracket:
         }
 
 
-def _positions(matrix: np.ndarray, shape: tuple[int, int],
-               offset: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
+def _positions(
+    matrix: np.ndarray, shape: tuple[int, int], offset: tuple[float, float]
+) -> tuple[np.ndarray, np.ndarray]:
     """``(ys, xs)``: where each pixel of a frame of ``shape`` lies in the radiance grid."""
     h, w = shape
     yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
@@ -195,8 +196,12 @@ def _positions(matrix: np.ndarray, shape: tuple[int, int],
     return ys, xs
 
 
-def _warp_log(radiance_big: np.ndarray, matrix: np.ndarray, shape: tuple[int, int],
-              offset: tuple[float, float]) -> np.ndarray:
+def _warp_log(
+    radiance_big: np.ndarray,
+    matrix: np.ndarray,
+    shape: tuple[int, int],
+    offset: tuple[float, float],
+) -> np.ndarray:
     """Sample ``radiance_big`` at ``matrix @ p + offset`` for every pixel p of a frame of ``shape``.
 
     The ``"log-cubic"`` rendering: interpolates log radiance with cubic splines (positive, no
@@ -213,8 +218,12 @@ def _warp_log(radiance_big: np.ndarray, matrix: np.ndarray, shape: tuple[int, in
     return out
 
 
-def _render_area(radiance_big: np.ndarray, matrix: np.ndarray, shape: tuple[int, int],
-                 offset: tuple[float, float]) -> np.ndarray:
+def _render_area(
+    radiance_big: np.ndarray,
+    matrix: np.ndarray,
+    shape: tuple[int, int],
+    offset: tuple[float, float],
+) -> np.ndarray:
     """The ``"area"`` rendering: what a sensor pixel at ``matrix @ p + offset`` integrates.
 
     The continuous scene is the bilinear interpolant of the radiance grid; a pixel integrates
@@ -230,8 +239,12 @@ def _render_area(radiance_big: np.ndarray, matrix: np.ndarray, shape: tuple[int,
     out = np.empty((*shape, radiance_big.shape[2]), np.float32)
     for c in range(radiance_big.shape[2]):
         out[..., c] = ndimage.map_coordinates(
-            radiance_big[..., c].astype(np.float64), [ys, xs], order=2, mode="nearest",
-            prefilter=False)
+            radiance_big[..., c].astype(np.float64),
+            [ys, xs],
+            order=2,
+            mode="nearest",
+            prefilter=False,
+        )
     return out
 
 
@@ -309,8 +322,9 @@ def simulate_bracket(
         raise ParameterError("local_tonemap strength must be in [0, 1)", found=str(local_tonemap))
     validate_method(response, RESPONSES, "response")
     if rendering not in RENDERINGS:
-        raise ParameterError("unknown rendering", expected=", ".join(RENDERINGS),
-                             found=str(rendering))
+        raise ParameterError(
+            "unknown rendering", expected=", ".join(RENDERINGS), found=str(rendering)
+        )
     n = len(times)
     ref = n // 2 if reference is None else int(reference)
     if not 0 <= ref < n:

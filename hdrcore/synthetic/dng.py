@@ -107,7 +107,8 @@ def _pattern(name: str) -> tuple[int, int, int, int]:
     key = str(name).upper()
     if key not in CFA_PATTERNS:
         raise ParameterError(
-            f"unknown CFA pattern {name!r}", expected=f"one of {', '.join(CFA_PATTERNS)}",
+            f"unknown CFA pattern {name!r}",
+            expected=f"one of {', '.join(CFA_PATTERNS)}",
             found=repr(name),
         )
     return CFA_PATTERNS[key]
@@ -145,7 +146,8 @@ def _black_per_site(black_level: int | Sequence[int]) -> tuple[int, int, int, in
     if len(vals) != 4:
         raise ParameterError(
             "per-site black level needs one value per 2x2 CFA site",
-            expected="4 values (row-major)", found=str(len(vals)),
+            expected="4 values (row-major)",
+            found=str(len(vals)),
         )
     return vals
 
@@ -200,7 +202,6 @@ def linear_to_raw(
     return np.clip(np.rint(raw), 0, white).astype(np.uint16)
 
 
-
 Rect = tuple[int, int, int, int]
 """A rectangle as DNG writes it: top, left, bottom, right (bottom and right exclusive)."""
 
@@ -216,12 +217,14 @@ def parse_margins(margins: int | Sequence[int]) -> Rect:
     if len(vals) != 4 or min(vals) < 0:
         raise ParameterError(
             "masked margins are one value or four (top, left, bottom, right), each >= 0",
-            expected="e.g. 8 or (8, 16, 4, 6)", found=str(margins),
+            expected="e.g. 8 or (8, 16, 4, 6)",
+            found=str(margins),
         )
     if vals[0] % 2 or vals[1] % 2:
         raise ParameterError(
-            "top and left masked margins must be even (the CFA pattern is that of the active "
-            "area)", expected="even top and left", found=f"top {vals[0]}, left {vals[1]}",
+            "top and left masked margins must be even (the CFA pattern is that of the active area)",
+            expected="even top and left",
+            found=f"top {vals[0]}, left {vals[1]}",
         )
     return vals
 
@@ -275,8 +278,9 @@ def add_masked_margins(
     """
     data = np.asarray(active_cfa)
     if data.ndim != 2 or data.dtype.kind not in "ui":
-        raise ParameterError("active CFA data must be integer (H, W)",
-                             found=f"{data.dtype} {data.shape}")
+        raise ParameterError(
+            "active CFA data must be integer (H, W)", found=f"{data.dtype} {data.shape}"
+        )
     top, left, bottom, right = parse_margins(margins)
     black = _black_per_site(black_level)
     white = int(white_level)
@@ -290,7 +294,7 @@ def add_masked_margins(
     b = np.tile(np.array(black, np.float64).reshape(2, 2), ((hh + 1) // 2, (ww + 1) // 2))[:hh, :ww]
     full = b + (rng.standard_normal((hh, ww)) * noise_sigma if noise_sigma > 0 else 0.0)
     out = np.clip(np.rint(full), 0, white).astype(np.uint16)
-    out[top:top + h, left:left + w] = data
+    out[top : top + h, left : left + w] = data
     rects = [
         (0, 0, top, ww),  # above
         (top + h, 0, hh, ww),  # below
@@ -298,12 +302,17 @@ def add_masked_margins(
         (top, left + w, top + h, ww),  # right of it
     ]
     masked = tuple(r for r in rects if r[2] > r[0] and r[3] > r[1])
-    return MaskedSensor(data=out, active_area=(top, left, top + h, left + w),
-                        masked_areas=masked, noise_sigma=float(noise_sigma))
+    return MaskedSensor(
+        data=out,
+        active_area=(top, left, top + h, left + w),
+        masked_areas=masked,
+        noise_sigma=float(noise_sigma),
+    )
 
 
-def _check_areas(shape: tuple[int, int], active: Rect | None,
-                 masked: Sequence[Rect]) -> tuple[Rect | None, tuple[Rect, ...]]:
+def _check_areas(
+    shape: tuple[int, int], active: Rect | None, masked: Sequence[Rect]
+) -> tuple[Rect | None, tuple[Rect, ...]]:
     h, w = shape
 
     def inside(r: Sequence[int], what: str) -> Rect:
@@ -311,26 +320,33 @@ def _check_areas(shape: tuple[int, int], active: Rect | None,
         if len(vals) != 4 or not (0 <= vals[0] < vals[2] <= h and 0 <= vals[1] < vals[3] <= w):
             raise ParameterError(
                 f"{what} must be a non-empty (top, left, bottom, right) inside the stored image",
-                expected=f"within {h}x{w}", found=str(tuple(r)),
+                expected=f"within {h}x{w}",
+                found=str(tuple(r)),
             )
         return vals
 
     if active is None:
         if masked:
-            raise ParameterError("MaskedAreas need an ActiveArea", expected="active_area given",
-                                 found=f"{len(masked)} masked areas")
+            raise ParameterError(
+                "MaskedAreas need an ActiveArea",
+                expected="active_area given",
+                found=f"{len(masked)} masked areas",
+            )
         return None, ()
     act = inside(active, "the active area")
     if act[0] % 2 or act[1] % 2:
-        raise ParameterError("the active area must start on an even row and column",
-                             found=f"top {act[0]}, left {act[1]}")
+        raise ParameterError(
+            "the active area must start on an even row and column",
+            found=f"top {act[0]}, left {act[1]}",
+        )
     rects = tuple(inside(r, "a masked area") for r in masked)
     if len(rects) > 8:
         raise ParameterError("at most 8 masked areas (what LibRaw reads)", found=str(len(rects)))
     for r in rects:
         if r[0] < act[2] and act[0] < r[2] and r[1] < act[3] and act[1] < r[3]:
-            raise ParameterError("a masked area overlaps the active area",
-                                 found=f"masked {r}, active {act}")
+            raise ParameterError(
+                "a masked area overlaps the active area", found=f"masked {r}, active {act}"
+            )
     return act, rects
 
 
@@ -396,8 +412,9 @@ def encode_dng(
             "CFA values outside [0, white level]", found=f"{int(data.min())}..{int(data.max())}"
         )
     if int(orientation) not in range(1, 9):
-        raise ParameterError("orientation must be an EXIF value", expected="1..8",
-                             found=str(orientation))
+        raise ParameterError(
+            "orientation must be an EXIF value", expected="1..8", found=str(orientation)
+        )
     h, w = data.shape
     act, rects = _check_areas((h, w), active_area, masked_areas)
     when = capture_time or _DEFAULT_TIME
@@ -428,7 +445,8 @@ def encode_dng(
         TiffTag(50714, 4, black[:1] if uniform else black),
         TiffTag(50717, 4, (white,)),
         TiffTag(
-            50721, 10,
+            50721,
+            10,
             tuple(Fraction(round(float(v) * 10000), 10000) for row in color_matrix for v in row),
         ),
         TiffTag(50728, 5, tuple(as_rational(v, what="AsShotNeutral") for v in as_shot_neutral)),

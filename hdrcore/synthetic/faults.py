@@ -120,14 +120,21 @@ SEED_PROTOCOL = BracketSpec()
 """Six frames, times 1..1024 (x4), linear, 8 bits, noise sigma 1 level, 256x384, tripod."""
 
 DARK_RAW_12BIT = BracketSpec(
-    scene="patches", exposure_times=(1 / 1024, 1 / 256, 1 / 64, 1 / 16, 1 / 4), bits=12,
-    noise_sigma=2.0, fmt="dng",
+    scene="patches",
+    exposure_times=(1 / 1024, 1 / 256, 1 / 64, 1 / 16, 1 / 4),
+    bits=12,
+    noise_sigma=2.0,
+    fmt="dng",
 )
 """Five 12-bit DNG frames 2 stops apart (a camera's 2 EV auto-bracket), read noise 2 DN, of the
 ``patches`` scene (its brightest patches, not a point light, set the darkest frame's peak)."""
 
 WIDE_RAW_14BIT = BracketSpec(
-    scene="patches", exposure_times=(1 / 1024, 1 / 16), bits=14, noise_sigma=2.0, fmt="dng",
+    scene="patches",
+    exposure_times=(1 / 1024, 1 / 16),
+    bits=14,
+    noise_sigma=2.0,
+    fmt="dng",
 )
 """Two 14-bit DNG frames 6 stops apart, read noise 2 DN, the simulator's default key."""
 
@@ -177,8 +184,9 @@ class FaultyBracket:
     def usable_frames(self) -> tuple[int, ...]:
         """Frames with no unusable fault and some signal."""
         bad = {f.index for f in self.faults if not f.usable}
-        return tuple(k for k in range(len(self.frames))
-                     if k not in bad and self.signal_fraction[k] > 0)
+        return tuple(
+            k for k in range(len(self.frames)) if k not in bad and self.signal_fraction[k] > 0
+        )
 
     @property
     def relative_exposures(self) -> tuple[float, ...]:
@@ -210,8 +218,11 @@ class FaultyBracket:
         """Consecutive pairs (by true exposure) with signal in both frames in at least
         ``min_fraction`` of the samples: the pairs a robust pipeline must measure."""
         order = self.exposure_order()
-        return tuple((a, b) for a, b in zip(order, order[1:], strict=False)
-                     if self.common_signal_fraction(a, b) >= min_fraction)
+        return tuple(
+            (a, b)
+            for a, b in zip(order, order[1:], strict=False)
+            if self.common_signal_fraction(a, b) >= min_fraction
+        )
 
     def truth(self) -> dict[str, Any]:
         """The ``"case"`` part of ``truth.json``."""
@@ -228,11 +239,15 @@ class FaultyBracket:
             "usable_frames": list(self.usable_frames),
             "signal": {
                 "definition": f"noiseless level >= {SIGNAL_SIGMAS:g} sigma above black and "
-                              f"<= {SIGNAL_SIGMAS:g} sigma below the largest level",
+                f"<= {SIGNAL_SIGMAS:g} sigma below the largest level",
                 "frames": list(self.signal_fraction),
                 "pairs": [
-                    {"dark": a, "bright": b, "ratio": self.true_ratio(a, b),
-                     "common_signal_fraction": self.common_signal_fraction(a, b)}
+                    {
+                        "dark": a,
+                        "bright": b,
+                        "ratio": self.true_ratio(a, b),
+                        "common_signal_fraction": self.common_signal_fraction(a, b),
+                    }
                     for a, b in zip(order, order[1:], strict=False)
                 ],
             },
@@ -243,18 +258,31 @@ class FaultyBracket:
 # Shared steps
 
 
-def _simulate(spec: BracketSpec, *, times: Sequence[float] | None = None,
-              key: float | None = None, noise: bool = True) -> SimulatedBracket:
+def _simulate(
+    spec: BracketSpec,
+    *,
+    times: Sequence[float] | None = None,
+    key: float | None = None,
+    noise: bool = True,
+) -> SimulatedBracket:
     if spec.fmt not in FORMATS and spec.fmt not in ("jpg", "tif"):
-        raise ParameterError(f"unknown output format {spec.fmt!r}",
-                             expected=f"one of {', '.join(FORMATS)}", found=repr(spec.fmt))
+        raise ParameterError(
+            f"unknown output format {spec.fmt!r}",
+            expected=f"one of {', '.join(FORMATS)}",
+            found=repr(spec.fmt),
+        )
     return simulate_bracket(
-        scene=spec.scene, shape=spec.shape,
+        scene=spec.scene,
+        shape=spec.shape,
         exposure_times=tuple(spec.exposure_times if times is None else times),
-        bits=spec.bits, response=spec.response,
+        bits=spec.bits,
+        response=spec.response,
         noise_sigma=spec.noise_sigma if noise else 0.0,
-        max_shift=spec.max_shift, max_rotation_deg=spec.max_rotation_deg,
-        key=spec.key if key is None else key, seed=spec.seed, keep_linear=True,
+        max_shift=spec.max_shift,
+        max_rotation_deg=spec.max_rotation_deg,
+        key=spec.key if key is None else key,
+        seed=spec.seed,
+        keep_linear=True,
     )
 
 
@@ -293,16 +321,22 @@ def _signal_masks(sim: SimulatedBracket, spec: BracketSpec) -> tuple[np.ndarray,
     return tuple(out)
 
 
-def _constant_frame(sim: SimulatedBracket, x: float,
-                    rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+def _constant_frame(
+    sim: SimulatedBracket, x: float, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray]:
     """(levels, linear) of a frame whose every sample records linear value ``x`` (0: no light,
     1: saturated), with the simulator's noise and quantisation."""
     shape = sim.frames[0].shape
     y = float(apply_response(sim.response, np.array([x]))[0]) * sim.max_level
-    levels = y + rng.standard_normal(shape) * sim.noise_sigma if sim.noise_sigma > 0 else \
-        np.full(shape, y)
-    return (np.clip(np.rint(levels), 0, sim.max_level).astype(np.uint16),
-            np.full(shape, float(x), np.float32))
+    levels = (
+        y + rng.standard_normal(shape) * sim.noise_sigma
+        if sim.noise_sigma > 0
+        else np.full(shape, y)
+    )
+    return (
+        np.clip(np.rint(levels), 0, sim.max_level).astype(np.uint16),
+        np.full(shape, float(x), np.float32),
+    )
 
 
 def _with_frames(sim: SimulatedBracket, replaced: dict[int, float], seed: int) -> SimulatedBracket:
@@ -314,15 +348,19 @@ def _with_frames(sim: SimulatedBracket, replaced: dict[int, float], seed: int) -
 
 
 def _positions(positions: int | Sequence[int], n: int, what: str) -> tuple[int, ...]:
-    vals: tuple[int, ...] = ((positions,) if isinstance(positions, (int, np.integer))
-                             else tuple(positions))
+    vals: tuple[int, ...] = (
+        (positions,) if isinstance(positions, (int, np.integer)) else tuple(positions)
+    )
     out = []
     for p in vals:
         k = int(p)
         k = k + n if k < 0 else k
         if not 0 <= k < n:
-            raise ParameterError(f"{what} out of range", expected=f"0..{n - 1} (or negative "
-                                 "from the end)", found=str(p))
+            raise ParameterError(
+                f"{what} out of range",
+                expected=f"0..{n - 1} (or negative from the end)",
+                found=str(p),
+            )
         out.append(k)
     if len(set(out)) != len(out):
         raise ParameterError(f"{what} repeats a frame", found=str(vals))
@@ -353,31 +391,52 @@ def _finish(
     extra = out / times_name if times_name else None
     if extra is not None and out.is_dir():
         check_output_path(extra, force=force)
-    written = write_bracket(out, exif_sim if exif_sim is not None else sim, spec.fmt,
-                            force=force, margins=spec.margins, masked_areas=spec.masked_areas)
+    written = write_bracket(
+        out,
+        exif_sim if exif_sim is not None else sim,
+        spec.fmt,
+        force=force,
+        margins=spec.margins,
+        masked_areas=spec.masked_areas,
+    )
     times_file = written.times_file
     listed_times = tuple(float(t) for t in written.exposure_times)
     if extra is not None and listed is not None:
         exact = [as_rational(t, what="exposure time") for t in listed]
-        text = _times_text([p.name for p in written.frames], exact,
-                           f"faulty on purpose: case {case}; the truth is in truth.json")
+        text = _times_text(
+            [p.name for p in written.frames],
+            exact,
+            f"faulty on purpose: case {case}; the truth is in truth.json",
+        )
         atomic_write(extra, lambda tmp: tmp.write_text(text, encoding="utf-8"), force=True)
         times_file, listed_times = extra, tuple(float(t) for t in exact)
     if exif_sim is not None:  # exposure_times.txt holds the true times, whatever EXIF says
         true = [as_rational(t, what="exposure time") for t in sim.exposure_times]
-        text = _times_text([p.name for p in written.frames], true,
-                           "true times; the EXIF times of this case are wrong on purpose")
-        atomic_write(written.times_file, lambda tmp: tmp.write_text(text, encoding="utf-8"),
-                     force=True)
+        text = _times_text(
+            [p.name for p in written.frames],
+            true,
+            "true times; the EXIF times of this case are wrong on purpose",
+        )
+        atomic_write(
+            written.times_file, lambda tmp: tmp.write_text(text, encoding="utf-8"), force=True
+        )
     masks = _signal_masks(sim, spec)
     result = FaultyBracket(
-        case=case, description=description, directory=written.directory,
-        frames=written.frames, times_file=times_file, truth_file=written.truth,
+        case=case,
+        description=description,
+        directory=written.directory,
+        frames=written.frames,
+        times_file=times_file,
+        truth_file=written.truth,
         exposure_times=tuple(float(t) for t in sim.exposure_times),
         exif_times=tuple(float(t) for t in written.exposure_times),
-        listed_times=listed_times, faults=tuple(faults),
-        signal_fraction=tuple(float(m.mean()) for m in masks), spec=spec, sim=sim,
-        written=written, _signal=masks,
+        listed_times=listed_times,
+        faults=tuple(faults),
+        signal_fraction=tuple(float(m.mean()) for m in masks),
+        spec=spec,
+        sim=sim,
+        written=written,
+        _signal=masks,
     )
     truth = json.loads(written.truth.read_text(encoding="utf-8"))
     sim_truth = sim.truth()
@@ -404,8 +463,7 @@ def write_reference_bracket(
     """The bracket of ``spec`` without a fault, with the same truth as the faulty cases (the
     baseline every case is compared with)."""
     sim = _simulate(spec)
-    return _finish(outdir, spec, sim, case="reference", force=force,
-                   description="no fault")
+    return _finish(outdir, spec, sim, case="reference", force=force, description="no fault")
 
 
 def write_black_frames(
@@ -424,11 +482,25 @@ def write_black_frames(
     sim = _simulate(spec)
     ks = _positions(positions, len(sim.frames), "black frame position")
     sim = _with_frames(sim, {k: 0.0 for k in ks}, spec.seed)
-    faults = [Fault(k, "black", "no light reached the sensor: read noise around the black "
-                    "level only", usable=False) for k in ks]
+    faults = [
+        Fault(
+            k,
+            "black",
+            "no light reached the sensor: read noise around the black level only",
+            usable=False,
+        )
+        for k in ks
+    ]
     where = ", ".join(str(k) for k in ks)
-    return _finish(outdir, spec, sim, case="black-frames", faults=faults, force=force,
-                   description=f"frame(s) {where} black (noise around the black level)")
+    return _finish(
+        outdir,
+        spec,
+        sim,
+        case="black-frames",
+        faults=faults,
+        force=force,
+        description=f"frame(s) {where} black (noise around the black level)",
+    )
 
 
 def write_saturated_frame(
@@ -444,8 +516,15 @@ def write_saturated_frame(
     (k,) = _positions(position, len(sim.frames), "saturated frame position")
     sim = _with_frames(sim, {k: 1.0}, spec.seed)
     fault = Fault(k, "saturated", "every sample at the clipping level", usable=False)
-    return _finish(outdir, spec, sim, case="saturated-frame", faults=[fault], force=force,
-                   description=f"frame {k} all saturated")
+    return _finish(
+        outdir,
+        spec,
+        sim,
+        case="saturated-frame",
+        faults=[fault],
+        force=force,
+        description=f"frame {k} all saturated",
+    )
 
 
 def write_duplicate_exposure(
@@ -465,10 +544,16 @@ def write_duplicate_exposure(
     times.insert(k + 1, times[k])
     spec2 = spec.replace(exposure_times=tuple(times))
     sim = _simulate(spec2)
-    fault = Fault(k + 1, "duplicate", f"same exposure time as frame {k} (shot twice)",
-                  usable=True)
-    return _finish(outdir, spec2, sim, case="duplicate-exposure", faults=[fault], force=force,
-                   description=f"frames {k} and {k + 1} share one exposure time")
+    fault = Fault(k + 1, "duplicate", f"same exposure time as frame {k} (shot twice)", usable=True)
+    return _finish(
+        outdir,
+        spec2,
+        sim,
+        case="duplicate-exposure",
+        faults=[fault],
+        force=force,
+        description=f"frames {k} and {k + 1} share one exposure time",
+    )
 
 
 def write_swapped_times(
@@ -491,12 +576,23 @@ def write_swapped_times(
     listed = list(sim.exposure_times)
     listed[i], listed[j] = listed[j], listed[i]
     exif_sim = replace(sim, exposure_times=tuple(listed)) if in_exif else None
-    faults = [Fault(i, "swapped-time", f"times file gives frame {j}'s time", usable=True),
-              Fault(j, "swapped-time", f"times file gives frame {i}'s time", usable=True)]
-    return _finish(outdir, spec, sim, case="swapped-times", faults=faults, force=force,
-                   exif_sim=exif_sim, listed=listed, times_name="exposure_times_swapped.txt",
-                   description=f"times of frames {i} and {j} swapped in the times file"
-                               + (" and in EXIF" if in_exif else ""))
+    faults = [
+        Fault(i, "swapped-time", f"times file gives frame {j}'s time", usable=True),
+        Fault(j, "swapped-time", f"times file gives frame {i}'s time", usable=True),
+    ]
+    return _finish(
+        outdir,
+        spec,
+        sim,
+        case="swapped-times",
+        faults=faults,
+        force=force,
+        exif_sim=exif_sim,
+        listed=listed,
+        times_name="exposure_times_swapped.txt",
+        description=f"times of frames {i} and {j} swapped in the times file"
+        + (" and in EXIF" if in_exif else ""),
+    )
 
 
 def write_unregistrable_tripod(
@@ -511,8 +607,11 @@ def write_unregistrable_tripod(
     structure to register; the key is set for that. The true motion is the identity everywhere.
     """
     if not 0 < darkest_signal < 1:
-        raise ParameterError("darkest_signal is a fraction of the samples", expected="0 < f < 1",
-                             found=str(darkest_signal))
+        raise ParameterError(
+            "darkest_signal is a fraction of the samples",
+            expected="0 < f < 1",
+            found=str(darkest_signal),
+        )
     spec = spec.replace(max_shift=0.0, max_rotation_deg=0.0)
     radiance = _scene_radiance(spec)
     t0 = min(spec.exposure_times)
@@ -520,9 +619,15 @@ def write_unregistrable_tripod(
     x_lo = _linear_for_level(spec, SIGNAL_SIGMAS * spec.noise_sigma)
     spec = spec.replace(key=x_lo / (e_q * t0))
     sim = _simulate(spec)
-    return _finish(outdir, spec, sim, case="unregistrable-tripod", force=force,
-                   description=f"tripod; the darkest frame has signal in "
-                               f"{100 * darkest_signal:g} % of its samples")
+    return _finish(
+        outdir,
+        spec,
+        sim,
+        case="unregistrable-tripod",
+        force=force,
+        description=f"tripod; the darkest frame has signal in "
+        f"{100 * darkest_signal:g} % of its samples",
+    )
 
 
 def write_one_usable_frame(
@@ -542,11 +647,24 @@ def write_one_usable_frame(
     rank = order.index(u)
     repl = {k: (0.0 if order.index(k) < rank else 1.0) for k in range(n) if k != u}
     sim = _with_frames(sim, repl, spec.seed)
-    faults = [Fault(k, "black" if x == 0.0 else "saturated",
-                    "no light reached the sensor" if x == 0.0 else "every sample saturated",
-                    usable=False) for k, x in sorted(repl.items())]
-    return _finish(outdir, spec, sim, case="one-usable-frame", faults=faults, force=force,
-                   description=f"only frame {u} usable")
+    faults = [
+        Fault(
+            k,
+            "black" if x == 0.0 else "saturated",
+            "no light reached the sensor" if x == 0.0 else "every sample saturated",
+            usable=False,
+        )
+        for k, x in sorted(repl.items())
+    ]
+    return _finish(
+        outdir,
+        spec,
+        sim,
+        case="one-usable-frame",
+        faults=faults,
+        force=force,
+        description=f"only frame {u} usable",
+    )
 
 
 def write_dark_scene(
@@ -565,34 +683,56 @@ def write_dark_scene(
     """
     n = len(spec.exposure_times)
     if not 1 <= int(n_black) < n:
-        raise ParameterError("n_black frames must leave at least one", expected=f"1..{n - 1}",
-                             found=str(n_black))
+        raise ParameterError(
+            "n_black frames must leave at least one", expected=f"1..{n - 1}", found=str(n_black)
+        )
     if not 0 < black_peak_sigma < SIGNAL_SIGMAS:
-        raise ParameterError("black_peak_sigma must be positive and below the signal threshold",
-                             expected=f"0 < s < {SIGNAL_SIGMAS:g}", found=str(black_peak_sigma))
+        raise ParameterError(
+            "black_peak_sigma must be positive and below the signal threshold",
+            expected=f"0 < s < {SIGNAL_SIGMAS:g}",
+            found=str(black_peak_sigma),
+        )
     radiance = _scene_radiance(spec)
     t_last = sorted(spec.exposure_times)[int(n_black) - 1]
     x_peak = _linear_for_level(spec, black_peak_sigma * spec.noise_sigma)
     spec = spec.replace(key=x_peak / (float(radiance.max()) * t_last))
     sim = _simulate(spec)
     order = sorted(range(n), key=lambda k: sim.exposure_times[k])
-    faults = [Fault(k, "black", f"the scene is too dark for this time: its brightest sample "
-                    f"is {black_peak_sigma * sim.exposure_times[k] / t_last:.3g} sigma (noiseless)",
-                    usable=False) for k in order[:int(n_black)]]
-    return _finish(outdir, spec, sim, case=f"dark-scene-{int(n_black)}", faults=faults,
-                   force=force, description=f"dark scene: the {int(n_black)} shortest frame(s) "
-                                            "black")
+    faults = [
+        Fault(
+            k,
+            "black",
+            f"the scene is too dark for this time: its brightest sample "
+            f"is {black_peak_sigma * sim.exposure_times[k] / t_last:.3g} sigma (noiseless)",
+            usable=False,
+        )
+        for k in order[: int(n_black)]
+    ]
+    return _finish(
+        outdir,
+        spec,
+        sim,
+        case=f"dark-scene-{int(n_black)}",
+        faults=faults,
+        force=force,
+        description=f"dark scene: the {int(n_black)} shortest frame(s) black",
+    )
 
 
-def _raw_bracket(outdir: str | os.PathLike, spec: BracketSpec, darkest_peak: float | None,
-                 case: str, force: bool) -> FaultyBracket:
+def _raw_bracket(
+    outdir: str | os.PathLike, spec: BracketSpec, darkest_peak: float | None, case: str, force: bool
+) -> FaultyBracket:
     if spec.fmt != "dng":
-        raise ParameterError("a RAW case writes DNG", expected="spec.fmt 'dng'",
-                             found=repr(spec.fmt))
+        raise ParameterError(
+            "a RAW case writes DNG", expected="spec.fmt 'dng'", found=repr(spec.fmt)
+        )
     if darkest_peak is not None:
         if not 0 < darkest_peak < 1:
-            raise ParameterError("darkest_peak is a fraction of the range",
-                                 expected="0 < p < 1", found=str(darkest_peak))
+            raise ParameterError(
+                "darkest_peak is a fraction of the range",
+                expected="0 < p < 1",
+                found=str(darkest_peak),
+            )
         radiance = _scene_radiance(spec)
         peak_dn = darkest_peak * ((1 << spec.bits) - 1)  # above black, of the full range
         x_peak = _linear_for_level(spec, peak_dn)
@@ -601,9 +741,11 @@ def _raw_bracket(outdir: str | os.PathLike, spec: BracketSpec, darkest_peak: flo
     stops = np.log2(np.max(spec.exposure_times) / np.min(spec.exposure_times))
     dark = int(np.argmin(sim.exposure_times))
     peak = float(sim.linear_frames[dark].max()) * _level_scale(spec)
-    desc = (f"{len(sim.frames)} {spec.bits}-bit DNG frames over {stops:g} stops; the darkest "
-            f"peaks at {peak:.0f} of {(1 << spec.bits) - 1} levels above black "
-            f"({100 * peak / ((1 << spec.bits) - 1):.2f} %), read noise {spec.noise_sigma:g} DN")
+    desc = (
+        f"{len(sim.frames)} {spec.bits}-bit DNG frames over {stops:g} stops; the darkest "
+        f"peaks at {peak:.0f} of {(1 << spec.bits) - 1} levels above black "
+        f"({100 * peak / ((1 << spec.bits) - 1):.2f} %), read noise {spec.noise_sigma:g} DN"
+    )
     return _finish(outdir, spec, sim, case=case, force=force, description=desc)
 
 

@@ -65,8 +65,12 @@ def _window_scene(shape: tuple[int, int], rng: np.random.Generator) -> np.ndarra
     foliage = 2.5 * np.exp(0.9 * tex + 0.4 * fine)
     outdoor = np.where(y < 0.4, sky, foliage)
     out_rgb = np.stack(
-        [outdoor * np.where(y < 0.4, 0.75, 0.8), outdoor * np.where(y < 0.4, 0.9, 1.0),
-         outdoor * np.where(y < 0.4, 1.25, 0.55)], axis=-1
+        [
+            outdoor * np.where(y < 0.4, 0.75, 0.8),
+            outdoor * np.where(y < 0.4, 0.9, 1.0),
+            outdoor * np.where(y < 0.4, 1.25, 0.55),
+        ],
+        axis=-1,
     )
     # Window frame bars.
     bars = (np.abs(x - 0.725) < 0.008) | (np.abs(y - 0.37) < 0.01)
@@ -89,10 +93,14 @@ def _landscape_scene(shape: tuple[int, int], rng: np.random.Generator) -> np.nda
     aspect = w / h
     tex = fractal_noise(shape, rng)
     fine = fractal_noise(shape, rng, octaves=3, base_scale=0.7)
-    ridge = 0.45 + 0.08 * np.sin(6.0 * x + 1.0) + 0.05 * ndimage.gaussian_filter1d(
-        rng.standard_normal(w).astype(np.float32), 8
-    )[None, :] * 3
-    sky = (np.exp(0.25 * fine) * (3.0 + 6.0 * (1 - y)))
+    ridge = (
+        0.45
+        + 0.08 * np.sin(6.0 * x + 1.0)
+        + 0.05
+        * ndimage.gaussian_filter1d(rng.standard_normal(w).astype(np.float32), 8)[None, :]
+        * 3
+    )
+    sky = np.exp(0.25 * fine) * (3.0 + 6.0 * (1 - y))
     ground = 0.02 * np.exp(1.0 * tex + 0.3 * fine) * (0.5 + y)
     is_sky = y < ridge
     rgb = np.where(

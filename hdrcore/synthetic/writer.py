@@ -100,7 +100,8 @@ def frame_file_levels(
         return arr.astype(np.uint8)
     if fmt == "jpeg":
         raise ParameterError(
-            "JPEG holds 8-bit frames only", expected="bits 8 for jpeg (or png/tiff/dng)",
+            "JPEG holds 8-bit frames only",
+            expected="bits 8 for jpeg (or png/tiff/dng)",
             found=f"{bits}-bit frames",
         )
     if sixteen_bit == "keep" or bits == 16:
@@ -195,31 +196,36 @@ def write_bracket(
         key = "tiff"
     if key not in FORMATS:
         raise ParameterError(
-            f"unknown output format {fmt!r}", expected=f"one of {', '.join(FORMATS)}",
+            f"unknown output format {fmt!r}",
+            expected=f"one of {', '.join(FORMATS)}",
             found=repr(fmt),
         )
     n = len(sim.frames)
     if key == "jpeg" and sim.bits != 8:
         raise ParameterError(
-            "JPEG holds 8-bit frames only", expected="bits 8 for jpeg (or png/tiff/dng)",
+            "JPEG holds 8-bit frames only",
+            expected="bits 8 for jpeg (or png/tiff/dng)",
             found=f"{sim.bits}-bit frames",
         )
     if key == "dng":
         if sim.response != "linear":
             raise ParameterError(
-                "DNG frames need a linear response (RAW data is linear)", expected="'linear'",
+                "DNG frames need a linear response (RAW data is linear)",
+                expected="'linear'",
                 found=repr(sim.response),
             )
         if len(sim.linear_frames) != n:
             raise ParameterError(
                 "DNG output needs the linear sensor values",
-                expected="simulate_bracket(..., keep_linear=True)", found="no linear frames",
+                expected="simulate_bracket(..., keep_linear=True)",
+                found="no linear frames",
             )
     margin_rect = None
     if margins is not None:
         if key != "dng":
-            raise ParameterError("masked margins are a RAW (DNG) feature",
-                                 expected="fmt 'dng'", found=repr(key))
+            raise ParameterError(
+                "masked margins are a RAW (DNG) feature", expected="fmt 'dng'", found=repr(key)
+            )
         margin_rect = parse_margins(margins)
     out = Path(outdir)
     if out.exists() and not out.is_dir():
@@ -241,8 +247,9 @@ def write_bracket(
     if key == "dng":
         black = black_level if black_level is not None else default_black_level(sim.bits)
         white = int(white_level) if white_level is not None else sim.max_level
-        black_sites: tuple[int, ...] = ((black,) * 4 if isinstance(black, (int, np.integer))
-                                        else tuple(int(b) for b in black))
+        black_sites: tuple[int, ...] = (
+            (black,) * 4 if isinstance(black, (int, np.integer)) else tuple(int(b) for b in black)
+        )
         file_max = int(white - max(black_sites))
         raw_info = {
             "cfa_pattern": cfa_pattern.upper(),
@@ -258,13 +265,18 @@ def write_bracket(
             top, left, bottom, right = margin_rect
             h, w = sim.frames[0].shape[:2]
             raw_info["masked_margins"] = {
-                "top": top, "left": left, "bottom": bottom, "right": right,
+                "top": top,
+                "left": left,
+                "bottom": bottom,
+                "right": right,
                 "stored_shape": [h + top + bottom, w + left + right],
                 "active_area": [top, left, top + h, left + w],
                 "masked_areas_tag": bool(masked_areas),
                 "content": "black level + read noise of read_noise_sigma (no light)",
                 "libraw_black": "measured from the masked pixels (integer part of their mean "
-                                "per CFA site)" if masked_areas else "the BlackLevel tag",
+                "per CFA site)"
+                if masked_areas
+                else "the BlackLevel tag",
             }
     elif sim.bits == 8:
         file_max = 255
@@ -274,8 +286,12 @@ def write_bracket(
         file_max = 65535
 
     for k, path in enumerate(frame_paths):
-        meta: dict[str, Any] = {"exposure_time": times[k], "f_number": f_number, "iso": iso,
-                "capture_time": captures[k]}
+        meta: dict[str, Any] = {
+            "exposure_time": times[k],
+            "f_number": f_number,
+            "iso": iso,
+            "capture_time": captures[k],
+        }
         if raw_info is not None:
             rng = np.random.default_rng([sim.seed, 104729, k])
             cfa = linear_to_raw(
@@ -290,15 +306,25 @@ def write_bracket(
             if margin_rect is not None:
                 # Drawn after the active area from the same generator: its numbers are unchanged.
                 sensor = add_masked_margins(
-                    cfa, margin_rect, black_level=black_sites,
-                    white_level=raw_info["white_level"], noise_sigma=sim.noise_sigma, rng=rng,
+                    cfa,
+                    margin_rect,
+                    black_level=black_sites,
+                    white_level=raw_info["white_level"],
+                    noise_sigma=sim.noise_sigma,
+                    rng=rng,
                 )
                 cfa = sensor.data
-                areas = {"active_area": sensor.active_area,
-                         "masked_areas": sensor.masked_areas if masked_areas else ()}
+                areas = {
+                    "active_area": sensor.active_area,
+                    "masked_areas": sensor.masked_areas if masked_areas else (),
+                }
             data = encode_dng(
-                cfa, pattern=cfa_pattern, black_level=black_sites,
-                white_level=raw_info["white_level"], **areas, **meta,
+                cfa,
+                pattern=cfa_pattern,
+                black_level=black_sites,
+                white_level=raw_info["white_level"],
+                **areas,
+                **meta,
             )
         else:
             image = frame_file_levels(sim.frames[k], sim.bits, key, sixteen_bit)
@@ -321,7 +347,8 @@ def write_bracket(
     truth["file_max_level"] = file_max
     if key in ("png", "tiff") and sim.bits not in (8, 16):
         truth["file_levels"] = (
-            f"round(level * 65535 / {sim.max_level})" if file_max == 65535
+            f"round(level * 65535 / {sim.max_level})"
+            if file_max == 65535
             else "native levels in a 16-bit container"
         )
     if raw_info is not None:

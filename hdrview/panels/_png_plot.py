@@ -98,8 +98,8 @@ def figure_to_png(fig: Any, width: int = 960, height: int = 600) -> bytes:
     allx = np.concatenate([t[0] for t in traces]) if traces else np.array([0.0, 1.0])
     ally = np.concatenate([t[1] for t in traces]) if traces else np.array([0.0, 1.0])
     allx, ally = allx[np.isfinite(allx)], ally[np.isfinite(ally)]
-    x0, x1 = (xr if xr else (allx.min(), allx.max()) if allx.size else (0.0, 1.0))
-    y0, y1 = (yr if yr else (ally.min(), ally.max()) if ally.size else (0.0, 1.0))
+    x0, x1 = xr if xr else (allx.min(), allx.max()) if allx.size else (0.0, 1.0)
+    y0, y1 = yr if yr else (ally.min(), ally.max()) if ally.size else (0.0, 1.0)
     if x1 <= x0:
         x1 = x0 + 1.0
     if y1 <= y0:
@@ -115,12 +115,12 @@ def figure_to_png(fig: Any, width: int = 960, height: int = 600) -> bytes:
     for t in _ticks(x0, x1):
         xp = float(px(np.array(t)))
         draw.line([xp, bottom, xp, bottom + 4], fill="black")
-        label = f"{10 ** t:.3g}" if xlog else f"{t:.3g}"
+        label = f"{10**t:.3g}" if xlog else f"{t:.3g}"
         draw.text((xp - 12, bottom + 6), label, fill="black", font=font)
     for t in _ticks(y0, y1):
         yp = float(py(np.array(t)))
         draw.line([left - 4, yp, left, yp], fill="black")
-        label = f"{10 ** t:.3g}" if ylog else f"{t:.3g}"
+        label = f"{10**t:.3g}" if ylog else f"{t:.3g}"
         draw.text((left - 60, yp - 5), label, fill="black", font=font)
     title = ""
     if fig.layout.title is not None and fig.layout.title.text:

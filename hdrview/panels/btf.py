@@ -34,13 +34,17 @@ def _every(n: int, limit: int = MAX_POINTS) -> int:
 
 def _figure(data: list[dict], layout: dict) -> go.Figure:
     # Plain dicts without plotly's validation: ten times faster, and these are fixed shapes.
-    base = {"margin": {"l": 55, "r": 10, "t": 40, "b": 45}, "template": "plotly_white",
-            "legend": {"orientation": "h", "y": -0.18}}
+    base = {
+        "margin": {"l": 55, "r": 10, "t": 40, "b": 45},
+        "template": "plotly_white",
+        "legend": {"orientation": "h", "y": -0.18},
+    }
     return go.Figure({"data": data, "layout": {**base, **layout}}, _validate=False)
 
 
-def equations_figure(pair: ExposureRatioResult, exif_ratio: float | None,
-                     registered_ratio: float | None = None) -> go.Figure:
+def equations_figure(
+    pair: ExposureRatioResult, exif_ratio: float | None, registered_ratio: float | None = None
+) -> go.Figure:
     """Scatter of the equations ``k x = y`` with the initial, converged and EXIF lines (and the
     ratio measured from the registered pixels, when known)."""
     eq = pair.equations
@@ -52,39 +56,62 @@ def equations_figure(pair: ExposureRatioResult, exif_ratio: float | None,
     for c in np.unique(ch):
         sel = np.flatnonzero((ch == c) & inl)
         sel = sel[:: _every(sel.size)]
-        data.append({
-            "type": "scatter", "mode": "markers", "x": x[sel].astype(np.float32),
-            "y": y[sel].astype(np.float32), "name": f"inliers {CHANNEL_NAMES[int(c) % 3]}",
-            "marker": {"size": 4, "color": CHANNEL_COLOURS[int(c) % 3], "opacity": 0.6},
-        })
+        data.append(
+            {
+                "type": "scatter",
+                "mode": "markers",
+                "x": x[sel].astype(np.float32),
+                "y": y[sel].astype(np.float32),
+                "name": f"inliers {CHANNEL_NAMES[int(c) % 3]}",
+                "marker": {"size": 4, "color": CHANNEL_COLOURS[int(c) % 3], "opacity": 0.6},
+            }
+        )
     out = np.flatnonzero(~inl)
     out = out[:: _every(out.size)]
     if out.size:
-        data.append({
-            "type": "scatter", "mode": "markers", "x": x[out].astype(np.float32),
-            "y": y[out].astype(np.float32), "name": "outliers (3V)",
-            "marker": {"size": 7, "symbol": "x", "color": "#ff7f0e"},
-        })
+        data.append(
+            {
+                "type": "scatter",
+                "mode": "markers",
+                "x": x[out].astype(np.float32),
+                "y": y[out].astype(np.float32),
+                "name": "outliers (3V)",
+                "marker": {"size": 7, "symbol": "x", "color": "#ff7f0e"},
+            }
+        )
     xmax = float(np.nanmax(x)) if x.size else 1.0
     xs = [0.0, xmax]
 
     def line(k: float | None, name: str, dash: str, colour: str) -> None:
         if k is None or not np.isfinite(k):
             return
-        data.append({"type": "scatter", "mode": "lines", "x": xs, "y": [0.0, k * xmax],
-                     "name": f"{name} {k:.4f}", "line": {"dash": dash, "color": colour}})
+        data.append(
+            {
+                "type": "scatter",
+                "mode": "lines",
+                "x": xs,
+                "y": [0.0, k * xmax],
+                "name": f"{name} {k:.4f}",
+                "line": {"dash": dash, "color": colour},
+            }
+        )
 
     line(pair.initial_ratio, "initial k0", "dash", "#7f7f7f")
     line(pair.ratio, "converged k", "solid", "#000000")
     line(exif_ratio, "EXIF", "dot", "#9467bd")
     line(registered_ratio, "registered pixels", "dashdot", "#2ca02c")
-    title = (f"Frames {pair.dark}→{pair.bright}: k = {fmt(pair.ratio, 6)} "
-             f"({pair.n_inliers}/{pair.n_equations} inliers, {pair.status})")
-    return _figure(data, {
-        "title": {"text": title, "font": {"size": 14}},
-        "xaxis": {"title": {"text": "dark frame, linearised"}},
-        "yaxis": {"title": {"text": "bright frame, linearised"}},
-    })
+    title = (
+        f"Frames {pair.dark}→{pair.bright}: k = {fmt(pair.ratio, 6)} "
+        f"({pair.n_inliers}/{pair.n_equations} inliers, {pair.status})"
+    )
+    return _figure(
+        data,
+        {
+            "title": {"text": title, "font": {"size": 14}},
+            "xaxis": {"title": {"text": "dark frame, linearised"}},
+            "yaxis": {"title": {"text": "bright frame, linearised"}},
+        },
+    )
 
 
 def transfer_figure(pair: ExposureRatioResult) -> go.Figure:
@@ -94,37 +121,64 @@ def transfer_figure(pair: ExposureRatioResult) -> go.Figure:
         fwd = np.asarray(btf.forward, np.float32)
         step = _every(fwd.size)
         m = np.arange(fwd.size, dtype=np.float32)[::step]
-        data.append({"type": "scatter", "mode": "lines", "x": m, "y": fwd[::step],
-                     "name": f"T {CHANNEL_NAMES[c % 3]}",
-                     "line": {"color": CHANNEL_COLOURS[c % 3]}})
+        data.append(
+            {
+                "type": "scatter",
+                "mode": "lines",
+                "x": m,
+                "y": fwd[::step],
+                "name": f"T {CHANNEL_NAMES[c % 3]}",
+                "line": {"color": CHANNEL_COLOURS[c % 3]},
+            }
+        )
     top = float(pair.max_level)
     z, floor = float(pair.saturation), float(pair.noise_floor)
-    data.append({"type": "scatter", "mode": "lines", "x": [0, top, None, z, z],
-                 "y": [z, z, None, 0, top], "name": f"Z = {z:g}",
-                 "line": {"color": "#d62728", "dash": "dash", "width": 1}})
-    data.append({"type": "scatter", "mode": "lines", "x": [0, top, None, floor, floor],
-                 "y": [floor, floor, None, 0, top], "name": f"noise floor = {floor:g}",
-                 "line": {"color": "#7f7f7f", "dash": "dot", "width": 1}})
-    return _figure(data, {
-        "title": {"text": "Brightness transfer function T (levels)", "font": {"size": 14}},
-        "xaxis": {"title": {"text": "dark level m"}, "range": [0, top]},
-        "yaxis": {"title": {"text": "bright level T(m)"}, "range": [0, top]},
-    })
+    data.append(
+        {
+            "type": "scatter",
+            "mode": "lines",
+            "x": [0, top, None, z, z],
+            "y": [z, z, None, 0, top],
+            "name": f"Z = {z:g}",
+            "line": {"color": "#d62728", "dash": "dash", "width": 1},
+        }
+    )
+    data.append(
+        {
+            "type": "scatter",
+            "mode": "lines",
+            "x": [0, top, None, floor, floor],
+            "y": [floor, floor, None, 0, top],
+            "name": f"noise floor = {floor:g}",
+            "line": {"color": "#7f7f7f", "dash": "dot", "width": 1},
+        }
+    )
+    return _figure(
+        data,
+        {
+            "title": {"text": "Brightness transfer function T (levels)", "font": {"size": 14}},
+            "xaxis": {"title": {"text": "dark level m"}, "range": [0, top]},
+            "yaxis": {"title": {"text": "bright level T(m)"}, "range": [0, top]},
+        },
+    )
 
 
-def pair_summary(pair: ExposureRatioResult, exif_ratio: float | None,
-                 mismatch: float | None) -> str:
+def pair_summary(
+    pair: ExposureRatioResult, exif_ratio: float | None, mismatch: float | None
+) -> str:
     iterates = ", ".join(fmt(v, 6) for v in pair.iterates[:8])
     if len(pair.iterates) > 8:
         iterates += ", …"
     channels = ", ".join(
-        f"{CHANNEL_NAMES[c % 3]} {fmt(r, 5)}" for c, r in enumerate(pair.channel_ratios))
+        f"{CHANNEL_NAMES[c % 3]} {fmt(r, 5)}" for c, r in enumerate(pair.channel_ratios)
+    )
     lines = [
         f"**Pair {pair.dark}→{pair.bright}** ({pair.method}): ratio **{fmt(pair.ratio, 6)}** "
         f"± {fmt(pair.std_error, 2)}; status **{pair.status}**: {fmt(pair.message)}",
         f"k0 = {fmt(pair.initial_ratio, 6)}; iterates: {iterates} ({pair.iterations} iterations); "
         f"EXIF ratio {fmt(exif_ratio, 6)}, mismatch {fmt(mismatch, 3)} stops",
-        f"Per channel: {channels}" + (" — **channels disagree**" if pair.channels_disagree else "")
+        f"Per channel: {channels}"
+        + (" — **channels disagree**" if pair.channels_disagree else "")
         + f"; overlap {pair.overlap:.1%}; Z = {pair.saturation:g}, "
         f"noise floor = {pair.noise_floor:g}",
     ]
@@ -143,11 +197,15 @@ class BtfPanel:
         self.transfer = gui.add_plotly(empty, aspect=0.55, visible=False)
         self._figures: dict[str, go.Figure] = {}
 
-    def show(self, bracket: Bracket | None, result: PipelineResult | None,
-             view: dict[str, Any]) -> None:
+    def show(
+        self, bracket: Bracket | None, result: PipelineResult | None, view: dict[str, Any]
+    ) -> None:
         if bracket is None or result is None:
-            self.summary.content = ("No bracket loaded." if bracket is None else
-                                    "_Waiting for the exposure-ratio stage (hdrcore.pipeline)._")
+            self.summary.content = (
+                "No bracket loaded."
+                if bracket is None
+                else "_Waiting for the exposure-ratio stage (hdrcore.pipeline)._"
+            )
             self.scatter.visible = self.transfer.visible = False
             self._figures = {}
             return
@@ -164,9 +222,11 @@ class BtfPanel:
         if refined is not None and k < len(refined.pairs):
             rp = refined.pairs[k]
             reg_ratio = rp.ratio
-            text += (f"\n\n**After registration** ({rp.method}): ratio **{fmt(rp.ratio, 6)}** "
-                     f"± {fmt(rp.std_error, 2)}; status **{rp.status}**: {fmt(rp.message)}. "
-                     "The merge uses this estimate.")
+            text += (
+                f"\n\n**After registration** ({rp.method}): ratio **{fmt(rp.ratio, 6)}** "
+                f"± {fmt(rp.std_error, 2)}; status **{rp.status}**: {fmt(rp.message)}. "
+                "The merge uses this estimate."
+            )
         self.summary.content = text
         scatter = equations_figure(pair, exif, reg_ratio)
         transfer = transfer_figure(pair)

@@ -20,36 +20,65 @@ if TYPE_CHECKING:  # the library's stages are imported on first use, not with th
     from hdrcore.pipeline import PipelineResult
     from hdrcore.registration import BracketRegistration
 
-__all__ = ["DiagnosticsPanel", "bundle_files", "frames_table", "pairs_table",
-           "summary_line", "verdicts_markdown"]
+__all__ = [
+    "DiagnosticsPanel",
+    "bundle_files",
+    "frames_table",
+    "pairs_table",
+    "summary_line",
+    "verdicts_markdown",
+]
 
 
-def pairs_table(exposure: BracketExposureResult, registration: BracketRegistration | None,
-                bracket: Bracket | None = None) -> str:
-    header = ["pair", "ratio", "95 % interval", "EXIF ratio", "mismatch (stops)",
-              "inlier equations",
-              "ratio status", "cost before → after", "dx, dy, angle", "registration status"]
+def pairs_table(
+    exposure: BracketExposureResult,
+    registration: BracketRegistration | None,
+    bracket: Bracket | None = None,
+) -> str:
+    header = [
+        "pair",
+        "ratio",
+        "95 % interval",
+        "EXIF ratio",
+        "mismatch (stops)",
+        "inlier equations",
+        "ratio status",
+        "cost before → after",
+        "dx, dy, angle",
+        "registration status",
+    ]
     rows = []
     names = None if bracket is None else [f.name for f in bracket.frames]
     for k, p in enumerate(exposure.pairs):
         exif = exposure.exif_ratios[k] if k < len(exposure.exif_ratios) else None
         mism = exposure.mismatch_stops[k] if k < len(exposure.mismatch_stops) else None
-        r = registration.pairs[k] if registration is not None and k < len(registration.pairs) \
+        r = (
+            registration.pairs[k]
+            if registration is not None and k < len(registration.pairs)
             else None
+        )
         cost = "—" if r is None else f"{fmt(r.cost_before, 3)} → {fmt(r.cost_after, 3)}"
-        motion = "—" if r is None else (
-            f"{fmt(r.dx, 3)}, {fmt(r.dy, 3)}, {fmt(r.angle_deg, 3)}°")
-        rows.append([
-            f"{p.dark}→{p.bright}" + ("" if names is None else
-                                      f" ({names[p.dark]}, {names[p.bright]})"),
-            fmt(p.ratio, 6), _interval_text(p), fmt(exif, 6),
-            fmt(mism, 3), f"{p.n_inliers}/{p.n_equations}", p.status, cost, motion,
-            "off" if r is None else r.status,
-        ])
+        motion = "—" if r is None else (f"{fmt(r.dx, 3)}, {fmt(r.dy, 3)}, {fmt(r.angle_deg, 3)}°")
+        rows.append(
+            [
+                f"{p.dark}→{p.bright}"
+                + ("" if names is None else f" ({names[p.dark]}, {names[p.bright]})"),
+                fmt(p.ratio, 6),
+                _interval_text(p),
+                fmt(exif, 6),
+                fmt(mism, 3),
+                f"{p.n_inliers}/{p.n_equations}",
+                p.status,
+                cost,
+                motion,
+                "off" if r is None else r.status,
+            ]
+        )
     rel = ", ".join(fmt(v, 6) for v in exposure.relative_exposures)
-    return (md_table(header, rows)
-            + f"\n\nRelative exposures (darkest = 1): {rel}; exposure stage "
-            f"**{exposure.status}**: {fmt(exposure.message)}")
+    return (
+        md_table(header, rows) + f"\n\nRelative exposures (darkest = 1): {rel}; exposure stage "
+        f"**{exposure.status}**: {fmt(exposure.message)}"
+    )
 
 
 def frames_table(result: PipelineResult) -> str:
@@ -62,18 +91,24 @@ def frames_table(result: PipelineResult) -> str:
     for k, f in enumerate(loaded.frames):
         sig = signals.get(k)
         fn = noise.frames[k] if noise is not None and k < len(noise.frames) else None
-        rows.append([
-            str(k), f.name, "yes" if sig is None or sig.usable else f"**no: {sig.status}**",
-            "—" if sig is None else fmt(sig.reason),
-            "—" if fn is None else fmt(fn.sigma, 3),
-            "—" if fn is None else fn.source,
-        ])
+        rows.append(
+            [
+                str(k),
+                f.name,
+                "yes" if sig is None or sig.usable else f"**no: {sig.status}**",
+                "—" if sig is None else fmt(sig.reason),
+                "—" if fn is None else fmt(fn.sigma, 3),
+                "—" if fn is None else fn.source,
+            ]
+        )
     text = md_table(header, rows)
     if noise is not None:
         floor = result.noise_floor
-        text += (f"\n\nNoise floor used: **{fmt(floor, 4)}** levels (default: "
-                 f"{fmt(noise.k_sigma, 2)} × σ = {fmt(noise.k_sigma * noise.sigma, 4)}, at least "
-                 f"{fmt(noise.minimum, 4)}; σ = {fmt(noise.sigma, 3)} from {noise.source}).")
+        text += (
+            f"\n\nNoise floor used: **{fmt(floor, 4)}** levels (default: "
+            f"{fmt(noise.k_sigma, 2)} × σ = {fmt(noise.k_sigma * noise.sigma, 4)}, at least "
+            f"{fmt(noise.minimum, 4)}; σ = {fmt(noise.sigma, 3)} from {noise.source})."
+        )
     return text
 
 
@@ -96,8 +131,9 @@ def summary_line(result: PipelineResult) -> str:
     """One sentence: what was merged and how many problems, warnings and notes there are."""
     counts = {sev: sum(1 for v in result.verdicts if v.severity == sev) for sev in SEVERITIES}
     n_all, n_used = len(result.loaded_bracket), len(result.bracket)
-    head = (f"**Merged {n_used} of {n_all} frames**" if result.merge is not None
-            else "**Not merged**")
+    head = (
+        f"**Merged {n_used} of {n_all} frames**" if result.merge is not None else "**Not merged**"
+    )
     source = result.times_source
     if source:
         head += f" (exposure times: {fmt(source)})"
@@ -136,8 +172,9 @@ class DiagnosticsPanel:
         self.frames = gui.add_markdown("")
         self.warnings = gui.add_markdown("")
 
-    def show(self, bracket: Bracket | None, result: PipelineResult | None,
-             view: dict[str, Any]) -> None:
+    def show(
+        self, bracket: Bracket | None, result: PipelineResult | None, view: dict[str, Any]
+    ) -> None:
         if bracket is None:
             self.verdicts.content = "No bracket loaded."
             self.table.content = ""

@@ -44,8 +44,7 @@ def _seconds(t: Any) -> str:
     return f"1/{1 / v:.0f} s" if v < 0.4 else f"{v:.3g} s"
 
 
-def contact_sheet(bracket: Bracket, columns: int = COLUMNS,
-                  width: int = THUMB_WIDTH) -> np.ndarray:
+def contact_sheet(bracket: Bracket, columns: int = COLUMNS, width: int = THUMB_WIDTH) -> np.ndarray:
     """The frames as a grid of thumbnails, each with its name, time and a histogram below."""
     from PIL import Image, ImageDraw
 
@@ -61,17 +60,22 @@ def contact_sheet(bracket: Bracket, columns: int = COLUMNS,
         ImageDraw.Draw(text).text((2, 3), label[:44], fill=(20, 20, 20))
         pic = np.full((img.shape[0], width, 3), 255, np.uint8)
         x0 = (width - img.shape[1]) // 2
-        pic[:, x0:x0 + img.shape[1]] = img
-        cells.append(np.concatenate([np.asarray(text), pic,
-                                     _histogram_strip(f.levels, f.max_level, width)], axis=0))
+        pic[:, x0 : x0 + img.shape[1]] = img
+        cells.append(
+            np.concatenate(
+                [np.asarray(text), pic, _histogram_strip(f.levels, f.max_level, width)], axis=0
+            )
+        )
     ch = max(c.shape[0] for c in cells)
     pad = 6
     rows = (len(cells) + columns - 1) // columns
     sheet = np.full((rows * (ch + pad), columns * (width + pad), 3), 255, np.uint8)
     for k, cell in enumerate(cells):
         r, c = divmod(k, columns)
-        sheet[r * (ch + pad):r * (ch + pad) + cell.shape[0],
-              c * (width + pad):c * (width + pad) + width] = cell
+        sheet[
+            r * (ch + pad) : r * (ch + pad) + cell.shape[0],
+            c * (width + pad) : c * (width + pad) + width,
+        ] = cell
     return sheet
 
 
@@ -80,24 +84,38 @@ def frames_table(bracket: Bracket) -> str:
     for k, f in enumerate(bracket.frames):
         m = f.meta
         t = m.exposure_time
-        rows.append([
-            k,
-            f.name,
-            m.format,
-            m.bit_depth,
-            m.max_level,
-            "—" if t is None else f"{t} s",
-            m.exposure_time_source,
-            None if m.f_number is None else f"f/{float(m.f_number):g}",
-            m.iso,
-            m.camera,
-        ])
-    header = ["#", "file", "format", "bits", "max level", "exposure", "source", "aperture",
-              "ISO", "camera"]
+        rows.append(
+            [
+                k,
+                f.name,
+                m.format,
+                m.bit_depth,
+                m.max_level,
+                "—" if t is None else f"{t} s",
+                m.exposure_time_source,
+                None if m.f_number is None else f"f/{float(m.f_number):g}",
+                m.iso,
+                m.camera,
+            ]
+        )
+    header = [
+        "#",
+        "file",
+        "format",
+        "bits",
+        "max level",
+        "exposure",
+        "source",
+        "aperture",
+        "ISO",
+        "camera",
+    ]
     h, w = bracket.shape
     lin = "linear (RAW)" if bracket.is_linear else "non-linear (needs a response)"
-    return (f"**{len(bracket)} frames**, {w}×{h}, {lin}, ordered by {bracket.order_source}\n\n"
-            + md_table(header, rows))
+    return (
+        f"**{len(bracket)} frames**, {w}×{h}, {lin}, ordered by {bracket.order_source}\n\n"
+        + md_table(header, rows)
+    )
 
 
 def warnings_markdown(bracket: Bracket) -> str:
@@ -119,9 +137,12 @@ class FramesPanel:
         self._container = container
         self.table = gui.add_markdown("No bracket loaded.")
         self.warnings = gui.add_markdown("")
-        self.sheet = gui.add_image(np.zeros((4, 4, 3), np.uint8), label="frames, darkest first: "
-                                   "thumbnail and histogram of the levels (log counts)",
-                                   format="jpeg", visible=False)
+        self.sheet = gui.add_image(
+            np.zeros((4, 4, 3), np.uint8),
+            label="frames, darkest first: thumbnail and histogram of the levels (log counts)",
+            format="jpeg",
+            visible=False,
+        )
 
     def show(self, bracket: Bracket | None) -> None:
         if bracket is None:

@@ -63,14 +63,18 @@ class MasksPanel:
             self._small[k] = shrink(bracket.frames[k].levels, DISPLAY_WIDTH)
         return self._small[k]
 
-    def show(self, bracket: Bracket | None, result: PipelineResult | None,
-             view: dict[str, Any]) -> None:
+    def show(
+        self, bracket: Bracket | None, result: PipelineResult | None, view: dict[str, Any]
+    ) -> None:
         # the histogram estimate (eq. 4's equations), even when the ratios the merge used were
         # measured again after registration
         exposure = None if result is None else result.exposures_histogram
         if bracket is None or exposure is None:
-            self.summary.content = ("No bracket loaded." if bracket is None else
-                                    "_Waiting for the exposure-ratio stage (hdrcore.pipeline)._")
+            self.summary.content = (
+                "No bracket loaded."
+                if bracket is None
+                else "_Waiting for the exposure-ratio stage (hdrcore.pipeline)._"
+            )
             self.dark.visible = self.bright.visible = False
             self._images = {}
             return
@@ -81,7 +85,9 @@ class MasksPanel:
         rows = []
         images = {}
         sides: tuple[tuple[Literal["dark", "bright"], viser.GuiImageHandle, int], ...] = (
-            ("dark", self.dark, pair.dark), ("bright", self.bright, pair.bright))
+            ("dark", self.dark, pair.dark),
+            ("bright", self.bright, pair.bright),
+        )
         for which, handle, frame in sides:
             classes = pixel_classes(self._small_levels(bracket, frame), pair.level_classes(which))
             rgb = labels_to_rgb(classes, PALETTE)
@@ -100,7 +106,9 @@ class MasksPanel:
         self.summary.content = (
             f"**Pair {pair.dark}→{pair.bright}**: Z = {pair.saturation:g}, noise floor = "
             f"{pair.noise_floor:g}. A pixel takes the most severe class of its channels.\n\n"
-            + legend + "\n\n" + "\n".join(table)
+            + legend
+            + "\n\n"
+            + "\n".join(table)
         )
         self._images = images
 

@@ -23,8 +23,14 @@ if TYPE_CHECKING:  # the library's stages are imported on first use, not with th
     from hdrcore.registration import BracketRegistration, PairRegistration
     from hdrcore.registration.residual import ResidualMotion
 
-__all__ = ["RegistrationPanel", "OVERLAYS", "SHOWS", "cost_figure", "motion_summary",
-           "overlay_crop"]
+__all__ = [
+    "RegistrationPanel",
+    "OVERLAYS",
+    "SHOWS",
+    "cost_figure",
+    "motion_summary",
+    "overlay_crop",
+]
 
 OVERLAYS = ("red/cyan", "difference (eq. 7)")
 SHOWS = ("after alignment", "before alignment", "blink before / after")
@@ -59,13 +65,20 @@ def pair_residual(bracket: Bracket, result: PipelineResult, k: int) -> ResidualM
         table = arr[1] if arr.ndim == 2 else arr
     top = float(table[min(int(result.saturation), len(table) - 1)])
     floor = float(table[min(int(result.noise_floor), len(table) - 1)])
-    return residual_motion(dark_f.levels[..., 1], bright_f.levels[..., 1], float(pair.ratio),
-                           np.asarray(pair.homography), saturation=top, noise_floor=floor,
-                           lut=table)
+    return residual_motion(
+        dark_f.levels[..., 1],
+        bright_f.levels[..., 1],
+        float(pair.ratio),
+        np.asarray(pair.homography),
+        saturation=top,
+        noise_floor=floor,
+        lut=table,
+    )
 
 
-def draw_arrows(image: np.ndarray, residual: ResidualMotion, step: float, x0: int = 0,
-                y0: int = 0) -> np.ndarray:
+def draw_arrows(
+    image: np.ndarray, residual: ResidualMotion, step: float, x0: int = 0, y0: int = 0
+) -> np.ndarray:
     """Arrows of the residual field on a display image (``step`` image pixels per display pixel,
     ``(x0, y0)`` the image pixel at its corner): green under 0.3 px, yellow under 1 px, red
     above; grey crosses where no tile could be measured."""
@@ -74,8 +87,9 @@ def draw_arrows(image: np.ndarray, residual: ResidualMotion, step: float, x0: in
     im = Image.fromarray(image)
     d = ImageDraw.Draw(im)
     mags = np.hypot(residual.shifts[:, 0], residual.shifts[:, 1])
-    for (cx, cy), (dx, dy), ok, m in zip(residual.centres, residual.shifts, residual.valid, mags,
-                                         strict=True):
+    for (cx, cy), (dx, dy), ok, m in zip(
+        residual.centres, residual.shifts, residual.valid, mags, strict=True
+    ):
         px, py = (cx - x0) / step, (cy - y0) / step
         if not (0 <= px < image.shape[1] and 0 <= py < image.shape[0]):
             continue
@@ -117,8 +131,7 @@ def _sample_region(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     y1 = int(min(h, np.ceil(y.max()) + 3))
     if x1 <= x0 or y1 <= y0:
         return np.zeros(x.shape, np.float32)
-    return map_coordinates(img[y0:y1, x0:x1], [y - y0, x - x0], order=1, mode="constant",
-                           cval=0.0)
+    return map_coordinates(img[y0:y1, x0:x1], [y - y0, x - x0], order=1, mode="constant", cval=0.0)
 
 
 def local_summary(reg: BracketRegistration, k: int) -> str:
@@ -130,15 +143,23 @@ def local_summary(reg: BracketRegistration, k: int) -> str:
     for fr in local.frames:
         if {fr.frame, fr.against} == {pair.dark, pair.bright}:
             state = "kept" if fr.kept else "not kept"
-            return (f"Local refinement of frame {fr.frame} against {fr.against} ({state}): "
-                    f"{fr.message}")
+            return (
+                f"Local refinement of frame {fr.frame} against {fr.against} ({state}): {fr.message}"
+            )
     return ""
 
 
-def overlay_crop(bracket: Bracket, result: PipelineResult, k: int, *, aligned: bool,
-                 zoom: float = 1.0,
-                 cx: float = 0.5, cy: float = 0.5,
-                 box: tuple[int, int] = BOX) -> tuple[np.ndarray, tuple[int, int, int, int]]:
+def overlay_crop(
+    bracket: Bracket,
+    result: PipelineResult,
+    k: int,
+    *,
+    aligned: bool,
+    zoom: float = 1.0,
+    cx: float = 0.5,
+    cy: float = 0.5,
+    box: tuple[int, int] = BOX,
+) -> tuple[np.ndarray, tuple[int, int, int, int]]:
     """Red/cyan overlay of pair ``k`` at full resolution: red the bright frame, cyan the dark
     frame times the ratio, grey where they agree; a crop of ``box / zoom`` dark-frame pixels
     centred at ``(cx, cy)``, the bright frame resampled through the pair's homography
@@ -158,8 +179,8 @@ def overlay_crop(bracket: Bracket, result: PipelineResult, k: int, *, aligned: b
         cw, ch = max(1, min(w, int(box[0] / zoom))), max(1, min(h, int(box[1] / zoom)))
         x0 = min(max(0, int(round(cx * w - cw / 2))), w - cw)
         y0 = min(max(0, int(round(cy * h - ch / 2))), h - ch)
-    ys, xs = np.mgrid[y0:y0 + ch:step, x0:x0 + cw:step].astype(np.float64)
-    dark = _linear_green(dark_f, lut)[y0:y0 + ch:step, x0:x0 + cw:step] * float(pair.ratio)
+    ys, xs = np.mgrid[y0 : y0 + ch : step, x0 : x0 + cw : step].astype(np.float64)
+    dark = _linear_green(dark_f, lut)[y0 : y0 + ch : step, x0 : x0 + cw : step] * float(pair.ratio)
     fields = local_fields(reg)
     if aligned and (fields[pair.dark] is not None or fields[pair.bright] is not None):
         # local refinement: both frames read on the reference grid through their motion and
@@ -167,11 +188,13 @@ def overlay_crop(bracket: Bracket, result: PipelineResult, k: int, *, aligned: b
         from hdrcore.registration.field import map_points
 
         chain = reg.to_reference_homography
-        dx_, dy_ = map_points(np.linalg.inv(np.asarray(chain[pair.dark], np.float64)),
-                              fields[pair.dark], xs, ys)
+        dx_, dy_ = map_points(
+            np.linalg.inv(np.asarray(chain[pair.dark], np.float64)), fields[pair.dark], xs, ys
+        )
         dark = _sample_region(_linear_green(dark_f, lut), dx_, dy_) * float(pair.ratio)
-        bx, by = map_points(np.linalg.inv(np.asarray(chain[pair.bright], np.float64)),
-                            fields[pair.bright], xs, ys)
+        bx, by = map_points(
+            np.linalg.inv(np.asarray(chain[pair.bright], np.float64)), fields[pair.bright], xs, ys
+        )
     elif aligned:
         inv = np.linalg.inv(np.asarray(pair.homography, np.float64))
         den = inv[2, 0] * xs + inv[2, 1] * ys + inv[2, 2]
@@ -191,14 +214,23 @@ def overlay_crop(bracket: Bracket, result: PipelineResult, k: int, *, aligned: b
 
 def cost_figure(pair: PairRegistration) -> go.Figure:
     it = list(range(len(pair.cost_history)))
-    data = [{"type": "scatter", "mode": "lines+markers", "x": it,
-             "y": [float(c) for c in pair.cost_history], "name": "eq. 6 cost",
-             "text": [f"pyramid level {lv}" for lv in pair.level_history]}]
-    layout = {"title": {"text": f"Cost per iteration ({pair.method})", "font": {"size": 14}},
-              "xaxis": {"title": {"text": "iteration"}},
-              "yaxis": {"title": {"text": "cost"}, "type": "log", "dtick": 1,
-                        "exponentformat": "power"},
-              "margin": {"l": 55, "r": 10, "t": 40, "b": 45}, "template": "plotly_white"}
+    data = [
+        {
+            "type": "scatter",
+            "mode": "lines+markers",
+            "x": it,
+            "y": [float(c) for c in pair.cost_history],
+            "name": "eq. 6 cost",
+            "text": [f"pyramid level {lv}" for lv in pair.level_history],
+        }
+    ]
+    layout = {
+        "title": {"text": f"Cost per iteration ({pair.method})", "font": {"size": 14}},
+        "xaxis": {"title": {"text": "iteration"}},
+        "yaxis": {"title": {"text": "cost"}, "type": "log", "dtick": 1, "exponentformat": "power"},
+        "margin": {"l": 55, "r": 10, "t": 40, "b": 45},
+        "template": "plotly_white",
+    }
     return go.Figure({"data": data, "layout": layout}, _validate=False)
 
 
@@ -221,15 +253,22 @@ class RegistrationPanel:
         self._gui = gui
         self.summary = gui.add_markdown("No bracket loaded.")
         self.show_dropdown = gui.add_dropdown(
-            "Show", SHOWS, hint="blink: the image switches between before and after, so a "
-                                "shift of one pixel shows as movement")
-        self.zoom = gui.add_dropdown("Zoom ", ZOOMS, hint="the overlay at full resolution; "
-                                                         "fit: the whole frame")
+            "Show",
+            SHOWS,
+            hint="blink: the image switches between before and after, so a "
+            "shift of one pixel shows as movement",
+        )
+        self.zoom = gui.add_dropdown(
+            "Zoom ", ZOOMS, hint="the overlay at full resolution; fit: the whole frame"
+        )
         self.centre_x = gui.add_slider("Centre x (%) ", 0.0, 100.0, 1.0, 50.0, visible=False)
         self.centre_y = gui.add_slider("Centre y (%) ", 0.0, 100.0, 1.0, 50.0, visible=False)
         self.arrows = gui.add_checkbox(
-            "Residual arrows", True, hint="what is left after alignment, tile by tile, measured "
-                                          "independently of the motion model (phase correlation)")
+            "Residual arrows",
+            True,
+            hint="what is left after alignment, tile by tile, measured "
+            "independently of the motion model (phase correlation)",
+        )
         self.residual_md = gui.add_markdown("")
         self._residuals: dict[tuple[int, int], ResidualMotion | None] = {}
         blank = np.zeros((4, 4, 3), np.uint8)
@@ -272,16 +311,18 @@ class RegistrationPanel:
             aligned = not aligned
             try:
                 self.full.image = frames[aligned]
-                self.full.label = ("after alignment" if aligned else "before alignment") + \
-                    " (blinking)"
+                self.full.label = (
+                    "after alignment" if aligned else "before alignment"
+                ) + " (blinking)"
             except Exception:  # noqa: BLE001 -- the page went away
                 return
 
     def _set_blink(self, on: bool) -> None:
         if on and (self._blink_thread is None or not self._blink_thread.is_alive()):
             self._blink_stop.clear()
-            self._blink_thread = threading.Thread(target=self._blink, daemon=True,
-                                                  name="hdrview-blink")
+            self._blink_thread = threading.Thread(
+                target=self._blink, daemon=True, name="hdrview-blink"
+            )
             self._blink_thread.start()
         elif not on:
             self._blink_stop.set()
@@ -297,8 +338,9 @@ class RegistrationPanel:
         crop = (0, 0, 0, 0)
         for aligned in (True, False):
             if show.startswith("blink") or show.startswith("after") == aligned:
-                frames[aligned], crop = overlay_crop(bracket, result, k, aligned=aligned,
-                                                     zoom=zoom, cx=cx, cy=cy)
+                frames[aligned], crop = overlay_crop(
+                    bracket, result, k, aligned=aligned, zoom=zoom, cx=cx, cy=cy
+                )
         residual = None
         if self.arrows.value and True in frames:
             key = (id(result), k)
@@ -314,35 +356,49 @@ class RegistrationPanel:
                 step = w / frames[True].shape[1] if zoom == 0 else 1.0 / zoom
                 frames[True] = draw_arrows(frames[True], residual, step, crop[0], crop[1])
         loc = local_summary(_registration(result), k)
-        said = "" if residual is None else (
-            f"Residual after the motion model: **{residual.status}**: {residual.message} "
-            f"(arrows x{ARROW_GAIN:g}: green < 0.3 px, yellow < 1 px, red above; grey x: no "
-            "texture)")
+        said = (
+            ""
+            if residual is None
+            else (
+                f"Residual after the motion model: **{residual.status}**: {residual.message} "
+                f"(arrows x{ARROW_GAIN:g}: green < 0.3 px, yellow < 1 px, red above; grey x: no "
+                "texture)"
+            )
+        )
         self.residual_md.content = "\n\n".join(t for t in (said, loc) if t)
         self._frames = frames if show.startswith("blink") else {}
         first = frames[True] if True in frames else frames[False]
         self.full.image = first
         self._set_blink(show.startswith("blink"))
-        where = "whole frame" if zoom == 0 else (
-            f"{zoom_text}: pixels {crop[0]}-{crop[2]} x {crop[1]}-{crop[3]}")
-        return (f"{show} — red: bright frame, cyan: dark frame x ratio, grey where they agree "
-                f"({where})")
+        where = (
+            "whole frame"
+            if zoom == 0
+            else (f"{zoom_text}: pixels {crop[0]}-{crop[2]} x {crop[1]}-{crop[3]}")
+        )
+        return (
+            f"{show} — red: bright frame, cyan: dark frame x ratio, grey where they agree ({where})"
+        )
 
-    def show(self, bracket: Bracket | None, result: PipelineResult | None,
-             view: dict[str, Any]) -> None:
+    def show(
+        self, bracket: Bracket | None, result: PipelineResult | None, view: dict[str, Any]
+    ) -> None:
         with self._lock:
             self._last = (bracket, result, view)
             self._show(bracket, result, view)
 
-    def _show(self, bracket: Bracket | None, result: PipelineResult | None,
-              view: dict[str, Any]) -> None:
+    def _show(
+        self, bracket: Bracket | None, result: PipelineResult | None, view: dict[str, Any]
+    ) -> None:
         if bracket is None:
             self._hide("No bracket loaded.")
             return
         reg = None if result is None else result.registration
         if result is None or reg is None:
-            self._hide("_Waiting for the registration stage (hdrcore.pipeline)._" if result is None
-                       else "Registration is off (alignment: none).")
+            self._hide(
+                "_Waiting for the registration stage (hdrcore.pipeline)._"
+                if result is None
+                else "Registration is off (alignment: none)."
+            )
             return
         k = min(int(view.get("pair", 0)), len(reg.pairs) - 1)
         pair = reg.pairs[k]
@@ -354,9 +410,10 @@ class RegistrationPanel:
             self.before.visible = self.after.visible = False
             self.full.label = self._show_full(bracket, result, k)
             self.full.visible = True
-            self._images = {f"registration-pair{k}-{'after' if a else 'before'}": img
-                            for a, img in self._frames.items()} or {
-                f"registration-pair{k}-overlay": self.full.image}
+            self._images = {
+                f"registration-pair{k}-{'after' if a else 'before'}": img
+                for a, img in self._frames.items()
+            } or {f"registration-pair{k}-overlay": self.full.image}
         elif prev is None:
             self._set_blink(False)
             self.full.visible = False
@@ -377,8 +434,10 @@ class RegistrationPanel:
             self.before.label = f"before alignment — {what}"
             self.after.label = f"after alignment — {what}"
             self.before.visible = self.after.visible = True
-            self._images = {f"registration-pair{k}-before": before,
-                            f"registration-pair{k}-after": after}
+            self._images = {
+                f"registration-pair{k}-before": before,
+                f"registration-pair{k}-after": after,
+            }
         if pair.cost_history:
             self._figure = cost_figure(pair)
             self.costs.figure = self._figure

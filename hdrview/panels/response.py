@@ -27,10 +27,14 @@ CHANNEL_NAMES = ("R", "G", "B")
 
 
 def _layout(title: str, x: str, y: str, **extra: Any) -> dict:
-    return {"title": {"text": title, "font": {"size": 14}},
-            "xaxis": {"title": {"text": x}}, "yaxis": {"title": {"text": y}, **extra},
-            "margin": {"l": 60, "r": 10, "t": 40, "b": 45}, "template": "plotly_white",
-            "legend": {"orientation": "h", "y": -0.2}}
+    return {
+        "title": {"text": title, "font": {"size": 14}},
+        "xaxis": {"title": {"text": x}},
+        "yaxis": {"title": {"text": y}, **extra},
+        "margin": {"l": 60, "r": 10, "t": 40, "b": 45},
+        "template": "plotly_white",
+        "legend": {"orientation": "h", "y": -0.2},
+    }
 
 
 def curves_figure(curve: ResponseCurve) -> go.Figure:
@@ -46,19 +50,40 @@ def curves_figure(curve: ResponseCurve) -> go.Figure:
                 continue
             arr = np.asarray(other, np.float64)
             recovered = sel.fallback and name == sel.recovered
-            data.append({
-                "type": "scatter", "mode": "lines", "x": levels, "y": arr[min(1, len(arr) - 1)],
-                "name": f"{name} (degenerate, not used)" if recovered else name,
-                "line": {"color": "#ff7f0e" if recovered else "#bbbbbb",
-                         "width": 2 if recovered else 1, "dash": "dash" if recovered else "dot"},
-            })
+            data.append(
+                {
+                    "type": "scatter",
+                    "mode": "lines",
+                    "x": levels,
+                    "y": arr[min(1, len(arr) - 1)],
+                    "name": f"{name} (degenerate, not used)" if recovered else name,
+                    "line": {
+                        "color": "#ff7f0e" if recovered else "#bbbbbb",
+                        "width": 2 if recovered else 1,
+                        "dash": "dash" if recovered else "dot",
+                    },
+                }
+            )
     for c in range(g.shape[0]):
-        data.append({"type": "scatter", "mode": "lines", "x": levels, "y": g[c],
-                     "name": f"{curve.method} {CHANNEL_NAMES[c % 3]}",
-                     "line": {"color": CHANNEL_COLOURS[c % 3], "width": 2}})
-    return go.Figure({"data": data, "layout": _layout(
-        "Camera response: light (linear) for each level", "level", "relative exposure g")},
-        _validate=False)
+        data.append(
+            {
+                "type": "scatter",
+                "mode": "lines",
+                "x": levels,
+                "y": g[c],
+                "name": f"{curve.method} {CHANNEL_NAMES[c % 3]}",
+                "line": {"color": CHANNEL_COLOURS[c % 3], "width": 2},
+            }
+        )
+    return go.Figure(
+        {
+            "data": data,
+            "layout": _layout(
+                "Camera response: light (linear) for each level", "level", "relative exposure g"
+            ),
+        },
+        _validate=False,
+    )
 
 
 def residuals_figure(curve: ResponseCurve) -> go.Figure | None:
@@ -78,25 +103,54 @@ def residuals_figure(curve: ResponseCurve) -> go.Figure | None:
     for name, res in series:
         res2 = res if res.ndim == 2 else res[None]
         for c in range(res2.shape[0]):
-            data.append({"type": "scatter", "mode": "lines", "x": np.arange(res2.shape[1]),
-                         "y": res2[c], "name": f"{name} {CHANNEL_NAMES[c % 3]}",
-                         "line": {"color": CHANNEL_COLOURS[c % 3],
-                                  "dash": "solid" if name == series[0][0] else "dash"}})
-    return go.Figure({"data": data, "layout": _layout(
-        "Fit residual per level (0: the curve explains the frames there)", "level",
-        "mean residual of ln g")}, _validate=False)
+            data.append(
+                {
+                    "type": "scatter",
+                    "mode": "lines",
+                    "x": np.arange(res2.shape[1]),
+                    "y": res2[c],
+                    "name": f"{name} {CHANNEL_NAMES[c % 3]}",
+                    "line": {
+                        "color": CHANNEL_COLOURS[c % 3],
+                        "dash": "solid" if name == series[0][0] else "dash",
+                    },
+                }
+            )
+    return go.Figure(
+        {
+            "data": data,
+            "layout": _layout(
+                "Fit residual per level (0: the curve explains the frames there)",
+                "level",
+                "mean residual of ln g",
+            ),
+        },
+        _validate=False,
+    )
 
 
 def candidates_table(sel: Any) -> str:
     rows = []
     for c in sel.candidates:
-        rows.append([
-            ("**" + c.name + "**") if c.name == sel.chosen else c.name,
-            fmt(c.score, 4), fmt(c.colour, 3), c.n_pairs,
-            c.excluded or ("degenerate" if c.degenerate else ""),
-        ])
-    return md_table(["candidate", "held-back residual", "colour difference between frames",
-                     "pairs", "left out because"], rows)
+        rows.append(
+            [
+                ("**" + c.name + "**") if c.name == sel.chosen else c.name,
+                fmt(c.score, 4),
+                fmt(c.colour, 3),
+                c.n_pairs,
+                c.excluded or ("degenerate" if c.degenerate else ""),
+            ]
+        )
+    return md_table(
+        [
+            "candidate",
+            "held-back residual",
+            "colour difference between frames",
+            "pairs",
+            "left out because",
+        ],
+        rows,
+    )
 
 
 class ResponsePanel:
@@ -110,30 +164,37 @@ class ResponsePanel:
         self.table = gui.add_markdown("")
         self._figures: dict[str, go.Figure] = {}
 
-    def show(self, bracket: Bracket | None, result: PipelineResult | None,
-             view: dict[str, Any]) -> None:
+    def show(
+        self, bracket: Bracket | None, result: PipelineResult | None, view: dict[str, Any]
+    ) -> None:
         self._figures = {}
         if bracket is None or result is None:
-            self.summary.content = ("No bracket loaded." if bracket is None else
-                                    "_Waiting for the response stage._")
+            self.summary.content = (
+                "No bracket loaded." if bracket is None else "_Waiting for the response stage._"
+            )
             self.curves.visible = self.residuals.visible = False
             self.table.content = ""
             return
         curve = result.response
         if curve is None or bracket.is_linear:
-            self.summary.content = ("RAW frames are linear: the levels are light already, no "
-                                    "response curve is needed.")
+            self.summary.content = (
+                "RAW frames are linear: the levels are light already, no response curve is needed."
+            )
             self.curves.visible = self.residuals.visible = False
             self.table.content = ""
             return
         sel = curve.selection
-        lines = [f"Response **{curve.method}**, status **{curve.status}**"
-                 + (f": {fmt(curve.message)}" if curve.message else ".")]
+        lines = [
+            f"Response **{curve.method}**, status **{curve.status}**"
+            + (f": {fmt(curve.message)}" if curve.message else ".")
+        ]
         if sel is not None and sel.message and sel.message not in (curve.message or ""):
             lines.append(fmt(sel.message))
             if sel.fallback:
-                lines.append(f"The recovered curve ({sel.recovered}) was degenerate and is drawn "
-                             "dashed in orange; the merge uses the fallback.")
+                lines.append(
+                    f"The recovered curve ({sel.recovered}) was degenerate and is drawn "
+                    "dashed in orange; the merge uses the fallback."
+                )
         self.summary.content = "\n\n".join(lines)
         fig = curves_figure(curve)
         self.curves.figure = fig
@@ -149,5 +210,6 @@ class ResponsePanel:
         self.table.content = "" if sel is None else candidates_table(sel)
 
     def bundle_files(self) -> list[tuple[str, bytes]]:
-        return [(f"{name}.plotly.json", fig.to_json().encode())
-                for name, fig in self._figures.items()]
+        return [
+            (f"{name}.plotly.json", fig.to_json().encode()) for name, fig in self._figures.items()
+        ]

@@ -22,8 +22,16 @@ from ._draw import DISPLAY_WIDTH, display_step, enlarge, labels_to_rgb, unit_to_
 if TYPE_CHECKING:  # the pipeline is imported on first use (slow: numba), not with the page
     from hdrcore.pipeline import PipelineResult
 
-__all__ = ["ResultPanel", "LAYERS", "ZOOMS", "FRAME_COLOURS", "exr_bytes", "preview_png_bytes",
-           "loupe", "fit_to_box"]
+__all__ = [
+    "ResultPanel",
+    "LAYERS",
+    "ZOOMS",
+    "FRAME_COLOURS",
+    "exr_bytes",
+    "preview_png_bytes",
+    "loupe",
+    "fit_to_box",
+]
 
 LAYERS = ("tonemapped", "provenance", "clipping", "ghosts", "deghosted")
 ZOOMS = ("fit", "100 %", "200 %", "400 %")
@@ -32,11 +40,24 @@ BOX = (880, 620)  # (width, height) of the image area: a portrait frame fits wit
 _MASK_LAYERS = {  # layer -> (MergeResult attribute, colour, what it shows)
     "clipping": ("clipped", (255, 0, 0), "clipped in every frame (value is a lower bound)"),
     "ghosts": ("ghost", (255, 0, 255), "ghosts: aligned frames disagree beyond their noise"),
-    "deghosted": ("deghosted", (0, 200, 255),
-                  "deghosted: filled from one frame (the best exposed in its ghost region)"),
+    "deghosted": (
+        "deghosted",
+        (0, 200, 255),
+        "deghosted: filled from one frame (the best exposed in its ghost region)",
+    ),
 }
-FRAME_COLOURS = ((31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189),
-                 (140, 86, 75), (227, 119, 194), (127, 127, 127), (188, 189, 34), (23, 190, 207))
+FRAME_COLOURS = (
+    (31, 119, 180),
+    (255, 127, 14),
+    (44, 160, 44),
+    (214, 39, 40),
+    (148, 103, 189),
+    (140, 86, 75),
+    (227, 119, 194),
+    (127, 127, 127),
+    (188, 189, 34),
+    (23, 190, 207),
+)
 
 
 def _dim(preview: np.ndarray) -> np.ndarray:
@@ -73,12 +94,13 @@ def fit_to_box(image: np.ndarray, box: tuple[int, int] = BOX) -> np.ndarray:
     small = image[::step, ::step]
     out = np.full((small.shape[0], max(small.shape[1], min(bw, w)), 3), 96, np.uint8)
     x0 = (out.shape[1] - small.shape[1]) // 2
-    out[:, x0:x0 + small.shape[1]] = small
+    out[:, x0 : x0 + small.shape[1]] = small
     return out
 
 
-def loupe(result: PipelineResult, zoom: float, cx: float, cy: float,
-          box: tuple[int, int] = BOX) -> tuple[np.ndarray, tuple[int, int, int, int]]:
+def loupe(
+    result: PipelineResult, zoom: float, cx: float, cy: float, box: tuple[int, int] = BOX
+) -> tuple[np.ndarray, tuple[int, int, int, int]]:
     """A crop of the full-resolution radiance map at ``zoom`` screen pixels per image pixel
     (1 = 100 %), centred at ``(cx, cy)`` (fractions of the width and height), tonemapped with
     the preview's own operator and scale (so it matches the preview), pixels repeated for zooms
@@ -95,15 +117,21 @@ def loupe(result: PipelineResult, zoom: float, cx: float, cy: float,
     y0 = int(round(cy * h - ch / 2))
     x0 = min(max(0, x0), w - cw)
     y0 = min(max(0, y0), h - ch)
-    crop = np.ascontiguousarray(radiance[y0:y0 + ch, x0:x0 + cw])
+    crop = np.ascontiguousarray(radiance[y0 : y0 + ch, x0 : x0 + cw])
     from hdrcore.tonemap import TONEMAP_OPERATORS
 
     method = preview.method if preview.method in TONEMAP_OPERATORS else "reinhard"
     extra: dict[str, Any] = {}
     if preview.state is not None:  # a local operator: the preview's own state
         extra = {"state": preview.state, "offset": (float(y0), float(x0))}
-    tm = tonemap(crop, method, exposure=float(np.log2(preview.scale)),
-                 auto_exposure=False, white=preview.white, **extra)
+    tm = tonemap(
+        crop,
+        method,
+        exposure=float(np.log2(preview.scale)),
+        auto_exposure=False,
+        white=preview.white,
+        **extra,
+    )
     img = tm.image
     k = int(round(zoom))
     if k > 1:
@@ -118,12 +146,16 @@ class ResultPanel:
         self._gui = gui
         self.summary = gui.add_markdown("No bracket loaded.")
         self.zoom = gui.add_dropdown(
-            "Zoom", ZOOMS, hint="fit: the whole picture; 100 %: one screen pixel per image pixel "
-                                "of the full-resolution result (a loupe)")
+            "Zoom",
+            ZOOMS,
+            hint="fit: the whole picture; 100 %: one screen pixel per image pixel "
+            "of the full-resolution result (a loupe)",
+        )
         self.centre_x = gui.add_slider("Centre x (%)", 0.0, 100.0, 1.0, 50.0, visible=False)
         self.centre_y = gui.add_slider("Centre y (%)", 0.0, 100.0, 1.0, 50.0, visible=False)
-        self.image = gui.add_image(np.zeros((4, 4, 3), np.uint8), label="result", format="jpeg",
-                                   visible=False)
+        self.image = gui.add_image(
+            np.zeros((4, 4, 3), np.uint8), label="result", format="jpeg", visible=False
+        )
         self._images: dict[str, np.ndarray] = {}
         self._last: tuple[Bracket | None, PipelineResult | None, dict[str, Any]] | None = None
         self._lock = threading.Lock()
@@ -135,20 +167,24 @@ class ResultPanel:
         if last is not None:
             self.show(*last)
 
-    def show(self, bracket: Bracket | None, result: PipelineResult | None,
-             view: dict[str, Any]) -> None:
+    def show(
+        self, bracket: Bracket | None, result: PipelineResult | None, view: dict[str, Any]
+    ) -> None:
         with self._lock:
             self._show(bracket, result, view)
 
-    def _show(self, bracket: Bracket | None, result: PipelineResult | None,
-              view: dict[str, Any]) -> None:
+    def _show(
+        self, bracket: Bracket | None, result: PipelineResult | None, view: dict[str, Any]
+    ) -> None:
         self._last = (bracket, result, view)
         merged = None if result is None else result.merge
         preview = None if result is None or result.preview is None else result.preview.image
         if bracket is None or result is None or (merged is None and preview is None):
             self.summary.content = (
-                "No bracket loaded." if bracket is None else
-                "_Waiting for the merge and tonemap stages (hdrcore.pipeline)._")
+                "No bracket loaded."
+                if bracket is None
+                else "_Waiting for the merge and tonemap stages (hdrcore.pipeline)._"
+            )
             self.image.visible = False
             self._images = {}
             return
@@ -165,12 +201,17 @@ class ResultPanel:
                 f"clipped {s.get('clipped_fraction', 0):.2%}, under the noise floor "
                 f"{s.get('underexposed_fraction', 0):.2%}, ghosts {s.get('ghost_fraction', 0):.2%}"
                 " of the pixels."
-                + (f" Deghosted {s['deghosted_fraction']:.2%}."
-                   if s.get("deghosted_fraction") is not None else "")
+                + (
+                    f" Deghosted {s['deghosted_fraction']:.2%}."
+                    if s.get("deghosted_fraction") is not None
+                    else ""
+                )
             )
         if layer == "deghosted" and merged is not None and merged.deghosted is None:
-            lines.append("_Layer deghosted: tick Deghost (Parameters) to fill each ghost region "
-                         "from one frame._")
+            lines.append(
+                "_Layer deghosted: tick Deghost (Parameters) to fill each ghost region "
+                "from one frame._"
+            )
         elif layer != "tonemapped" and merged is not None:
             step = display_step(merged.shape, DISPLAY_WIDTH)
             backdrop = _dim(shown) if shown is not None else None
@@ -181,9 +222,11 @@ class ResultPanel:
                 layer_img = labels_to_rgb(dom, FRAME_COLOURS, width=10**9)
                 legend = " · ".join(
                     f"<span style='color:rgb{FRAME_COLOURS[k % 10]}'>■</span> frame {k}"
-                    for k in range(merged.n_frames))
-                lines.append("Provenance: the frame with the largest weight at each pixel. "
-                             + legend)
+                    for k in range(merged.n_frames)
+                )
+                lines.append(
+                    "Provenance: the frame with the largest weight at each pixel. " + legend
+                )
             else:
                 attr, colour, what = _MASK_LAYERS[layer]
                 mask = getattr(merged, attr)
@@ -196,8 +239,10 @@ class ResultPanel:
                     xs = (np.arange(backdrop.shape[1]) * mw) // backdrop.shape[1]
                     small = np.asarray(mask, bool)[ys[:, None], xs[None, :]]
                 layer_img = _paint(backdrop, small, colour)
-                lines.append(f"<span style='color:rgb{colour}'>■</span> {what}: "
-                             f"{np.count_nonzero(mask) / max(mask.size, 1):.2%} of the pixels")
+                lines.append(
+                    f"<span style='color:rgb{colour}'>■</span> {what}: "
+                    f"{np.count_nonzero(mask) / max(mask.size, 1):.2%} of the pixels"
+                )
             images[layer] = layer_img
             shown = layer_img
         elif layer != "tonemapped":
@@ -207,17 +252,21 @@ class ResultPanel:
         radiance = result.radiance
         if zoom != "fit" and layer == "tonemapped" and radiance is not None:
             factor = float(zoom.split()[0]) / 100.0
-            crop, (x0, y0, x1, y1) = loupe(result, factor, self.centre_x.value / 100.0,
-                                           self.centre_y.value / 100.0)
+            crop, (x0, y0, x1, y1) = loupe(
+                result, factor, self.centre_x.value / 100.0, self.centre_y.value / 100.0
+            )
             images["loupe"] = crop
             self.image.image = crop
-            self.image.label = (f"{zoom} of the full-resolution result: pixels {x0}-{x1} x "
-                                f"{y0}-{y1} of {radiance.shape[1]}x{radiance.shape[0]}")
+            self.image.label = (
+                f"{zoom} of the full-resolution result: pixels {x0}-{x1} x "
+                f"{y0}-{y1} of {radiance.shape[1]}x{radiance.shape[0]}"
+            )
             self.image.visible = True
         elif shown is not None:
             self.image.image = fit_to_box(enlarge(shown))
-            self.image.label = f"{layer}" + ("" if zoom == "fit" else
-                                             " (the loupe shows the tonemapped layer)")
+            self.image.label = f"{layer}" + (
+                "" if zoom == "fit" else " (the loupe shows the tonemapped layer)"
+            )
             self.image.visible = True
         self.summary.content = "\n\n".join(lines) if lines else "Tonemapped preview."
         self._images = images
@@ -235,7 +284,8 @@ class ResultPanel:
             f = draft.preview_factor
             self.summary.content = (
                 f"_Draft: the bracket binned {f}x{f}, merged with the same parameters; the "
-                "full-resolution merge follows._")
+                "full-resolution merge follows._"
+            )
             self._images = {}
 
     def bundle_files(self) -> list[tuple[str, bytes]]:

@@ -18,8 +18,9 @@ def bad_frame(sim: list[SimShot]) -> str:
 
 
 def make_folder(folder: Path) -> list[SimShot]:
-    sim = simulate_session(11, n_brackets=5, sizes=(3,), singles=0.4, bursts=0.0,
-                           gap_range=(0.5, 2.0))
+    sim = simulate_session(
+        11, n_brackets=5, sizes=(3,), singles=0.4, bursts=0.0, gap_range=(0.5, 2.0)
+    )
     paths = write_session(folder, sim, seed=3, shape=(48, 64))
     bad = folder / bad_frame(sim)
     data = bad.read_bytes()

@@ -23,10 +23,20 @@ def _shots(sim, *, folder="/d", subsec=True, camera="SimCam S1", size=(64, 48), 
     out = []
     for s in sim:
         t = 1.0e9 + offset + s.time
-        out.append(Shot(path=f"{folder}/{s.name}", folder=folder,
-                        time=t if subsec else float(int(t)), subsec=subsec,
-                        exposure_time=float(s.exposure_time), iso=100.0, f_number=8.0,
-                        exposure_bias=float(s.bias), camera=camera, size=size))
+        out.append(
+            Shot(
+                path=f"{folder}/{s.name}",
+                folder=folder,
+                time=t if subsec else float(int(t)),
+                subsec=subsec,
+                exposure_time=float(s.exposure_time),
+                iso=100.0,
+                f_number=8.0,
+                exposure_bias=float(s.bias),
+                camera=camera,
+                size=size,
+            )
+        )
     return out
 
 
@@ -42,11 +52,20 @@ def _found(groups):
     return {frozenset(g.paths) for g in groups if g.is_bracket}
 
 
-@pytest.mark.parametrize("order, want", [
-    ([0, -1, 1], "centre-out"), ([0, 1, -1, 2, -2], "centre-out"), ([2, 1, 0, -1], "darker"),
-    ([-3, 0, 3], "brighter"), ([0, -1, 1, -2], "centre-out"),
-    ([-1, 0, 1, -2], None), ([0, 0, 1], None), ([1, -1, 0], None), ([0, 0.1], None),
-])
+@pytest.mark.parametrize(
+    "order, want",
+    [
+        ([0, -1, 1], "centre-out"),
+        ([0, 1, -1, 2, -2], "centre-out"),
+        ([2, 1, 0, -1], "darker"),
+        ([-3, 0, 3], "brighter"),
+        ([0, -1, 1, -2], "centre-out"),
+        ([-1, 0, 1, -2], None),
+        ([0, 0, 1], None),
+        ([1, -1, 0], None),
+        ([0, 0.1], None),
+    ],
+)
 def test_bracket_orders(order, want):
     assert bracket_order(order) == want
 
@@ -86,14 +105,24 @@ def test_long_exposures_split_by_fixed_gap_not_by_signals():
     """A 3-frame bracket of 4, 8, 16 s with 2.5 s between frames (a slow camera writing to its
     card): HDRMerge's gap measured end-to-start still splits at 2 s; the stream's own
     in-bracket gaps set the scale here."""
-    sim = simulate_session(5, n_brackets=4, sizes=(3,), singles=0, bursts=0,
-                           gap_range=(30.0, 40.0))
+    sim = simulate_session(5, n_brackets=4, sizes=(3,), singles=0, bursts=0, gap_range=(30.0, 40.0))
     shots = []
     t = 0.0
     for s in sim:
-        shots.append(Shot(path=f"/d/{s.name}", folder="/d", time=1e9 + t, subsec=True,
-                          exposure_time=float(s.exposure_time) * 256, iso=100.0, f_number=8.0,
-                          exposure_bias=float(s.bias), camera="C", size=(64, 48)))
+        shots.append(
+            Shot(
+                path=f"/d/{s.name}",
+                folder="/d",
+                time=1e9 + t,
+                subsec=True,
+                exposure_time=float(s.exposure_time) * 256,
+                iso=100.0,
+                f_number=8.0,
+                exposure_bias=float(s.bias),
+                camera="C",
+                size=(64, 48),
+            )
+        )
         t += float(s.exposure_time) * 256 + (2.5 if s.name != sim[-1].name else 0)
         if s is not sim[-1] and sim[sim.index(s) + 1].group != s.group:
             t += 35.0
@@ -137,9 +166,18 @@ def test_plan_round_trip_and_edit(tmp_path):
         p = tmp_path / f"IMG_{k:04d}.jpg"
         p.write_bytes(b"x")
         files.append(p)
-    shots = [Shot(path=str(p), folder=str(tmp_path), time=1e9 + k * 0.2, subsec=True,
-                  exposure_time=2.0 ** [0, -1, 1, 0, -1, 1][k] / 64, camera="C", size=(4, 4))
-             for k, p in enumerate(files)]
+    shots = [
+        Shot(
+            path=str(p),
+            folder=str(tmp_path),
+            time=1e9 + k * 0.2,
+            subsec=True,
+            exposure_time=2.0 ** [0, -1, 1, 0, -1, 1][k] / 64,
+            camera="C",
+            size=(4, 4),
+        )
+        for k, p in enumerate(files)
+    ]
     plan = make_plan(group_shots(shots))
     assert [b.name for b in plan.brackets] == ["IMG_0000-0002", "IMG_0003-0005"]
     doc = plan.to_json()
@@ -152,16 +190,28 @@ def test_plan_round_trip_and_edit(tmp_path):
     assert again.brackets[1].files == (str(files[3]), str(files[4]))
 
 
-@pytest.mark.parametrize("doc, match", [
-    ("not json", "not JSON"),
-    ({"x": 1}, "not a batch plan"),
-    ({"brackets": [{"files": ["IMG_0000.jpg"]}]}, "bracket 1 has 1 file"),
-    ({"brackets": [{"files": ["missing.jpg", "IMG_0000.jpg"]}]}, "bracket 1: no such file"),
-    ({"brackets": [{"files": ["IMG_0000.jpg", "IMG_0001.jpg"]},
-                   {"files": ["IMG_0001.jpg", "IMG_0002.jpg"]}]}, "IMG_0001.jpg is also in"),
-    ({"brackets": [{"name": "a/b", "files": ["IMG_0000.jpg", "IMG_0001.jpg"]}]},
-     "cannot be a file name"),
-])
+@pytest.mark.parametrize(
+    "doc, match",
+    [
+        ("not json", "not JSON"),
+        ({"x": 1}, "not a batch plan"),
+        ({"brackets": [{"files": ["IMG_0000.jpg"]}]}, "bracket 1 has 1 file"),
+        ({"brackets": [{"files": ["missing.jpg", "IMG_0000.jpg"]}]}, "bracket 1: no such file"),
+        (
+            {
+                "brackets": [
+                    {"files": ["IMG_0000.jpg", "IMG_0001.jpg"]},
+                    {"files": ["IMG_0001.jpg", "IMG_0002.jpg"]},
+                ]
+            },
+            "IMG_0001.jpg is also in",
+        ),
+        (
+            {"brackets": [{"name": "a/b", "files": ["IMG_0000.jpg", "IMG_0001.jpg"]}]},
+            "cannot be a file name",
+        ),
+    ],
+)
 def test_bad_plan_files_are_named(tmp_path, doc, match):
     for k in range(3):
         (tmp_path / f"IMG_{k:04d}.jpg").write_bytes(b"x")

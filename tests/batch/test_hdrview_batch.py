@@ -17,15 +17,23 @@ from hdrview.batch import add_batch_panel, batch_listing, load_batch  # noqa: E4
 
 def _records(folder: Path) -> list[BracketRecord]:
     out = []
-    for k, (status, score) in enumerate((("ok", 0.9), ("failed", 0.0), ("warning", 0.4),
-                                         ("ok", 0.5))):
+    for k, (status, score) in enumerate(
+        (("ok", 0.9), ("failed", 0.0), ("warning", 0.4), ("ok", 0.5))
+    ):
         files = []
         for j in range(2):
             p = folder / f"b{k}_{j}.png"
             p.write_bytes(b"x")
             files.append(str(p))
-        out.append(BracketRecord(f"b{k}", tuple(files), status, quality={"score": score},
-                                 reason="broken frame" if status == "failed" else ""))
+        out.append(
+            BracketRecord(
+                f"b{k}",
+                tuple(files),
+                status,
+                quality={"score": score},
+                reason="broken frame" if status == "failed" else "",
+            )
+        )
     return out
 
 
@@ -41,15 +49,15 @@ def test_page_opens_the_worst_then_the_chosen(tmp_path):
     write_index(tmp_path, _records(tmp_path))
     batch = load_batch(tmp_path)
     server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
-    app = InspectorApp(server, root=tmp_path,
-                       demo_dir=None, batch=batch)
+    app = InspectorApp(server, root=tmp_path, demo_dir=None, batch=batch)
     try:
         paths, label = app.default_paths()
         assert label == "b1" and [str(p) for p in paths] == list(batch[0].files)
         view = app.headless_view()
         opened = []
-        view.request_paths = lambda paths, label="", client=None: opened.append(
-            (list(paths), label)) or True
+        view.request_paths = lambda paths, label="", client=None: (
+            opened.append((list(paths), label)) or True
+        )
         dropdown = add_batch_panel(view, batch)
         assert dropdown.value.startswith("1. failed")
         dropdown.value = dropdown.options[2]

@@ -13,8 +13,12 @@ from ..conftest import SHARED_DATA
 
 pytestmark = pytest.mark.shared
 
-BRACKETS = ("frobisher-colour-hdri", "handheld-pixel7-lab", "handheld-xperia-library",
-            "memorial-debevec")
+BRACKETS = (
+    "frobisher-colour-hdri",
+    "handheld-pixel7-lab",
+    "handheld-xperia-library",
+    "memorial-debevec",
+)
 SINGLES = ("raw-singles-cc0-canon-crw",)
 
 
@@ -33,8 +37,10 @@ def test_mixed_real_folder_is_grouped(tmp_path):
     shots = scan_shots([tmp_path])
     groups = group_shots(shots)
     assert {frozenset(g.paths) for g in groups if g.is_bracket} == truth
-    assert sorted(g.paths[0].rsplit("/", 1)[-1] for g in groups if not g.is_bracket) == \
-        ["G2_CRW_0304.CRW", "S40_CRW_0101.CRW"]
+    assert sorted(g.paths[0].rsplit("/", 1)[-1] for g in groups if not g.is_bracket) == [
+        "G2_CRW_0304.CRW",
+        "S40_CRW_0101.CRW",
+    ]
     # HDRMerge's 2 s rule finds only frobisher's
     hdrmerge = {frozenset(g.paths) for g in group_shots(shots, "gap", gap=2.0) if g.is_bracket}
     assert len(hdrmerge & truth) == 1

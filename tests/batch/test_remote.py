@@ -97,14 +97,31 @@ def test_scan_through_a_url_reads_the_same_exif(sim_folder, mem):
     assert [s.name for s in shots] == [s.name for s in local]
     assert all(s.path.startswith("memory://") and s.folder.endswith("/shots") for s in shots)
     for a, b in zip(shots, local, strict=True):
-        assert (a.time, a.subsec, a.exposure_time, a.iso, a.f_number, a.exposure_bias,
-                a.camera, a.size) == (b.time, b.subsec, b.exposure_time, b.iso, b.f_number,
-                                      b.exposure_bias, b.camera, b.size)
+        assert (
+            a.time,
+            a.subsec,
+            a.exposure_time,
+            a.iso,
+            a.f_number,
+            a.exposure_bias,
+            a.camera,
+            a.size,
+        ) == (
+            b.time,
+            b.subsec,
+            b.exposure_time,
+            b.iso,
+            b.f_number,
+            b.exposure_bias,
+            b.camera,
+            b.size,
+        )
         np.testing.assert_array_equal(a.thumbnail, b.thumbnail)
     one = read_shot(f"{url}/{sim[1].name}")
     assert one.exposure_bias == pytest.approx(float(sim[1].bias))
-    assert [[Path(p).name for p in g.paths] for g in group_shots(shots)] == \
-        [[Path(p).name for p in g.paths] for g in group_shots(local)]
+    assert [[Path(p).name for p in g.paths] for g in group_shots(shots)] == [
+        [Path(p).name for p in g.paths] for g in group_shots(local)
+    ]
     assert all(p.startswith(f"{url}/") for g in group_shots(shots) for p in g.paths)
 
 
@@ -133,8 +150,9 @@ def test_memory_urls_in_and_out_equal_plain_paths(sim_folder, mem, local_run, tm
     assert not [p for p in fs.ls(f"{root}/out", detail=False) if Path(p).name.startswith(".")]
     # the same brackets, keys and pixels as from plain paths
     plain = json.loads((local_run / "index.json").read_text())
-    assert [(b["name"], b["status"], b["key"]) for b in doc["brackets"]] == \
-        [(b["name"], b["status"], b["key"]) for b in plain["brackets"]]
+    assert [(b["name"], b["status"], b["key"]) for b in doc["brackets"]] == [
+        (b["name"], b["status"], b["key"]) for b in plain["brackets"]
+    ]
     _same(_remote_pixels(fs, f"{root}/out", tmp_path), _local_pixels(local_run))
     assert [r.name for r in read_index(out)] == [b["name"] for b in doc["brackets"]]
 
@@ -155,8 +173,9 @@ def test_resume_against_url_sidecars(sim_folder, mem):
     assert first.interrupted and len(first.records) == 2
     fs.pipe(f"{root}/out/.{tasks[-1].name}.exr.0badc0de.tmp", b"left by a killed worker")
     again = run_batch(tasks)
-    assert {r.name for r in again.records if r.merged} == \
-        {t.name for t in tasks} - {r.name for r in first.records}
+    assert {r.name for r in again.records if r.merged} == {t.name for t in tasks} - {
+        r.name for r in first.records
+    }
     assert not [p for p in fs.ls(f"{root}/out", detail=False) if ".tmp" in p]
     assert run_batch(tasks).merged == 0
     assert main(args) == 1  # the command's own options: every bracket merged once more
@@ -184,9 +203,12 @@ def test_dask_threads_share_memory_urls(sim_folder, mem, local_run, tmp_path):
     url = _upload(fs, folder, root)
     out = f"memory://{root}/out"
     tasks = tasks_from_plan(make_plan(group_shots(scan_shots([url]))), out, {})
-    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False,
-                                  dashboard_address=None) as cluster, \
-            distributed.Client(cluster) as client:
+    with (
+        distributed.LocalCluster(
+            n_workers=2, threads_per_worker=1, processes=False, dashboard_address=None
+        ) as cluster,
+        distributed.Client(cluster) as client,
+    ):
         res = run_batch(tasks, client=client)
     assert res.merged == 5 and res.failed == 1
     _same(_remote_pixels(fs, f"{root}/out", tmp_path), _local_pixels(local_run))
@@ -197,8 +219,7 @@ def test_dask_threads_share_memory_urls(sim_folder, mem, local_run, tmp_path):
 def test_file_urls_on_worker_processes(sim_folder, local_run, tmp_path):
     folder, _ = sim_folder
     out = tmp_path / "out"
-    res_code = main(["batch", folder.as_uri(), "-o", out.as_uri(), "--quiet",
-                     "--workers", "2"])
+    res_code = main(["batch", folder.as_uri(), "-o", out.as_uri(), "--quiet", "--workers", "2"])
     assert res_code == 1
     doc = json.loads((out / "index.json").read_text())
     assert len({b["worker"] for b in doc["brackets"]}) == 2
@@ -206,8 +227,7 @@ def test_file_urls_on_worker_processes(sim_folder, local_run, tmp_path):
     _same(_local_pixels(out), _local_pixels(local_run))
     assert not [p for p in out.iterdir() if p.name.startswith(".")]
     assert main(["batch", folder.as_uri(), "-o", out.as_uri(), "--quiet"]) == 1
-    assert not [b for b in json.loads((out / "index.json").read_text())["brackets"]
-                if b["merged"]]
+    assert not [b for b in json.loads((out / "index.json").read_text())["brackets"] if b["merged"]]
 
 
 def _missing_protocol() -> tuple[str, str]:
@@ -220,8 +240,12 @@ def _missing_protocol() -> tuple[str, str]:
 def test_missing_filesystem_library_is_one_line(tmp_path):
     proto, pkg = _missing_protocol()
     url = f"{proto}://some-bucket/shots"
-    proc = subprocess.run([sys.executable, "-m", "hdrcore", "batch", url, "-o",
-                           str(tmp_path / "o")], cwd=ROOT, capture_output=True, text=True)
+    proc = subprocess.run(
+        [sys.executable, "-m", "hdrcore", "batch", url, "-o", str(tmp_path / "o")],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+    )
     assert proc.returncode == 2
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and "Traceback" not in proc.stderr
@@ -269,8 +293,9 @@ def test_failed_upload_leaves_nothing(mem, tmp_path, monkeypatch):
     src = tmp_path / "a.exr"
     src.write_bytes(b"x" * 1000)
     target = f"memory://{root}/out/a.exr"
-    assert remote.put_atomic(src, target) == target and fs.cat_file(f"{root}/out/a.exr") == \
-        b"x" * 1000
+    assert (
+        remote.put_atomic(src, target) == target and fs.cat_file(f"{root}/out/a.exr") == b"x" * 1000
+    )
 
     def broken_mv(self, *a, **k):
         raise OSError("connection reset")
@@ -286,8 +311,10 @@ def test_failed_upload_leaves_nothing(mem, tmp_path, monkeypatch):
 
 
 def test_stamp_prefers_content_hashes():
-    assert remote.stamp({"size": 5, "ETag": '"abc"', "LastModified": 3.0}) == \
-        {"size": 5, "stamp": 'ETag="abc"'}
+    assert remote.stamp({"size": 5, "ETag": '"abc"', "LastModified": 3.0}) == {
+        "size": 5,
+        "stamp": 'ETag="abc"',
+    }
     assert remote.stamp({"size": 5, "md5Hash": "q==", "updated": "t"})["stamp"] == "md5Hash=q=="
     assert remote.stamp({"size": 5, "mtime": 1.5})["stamp"] == "mtime=1.5"
     assert "stamp" not in remote.stamp({"size": 5})
@@ -303,9 +330,12 @@ def s3(monkeypatch):
     srv = server.ThreadedMotoServer(ip_address="127.0.0.1", port=0, verbose=False)
     srv.start()
     host, port = srv.get_host_and_port()
-    for k, v in (("AWS_ACCESS_KEY_ID", "test"), ("AWS_SECRET_ACCESS_KEY", "test"),
-                 ("AWS_DEFAULT_REGION", "us-east-1"),
-                 ("AWS_ENDPOINT_URL", f"http://{host}:{port}")):
+    for k, v in (
+        ("AWS_ACCESS_KEY_ID", "test"),
+        ("AWS_SECRET_ACCESS_KEY", "test"),
+        ("AWS_DEFAULT_REGION", "us-east-1"),
+        ("AWS_ENDPOINT_URL", f"http://{host}:{port}"),
+    ):
         monkeypatch.setenv(k, v)
     cls = fsspec.get_filesystem_class("s3")
     cls.clear_instance_cache()
@@ -337,8 +367,7 @@ def test_s3_through_s3fs(sim_folder, s3, local_run, tmp_path):
     _same(px, _local_pixels(local_run))
     assert main(args) == 1
     s3.invalidate_cache()
-    assert not [b for b in json.loads(s3.cat_file("bkt/out/index.json"))["brackets"]
-                if b["merged"]]
+    assert not [b for b in json.loads(s3.cat_file("bkt/out/index.json"))["brackets"] if b["merged"]]
     target = next(b for b in doc["brackets"] if b["status"] != "failed")
     key = target["files"][0].removeprefix("s3://")
     data = bytearray(s3.cat_file(key))
@@ -346,8 +375,9 @@ def test_s3_through_s3fs(sim_folder, s3, local_run, tmp_path):
     s3.pipe(key, bytes(data))
     assert main(args) == 1
     s3.invalidate_cache()
-    assert {b["name"] for b in json.loads(s3.cat_file("bkt/out/index.json"))["brackets"]
-            if b["merged"]} == {target["name"]}
+    assert {
+        b["name"] for b in json.loads(s3.cat_file("bkt/out/index.json"))["brackets"] if b["merged"]
+    } == {target["name"]}
 
 
 def test_unreadable_remote_frame_fails_its_bracket(sim_folder, mem, monkeypatch):
@@ -356,8 +386,7 @@ def test_unreadable_remote_frame_fails_its_bracket(sim_folder, mem, monkeypatch)
     folder, _ = sim_folder
     fs, root = mem
     url = _upload(fs, folder, root)
-    task = tasks_from_plan(make_plan(group_shots(scan_shots([url]))), f"memory://{root}/o",
-                           {})[0]
+    task = tasks_from_plan(make_plan(group_shots(scan_shots([url]))), f"memory://{root}/o", {})[0]
 
     def denied(self, rpath, lpath, **kw):
         raise PermissionError("access denied")

@@ -48,8 +48,9 @@ def test_scan_reads_what_the_camera_wrote(sim_folder):
     assert s.subsec and s.camera == "SimCam S1" and s.size == (64, 48)
     assert s.exposure_time == pytest.approx(float(sim[1].exposure_time))
     assert s.exposure_bias == pytest.approx(float(sim[1].bias))
-    assert s.time is not None and (s.time - read_shot(folder / sim[0].name).time) == \
-        pytest.approx(sim[1].time - sim[0].time, abs=2e-3)
+    assert s.time is not None and (s.time - read_shot(folder / sim[0].name).time) == pytest.approx(
+        sim[1].time - sim[0].time, abs=2e-3
+    )
 
 
 def test_folder_with_a_bad_bracket(sim_folder, tmp_path, capsys):
@@ -106,8 +107,9 @@ def test_resume_merges_only_what_changed(tmp_path):
     main([*args, "--threshold", "0.12"])
     assert _merged(out) == everything
     main([*args, "--threshold", "0.12", "--retry-failed"])
-    assert {b["name"] for b in _index(out)["brackets"] if b["merged"]} == \
-        {b["name"] for b in _index(out)["brackets"] if b["status"] == "failed"}
+    assert {b["name"] for b in _index(out)["brackets"] if b["merged"]} == {
+        b["name"] for b in _index(out)["brackets"] if b["status"] == "failed"
+    }
 
 
 def _tasks(folder: Path, out: Path):
@@ -130,8 +132,9 @@ def test_interrupted_run_restarts_where_it_stopped(sim_folder, tmp_path):
     assert first.interrupted and len(first.records) == 2
     again = run_batch(cut)
     assert not again.interrupted
-    assert {r.name for r in again.records if r.merged} == \
-        {t.name for t in cut} - {r.name for r in first.records}
+    assert {r.name for r in again.records if r.merged} == {t.name for t in cut} - {
+        r.name for r in first.records
+    }
     a, b = _pixels(tmp_path / "whole"), _pixels(tmp_path / "cut")
     assert a.keys() == b.keys() and len(a) == 4
     for k in a:
@@ -147,8 +150,9 @@ def test_processes_and_dask_give_identical_outputs(sim_folder, tmp_path):
     res = run_batch(pool, workers=2)
     assert res.merged == 5 and len({r.worker for r in res.records}) == 2
     dask_tasks = _tasks(folder, tmp_path / "dask")
-    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                                  dashboard_address=None) as cluster:
+    with distributed.LocalCluster(
+        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
+    ) as cluster:
         # as --scheduler tcp://host:port does: a client of that address, closed at the end
         res = run_batch(dask_tasks, scheduler=cluster.scheduler_address)
     assert res.merged == 5 and res.failed == 1
@@ -186,8 +190,10 @@ def test_workers_are_memory_bounded_by_default(sim_folder, tmp_path, monkeypatch
 
     monkeypatch.setattr(batch, "run_batch", fake_run)
     total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-    for argv, want in ((["--workers", "2"], max(int(1e9), total // 2)),
-                       (["--workers", "2", "--worker-memory", "3"], int(3e9)),
-                       (["--workers", "1"], None)):
+    for argv, want in (
+        (["--workers", "2"], max(int(1e9), total // 2)),
+        (["--workers", "2", "--worker-memory", "3"], int(3e9)),
+        (["--workers", "1"], None),
+    ):
         main(["batch", str(folder), "-o", str(tmp_path / "o"), "--quiet", *argv])
         assert seen[-1] == want, argv

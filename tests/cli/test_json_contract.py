@@ -62,9 +62,9 @@ class _Reader:
     def string(self) -> str:
         self.ws()
         if self.s[self.i] != '"':
-            raise ValueError(f"expected a quoted key at {self.s[self.i:self.i + 30]!r}")
+            raise ValueError(f"expected a quoted key at {self.s[self.i : self.i + 30]!r}")
         end = self.s.index('"', self.i + 1)
-        text, self.i = self.s[self.i + 1:end], end + 1
+        text, self.i = self.s[self.i + 1 : end], end + 1
         return text
 
     def value(self) -> Schema:
@@ -74,7 +74,8 @@ class _Reader:
         strings = [o for o in options if o.kind == "strings"]
         if len(strings) > 1:  # "a" | "b": one enumeration
             options = [o for o in options if o.kind != "strings"] + [
-                Schema("strings", values=[v for o in strings for v in o.values])]
+                Schema("strings", values=[v for o in strings for v in o.values])
+            ]
         return options[0] if len(options) == 1 else Schema("union", options=options)
 
     def single(self) -> Schema:
@@ -112,7 +113,7 @@ class _Reader:
             while self.take(","):  # [[a, b, c], [d, e, f]]: rows alike
                 self.value()
             if not self.take("]"):
-                raise ValueError(f"unclosed list at {self.s[self.i:self.i + 30]!r}")
+                raise ValueError(f"unclosed list at {self.s[self.i : self.i + 30]!r}")
             return Schema("list", item=item)
         depth = 1  # [3x3], [matrix per frame], [...]: a list of anything
         while depth:
@@ -127,11 +128,11 @@ def readme_blocks(text: str) -> dict[str, Schema]:
     section = text.split("\n## JSON outputs", 1)[1].split("\n## ", 1)[0]
     blocks: dict[str, Schema] = {}
     for m in re.finditer(r"```\n(.*?)```", section, re.S):
-        intro = re.findall(r"`hdrcore (\w+)", section[:m.start()])
+        intro = re.findall(r"`hdrcore (\w+)", section[: m.start()])
         reader = _Reader(m.group(1))
         blocks[intro[-1]] = reader.value()
         reader.ws()
-        assert reader.i == len(reader.s), f"{intro[-1]}: left over {reader.s[reader.i:]!r}"
+        assert reader.i == len(reader.s), f"{intro[-1]}: left over {reader.s[reader.i :]!r}"
     return blocks
 
 
@@ -172,25 +173,37 @@ def check_document(doc: dict, schema: Schema, name: str) -> None:
     problems = mismatches(doc, schema, name)
     undocumented = sorted(set(doc) - set(schema.keys))
     assert not problems, "\n".join(problems)
-    assert not undocumented, f"{name}: top-level keys the README does not document: " \
-                             f"{undocumented}"
+    assert not undocumented, f"{name}: top-level keys the README does not document: {undocumented}"
 
 
 # -- the parser itself, on made-up text (the contract test below relies on it) -----------------
 
 
 def test_the_readme_reader_finds_what_is_wrong() -> None:
-    schema = _Reader('{"a": N, "b", "c": "x" | "y", "d": null | {"e", ...},\n'
-                     ' "f": [{"g": [[a, b], [c, d]] | null}...], "h": [3x3 per frame]}').value()
-    good = {"a": 1, "b": "anything", "c": "y", "d": {"e": 0, "more": 1},
-            "f": [{"g": None}, {"g": [[1, 2], [3, 4]]}], "h": []}
+    schema = _Reader(
+        '{"a": N, "b", "c": "x" | "y", "d": null | {"e", ...},\n'
+        ' "f": [{"g": [[a, b], [c, d]] | null}...], "h": [3x3 per frame]}'
+    ).value()
+    good = {
+        "a": 1,
+        "b": "anything",
+        "c": "y",
+        "d": {"e": 0, "more": 1},
+        "f": [{"g": None}, {"g": [[1, 2], [3, 4]]}],
+        "h": [],
+    }
     assert mismatches(good, schema) == []
     assert mismatches({**good, "d": None}, schema) == []
     bad = {**good, "a": 1.5, "c": "z", "d": {"x": 1}, "f": [{"g": 3}]}
     del bad["b"]
     found = "\n".join(mismatches(bad, schema, "doc"))
-    for expected in ("doc.a: 1.5 is not an integer", "doc.b: missing", "doc.c: 'z' not in",
-                     "doc.d.e: missing", "doc.f[0].g: int, not a list"):
+    for expected in (
+        "doc.a: 1.5 is not an integer",
+        "doc.b: missing",
+        "doc.c: 'z' not in",
+        "doc.d.e: missing",
+        "doc.f[0].g: int, not a list",
+    ):
         assert expected in found
     with pytest.raises(AssertionError, match="does not document: .'zz'."):
         check_document({**good, "zz": 1}, schema, "doc")
@@ -211,8 +224,22 @@ def demo_outputs(tmp_path_factory) -> tuple[dict, dict]:
     import io
 
     out = tmp_path_factory.mktemp("demo")
-    assert main(["merge", str(DEMO), "-o", str(out / "demo.exr"), "--report",
-                 str(out / "demo.json"), "--local", "on", "--quiet"]) == 0
+    assert (
+        main(
+            [
+                "merge",
+                str(DEMO),
+                "-o",
+                str(out / "demo.exr"),
+                "--report",
+                str(out / "demo.json"),
+                "--local",
+                "on",
+                "--quiet",
+            ]
+        )
+        == 0
+    )
     stdout = io.StringIO()
     with contextlib.redirect_stdout(stdout):
         assert main(["align", str(DEMO), "--local", "on", "--json"]) == 0
@@ -235,8 +262,11 @@ def test_merge_report_is_as_documented(blocks, demo_outputs) -> None:
     # "registration: the document of align --json" (one serialiser): the same keys at every
     # level, but for the frames lists align adds
     schema = blocks["align"]
-    reg_schema = Schema("object", keys={k: v for k, v in schema.keys.items()
-                                        if k not in ("frames", "frames_not_used")}, open=False)
+    reg_schema = Schema(
+        "object",
+        keys={k: v for k, v in schema.keys.items() if k not in ("frames", "frames_not_used")},
+        open=False,
+    )
     check_document(report["registration"], reg_schema, "merge --report: registration")
     assert set(report["registration"]) == set(aligned) - {"frames", "frames_not_used"}
     assert set(report["registration"]["pairs"][0]) == set(aligned["pairs"][0])
@@ -244,8 +274,25 @@ def test_merge_report_is_as_documented(blocks, demo_outputs) -> None:
 
 def test_ratios_and_info_json_are_as_documented(blocks, tmp_path, capsys) -> None:
     sim = tmp_path / "sim"
-    assert main(["simulate", str(sim), "--size", "48x64", "--bits", "8", "--format", "png",
-                 "--frames", "3", "--seed", "1"]) == 0
+    assert (
+        main(
+            [
+                "simulate",
+                str(sim),
+                "--size",
+                "48x64",
+                "--bits",
+                "8",
+                "--format",
+                "png",
+                "--frames",
+                "3",
+                "--seed",
+                "1",
+            ]
+        )
+        == 0
+    )
     capsys.readouterr()
     main(["ratios", str(sim), "--times", str(sim / "exposure_times.txt"), "--json"])
     check_document(json.loads(capsys.readouterr().out), blocks["ratios"], "ratios --json")

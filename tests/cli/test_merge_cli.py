@@ -18,8 +18,15 @@ DEMO = ROOT / "assets" / "demo"
 
 @pytest.fixture(scope="module")
 def png_bracket(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    sim = simulate_bracket(scene="patches", shape=(96, 144), exposure_times=(1 / 64, 1 / 16, 1 / 4),
-                           bits=8, response="gamma", noise_sigma=1.0, seed=5)
+    sim = simulate_bracket(
+        scene="patches",
+        shape=(96, 144),
+        exposure_times=(1 / 64, 1 / 16, 1 / 4),
+        bits=8,
+        response="gamma",
+        noise_sigma=1.0,
+        seed=5,
+    )
     out = tmp_path_factory.mktemp("png")
     write_bracket(out, sim, fmt="png")
     return out
@@ -27,8 +34,9 @@ def png_bracket(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def test_merge_demo_writes_exr_preview_and_report(tmp_path: Path, capsys) -> None:
     exr, png, rep = tmp_path / "o.exr", tmp_path / "o.png", tmp_path / "r.json"
-    rc = main(["merge", str(DEMO), "-o", str(exr), "--preview", str(png), "--report", str(rep),
-               "--quiet"])
+    rc = main(
+        ["merge", str(DEMO), "-o", str(exr), "--preview", str(png), "--report", str(rep), "--quiet"]
+    )
     assert rc == 0, capsys.readouterr().err  # no error verdict on the demo
     rgb, attrs = read_exr(exr)
     assert rgb.shape == (432, 648, 3) and np.all(np.isfinite(rgb)) and rgb.max() > 0
@@ -47,8 +55,20 @@ def test_merge_demo_writes_exr_preview_and_report(tmp_path: Path, capsys) -> Non
 
 def test_deghost_and_exr_compression_options(tmp_path: Path, capsys) -> None:
     exr, rep = tmp_path / "d.exr", tmp_path / "d.json"
-    rc = main(["merge", str(DEMO), "-o", str(exr), "--report", str(rep), "--deghost",
-               "--exr-compression", "zip", "--quiet"])
+    rc = main(
+        [
+            "merge",
+            str(DEMO),
+            "-o",
+            str(exr),
+            "--report",
+            str(rep),
+            "--deghost",
+            "--exr-compression",
+            "zip",
+            "--quiet",
+        ]
+    )
     assert rc == 0, capsys.readouterr().err
     report = json.loads(rep.read_text())
     assert report["parameters"]["deghost"] is True
@@ -82,8 +102,12 @@ def test_outputs_are_refused_before_any_decoding(tmp_path: Path, capsys, monkeyp
     assert main(["merge", str(DEMO), "-o", str(exr), "--quiet"]) == 2
     assert "output exists" in capsys.readouterr().err and exr.read_bytes() == b"keep me"
     frame = sorted(DEMO.glob("*.dng"))[0]
-    assert main(["merge", str(DEMO), "-o", str(tmp_path / "x.exr"), "--preview", str(frame),
-                 "--quiet"]) == 2
+    assert (
+        main(
+            ["merge", str(DEMO), "-o", str(tmp_path / "x.exr"), "--preview", str(frame), "--quiet"]
+        )
+        == 2
+    )
     assert "overwrite an input" in capsys.readouterr().err
     assert main(["merge", str(DEMO), "-o", str(tmp_path / "nope" / "x.exr"), "--quiet"]) == 2
     assert "directory does not exist" in capsys.readouterr().err
@@ -92,8 +116,18 @@ def test_outputs_are_refused_before_any_decoding(tmp_path: Path, capsys, monkeyp
 def test_refuses_overwriting_an_input(png_bracket: Path, capsys) -> None:
     frame = sorted(png_bracket.glob("*.png"))[0]
     before = frame.read_bytes()
-    rc = main(["merge", str(png_bracket), "-o", str(png_bracket / "x.exr"),
-               "--preview", str(frame), "--force", "--quiet"])
+    rc = main(
+        [
+            "merge",
+            str(png_bracket),
+            "-o",
+            str(png_bracket / "x.exr"),
+            "--preview",
+            str(frame),
+            "--force",
+            "--quiet",
+        ]
+    )
     err = capsys.readouterr().err
     assert rc == 2 and "refusing to overwrite an input file" in err
     assert frame.read_bytes() == before
@@ -117,8 +151,18 @@ def test_non_exr_output_name(tmp_path: Path, png_bracket: Path, capsys) -> None:
 
 
 def test_png_bracket_merges_with_json_report(tmp_path: Path, png_bracket: Path, capsys) -> None:
-    rc = main(["merge", str(png_bracket), "-o", str(tmp_path / "o.exr"), "--align", "none",
-               "--json", "--quiet"])
+    rc = main(
+        [
+            "merge",
+            str(png_bracket),
+            "-o",
+            str(tmp_path / "o.exr"),
+            "--align",
+            "none",
+            "--json",
+            "--quiet",
+        ]
+    )
     out = capsys.readouterr().out
     report = json.loads(out)
     assert rc == 0, capsys.readouterr().err

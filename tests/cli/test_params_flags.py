@@ -39,7 +39,7 @@ COMMAND_FIELDS = {
 #: a flag with a field's name that means something else, and why it is left so
 CLASHES = {
     ("batch", "--workers"): "worker processes of the batch (each merge keeps the default "
-                            "threads); hdrcore/cli/batch.py is another engineer's file",
+    "threads); hdrcore/cli/batch.py is another engineer's file",
 }
 
 
@@ -71,7 +71,8 @@ def test_every_field_is_on_the_command_line_or_says_why_not() -> None:
     for field in FIELDS:
         assert (field in FLAGS) != (field in NOT_ON_COMMAND_LINE), (
             f"PipelineParams.{field}: give it a flag in hdrcore/cli/_params.py FLAGS, or say "
-            f"in NOT_ON_COMMAND_LINE why no command offers it")
+            f"in NOT_ON_COMMAND_LINE why no command offers it"
+        )
     assert set(FLAGS) <= set(FIELDS) and set(NOT_ON_COMMAND_LINE) <= set(FIELDS)
     for field, reason in NOT_ON_COMMAND_LINE.items():
         assert len(reason) > 20, field
@@ -98,11 +99,12 @@ def test_each_command_uses_the_fields_flag_and_default(prog: str) -> None:
         switch = isinstance(action, argparse.BooleanOptionalAction)
         names = [FLAGS[field], "--no-" + FLAGS[field][2:]] if switch else [FLAGS[field]]
         assert action.option_strings == names, (
-            f"{prog}: PipelineParams.{field} is {action.option_strings}, elsewhere "
-            f"{FLAGS[field]}")
+            f"{prog}: PipelineParams.{field} is {action.option_strings}, elsewhere {FLAGS[field]}"
+        )
         assert action.default == DEFAULTS[field], (
             f"{prog} {FLAGS[field]}: default {action.default!r}, PipelineParams.{field} "
-            f"{DEFAULTS[field]!r}")
+            f"{DEFAULTS[field]!r}"
+        )
     if prog in COMMAND_FIELDS:
         assert seen == set(_fields_of(prog))
     if prog in ("merge", "batch"):  # the merge offers every field the command line has
@@ -122,16 +124,27 @@ def test_no_flag_given_is_the_librarys_default(command: str, tmp_path: Path) -> 
 
 @pytest.mark.parametrize("command", sorted(COMMAND_FIELDS))
 def test_each_flag_reaches_its_field(command: str, tmp_path: Path) -> None:
-    values = {"saturation": ("250", 250.0), "noise_floor": ("3", 3.0),
-              "threshold": ("0.2", 0.2), "align": ("homography", "homography"),
-              "local": ("off", "off"), "reference": ("1", 1), "response": ("srgb", "srgb"),
-              "times": ("exif", "exif"), "exposure_method": ("Cerman 2006", "Cerman 2006"),
-              "registration_method": ("Cerman 2006", "Cerman 2006"),
-              "tonemap": ("linear", "linear"), "tonemap_exposure": ("1.5", 1.5),
-              "preview_max_side": ("0", None), "exclude_colour": ("0,0,255", (0, 0, 255)),
-              "ratio_fallback_stops": ("0.5", 0.5), "registration_max_pixels": ("2e6", 2000000),
-              "refine_ratios": ("none", "none"), "noise_sigma": ("1.5", 1.5),
-              "workers": ("-1", -1)}
+    values = {
+        "saturation": ("250", 250.0),
+        "noise_floor": ("3", 3.0),
+        "threshold": ("0.2", 0.2),
+        "align": ("homography", "homography"),
+        "local": ("off", "off"),
+        "reference": ("1", 1),
+        "response": ("srgb", "srgb"),
+        "times": ("exif", "exif"),
+        "exposure_method": ("Cerman 2006", "Cerman 2006"),
+        "registration_method": ("Cerman 2006", "Cerman 2006"),
+        "tonemap": ("linear", "linear"),
+        "tonemap_exposure": ("1.5", 1.5),
+        "preview_max_side": ("0", None),
+        "exclude_colour": ("0,0,255", (0, 0, 255)),
+        "ratio_fallback_stops": ("0.5", 0.5),
+        "registration_max_pixels": ("2e6", 2000000),
+        "refine_ratios": ("none", "none"),
+        "noise_sigma": ("1.5", 1.5),
+        "workers": ("-1", -1),
+    }
     switches = {"deghost": ("--deghost", True), "colour_anchor": ("--no-colour-anchor", False)}
     assert set(values) | set(switches) == set(FLAGS)
     extra = ["-o", str(tmp_path / "o.exr")] if command == "merge" else []
@@ -168,8 +181,11 @@ def test_old_names_still_work_and_say_so(command, argv, field, expected, tmp_pat
     assert f"{argv[0]} is deprecated" in err and f"use {FLAGS[field]}" in err
     assert err.startswith("hdrcore: warning: ") and err.count("\n") == 1
     # the new name says nothing
-    build_parser().parse_args([command, "frame.png", *extra, FLAGS[field], argv[1]]
-                              if field != "times" else [command, "frame.png", *extra])
+    build_parser().parse_args(
+        [command, "frame.png", *extra, FLAGS[field], argv[1]]
+        if field != "times"
+        else [command, "frame.png", *extra]
+    )
     assert capsys.readouterr().err == ""
 
 
@@ -181,8 +197,10 @@ def test_every_old_name_is_tested() -> None:
 def test_workers_refused_at_parse_time(text: str, capsys) -> None:
     from hdrview.app import build_parser as hdrview_parser
 
-    for argv, parser in ((["merge", "f.png", "-o", "o.exr", "--workers", text], build_parser()),
-                         (["--workers", text], hdrview_parser())):
+    for argv, parser in (
+        (["merge", "f.png", "-o", "o.exr", "--workers", text], build_parser()),
+        (["--workers", text], hdrview_parser()),
+    ):
         with pytest.raises(SystemExit):
             parser.parse_args(argv)
         assert "expected a number of threads" in capsys.readouterr().err
@@ -208,16 +226,34 @@ def test_hdrview_workers_reach_every_run() -> None:
 
 def _png_bracket(tmp_path: Path, capsys) -> Path:
     out = tmp_path / "sim"
-    assert main(["simulate", str(out), "--size", "48x64", "--bits", "8", "--format", "png",
-                 "--frames", "3", "--seed", "2"]) == 0
+    assert (
+        main(
+            [
+                "simulate",
+                str(out),
+                "--size",
+                "48x64",
+                "--bits",
+                "8",
+                "--format",
+                "png",
+                "--frames",
+                "3",
+                "--seed",
+                "2",
+            ]
+        )
+        == 0
+    )
     capsys.readouterr()
     return out
 
 
 def test_merge_and_align_pass_workers_to_the_pipeline(tmp_path, capsys, monkeypatch) -> None:
     sim = _png_bracket(tmp_path, capsys)
-    rc = main(["merge", str(sim), "-o", str(tmp_path / "o.exr"), "--workers", "-1", "--json",
-               "--quiet"])
+    rc = main(
+        ["merge", str(sim), "-o", str(tmp_path / "o.exr"), "--workers", "-1", "--json", "--quiet"]
+    )
     report = json.loads(capsys.readouterr().out)
     assert rc == 0 and report["parameters"]["workers"] == -1
 

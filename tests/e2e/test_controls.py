@@ -38,13 +38,17 @@ def test_sliders_start_at_the_values_the_pipeline_used(page, view: ClientView) -
     page.wait_for_timeout(500)
     # The slider keeps whole levels (its step); the box next to it and the status line say the
     # exact value, marked as the default.
-    wait_until(lambda: abs(slider_value(page, "Saturation Z") - r.saturation) <= 1.0, 10,
-               "Saturation Z to show the pipeline's Z")
+    wait_until(
+        lambda: abs(slider_value(page, "Saturation Z") - r.saturation) <= 1.0,
+        10,
+        "Saturation Z to show the pipeline's Z",
+    )
     assert abs(slider_value(page, "Noise floor") - r.noise_floor) <= 1.0
     assert slider_value(page, "Threshold t") == pytest.approx(r.params.threshold)
     assert slider_value(page, "Exposure (EV)") == pytest.approx(r.params.tonemap_exposure)
     page.get_by_text(re.compile(rf"Z = {r.saturation:.6g} \(default\)")).first.wait_for(
-        state="visible", timeout=10_000)
+        state="visible", timeout=10_000
+    )
     page.screenshot(path=str(ARTIFACTS / "hdrview-controls-initial.png"))
 
 
@@ -60,8 +64,11 @@ def test_reset_to_defaults(page, view: ClientView) -> None:
     page.get_by_role("button", name="Reset to defaults").click()
     wait_until(lambda: view.controls.threshold is None, 15, "the reset")
     assert view.wait_idle(TIMEOUT)
-    wait_until(lambda: slider_value(page, "Threshold t") == pytest.approx(0.1), 10,
-               "the slider back at 0.1")
+    wait_until(
+        lambda: slider_value(page, "Threshold t") == pytest.approx(0.1),
+        10,
+        "the slider back at 0.1",
+    )
     assert view.session.result.params.threshold == pytest.approx(0.1)
 
 
@@ -76,8 +83,9 @@ def test_two_pages_keep_separate_states(browser, page, view: ClientView, inspect
         wait_until(lambda: loaded(other), TIMEOUT, "the second page's result")
         # The second page loads another bracket and moves a slider; the first keeps its own.
         lab = other_page.locator("label").filter(has_text=re.compile("^Path$")).first
-        lab.locator("xpath=ancestor::div[contains(@class,'mantine-Flex-root')][1]//input") \
-            .fill("small")
+        lab.locator("xpath=ancestor::div[contains(@class,'mantine-Flex-root')][1]//input").fill(
+            "small"
+        )
         other_page.get_by_role("button", name="Load", exact=True).click()
         wait_until(lambda: other.session.source == "small", TIMEOUT, "the small bracket")
         assert other.wait_idle(TIMEOUT)
@@ -96,7 +104,8 @@ def test_zoom_into_the_result_and_read_a_100_percent_crop(page, view: ClientView
     open_tab(page, "Result")
     choose(page, "Zoom", "100 %")
     page.get_by_text(re.compile("100 % of the full-resolution result")).first.wait_for(
-        state="visible", timeout=15_000)
+        state="visible", timeout=15_000
+    )
     img = page.locator("img").filter(visible=True).last
     box = img.bounding_box()
     w = view.session.result.radiance.shape[1]
@@ -108,13 +117,17 @@ def test_zoom_into_the_result_and_read_a_100_percent_crop(page, view: ClientView
     choose(page, "Zoom", "fit")
 
 
-@pytest.mark.parametrize("label,control,param", [
-    ("Operator", "tonemap", "tonemap"),
-    ("Alignment", "align", "align"),
-    ("Ratio method", "exposure_method", "exposure_method"),
-])
-def test_each_dropdown_option_reaches_the_result(page, view: ClientView, label: str,
-                                                  control: str, param: str) -> None:
+@pytest.mark.parametrize(
+    "label,control,param",
+    [
+        ("Operator", "tonemap", "tonemap"),
+        ("Alignment", "align", "align"),
+        ("Ratio method", "exposure_method", "exposure_method"),
+    ],
+)
+def test_each_dropdown_option_reaches_the_result(
+    page, view: ClientView, label: str, control: str, param: str
+) -> None:
     from hdrview.view import _registry_names
 
     wait_until(lambda: loaded(view), TIMEOUT, "the result")
@@ -124,8 +137,14 @@ def test_each_dropdown_option_reaches_the_result(page, view: ClientView, label: 
     for name in names:
         choose(page, label, name + (DEFAULT_MARK if name == default else ""))
         # Choosing the option already shown (the default, first) sends no change.
-        wait_until(lambda n=name: getattr(view.controls, control) == n or (
-            n == default and getattr(view.controls, control) is None), 15, f"{label} = {name}")
+        wait_until(
+            lambda n=name: (
+                getattr(view.controls, control) == n
+                or (n == default and getattr(view.controls, control) is None)
+            ),
+            15,
+            f"{label} = {name}",
+        )
         assert view.wait_idle(TIMEOUT)
         r = view.session.result
         assert getattr(r.params, param) == name

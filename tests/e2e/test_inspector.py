@@ -48,7 +48,8 @@ def visible(locator):
 
 def expect_alert(page, text: str) -> None:
     page.locator("[role=alert]").filter(has_text=text).first.wait_for(
-        state="visible", timeout=15_000)
+        state="visible", timeout=15_000
+    )
 
 
 def test_demo_opens_at_start(page, view: ClientView) -> None:
@@ -59,14 +60,19 @@ def test_demo_opens_at_start(page, view: ClientView) -> None:
     page.get_by_text(b.frames[0].name).first.wait_for(state="visible", timeout=15_000)
     # The frames' grid of thumbnails with histograms.
     page.get_by_text(re.compile("thumbnail and histogram")).first.wait_for(
-        state="visible", timeout=15_000)
+        state="visible", timeout=15_000
+    )
     page.screenshot(path=str(ARTIFACTS / "hdrview-frames.png"))
 
 
 @pytest.mark.parametrize(
     ("label", "control"),
-    [("Saturation Z", "saturation"), ("Noise floor", "noise_floor"),
-     ("Threshold t", "threshold"), ("Exposure (EV)", "tonemap_exposure")],
+    [
+        ("Saturation Z", "saturation"),
+        ("Noise floor", "noise_floor"),
+        ("Threshold t", "threshold"),
+        ("Exposure (EV)", "tonemap_exposure"),
+    ],
 )
 def test_each_slider_changes_page_and_server(
     page, view: ClientView, label: str, control: str
@@ -76,8 +82,11 @@ def test_each_slider_changes_page_and_server(
     status_before = view.status.content
     thumb = labelled(page, label).locator("[role=slider]")
     thumb.focus()
-    key = "ArrowLeft" if float(thumb.get_attribute("aria-valuenow")) > float(
-        thumb.get_attribute("aria-valuemin")) else "ArrowRight"
+    key = (
+        "ArrowLeft"
+        if float(thumb.get_attribute("aria-valuenow")) > float(thumb.get_attribute("aria-valuemin"))
+        else "ArrowRight"
+    )
     page.keyboard.press(key)
     page.keyboard.press(key)
     wait_until(lambda: getattr(view.controls, control) != before, 15, f"{control} to change")
@@ -85,13 +94,18 @@ def test_each_slider_changes_page_and_server(
     after = getattr(view.controls, control)
     assert view.status.content != status_before
     # The page shows the new value in the status line.
-    page.get_by_text(re.compile(rf"{re.escape(_status_key(control))} = {after:g}\b")).first \
-        .wait_for(state="visible", timeout=15_000)
+    page.get_by_text(
+        re.compile(rf"{re.escape(_status_key(control))} = {after:g}\b")
+    ).first.wait_for(state="visible", timeout=15_000)
 
 
 def _status_key(control: str) -> str:
-    return {"saturation": "Z", "noise_floor": "noise floor", "threshold": "t",
-            "tonemap_exposure": "exposure"}[control]
+    return {
+        "saturation": "Z",
+        "noise_floor": "noise floor",
+        "threshold": "t",
+        "tonemap_exposure": "exposure",
+    }[control]
 
 
 def test_bad_paths_notify_and_server_stays_up(page, view: ClientView) -> None:
@@ -109,7 +123,8 @@ def test_bad_paths_notify_and_server_stays_up(page, view: ClientView) -> None:
     wait_until(lambda: view.session.source == "small", what="the small bracket")
     assert view.wait_idle(TIMEOUT)
     page.get_by_text(re.compile(r"small\W+3 frames")).first.wait_for(
-        state="visible", timeout=15_000)
+        state="visible", timeout=15_000
+    )
 
 
 def test_upload_of_a_non_image_notifies(page, view: ClientView) -> None:
@@ -133,8 +148,7 @@ def test_panels_show_their_results(page, view: ClientView) -> None:
     page.screenshot(path=str(ARTIFACTS / "hdrview-btf.png"))
     for tab in ("Masks", "Registration", "Result"):
         open_tab(page, tab)
-        page.locator("img").filter(visible=True).first.wait_for(
-            state="visible", timeout=30_000)
+        page.locator("img").filter(visible=True).first.wait_for(state="visible", timeout=30_000)
         page.screenshot(path=str(ARTIFACTS / f"hdrview-{tab.lower()}.png"))
     open_tab(page, "Diagnostics")
     visible(page.get_by_text("ratio")).wait_for(state="visible", timeout=15_000)

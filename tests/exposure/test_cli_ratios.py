@@ -14,8 +14,27 @@ from hdrcore.cli.ratios import colour_mask
 
 def _simulate(tmp_path, capsys):
     out = tmp_path / "sim"
-    assert main(["simulate", str(out), "--size", "96x144", "--bits", "8", "--format", "png",
-                 "--response", "linear", "--scene", "patches", "--seed", "3"]) == 0
+    assert (
+        main(
+            [
+                "simulate",
+                str(out),
+                "--size",
+                "96x144",
+                "--bits",
+                "8",
+                "--format",
+                "png",
+                "--response",
+                "linear",
+                "--scene",
+                "patches",
+                "--seed",
+                "3",
+            ]
+        )
+        == 0
+    )
     capsys.readouterr()
     return out
 
@@ -28,8 +47,15 @@ def test_ratios_json_and_mask_colour(tmp_path, capsys) -> None:
         a = np.asarray(Image.open(f).convert("RGB")).copy()
         a[:12] = (0, 0, 255)
         Image.fromarray(a).save(f)
-    args = ["ratios", str(out), "--times", str(out / "exposure_times.txt"),
-            "--response", "linear", "--json"]
+    args = [
+        "ratios",
+        str(out),
+        "--times",
+        str(out / "exposure_times.txt"),
+        "--response",
+        "linear",
+        "--json",
+    ]
     main(args)
     plain = json.loads(capsys.readouterr().out)
     main(args + ["--mask-colour", "0,0,255"])
@@ -38,8 +64,21 @@ def test_ratios_json_and_mask_colour(tmp_path, capsys) -> None:
     assert plain["marker_colour"] == [0, 0, 255] and masked["marker_colour"] is None
     assert plain["masked_fraction"] == pytest.approx(12 / 96, abs=0.01)
     assert masked["masked_fraction"] == pytest.approx(12 / 96, abs=0.01)
-    keys = {"dark", "bright", "ratio", "initial_ratio", "iterations", "equations", "inliers",
-            "exif_ratio", "mismatch_stops", "std_error", "region_std_error", "status", "message"}
+    keys = {
+        "dark",
+        "bright",
+        "ratio",
+        "initial_ratio",
+        "iterations",
+        "equations",
+        "inliers",
+        "exif_ratio",
+        "mismatch_stops",
+        "std_error",
+        "region_std_error",
+        "status",
+        "message",
+    }
     for pair in masked["pairs"]:
         assert keys <= set(pair)
         assert abs(pair["ratio"] / pair["exif_ratio"] - 1) < 0.01

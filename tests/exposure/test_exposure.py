@@ -27,16 +27,18 @@ SEED_TIMES = (1.0, 4.0, 16.0, 64.0, 256.0, 1024.0)
 def seed_bracket():
     # The seed's protocol (section 5.3): six frames, times 1..1024 (x4), linear, 256 levels,
     # Gaussian noise of 1 level. The paper reports 4.0178 for the darkest pair (0.45 % off).
-    return simulate_bracket(scene="window", shape=(192, 288), exposure_times=SEED_TIMES, bits=8,
-                            noise_sigma=1.0, seed=1)
+    return simulate_bracket(
+        scene="window", shape=(192, 288), exposure_times=SEED_TIMES, bits=8, noise_sigma=1.0, seed=1
+    )
 
 
 def test_seed_protocol_darkest_pair(seed_bracket) -> None:
     r = exposure_ratio_frames(seed_bracket.frames[0], seed_bracket.frames[1], 255)
     assert r.ok, r.message
     assert abs(r.ratio / 4.0 - 1) < 0.0045  # at least as good as the paper's 4.0178
-    paper = exposure_ratio_frames(seed_bracket.frames[0], seed_bracket.frames[1], 255,
-                                  method="Cerman 2006")
+    paper = exposure_ratio_frames(
+        seed_bracket.frames[0], seed_bracket.frames[1], 255, method="Cerman 2006"
+    )
     assert abs(paper.ratio / 4.0 - 1) < 0.0045
     assert paper.method == "Cerman 2006"
     # Diagnostics the inspector draws.
@@ -49,8 +51,14 @@ def test_seed_protocol_darkest_pair(seed_bracket) -> None:
 
 @pytest.mark.parametrize("bits,tol", [(8, 0.003), (12, 0.0005), (14, 0.0005)])
 def test_synthetic_truth_tripod(bits: int, tol: float) -> None:
-    b = simulate_bracket(scene="patches", shape=(128, 192), exposure_times=(1.0, 4.0, 16.0),
-                         bits=bits, noise_sigma=1.0, seed=2)
+    b = simulate_bracket(
+        scene="patches",
+        shape=(128, 192),
+        exposure_times=(1.0, 4.0, 16.0),
+        bits=bits,
+        noise_sigma=1.0,
+        seed=2,
+    )
     res = bracket_exposures(b.frames, b.max_level, exposure_times=b.exposure_times)
     assert res.ok, res.message
     np.testing.assert_allclose(res.relative_exposures, [1, 4, 16], rtol=2 * tol)
@@ -60,8 +68,16 @@ def test_synthetic_truth_tripod(bits: int, tol: float) -> None:
 
 
 def test_hand_held_pairs_are_accurate_or_flagged() -> None:
-    b = simulate_bracket(scene="night", shape=(192, 288), exposure_times=(1.0, 4.0, 16.0, 64.0),
-                         bits=12, noise_sigma=1.0, max_shift=4, max_rotation_deg=0.2, seed=3)
+    b = simulate_bracket(
+        scene="night",
+        shape=(192, 288),
+        exposure_times=(1.0, 4.0, 16.0, 64.0),
+        bits=12,
+        noise_sigma=1.0,
+        max_shift=4,
+        max_rotation_deg=0.2,
+        seed=3,
+    )
     res = bracket_exposures(b.frames, b.max_level)
     for p in res.pairs:
         assert np.isfinite(p.ratio)
@@ -78,8 +94,9 @@ def test_identical_frames_give_one() -> None:
 
 
 def test_no_overlap_is_not_ok_with_message() -> None:
-    b = simulate_bracket(scene="window", shape=(64, 96), exposure_times=(1.0, 5000.0), bits=8,
-                         seed=5)
+    b = simulate_bracket(
+        scene="window", shape=(64, 96), exposure_times=(1.0, 5000.0), bits=8, seed=5
+    )
     r = exposure_ratio_frames(b.frames[0], b.frames[1], 255)
     assert not r.ok
     assert r.status == "no-overlap"
@@ -125,8 +142,14 @@ def test_refit_from_cached_histograms() -> None:
 
 
 def test_srgb_linearisation() -> None:
-    b = simulate_bracket(shape=(128, 192), exposure_times=(1.0, 2.0), bits=8, response="srgb",
-                         noise_sigma=0.5, seed=8)
+    b = simulate_bracket(
+        shape=(128, 192),
+        exposure_times=(1.0, 2.0),
+        bits=8,
+        response="srgb",
+        noise_sigma=0.5,
+        seed=8,
+    )
     h = [histograms(f, 255) for f in b.frames]
     r = exposure_ratio(h[0], h[1], lut=srgb_lut(255))
     assert abs(r.ratio / 2 - 1) < 0.01

@@ -26,8 +26,14 @@ from hdrcore.synthetic import SCENES, simulate_bracket
 
 
 def test_interval_contains_the_truth_of_a_simple_pair() -> None:
-    b = simulate_bracket(scene="window", shape=(120, 160), exposure_times=(1.0, 4.0), bits=12,
-                         noise_sigma=1.0, seed=3)
+    b = simulate_bracket(
+        scene="window",
+        shape=(120, 160),
+        exposure_times=(1.0, 4.0),
+        bits=12,
+        noise_sigma=1.0,
+        seed=3,
+    )
     r = exposure_ratio_registered(b.frames[0], b.frames[1], b.max_level, np.eye(2, 3))
     lo, hi = r.interval
     assert r.ok, r.message
@@ -46,10 +52,10 @@ def test_interval_contains_the_truth_of_a_simple_pair() -> None:
 def test_wrong_linearisation_is_not_ok() -> None:
     # Linear frames read through the sRGB curve: the ratio is off by tens of per cent, and
     # the ratio changes with brightness, which widens the interval beyond any tolerance.
-    b = simulate_bracket(scene="window", shape=(120, 160), exposure_times=(1.0, 4.0),
-                         bits=8, noise_sigma=1.0, seed=1)
-    r = exposure_ratio_registered(b.frames[0], b.frames[1], 255, np.eye(2, 3),
-                                  lut=srgb_lut(255))
+    b = simulate_bracket(
+        scene="window", shape=(120, 160), exposure_times=(1.0, 4.0), bits=8, noise_sigma=1.0, seed=1
+    )
+    r = exposure_ratio_registered(b.frames[0], b.frames[1], 255, np.eye(2, 3), lut=srgb_lut(255))
     assert abs(r.ratio / 4.0 - 1) > 0.1
     assert not r.ok and r.status == "uncertain"
     assert r.band_spread > 0.01 and "changes with brightness" in r.message
@@ -59,16 +65,32 @@ def test_wrong_linearisation_is_not_ok() -> None:
 def test_interval_widens_with_noise() -> None:
     halves = []
     for sigma in (0.5, 4.0, 16.0):
-        b = simulate_bracket(scene="patches", shape=(120, 160), exposure_times=(1.0, 4.0),
-                             bits=12, noise_sigma=sigma, seed=2)
-        halves.append(exposure_ratio_registered(b.frames[0], b.frames[1], b.max_level,
-                                                np.eye(2, 3)).ci95_relative)
+        b = simulate_bracket(
+            scene="patches",
+            shape=(120, 160),
+            exposure_times=(1.0, 4.0),
+            bits=12,
+            noise_sigma=sigma,
+            seed=2,
+        )
+        halves.append(
+            exposure_ratio_registered(
+                b.frames[0], b.frames[1], b.max_level, np.eye(2, 3)
+            ).ci95_relative
+        )
     assert halves[0] < halves[1] < halves[2], halves
 
 
 def test_non_linear_input_has_a_model_error_floor_growing_with_the_stops() -> None:
-    b = simulate_bracket(scene="window", shape=(120, 160), exposure_times=(1.0, 2.0, 8.0),
-                         bits=8, response="srgb", noise_sigma=1.0, seed=4)
+    b = simulate_bracket(
+        scene="window",
+        shape=(120, 160),
+        exposure_times=(1.0, 2.0, 8.0),
+        bits=8,
+        response="srgb",
+        noise_sigma=1.0,
+        seed=4,
+    )
     lin = exposure_ratio_frames(b.frames[0], b.frames[1], 255)
     nl1 = exposure_ratio_frames(b.frames[0], b.frames[1], 255, lut=srgb_lut(255))
     nl3 = exposure_ratio_frames(b.frames[0], b.frames[2], 255, lut=srgb_lut(255))
@@ -79,20 +101,28 @@ def test_non_linear_input_has_a_model_error_floor_growing_with_the_stops() -> No
 
 
 def test_tolerance_decides_between_ok_and_uncertain() -> None:
-    b = simulate_bracket(scene="night", shape=(120, 160), exposure_times=(1.0, 4.0), bits=12,
-                         noise_sigma=1.0, seed=5)
+    b = simulate_bracket(
+        scene="night", shape=(120, 160), exposure_times=(1.0, 4.0), bits=12, noise_sigma=1.0, seed=5
+    )
     r = exposure_ratio_registered(b.frames[0], b.frames[1], b.max_level, np.eye(2, 3))
     assert r.ok
-    strict = exposure_ratio_registered(b.frames[0], b.frames[1], b.max_level, np.eye(2, 3),
-                                       max_relative_error=r.ci95_relative / 2)
+    strict = exposure_ratio_registered(
+        b.frames[0], b.frames[1], b.max_level, np.eye(2, 3), max_relative_error=r.ci95_relative / 2
+    )
     assert strict.status == "uncertain" and "is wider than" in strict.message
     assert judge(strict, tolerance=OK_TOLERANCE).status == "ok"
     assert judge(r) is r  # idempotent: nothing changed
 
 
 def test_judge_after_the_jackknife_widens_the_interval() -> None:
-    b = simulate_bracket(scene="window", shape=(120, 160), exposure_times=(1.0, 4.0), bits=12,
-                         noise_sigma=1.0, seed=6)
+    b = simulate_bracket(
+        scene="window",
+        shape=(120, 160),
+        exposure_times=(1.0, 4.0),
+        bits=12,
+        noise_sigma=1.0,
+        seed=6,
+    )
     r = exposure_ratio_frames(b.frames[0], b.frames[1], b.max_level)
     assert r.ok and r.ci95_basis == "fit"
     wide = replace(r, region_std_error=0.02 * r.ratio)  # as a bracket function adds it
@@ -105,11 +135,17 @@ def test_judge_after_the_jackknife_widens_the_interval() -> None:
 
 def test_band_ratios_of_exact_and_brightness_dependent_equations() -> None:
     x = np.geomspace(0.01, 0.2, 64)
-    eqs = ExposureEquations(x=x, y=4 * x, weights=np.ones(64), direction=np.zeros(64, np.int8),
-                            channel=np.zeros(64, np.int8), level=x * 255)
+    eqs = ExposureEquations(
+        x=x,
+        y=4 * x,
+        weights=np.ones(64),
+        direction=np.zeros(64, np.int8),
+        channel=np.zeros(64, np.int8),
+        level=x * 255,
+    )
     exact = brightness_band_ratios(eqs, np.ones(64, bool), ratio_of_sums=False)
     assert len(exact) == 4 and np.allclose(exact, 4.0) and band_spread(exact) < 1e-12
-    bent = replace(eqs, y=4 * x ** 0.95)  # a response off in its exponent
+    bent = replace(eqs, y=4 * x**0.95)  # a response off in its exponent
     kb = brightness_band_ratios(bent, np.ones(64, bool), ratio_of_sums=False)
     assert np.all(np.diff(kb) < 0) and band_spread(kb) > 0.02
     assert brightness_band_ratios(eqs, np.zeros(64, bool), ratio_of_sums=True) == ()
@@ -128,12 +164,20 @@ def test_coverage_over_simulated_pairs_is_within_a_loose_band() -> None:
     covered, ok, halves = [], [], []
     for scene in SCENES:
         for seed in (11, 12):
-            b = simulate_bracket(scene=scene, shape=(128, 192), exposure_times=times, bits=12,
-                                 noise_sigma=1.0, seed=seed, max_shift=10.0,
-                                 max_rotation_deg=0.5)
+            b = simulate_bracket(
+                scene=scene,
+                shape=(128, 192),
+                exposure_times=times,
+                bits=12,
+                noise_sigma=1.0,
+                seed=seed,
+                max_shift=10.0,
+                max_rotation_deg=0.5,
+            )
             mats = [b.pair_matrix(k, k + 1) for k in range(len(times) - 1)]
-            res = bracket_exposures_from_pixels(b.frames, b.max_level, mats,
-                                                non_consecutive=False, noise_floor=4.0)
+            res = bracket_exposures_from_pixels(
+                b.frames, b.max_level, mats, non_consecutive=False, noise_floor=4.0
+            )
             for p in res.pairs:
                 if p.ok:
                     lo, hi = p.interval

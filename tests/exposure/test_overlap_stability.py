@@ -32,8 +32,15 @@ def integer_hand_held():
     # Whole-pixel shifts: the simulator samples the scene without interpolation, so the common
     # field of view of two frames holds exactly the same radiance samples.
     motion = [(9.0, -7.0, 0.0), (-6.0, 8.0, 0.0), (0.0, 0.0, 0.0), (11.0, 5.0, 0.0)]
-    return simulate_bracket(scene="night", shape=(160, 240), exposure_times=TIMES, bits=12,
-                            noise_sigma=1.0, motion=motion, seed=11)
+    return simulate_bracket(
+        scene="night",
+        shape=(160, 240),
+        exposure_times=TIMES,
+        bits=12,
+        noise_sigma=1.0,
+        motion=motion,
+        seed=11,
+    )
 
 
 def test_grouped_solver_is_exact_least_squares() -> None:
@@ -60,13 +67,19 @@ def test_refit_is_identical_to_a_fresh_fit_and_reuses_transfer_functions() -> No
     assert btf[0].forward_at_edges() is btf[0].forward_at_edges()
     for z, floor in ((15000, 300), (16000, 500)):
         refit = bracket_exposures_from_histograms(hists, saturation=z, noise_floor=floor)
-        fresh = bracket_exposures_from_histograms(bracket_histograms(b.frames, b.max_level),
-                                                  saturation=z, noise_floor=floor)
+        fresh = bracket_exposures_from_histograms(
+            bracket_histograms(b.frames, b.max_level), saturation=z, noise_floor=floor
+        )
         assert refit.ratios == fresh.ratios
-        for p, q in zip(refit.pairs + refit.extra_pairs, fresh.pairs + fresh.extra_pairs,
-                        strict=True):
-            assert (p.ratio, p.status, p.message, p.iterates) == (q.ratio, q.status, q.message,
-                                                                   q.iterates)
+        for p, q in zip(
+            refit.pairs + refit.extra_pairs, fresh.pairs + fresh.extra_pairs, strict=True
+        ):
+            assert (p.ratio, p.status, p.message, p.iterates) == (
+                q.ratio,
+                q.status,
+                q.message,
+                q.iterates,
+            )
             assert p.region_ratios == q.region_ratios
             np.testing.assert_array_equal(p.inlier_mask, q.inlier_mask)
         assert hists.pair(0, 1).btfs() is btf
@@ -96,15 +109,17 @@ def test_sub_pixel_shift_counts_the_same_pixels(dx: float, dy: float) -> None:
     d, b = common_field_masks(m, shape, margin=2)
     assert d.sum() == b.sum()
     ys, xs = np.nonzero(b)
-    np.testing.assert_array_equal(d[np.rint(ys + dy).astype(int), np.rint(xs + dx).astype(int)],
-                                  True)
+    np.testing.assert_array_equal(
+        d[np.rint(ys + dy).astype(int), np.rint(xs + dx).astype(int)], True
+    )
 
 
 def test_pair_histograms_in_overlap_counts_the_same_content(integer_hand_held) -> None:
     b = integer_hand_held
     m = b.pair_matrix(0, 1)
-    ph = pair_histograms_in_overlap(b.frames[0], b.frames[1], b.max_level, m, margin=1,
-                                    dark=0, bright=1)
+    ph = pair_histograms_in_overlap(
+        b.frames[0], b.frames[1], b.max_level, m, margin=1, dark=0, bright=1
+    )
     assert ph.overlap_restricted and 0.8 < ph.common_fraction < 1.0
     assert ph.counts_dark.sum() == ph.counts_bright.sum()  # a shift maps pixels one to one
     np.testing.assert_array_equal(ph.regions_dark.sum(axis=0), ph.counts_dark)
@@ -112,11 +127,12 @@ def test_pair_histograms_in_overlap_counts_the_same_content(integer_hand_held) -
     np.testing.assert_array_equal(ph.counts_bright, histograms(b.frames[1], b.max_level, mask_b))
     np.testing.assert_array_equal(ph.counts_dark, histograms(b.frames[0], b.max_level, mask_d))
     # The identity with no margin counts whole frames; regions sum to the frame histogram.
-    same = pair_histograms_in_overlap(b.frames[0], b.frames[1], b.max_level, np.eye(2, 3),
-                                      margin=0)
+    same = pair_histograms_in_overlap(b.frames[0], b.frames[1], b.max_level, np.eye(2, 3), margin=0)
     np.testing.assert_array_equal(same.counts_dark, histograms(b.frames[0], b.max_level))
-    np.testing.assert_array_equal(region_histograms(b.frames[0], b.max_level).sum(axis=0),
-                                  histograms(b.frames[0], b.max_level))
+    np.testing.assert_array_equal(
+        region_histograms(b.frames[0], b.max_level).sum(axis=0),
+        histograms(b.frames[0], b.max_level),
+    )
 
 
 def test_overlap_restriction_recovers_tripod_accuracy(integer_hand_held) -> None:
@@ -137,8 +153,16 @@ def test_overlap_restriction_recovers_tripod_accuracy(integer_hand_held) -> None
 
 
 def test_pairs_disturbed_by_motion_are_flagged_unstable() -> None:
-    b = simulate_bracket(scene="night", shape=(160, 240), exposure_times=TIMES, bits=12,
-                         noise_sigma=1.0, max_shift=10, max_rotation_deg=0.5, seed=3)
+    b = simulate_bracket(
+        scene="night",
+        shape=(160, 240),
+        exposure_times=TIMES,
+        bits=12,
+        noise_sigma=1.0,
+        max_shift=10,
+        max_rotation_deg=0.5,
+        seed=3,
+    )
     res = bracket_exposures(b.frames, b.max_level)
     errors = [abs(p.ratio / 4 - 1) for p in res.pairs]
     assert max(errors) > 0.01
@@ -153,8 +177,9 @@ def test_pairs_disturbed_by_motion_are_flagged_unstable() -> None:
 
 
 def test_tripod_pairs_stay_ok_with_an_honest_error() -> None:
-    b = simulate_bracket(scene="landscape", shape=(128, 192), exposure_times=TIMES, bits=12,
-                         noise_sigma=1.0, seed=5)
+    b = simulate_bracket(
+        scene="landscape", shape=(128, 192), exposure_times=TIMES, bits=12, noise_sigma=1.0, seed=5
+    )
     res = bracket_exposures(b.frames, b.max_level)
     assert res.ok, res.message
     for p in res.pairs:
@@ -191,7 +216,8 @@ def test_starting_ratios_replace_wild_estimates() -> None:
     res = bracket_exposures(b.frames, b.max_level)
     np.testing.assert_allclose(res.starting_ratios(), [p.ratio for p in res.pairs])
     wild = replace(res, pairs=(replace(res.pairs[0], ratio=0.6),) + res.pairs[1:])
-    assert wild.starting_ratios()[0] == pytest.approx(np.median([0.6] + [p.ratio for p in
-                                                                         res.pairs[1:]]))
+    assert wild.starting_ratios()[0] == pytest.approx(
+        np.median([0.6] + [p.ratio for p in res.pairs[1:]])
+    )
     with_exif = replace(wild, exif_ratios=(4.0, 4.0, 4.0))
     assert with_exif.starting_ratios()[0] == 4.0

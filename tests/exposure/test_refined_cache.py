@@ -15,8 +15,15 @@ from hdrcore.synthetic import simulate_bracket
 
 @pytest.fixture(scope="module")
 def pair():
-    sb = simulate_bracket(scene="window", shape=(240, 320), exposure_times=(1.0, 4.0), bits=12,
-                          response="linear", noise_sigma=2.0, seed=4)
+    sb = simulate_bracket(
+        scene="window",
+        shape=(240, 320),
+        exposure_times=(1.0, 4.0),
+        bits=12,
+        response="linear",
+        noise_sigma=2.0,
+        seed=4,
+    )
     hd = np.stack([histogram(sb.frames[0][..., c], sb.max_level) for c in range(3)])
     hb = np.stack([histogram(sb.frames[1][..., c], sb.max_level) for c in range(3)])
     return hd, hb, sb.max_level

@@ -21,9 +21,19 @@ TIMES = (1.0, 4.0, 16.0, 64.0)
 
 @pytest.fixture(scope="module")
 def handheld12():
-    return [simulate_bracket(scene=s, shape=(320, 480), exposure_times=TIMES, bits=12,
-                             noise_sigma=1.0, seed=3, max_shift=15, max_rotation_deg=1.0)
-            for s in SCENES]
+    return [
+        simulate_bracket(
+            scene=s,
+            shape=(320, 480),
+            exposure_times=TIMES,
+            bits=12,
+            noise_sigma=1.0,
+            seed=3,
+            max_shift=15,
+            max_rotation_deg=1.0,
+        )
+        for s in SCENES
+    ]
 
 
 def test_handheld_ratios_with_true_motion_reach_a_hundredth_of_a_percent(handheld12) -> None:
@@ -61,8 +71,14 @@ def test_identical_frames_give_one() -> None:
 
 
 def test_no_overlap_gives_a_status_and_a_message() -> None:
-    b = simulate_bracket(scene="window", shape=(200, 300), exposure_times=(1.0, 4096.0),
-                         bits=8, noise_sigma=1.0, seed=1)
+    b = simulate_bracket(
+        scene="window",
+        shape=(200, 300),
+        exposure_times=(1.0, 4096.0),
+        bits=8,
+        noise_sigma=1.0,
+        seed=1,
+    )
     r = exposure_ratio_registered(b.frames[0], b.frames[1], 255, np.eye(2, 3))
     assert r.status == "no-overlap" and not r.ok
     assert "too few registered pixels" in r.message and not np.isfinite(r.ratio)
@@ -80,8 +96,9 @@ def test_black_or_saturated_frame_gives_a_no_signal_pair() -> None:
     r = bracket_exposures_from_pixels([b.frames[0], white], 255, [np.eye(2, 3)])
     assert r.pairs[0].status == "no-signal"
     assert "the brighter frame is entirely saturated" in r.pairs[0].message
-    p = exposure_ratio_registered(b.frames[0], white, 255, np.eye(2, 3), dark_index=4,
-                                  bright_index=5)
+    p = exposure_ratio_registered(
+        b.frames[0], white, 255, np.eye(2, 3), dark_index=4, bright_index=5
+    )
     assert p.status == "no-signal" and "frames 4 and 5" in p.message
     with pytest.raises(ParameterError, match="one matrix per consecutive pair"):
         bracket_exposures_from_pixels(b.frames, 255, [])
@@ -92,8 +109,14 @@ def test_black_or_saturated_frame_gives_a_no_signal_pair() -> None:
 def test_no_signal_fallback_pair_is_kept_unchanged() -> None:
     # A pair whose histogram estimate says "no-signal" (a black or saturated frame) keeps that
     # result; the other pairs are measured from their pixels.
-    b = simulate_bracket(scene="window", shape=(100, 150), exposure_times=(1.0, 4.0, 16.0),
-                         bits=12, noise_sigma=1.0, seed=2)
+    b = simulate_bracket(
+        scene="window",
+        shape=(100, 150),
+        exposure_times=(1.0, 4.0, 16.0),
+        bits=12,
+        noise_sigma=1.0,
+        seed=2,
+    )
     frames = [np.zeros_like(b.frames[0]), b.frames[1], b.frames[2]]
     fallback = bracket_exposures(frames, b.max_level)
     assert fallback.pairs[0].status == "no-signal"
@@ -136,8 +159,9 @@ def test_unregistered_pair_takes_the_histogram_estimate(handheld12) -> None:
     b = handheld12[0]
     mats = [b.pair_matrix(k, k + 1) for k in range(len(TIMES) - 1)]
     hist = bracket_exposures(b.frames, 4095)
-    r = bracket_exposures_from_pixels(b.frames, 4095, mats, registered=[True, False, True],
-                                      fallback=hist)
+    r = bracket_exposures_from_pixels(
+        b.frames, 4095, mats, registered=[True, False, True], fallback=hist
+    )
     assert r.pairs[1].ratio == hist.pairs[1].ratio
     assert "not registered" in r.pairs[1].message
     assert r.pairs[0].method == METHOD and r.pairs[2].method == METHOD
@@ -148,8 +172,9 @@ def test_unregistered_pair_takes_the_histogram_estimate(handheld12) -> None:
 
 def test_cfa_planes_follow_the_pattern() -> None:
     raw = np.arange(4 * 6, dtype=np.uint16).reshape(4, 6) + 100
-    planes, (scale, offsets), groups = cfa_planes(raw, np.array([[0, 1], [3, 2]]), "RGBG",
-                                                  (100, 100, 100, 100), 1000)
+    planes, (scale, offsets), groups = cfa_planes(
+        raw, np.array([[0, 1], [3, 2]]), "RGBG", (100, 100, 100, 100), 1000
+    )
     assert planes.shape == (2, 3, 4) and scale == 2.0
     assert groups == (0, 1, 1, 2)
     np.testing.assert_array_equal(planes[..., 0], raw[0::2, 0::2] - 100)
@@ -159,9 +184,16 @@ def test_cfa_planes_follow_the_pattern() -> None:
 
 def test_cfa_geometry_maps_each_site_through_the_full_frame_motion() -> None:
     """A shifted mosaic: the site planes, each with its own offset, give the ratio."""
-    b = simulate_bracket(scene="landscape", shape=(400, 600), exposure_times=(1.0, 4.0),
-                         bits=12, noise_sigma=1.0, seed=5, motion=[(0, 0, 0), (3.0, -2.0, 0.4)],
-                         reference=0)
+    b = simulate_bracket(
+        scene="landscape",
+        shape=(400, 600),
+        exposure_times=(1.0, 4.0),
+        bits=12,
+        noise_sigma=1.0,
+        seed=5,
+        motion=[(0, 0, 0), (3.0, -2.0, 0.4)],
+        reference=0,
+    )
     mosaics = []
     for f in b.frames:
         m = np.empty(f.shape[:2], np.uint16)
@@ -171,21 +203,32 @@ def test_cfa_geometry_maps_each_site_through_the_full_frame_motion() -> None:
         m[1::2, 1::2] = f[1::2, 1::2, 2]
         mosaics.append(m)
     pl = [cfa_planes(m, np.array([[0, 1], [3, 2]]), "RGBG", (0, 0, 0, 0), 4095) for m in mosaics]
-    r = exposure_ratio_registered(pl[0][0], pl[1][0], 4095, b.pair_matrix(0, 1),
-                                  geometry=pl[0][1], channel_groups=pl[0][2])
+    r = exposure_ratio_registered(
+        pl[0][0], pl[1][0], 4095, b.pair_matrix(0, 1), geometry=pl[0][1], channel_groups=pl[0][2]
+    )
     assert len(r.channel_ratios) == 3
     assert abs(r.ratio / 4 - 1) < 1e-3, r.message
-    wrong = exposure_ratio_registered(pl[0][0], pl[1][0], 4095, b.pair_matrix(0, 1),
-                                      channel_groups=pl[0][2])  # offsets ignored
+    wrong = exposure_ratio_registered(
+        pl[0][0], pl[1][0], 4095, b.pair_matrix(0, 1), channel_groups=pl[0][2]
+    )  # offsets ignored
     assert abs(wrong.ratio / 4 - 1) > abs(r.ratio / 4 - 1)
 
 
 def test_area_rendering_keeps_the_brightness_of_moved_frames() -> None:
     """The simulator's moved frames are the same scene at another exposure (area rendering);
     the earlier log-cubic rendering changed their brightness."""
-    kw = dict(scene="patches", shape=(300, 450), exposure_times=(1.0, 1.0), bits=16,
-              noise_sigma=0.0, motion=[(0, 0, 0), (7.5, 0.0, 0.0)], reference=0, seed=2,
-              keep_linear=True, key=1e-5)  # nothing clips
+    kw = dict(
+        scene="patches",
+        shape=(300, 450),
+        exposure_times=(1.0, 1.0),
+        bits=16,
+        noise_sigma=0.0,
+        motion=[(0, 0, 0), (7.5, 0.0, 0.0)],
+        reference=0,
+        seed=2,
+        keep_linear=True,
+        key=1e-5,
+    )  # nothing clips
     # Measured: area 2e-7, log-cubic +0.9 % on this scene (+0.5 % on "window").
     for rendering, bound in (("area", 1e-5), ("log-cubic", None)):
         b = simulate_bracket(rendering=rendering, **kw)
@@ -204,8 +247,9 @@ def test_area_rendering_keeps_the_brightness_of_moved_frames() -> None:
 def test_still_brackets_are_the_radiance_grid_itself() -> None:
     rad = np.full((40, 60, 3), 0.1, np.float32)
     rad[10:20, 10:20] = 5.0
-    b = simulate_bracket(rad, exposure_times=(1.0, 2.0), bits=16, noise_sigma=0.0, key=0.1,
-                         keep_linear=True)
+    b = simulate_bracket(
+        rad, exposure_times=(1.0, 2.0), bits=16, noise_sigma=0.0, key=0.1, keep_linear=True
+    )
     np.testing.assert_allclose(b.linear_frames[0], np.clip(rad * 0.1, 0, 1), rtol=1e-6)
 
 
@@ -213,8 +257,16 @@ def test_still_brackets_are_the_radiance_grid_itself() -> None:
 def test_handheld_ratios_at_8_and_14_bits(bits: int, median_bound: float) -> None:
     errs = []
     for scene in ("window", "night"):
-        b = simulate_bracket(scene=scene, shape=(320, 480), exposure_times=TIMES, bits=bits,
-                             noise_sigma=1.0, seed=4, max_shift=15, max_rotation_deg=1.0)
+        b = simulate_bracket(
+            scene=scene,
+            shape=(320, 480),
+            exposure_times=TIMES,
+            bits=bits,
+            noise_sigma=1.0,
+            seed=4,
+            max_shift=15,
+            max_rotation_deg=1.0,
+        )
         mats = [b.pair_matrix(k, k + 1) for k in range(len(TIMES) - 1)]
         r = bracket_exposures_from_pixels(b.frames, b.max_level, mats)
         assert all(p.ok for p in r.pairs), r.message
@@ -224,19 +276,24 @@ def test_handheld_ratios_at_8_and_14_bits(bits: int, median_bound: float) -> Non
     assert max(errs) < 0.01
 
 
-def _render_through(big: np.ndarray, h: np.ndarray, shape: tuple[int, int],
-                    margin: int) -> np.ndarray:
+def _render_through(
+    big: np.ndarray, h: np.ndarray, shape: tuple[int, int], margin: int
+) -> np.ndarray:
     """The scene ``big`` (H + 2 margin, W + 2 margin, C) seen by a frame whose pixel ``p``
     looks at ``h p`` (3x3); quadratic spline, so the moved frame keeps the scene's detail."""
     from scipy import ndimage
 
-    yy, xx = np.mgrid[0:shape[0], 0:shape[1]].astype(np.float64)
+    yy, xx = np.mgrid[0 : shape[0], 0 : shape[1]].astype(np.float64)
     zw = h[2, 0] * xx + h[2, 1] * yy + h[2, 2]
     xs = (h[0, 0] * xx + h[0, 1] * yy + h[0, 2]) / zw + margin
     ys = (h[1, 0] * xx + h[1, 1] * yy + h[1, 2]) / zw + margin
-    return np.stack([ndimage.map_coordinates(big[..., c], [ys, xs], order=2, mode="nearest",
-                                             prefilter=False) for c in range(big.shape[2])],
-                    axis=-1)
+    return np.stack(
+        [
+            ndimage.map_coordinates(big[..., c], [ys, xs], order=2, mode="nearest", prefilter=False)
+            for c in range(big.shape[2])
+        ],
+        axis=-1,
+    )
 
 
 def test_a_pair_related_by_a_homography_is_measured_through_it() -> None:

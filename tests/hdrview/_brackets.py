@@ -24,8 +24,15 @@ def write_png_bracket(
     """A hand-held 8-bit gamma bracket written as PNG files, darkest first."""
     folder.mkdir(parents=True, exist_ok=True)
     sim = simulate_bracket(
-        scene="window", shape=shape, exposure_times=times, bits=8, response="gamma",
-        noise_sigma=1.0, max_shift=max_shift, max_rotation_deg=max_rotation_deg, seed=seed,
+        scene="window",
+        shape=shape,
+        exposure_times=times,
+        bits=8,
+        response="gamma",
+        noise_sigma=1.0,
+        max_shift=max_shift,
+        max_rotation_deg=max_rotation_deg,
+        seed=seed,
     )
     paths = []
     lines = []

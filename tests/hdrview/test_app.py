@@ -30,8 +30,10 @@ def test_load_folder_draws_frames_and_status(app: InspectorApp) -> None:
     assert "Response **" in app.response_panel.summary.content
     sheet = app.frames_panel.sheet
     assert sheet.visible and sheet.image.shape[1] >= 3 * 280  # three thumbnails in a row
-    assert app.pair_dropdown.options == ("pair 0: frames 0-1 (frame0.png, frame1.png)",
-                                         "pair 1: frames 1-2 (frame1.png, frame2.png)")
+    assert app.pair_dropdown.options == (
+        "pair 0: frames 0-1 (frame0.png, frame1.png)",
+        "pair 1: frames 1-2 (frame1.png, frame2.png)",
+    )
     assert app.saturation_slider.max == 255
     assert not _errors(app)
 
@@ -125,7 +127,10 @@ def test_controls_update_state_and_page(app: InspectorApp) -> None:
     app.set_control("threshold", 0.25)
     assert app.wait_idle(60)
     assert (app.controls.saturation, app.controls.noise_floor, app.controls.threshold) == (
-        201.0, 5.0, 0.25)
+        201.0,
+        5.0,
+        0.25,
+    )
     assert "Z = 201" in app.status.content
     assert "noise floor = 5" in app.status.content
     assert "t = 0.25" in app.status.content

@@ -20,8 +20,14 @@ from ._brackets import write_png_bracket
 def app(tmp_path_factory: pytest.TempPathFactory) -> Iterator[InspectorApp]:
     root = tmp_path_factory.mktemp("guard")
     write_png_bracket(root / "b")
-    a = create_app([str(root / "b")], port=0, root=str(root), verbose=False, demo_dir=None,
-                   allow_origins=["https://proxy.example:8443"])
+    a = create_app(
+        [str(root / "b")],
+        port=0,
+        root=str(root),
+        verbose=False,
+        demo_dir=None,
+        allow_origins=["https://proxy.example:8443"],
+    )
     try:
         yield a
     finally:
@@ -29,8 +35,13 @@ def app(tmp_path_factory: pytest.TempPathFactory) -> Iterator[InspectorApp]:
         a.server.stop()
 
 
-def _ws(app: InspectorApp, *, origin: str | None = None, host: str | None = None,
-        token: str | None = "good") -> None:
+def _ws(
+    app: InspectorApp,
+    *,
+    origin: str | None = None,
+    host: str | None = None,
+    token: str | None = "good",
+) -> None:
     port = app.server.get_port()
     assert app.guard is not None
     t = app.guard.token if token == "good" else token
@@ -38,8 +49,9 @@ def _ws(app: InspectorApp, *, origin: str | None = None, host: str | None = None
     headers = {}
     if host is not None:
         headers["Host"] = host
-    with connect(url, origin=origin, additional_headers=headers, subprotocols=["viser-v1"],
-                 open_timeout=5) as ws:
+    with connect(
+        url, origin=origin, additional_headers=headers, subprotocols=["viser-v1"], open_timeout=5
+    ) as ws:
         ws.close()
 
 
@@ -61,8 +73,9 @@ def test_the_printed_address_works(app):
     assert status == 200 and "hdrview_token=" in cookie and "SameSite=Strict" in cookie
 
 
-@pytest.mark.parametrize("origin", ["http://evil.example", "http://127.0.0.1:1",
-                                    "null", "https://proxy.example:9999"])
+@pytest.mark.parametrize(
+    "origin", ["http://evil.example", "http://127.0.0.1:1", "null", "https://proxy.example:9999"]
+)
 def test_foreign_origin_is_refused(app, origin):
     with pytest.raises(InvalidStatus) as err:
         _ws(app, origin=origin)
@@ -76,8 +89,9 @@ def test_wrong_host_is_refused(app, host):
     with pytest.raises(InvalidStatus) as err:
         _ws(app, host=host.format(port=app.server.get_port()))
     assert err.value.response.status_code == 403
-    status, body, _ = _http(app, f"/?token={app.guard.token}",
-                            {"Host": host.format(port=app.server.get_port())})
+    status, body, _ = _http(
+        app, f"/?token={app.guard.token}", {"Host": host.format(port=app.server.get_port())}
+    )
     assert status == 403 and "Host" in body
 
 
@@ -98,7 +112,6 @@ def test_cookie_carries_the_token_for_the_page_assets(app):
 def test_no_token_mode_keeps_the_address_checks():
     g = ConnectionGuard(lambda: 8080, token=None)
     assert g.refusal("/", {"Host": "127.0.0.1:8080"}) is None
-    assert "Origin" in g.refusal("/", {"Host": "127.0.0.1:8080",
-                                       "Origin": "http://evil.example"})
+    assert "Origin" in g.refusal("/", {"Host": "127.0.0.1:8080", "Origin": "http://evil.example"})
     assert "Host" in g.refusal("/", {"Host": "evil.example:8080"})
     assert g.url() == "http://127.0.0.1:8080/"

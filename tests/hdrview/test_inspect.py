@@ -17,14 +17,21 @@ def test_loupe_is_a_full_resolution_crop_rendered_like_the_preview(app) -> None:
     h, w = rad.shape[:2]
     img, (x0, y0, x1, y1) = loupe(result, 1.0, 0.5, 0.5)
     assert img.shape[:2] == (min(h, BOX[1]), min(w, BOX[0])) == (y1 - y0, x1 - x0)
-    full = tonemap(rad, result.preview.method, exposure=float(np.log2(result.preview.scale)),
-                   auto_exposure=False, white=result.preview.white).image
+    full = tonemap(
+        rad,
+        result.preview.method,
+        exposure=float(np.log2(result.preview.scale)),
+        auto_exposure=False,
+        white=result.preview.white,
+    ).image
     assert np.abs(img.astype(int) - full[y0:y1, x0:x1].astype(int)).max() <= 1
     # 400 %: a quarter of the pixels each way, each repeated 4 times, clamped inside the image.
     img4, (a0, b0, a1, b1) = loupe(result, 4.0, 1.0, 0.0)
     assert (a1, b0) == (w, 0) and img4.shape[1] == 4 * (a1 - a0)
-    assert np.array_equal(img4[::4, ::4], full[b0:b1, a0:a1]) or np.abs(
-        img4[::4, ::4].astype(int) - full[b0:b1, a0:a1].astype(int)).max() <= 1
+    assert (
+        np.array_equal(img4[::4, ::4], full[b0:b1, a0:a1])
+        or np.abs(img4[::4, ::4].astype(int) - full[b0:b1, a0:a1].astype(int)).max() <= 1
+    )
 
 
 def test_the_panel_switches_to_the_loupe(app) -> None:

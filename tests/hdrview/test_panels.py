@@ -21,9 +21,18 @@ from hdrview.view import ClientView
 
 @pytest.fixture(scope="module")
 def sim():
-    return simulate_bracket(scene="window", shape=(128, 192), exposure_times=(1.0, 4.0, 16.0),
-                            bits=12, response="linear", noise_sigma=1.0, seed=2,
-                            max_shift=2.0, max_rotation_deg=0.3, keep_linear=True)
+    return simulate_bracket(
+        scene="window",
+        shape=(128, 192),
+        exposure_times=(1.0, 4.0, 16.0),
+        bits=12,
+        response="linear",
+        noise_sigma=1.0,
+        seed=2,
+        max_shift=2.0,
+        max_rotation_deg=0.3,
+        keep_linear=True,
+    )
 
 
 @pytest.fixture(scope="module")
@@ -50,7 +59,7 @@ def test_level_classes_follow_the_equations(stage_result) -> None:
     for which in ("dark", "bright"):
         table = pair.level_classes(which)
         assert table.shape == (3, pair.max_level + 1)
-        assert (table[:, int(np.ceil(pair.saturation)):] == SATURATED).all()
+        assert (table[:, int(np.ceil(pair.saturation)) :] == SATURATED).all()
         assert (table[:, : int(pair.noise_floor) + 1] == UNDER).all()
         assert (table == INLIER).any()
     # Every inlier equation from the dark frame marks its level as an inlier.
@@ -69,13 +78,17 @@ def test_pixel_classes_take_the_most_severe_channel() -> None:
     assert pixel_classes(levels, table).tolist() == [[INLIER, OUTLIER, SATURATED]]
 
 
-@pytest.mark.parametrize("layer", ["tonemapped", "provenance", "clipping", "ghosts",
-                                   "deghosted"])
+@pytest.mark.parametrize("layer", ["tonemapped", "provenance", "clipping", "ghosts", "deghosted"])
 @pytest.mark.parametrize("overlay", ["red/cyan", "difference (eq. 7)"])
 def test_every_panel_draws(viewer, stage_result, sim_bracket, layer, overlay) -> None:
     view = {"pair": 1, "layer": layer, "overlay": overlay}
-    for panel in (viewer.btf_panel, viewer.masks_panel, viewer.registration_panel,
-                  viewer.result_panel, viewer.diagnostics_panel):
+    for panel in (
+        viewer.btf_panel,
+        viewer.masks_panel,
+        viewer.registration_panel,
+        viewer.result_panel,
+        viewer.diagnostics_panel,
+    ):
         panel.show(sim_bracket, stage_result, view)
     assert "Pair 1→2" in viewer.btf_panel.summary.content
     assert viewer.btf_panel.scatter.visible and viewer.btf_panel.transfer.visible
@@ -108,21 +121,27 @@ def test_deghosted_layer_paints_the_filled_pixels(viewer, stage_result, sim_brac
     merged = stage_result.merge
     filled = np.zeros(merged.shape, bool)
     filled[: merged.shape[0] // 2] = True
-    with_deghost = dataclasses.replace(stage_result,
-                                       merge=dataclasses.replace(merged, deghosted=filled))
+    with_deghost = dataclasses.replace(
+        stage_result, merge=dataclasses.replace(merged, deghosted=filled)
+    )
     viewer.result_panel.show(sim_bracket, with_deghost, view)
     summary = viewer.result_panel.summary.content
     assert "deghosted: filled from one frame" in summary and "50.00% of the pixels" in summary
     img = viewer.result_panel._images["deghosted"]
-    top, bottom = img[: img.shape[0] // 4], img[-img.shape[0] // 4:]
+    top, bottom = img[: img.shape[0] // 4], img[-img.shape[0] // 4 :]
     assert (top == (0, 200, 255)).all(axis=-1).mean() > 0.9
     assert (bottom == (0, 200, 255)).all(axis=-1).mean() < 0.01
 
 
 def test_exports_and_bundle(viewer, stage_result, sim_bracket) -> None:
     view = {"pair": 0, "layer": "provenance", "overlay": "red/cyan"}
-    for panel in (viewer.btf_panel, viewer.masks_panel, viewer.registration_panel,
-                  viewer.result_panel, viewer.diagnostics_panel):
+    for panel in (
+        viewer.btf_panel,
+        viewer.masks_panel,
+        viewer.registration_panel,
+        viewer.result_panel,
+        viewer.diagnostics_panel,
+    ):
         panel.show(sim_bracket, stage_result, view)
     assert exr_bytes(stage_result)[:4] == b"\x76\x2f\x31\x01"  # OpenEXR magic
     assert preview_png_bytes(stage_result)[:8] == b"\x89PNG\r\n\x1a\n"
@@ -148,8 +167,6 @@ def test_waiting_notes_without_a_result(viewer, sim_bracket) -> None:
     viewer.masks_panel.show(sim_bracket, None, view)
     assert "Waiting" in viewer.btf_panel.summary.content
     assert not viewer.masks_panel.dark.visible
-
-
 
 
 def test_btf_panel_shows_the_histogram_fit_and_the_registered_ratio(viewer, sim_bracket) -> None:

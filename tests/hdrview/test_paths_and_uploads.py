@@ -48,7 +48,8 @@ def outside(tmp_path: Path) -> Path:
 
 
 def test_folder_of_links_to_files_outside_the_root_is_refused(
-        app: InspectorApp, bracket_root: Path, outside: Path) -> None:
+    app: InspectorApp, bracket_root: Path, outside: Path
+) -> None:
     linked = bracket_root / "linked"
     linked.mkdir()
     for p in sorted((outside / "bracket").glob("*.png")):
@@ -60,7 +61,8 @@ def test_folder_of_links_to_files_outside_the_root_is_refused(
 
 
 def test_times_list_linking_outside_is_refused_and_never_shown(
-        app: InspectorApp, bracket_root: Path, outside: Path) -> None:
+    app: InspectorApp, bracket_root: Path, outside: Path
+) -> None:
     b = bracket_root / "bracket"
     (b / "exposure_times.txt").unlink()
     (b / "exposure_times.txt").symlink_to(outside / "secret.txt")
@@ -73,7 +75,8 @@ def test_times_list_linking_outside_is_refused_and_never_shown(
 
 @pytest.mark.parametrize("where", ["typed", "in folder", "times list"])
 def test_symlink_loop_is_a_notification_not_a_traceback(
-        app: InspectorApp, bracket_root: Path, where: str) -> None:
+    app: InspectorApp, bracket_root: Path, where: str
+) -> None:
     b = bracket_root / "bracket"
     if where == "typed":
         (bracket_root / "a").symlink_to(bracket_root / "b")
@@ -94,7 +97,8 @@ def test_symlink_loop_is_a_notification_not_a_traceback(
 
 
 def test_links_inside_the_root_and_operator_files_load(
-        bracket_root: Path, outside: Path, tmp_path: Path) -> None:
+    bracket_root: Path, outside: Path, tmp_path: Path
+) -> None:
     inside = bracket_root / "alias"
     inside.symlink_to(bracket_root / "bracket")
     r = RootResolver(bracket_root)
@@ -118,7 +122,7 @@ def test_zip_member_that_is_a_symlink_is_skipped(app: InspectorApp, bracket_root
         for p in sorted((bracket_root / "bracket").iterdir()):
             zf.write(p, p.name)
         link = zipfile.ZipInfo("evil.png")
-        link.external_attr = (0o120777 << 16)  # a symbolic link to /etc/passwd
+        link.external_attr = 0o120777 << 16  # a symbolic link to /etc/passwd
         zf.writestr(link, "/etc/passwd")
     assert app.handle_upload("b.zip", buf.getvalue())
     assert app.wait_idle(60)
@@ -131,12 +135,22 @@ def test_zip_member_that_is_a_symlink_is_skipped(app: InspectorApp, bracket_root
 
 def _png_declaring(width: int, height: int) -> bytes:
     """A tiny PNG whose header declares ``width`` x ``height`` (its pixel data is a stub)."""
+
     def chunk(kind: bytes, data: bytes) -> bytes:
-        return (struct.pack(">I", len(data)) + kind + data
-                + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF))
+        return (
+            struct.pack(">I", len(data))
+            + kind
+            + data
+            + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
+        )
+
     ihdr = struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0)
-    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr)
-            + chunk(b"IDAT", zlib.compress(b"\x00" * 64)) + chunk(b"IEND", b""))
+    return (
+        b"\x89PNG\r\n\x1a\n"
+        + chunk(b"IHDR", ihdr)
+        + chunk(b"IDAT", zlib.compress(b"\x00" * 64))
+        + chunk(b"IEND", b"")
+    )
 
 
 def test_upload_box_works_again_after_a_bad_upload(app: InspectorApp, bracket_root: Path) -> None:
@@ -166,7 +180,8 @@ def test_a_refused_upload_closes_the_set(app: InspectorApp, bracket_root: Path) 
 
 
 def test_after_a_zip_a_single_upload_starts_a_new_set(
-        app: InspectorApp, bracket_root: Path) -> None:
+    app: InspectorApp, bracket_root: Path
+) -> None:
     buf = io.BytesIO()
     with zipfile.ZipFile(buf, "w") as zf:
         for p in sorted((bracket_root / "bracket").iterdir()):
@@ -193,8 +208,12 @@ def test_zip_member_too_large_is_refused_from_the_directory(bracket_root: Path) 
     import viser
 
     server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
-    inspector = InspectorApp(server, root=bracket_root, demo_dir=None,
-                             limits=UploadLimits(file_bytes=50_000, total_bytes=80_000))
+    inspector = InspectorApp(
+        server,
+        root=bracket_root,
+        demo_dir=None,
+        limits=UploadLimits(file_bytes=50_000, total_bytes=80_000),
+    )
     app = inspector.headless_view()
     try:
         buf = io.BytesIO()
@@ -221,16 +240,29 @@ class RawPage:
         assert app.guard is not None
         port = app.server.get_port()
         before = set(app.views)
-        self.ws = connect(f"ws://127.0.0.1:{port}/?token={app.guard.token}",
-                          origin=f"http://127.0.0.1:{port}",
-                          subprotocols=[f"viser-v{viser.__version__}"], open_timeout=5,
-                          max_size=None)
-        self.ws.send(msgspec.msgpack.encode({
-            "type": "ViewerCameraMessage", "wxyz": [1.0, 0.0, 0.0, 0.0],
-            "position": [0.0, 0.0, 1.0], "fov": 1.0, "near": 0.01, "far": 100.0,
-            "image_height": 600, "image_width": 800, "look_at": [0.0, 0.0, 0.0],
-            "up_direction": [0.0, 1.0, 0.0],
-        }))
+        self.ws = connect(
+            f"ws://127.0.0.1:{port}/?token={app.guard.token}",
+            origin=f"http://127.0.0.1:{port}",
+            subprotocols=[f"viser-v{viser.__version__}"],
+            open_timeout=5,
+            max_size=None,
+        )
+        self.ws.send(
+            msgspec.msgpack.encode(
+                {
+                    "type": "ViewerCameraMessage",
+                    "wxyz": [1.0, 0.0, 0.0, 0.0],
+                    "position": [0.0, 0.0, 1.0],
+                    "fov": 1.0,
+                    "near": 0.01,
+                    "far": 100.0,
+                    "image_height": 600,
+                    "image_width": 800,
+                    "look_at": [0.0, 0.0, 0.0],
+                    "up_direction": [0.0, 1.0, 0.0],
+                }
+            )
+        )
         deadline = time.time() + 10
         while not set(app.views) - before and time.time() < deadline:
             time.sleep(0.02)
@@ -239,18 +271,33 @@ class RawPage:
 
     def upload(self, name: str, content: bytes, declared: int | None = None) -> None:
         chunk = 512 * 1024
-        parts = [content[i:i + chunk] for i in range(0, len(content), chunk)]
+        parts = [content[i : i + chunk] for i in range(0, len(content), chunk)]
         uuid = self.view.upload_button._impl.uuid
-        self.ws.send(msgspec.msgpack.encode({
-            "type": "FileTransferStartUpload", "source_component_uuid": uuid,
-            "transfer_uuid": "t-" + name, "filename": name, "mime_type": "image/png",
-            "part_count": len(parts), "size_bytes": len(content) if declared is None else declared,
-        }))
+        self.ws.send(
+            msgspec.msgpack.encode(
+                {
+                    "type": "FileTransferStartUpload",
+                    "source_component_uuid": uuid,
+                    "transfer_uuid": "t-" + name,
+                    "filename": name,
+                    "mime_type": "image/png",
+                    "part_count": len(parts),
+                    "size_bytes": len(content) if declared is None else declared,
+                }
+            )
+        )
         for i, part in enumerate(parts):
-            self.ws.send(msgspec.msgpack.encode({
-                "type": "FileTransferPart", "source_component_uuid": uuid,
-                "transfer_uuid": "t-" + name, "part_index": i, "content": part,
-            }))
+            self.ws.send(
+                msgspec.msgpack.encode(
+                    {
+                        "type": "FileTransferPart",
+                        "source_component_uuid": uuid,
+                        "transfer_uuid": "t-" + name,
+                        "part_index": i,
+                        "content": part,
+                    }
+                )
+            )
         time.sleep(0.5)
 
     def close(self) -> None:
@@ -259,8 +306,14 @@ class RawPage:
 
 @pytest.fixture
 def served(bracket_root: Path):
-    app = create_app([], port=0, root=str(bracket_root), verbose=False, demo_dir=None,
-                     limits=UploadLimits(file_bytes=1_000_000, total_bytes=1_500_000))
+    app = create_app(
+        [],
+        port=0,
+        root=str(bracket_root),
+        verbose=False,
+        demo_dir=None,
+        limits=UploadLimits(file_bytes=1_000_000, total_bytes=1_500_000),
+    )
     try:
         yield app
     finally:
@@ -336,7 +389,8 @@ def test_total_limit_counts_the_open_set(app, bracket_root: Path) -> None:
 
 
 def test_work_dir_is_removed_at_stop_and_stale_ones_at_start(
-        bracket_root: Path, tmp_path: Path) -> None:
+    bracket_root: Path, tmp_path: Path
+) -> None:
     import viser
 
     server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
@@ -377,9 +431,21 @@ def test_sigterm_removes_uploads(bracket_root: Path, tmp_path: Path) -> None:
     )
     env = dict(os.environ, TMPDIR=str(tmp_path))
     proc = subprocess.Popen(
-        [sys.executable, "-c", code, "--port", "0", "--root", str(bracket_root),
-         str(bracket_root / "bracket"), str(bracket_root / "bracket" / "frame0.png")],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
+        [
+            sys.executable,
+            "-c",
+            code,
+            "--port",
+            "0",
+            "--root",
+            str(bracket_root),
+            str(bracket_root / "bracket"),
+            str(bracket_root / "bracket" / "frame0.png"),
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
     )
     try:
         line = ""
@@ -406,15 +472,18 @@ def test_busy_port_is_an_error(bracket_root: Path, capsys: pytest.CaptureFixture
         s.bind(("127.0.0.1", 0))
         s.listen(1)
         port = s.getsockname()[1]
-        assert main(["--port", str(port), "--root", str(bracket_root),
-                     str(bracket_root / "bracket")]) == 2
+        assert (
+            main(["--port", str(port), "--root", str(bracket_root), str(bracket_root / "bracket")])
+            == 2
+        )
     err = capsys.readouterr().err
     assert f"port {port} on 127.0.0.1 is in use" in err and "--port 0" in err
     assert len(err.strip().splitlines()) == 1
 
 
 def test_non_loopback_address_needs_allow_remote(
-        bracket_root: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    bracket_root: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     assert main(["--host", "0.0.0.0", "--port", "0", "--root", str(bracket_root)]) == 2
     err = capsys.readouterr().err
     assert "--allow-remote" in err and len(err.strip().splitlines()) == 1
@@ -439,9 +508,20 @@ def test_sigterm_to_another_thread_stops_the_program(bracket_root: Path, tmp_pat
     )
     env = dict(os.environ, TMPDIR=str(tmp_path))
     proc = subprocess.Popen(
-        [sys.executable, "-c", code, "--port", "0", "--root", str(bracket_root),
-         str(bracket_root / "bracket")],
-        stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        [
+            sys.executable,
+            "-c",
+            code,
+            "--port",
+            "0",
+            "--root",
+            str(bracket_root),
+            str(bracket_root / "bracket"),
+        ],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
         env=env,
     )
     try:

@@ -18,9 +18,18 @@ from hdrview.panels.registration import local_fields, local_summary, overlay_cro
 
 @pytest.fixture(scope="module")
 def result(tmp_path_factory):
-    sim = simulate_bracket(scene="window", shape=(192, 256), exposure_times=(1.0, 4.0, 16.0),
-                           bits=12, response="linear", noise_sigma=1.0, seed=4,
-                           max_shift=3.0, max_rotation_deg=0.3, keep_linear=True)
+    sim = simulate_bracket(
+        scene="window",
+        shape=(192, 256),
+        exposure_times=(1.0, 4.0, 16.0),
+        bits=12,
+        response="linear",
+        noise_sigma=1.0,
+        seed=4,
+        max_shift=3.0,
+        max_rotation_deg=0.3,
+        keep_linear=True,
+    )
     out = tmp_path_factory.mktemp("local") / "dng"
     write_bracket(out, sim, fmt="dng")
     return Pipeline(load_bracket([out]), PipelineParams(local="on")).run(until="registration")
@@ -43,11 +52,13 @@ def test_the_overlay_reads_the_frames_through_their_fields(result) -> None:
     gh, gw = DisplacementField.grid(shape, step)
     moved = DisplacementField(step, np.full((gh, gw, 2), 6.0, np.float32))
     fields = list(local_fields(reg))
-    plain = replace(result, registration=replace(
-        reg, local=replace(reg.local, fields=(None,) * len(fields))))
+    plain = replace(
+        result, registration=replace(reg, local=replace(reg.local, fields=(None,) * len(fields)))
+    )
     fields[2] = moved
-    shifted = replace(result, registration=replace(reg, local=replace(reg.local,
-                                                                      fields=tuple(fields))))
+    shifted = replace(
+        result, registration=replace(reg, local=replace(reg.local, fields=tuple(fields)))
+    )
     a, _ = overlay_crop(result.bracket, plain, 1, aligned=True, zoom=0)
     b, _ = overlay_crop(result.bracket, shifted, 1, aligned=True, zoom=0)
     # the bright frame (red) moved by 6 px: the overlay changes, the dark frame (cyan) not

@@ -72,8 +72,14 @@ def test_split_path_field() -> None:
 
 @pytest.mark.parametrize(
     ("name", "expected"),
-    [("../../etc/passwd", "passwd"), ("..\\..\\x.png", "x.png"), (".hidden", "hidden"),
-     ("a b$c.png", "a_b_c.png"), ("", "upload"), ("..", "upload")],
+    [
+        ("../../etc/passwd", "passwd"),
+        ("..\\..\\x.png", "x.png"),
+        (".hidden", "hidden"),
+        ("a b$c.png", "a_b_c.png"),
+        ("", "upload"),
+        ("..", "upload"),
+    ],
 )
 def test_safe_upload_name(name: str, expected: str) -> None:
     assert safe_upload_name(name) == expected
@@ -99,8 +105,14 @@ def _zip(members: dict[str, bytes]) -> bytes:
 
 
 def test_zip_extraction_is_flat_and_skips_non_images(tmp_path: Path) -> None:
-    data = _zip({"../../evil.png": PNG, "dir/b.png": PNG, "readme.txt": b"hi",
-                 "exposure_times.txt": b"evil.png 1\nb.png 2\n"})
+    data = _zip(
+        {
+            "../../evil.png": PNG,
+            "dir/b.png": PNG,
+            "readme.txt": b"hi",
+            "exposure_times.txt": b"evil.png 1\nb.png 2\n",
+        }
+    )
     out = extract_zip_images(data, tmp_path)
     assert [p.name for p in out] == ["b.png", "evil.png"]
     assert all(p.parent == tmp_path for p in out)

@@ -21,10 +21,20 @@ def test_every_control_is_a_pipeline_parameter() -> None:
     params = typing.get_type_hints(PipelineParams)
     for f in dataclasses.fields(Controls):
         assert f.name in params, f.name
-    set_all = Controls(saturation=240.0, noise_floor=3.0, threshold=0.2, align="similarity",
-                       local="off", reference=1, response="srgb", tonemap="reinhard",
-                       tonemap_exposure=1.5, deghost=True, times="exif",
-                       exposure_method="Cerman 2006")
+    set_all = Controls(
+        saturation=240.0,
+        noise_floor=3.0,
+        threshold=0.2,
+        align="similarity",
+        local="off",
+        reference=1,
+        response="srgb",
+        tonemap="reinhard",
+        tonemap_exposure=1.5,
+        deghost=True,
+        times="exif",
+        exposure_method="Cerman 2006",
+    )
     p = Session(workers=1).params_for(set_all)
     for name, value in set_all.changes().items():
         assert getattr(p, name) == value, name
@@ -36,11 +46,19 @@ def test_every_control_is_a_pipeline_parameter() -> None:
 def test_the_pipeline_is_not_imported_with_the_inspector() -> None:
     """Its types come from the library for mypy only: the stages (a second or two to import,
     numba's kernels) load on the first run, off the thread that serves the page."""
-    code = ("import sys; import hdrview.app, hdrview.view, hdrview.panels.result; "
-            "print([m for m in ('hdrcore.pipeline', 'hdrcore.registration', "
-            "'hdrcore.exposure', 'hdrcore.merge') if m in sys.modules])")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                         cwd=ROOT, check=True, timeout=120)
+    code = (
+        "import sys; import hdrview.app, hdrview.view, hdrview.panels.result; "
+        "print([m for m in ('hdrcore.pipeline', 'hdrcore.registration', "
+        "'hdrcore.exposure', 'hdrcore.merge') if m in sys.modules])"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        check=True,
+        timeout=120,
+    )
     assert out.stdout.strip() == "[]"
 
 
@@ -51,8 +69,10 @@ def test_sliders_show_the_levels_the_pipeline_used(app: ClientView) -> None:
     assert app.wait_idle(60)
     result = app.session.result
     assert result is not None
-    for handle, used in ((app.saturation_slider, result.saturation),
-                         (app.noise_slider, result.noise_floor)):
+    for handle, used in (
+        (app.saturation_slider, result.saturation),
+        (app.noise_slider, result.noise_floor),
+    ):
         # the noise floor of this gamma bracket (21.1) is above the slider's 8-bit range (16):
         # the slider showed the previous value and now widens to take it
         assert handle.min <= used <= handle.max and handle.value == round(used, 2)

@@ -47,8 +47,12 @@ def test_sorted_by_brightness_without_exif(tmp_path: Path) -> None:
 
 def test_capture_mistakes_are_warnings(tmp_path: Path) -> None:
     paths = _frames(
-        tmp_path, [Fraction(1, 100), Fraction(1, 25), Fraction(1, 25)],
-        f_number=[8.0, 8.0, 5.6], iso=[100, 200, 100], make="A", model=["X", "X", "Y"],
+        tmp_path,
+        [Fraction(1, 100), Fraction(1, 25), Fraction(1, 25)],
+        f_number=[8.0, 8.0, 5.6],
+        iso=[100, 200, 100],
+        make="A",
+        model=["X", "X", "Y"],
     )
     b = load_bracket(paths)
     codes = b.warning_codes()
@@ -160,6 +164,7 @@ def test_directory_expansion_and_empty_directory(tmp_path: Path) -> None:
 
 
 # --- real photographs ---------------------------------------------------------------------------
+
 
 @pytest.mark.shared
 def test_memorial_debevec(memorial_dir: Path) -> None:

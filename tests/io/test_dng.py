@@ -23,13 +23,18 @@ from hdrcore.synthetic import simulate_bracket, write_bracket
 
 # A camera LibRaw has no table for, so rawpy reports the file's ColorMatrix1.
 META = DngMetadata(
-    make="hdrcore-test", model="sensor",
+    make="hdrcore-test",
+    model="sensor",
     color_matrix=((0.9, -0.2, 0.1), (-0.3, 1.2, 0.1), (0.0, 0.1, 0.8)),
-    white_balance=(2.0, 1.0, 1.5), exposure_time=Fraction(1, 125), f_number=Fraction(8),
-    iso=200, provenance={"exposureRatios": [4.0, 4.0], "reference": 1},
+    white_balance=(2.0, 1.0, 1.5),
+    exposure_time=Fraction(1, 125),
+    f_number=Fraction(8),
+    iso=200,
+    provenance={"exposureRatios": [4.0, 4.0], "reference": 1},
 )
-EXIFTOOL = shutil.which("exiftool") or ("/usr/bin/exiftool"
-                                        if Path("/usr/bin/exiftool").exists() else None)
+EXIFTOOL = shutil.which("exiftool") or (
+    "/usr/bin/exiftool" if Path("/usr/bin/exiftool").exists() else None
+)
 DARKTABLE = shutil.which("darktable-cli")
 
 
@@ -91,8 +96,13 @@ def test_orientation_is_carried(tmp_path: Path, orientation: int) -> None:
     meta = DngMetadata(**{**META.__dict__, "orientation": orientation})
     p = write_float_dng(tmp_path / "o.dng", img, meta)
     with rawpy.imread(str(p)) as raw:
-        up = raw.postprocess(gamma=(1, 1), no_auto_bright=True, output_bps=16,
-                             user_wb=[1, 1, 1, 1], output_color=rawpy.ColorSpace.raw)
+        up = raw.postprocess(
+            gamma=(1, 1),
+            no_auto_bright=True,
+            output_bps=16,
+            user_wb=[1, 1, 1, 1],
+            output_color=rawpy.ColorSpace.raw,
+        )
     assert up.shape[:2] == img.shape[:2]
     y, x = np.unravel_index(np.argmax(up.sum(axis=2)), up.shape[:2])
     assert 4 <= y <= 6 and 9 <= x <= 11
@@ -100,10 +110,12 @@ def test_orientation_is_carried(tmp_path: Path, orientation: int) -> None:
 
 @pytest.mark.skipif(EXIFTOOL is None, reason="exiftool (libimage-exiftool-perl) not installed")
 def test_tags_checked_by_exiftool(tmp_path: Path) -> None:
-    p = write_float_dng(tmp_path / "t.dng", _image(), DngMetadata(
-        **{**META.__dict__, "orientation": 6}))
-    out = subprocess.run([EXIFTOOL, "-j", "-n", "-a", "-G1", str(p)], capture_output=True,
-                         text=True, check=True)
+    p = write_float_dng(
+        tmp_path / "t.dng", _image(), DngMetadata(**{**META.__dict__, "orientation": 6})
+    )
+    out = subprocess.run(
+        [EXIFTOOL, "-j", "-n", "-a", "-G1", str(p)], capture_output=True, text=True, check=True
+    )
     tags = json.loads(out.stdout)[0]
     assert tags["IFD0:DNGVersion"] == "1 4 0 0"
     assert tags["IFD0:PhotometricInterpretation"] == 34892
@@ -112,9 +124,11 @@ def test_tags_checked_by_exiftool(tmp_path: Path) -> None:
     assert tags["IFD0:BlackLevel"] == 0 and tags["IFD0:WhiteLevel"] == 1
     assert tags["IFD0:Orientation"] == 6
     assert [float(v) for v in tags["IFD0:ColorMatrix1"].split()] == pytest.approx(
-        np.ravel(META.color_matrix).tolist())
+        np.ravel(META.color_matrix).tolist()
+    )
     assert [float(v) for v in tags["IFD0:AsShotNeutral"].split()] == pytest.approx(
-        [0.5, 1.0, 1 / 1.5])
+        [0.5, 1.0, 1 / 1.5]
+    )
     assert tags["IFD0:CalibrationIlluminant1"] == 21
     assert tags["ExifIFD:ExposureTime"] == pytest.approx(1 / 125)
     assert tags["ExifIFD:FNumber"] == 8 and tags["ExifIFD:ISO"] == 200
@@ -134,8 +148,13 @@ def test_bad_inputs_are_named(tmp_path: Path) -> None:
     with pytest.raises(ParameterError, match="no positive finite"):
         write_float_dng(tmp_path / "x.dng", np.zeros((4, 4, 3), np.float32), META)
     with pytest.raises(ParameterError, match="Bayer"):
-        write_float_dng(tmp_path / "x.dng", np.ones((4, 4), np.float32), META, kind="cfa",
-                        cfa_pattern=[[0, 0], [1, 2]])
+        write_float_dng(
+            tmp_path / "x.dng",
+            np.ones((4, 4), np.float32),
+            META,
+            kind="cfa",
+            cfa_pattern=[[0, 0], [1, 2]],
+        )
     assert not list(tmp_path.iterdir())  # nothing left behind
 
 
@@ -143,15 +162,42 @@ def test_bad_inputs_are_named(tmp_path: Path) -> None:
 def merged(tmp_path_factory) -> dict[str, Path]:
     """A 12-bit simulated RAW bracket merged with --dng, --preview and a float32 EXR."""
     d = tmp_path_factory.mktemp("dngmerge")
-    sim = simulate_bracket(scene="window", shape=(192, 288), exposure_times=(1 / 256, 1 / 64,
-                           1 / 16), bits=12, response="linear", noise_sigma=1.0, seed=2,
-                           keep_linear=True)
+    sim = simulate_bracket(
+        scene="window",
+        shape=(192, 288),
+        exposure_times=(1 / 256, 1 / 64, 1 / 16),
+        bits=12,
+        response="linear",
+        noise_sigma=1.0,
+        seed=2,
+        keep_linear=True,
+    )
     write_bracket(d / "in", sim, "dng")
-    out = {"dir": d / "in", "exr": d / "m.exr", "dng": d / "m.dng", "png": d / "m.png",
-           "json": d / "m.json"}
-    code = main(["merge", str(d / "in"), "-o", str(out["exr"]), "--dng", str(out["dng"]),
-                 "--dng-layout", "linear", "--preview", str(out["png"]), "--report",
-                 str(out["json"]), "--float32", "--quiet"])
+    out = {
+        "dir": d / "in",
+        "exr": d / "m.exr",
+        "dng": d / "m.dng",
+        "png": d / "m.png",
+        "json": d / "m.json",
+    }
+    code = main(
+        [
+            "merge",
+            str(d / "in"),
+            "-o",
+            str(out["exr"]),
+            "--dng",
+            str(out["dng"]),
+            "--dng-layout",
+            "linear",
+            "--preview",
+            str(out["png"]),
+            "--report",
+            str(out["json"]),
+            "--float32",
+            "--quiet",
+        ]
+    )
     assert code in (0, 1)
     return out
 
@@ -161,8 +207,21 @@ def merged_cfa(merged: dict[str, Path]) -> dict[str, Path]:
     """The same tripod bracket with --dng-layout auto: a CFA DNG of the merged mosaic."""
     d = merged["dir"].parent
     out = {"dir": merged["dir"], "dng": d / "c.dng", "png": d / "c.png", "json": d / "c.json"}
-    code = main(["merge", str(merged["dir"]), "-o", str(d / "c.exr"), "--dng", str(out["dng"]),
-                 "--preview", str(out["png"]), "--report", str(out["json"]), "--quiet"])
+    code = main(
+        [
+            "merge",
+            str(merged["dir"]),
+            "-o",
+            str(d / "c.exr"),
+            "--dng",
+            str(out["dng"]),
+            "--preview",
+            str(out["png"]),
+            "--report",
+            str(out["json"]),
+            "--quiet",
+        ]
+    )
     assert code in (0, 1)
     return out
 
@@ -188,16 +247,49 @@ def test_tripod_raw_bracket_gets_the_merged_mosaic(merged_cfa: dict[str, Path]) 
 
 
 def test_hand_held_bracket_gets_linear_and_refuses_cfa(tmp_path: Path) -> None:
-    sim = simulate_bracket(scene="window", shape=(160, 240), exposure_times=(1 / 64, 1 / 16),
-                           bits=12, response="linear", noise_sigma=1.0, max_shift=4, seed=5,
-                           keep_linear=True)
+    sim = simulate_bracket(
+        scene="window",
+        shape=(160, 240),
+        exposure_times=(1 / 64, 1 / 16),
+        bits=12,
+        response="linear",
+        noise_sigma=1.0,
+        max_shift=4,
+        seed=5,
+        keep_linear=True,
+    )
     write_bracket(tmp_path / "in", sim, "dng")
     rep = tmp_path / "r.json"
-    assert main(["merge", str(tmp_path / "in"), "-o", str(tmp_path / "m.exr"), "--dng",
-                 str(tmp_path / "m.dng"), "--report", str(rep), "--quiet"]) in (0, 1)
+    assert main(
+        [
+            "merge",
+            str(tmp_path / "in"),
+            "-o",
+            str(tmp_path / "m.exr"),
+            "--dng",
+            str(tmp_path / "m.dng"),
+            "--report",
+            str(rep),
+            "--quiet",
+        ]
+    ) in (0, 1)
     assert json.loads(rep.read_text())["outputs"]["dng_layout"] == "linear"
-    assert main(["merge", str(tmp_path / "in"), "-o", str(tmp_path / "n.exr"), "--dng",
-                 str(tmp_path / "n.dng"), "--dng-layout", "cfa", "--quiet"]) == 2
+    assert (
+        main(
+            [
+                "merge",
+                str(tmp_path / "in"),
+                "-o",
+                str(tmp_path / "n.exr"),
+                "--dng",
+                str(tmp_path / "n.dng"),
+                "--dng-layout",
+                "cfa",
+                "--quiet",
+            ]
+        )
+        == 2
+    )
     assert not (tmp_path / "n.dng").exists()
 
 
@@ -229,10 +321,20 @@ def test_merge_dng_holds_the_merged_values(merged: dict[str, Path]) -> None:
     np.testing.assert_allclose(img, cam, rtol=1e-5, atol=1e-6 * cam.max())
 
 
-def test_merge_refuses_a_dng_name_without_the_extension(tmp_path: Path,
-                                                        merged: dict[str, Path]) -> None:
-    code = main(["merge", str(merged["dir"]), "-o", str(tmp_path / "m.exr"), "--dng",
-                 str(tmp_path / "m.tif"), "--quiet"])
+def test_merge_refuses_a_dng_name_without_the_extension(
+    tmp_path: Path, merged: dict[str, Path]
+) -> None:
+    code = main(
+        [
+            "merge",
+            str(merged["dir"]),
+            "-o",
+            str(tmp_path / "m.exr"),
+            "--dng",
+            str(tmp_path / "m.tif"),
+            "--quiet",
+        ]
+    )
     assert code == 2
     assert not (tmp_path / "m.exr").exists()
 
@@ -249,9 +351,20 @@ def test_darktable_renders_it_like_our_preview(tmp_path: Path, request, layout: 
 
     jpg = tmp_path / "dt.jpg"
     proc = subprocess.run(
-        [DARKTABLE, str(merged["dng"]), str(jpg), "--core", "--configdir",
-         str(tmp_path / "conf"), "--library", ":memory:"],
-        capture_output=True, text=True, timeout=300)
+        [
+            DARKTABLE,
+            str(merged["dng"]),
+            str(jpg),
+            "--core",
+            "--configdir",
+            str(tmp_path / "conf"),
+            "--library",
+            ":memory:",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert jpg.exists(), proc.stderr[-500:]
     a = np.asarray(Image.open(jpg).convert("RGB"), np.float64)
     b = np.asarray(Image.open(merged["png"]).convert("RGB"), np.float64)

@@ -17,8 +17,13 @@ from ._images import gradient, write_jpeg
 
 def test_jpeg_exif_exact_rational(tmp_path: Path) -> None:
     p = write_jpeg(
-        tmp_path / "a.jpg", gradient(), exposure=Fraction(1, 3049), f_number=5.6, iso=400,
-        make="Maker", model="Model X",
+        tmp_path / "a.jpg",
+        gradient(),
+        exposure=Fraction(1, 3049),
+        f_number=5.6,
+        iso=400,
+        make="Maker",
+        model="Model X",
     )
     f = load_frame(p)
     assert f.meta.exposure_time == Fraction(1, 3049)  # exact, not 0.000328
@@ -106,6 +111,7 @@ def test_greyscale_replicated(tmp_path: Path) -> None:
 
 
 # --- bad input ---------------------------------------------------------------------------------
+
 
 def test_missing_file(tmp_path: Path) -> None:
     with pytest.raises(InputError, match=r"nope\.jpg: file not found"):

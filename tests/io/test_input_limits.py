@@ -29,13 +29,22 @@ from ._images import gradient, write_jpeg
 def huge_png(path: Path, width: int, height: int) -> Path:
     """A PNG of a few dozen bytes whose header declares ``width x height`` (its data is cut
     short: anything that decodes it fails, anything that allocates it allocates gigabytes)."""
+
     def chunk(kind: bytes, data: bytes) -> bytes:
-        return (struct.pack(">I", len(data)) + kind + data
-                + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF))
+        return (
+            struct.pack(">I", len(data))
+            + kind
+            + data
+            + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
+        )
 
     ihdr = struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0)
-    path.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr)
-                     + chunk(b"IDAT", zlib.compress(b"\0" * (1 + 3 * 64))) + chunk(b"IEND", b""))
+    path.write_bytes(
+        b"\x89PNG\r\n\x1a\n"
+        + chunk(b"IHDR", ihdr)
+        + chunk(b"IDAT", zlib.compress(b"\0" * (1 + 3 * 64)))
+        + chunk(b"IEND", b"")
+    )
     return path
 
 
@@ -48,11 +57,14 @@ def _loop(tmp_path: Path, name: str) -> Path:
 
 def _pngs(folder: Path, n: int = 2) -> list[Path]:
     folder.mkdir(exist_ok=True)
-    return [write_jpeg(folder / f"f{k}.png", gradient(24, 32, scale=1.0 / (k + 1)), fmt="PNG")
-            for k in range(n)]
+    return [
+        write_jpeg(folder / f"f{k}.png", gradient(24, 32, scale=1.0 / (k + 1)), fmt="PNG")
+        for k in range(n)
+    ]
 
 
 # --- symbolic links ------------------------------------------------------------------------------
+
 
 def test_symlink_loop_as_a_frame(tmp_path: Path) -> None:
     a, b = _pngs(tmp_path)
@@ -77,8 +89,11 @@ def test_folder_holding_a_broken_link_and_a_subfolder(tmp_path: Path) -> None:
     (folder / "sub.png").mkdir()  # a folder named like an image is not a frame: left out
     assert len(load_bracket([folder])) == 2
     (folder / "gone.png").symlink_to("nowhere.png")
-    with pytest.raises(InputError, match=r"gone\.png: broken symbolic link \(it points to "
-                                         r"nowhere\.png"):
+    with pytest.raises(
+        InputError,
+        match=r"gone\.png: broken symbolic link \(it points to "
+        r"nowhere\.png",
+    ):
         load_bracket([folder])
 
 
@@ -91,11 +106,20 @@ def test_times_file_that_is_a_symlink_loop(tmp_path: Path) -> None:
 
 # --- exposure times ------------------------------------------------------------------------------
 
-@pytest.mark.parametrize(("value", "why"), [
-    ("1e400", "longer than 1e5 s"), ("inf", "not a number"), ("nan", "not a number"),
-    ("1e-400", "shorter than 1e-7 s"), ("-1", "zero or negative"), ("0", "zero or negative"),
-    ("2e5", "longer than 1e5 s"), ("1/0", "not a number"),
-])
+
+@pytest.mark.parametrize(
+    ("value", "why"),
+    [
+        ("1e400", "longer than 1e5 s"),
+        ("inf", "not a number"),
+        ("nan", "not a number"),
+        ("1e-400", "shorter than 1e-7 s"),
+        ("-1", "zero or negative"),
+        ("0", "zero or negative"),
+        ("2e5", "longer than 1e5 s"),
+        ("1/0", "not a number"),
+    ],
+)
 def test_times_out_of_range_are_refused(tmp_path: Path, value: str, why: str) -> None:
     t = tmp_path / "times.txt"
     t.write_text(f"# frames\nf0.png 1/8\nf1.png {value}\n")
@@ -129,6 +153,7 @@ def test_times_file_that_is_not_utf8(tmp_path: Path) -> None:
 
 # --- the pixel limit -----------------------------------------------------------------------------
 
+
 def test_frame_pixels_reads_every_format_from_its_header(tmp_path: Path) -> None:
     img = gradient(24, 32)
     png = write_jpeg(tmp_path / "a.png", img, fmt="PNG")
@@ -138,8 +163,9 @@ def test_frame_pixels_reads_every_format_from_its_header(tmp_path: Path) -> None
     tif = tmp_path / "a.tif"
     tifffile.imwrite(tif, np.zeros((24, 32, 3), np.uint16))
     planar = tmp_path / "planar.tif"
-    tifffile.imwrite(planar, np.zeros((3, 24, 32), np.uint16), planarconfig="separate",
-                     photometric="rgb")
+    tifffile.imwrite(
+        planar, np.zeros((3, 24, 32), np.uint16), planarconfig="separate", photometric="rgb"
+    )
     dng = write_dng(tmp_path / "a.dng", np.full((24, 32), 1000, np.uint16), exposure_time=0.01)
     for p in (png, jpg, prog, tif, planar, dng):
         assert frame_pixels(p) == (32, 24), p.name  # as stored: the JPEG's tag 6 is not applied
@@ -160,9 +186,11 @@ def test_frame_pixels_bad_input(tmp_path: Path) -> None:
 def test_huge_png_is_refused_from_its_header(tmp_path: Path) -> None:
     big = huge_png(tmp_path / "big.png", 20000, 10000)
     (small,) = _pngs(tmp_path / "s", 1)
-    with pytest.raises(FrameTooLargeError,
-                       match=r"big\.png: frame is 200\.0 MP \(20000x10000\), more than the limit "
-                             r"of 160 MP$") as info:
+    with pytest.raises(
+        FrameTooLargeError,
+        match=r"big\.png: frame is 200\.0 MP \(20000x10000\), more than the limit "
+        r"of 160 MP$",
+    ) as info:
         load_bracket([small, big])
     assert (info.value.width, info.value.height, info.value.limit) == (20000, 10000, 160_000_000)
     assert MAX_FRAME_PIXELS == 160_000_000
@@ -176,10 +204,14 @@ def test_max_pixels_applies_to_every_reader(tmp_path: Path, fmt: str) -> None:
     elif fmt == "dng":
         p = write_dng(tmp_path / "a.dng", np.full((24, 32), 1000, np.uint16), exposure_time=0.01)
     else:
-        p = write_jpeg(tmp_path / f"a.{fmt}", gradient(24, 32),
-                       fmt="PNG" if fmt == "png" else "JPEG")
-    with pytest.raises(FrameTooLargeError, match=r"frame is 0\.0 MP \(32x24\), more than the "
-                                                 r"limit of 0\.0007 MP"):
+        p = write_jpeg(
+            tmp_path / f"a.{fmt}", gradient(24, 32), fmt="PNG" if fmt == "png" else "JPEG"
+        )
+    with pytest.raises(
+        FrameTooLargeError,
+        match=r"frame is 0\.0 MP \(32x24\), more than the "
+        r"limit of 0\.0007 MP",
+    ):
         load_frame(p, max_pixels=700)
     assert load_frame(p, max_pixels=768).shape == (24, 32)
     assert load_frame(p, max_pixels=0).shape == (24, 32)
@@ -198,6 +230,7 @@ def test_pillow_limit_never_fires_before_ours(tmp_path: Path, monkeypatch) -> No
 
 # --- orientation ---------------------------------------------------------------------------------
 
+
 def _write(path: Path, rgb: np.ndarray, orientation: int | None, exposure: Fraction) -> Path:
     if path.suffix == ".tif":
         extratags = [] if orientation is None else [(274, "H", 1, orientation, True)]
@@ -211,8 +244,10 @@ def _write(path: Path, rgb: np.ndarray, orientation: int | None, exposure: Fract
 def test_camera_turned_mid_bracket_gets_one_orientation(tmp_path: Path, ext: str) -> None:
     """The pixels are stored alike (32x24); one frame's tag says 6: all are shown as stored."""
     img = gradient(24, 32)
-    paths = [_write(tmp_path / f"f{k}{ext}", (img * s).astype(np.uint8), tag, Fraction(1, 2 ** k))
-             for k, (s, tag) in enumerate([(0.3, 1), (0.6, 6), (1.0, 1)])]
+    paths = [
+        _write(tmp_path / f"f{k}{ext}", (img * s).astype(np.uint8), tag, Fraction(1, 2**k))
+        for k, (s, tag) in enumerate([(0.3, 1), (0.6, 6), (1.0, 1)])
+    ]
     b = load_bracket(paths)
     assert b.shape == (24, 32)
     assert [f.meta.orientation for f in b.frames] == [1, 1, 1]
@@ -234,12 +269,18 @@ def test_orientation_tie_goes_to_the_first_frame(tmp_path: Path) -> None:
 
 def test_raw_frames_with_different_flips_get_one_orientation(tmp_path: Path) -> None:
     cfa = np.random.default_rng(0).uniform(300, 3000, (32, 48)).astype(np.uint16)
-    paths = [write_dng(tmp_path / f"f{k}.dng", cfa // (3 - k), exposure_time=2.0 ** k / 100,
-                       orientation=tag) for k, tag in enumerate([6, 1, 6])]
+    paths = [
+        write_dng(
+            tmp_path / f"f{k}.dng", cfa // (3 - k), exposure_time=2.0**k / 100, orientation=tag
+        )
+        for k, tag in enumerate([6, 1, 6])
+    ]
     b = load_bracket(paths)
     assert b.shape == (48, 32) and {f.meta.orientation for f in b.frames} == {6}
-    assert "f1.dng has orientation tag 1" in b.warnings[b.warning_codes().index(
-        "orientation-differs")].message
+    assert (
+        "f1.dng has orientation tag 1"
+        in b.warnings[b.warning_codes().index("orientation-differs")].message
+    )
     alone = load_frame(paths[1])
     assert alone.shape == (32, 48) and alone.meta.orientation == 1
 
@@ -248,8 +289,11 @@ def test_size_error_names_the_odd_frame(tmp_path: Path) -> None:
     odd = write_jpeg(tmp_path / "a_odd.png", gradient(24, 30), fmt="PNG")
     b = write_jpeg(tmp_path / "b.png", gradient(24, 32), fmt="PNG")
     c = write_jpeg(tmp_path / "c.png", gradient(24, 32) // 2, fmt="PNG")
-    with pytest.raises(Exception, match=r"a_odd\.png: frame size differs from the other frames "
-                                         r"\(expected 32x24 like b\.png, c\.png, found 30x24\)"):
+    with pytest.raises(
+        Exception,
+        match=r"a_odd\.png: frame size differs from the other frames "
+        r"\(expected 32x24 like b\.png, c\.png, found 30x24\)",
+    ):
         load_bracket([odd, b, c])
 
 
@@ -258,12 +302,16 @@ def test_size_error_after_orientation_says_so(tmp_path: Path) -> None:
     a = write_jpeg(tmp_path / "a.png", gradient(24, 32), fmt="PNG")
     b = write_jpeg(tmp_path / "b.png", gradient(24, 32) // 2, fmt="PNG")
     c = write_jpeg(tmp_path / "c.png", gradient(24, 30), orientation=6, fmt="PNG")
-    with pytest.raises(Exception, match=r"c\.png: frame size differs from the other frames once "
-                                         r"turned by its orientation tag 6"):
+    with pytest.raises(
+        Exception,
+        match=r"c\.png: frame size differs from the other frames once "
+        r"turned by its orientation tag 6",
+    ):
         load_bracket([a, b, c])
 
 
 # --- LibRaw on stderr ----------------------------------------------------------------------------
+
 
 def _dng(path: Path, exposure: float = 0.01) -> Path:
     cfa = np.random.default_rng(1).uniform(300, 3000, (128, 192)).astype(np.uint16)
@@ -275,14 +323,18 @@ def test_truncated_dng_is_one_error_and_nothing_on_stderr(tmp_path: Path, capfd)
     cut = tmp_path / "cut.dng"
     cut.write_bytes(full[: len(full) * 9 // 10])
     capfd.readouterr()
-    with pytest.raises(ImageReadError, match=r"cut\.dng: RAW file is damaged: the file ends "
-                                             r"before its image data does \(truncated\)$"):
+    with pytest.raises(
+        ImageReadError,
+        match=r"cut\.dng: RAW file is damaged: the file ends "
+        r"before its image data does \(truncated\)$",
+    ):
         load_frame(cut)
     assert capfd.readouterr().err == ""
 
 
-def test_libraw_output_of_a_decoded_file_becomes_a_warning(tmp_path: Path, monkeypatch,
-                                                           capfd) -> None:
+def test_libraw_output_of_a_decoded_file_becomes_a_warning(
+    tmp_path: Path, monkeypatch, capfd
+) -> None:
     import rawpy
 
     a, b = _dng(tmp_path / "a.dng", 0.01), _dng(tmp_path / "b.dng", 0.04)

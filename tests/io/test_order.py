@@ -35,10 +35,16 @@ def _times_file(folder: Path, lines: list[tuple[str, str]]) -> Path:
 
 def test_iso_bracket_sharing_one_time_is_ordered_by_time_x_iso(tmp_path: Path) -> None:
     # A phone's exposure-compensation bracket: three frames at 1/15 s, ISO 800/500/250.
-    spec = [("a.jpg", F(1, 15), 800, 0.45), ("b.jpg", F(1, 15), 250, 0.15),
-            ("c.jpg", F(1, 10), 800, 0.65), ("d.jpg", F(1, 15), 500, 0.3)]
-    paths = [write_jpeg(tmp_path / n, gradient(scale=s, seed=k), exposure=t, iso=iso)
-             for k, (n, t, iso, s) in enumerate(spec)]
+    spec = [
+        ("a.jpg", F(1, 15), 800, 0.45),
+        ("b.jpg", F(1, 15), 250, 0.15),
+        ("c.jpg", F(1, 10), 800, 0.65),
+        ("d.jpg", F(1, 15), 500, 0.3),
+    ]
+    paths = [
+        write_jpeg(tmp_path / n, gradient(scale=s, seed=k), exposure=t, iso=iso)
+        for k, (n, t, iso, s) in enumerate(spec)
+    ]
     b = load_bracket(paths)
     assert [Path(p).name for p in b.paths] == ["b.jpg", "d.jpg", "a.jpg", "c.jpg"]
     assert b.order_source == "exposure"
@@ -55,12 +61,11 @@ def test_iso_bracket_sharing_one_time_is_ordered_by_time_x_iso(tmp_path: Path) -
 
 def test_same_full_exposure_is_a_duplicate_warning(tmp_path: Path) -> None:
     # 1/30 s at ISO 400 and 1/15 s at ISO 200: the same exposure.
-    paths = [write_jpeg(tmp_path / "a.jpg", gradient(scale=0.5, seed=0), exposure=F(1, 30),
-                        iso=400),
-             write_jpeg(tmp_path / "b.jpg", gradient(scale=0.5, seed=1), exposure=F(1, 15),
-                        iso=200),
-             write_jpeg(tmp_path / "c.jpg", gradient(scale=0.9, seed=2), exposure=F(1, 4),
-                        iso=200)]
+    paths = [
+        write_jpeg(tmp_path / "a.jpg", gradient(scale=0.5, seed=0), exposure=F(1, 30), iso=400),
+        write_jpeg(tmp_path / "b.jpg", gradient(scale=0.5, seed=1), exposure=F(1, 15), iso=200),
+        write_jpeg(tmp_path / "c.jpg", gradient(scale=0.9, seed=2), exposure=F(1, 4), iso=200),
+    ]
     b = load_bracket(paths)
     dup = [w for w in b.warnings if w.code == "duplicate-exposure"]
     assert len(dup) == 1 and dup[0].frames == (0, 1)
@@ -73,10 +78,15 @@ def test_same_full_exposure_is_a_duplicate_warning(tmp_path: Path) -> None:
 def test_swapped_times_are_detected_and_frames_ordered_by_brightness(simulated: Path) -> None:
     truth = read_exposure_times(simulated / "exposure_times.txt")
     assert truth["frame02.png"] == F(1, 64)
-    swapped = _times_file(simulated.parent, [
-        ("frame00.png", "1/1024"), ("frame01.png", "1/256"),
-        ("frame02.png", "1/16"), ("frame03.png", "1/64"),
-    ])
+    swapped = _times_file(
+        simulated.parent,
+        [
+            ("frame00.png", "1/1024"),
+            ("frame01.png", "1/256"),
+            ("frame02.png", "1/16"),
+            ("frame03.png", "1/64"),
+        ],
+    )
     b = load_bracket([simulated], exposure_times=swapped)
     # The pixels are the truth: the frames stay in brightness order...
     assert [Path(p).name for p in b.paths] == [f"frame0{k}.png" for k in range(4)]
@@ -98,8 +108,12 @@ def test_swapped_times_are_detected_and_frames_ordered_by_brightness(simulated: 
 
 
 def test_swapped_times_given_out_of_order_files(simulated: Path) -> None:
-    swapped = {"frame00.png": F(1, 256), "frame01.png": F(1, 1024),
-               "frame02.png": F(1, 64), "frame03.png": F(1, 16)}
+    swapped = {
+        "frame00.png": F(1, 256),
+        "frame01.png": F(1, 1024),
+        "frame02.png": F(1, 64),
+        "frame03.png": F(1, 16),
+    }
     files = [simulated / f"frame0{k}.png" for k in (3, 1, 0, 2)]
     b = load_bracket(files, exposure_times=swapped)
     assert [Path(p).name for p in b.paths] == [f"frame0{k}.png" for k in range(4)]
@@ -111,8 +125,12 @@ def test_swapped_times_given_out_of_order_files(simulated: Path) -> None:
 
 def test_scrambled_times_are_out_of_order(simulated: Path) -> None:
     # Three times rotated: not a clean swap.
-    rotated = {"frame00.png": F(1, 64), "frame01.png": F(1, 1024),
-               "frame02.png": F(1, 256), "frame03.png": F(1, 16)}
+    rotated = {
+        "frame00.png": F(1, 64),
+        "frame01.png": F(1, 1024),
+        "frame02.png": F(1, 256),
+        "frame03.png": F(1, 16),
+    }
     b = load_bracket([simulated], exposure_times=rotated)
     assert [Path(p).name for p in b.paths] == [f"frame0{k}.png" for k in range(4)]
     (w,) = [w for w in b.warnings if w.code == "out-of-order"]
@@ -124,8 +142,9 @@ def test_scrambled_times_are_out_of_order(simulated: Path) -> None:
 def test_jpeg_brighter_frame_claiming_the_shortest_time(tmp_path: Path) -> None:
     paths = []
     for k, t in enumerate([F(1, 50), F(1, 10), F(1, 500)]):
-        paths.append(write_jpeg(tmp_path / f"f{k}.jpg", gradient(scale=0.3 * (k + 1), seed=k),
-                                exposure=t))
+        paths.append(
+            write_jpeg(tmp_path / f"f{k}.jpg", gradient(scale=0.3 * (k + 1), seed=k), exposure=t)
+        )
     b = load_bracket(paths)
     assert [Path(p).name for p in b.paths] == ["f0.jpg", "f1.jpg", "f2.jpg"]
     assert "out-of-order" in b.warning_codes()
@@ -136,8 +155,15 @@ def test_black_and_saturated_frames_do_not_reorder(tmp_path: Path) -> None:
     # on average), the longest saturated; a duplicate of the darkest time too. Uninformative
     # frames never contradict the times.
     times = (2.0**-16, 2.0**-16, *(2.0**-14 * 4.0**k for k in range(14)))
-    sim = simulate_bracket(scene="patches", shape=(64, 96), exposure_times=times, bits=12,
-                           noise_sigma=1.0, key=1.0, seed=3)
+    sim = simulate_bracket(
+        scene="patches",
+        shape=(64, 96),
+        exposure_times=times,
+        bits=12,
+        noise_sigma=1.0,
+        key=1.0,
+        seed=3,
+    )
     write_bracket(tmp_path, sim, fmt="png")
     b = load_bracket([tmp_path], exposure_times=tmp_path / "exposure_times.txt")
     means = [f.mean_level() for f in b.frames]
@@ -166,9 +192,11 @@ def test_xperia_order_is_time_x_iso_and_matches_brightness(capsys) -> None:
 
     d = shared_dir("handheld-xperia-library")
     b = load_bracket([d])
-    expected = [line.split()[0] for line in
-                (d / "iso100_equivalent_times.txt").read_text().splitlines()
-                if line.strip() and not line.startswith("#")]
+    expected = [
+        line.split()[0]
+        for line in (d / "iso100_equivalent_times.txt").read_text().splitlines()
+        if line.strip() and not line.startswith("#")
+    ]
     names = [Path(p).name for p in b.paths]
     means = [f.mean_level() for f in b.frames]
     iso0 = b.frames[0].meta.iso
@@ -182,8 +210,10 @@ def test_xperia_order_is_time_x_iso_and_matches_brightness(capsys) -> None:
     assert all(np.diff(means) > 0)  # the order by exposure is the order by brightness
     assert not {"times-swapped", "out-of-order", "duplicate-exposure"} & set(b.warning_codes())
     iso = next(w for w in b.warnings if w.code == "iso-changed")
-    assert ("20240401_185055.JPG, 20240401_185043.JPG, 20240401_185036.JPG share 1/15 s"
-            in iso.message)
+    assert (
+        "20240401_185055.JPG, 20240401_185043.JPG, 20240401_185036.JPG share 1/15 s" in iso.message
+    )
     assert "20240401_185005.JPG, 20240401_184958.JPG share 1/4 s: only their ISO differs" in (
-        iso.message)
+        iso.message
+    )
     assert b.apex_sequence == "1/3-stop"

@@ -20,8 +20,13 @@ def _radiance(h: int = 20, w: int = 30) -> np.ndarray:
 def test_exr_float32_round_trip_exact(tmp_path: Path) -> None:
     rgb = _radiance()
     p = write_exr(
-        tmp_path / "o.exr", rgb, half=False, exposure_times=[0.01, 0.04, 0.16],
-        exposure_ratios=[4.0, 3.9], transforms=[np.eye(2, 3)] * 3, sources=["/x/a.dng", "b.dng"],
+        tmp_path / "o.exr",
+        rgb,
+        half=False,
+        exposure_times=[0.01, 0.04, 0.16],
+        exposure_ratios=[4.0, 3.9],
+        transforms=[np.eye(2, 3)] * 3,
+        sources=["/x/a.dng", "b.dng"],
         metadata={"reference": 1},
     )
     back, attrs = read_exr(p)
@@ -56,8 +61,11 @@ def test_exr_every_compression_lossless_over_many_row_blocks(
     rgb = (10.0 ** rng.uniform(-5, 5, (600, 41, 3))).astype(np.float32)
     rgb[5, 5] = (np.nan, -np.inf, np.inf)
     rgb[599, 40] = (-2.0, 1e9, 0.0)
-    back, attrs = read_exr(write_exr(tmp_path / f"{compression}.exr", rgb, half=half,
-                                     compression=compression, workers=2))
+    back, attrs = read_exr(
+        write_exr(
+            tmp_path / f"{compression}.exr", rgb, half=half, compression=compression, workers=2
+        )
+    )
     clean = np.nan_to_num(rgb, nan=0.0, posinf=65504.0, neginf=0.0)
     clean = np.maximum(clean, 0.0)
     if half:

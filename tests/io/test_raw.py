@@ -42,7 +42,7 @@ def _retag(path: Path, tag: int, typ: int, new_tag: int) -> None:
     data = bytearray(path.read_bytes())
     i = bytes(data).find(struct.pack("<HH", tag, typ))
     assert i > 0
-    data[i:i + 2] = struct.pack("<H", new_tag)
+    data[i : i + 2] = struct.pack("<H", new_tag)
     path.write_bytes(bytes(data))
 
 
@@ -76,8 +76,9 @@ def test_matrix_neutral_formula() -> None:
 
 @pytest.mark.parametrize("wb", [(0.5, 1.0, 0.7), (1.0, 1.0, 1.0)])
 def test_as_shot_white_balance_is_kept(tmp_path: Path, wb) -> None:
-    p = write_dng(tmp_path / "a.dng", _cfa(), exposure_time=0.01, as_shot_neutral=wb,
-                  color_matrix=CAMERA)
+    p = write_dng(
+        tmp_path / "a.dng", _cfa(), exposure_time=0.01, as_shot_neutral=wb, color_matrix=CAMERA
+    )
     m = load_frame(p).meta
     assert m.whitebalance_source == "as-shot"
     assert m.camera_whitebalance[:3] == pytest.approx((1 / wb[0], 1.0, 1 / wb[2]), rel=1e-6)
@@ -121,8 +122,15 @@ def test_fallback_prefers_rgb_xyz_matrix() -> None:
 
 @pytest.fixture(scope="module")
 def no_wb_bracket(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    sim = simulate_bracket(scene="patches", shape=(64, 96), exposure_times=(1 / 64, 1 / 16, 1 / 4),
-                           bits=12, noise_sigma=1.0, keep_linear=True, seed=2)
+    sim = simulate_bracket(
+        scene="patches",
+        shape=(64, 96),
+        exposure_times=(1 / 64, 1 / 16, 1 / 4),
+        bits=12,
+        noise_sigma=1.0,
+        keep_linear=True,
+        seed=2,
+    )
     out = tmp_path_factory.mktemp("nowb")
     written = write_bracket(out, sim, fmt="dng")
     for p in written.frames:
@@ -134,14 +142,16 @@ def test_bracket_warns_about_missing_white_balance(no_wb_bracket: Path) -> None:
     b = load_bracket([no_wb_bracket])
     (w,) = [w for w in b.warnings if w.code == "no-white-balance"]
     assert w.frames == (0, 1, 2)
-    assert w.message.startswith("frame00.dng, frame01.dng, frame02.dng record no as-shot white "
-                                "balance")
+    assert w.message.startswith(
+        "frame00.dng, frame01.dng, frame02.dng record no as-shot white balance"
+    )
     assert "the colour matrix's D65 neutral is used instead" in w.message
     assert all(f.meta.whitebalance_source == "matrix-neutral" for f in b.frames)
 
 
-def test_merge_of_a_bracket_without_white_balance_completes(no_wb_bracket: Path,
-                                                            tmp_path: Path) -> None:
+def test_merge_of_a_bracket_without_white_balance_completes(
+    no_wb_bracket: Path, tmp_path: Path
+) -> None:
     rc = main(["merge", str(no_wb_bracket), "-o", str(tmp_path / "out.exr"), "--quiet"])
     assert rc in (0, 1)
     assert (tmp_path / "out.exr").stat().st_size > 0
@@ -150,12 +160,19 @@ def test_merge_of_a_bracket_without_white_balance_completes(no_wb_bracket: Path,
 # --- read noise from the optical black ------------------------------------------------------
 
 
-def _sensor(rng, *, sigma: float, shape=(400, 600), active=(10, 12, 380, 560), black=64.0,
-            banding: float = 0.0) -> np.ndarray:
+def _sensor(
+    rng,
+    *,
+    sigma: float,
+    shape=(400, 600),
+    active=(10, 12, 380, 560),
+    black=64.0,
+    banding: float = 0.0,
+) -> np.ndarray:
     h, w = shape
     x = black + rng.normal(0, sigma, shape) + rng.normal(0, banding, (h, 1))
     top, left, ah, aw = active
-    x[top:top + ah, left:left + aw] += 1000.0  # light in the active area only
+    x[top : top + ah, left : left + aw] += 1000.0  # light in the active area only
     return np.clip(np.rint(x), 0, 4095).astype(np.uint16)
 
 
@@ -177,13 +194,21 @@ def test_optical_black_ignores_filler_hot_pixels_and_site_offsets() -> None:
     data[:, -2:] = 64  # constant filler columns
     data[3, 100] = 4000  # a hot pixel
     data[:, 0::2] += 1  # one column parity (two CFA sites) a level higher
-    ob = optical_black_noise(data.astype(np.uint16), top=10, left=12, height=380, width=560,
-                             black_level=[65, 64, 65, 64], pattern=np.array([[0, 1], [2, 3]]))
+    ob = optical_black_noise(
+        data.astype(np.uint16),
+        top=10,
+        left=12,
+        height=380,
+        width=560,
+        black_level=[65, 64, 65, 64],
+        pattern=np.array([[0, 1], [2, 3]]),
+    )
     assert ob is not None and ob.sigma == pytest.approx(0.8, rel=0.05)
     assert abs(ob.offset) < 0.1  # per-site blacks subtracted
     # With one black level for all sites the offset shows half a level, the noise is unchanged.
-    ob1 = optical_black_noise(data.astype(np.uint16), top=10, left=12, height=380, width=560,
-                              black_level=64)
+    ob1 = optical_black_noise(
+        data.astype(np.uint16), top=10, left=12, height=380, width=560, black_level=64
+    )
     assert ob1.offset == pytest.approx(0.5, abs=0.1) and ob1.sigma == pytest.approx(ob.sigma)
 
 
@@ -196,8 +221,15 @@ def test_optical_black_absent_or_too_small() -> None:
 
 @pytest.mark.parametrize(("sigma", "masked"), [(0.7, False), (3.0, False), (1.0, True)])
 def test_dng_with_masked_margins(tmp_path: Path, sigma: float, masked: bool) -> None:
-    sim = simulate_bracket(scene="patches", shape=(256, 384), exposure_times=(1 / 64, 1 / 4),
-                           bits=12, noise_sigma=sigma, keep_linear=True, seed=1)
+    sim = simulate_bracket(
+        scene="patches",
+        shape=(256, 384),
+        exposure_times=(1 / 64, 1 / 4),
+        bits=12,
+        noise_sigma=sigma,
+        keep_linear=True,
+        seed=1,
+    )
     write_bracket(tmp_path, sim, fmt="dng", margins=(16, 16, 16, 16), masked_areas=masked)
     b = load_bracket([tmp_path])
     for f in b.frames:

@@ -11,9 +11,10 @@ from hdrcore.merge import camera_to_working, camera_to_working_matrix
 
 # Adobe DNG ColorMatrix of a Canon EOS 5D Mark II (XYZ D65 -> camera), as dcraw's adobe_coeff
 # lists it (/10000) and rawpy reports it in ``rgb_xyz_matrix``.
-CAM_XYZ = np.array(
-    [[4716, 603, -830], [-7798, 15474, 2480], [-1496, 1937, 6651], [0, 0, 0]], float
-) / 10000.0
+CAM_XYZ = (
+    np.array([[4716, 603, -830], [-7798, 15474, 2480], [-1496, 1937, 6651], [0, 0, 0]], float)
+    / 10000.0
+)
 WB = (2.1, 1.0, 1.5, 0.0)
 
 
@@ -33,7 +34,9 @@ def test_other_working_spaces_keep_neutrals_and_match_colour_science():
     m_aces = camera_to_working_matrix(CAM_XYZ, WB, "ACEScg")
     v = np.array([0.2, 0.5, 0.1])
     expected = colour.RGB_to_RGB(
-        m_srgb @ v, colour.RGB_COLOURSPACES["sRGB"], colour.RGB_COLOURSPACES["ACEScg"],
+        m_srgb @ v,
+        colour.RGB_COLOURSPACES["sRGB"],
+        colour.RGB_COLOURSPACES["ACEScg"],
         chromatic_adaptation_transform="Bradford",
     )
     np.testing.assert_allclose(m_aces @ v, expected, rtol=1e-6)
@@ -118,14 +121,17 @@ def test_merge_applies_colour_as_camera_to_working(case, engine):
     times = (1.0, 4.0, 16.0)
     kw: dict = {}
     if case == "lut":
-        frames = [np.clip(np.rint(255 * np.clip(base * t / 16, 0, 1) ** (1 / 2.2)), 0, 255)
-                  .astype(np.uint8) for t in times]
+        frames = [
+            np.clip(np.rint(255 * np.clip(base * t / 16, 0, 1) ** (1 / 2.2)), 0, 255).astype(
+                np.uint8
+            )
+            for t in times
+        ]
         kw["response"] = np.tile(np.linspace(0, 1, 256) ** 2.2, (3, 1))
     elif case == "float":
         frames = [np.clip(base * t / 16, 0, 1).astype(np.float32) for t in times]
     else:
-        frames = [np.clip(np.rint(4095 * base * t / 16), 0, 4095).astype(np.uint16)
-                  for t in times]
+        frames = [np.clip(np.rint(4095 * base * t / 16), 0, 4095).astype(np.uint16) for t in times]
         kw["max_level"] = 4095
     if case == "raw-warped":
         kw["transforms"] = [np.array([[1.0, 0.01, 0.4], [-0.01, 1.0, -0.3]]), None, None]

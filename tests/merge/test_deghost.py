@@ -36,9 +36,15 @@ def test_an_object_in_one_frame_is_removed_and_the_rest_unchanged(engine):
     # the replaced pixels hold one frame's value and all of its share ...
     k = int(np.argmax(clean.shares[:, 60, 90]))
     assert k != 1 and clean.shares[k, 60, 90] == 1.0
-    alone = merge([frames[k]], [sb.exposure_times[k]], max_level=sb.max_level,
-                  saturation_level=clean.saturation_level, noise_floor=clean.noise_floor,
-                  weighting=clean.weighting, engine=engine)
+    alone = merge(
+        [frames[k]],
+        [sb.exposure_times[k]],
+        max_level=sb.max_level,
+        saturation_level=clean.saturation_level,
+        noise_floor=clean.noise_floor,
+        weighting=clean.weighting,
+        engine=engine,
+    )
     d = clean.deghosted
     np.testing.assert_array_equal(clean.radiance[d], alone.radiance[d])
     # ... the ghost map still says where the frames disagreed, and nothing else changed
@@ -51,8 +57,9 @@ def test_an_object_in_one_frame_is_removed_and_the_rest_unchanged(engine):
 def test_hand_held_frames_are_cut_to_bands_with_their_transform_shifted():
     """A moved frame merged alone over a band of rows gives what it gives over the whole
     frame (the band holds the source rows, the transform is shifted to it)."""
-    sb = bracket(bits=12, response="linear", noise_sigma=1.0, seed=3, max_shift=6.0,
-                 max_rotation_deg=1.5)
+    sb = bracket(
+        bits=12, response="linear", noise_sigma=1.0, seed=3, max_shift=6.0, max_rotation_deg=1.5
+    )
     tf = [invert(t) for t in sb.to_reference]
     moved = [k for k, t in enumerate(tf) if not np.allclose(t, np.eye(2, 3))]
     frames = _with_object(sb, moved[0])
@@ -66,9 +73,15 @@ def test_hand_held_frames_are_cut_to_bands_with_their_transform_shifted():
         take = a.deghosted & (a.shares[k] == 1.0)
         if not take.any():
             continue
-        alone = merge([frames[k]], [sb.exposure_times[k]], max_level=sb.max_level,
-                      transforms=[tf[k]], saturation_level=a.saturation_level,
-                      noise_floor=a.noise_floor, weighting=a.weighting)
+        alone = merge(
+            [frames[k]],
+            [sb.exposure_times[k]],
+            max_level=sb.max_level,
+            transforms=[tf[k]],
+            saturation_level=a.saturation_level,
+            noise_floor=a.noise_floor,
+            weighting=a.weighting,
+        )
         np.testing.assert_array_equal(a.radiance[take], alone.radiance[take])
 
 
@@ -85,14 +98,20 @@ def test_only_ghost_regions_change():
     still = [np.full((16, 24, 3), 400 * (k + 1), np.uint16) for k in range(3)]
     flat = merge(still, (1.0, 2.0, 3.0), max_level=4095, deghost=True)
     assert not flat.ghost.any() and not flat.deghosted.any()
-    np.testing.assert_array_equal(flat.radiance,
-                                  merge(still, (1.0, 2.0, 3.0), max_level=4095).radiance)
+    np.testing.assert_array_equal(
+        flat.radiance, merge(still, (1.0, 2.0, 3.0), max_level=4095).radiance
+    )
 
 
-
-@pytest.mark.parametrize("other, prefer, expected", [
-    (0.6, None, 0), (0.6, [False, True], 1), (0.4, [False, True], 0), (0.6, [True, True], 0),
-])
+@pytest.mark.parametrize(
+    "other, prefer, expected",
+    [
+        (0.6, None, 0),
+        (0.6, [False, True], 1),
+        (0.4, [False, True], 0),
+        (0.6, [True, True], 0),
+    ],
+)
 def test_frame_choice_prefers_frames_not_resampled(other, prefer, expected):
     """The frame with the largest share of a region fills it, unless a preferred frame (not
     resampled) has at least half of that share; regions under min_area keep the average."""
@@ -111,13 +130,21 @@ def test_frame_choice_prefers_frames_not_resampled(other, prefer, expected):
 
     def single(k, y0, y1):
         n = y1 - y0
-        return types.SimpleNamespace(radiance=np.full((n, w, 3), float(k), np.float32),
-                                     weight_sum=np.full((n, w), 2.0, np.float32),
-                                     clipped=np.zeros((n, w), bool),
-                                     underexposed=np.zeros((n, w), bool))
+        return types.SimpleNamespace(
+            radiance=np.full((n, w, 3), float(k), np.float32),
+            weight_sum=np.full((n, w), 2.0, np.float32),
+            clipped=np.zeros((n, w), bool),
+            underexposed=np.zeros((n, w), bool),
+        )
 
-    done = fill_ghost_regions(radiance, weight_sum, shares, ghost, single,
-                              prefer=None if prefer is None else np.array(prefer))
+    done = fill_ghost_regions(
+        radiance,
+        weight_sum,
+        shares,
+        ghost,
+        single,
+        prefer=None if prefer is None else np.array(prefer),
+    )
     assert done[10, 10] and not done[1, 25] and not done[0, 0]
     assert (radiance[done] == expected).all() and (radiance[~done] == -1.0).all()
     assert (shares[expected][done] == 1.0).all() and (shares[1 - expected][done] == 0.0).all()

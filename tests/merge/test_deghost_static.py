@@ -40,8 +40,16 @@ def _jpeg(levels: np.ndarray, quality: int = 85) -> np.ndarray:
 def _bracket(response: str = "srgb", gain: float | None = None):
     """``(frames, times, footprint)``: the JPEG frames, and with ``gain`` a 48 x 48 object of
     ``gain`` times the scene's radiance at a new place in each frame (its footprint)."""
-    sb = simulate_bracket(scene="window", shape=SHAPE, bits=8, response=response,
-                          exposure_times=TIMES, seed=3, noise_sigma=1.0, keep_linear=True)
+    sb = simulate_bracket(
+        scene="window",
+        shape=SHAPE,
+        bits=8,
+        response=response,
+        exposure_times=TIMES,
+        seed=3,
+        noise_sigma=1.0,
+        keep_linear=True,
+    )
     frames, foot = [], np.zeros(SHAPE, bool)
     for k, (f, lin) in enumerate(zip(sb.frames, sb.linear_frames, strict=True)):
         f = f.copy()
@@ -99,8 +107,9 @@ def test_a_wrong_exposure_time_is_a_transfer_error_not_a_ghost():
     assert merge(frames, wrong, ghost_test="pixels", **NONLINEAR).ghost.mean() > 0.05
     assert res.ghost.mean() < 0.01
     first = res.ghost_regions.pairs[0]
-    assert first.frames == (0, 1) and np.median(first.bias[1]) == pytest.approx(-np.log(1.3),
-                                                                                abs=0.05)
+    assert first.frames == (0, 1) and np.median(first.bias[1]) == pytest.approx(
+        -np.log(1.3), abs=0.05
+    )
 
 
 def _kernel_inputs(seed: int = 0):
@@ -114,8 +123,9 @@ def _kernel_inputs(seed: int = 0):
 @pytest.mark.parametrize("case", ["lut", "linear", "warped", "float", "step"])
 def test_compiled_chains_match_the_numpy_reference(case):
     frames, tfs, masks = _kernel_inputs()
-    params = GhostTestParams(sample_pixels=500, min_bin_samples=3,
-                             pixel_step=2 if case == "step" else 1)
+    params = GhostTestParams(
+        sample_pixels=500, min_bin_samples=3, pixel_step=2 if case == "step" else 1
+    )
     kw = dict(saturation=[250] * 3, floor=5, noise=NoiseModel(level_noise=2.0), params=params)
     times = [1.0, 4.0, 2.0, 8.0]
     if case == "lut":
@@ -132,8 +142,9 @@ def test_compiled_chains_match_the_numpy_reference(case):
     b = pair_residuals(frames, times, engine="numpy", **kw)
     assert a.count.sum() > 1000 and a.samples == b.samples
     for name in ("weighted", "weights", "additive", "first", "second", "count", "bias"):
-        np.testing.assert_allclose(getattr(a, name), getattr(b, name), rtol=1e-9, atol=1e-12,
-                                   err_msg=name)
+        np.testing.assert_allclose(
+            getattr(a, name), getattr(b, name), rtol=1e-9, atol=1e-12, err_msg=name
+        )
 
 
 def test_bad_parameters_are_refused():
@@ -160,8 +171,9 @@ def test_real_tripod_brackets_flag_almost_nothing(frobisher_dir, memorial_dir):
     r = Pipeline(b).run(until="merge")
     assert r.merge.ghost.mean() < 0.01
     filled = Pipeline(b).run(PipelineParams(deghost=True), until="merge")
-    np.testing.assert_array_equal(filled.radiance[~filled.merge.deghosted],
-                                  r.radiance[~filled.merge.deghosted])
+    np.testing.assert_array_equal(
+        filled.radiance[~filled.merge.deghosted], r.radiance[~filled.merge.deghosted]
+    )
     b = load_bracket([memorial_dir], exposure_times=memorial_dir / "exposure_times.txt")
     r = Pipeline(b, PipelineParams(exclude_colour=(0, 0, 255), align="none")).run(until="merge")
     ghost = r.merge.ghost
@@ -176,8 +188,13 @@ def test_real_tripod_brackets_flag_almost_nothing(frobisher_dir, memorial_dir):
     assert len(keep) == len(b) - 1
     kw = dict(response=r.lut, saturation_level=r.saturation, noise_floor=r.noise_floor)
     full = merge(levels, r.exposure_times, masks=masks, ghost_test="pixels", **kw)
-    without = merge([levels[k] for k in keep], [r.exposure_times[k] for k in keep],
-                    masks=[masks[k] for k in keep], ghost_test="pixels", **kw)
+    without = merge(
+        [levels[k] for k in keep],
+        [r.exposure_times[k] for k in keep],
+        masks=[masks[k] for k in keep],
+        ghost_test="pixels",
+        **kw,
+    )
     ratio = full.radiance / without.radiance
     assert np.median(ratio[ghost].max(axis=-1)) > 2.0  # visible where flagged
     away = ~ndimage.binary_dilation(ghost, iterations=16)
@@ -192,14 +209,20 @@ def test_compiled_block_test_matches_the_numpy_reference(case):
     """The whole test (sums, transfer error, block z, regions) through the kernels and through
     the numpy reference: the same blocks, z and pixel map."""
     frames, times, _ = _bracket("gamma", 4.0)
-    kw = dict(saturation=[247.35] * 3, floor=5.1, lut=inverse_gamma_lut(255),
-              noise=NoiseModel(level_noise=2.0))
+    kw = dict(
+        saturation=[247.35] * 3,
+        floor=5.1,
+        lut=inverse_gamma_lut(255),
+        noise=NoiseModel(level_noise=2.0),
+    )
     if case == "step":
         kw["params"] = GhostTestParams(pixel_step=2)
     if case == "warped":
         t = np.array([[1.0, 0.002, 0.6], [-0.002, 1.0, -0.4]])
-        kw.update(transforms=[None, t, None],
-                  masks=[None, None, np.random.default_rng(1).random(SHAPE) > 0.02])
+        kw.update(
+            transforms=[None, t, None],
+            masks=[None, None, np.random.default_rng(1).random(SHAPE) > 0.02],
+        )
     a = consistency_regions(frames, times, engine="numba", **kw)
     b = consistency_regions(frames, times, engine="numpy", **kw)
     assert a.regions >= 2 and a.blocks.any()
@@ -223,12 +246,17 @@ def test_read_only_frames_and_long_brackets_run():
     for f in frames[::2]:
         f.flags.writeable = False
     times = [1.1**k for k in range(n)]
-    kw = dict(saturation=[250] * 3, floor=5, lut=inverse_gamma_lut(255),
-              params=GhostTestParams(sample_pixels=500, min_bin_samples=3))
+    kw = dict(
+        saturation=[250] * 3,
+        floor=5,
+        lut=inverse_gamma_lut(255),
+        params=GhostTestParams(sample_pixels=500, min_bin_samples=3),
+    )
     for m in (3, n):
         a = pair_residuals(frames[:m], times[:m], engine="numba", **kw)
         b = pair_residuals(frames[:m], times[:m], engine="numpy", **kw)
         assert a.count.sum() > 0
         for name in ("weighted", "weights", "count"):
-            np.testing.assert_allclose(getattr(a, name), getattr(b, name), rtol=1e-9,
-                                       atol=1e-12, err_msg=name)
+            np.testing.assert_allclose(
+                getattr(a, name), getattr(b, name), rtol=1e-9, atol=1e-12, err_msg=name
+            )

@@ -19,7 +19,13 @@ from ._brackets import SHAPE, TIMES, bracket, inverse_gamma_lut
 pytest.importorskip("numba")
 
 FIELDS = (
-    "radiance", "weight_sum", "shares", "clip_count", "clipped", "underexposed", "ghost_score",
+    "radiance",
+    "weight_sum",
+    "shares",
+    "clip_count",
+    "clipped",
+    "underexposed",
+    "ghost_score",
     "ghost",
 )
 
@@ -34,8 +40,9 @@ def both(frames, times, rtol: float = 0.0, ghost_atol: float = 0.0, **kw):
         if name == "ghost_score" and ghost_atol:
             # sum(p E^2) - E^2 cancels: a last-place change of w moves a tiny score a lot in
             # relative terms, nothing next to the threshold (8)
-            np.testing.assert_allclose(a.astype(np.float64), b.astype(np.float64), rtol=2e-3,
-                                       atol=ghost_atol, err_msg=name)
+            np.testing.assert_allclose(
+                a.astype(np.float64), b.astype(np.float64), rtol=2e-3, atol=ghost_atol, err_msg=name
+            )
         elif rtol == 0.0 or a.dtype == bool or a.dtype == np.uint8:
             np.testing.assert_array_equal(a, b, err_msg=name)
         else:  # float16 maps: one step of float16 (2**-10) after a last-place float32 change
@@ -98,8 +105,13 @@ def test_masks_per_channel_white_levels_and_noise_floor():
     kw = dict(max_level=4095, saturation_level=(3000, 4095, 4095), noise_floor=12)
     both(frames, sb.exposure_times, masks=[None, mask2, mask], **kw)
     floats = [f.astype(np.float32) / np.float32(4095) for f in frames]
-    both(floats, sb.exposure_times, masks=[mask2, None, mask],
-         saturation_level=(3000 / 4095, 1.0, 1.0), noise_floor=12 / 4095)
+    both(
+        floats,
+        sb.exposure_times,
+        masks=[mask2, None, mask],
+        saturation_level=(3000 / 4095, 1.0, 1.0),
+        noise_floor=12 / 4095,
+    )
 
 
 def test_clipped_everywhere_patch_and_moving_object():
@@ -169,8 +181,12 @@ def test_read_only_and_writable_frames_mixed():
     masks = [np.ones((6, 8), bool), None, np.ones((6, 8), bool)]
     masks[0].setflags(write=False)
     both(frames, (1.0, 2.0, 4.0), max_level=4095, masks=masks)
-    both(frames, (1.0, 2.0, 4.0), max_level=4095,
-         transforms=[None, np.array([[1.0, 0.0, 0.5], [0.0, 1.0, 0.25]]), None])
+    both(
+        frames,
+        (1.0, 2.0, 4.0),
+        max_level=4095,
+        transforms=[None, np.array([[1.0, 0.0, 0.5], [0.0, 1.0, 0.25]]), None],
+    )
 
 
 def test_levels_above_max_level_with_a_lut_are_refused():

@@ -39,8 +39,13 @@ def frames():
     for _ in range(30):
         sx, sy = map_points(hmat, fld, x, y)
         x, y = x + (qx - sx), y + (qy - sy)
-    moved = np.stack([ndimage.map_coordinates(big[..., c], [y + 20, x + 20], order=3,
-                                              mode="nearest") for c in range(3)], axis=-1)
+    moved = np.stack(
+        [
+            ndimage.map_coordinates(big[..., c], [y + 20, x + 20], order=3, mode="nearest")
+            for c in range(3)
+        ],
+        axis=-1,
+    )
 
     def to16(a: np.ndarray) -> np.ndarray:
         return np.clip(np.rint(a * 60000), 0, 65535).astype(np.uint16)
@@ -57,10 +62,10 @@ def _error(out: np.ndarray, ref: np.ndarray) -> np.ndarray:
 @pytest.mark.parametrize("engine", ["numpy", "numba"])
 def test_the_field_brings_a_non_rigid_motion_back(frames, engine) -> None:
     ref, moved, hmat, fld = frames
-    with_field = merge([moved], [1.0], max_level=65535, transforms=[hmat], fields=[fld],
-                       engine=engine).radiance
-    without = merge([moved], [1.0], max_level=65535, transforms=[hmat],
-                    engine=engine).radiance
+    with_field = merge(
+        [moved], [1.0], max_level=65535, transforms=[hmat], fields=[fld], engine=engine
+    ).radiance
+    without = merge([moved], [1.0], max_level=65535, transforms=[hmat], engine=engine).radiance
     e1, e0 = _error(with_field, ref), _error(without, ref)
     assert np.nanmedian(e1) < 3e-3 and np.nanpercentile(e1, 99) < 2e-2
     # the bump alone (3 px at its centre) is what the homography cannot hold
@@ -69,18 +74,31 @@ def test_the_field_brings_a_non_rigid_motion_back(frames, engine) -> None:
 
 def test_engines_agree_with_fields(frames) -> None:
     ref, moved, hmat, fld = frames
-    a = merge([ref, moved], [1.0, 1.0], max_level=65535, transforms=[None, hmat],
-              fields=[None, fld], engine="numpy").radiance
-    b = merge([ref, moved], [1.0, 1.0], max_level=65535, transforms=[None, hmat],
-              fields=[None, fld], engine="numba").radiance
+    a = merge(
+        [ref, moved],
+        [1.0, 1.0],
+        max_level=65535,
+        transforms=[None, hmat],
+        fields=[None, fld],
+        engine="numpy",
+    ).radiance
+    b = merge(
+        [ref, moved],
+        [1.0, 1.0],
+        max_level=65535,
+        transforms=[None, hmat],
+        fields=[None, fld],
+        engine="numba",
+    ).radiance
     assert np.allclose(a, b, rtol=1e-4, atol=1e-6, equal_nan=True)
 
 
 def test_a_field_on_an_identity_transform_is_still_applied(frames) -> None:
     ref, moved, hmat, fld = frames
     shifted = DisplacementField(fld.step, fld.offsets + np.array([1.3, -0.6], np.float32))
-    out = merge([moved], [1.0], max_level=65535, transforms=[None], fields=[shifted],
-                engine="numba").radiance
+    out = merge(
+        [moved], [1.0], max_level=65535, transforms=[None], fields=[shifted], engine="numba"
+    ).radiance
     assert np.nanmedian(_error(out, ref)) < 3e-3
 
 
@@ -113,7 +131,6 @@ def test_field_lookup_on_a_grid_equals_pointwise() -> None:
     px, py = fld.at(xx, yy)
     assert np.allclose(gx, px) and np.allclose(gy, py)
     # at a node the field is the node's value; a band's shifted field reads the same place
-    assert np.allclose(fld.at(np.array([-3.0 + 64]), np.array([5.0 + 32]))[0],
-                       fld.offsets[1, 2, 0])
+    assert np.allclose(fld.at(np.array([-3.0 + 64]), np.array([5.0 + 32]))[0], fld.offsets[1, 2, 0])
     band = fld.shifted(0.0, 40.0)
     assert np.allclose(band.at(xx, yy - 40.0)[0], px)

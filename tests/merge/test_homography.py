@@ -30,8 +30,10 @@ def frames():
     s = inv[2, 0] * xx + inv[2, 1] * yy + inv[2, 2]
     sx = (inv[0, 0] * xx + inv[0, 1] * yy + inv[0, 2]) / s
     sy = (inv[1, 0] * xx + inv[1, 1] * yy + inv[1, 2]) / s
-    moved = np.stack([ndimage.map_coordinates(ref[..., c], [sy, sx], order=3, mode="nearest")
-                      for c in range(3)], axis=-1)
+    moved = np.stack(
+        [ndimage.map_coordinates(ref[..., c], [sy, sx], order=3, mode="nearest") for c in range(3)],
+        axis=-1,
+    )
     to16 = lambda a: np.clip(np.rint(a * 60000), 0, 65535).astype(np.uint16)  # noqa: E731
     return to16(ref), to16(moved), t
 

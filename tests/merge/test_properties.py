@@ -31,8 +31,9 @@ def _radiance(frames, times):
     return np.asarray(res.radiance, np.float64)
 
 
-brackets = st.tuples(st.integers(0, 10_000), st.integers(2, 5),
-                     st.floats(0.01, 0.5), st.sampled_from([2.0, 4.0]))
+brackets = st.tuples(
+    st.integers(0, 10_000), st.integers(2, 5), st.floats(0.01, 0.5), st.sampled_from([2.0, 4.0])
+)
 
 
 @settings(max_examples=15, deadline=None)

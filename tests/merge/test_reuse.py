@@ -11,15 +11,29 @@ from hdrcore.registration import invert
 
 from ._brackets import bracket, inverse_gamma_lut
 
-FIELDS = ("radiance", "weight_sum", "shares", "clip_count", "clipped", "underexposed",
-          "ghost_score", "ghost")
+FIELDS = (
+    "radiance",
+    "weight_sum",
+    "shares",
+    "clip_count",
+    "clipped",
+    "underexposed",
+    "ghost_score",
+    "ghost",
+)
 
 
 @pytest.mark.parametrize("engine", ["numba", "numpy"])
 @pytest.mark.parametrize("lut", [False, True])
 def test_reused_arrays_receive_the_same_result(engine, lut):
-    sb = bracket(bits=12, response="gamma" if lut else "linear", seed=3, max_shift=4.0,
-                 max_rotation_deg=1.0, scene="window")
+    sb = bracket(
+        bits=12,
+        response="gamma" if lut else "linear",
+        seed=3,
+        max_shift=4.0,
+        max_rotation_deg=1.0,
+        scene="window",
+    )
     kw = {"response": inverse_gamma_lut(4095)} if lut else {"max_level": 4095}
     tf = [invert(t) for t in sb.to_reference]
     fresh = merge(sb.frames, sb.exposure_times, transforms=tf, engine=engine, **kw)

@@ -59,8 +59,13 @@ def test_wide_rows_with_masks_and_a_lut_agree_bit_for_bit():
     mask = np.ones(WIDE, bool)
     mask[5:15, 600:900] = False
     tf = [MOTIONS["rotation"], MOTIONS["shear-scale"], None]
-    both(frames, (1.0, 2.0, 4.0), response=inverse_gamma_lut(255), transforms=tf,
-         masks=[None, mask, mask])
+    both(
+        frames,
+        (1.0, 2.0, 4.0),
+        response=inverse_gamma_lut(255),
+        transforms=tf,
+        masks=[None, mask, mask],
+    )
 
 
 @pytest.mark.parametrize("weighting", ["hat", "noise-aware", "uniform"])
@@ -69,8 +74,14 @@ def test_wide_linear_frames_read_in_place_agree_bit_for_bit(weighting):
     frames = _frames(seed=2)
     mask = np.ones(WIDE, bool)
     mask[:, 1000:1100] = False
-    res, _ = both(frames, (1.0, 2.0, 4.0), max_level=4095, weighting=weighting,
-                  masks=[mask, None, None], noise_floor=20)
+    res, _ = both(
+        frames,
+        (1.0, 2.0, 4.0),
+        max_level=4095,
+        weighting=weighting,
+        masks=[mask, None, None],
+        noise_floor=20,
+    )
     assert res.clipped.any() or res.clip_count.any()
 
 
@@ -103,8 +114,9 @@ def test_every_fallback_agrees_bit_for_bit(resample, times):
     c, s = np.cos(0.002), np.sin(0.002)
     small = np.array([[c, -s, 1.3], [s, c, -0.4]])
     tf = [small, None, MOTIONS["shear-scale"]]  # supports inside the frame over rows 5..18
-    ref, _ = both(frames, times, max_level=4095, transforms=tf, resample=resample, masks=masks,
-                  noise_floor=40)
+    ref, _ = both(
+        frames, times, max_level=4095, transforms=tf, resample=resample, masks=masks, noise_floor=40
+    )
     mid = slice(5, h - 5)
     assert ref.underexposed[mid, 120:280].all() and (ref.weight_sum[mid, 120:280] == 0).all()
     assert ref.underexposed[mid, 320:400].all() and (ref.weight_sum[mid, 320:400] > 0).all()

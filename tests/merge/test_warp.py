@@ -54,8 +54,15 @@ def test_engines_agree_rotation_and_masks():
     sb, tf = handheld(bits=12, response="linear", seed=2)
     mask = np.ones(SHAPE, bool)
     mask[:, :25] = False
-    both(sb.frames, sb.exposure_times, max_level=4095, transforms=tf, masks=[None, mask, None],
-         saturation_level=(3900, 4000, 4095), noise_floor=10)
+    both(
+        sb.frames,
+        sb.exposure_times,
+        max_level=4095,
+        transforms=tf,
+        masks=[None, mask, None],
+        saturation_level=(3900, 4000, 4095),
+        noise_floor=10,
+    )
 
 
 @pytest.mark.parametrize("bits", [8, 12])
@@ -83,8 +90,9 @@ def test_engines_agree_clipped_neighbourhoods():
 def test_identity_transforms_take_the_direct_path():
     sb = bracket(bits=12, response="linear", noise_sigma=1.0, seed=6)
     ref = merge(sb.frames, sb.exposure_times, max_level=4095)
-    same = merge(sb.frames, sb.exposure_times, max_level=4095,
-                 transforms=[np.eye(2, 3), None, np.eye(3)])
+    same = merge(
+        sb.frames, sb.exposure_times, max_level=4095, transforms=[np.eye(2, 3), None, np.eye(3)]
+    )
     np.testing.assert_array_equal(ref.radiance, same.radiance)
     np.testing.assert_array_equal(ref.shares, same.shares)
 
@@ -92,8 +100,13 @@ def test_identity_transforms_take_the_direct_path():
 def test_border_support_outside_the_frame_is_no_data():
     sb = bracket(bits=12, response="linear", noise_sigma=1.0, seed=7)
     h, w = SHAPE
-    res = merge(sb.frames, sb.exposure_times, max_level=4095,
-                transforms=[shift(5.5, 0.0), None, None], engine="numpy")
+    res = merge(
+        sb.frames,
+        sb.exposure_times,
+        max_level=4095,
+        transforms=[shift(5.5, 0.0), None, None],
+        engine="numpy",
+    )
     # frame 0 is read at x + 5.5: its 4x4 support, columns floor(x + 5.5) - 1 .. + 2, stays
     # inside for x + 5 <= w - 3, i.e. x <= w - 8; rows 1..h-3 only.
     share0 = res.shares[0].astype(np.float32)
@@ -101,8 +114,13 @@ def test_border_support_outside_the_frame_is_no_data():
     assert np.all(share0[0] == 0) and np.all(share0[h - 2 :] == 0)
     valid_cols = share0[1 : h - 2, : w - 8]
     assert np.mean(valid_cols > 0) > 0.3  # used wherever it is well exposed
-    fused = merge(sb.frames, sb.exposure_times, max_level=4095,
-                  transforms=[shift(5.5, 0.0), None, None], engine="numba")
+    fused = merge(
+        sb.frames,
+        sb.exposure_times,
+        max_level=4095,
+        transforms=[shift(5.5, 0.0), None, None],
+        engine="numba",
+    )
     np.testing.assert_array_equal(res.shares, fused.shares)
 
 
@@ -134,8 +152,9 @@ def test_bad_transforms_are_refused():
     with pytest.raises(ParameterError, match="2x3 affine"):
         merge(sb.frames, sb.exposure_times, max_level=255, transforms=[None, np.eye(2), None])
     with pytest.raises(ParameterError, match="2x3 affine"):
-        merge(sb.frames, sb.exposure_times, max_level=255,
-              transforms=[None, shift(np.nan, 0), None])
+        merge(
+            sb.frames, sb.exposure_times, max_level=255, transforms=[None, shift(np.nan, 0), None]
+        )
 
 
 # ---- accuracy and sharpness on simulated hand-held truth ---------------------------------------
@@ -165,14 +184,14 @@ def _sharpness(radiance: np.ndarray, region: np.ndarray) -> float:
 def _sharpness_ratios(resample: str = "cubic") -> tuple[float, float]:
     """(hand-held / tripod sharpness, median relative error) of the 'window' scene."""
     motion = [(3.4, -2.2, 0.8), (0.0, 0.0, 0.0), (-2.7, 4.1, -1.1)]
-    kw = dict(bits=12, response="linear", noise_sigma=0.5, seed=10, shape=(192, 256),
-              scene="window")
+    kw = dict(
+        bits=12, response="linear", noise_sigma=0.5, seed=10, shape=(192, 256), scene="window"
+    )
     held = bracket(motion=motion, **kw)
     # the tripod bracket of the same scene: the hand-held bracket's truth as its radiance
     tripod = bracket(radiance=held.radiance, key=held.key, **kw)
     tf = [invert(t) for t in held.to_reference]
-    a = merge(held.frames, held.exposure_times, max_level=4095, transforms=tf,
-              resample=resample)
+    a = merge(held.frames, held.exposure_times, max_level=4095, transforms=tf, resample=resample)
     b = merge(tripod.frames, tripod.exposure_times, max_level=4095)
     region = interior(held.radiance.shape[:2], 16)
     sa, sb_ = _sharpness(a.radiance, region), _sharpness(b.radiance, region)
@@ -232,7 +251,7 @@ def test_clipped_supports_are_the_nxn_any_of_the_taps(dtype, ntap):
             _fused._clipped_supports(flat, iy, c0, m, ntap, thr[0], thr[1], thr[2], cf, out)
             for q in range(m):
                 x = c0 + q
-                assert out[q] == clipped[iy:iy + ntap, x:x + ntap].any(), (iy, x)
+                assert out[q] == clipped[iy : iy + ntap, x : x + ntap].any(), (iy, x)
 
 
 @pytest.mark.parametrize("lut", [False, True])
@@ -257,9 +276,11 @@ def test_levels_past_the_lut_in_a_resampled_frame_are_refused(engine, resample):
     frames = [f.copy() for f in sb.frames]
     lut = inverse_gamma_lut(1023)  # a 10-bit LUT for 12-bit levels
     frames = [np.minimum(f, 1023) for f in frames]
-    merge(frames, sb.exposure_times, response=lut, transforms=tf, engine=engine,
-          resample=resample)  # in range: fine
+    merge(
+        frames, sb.exposure_times, response=lut, transforms=tf, engine=engine, resample=resample
+    )  # in range: fine
     frames[0][60, 80, 1] = 2000  # frame 0 is resampled
     with pytest.raises(ParameterError, match="no response LUT entry"):
-        merge(frames, sb.exposure_times, response=lut, transforms=tf, engine=engine,
-              resample=resample)
+        merge(
+            frames, sb.exposure_times, response=lut, transforms=tf, engine=engine, resample=resample
+        )

@@ -26,8 +26,9 @@ def test_a_weighting_is_one_function(monkeypatch) -> None:
     # E_k = 0.2 and 0.3, weights 0.04 and 0.36: the toy did the work (hat gives 0.2667)
     np.testing.assert_allclose(fused.radiance, (0.04 * 0.2 + 0.36 * 0.3) / 0.4, rtol=1e-6)
     assert fused.weighting == "squares"
-    np.testing.assert_allclose(weights(np.float32([0.5]), np.float32([0.5]), 1.0,
-                                       np.float32([1.0]), "squares"), [0.25])
+    np.testing.assert_allclose(
+        weights(np.float32([0.5]), np.float32([0.5]), 1.0, np.float32([1.0]), "squares"), [0.25]
+    )
 
 
 @pytest.mark.parametrize("resample", ["cubic", "bilinear"])
@@ -36,16 +37,16 @@ def test_a_registered_weighting_on_every_kernel_path(monkeypatch, resample) -> N
     and linear levels resampled and in place: both engines agree bit for bit."""
     monkeypatch.setitem(WEIGHTS, "squares", Weighting(squares))
     rng = np.random.default_rng(3)
-    frames = [np.clip(rng.normal(40 * 4**k, 10, (24, 32, 3)), 0, 255).astype(np.uint8)
-              for k in range(3)]
+    frames = [
+        np.clip(rng.normal(40 * 4**k, 10, (24, 32, 3)), 0, 255).astype(np.uint8) for k in range(3)
+    ]
     lut = np.linspace(0.0, 1.0, 256) ** 2.2
     tf = [np.array([[1.0, 0.01, 0.6], [-0.01, 1.0, -0.3]]), None, None]
     for kw in ({"response": lut}, {"max_level": 255}):
         ref, _ = both(frames, (1.0, 4.0, 16.0), weighting="squares", **kw)
         hat = merge(frames, (1.0, 4.0, 16.0), weighting="hat", **kw)
         assert not np.array_equal(ref.radiance, hat.radiance)
-        both(frames, (1.0, 4.0, 16.0), weighting="squares", transforms=tf, resample=resample,
-             **kw)
+        both(frames, (1.0, 4.0, 16.0), weighting="squares", transforms=tf, resample=resample, **kw)
 
 
 def test_built_in_weightings_are_inlined_and_unknown_names_refused() -> None:

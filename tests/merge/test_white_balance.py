@@ -25,8 +25,9 @@ REF = 2
 def _bracket(gains=GAINS, frame=REBALANCED, seed=3):
     """An sRGB bracket (1 level of noise) whose ``frame`` was shot with ``gains`` applied to
     the scene's linear colours, and the same bracket without them."""
-    kw = dict(shape=(120, 180), exposure_times=TIMES, bits=8, response="srgb",
-              noise_sigma=1.0, seed=seed)
+    kw = dict(
+        shape=(120, 180), exposure_times=TIMES, bits=8, response="srgb", noise_sigma=1.0, seed=seed
+    )
     sim = simulate_bracket(scene="patches", **kw)
     other = simulate_bracket(sim.radiance * np.asarray(gains), key=sim.key, **kw)
     true = [f.astype(np.uint8) for f in sim.frames]
@@ -75,8 +76,10 @@ def test_the_merge_is_corrected_to_the_reference_balance(rebalanced) -> None:
     assert cast[REBALANCED].best_error > 1.5 * plain[REBALANCED].best_error
     for k in range(len(TIMES)):
         assert after[k].best_error < plain[k].best_error + 0.001
+
     def p90(rad):
         return np.percentile(np.abs(rad / np.maximum(truth.radiance, 1e-6) - 1.0), 90)
+
     assert p90(fixed) < 0.5 * p90(res.radiance)  # 0.0055 against 0.023
 
 
@@ -94,8 +97,15 @@ def test_a_response_error_shared_by_every_pair_is_not_a_balance() -> None:
 def test_unmeasured_frames_are_flagged() -> None:
     """Frames too far apart share no well-exposed pixel: their balance is not measured and the
     message says so."""
-    sim = simulate_bracket(scene="patches", shape=(96, 144), exposure_times=(1.0, 4.0, 4096.0),
-                           bits=8, response="srgb", noise_sigma=1.0, seed=2)
+    sim = simulate_bracket(
+        scene="patches",
+        shape=(96, 144),
+        exposure_times=(1.0, 4.0, 4096.0),
+        bits=8,
+        response="srgb",
+        noise_sigma=1.0,
+        seed=2,
+    )
     frames = [f.astype(np.uint8) for f in sim.frames]
     wb = measure_white_balance(frames, LUT, max_level=255, reference=1)
     assert wb.unmeasured == (2,) and not wb.pairs[1].measured
@@ -109,8 +119,17 @@ def test_check_colour_corrects_and_reports(rebalanced) -> None:
     _, shot = rebalanced
     res = merge(shot, TIMES, response=LUT, max_level=255)
     rad = res.radiance.copy()
-    out = check_colour(shot, rad, LUT, max_level=255, reference=REF, saturation=250,
-                       noise_floor=2, exposure_times=TIMES, shares=res.shares)
+    out = check_colour(
+        shot,
+        rad,
+        LUT,
+        max_level=255,
+        reference=REF,
+        saturation=250,
+        noise_floor=2,
+        exposure_times=TIMES,
+        shares=res.shares,
+    )
     assert out.white_balance.applied and out.white_balance.differs == (REBALANCED,)
     assert out.after.white_balance_differs == (REBALANCED,)
     assert "white balance corrected" in out.message
@@ -122,9 +141,18 @@ def test_check_colour_corrects_and_reports(rebalanced) -> None:
     assert out.after.frame_pairs_wb[REBALANCED].median_difference < 0.5 * raw
     d = json.loads(json.dumps(out.to_json()))
     assert d["white_balance"]["applied"] and d["after"]["frame_colours"][0]["frame"] == 0
-    kept = check_colour(shot, res.radiance.copy(), LUT, max_level=255, reference=REF,
-                        saturation=250, noise_floor=2, exposure_times=TIMES,
-                        shares=res.shares, white_balance=False)
+    kept = check_colour(
+        shot,
+        res.radiance.copy(),
+        LUT,
+        max_level=255,
+        reference=REF,
+        saturation=250,
+        noise_floor=2,
+        exposure_times=TIMES,
+        shares=res.shares,
+        white_balance=False,
+    )
     assert not kept.white_balance.applied and kept.white_balance.differs == (REBALANCED,)
 
 
@@ -160,15 +188,15 @@ def test_the_pipeline_corrects_and_says_so(tmp_path) -> None:
     from hdrcore.pipeline import Pipeline, PipelineParams
     from hdrcore.synthetic import write_bracket
 
-    kw = dict(shape=(96, 144), exposure_times=TIMES, bits=8, response="srgb",
-              noise_sigma=1.0, seed=5)
+    kw = dict(
+        shape=(96, 144), exposure_times=TIMES, bits=8, response="srgb", noise_sigma=1.0, seed=5
+    )
     sim = simulate_bracket(scene="patches", **kw)
     other = simulate_bracket(sim.radiance * np.asarray(GAINS), key=sim.key, **kw)
     frames = list(sim.frames)
     frames[REBALANCED] = other.frames[REBALANCED]
     write_bracket(tmp_path, replace(sim, frames=tuple(frames)), fmt="png")
-    b = load_bracket(sorted(tmp_path.glob("*.png")),
-                     exposure_times=tmp_path / "exposure_times.txt")
+    b = load_bracket(sorted(tmp_path.glob("*.png")), exposure_times=tmp_path / "exposure_times.txt")
     r = Pipeline(b, PipelineParams(align="none", response="srgb")).run(until="merge")
     rep = json.loads(json.dumps(r.to_report()))
     wb = rep["colour"]["check"]["white_balance"]
@@ -182,8 +210,7 @@ def test_the_pipeline_corrects_and_says_so(tmp_path) -> None:
 
 
 @pytest.mark.shared
-def test_a_tripod_canon_bracket_has_one_balance_and_every_frame_its_colour(
-        frobisher_dir) -> None:
+def test_a_tripod_canon_bracket_has_one_balance_and_every_frame_its_colour(frobisher_dir) -> None:
     """Real Canon JPEGs (one white balance for the bracket): no frame is said to differ, the
     pairs measure within 0.5 %, and the default merge gives every frame's best-exposed
     regions that frame's colour at least as well as the sRGB merge does."""
@@ -210,8 +237,15 @@ def test_a_locally_tone_mapped_bracket_keeps_its_balance_measurable() -> None:
     the regions' exposure ratios apart; the regions off the common transfer are left out and
     the re-balanced frame is still found, its gains within 0.01; the same bracket with one
     balance has no frame said to differ."""
-    kw = dict(shape=(120, 180), exposure_times=TIMES, bits=8, response="srgb",
-              noise_sigma=1.0, seed=3, local_tonemap=0.5)
+    kw = dict(
+        shape=(120, 180),
+        exposure_times=TIMES,
+        bits=8,
+        response="srgb",
+        noise_sigma=1.0,
+        seed=3,
+        local_tonemap=0.5,
+    )
     sim = simulate_bracket(scene="patches", **kw)
     other = simulate_bracket(sim.radiance * np.asarray(GAINS), key=sim.key, **kw)
     true = [f.astype(np.uint8) for f in sim.frames]

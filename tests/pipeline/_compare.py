@@ -47,8 +47,7 @@ def _walk(a: Any, b: Any, path: str, out: list[str], limit: int, seen: set) -> N
     if dataclasses.is_dataclass(a) and not isinstance(a, type):
         for f in dataclasses.fields(a):
             if f.name not in IGNORED and f.compare:  # compare=False: a memo, not the value
-                _walk(getattr(a, f.name), getattr(b, f.name), f"{path}.{f.name}", out, limit,
-                      seen)
+                _walk(getattr(a, f.name), getattr(b, f.name), f"{path}.{f.name}", out, limit, seen)
         return
     if isinstance(a, dict):
         keys = [k for k in a if k not in IGNORED]

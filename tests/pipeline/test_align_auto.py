@@ -20,16 +20,19 @@ def test_auto_takes_the_homography_only_where_perspective_is_left(tmp_path) -> N
     tilt = perspective(shape, 1.5, -2.0, 0.2, 1.003, 0.012, -0.010)  # frame 2: perspective
     shift = perspective(shape, 2.0, 1.0, 0.0, 1.0, 0.0, 0.0)  # frame 0: a plain shift
     times = (1.0, 4.0, 16.0)
-    frames, ml = render_frames([shift, np.eye(3), tilt], times, bits=16, shape=shape,
-                               noise_sigma=2.0, scene="window")
+    frames, ml = render_frames(
+        [shift, np.eye(3), tilt], times, bits=16, shape=shape, noise_sigma=2.0, scene="window"
+    )
     for k, g in enumerate(frames):
         rgb = np.repeat((np.clip(g, 0, 1) * ml + 0.5).astype(np.uint16)[..., None], 3, axis=2)
         tifffile.imwrite(tmp_path / f"f{k}.tif", rgb)
     (tmp_path / "exposure_times.txt").write_text(
-        "".join(f"f{k}.tif {t:g}\n" for k, t in enumerate(times)))
+        "".join(f"f{k}.tif {t:g}\n" for k, t in enumerate(times))
+    )
     bracket = load_bracket([tmp_path])
     auto = Pipeline(bracket, PipelineParams(align="auto", response="linear")).run(
-        PipelineParams(align="auto", response="linear"), until="registration")
+        PipelineParams(align="auto", response="linear"), until="registration"
+    )
     reg = auto.registration
     assert reg.pairs[0].model == "similarity"  # a shift: the simplest model that explains it
     assert reg.pairs[1].model == "homography" and "auto:" in reg.pairs[1].message
@@ -47,8 +50,11 @@ def test_auto_takes_the_homography_that_removes_a_perspective_tilt() -> None:
     left) with the tiles' median and 90th percentile lower (0.41, 1.18 px), so ``auto`` keeps
     it although the median falls by less than a fifth."""
     b = load_bracket([PIXEL7])
-    reg = Pipeline(b, PipelineParams(local="off", registration_previews=False)).run(
-        until="registration").registration
+    reg = (
+        Pipeline(b, PipelineParams(local="off", registration_previews=False))
+        .run(until="registration")
+        .registration
+    )
     q = reg.pairs[0]
     assert q.model == "homography", q.message
     assert "perspective pattern" in q.message, q.message
@@ -63,8 +69,11 @@ def test_the_defaults_leave_under_0_3_px_on_the_median_pixel7_pair() -> None:
     the median pair (measured 0.286: pairs 0.298, 0.286, 0.298, 0.271, 0.266 px, three of them
     through a field) and no pair is called ``ok`` with more than 1 px left."""
     b = load_bracket([PIXEL7])
-    reg = Pipeline(b, PipelineParams(registration_previews=False)).run(
-        until="registration").registration
+    reg = (
+        Pipeline(b, PipelineParams(registration_previews=False))
+        .run(until="registration")
+        .registration
+    )
     left = {(q.dark, q.bright): q.residual.median for q in reg.pairs}
     assert all(q.residual.median <= 1.0 for q in reg.pairs if q.ok)
     assert reg.local is not None

@@ -28,8 +28,9 @@ def demo():
 @pytest.mark.parametrize("align", ["similarity", "homography"])
 def test_binned_registration_scales_the_homography_back(demo, align: str) -> None:
     b, truth = demo
-    r = Pipeline(b, PipelineParams(align=align, local="off", registration_max_pixels=100_000)
-                 ).run(until="registration")
+    r = Pipeline(b, PipelineParams(align=align, local="off", registration_max_pixels=100_000)).run(
+        until="registration"
+    )
     reg = r.registration
     assert reg is not None
     for k, p in enumerate(reg.pairs):

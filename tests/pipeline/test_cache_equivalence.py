@@ -31,47 +31,31 @@ from ..conftest import shared_dir
 from ._compare import differences
 
 #: One field changed at a time, among a few values each (8-bit brackets).
-CHANGES = [
-    ("saturation", v) for v in (None, 200.0, 240.0)
-] + [
-    ("noise_floor", v) for v in (None, 3.0, 8.0)
-] + [
-    ("threshold", v) for v in (0.1, 0.2)
-] + [
-    ("align", v) for v in ("auto", "none", "shift", "similarity")
-] + [
-    ("local", v) for v in ("auto", "off")
-] + [
-    ("reference", v) for v in (None, 0)
-] + [
-    ("response", v) for v in ("auto", "srgb", "debevec-histogram")
-] + [
-    ("times", v) for v in ("estimated", "exif")
-] + [
-    ("exposure_method", v) for v in ("Cerman 2006 refined", "Cerman 2006")
-] + [
-    ("refine_ratios", v) for v in ("pixels", "histograms", "none")
-] + [
-    ("ratio_fallback_stops", v) for v in (0.0, 0.3)
-] + [
-    ("exclude_colour", v) for v in (None, (0, 0, 255))
-] + [
-    ("registration_max_pixels", v) for v in (None, 2000)
-] + [
-    ("working_space", v) for v in ("sRGB", "Rec.2020")
-] + [
-    ("deghost", v) for v in (False, True)
-] + [
-    ("colour_anchor", v) for v in (True, False)
-] + [
-    ("tonemap", v) for v in ("auto", "reinhard")
-] + [
-    ("tonemap_exposure", v) for v in (0.0, 1.0)
-] + [
-    ("preview_max_side", v) for v in (2048, 40)
-] + [
-    ("workers", v) for v in (None, 1, 3)  # no key holds it: results must not depend on it
-]
+CHANGES = (
+    [("saturation", v) for v in (None, 200.0, 240.0)]
+    + [("noise_floor", v) for v in (None, 3.0, 8.0)]
+    + [("threshold", v) for v in (0.1, 0.2)]
+    + [("align", v) for v in ("auto", "none", "shift", "similarity")]
+    + [("local", v) for v in ("auto", "off")]
+    + [("reference", v) for v in (None, 0)]
+    + [("response", v) for v in ("auto", "srgb", "debevec-histogram")]
+    + [("times", v) for v in ("estimated", "exif")]
+    + [("exposure_method", v) for v in ("Cerman 2006 refined", "Cerman 2006")]
+    + [("refine_ratios", v) for v in ("pixels", "histograms", "none")]
+    + [("ratio_fallback_stops", v) for v in (0.0, 0.3)]
+    + [("exclude_colour", v) for v in (None, (0, 0, 255))]
+    + [("registration_max_pixels", v) for v in (None, 2000)]
+    + [("working_space", v) for v in ("sRGB", "Rec.2020")]
+    + [("deghost", v) for v in (False, True)]
+    + [("colour_anchor", v) for v in (True, False)]
+    + [("tonemap", v) for v in ("auto", "reinhard")]
+    + [("tonemap_exposure", v) for v in (0.0, 1.0)]
+    + [("preview_max_side", v) for v in (2048, 40)]
+    + [
+        ("workers", v)
+        for v in (None, 1, 3)  # no key holds it: results must not depend on it
+    ]
+)
 
 UNTIL = ("ratios", "registration", "overlap_ratios", "preview", "preview")
 
@@ -121,17 +105,32 @@ class CachedEqualsFresh(RuleBasedStateMachine):
 def _run_machine(bracket: Bracket, examples: int, steps: int) -> None:
     CachedEqualsFresh.bracket = bracket
     CachedEqualsFresh.fresh = {}
-    run_state_machine_as_test(CachedEqualsFresh, settings=settings(
-        max_examples=int(os.environ.get("HDRCORE_CACHE_EXAMPLES", examples)),
-        stateful_step_count=steps, deadline=None, derandomize=True, database=None,
-        suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much]))
+    run_state_machine_as_test(
+        CachedEqualsFresh,
+        settings=settings(
+            max_examples=int(os.environ.get("HDRCORE_CACHE_EXAMPLES", examples)),
+            stateful_step_count=steps,
+            deadline=None,
+            derandomize=True,
+            database=None,
+            suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much],
+        ),
+    )
 
 
 @pytest.fixture(scope="module")
 def tiny_handheld(tmp_path_factory: pytest.TempPathFactory) -> Bracket:
-    sim = simulate_bracket(scene="window", shape=(48, 64), exposure_times=(1 / 16, 1 / 4, 1.0),
-                           bits=8, response="gamma", noise_sigma=1.0, max_shift=2,
-                           max_rotation_deg=0.3, seed=1)
+    sim = simulate_bracket(
+        scene="window",
+        shape=(48, 64),
+        exposure_times=(1 / 16, 1 / 4, 1.0),
+        bits=8,
+        response="gamma",
+        noise_sigma=1.0,
+        max_shift=2,
+        max_rotation_deg=0.3,
+        seed=1,
+    )
     out = tmp_path_factory.mktemp("tiny")
     write_bracket(out, sim, fmt="png")
     return load_bracket([out])
@@ -143,8 +142,15 @@ def tiny_without_times(tmp_path_factory: pytest.TempPathFactory) -> Bracket:
     of the issue's forgotten key)."""
     from PIL import Image
 
-    sim = simulate_bracket(scene="window", shape=(48, 64), exposure_times=(1.0, 4.0, 16.0),
-                           bits=8, response="srgb", noise_sigma=1.0, seed=3)
+    sim = simulate_bracket(
+        scene="window",
+        shape=(48, 64),
+        exposure_times=(1.0, 4.0, 16.0),
+        bits=8,
+        response="srgb",
+        noise_sigma=1.0,
+        seed=3,
+    )
     out = tmp_path_factory.mktemp("no_times")
     written = write_bracket(out, sim, fmt="png")
     (out / "exposure_times.txt").unlink(missing_ok=True)
@@ -156,8 +162,13 @@ def tiny_without_times(tmp_path_factory: pytest.TempPathFactory) -> Bracket:
 
 
 def _every(bracket: Bracket, step: int) -> Bracket:
-    return replace(bracket, frames=tuple(
-        replace(f, levels=np.ascontiguousarray(f.levels[::step, ::step])) for f in bracket.frames))
+    return replace(
+        bracket,
+        frames=tuple(
+            replace(f, levels=np.ascontiguousarray(f.levels[::step, ::step]))
+            for f in bracket.frames
+        ),
+    )
 
 
 def test_cached_runs_equal_fresh_runs_simulated(tiny_handheld: Bracket) -> None:
@@ -197,4 +208,3 @@ def test_the_comparison_sees_a_stale_cache(tiny_handheld: Bracket, monkeypatch) 
     monkeypatch.undo()
     diff = differences(stale, Pipeline(tiny_handheld).run(q))
     assert any(d.startswith("result.preview") for d in diff), diff
-

@@ -14,8 +14,15 @@ from hdrcore.synthetic import simulate_bracket, write_bracket
 
 
 def test_switching_the_exposure_method_equals_a_fresh_run(tmp_path) -> None:
-    sim = simulate_bracket(scene="window", shape=(96, 144), exposure_times=(1.0, 4.0, 16.0),
-                           bits=8, response="srgb", noise_sigma=1.0, seed=3)
+    sim = simulate_bracket(
+        scene="window",
+        shape=(96, 144),
+        exposure_times=(1.0, 4.0, 16.0),
+        bits=8,
+        response="srgb",
+        noise_sigma=1.0,
+        seed=3,
+    )
     out = write_bracket(tmp_path / "png", sim, fmt="png")
     (tmp_path / "png" / "exposure_times.txt").unlink(missing_ok=True)
     for f in out.frames:  # re-saved without their metadata: no exposure times anywhere
@@ -30,5 +37,9 @@ def test_switching_the_exposure_method_equals_a_fresh_run(tmp_path) -> None:
     assert "response" in switched.stages_run
     fresh = Pipeline(load_bracket(list(out.frames)), b).run(b, until="ratios")
     assert np.allclose(switched.lut, fresh.lut)
-    assert np.allclose([q.ratio for q in switched.exposures.pairs],
-                       [q.ratio for q in fresh.exposures.pairs], rtol=0, atol=1e-9)
+    assert np.allclose(
+        [q.ratio for q in switched.exposures.pairs],
+        [q.ratio for q in fresh.exposures.pairs],
+        rtol=0,
+        atol=1e-9,
+    )

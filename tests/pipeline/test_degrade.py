@@ -39,8 +39,9 @@ def _commands_complete(fb: faults.FaultyBracket, tmp_path: Path, capsys) -> dict
     code, _, err = _run_cli(["align", d, "--json"], capsys)
     assert code in (0, 1), err
     report = tmp_path / "r.json"
-    code, _, err = _run_cli(["merge", d, "-o", str(tmp_path / "m.exr"), "--report",
-                             str(report), "--quiet"], capsys)
+    code, _, err = _run_cli(
+        ["merge", d, "-o", str(tmp_path / "m.exr"), "--report", str(report), "--quiet"], capsys
+    )
     assert code in (0, 1), err
     rep = json.loads(report.read_text())
     rep["_ratios"] = ratios
@@ -82,8 +83,10 @@ def test_saturated_frame_is_left_out(tmp_path, capsys):
     fb = faults.write_saturated_frame(tmp_path / "s", spec=SMALL)
     rep = _commands_complete(fb, tmp_path, capsys)
     assert [u["status"] for u in rep["frames_not_used"]] == ["saturated"]
-    assert any(v["code"] == "frame-saturated-unused" and fb.frames[-1].name in v["message"]
-               for v in rep["verdicts"])
+    assert any(
+        v["code"] == "frame-saturated-unused" and fb.frames[-1].name in v["message"]
+        for v in rep["verdicts"]
+    )
 
 
 def test_duplicate_exposure_joins_the_merge(tmp_path, capsys):
@@ -119,8 +122,9 @@ def test_unregistrable_tripod_pairs_keep_the_identity_and_merge(tmp_path, capsys
     for p in failed:
         assert np.allclose(p["matrix"], np.eye(2, 3))
     assert rep["status"] == "ok"
-    assert any(v["code"] == "registration-identity" and v["severity"] == "info"
-               for v in rep["verdicts"])
+    assert any(
+        v["code"] == "registration-identity" and v["severity"] == "info" for v in rep["verdicts"]
+    )
 
 
 def test_unlinked_frame_without_exif_is_left_out(tmp_path):
@@ -147,15 +151,17 @@ def test_dim_darkest_raw_frame_merges_with_defaults(tmp_path, capsys):
     """The issue's 12-bit DNG bracket, 2 stops apart, darkest frame peaking near 1.5 % of the
     range: the floor comes from the measured read noise (2 DN), not 2 % of the range, and the
     darkest frame carries the highlights."""
-    fb = faults.write_dark_raw_bracket(tmp_path / "raw", spec=faults.DARK_RAW_12BIT.replace(
-        shape=(128, 192)))
+    fb = faults.write_dark_raw_bracket(
+        tmp_path / "raw", spec=faults.DARK_RAW_12BIT.replace(shape=(128, 192))
+    )
     rep = _commands_complete(fb, tmp_path, capsys)
     assert rep["frames_not_used"] == []
     noise = rep["noise"]
     assert 1.6 < noise["sigma"] < 2.6, noise  # simulated read noise: 2 DN
     assert rep["parameters"]["noise_floor_used"] < 10  # 2 % of the range would be 82
-    errs = _true_ratio_errors(fb, rep["_ratios"]["pairs"],
-                              [f["path"] for f in rep["_ratios"]["frames"]])
+    errs = _true_ratio_errors(
+        fb, rep["_ratios"]["pairs"], [f["path"] for f in rep["_ratios"]["frames"]]
+    )
     assert len(errs) == len(fb.frames) - 1  # every pair measured
     assert all(e < 0.01 for s, e in errs if s == "ok")
     # The darkest frame is merged (it carries the highlights wherever the others clip).
@@ -167,8 +173,9 @@ def test_swapped_times_are_caught_and_the_ratios_come_from_the_pixels(tmp_path, 
     """Two lines of the times file swapped: the frames are ordered by brightness, the ratios
     measured right (never '1.0000 ok'), and the disagreement with the listed times named."""
     fb = faults.write_swapped_times(tmp_path / "w", spec=SMALL)
-    code, out, err = _run_cli(["ratios", str(fb.directory), "--times", str(fb.times_file),
-                               "--json"], capsys)
+    code, out, err = _run_cli(
+        ["ratios", str(fb.directory), "--times", str(fb.times_file), "--json"], capsys
+    )
     assert code in (0, 1), err
     assert "swapped" in err
     doc = json.loads(out)
@@ -177,27 +184,43 @@ def test_swapped_times_are_caught_and_the_ratios_come_from_the_pixels(tmp_path, 
     assert len(errs) == len(fb.frames) - 1
     assert all(e < 0.01 for _, e in errs)
     report = tmp_path / "w.json"
-    code, _, err = _run_cli(["merge", str(fb.directory), "--times", str(fb.times_file), "-o",
-                             str(tmp_path / "w.exr"), "--report", str(report), "--quiet"],
-                            capsys)
+    code, _, err = _run_cli(
+        [
+            "merge",
+            str(fb.directory),
+            "--times",
+            str(fb.times_file),
+            "-o",
+            str(tmp_path / "w.exr"),
+            "--report",
+            str(report),
+            "--quiet",
+        ],
+        capsys,
+    )
     assert code in (0, 1), err
     rep = json.loads(report.read_text())
     mism = [v for v in rep["verdicts"] if v["code"] == "exif-mismatch"]
     assert mism, rep["verdicts"]
     swapped = {fb.frames[f.index].name for f in fb.faults}
-    assert any(all(name in v["message"] for name in swapped) for v in mism + [
-        v for v in rep["verdicts"] if v["code"] in ("times-swapped", "out-of-order")])
+    assert any(
+        all(name in v["message"] for name in swapped)
+        for v in mism
+        + [v for v in rep["verdicts"] if v["code"] in ("times-swapped", "out-of-order")]
+    )
 
 
 def test_handheld_response_is_recovered_again_after_registration(tmp_path):
     """8-bit hand-held seed bracket (the pipeline recovers a response): the response is
     recovered again on the registered frames, the ratios through it are within a few per cent
     (before: up to 23 % off), and no pair off by more than 1 % is reported ok."""
-    spec = faults.SEED_PROTOCOL.replace(scene="landscape", seed=1, max_shift=20,
-                                        max_rotation_deg=1.0)
+    spec = faults.SEED_PROTOCOL.replace(
+        scene="landscape", seed=1, max_shift=20, max_rotation_deg=1.0
+    )
     fb = faults.write_reference_bracket(tmp_path / "h", spec)
-    res = Pipeline(load_bracket(list(fb.frames)),
-                   PipelineParams(registration_previews=False)).run(until="overlap_ratios")
+    res = Pipeline(load_bracket(list(fb.frames)), PipelineParams(registration_previews=False)).run(
+        until="overlap_ratios"
+    )
     assert "response_registered" in res.stages_run
     errs = []
     for p in res.exposures.pairs:

@@ -15,8 +15,15 @@ def brackets(tmp_path_factory: pytest.TempPathFactory):
     from hdrcore.io import load_bracket
     from hdrcore.synthetic import write_bracket
 
-    sim = simulate_bracket(scene="window", shape=(96, 144), exposure_times=(1 / 64, 1 / 16, 1 / 4),
-                           bits=8, response="gamma", noise_sigma=1.0, seed=6)
+    sim = simulate_bracket(
+        scene="window",
+        shape=(96, 144),
+        exposure_times=(1 / 64, 1 / 16, 1 / 4),
+        bits=8,
+        response="gamma",
+        noise_sigma=1.0,
+        seed=6,
+    )
     plain = tmp_path_factory.mktemp("plain")
     write_bracket(plain, sim, fmt="png")
     for f in sim.frames:  # a painted border strip and a few painted dots, in every frame

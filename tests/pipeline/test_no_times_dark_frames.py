@@ -24,8 +24,9 @@ def test_memorial_without_times_merges(memorial_dir, tmp_path, capsys) -> None:
     from hdrcore.cli import main
 
     rep = tmp_path / "m.json"
-    rc = main(["merge", str(memorial_dir), "-o", str(tmp_path / "m.exr"), "--report", str(rep),
-               "--quiet"])
+    rc = main(
+        ["merge", str(memorial_dir), "-o", str(tmp_path / "m.exr"), "--report", str(rep), "--quiet"]
+    )
     assert rc == 0, capsys.readouterr().err
     report = json.loads(rep.read_text())
     rel = [f["relative_exposure"] for f in report["frames"]]
@@ -35,7 +36,8 @@ def test_memorial_without_times_merges(memorial_dir, tmp_path, capsys) -> None:
 
 
 def test_memorial_marks_kept_the_darkest_frames_are_left_out_of_the_response(
-        memorial_dir, tmp_path, capsys) -> None:
+    memorial_dir, tmp_path, capsys
+) -> None:
     """With the marks taken for scene (a colour to exclude that is not there), the darkest
     frames' histograms do not rise with their brightness: the response is fitted without them
     (and says which), and their pairs, whose motion nothing verifies, are not ok."""
@@ -44,8 +46,19 @@ def test_memorial_marks_kept_the_darkest_frames_are_left_out_of_the_response(
     from hdrcore.cli import main
 
     rep = tmp_path / "m.json"
-    rc = main(["merge", str(memorial_dir), "-o", str(tmp_path / "m.exr"), "--report", str(rep),
-               "--exclude-colour", "1,2,3", "--quiet"])
+    rc = main(
+        [
+            "merge",
+            str(memorial_dir),
+            "-o",
+            str(tmp_path / "m.exr"),
+            "--report",
+            str(rep),
+            "--exclude-colour",
+            "1,2,3",
+            "--quiet",
+        ]
+    )
     assert rc == 0, capsys.readouterr().err
     report = json.loads(rep.read_text())
     assert "fitted without frames" in report["response"]["message"]

@@ -45,12 +45,17 @@ def _probe(tmp_path: Path, env_extra: dict[str, str], compile_: bool = False) ->
     other = tmp_path / "other"
     other.mkdir(exist_ok=True)
     (other / "elsewhere.py").write_text(
-        "import numba\n\n@numba.njit(cache=True)\ndef plus_one(x):\n    return x + 1\n")
+        "import numba\n\n@numba.njit(cache=True)\ndef plus_one(x):\n    return x + 1\n"
+    )
     env = {k: v for k, v in os.environ.items() if k not in ("NUMBA_CACHE_DIR", "XDG_CACHE_HOME")}
     env.update(env_extra)
-    proc = subprocess.run([sys.executable, "-c", PROBE, str(ROOT), str(other),
-                           "compile" if compile_ else "-"],
-                          capture_output=True, text=True, env=env, timeout=600)
+    proc = subprocess.run(
+        [sys.executable, "-c", PROBE, str(ROOT), str(other), "compile" if compile_ else "-"],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=600,
+    )
     assert proc.returncode == 0, proc.stderr[-2000:]
     return json.loads(proc.stdout.strip().splitlines()[-1])
 
@@ -74,8 +79,9 @@ def test_kernels_are_cached_in_the_user_cache_folder(tmp_path: Path) -> None:
 
 def test_numba_cache_dir_still_wins(tmp_path: Path) -> None:
     chosen = tmp_path / "numba-here"
-    out = _probe(tmp_path, {"NUMBA_CACHE_DIR": str(chosen),
-                            "XDG_CACHE_HOME": str(tmp_path / "xdg")})
+    out = _probe(
+        tmp_path, {"NUMBA_CACHE_DIR": str(chosen), "XDG_CACHE_HOME": str(tmp_path / "xdg")}
+    )
     for name, (locator, path) in out["ours"].items():
         assert locator == "UserProvidedCacheLocator", name
         assert Path(path).is_relative_to(chosen), (name, path)

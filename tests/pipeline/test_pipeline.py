@@ -20,8 +20,15 @@ DEMO = ROOT / "assets" / "demo"
 @pytest.fixture(scope="module")
 def handheld_png(tmp_path_factory: pytest.TempPathFactory) -> Path:
     sim = simulate_bracket(
-        scene="window", shape=(160, 240), exposure_times=(1 / 64, 1 / 16, 1 / 4), bits=8,
-        response="gamma", noise_sigma=1.0, max_shift=4, max_rotation_deg=0.5, seed=3,
+        scene="window",
+        shape=(160, 240),
+        exposure_times=(1 / 64, 1 / 16, 1 / 4),
+        bits=8,
+        response="gamma",
+        noise_sigma=1.0,
+        max_shift=4,
+        max_rotation_deg=0.5,
+        seed=3,
     )
     out = tmp_path_factory.mktemp("hh")
     write_bracket(out, sim, fmt="png")
@@ -39,8 +46,15 @@ def test_demo_runs_every_stage(demo_result) -> None:
     pipe, r = demo_result
     # After registration the ratios are measured again from the registered pixels (the
     # overlap histograms are the other refinement, run only when chosen).
-    assert r.stages_run == ("histograms", "response", "ratios", "registration",
-                            "overlap_ratios", "merge", "preview")
+    assert r.stages_run == (
+        "histograms",
+        "response",
+        "ratios",
+        "registration",
+        "overlap_ratios",
+        "merge",
+        "preview",
+    )
     assert r.response is None and r.lut is None  # RAW: linear
     assert r.radiance.shape == (432, 648, 3) and r.radiance.dtype == np.float32
     assert r.preview is not None and r.preview.image.dtype == np.uint8
@@ -73,19 +87,58 @@ def test_report_is_json_with_command_field_names(demo_result) -> None:
     _, r = demo_result
     rep = json.loads(json.dumps(r.to_report()))
     pair = rep["ratios"]["pairs"][0]
-    for key in ("dark", "bright", "ratio", "initial_ratio", "iterations", "equations",
-                "inliers", "exif_ratio", "mismatch_stops", "std_error", "status", "message"):
+    for key in (
+        "dark",
+        "bright",
+        "ratio",
+        "initial_ratio",
+        "iterations",
+        "equations",
+        "inliers",
+        "exif_ratio",
+        "mismatch_stops",
+        "std_error",
+        "status",
+        "message",
+    ):
         assert key in pair
     reg = rep["registration"]
     # the same document as `hdrcore align --json` (one serialiser)
-    assert set(reg) == {"reference", "model", "method", "ratios_source", "pairs",
-                        "to_reference", "to_reference_homography", "local"}
+    assert set(reg) == {
+        "reference",
+        "model",
+        "method",
+        "ratios_source",
+        "pairs",
+        "to_reference",
+        "to_reference_homography",
+        "local",
+    }
     assert set(reg["pairs"][0]) == set(r.registration.pairs[0].to_json())
     # local refinement: null when it did not run (no pair left misaligned), else its frames
     assert reg["local"] is None or {"tile", "frames", "summary"} <= set(reg["local"])
-    for key in ("dark", "bright", "matrix", "homography", "dx", "dy", "angle_deg", "scale",
-                "ratio", "model", "method", "cost_before", "cost_after", "overlap",
-                "iterations", "seconds", "status", "message", "residual", "ratio_found"):
+    for key in (
+        "dark",
+        "bright",
+        "matrix",
+        "homography",
+        "dx",
+        "dy",
+        "angle_deg",
+        "scale",
+        "ratio",
+        "model",
+        "method",
+        "cost_before",
+        "cost_after",
+        "overlap",
+        "iterations",
+        "seconds",
+        "status",
+        "message",
+        "residual",
+        "ratio_found",
+    ):
         assert key in reg["pairs"][0]
     assert rep["timings"]["total"] > 0
     assert rep["verdicts"] and all("message" in v for v in rep["verdicts"])
@@ -126,8 +179,15 @@ def test_progress_is_reported(demo_result) -> None:
 
 
 def test_no_exposure_times_recovers_response_from_measured_ratios(tmp_path: Path) -> None:
-    sim = simulate_bracket(scene="patches", shape=(96, 144), exposure_times=(1.0, 4.0, 16.0),
-                           bits=8, response="gamma", noise_sigma=1.0, seed=2)
+    sim = simulate_bracket(
+        scene="patches",
+        shape=(96, 144),
+        exposure_times=(1.0, 4.0, 16.0),
+        bits=8,
+        response="gamma",
+        noise_sigma=1.0,
+        seed=2,
+    )
     write_bracket(tmp_path, sim, fmt="png")
     (tmp_path / "exposure_times.txt").unlink()
     from hdrcore.io import load_frame
@@ -272,8 +332,9 @@ def test_release_hands_a_result_no_longer_shown_to_the_next_merge(demo_result) -
     assert not np.shares_memory(fourth.merge.radiance, third.merge.radiance)
     from hdrcore.merge import merge
 
-    other = merge([f.levels[:16, :24] for f in b.frames], fourth.exposure_times,
-                  max_level=b.max_level)
+    other = merge(
+        [f.levels[:16, :24] for f in b.frames], fourth.exposure_times, max_level=b.max_level
+    )
     pipe.release(other)
     fifth = pipe.run(p2, until="merge")
     assert not np.shares_memory(fifth.merge.radiance, other.radiance)

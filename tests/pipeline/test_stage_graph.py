@@ -51,9 +51,10 @@ def _toy_graph(read_c: bool = False) -> StageGraph:
         ctx["calls"].append("second")
         return up.first + p.b + (p.c if read_c else 0)
 
-    return StageGraph([Stage("first", first, ("a",)), Stage("second", second, ("b",),
-                                                               ("first",))],
-                      [f.name for f in dataclasses.fields(_Params)])
+    return StageGraph(
+        [Stage("first", first, ("a",)), Stage("second", second, ("b",), ("first",))],
+        [f.name for f in dataclasses.fields(_Params)],
+    )
 
 
 def test_keys_come_from_the_declaration() -> None:
@@ -79,8 +80,9 @@ def test_an_undeclared_read_raises() -> None:
     def sneaky(ctx, p, up):
         return up.first
 
-    cache = StageCache(StageGraph([Stage("first", lambda ctx, p, up: 1),
-                                   Stage("other", sneaky)], ["a"]), {})
+    cache = StageCache(
+        StageGraph([Stage("first", lambda ctx, p, up: 1), Stage("other", sneaky)], ["a"]), {}
+    )
     with pytest.raises(UndeclaredDependency, match="'other' read the stage 'first'"):
         cache.run(_Params()).get("other")
 
@@ -106,9 +108,11 @@ def test_the_pipeline_graph() -> None:
     # The preview reads the tonemap fields and whatever its merge read; the merge never reads
     # the tonemap fields (moving the exposure slider re-renders the preview only).
     assert {"tonemap", "tonemap_exposure", "preview_max_side", "deghost"} <= GRAPH.fields_read(
-        "preview", _NoTimes(False))
+        "preview", _NoTimes(False)
+    )
     assert not {"tonemap", "tonemap_exposure", "preview_max_side"} & GRAPH.fields_read(
-        "merge", _NoTimes(True))
+        "merge", _NoTimes(True)
+    )
     # The response reads the exposure method only for frames without times.
     assert "exposure_method" not in GRAPH.stages["response"].fields(_NoTimes(False))
     assert "exposure_method" in GRAPH.stages["response"].fields(_NoTimes(True))
@@ -124,22 +128,34 @@ class _NoTimes:
 def small_bracket(tmp_path_factory: pytest.TempPathFactory):
     from hdrcore.io import load_bracket
 
-    sim = simulate_bracket(scene="window", shape=(48, 64), exposure_times=(1 / 16, 1 / 4, 1.0),
-                           bits=8, response="gamma", noise_sigma=1.0, seed=2)
+    sim = simulate_bracket(
+        scene="window",
+        shape=(48, 64),
+        exposure_times=(1 / 16, 1 / 4, 1.0),
+        bits=8,
+        response="gamma",
+        noise_sigma=1.0,
+        seed=2,
+    )
     out = tmp_path_factory.mktemp("graph")
     write_bracket(out, sim, fmt="png")
     return load_bracket([out])
 
 
-def test_a_stage_missing_a_field_in_its_declaration_fails_at_once(small_bracket,
-                                                                  monkeypatch) -> None:
+def test_a_stage_missing_a_field_in_its_declaration_fails_at_once(
+    small_bracket, monkeypatch
+) -> None:
     """By construction: drop ``preview_max_side`` from the preview's declaration and the run
     stops with the stage and the field named, instead of keeping a stale preview."""
     st = GRAPH.stages["preview"]
-    monkeypatch.setitem(GRAPH.stages, "preview", dataclasses.replace(
-        st, params=tuple(f for f in st.params if f != "preview_max_side")))
-    with pytest.raises(UndeclaredDependency, match="'preview' read the parameter "
-                                                   "'preview_max_side'"):
+    monkeypatch.setitem(
+        GRAPH.stages,
+        "preview",
+        dataclasses.replace(st, params=tuple(f for f in st.params if f != "preview_max_side")),
+    )
+    with pytest.raises(
+        UndeclaredDependency, match="'preview' read the parameter 'preview_max_side'"
+    ):
         Pipeline(small_bracket).run(PipelineParams(align="none"))
 
 
@@ -175,9 +191,9 @@ def test_a_switched_off_stage_reads_nothing_downstream(small_bracket) -> None:
 def test_internal_steps_are_not_reported(small_bracket) -> None:
     seen: list[str] = []
     res = Pipeline(small_bracket, progress=lambda s, f, m: seen.append(s)).run(
-        PipelineParams(align="none"))
+        PipelineParams(align="none")
+    )
     internal = {n for n, st in GRAPH.stages.items() if st.internal}
     assert not internal & set(seen) and not internal & set(res.stages_run)
     assert not internal & set(res.timings)
     assert set(res.stages_run) <= set(STAGES)
-

@@ -48,9 +48,17 @@ def test_set_workers_is_scoped_and_reaches_threads() -> None:
 
 @pytest.fixture(scope="module")
 def handheld(tmp_path_factory: pytest.TempPathFactory) -> Bracket:
-    sim = simulate_bracket(scene="window", shape=(72, 96), exposure_times=(1 / 16, 1 / 4, 1.0),
-                           bits=8, response="gamma", noise_sigma=1.0, max_shift=2,
-                           max_rotation_deg=0.3, seed=4)
+    sim = simulate_bracket(
+        scene="window",
+        shape=(72, 96),
+        exposure_times=(1 / 16, 1 / 4, 1.0),
+        bits=8,
+        response="gamma",
+        noise_sigma=1.0,
+        max_shift=2,
+        max_rotation_deg=0.3,
+        seed=4,
+    )
     out = tmp_path_factory.mktemp("workers")
     write_bracket(out, sim, fmt="png")
     return load_bracket([out])
@@ -76,8 +84,10 @@ def test_results_do_not_depend_on_workers_simulated(handheld: Bracket) -> None:
 
 def test_results_do_not_depend_on_workers_real() -> None:
     b = load_bracket([shared_dir("frobisher-colour-hdri")])
-    small = replace(b, frames=tuple(replace(f, levels=np.ascontiguousarray(f.levels[::5, ::5]))
-                                    for f in b.frames))
+    small = replace(
+        b,
+        frames=tuple(replace(f, levels=np.ascontiguousarray(f.levels[::5, ::5])) for f in b.frames),
+    )
     _same_for_any_worker_count(small)
 
 

@@ -31,8 +31,9 @@ def test_compiled_equals_numpy_spec(method: str, name: str, shape: tuple[int, in
     m = rng.integers(0, 4096, shape).astype(np.uint16)
     black = [10.0, 20.0, 30.0, 40.0]  # one per colour index: per-site offsets are honoured
     got = demosaic(m, PATTERNS[name], "RGBG", method=method, black_level=black, max_level=1e9)
-    want = np.maximum(demosaic_reference(m, PATTERNS[name], "RGBG", method=method,
-                                         black_level=black), 0.0)
+    want = np.maximum(
+        demosaic_reference(m, PATTERNS[name], "RGBG", method=method, black_level=black), 0.0
+    )
     np.testing.assert_allclose(got, want, atol=2e-3)
 
 
@@ -41,10 +42,12 @@ def test_linear_in_the_exposure(method: str) -> None:
     """Scaling the mosaic by k scales the result by k: no R/B ratio bias from the demosaic."""
     scene = make_scene("window", (64, 96), seed=2).astype(np.float64)
     m = mosaic(scene / scene.max(), "RGGB")
-    a = demosaic(m.astype(np.float32), PATTERNS["RGGB"], method=method,
-                 max_level=np.inf).astype(np.float64)
-    b = demosaic((m * 8.0).astype(np.float32), PATTERNS["RGGB"], method=method,
-                 max_level=np.inf).astype(np.float64)
+    a = demosaic(m.astype(np.float32), PATTERNS["RGGB"], method=method, max_level=np.inf).astype(
+        np.float64
+    )
+    b = demosaic(
+        (m * 8.0).astype(np.float32), PATTERNS["RGGB"], method=method, max_level=np.inf
+    ).astype(np.float64)
     # Where the output was not held at 0 the two agree to float32 rounding.
     keep = (a > 0).all(axis=2)
     assert keep.mean() > 0.9
@@ -95,12 +98,20 @@ def test_read_raw_ours_matches_libraw_layout(tmp_path: Path, orientation: int) -
     # level and its undershoot is not (on the 'window' scene with 23 % clipped, our blue mean
     # is 1.1 % below the truth, AHD's 0.1 % above; the merge leaves such pixels out).
     rng = np.random.default_rng(4)
-    lin = np.stack([np.clip(0.4 + 0.1 * fractal_noise((64, 96), rng), 0.02, 0.95)
-                    for _ in range(3)], axis=2).astype(np.float64)
+    lin = np.stack(
+        [np.clip(0.4 + 0.1 * fractal_noise((64, 96), rng), 0.02, 0.95) for _ in range(3)], axis=2
+    ).astype(np.float64)
     raw = linear_to_raw(mosaic(lin, "GRBG"), black_level=(250, 256, 260, 254), white_level=4095)
     p = tmp_path / "f.dng"
-    write_dng(p, raw, exposure_time=0.01, pattern="GRBG", black_level=(250, 256, 260, 254),
-              white_level=4095, orientation=orientation)
+    write_dng(
+        p,
+        raw,
+        exposure_time=0.01,
+        pattern="GRBG",
+        black_level=(250, 256, 260, 254),
+        white_level=4095,
+        orientation=orientation,
+    )
     ours = read_raw(p)
     theirs = read_raw(p, demosaic="libraw-ahd")
     assert ours.levels.shape == theirs.levels.shape
@@ -144,8 +155,7 @@ def test_ceiling_compiled_equals_spec_and_scales(method: str) -> None:
     np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-2)
     assert not np.allclose(got, demosaic(m, PATTERNS["GBRG"], method=method, max_level=np.inf))
     k = np.float32(4.0)
-    scaled = demosaic(m * k, PATTERNS["GBRG"], method=method, ceiling=cap * k,
-                      max_level=np.inf)
+    scaled = demosaic(m * k, PATTERNS["GBRG"], method=method, ceiling=cap * k, max_level=np.inf)
     np.testing.assert_allclose(scaled, got * k, rtol=1e-5, atol=1e-2)
 
 
@@ -196,12 +206,15 @@ def test_rcd_at_least_malvar_and_no_zipper(scene: str) -> None:
     lin = np.clip(img * 0.36 / np.median(img), 0, 1)
     m = np.rint(mosaic(lin, "RGGB") * 4095).astype(np.uint16)
     truth = lin * 4095
-    psnr = {k: _psnr(demosaic(m, PATTERNS["RGGB"], method=k, max_level=4095), truth, 4095)
-            for k in ("rcd", "malvar2004")}
+    psnr = {
+        k: _psnr(demosaic(m, PATTERNS["RGGB"], method=k, max_level=4095), truth, 4095)
+        for k in ("rcd", "malvar2004")
+    }
     gain = psnr["rcd"] - psnr["malvar2004"]
     assert gain[0] >= 1.0 and gain[2] >= 1.0 and gain[1] >= -0.5, psnr
     line = np.full((16, 24, 3), 100.0)
     line[8] = 3000.0
-    g = demosaic(mosaic(line, "RGGB").astype(np.uint16), PATTERNS["RGGB"], method="rcd",
-                 max_level=np.inf)[8, 4:-4, 1]
+    g = demosaic(
+        mosaic(line, "RGGB").astype(np.uint16), PATTERNS["RGGB"], method="rcd", max_level=np.inf
+    )[8, 4:-4, 1]
     assert float(g.max() - g.min()) < 1.0

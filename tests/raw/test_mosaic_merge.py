@@ -22,17 +22,29 @@ TIMES = (1 / 256, 1 / 64, 1 / 16)
 
 @pytest.fixture(scope="module", params=["window", "landscape"])
 def bracket(request, tmp_path_factory):
-    sim = simulate_bracket(scene=request.param, shape=(192, 288), exposure_times=TIMES,
-                           bits=12, response="linear", noise_sigma=2.0,
-                           shot_noise_full_well=20000, seed=1, keep_linear=True)
+    sim = simulate_bracket(
+        scene=request.param,
+        shape=(192, 288),
+        exposure_times=TIMES,
+        bits=12,
+        response="linear",
+        noise_sigma=2.0,
+        shot_noise_full_well=20000,
+        seed=1,
+        keep_linear=True,
+    )
     d = tmp_path_factory.mktemp(request.param)
     write_bracket(d, sim, "dng")
     frames = [read_raw(p) for p in sorted(Path(d).glob("*.dng"))]
     m = frames[0].max_level
-    common = dict(max_level=m, saturation_level=0.98 * m,
-                  noise=NoiseModel(read_noise=2.0 / m, full_well=None, level_noise=0.0))
-    per_frame = merge([f.levels for f in frames], TIMES, weighting="noise-aware",
-                      **common).radiance.astype(np.float64)
+    common = dict(
+        max_level=m,
+        saturation_level=0.98 * m,
+        noise=NoiseModel(read_noise=2.0 / m, full_well=None, level_noise=0.0),
+    )
+    per_frame = merge(
+        [f.levels for f in frames], TIMES, weighting="noise-aware", **common
+    ).radiance.astype(np.float64)
     mosaic = merge_mosaic([f.cfa for f in frames], TIMES, **common)
     return sim, frames, per_frame, mosaic, common
 
@@ -53,8 +65,9 @@ def test_mosaic_merge_matches_the_per_frame_path_and_the_truth(bracket) -> None:
     rel_frames = np.abs(per_frame[c][ok] / truth[c][ok] - 1)
     # Per channel, the median error is that of the per-frame path within 5 % of itself
     # (2.0-4.2 % both, measured: the noise of the frames dominates).
-    np.testing.assert_allclose(np.median(rel_mosaic, axis=0), np.median(rel_frames, axis=0),
-                               rtol=0.05)
+    np.testing.assert_allclose(
+        np.median(rel_mosaic, axis=0), np.median(rel_frames, axis=0), rtol=0.05
+    )
     # The two paths agree pixel by pixel to the noise (median difference below 3 %).
     assert np.median(np.abs(est[c][ok] - per_frame[c][ok]) / truth[c][ok]) < 0.03
     # The reference exposure: no worse than 1.1x the per-frame path's mean squared error
@@ -108,8 +121,9 @@ def test_site_matrix_moves_each_site_in_its_own_phase() -> None:
             a_s = _site_matrix(a, r, c)
             u = rng.uniform(0, 100, 2)
             s_u = 2 * u + np.array([c, r])
-            np.testing.assert_allclose(2 * (a_s[:, :2] @ u + a_s[:, 2]) + [c, r],
-                                       a[:, :2] @ s_u + a[:, 2], atol=1e-9)
+            np.testing.assert_allclose(
+                2 * (a_s[:, :2] @ u + a_s[:, 2]) + [c, r], a[:, :2] @ s_u + a[:, 2], atol=1e-9
+            )
     shift = np.array([[1.0, 0, 3.0], [0, 1.0, -2.0]])
     np.testing.assert_allclose(_site_matrix(shift, 1, 0)[:, 2], [1.5, -1.0])
     assert _site_matrix(None, 0, 0) is None
@@ -119,17 +133,32 @@ def test_site_matrix_moves_each_site_in_its_own_phase() -> None:
 def handheld(tmp_path_factory):
     from hdrcore.registration.transform import invert
 
-    sim = simulate_bracket(scene="landscape", shape=(192, 288), exposure_times=TIMES, bits=12,
-                           response="linear", noise_sigma=2.0, shot_noise_full_well=20000,
-                           seed=1, keep_linear=True, max_shift=4, max_rotation_deg=0.3)
+    sim = simulate_bracket(
+        scene="landscape",
+        shape=(192, 288),
+        exposure_times=TIMES,
+        bits=12,
+        response="linear",
+        noise_sigma=2.0,
+        shot_noise_full_well=20000,
+        seed=1,
+        keep_linear=True,
+        max_shift=4,
+        max_rotation_deg=0.3,
+    )
     d = tmp_path_factory.mktemp("handheld")
     write_bracket(d, sim, "dng")
     frames = [read_raw(p) for p in sorted(Path(d).glob("*.dng"))]
     m = frames[0].max_level
-    common = dict(max_level=m, saturation_level=0.98 * m,
-                  noise=NoiseModel(read_noise=2.0 / m, full_well=None, level_noise=0.0))
-    tr = [None if k == sim.reference else invert(np.asarray(sim.to_reference[k]))
-          for k in range(len(TIMES))]
+    common = dict(
+        max_level=m,
+        saturation_level=0.98 * m,
+        noise=NoiseModel(read_noise=2.0 / m, full_well=None, level_noise=0.0),
+    )
+    tr = [
+        None if k == sim.reference else invert(np.asarray(sim.to_reference[k]))
+        for k in range(len(TIMES))
+    ]
     return sim, frames, tr, common
 
 
@@ -141,8 +170,9 @@ def test_hand_held_mosaic_merge_close_to_the_per_frame_path(handheld) -> None:
     full-resolution matrix applied to the planes unchanged) it is far worse."""
     sim, frames, tr, common = handheld
     truth = sim.radiance.astype(np.float64) * sim.key
-    per_frame = merge([f.levels for f in frames], TIMES, weighting="noise-aware",
-                      transforms=tr, **common).radiance
+    per_frame = merge(
+        [f.levels for f in frames], TIMES, weighting="noise-aware", transforms=tr, **common
+    ).radiance
     mos = merge_mosaic([f.cfa for f in frames], TIMES, transforms=tr, **common)
     assert mos.merge is None and len(mos.site_merges) == 4
     c = (slice(8, -8), slice(8, -8))

@@ -12,19 +12,41 @@ def green(frame: np.ndarray, max_level: int) -> np.ndarray:
     return frame[..., 1].astype(np.float32) / max_level
 
 
-def simulated_pair(*, bits=12, seed=0, motion=(0.0, 0.0, 0.0), shape=(128, 192), ratio=4.0,
-                   noise_sigma=1.0, scene="window"):
+def simulated_pair(
+    *,
+    bits=12,
+    seed=0,
+    motion=(0.0, 0.0, 0.0),
+    shape=(128, 192),
+    ratio=4.0,
+    noise_sigma=1.0,
+    scene="window",
+):
     """(dark, bright, true pair matrix, max_level) for a pair with the bright frame moved."""
     sb = simulate_bracket(
-        scene=scene, shape=shape, exposure_times=(1.0, ratio), bits=bits,
-        noise_sigma=noise_sigma, motion=[(0.0, 0.0, 0.0), motion], reference=0, seed=seed,
+        scene=scene,
+        shape=shape,
+        exposure_times=(1.0, ratio),
+        bits=bits,
+        noise_sigma=noise_sigma,
+        motion=[(0.0, 0.0, 0.0), motion],
+        reference=0,
+        seed=seed,
     )
     ml = sb.max_level
     return green(sb.frames[0], ml), green(sb.frames[1], ml), sb.pair_matrix(0, 1), ml
 
 
-def render_frames(to_reference, exposure_times, *, bits=12, seed=0, shape=(192, 288),
-                  noise_sigma=1.0, scene="window"):
+def render_frames(
+    to_reference,
+    exposure_times,
+    *,
+    bits=12,
+    seed=0,
+    shape=(192, 288),
+    noise_sigma=1.0,
+    scene="window",
+):
     """Frames of a bracket whose frame ``k`` sees the scene at ``to_reference[k] @ p`` (2x3 or
     3x3: any motion, a homography too), as the green channel in linear [0, 1], and max_level.
 
@@ -44,16 +66,28 @@ def render_frames(to_reference, exposure_times, *, bits=12, seed=0, shape=(192, 
     reach = max(max(-x.min(), x.max() - (w - 1), -y.min(), y.max() - (h - 1)) for x, y in pos)
     margin = int(np.ceil(max(reach, 0.0))) + 8
     big = make_scene(scene, (h + 2 * margin, w + 2 * margin), seed)[..., 1].astype(np.float64)
-    radiance = [np.maximum(ndimage.map_coordinates(big, [y + margin, x + margin], order=2,
-                                                   mode="nearest", prefilter=False), 1e-9)
-                for x, y in pos]
+    radiance = [
+        np.maximum(
+            ndimage.map_coordinates(
+                big, [y + margin, x + margin], order=2, mode="nearest", prefilter=False
+            ),
+            1e-9,
+        )
+        for x, y in pos
+    ]
     times = tuple(float(t) for t in exposure_times)
     key = 0.18 / (float(np.median(radiance[0])) * float(np.exp(np.mean(np.log(times)))))
     frames, ml = [], (1 << bits) - 1
     for k, (e, t) in enumerate(zip(radiance, times, strict=True)):
         rgb = np.repeat(e[..., None].astype(np.float32), 3, axis=2)
-        sb = simulate_bracket(rgb, exposure_times=(t,), bits=bits, noise_sigma=noise_sigma,
-                              key=key, seed=seed * 101 + k)
+        sb = simulate_bracket(
+            rgb,
+            exposure_times=(t,),
+            bits=bits,
+            noise_sigma=noise_sigma,
+            key=key,
+            seed=seed * 101 + k,
+        )
         frames.append(green(sb.frames[0], ml))
     return frames, ml
 

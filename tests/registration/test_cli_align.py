@@ -16,16 +16,54 @@ ROOT = Path(__file__).resolve().parents[2]
 
 def test_align_json_on_simulated_bracket(tmp_path, capsys):
     out = tmp_path / "sim"
-    assert main(["simulate", str(out), "--size", "128x192", "--shift", "4", "--rotation", "0.5",
-                 "--bits", "12", "--response", "linear"]) == 0
+    assert (
+        main(
+            [
+                "simulate",
+                str(out),
+                "--size",
+                "128x192",
+                "--shift",
+                "4",
+                "--rotation",
+                "0.5",
+                "--bits",
+                "12",
+                "--response",
+                "linear",
+            ]
+        )
+        == 0
+    )
     capsys.readouterr()
-    code = main(["align", str(out), "--times", str(out / "exposure_times.txt"),
-                 "--response", "linear", "--ratios", "exif", "--json"])
+    code = main(
+        [
+            "align",
+            str(out),
+            "--times",
+            str(out / "exposure_times.txt"),
+            "--response",
+            "linear",
+            "--ratios",
+            "exif",
+            "--json",
+        ]
+    )
     js = json.loads(capsys.readouterr().out)
     assert code == 0
     assert js["reference"] == 1 and len(js["pairs"]) == 2 and len(js["to_reference"]) == 3
-    keys = {"dark", "bright", "matrix", "dx", "dy", "angle_deg", "cost_before", "cost_after",
-            "status", "message"}
+    keys = {
+        "dark",
+        "bright",
+        "matrix",
+        "dx",
+        "dy",
+        "angle_deg",
+        "cost_before",
+        "cost_after",
+        "status",
+        "message",
+    }
     truth = json.loads((out / "truth.json").read_text())
     for pair, true_pair in zip(js["pairs"], truth["pairs"], strict=True):
         assert keys <= set(pair)
@@ -37,11 +75,38 @@ def test_align_json_on_simulated_bracket(tmp_path, capsys):
 
 def test_align_reference_and_shift_model(tmp_path, capsys):
     out = tmp_path / "sim"
-    main(["simulate", str(out), "--size", "128x192", "--shift", "3", "--bits", "12",
-          "--response", "linear"])
+    main(
+        [
+            "simulate",
+            str(out),
+            "--size",
+            "128x192",
+            "--shift",
+            "3",
+            "--bits",
+            "12",
+            "--response",
+            "linear",
+        ]
+    )
     capsys.readouterr()
-    main(["align", str(out), "--times", str(out / "exposure_times.txt"), "--response", "linear",
-          "--ratios", "exif", "--model", "shift", "--reference", "0", "--json"])
+    main(
+        [
+            "align",
+            str(out),
+            "--times",
+            str(out / "exposure_times.txt"),
+            "--response",
+            "linear",
+            "--ratios",
+            "exif",
+            "--model",
+            "shift",
+            "--reference",
+            "0",
+            "--json",
+        ]
+    )
     js = json.loads(capsys.readouterr().out)
     assert js["reference"] == 0 and js["model"] == "shift"
     assert all(p["angle_deg"] == 0.0 for p in js["pairs"])

@@ -64,8 +64,11 @@ def test_normal_equations_match_numpy_reference(pair, level, n_par):
     persp = homogeneous(similarity_matrix(-6.3 / 2**level, 4.1 / 2**level, -1.1, 1.01, shape_l))
     persp[2, :2] = (2e-5 * 2**level, -1e-5 * 2**level)
     # near the truth and far from it (many samples outside), affine and perspective
-    for m in (rigid_matrix(-6.3 / 2**level, 4.1 / 2**level, -1.1, shape_l),
-              rigid_matrix(20.0, -9.0, 3.0, shape_l), persp):
+    for m in (
+        rigid_matrix(-6.3 / 2**level, 4.1 / 2**level, -1.1, shape_l),
+        rigid_matrix(20.0, -9.0, 3.0, shape_l),
+        persp,
+    ):
         c_ref = normal_equations(data, level, m, s, n_par=n_par, compiled=False)
         c_jit = normal_equations(data, level, m, s, n_par=n_par, compiled=True)
         assert c_ref[1] > 0
@@ -89,10 +92,12 @@ def test_jacobian_columns_are_derivatives_of_the_residuals(pair):
         eps = 1e-4 if i < 2 else 1e-6
         d = np.zeros(8)
         d[i] = eps
-        up = normal_equations(data, 1, motion_update(d, shape_l) @ m, s, n_par=8,
-                              gradient=False, ramp=1e-9)[0]
-        down = normal_equations(data, 1, motion_update(-d, shape_l) @ m, s, n_par=8,
-                                gradient=False, ramp=1e-9)[0]
+        up = normal_equations(
+            data, 1, motion_update(d, shape_l) @ m, s, n_par=8, gradient=False, ramp=1e-9
+        )[0]
+        down = normal_equations(
+            data, 1, motion_update(-d, shape_l) @ m, s, n_par=8, gradient=False, ramp=1e-9
+        )[0]
         numeric = (up - down) / (2 * eps) / 2
         assert numeric == pytest.approx(grad[i], rel=2e-3, abs=1e-6 * abs(grad).max()), i
 
@@ -106,10 +111,12 @@ def test_normal_equations_with_gain_match_numpy_reference(pair, level, n_par, n_
     shape_l = data.level_shape(level)
     m = rigid_matrix(-6.3 / 2**level, 4.1 / 2**level, -1.1, shape_l)
     gain = np.array([0.12, -0.05, 0.08])
-    c_ref = normal_equations(data, level, m, s, n_par=n_par, compiled=False, gain=gain,
-                             n_gain=n_gain)
-    c_jit = normal_equations(data, level, m, s, n_par=n_par, compiled=True, gain=gain,
-                             n_gain=n_gain)
+    c_ref = normal_equations(
+        data, level, m, s, n_par=n_par, compiled=False, gain=gain, n_gain=n_gain
+    )
+    c_jit = normal_equations(
+        data, level, m, s, n_par=n_par, compiled=True, gain=gain, n_gain=n_gain
+    )
     n = n_par + n_gain
     assert c_jit[2].shape == (n, n) and c_jit[3].shape == (n,)
     np.testing.assert_allclose(c_jit[0], c_ref[0], rtol=1e-10)
@@ -136,10 +143,12 @@ def test_robust_normal_equations_match_numpy_reference(pair, level):
     assert c_jit[0] < plain[0]
     d = np.zeros(11)
     d[0] = 1e-4
-    up = normal_equations(data, level, motion_update(d[:8], data.level_shape(level)) @ m, s,
-                          gradient=False, **kw)[0]
-    down = normal_equations(data, level, motion_update(-d[:8], data.level_shape(level)) @ m, s,
-                            gradient=False, **kw)[0]
+    up = normal_equations(
+        data, level, motion_update(d[:8], data.level_shape(level)) @ m, s, gradient=False, **kw
+    )[0]
+    down = normal_equations(
+        data, level, motion_update(-d[:8], data.level_shape(level)) @ m, s, gradient=False, **kw
+    )[0]
     numeric = (up - down) / 2e-4 / 2
     assert numeric == pytest.approx(c_jit[3][0], rel=5e-3, abs=1e-6 * abs(c_jit[3]).max())
 
@@ -154,10 +163,8 @@ def test_gain_columns_are_derivatives_of_the_residuals(pair):
     for i in range(3):
         d = np.zeros(3)
         d[i] = 1e-6
-        up = normal_equations(data, 1, m, s, n_par=4, gradient=False, ramp=1e-9,
-                              gain=gain + d)[0]
-        down = normal_equations(data, 1, m, s, n_par=4, gradient=False, ramp=1e-9,
-                                gain=gain - d)[0]
+        up = normal_equations(data, 1, m, s, n_par=4, gradient=False, ramp=1e-9, gain=gain + d)[0]
+        down = normal_equations(data, 1, m, s, n_par=4, gradient=False, ramp=1e-9, gain=gain - d)[0]
         numeric = (up - down) / 2e-6 / 2
         assert numeric == pytest.approx(grad[4 + i], rel=2e-3, abs=1e-6 * abs(grad).max()), i
 
@@ -169,11 +176,14 @@ def test_select_samples_compiled_matches_numpy(pair, level, by_gradient, n, moti
     dark, bright, ml = pair
     data = prepare(dark, bright, 4.0, saturation=0.98, noise_floor=3 / ml, threshold=0.1)
     shape_l = data.level_shape(level)
-    m = {"identity": None,
-         "truth": rigid_matrix(-6.3 / 2**level, 4.1 / 2**level, -1.2, shape_l),
-         "homography": homogeneous(similarity_matrix(-6.0 / 2**level, 4.0 / 2**level, -1.0,
-                                                     1.01, shape_l))
-         + np.array([[0, 0, 0], [0, 0, 0], [3e-5 * 2**level, -2e-5 * 2**level, 0]])}[motion]
+    m = {
+        "identity": None,
+        "truth": rigid_matrix(-6.3 / 2**level, 4.1 / 2**level, -1.2, shape_l),
+        "homography": homogeneous(
+            similarity_matrix(-6.0 / 2**level, 4.0 / 2**level, -1.0, 1.01, shape_l)
+        )
+        + np.array([[0, 0, 0], [0, 0, 0], [3e-5 * 2**level, -2e-5 * 2**level, 0]]),
+    }[motion]
     kw = dict(motion=m, by_gradient=by_gradient, seed=3, reach=reach)
     a = select_samples(data, level, n, compiled=False, **kw)
     b = select_samples(data, level, n, compiled=True, **kw)

@@ -17,8 +17,16 @@ SHAPE = (144, 208)
 
 @pytest.fixture(scope="module")
 def bracket():
-    sb = simulate_bracket(scene="window", shape=SHAPE, exposure_times=(1.0, 4.0, 16.0), bits=12,
-                          noise_sigma=1.0, max_shift=8, max_rotation_deg=1.0, seed=5)
+    sb = simulate_bracket(
+        scene="window",
+        shape=SHAPE,
+        exposure_times=(1.0, 4.0, 16.0),
+        bits=12,
+        noise_sigma=1.0,
+        max_shift=8,
+        max_rotation_deg=1.0,
+        seed=5,
+    )
     ml = sb.max_level
     lut = (np.arange(ml + 1) / ml).astype(np.float32) ** 1.1  # a non-trivial table
     linear = [lut[f[..., 1]] for f in sb.frames]
@@ -49,8 +57,9 @@ def test_bracket_of_levels_matches_linear_bracket(bracket):
     for a, b in zip(ref.to_reference, res.to_reference, strict=True):
         np.testing.assert_allclose(a, b, atol=1e-9)
     for p, q in zip(ref.pairs, res.pairs, strict=True):  # previews from the levels too
-        np.testing.assert_allclose(q.preview.difference_after, p.preview.difference_after,
-                                   atol=1e-6, equal_nan=True)
+        np.testing.assert_allclose(
+            q.preview.difference_after, p.preview.difference_after, atol=1e-6, equal_nan=True
+        )
 
 
 def test_numpy_reference_reads_levels_through_the_table(bracket, monkeypatch):

@@ -47,10 +47,17 @@ def _pair(parallax: bool, seed: int = 0):
     half = np.array([0.22 * w, 0.26 * h])
     if parallax:
         fg = make_scene(FOREGROUND, big.shape, seed + 50)[..., 1].astype(float) * 0.8
-        yy, xx = np.mgrid[0:big.shape[0], 0:big.shape[1]].astype(float)
-        alpha = np.clip(1.5 - 1.5 * np.maximum(np.abs(xx - centre[0] - MARGIN) / half[0],
-                                               np.abs(yy - centre[1] - MARGIN) / half[1]) ** 4,
-                        0, 1)
+        yy, xx = np.mgrid[0 : big.shape[0], 0 : big.shape[1]].astype(float)
+        alpha = np.clip(
+            1.5
+            - 1.5
+            * np.maximum(
+                np.abs(xx - centre[0] - MARGIN) / half[0], np.abs(yy - centre[1] - MARGIN) / half[1]
+            )
+            ** 4,
+            0,
+            1,
+        )
         near = np.eye(3)
         near[:2, 2] = PARALLAX
         near = near @ motion
@@ -68,8 +75,15 @@ def _pair(parallax: bool, seed: int = 0):
 
 
 def _refine(dark, bright, motion, ratio, **kw):
-    return refine_bracket([dark, bright], [1.0, ratio], [np.eye(3), motion], 0,
-                          saturation=0.97, noise_floor=5 / 4095, **kw)
+    return refine_bracket(
+        [dark, bright],
+        [1.0, ratio],
+        [np.eye(3), motion],
+        0,
+        saturation=0.97,
+        noise_floor=5 / 4095,
+        **kw,
+    )
 
 
 @pytest.fixture(scope="module")
@@ -106,14 +120,14 @@ def test_the_field_finds_the_near_plane(two_planes) -> None:
 
 
 def test_the_input_frames_are_not_written() -> None:
-    dark, bright, motion, *_ , ratio = _pair(parallax=True, seed=2)
+    dark, bright, motion, *_, ratio = _pair(parallax=True, seed=2)
     before = (dark.copy(), bright.copy())
     _refine(dark, bright, motion, ratio)
     assert np.array_equal(dark, before[0]) and np.array_equal(bright, before[1])
 
 
 def test_a_pair_the_global_motion_aligns_gets_no_field() -> None:
-    dark, bright, motion, *_ , ratio = _pair(parallax=False, seed=1)
+    dark, bright, motion, *_, ratio = _pair(parallax=False, seed=1)
     res = _refine(dark, bright, motion, ratio)
     fr = res.frames[0]
     # nothing to gain: either not kept, or a field that moves nothing
@@ -125,33 +139,61 @@ def test_unrefined_pairs_follow_their_neighbour() -> None:
     """A third frame that matches frame 1 exactly (the same shot, same motion) is not refined
     (its pair is aligned): it moves with frame 1's field; with nothing refined, no field."""
     dark, bright, motion, *_, ratio = _pair(parallax=True)
-    res = refine_bracket([dark, bright, bright], [1.0, ratio, ratio],
-                         [np.eye(3), motion, motion], 0, saturation=0.97,
-                         noise_floor=5 / 4095, refine=[True, False])
+    res = refine_bracket(
+        [dark, bright, bright],
+        [1.0, ratio, ratio],
+        [np.eye(3), motion, motion],
+        0,
+        saturation=0.97,
+        noise_floor=5 / 4095,
+        refine=[True, False],
+    )
     assert res.fields[1] is not None, res.frames[0].message
     assert res.fields[2] is not None
     assert np.allclose(res.fields[2].offsets, res.fields[1].offsets, atol=1e-6)
     assert [f.frame for f in res.frames] == [1]  # frame 2 was carried, not measured
-    none = refine_bracket([dark, bright, bright], [1.0, ratio, ratio],
-                          [np.eye(3), motion, motion], 0, saturation=0.97,
-                          noise_floor=5 / 4095, refine=[False, False])
+    none = refine_bracket(
+        [dark, bright, bright],
+        [1.0, ratio, ratio],
+        [np.eye(3), motion, motion],
+        0,
+        saturation=0.97,
+        noise_floor=5 / 4095,
+        refine=[False, False],
+    )
     assert none.fields == (None, None, None) and not none.used
 
 
 def test_bad_input_is_refused() -> None:
     img = np.zeros((64, 64), np.float32)
     with pytest.raises(ParameterError, match="one exposure and one motion"):
-        refine_bracket([img, img], [1.0], [np.eye(3), np.eye(3)], 0, saturation=1.0,
-                       noise_floor=0.0)
+        refine_bracket(
+            [img, img], [1.0], [np.eye(3), np.eye(3)], 0, saturation=1.0, noise_floor=0.0
+        )
     with pytest.raises(ParameterError, match="reference frame"):
-        refine_bracket([img, img], [1.0, 2.0], [np.eye(3), np.eye(3)], 5, saturation=1.0,
-                       noise_floor=0.0)
+        refine_bracket(
+            [img, img], [1.0, 2.0], [np.eye(3), np.eye(3)], 5, saturation=1.0, noise_floor=0.0
+        )
     with pytest.raises(ParameterError, match="tile"):
-        refine_bracket([img, img], [1.0, 2.0], [np.eye(3), np.eye(3)], 0, saturation=1.0,
-                       noise_floor=0.0, tile=24)
+        refine_bracket(
+            [img, img],
+            [1.0, 2.0],
+            [np.eye(3), np.eye(3)],
+            0,
+            saturation=1.0,
+            noise_floor=0.0,
+            tile=24,
+        )
     with pytest.raises(ParameterError, match="refine flag"):
-        refine_bracket([img, img], [1.0, 2.0], [np.eye(3), np.eye(3)], 0, saturation=1.0,
-                       noise_floor=0.0, refine=[True, True])
+        refine_bracket(
+            [img, img],
+            [1.0, 2.0],
+            [np.eye(3), np.eye(3)],
+            0,
+            saturation=1.0,
+            noise_floor=0.0,
+            refine=[True, True],
+        )
     with pytest.raises(ParameterError, match="node spacing"):
         DisplacementField(0.0, np.zeros((2, 2, 2)))
 
@@ -174,8 +216,7 @@ def test_real_phone_bracket_residual_falls() -> None:
     from hdrcore.pipeline import Pipeline, PipelineParams
 
     b = load_bracket([DATA])
-    pl = Pipeline(b, PipelineParams(align="homography", local="on",
-                                    registration_previews=False))
+    pl = Pipeline(b, PipelineParams(align="homography", local="on", registration_previews=False))
     reg = pl.run(until="registration").registration
     loc = reg.local
     assert loc is not None and loc.used

@@ -37,8 +37,9 @@ SHAPE = (192, 288)
 
 
 def _register(dark, bright, ml, model, ratio=4.0, **kw):
-    return register_pair(dark, bright, ratio, saturation=0.98, noise_floor=3 / ml, model=model,
-                         previews=False, **kw)
+    return register_pair(
+        dark, bright, ratio, saturation=0.98, noise_floor=3 / ml, model=model, previews=False, **kw
+    )
 
 
 def test_models_nest_and_similarity_is_the_default():
@@ -89,11 +90,18 @@ def test_discontinuity_case_finds_the_sub_pixel_shift():
     the first version's per-iteration tap tests made eq. 6 jump at the integer start and its
     search returned exactly the identity, 'converged'. Now the cost is continuous and the
     search moves."""
-    dark, bright, truth, ml = simulated_pair(bits=8, motion=(0.0, 0.45, 0.0), shape=SHAPE,
-                                             seed=0, scene="patches", ratio=16.0,
-                                             noise_sigma=3.0)
-    res = register_pair(dark, bright, 16.0, saturation=0.98, noise_floor=3 / ml,
-                        model="euclidean", previews=False)
+    dark, bright, truth, ml = simulated_pair(
+        bits=8,
+        motion=(0.0, 0.45, 0.0),
+        shape=SHAPE,
+        seed=0,
+        scene="patches",
+        ratio=16.0,
+        noise_sigma=3.0,
+    )
+    res = register_pair(
+        dark, bright, 16.0, saturation=0.98, noise_floor=3 / ml, model="euclidean", previews=False
+    )
     assert res.ok
     assert not np.allclose(res.homography, np.eye(3), atol=1e-6)
     assert res.dy > 0.3  # found, not rounded to the eq. 5 start
@@ -103,8 +111,12 @@ def test_discontinuity_case_finds_the_sub_pixel_shift():
     # the cost along dy near the integer start: steps of equal size, no jump
     data = prepare(dark, bright, 16.0, saturation=0.98, noise_floor=3 / ml, threshold=0.1)
     s = select_samples(data, 0, 60_000)
-    costs = np.array([cost(data, 0, np.array([[1, 0, 0], [0, 1, dy]], float), s)[0]
-                      for dy in np.linspace(-0.05, 0.05, 11)])
+    costs = np.array(
+        [
+            cost(data, 0, np.array([[1, 0, 0], [0, 1, dy]], float), s)[0]
+            for dy in np.linspace(-0.05, 0.05, 11)
+        ]
+    )
     steps = np.abs(np.diff(costs))
     assert steps.max() < 3 * np.median(steps)
 
@@ -123,12 +135,16 @@ def test_cost_is_continuous_in_the_motion():
 
 def test_bracket_of_homographies_chains_to_the_reference():
     h, w = SHAPE
-    to_ref = [perspective(SHAPE, 4.0, -3.0, 0.5, 1.006, 0.004, 0.002), np.eye(3),
-              perspective(SHAPE, -3.5, 2.0, -0.4, 0.995, -0.003, 0.004)]
+    to_ref = [
+        perspective(SHAPE, 4.0, -3.0, 0.5, 1.006, 0.004, 0.002),
+        np.eye(3),
+        perspective(SHAPE, -3.5, 2.0, -0.4, 0.995, -0.003, 0.004),
+    ]
     frames, ml = render_frames(to_ref, (1.0, 4.0, 16.0), bits=12, shape=SHAPE, seed=3)
     ratios = (4.0, 4.0)
-    res = register_bracket(frames, ratios, saturation=0.98, noise_floor=3 / ml,
-                           model="homography", previews=False)
+    res = register_bracket(
+        frames, ratios, saturation=0.98, noise_floor=3 / ml, model="homography", previews=False
+    )
     assert res.ok and res.reference == 1
     assert res.to_reference is None  # no 2x3 form
     for k in range(3):
@@ -148,8 +164,12 @@ def test_bracket_of_homographies_chains_to_the_reference():
 
 
 homographies = st.tuples(
-    st.floats(-20, 20), st.floats(-20, 20), st.floats(-3, 3), st.floats(0.97, 1.03),
-    st.floats(-0.02, 0.02), st.floats(-0.02, 0.02),
+    st.floats(-20, 20),
+    st.floats(-20, 20),
+    st.floats(-3, 3),
+    st.floats(0.97, 1.03),
+    st.floats(-0.02, 0.02),
+    st.floats(-0.02, 0.02),
 )
 
 
@@ -218,8 +238,9 @@ def _landscape_8bit():
     homography (bench/bench_models_real.py's landscape pair, seed 0)."""
     shape = (384, 576)
     truth = perspective(shape, -13.27, -12.43, -0.0927, 1.00201, -0.00484, 0.00351)
-    (dark, bright), ml = render_frames([np.eye(3), truth], (1.0, 4.0), bits=8, seed=0,
-                                       shape=shape, scene="landscape")
+    (dark, bright), ml = render_frames(
+        [np.eye(3), truth], (1.0, 4.0), bits=8, seed=0, shape=shape, scene="landscape"
+    )
     return dark, bright, truth, ml, shape
 
 
@@ -281,8 +302,9 @@ def test_a_near_plane_does_not_bend_the_dominant_plane():
     near = truth.copy()
     near[0, 2] += 4.0
     near[1, 2] -= 2.5
-    (dark, bright, bright2), ml = render_frames([np.eye(3), truth, near], (1.0, 4.0, 4.0),
-                                                bits=12, seed=0, shape=shape, scene="window")
+    (dark, bright, bright2), ml = render_frames(
+        [np.eye(3), truth, near], (1.0, 4.0, 4.0), bits=12, seed=0, shape=shape, scene="window"
+    )
     bright[120:300, 150:420] = bright2[120:300, 150:420]
     robust = _register(dark, bright, ml, "homography")
     plain = _register(dark, bright, ml, "homography", robust=0.0)

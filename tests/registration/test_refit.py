@@ -20,9 +20,16 @@ from ._pairs import perspective
 from .test_local import MARGIN, SHAPE, _render  # the two-plane renderer of the field tests
 
 
-def _pair(scene: str, seed: int, near_object: bool = True, bits: int = 12,
-          centre: tuple[float, float] = (0.45, 0.5), gain: float = 1.5,
-          parallax: tuple[float, float] = (4.0, 2.5), tilt: tuple[float, float] = (0.0, 0.0)):
+def _pair(
+    scene: str,
+    seed: int,
+    near_object: bool = True,
+    bits: int = 12,
+    centre: tuple[float, float] = (0.45, 0.5),
+    gain: float = 1.5,
+    parallax: tuple[float, float] = (4.0, 2.5),
+    tilt: tuple[float, float] = (0.0, 0.0),
+):
     """(dark, bright, background motion bright -> dark, noise floor): a low-texture background
     and, with ``near_object``, a brighter (``gain``) copy of the same kind of scene over about a
     tenth of the frame around ``centre`` (fractions of the frame) moving ``parallax`` px more in
@@ -36,10 +43,17 @@ def _pair(scene: str, seed: int, near_object: bool = True, bits: int = 12,
         centre = np.array([centre[0] * w, centre[1] * h])
         half = np.array([0.18 * w, 0.16 * h])
         fg = make_scene(scene, big.shape, seed + 99)[..., 1].astype(float) * gain
-        yy, xx = np.mgrid[0:big.shape[0], 0:big.shape[1]].astype(float)
-        alpha = np.clip(1.5 - 1.5 * np.maximum(np.abs(xx - centre[0] - MARGIN) / half[0],
-                                               np.abs(yy - centre[1] - MARGIN) / half[1]) ** 4,
-                        0, 1)
+        yy, xx = np.mgrid[0 : big.shape[0], 0 : big.shape[1]].astype(float)
+        alpha = np.clip(
+            1.5
+            - 1.5
+            * np.maximum(
+                np.abs(xx - centre[0] - MARGIN) / half[0], np.abs(yy - centre[1] - MARGIN) / half[1]
+            )
+            ** 4,
+            0,
+            1,
+        )
         near = np.eye(3)
         near[:2, 2] = parallax
         near = near @ motion
@@ -57,8 +71,17 @@ def _pair(scene: str, seed: int, near_object: bool = True, bits: int = 12,
 
 
 def _register(dark, bright, floor, model, **kw):
-    return register_pair(dark, bright, 4.0, saturation=0.97, noise_floor=floor, model=model,
-                         previews=False, check_residual=True, **kw)
+    return register_pair(
+        dark,
+        bright,
+        4.0,
+        saturation=0.97,
+        noise_floor=floor,
+        model=model,
+        previews=False,
+        check_residual=True,
+        **kw,
+    )
 
 
 @pytest.mark.parametrize("model", ["similarity", "homography"])
@@ -85,8 +108,12 @@ def test_the_left_out_area_covers_the_near_object() -> None:
     assert rects.shape[0] >= 1
     h, w = SHAPE
     cx, cy = 0.45 * w, 0.5 * h  # the object's centre lies in a left-out rectangle
-    inside = (rects[:, 0] <= cx + 0.18 * w) & (rects[:, 2] >= cx - 0.18 * w) & (
-        rects[:, 1] <= cy + 0.16 * h) & (rects[:, 3] >= cy - 0.16 * h)
+    inside = (
+        (rects[:, 0] <= cx + 0.18 * w)
+        & (rects[:, 2] >= cx - 0.18 * w)
+        & (rects[:, 1] <= cy + 0.16 * h)
+        & (rects[:, 3] >= cy - 0.16 * h)
+    )
     assert inside.all(), rects
     assert ((rects[:, 2] - rects[:, 0]) * (rects[:, 3] - rects[:, 1])).sum() < 0.5 * h * w
 
@@ -102,8 +129,9 @@ def test_blocks_find_the_near_object_where_no_tile_can_be_measured() -> None:
     # 8 bits, a low-texture background: the independent check finds too few confident tiles,
     # the search's own residual per block finds the brighter near object
     par = 3.58 * np.array([np.cos(0.437), np.sin(0.437)])
-    dark, bright, motion, floor = _pair("landscape", 3, bits=8, centre=(0.267, 0.504),
-                                        gain=1.95, parallax=tuple(par))
+    dark, bright, motion, floor = _pair(
+        "landscape", 3, bits=8, centre=(0.267, 0.504), gain=1.95, parallax=tuple(par)
+    )
     plain = _register(dark, bright, floor, "similarity", refit_local=False)
     again = _register(dark, bright, floor, "similarity")
     assert plain.residual is not None and plain.residual.status == "unmeasured"
@@ -121,16 +149,21 @@ def test_a_re_fitted_pair_reports_the_re_fitted_motion() -> None:
     dark, bright, motion, floor = _pair("landscape", 1)
     r = _register(dark, bright, floor, "similarity")
     assert "re-fitted" in r.message
-    np.testing.assert_allclose((r.dx, r.dy, r.angle_deg, r.scale),
-                               similarity_parameters(r.homography, SHAPE), rtol=0, atol=1e-9)
+    np.testing.assert_allclose(
+        (r.dx, r.dy, r.angle_deg, r.scale),
+        similarity_parameters(r.homography, SHAPE),
+        rtol=0,
+        atol=1e-9,
+    )
     plain = _register(dark, bright, floor, "similarity", refit_local=False)
     assert abs(r.dx - plain.dx) + abs(r.dy - plain.dy) > 1e-3  # the re-fit moved it
 
 
 def _block_pair(tilt=(0.0, 0.0)):
     par = 3.58 * np.array([np.cos(0.437), np.sin(0.437)])
-    return _pair("landscape", 3, bits=8, centre=(0.267, 0.504), gain=1.95,
-                 parallax=tuple(par), tilt=tilt)
+    return _pair(
+        "landscape", 3, bits=8, centre=(0.267, 0.504), gain=1.95, parallax=tuple(par), tilt=tilt
+    )
 
 
 def test_an_unverifiable_homography_keeps_only_the_perspective_the_frames_support() -> None:

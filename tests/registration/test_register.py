@@ -107,8 +107,13 @@ def test_fourier_shift_sign_convention():
 
 def test_bracket_chain_matches_truth_and_reference():
     sb = simulate_bracket(
-        shape=SHAPE, exposure_times=(1.0, 4.0, 16.0), bits=12, noise_sigma=1.0,
-        max_shift=6.0, max_rotation_deg=1.0, seed=4,
+        shape=SHAPE,
+        exposure_times=(1.0, 4.0, 16.0),
+        bits=12,
+        noise_sigma=1.0,
+        max_shift=6.0,
+        max_rotation_deg=1.0,
+        seed=4,
     )
     frames = [green(f, sb.max_level) for f in sb.frames]
     res = register_bracket(frames, sb.ratios, saturation=0.98, noise_floor=3 / sb.max_level)
@@ -117,8 +122,14 @@ def test_bracket_chain_matches_truth_and_reference():
         assert corner_error(res.to_reference[k], sb.to_reference[k], SHAPE).max() < 0.1
     js = res.to_json()
     assert js["reference"] == 1 and len(js["pairs"]) == 2 and len(js["to_reference"]) == 3
-    res0 = register_bracket(frames, sb.ratios, reference=0, saturation=0.98,
-                            noise_floor=3 / sb.max_level, previews=False)
+    res0 = register_bracket(
+        frames,
+        sb.ratios,
+        reference=0,
+        saturation=0.98,
+        noise_floor=3 / sb.max_level,
+        previews=False,
+    )
     assert np.allclose(res0.to_reference[0], np.eye(2, 3))
 
 

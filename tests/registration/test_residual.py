@@ -63,8 +63,12 @@ def _pair(h, *, ratio=4.0, bits=12, scene="window", seed=0, patch=None):
     key = 0.18 / float(np.median(dark)) / np.sqrt(ratio)
     rng = np.random.default_rng(seed + 1)
     ml = (1 << bits) - 1
-    return (_expose(dark, 1.0, key, bits, rng), _expose(bright, ratio, key, bits, rng),
-            0.98, 3.0 / ml)
+    return (
+        _expose(dark, 1.0, key, bits, rng),
+        _expose(bright, ratio, key, bits, rng),
+        0.98,
+        3.0 / ml,
+    )
 
 
 def _similarity(scale=1.0, angle_deg=0.0, shift=(0.0, 0.0)) -> np.ndarray:
@@ -80,15 +84,21 @@ def _similarity(scale=1.0, angle_deg=0.0, shift=(0.0, 0.0)) -> np.ndarray:
 def _truth(h: np.ndarray, centres: np.ndarray) -> np.ndarray:
     x, y = centres[:, 0], centres[:, 1]
     zw = h[2, 0] * x + h[2, 1] * y + h[2, 2]
-    return np.stack([(h[0, 0] * x + h[0, 1] * y + h[0, 2]) / zw - x,
-                     (h[1, 0] * x + h[1, 1] * y + h[1, 2]) / zw - y], axis=1)
+    return np.stack(
+        [
+            (h[0, 0] * x + h[0, 1] * y + h[0, 2]) / zw - x,
+            (h[1, 0] * x + h[1, 1] * y + h[1, 2]) / zw - y,
+        ],
+        axis=1,
+    )
 
 
 def _measure(h, **kw) -> tuple[ResidualMotion, np.ndarray]:
     pair_kw = {k: kw.pop(k) for k in ("ratio", "bits", "scene", "seed", "patch") if k in kw}
     dark, bright, sat, nf = _pair(h, **pair_kw)
-    res = residual_motion(dark, bright, pair_kw.get("ratio", 4.0), saturation=sat,
-                          noise_floor=nf, **kw)
+    res = residual_motion(
+        dark, bright, pair_kw.get("ratio", 4.0), saturation=sat, noise_floor=nf, **kw
+    )
     return res, _truth(h, res.centres)
 
 
@@ -179,8 +189,9 @@ def test_exposure_gap_8bit_with_noise(ratio):
     err = np.median(res.shifts[v] - truth[v], axis=0)
     assert np.all(np.abs(err) <= 0.08), err
     dark, bright, sat, nf = _pair(_similarity(shift=shift), bits=8, ratio=ratio)
-    done = residual_motion(dark, bright, ratio, _similarity(shift=shift), saturation=sat,
-                           noise_floor=nf)
+    done = residual_motion(
+        dark, bright, ratio, _similarity(shift=shift), saturation=sat, noise_floor=nf
+    )
     assert done.status == "aligned", done.message
     assert done.median <= (0.1 if ratio < 16 else 0.15)  # the noise of 8-bit frames x16
 
@@ -225,9 +236,11 @@ def test_compiled_phase_plane_fit_matches_numpy():
     fx = np.fft.rfftfreq(t)[None]
     d = rng.uniform(-3, 3, (n, 2))
     noise = rng.normal(size=(n, t, t // 2 + 1)) + 1j * rng.normal(size=(n, t, t // 2 + 1))
-    cross = (np.abs(rng.normal(size=(n, t, t // 2 + 1)))
-             * np.exp(-2j * np.pi * (d[:, 0, None, None] * fx + d[:, 1, None, None] * fy))
-             + 0.3 * noise).astype(np.complex64)
+    cross = (
+        np.abs(rng.normal(size=(n, t, t // 2 + 1)))
+        * np.exp(-2j * np.pi * (d[:, 0, None, None] * fx + d[:, 1, None, None] * fy))
+        + 0.3 * noise
+    ).astype(np.complex64)
     start = np.round(d)
     got, cov = plane.fit(cross, start, 2, 2)
     ref, cov_ref = plane.fit_numpy(cross, start, 2)
@@ -294,8 +307,11 @@ def test_region_names():
         ((np.zeros((100, 100)), np.zeros((100, 100))), {"noise_floor": 2.0}, "noise_floor"),
         ((np.zeros((40, 100)), np.zeros((40, 100))), {}, "too small"),
         ((np.zeros((100, 100)), np.zeros((100, 100))), {"lut": np.arange(4.0)}, "integer"),
-        ((np.full((100, 100), 9, np.uint8), np.zeros((100, 100), np.uint8)),
-         {"lut": np.arange(4.0)}, "beyond the end of the lut"),
+        (
+            (np.full((100, 100), 9, np.uint8), np.zeros((100, 100), np.uint8)),
+            {"lut": np.arange(4.0)},
+            "beyond the end of the lut",
+        ),
         ((np.zeros((100, 100)), np.zeros((100, 100)), 1.0, np.zeros((3, 3))), {}, "invertible"),
         ((np.zeros((100, 100)), np.zeros((100, 100))), {"tile": 8}, "tile size"),
     ],
@@ -339,8 +355,9 @@ def test_register_pair_with_check_residual_is_ok_only_when_aligned():
     assert sim.ok and sim.residual is not None and sim.residual.aligned
     assert sim.residual.median < 0.3
     # without the check the euclidean pair says 'ok' (the search's own status)
-    assert register_pair(dark, bright, 4.0, model="euclidean", saturation=sat,
-                         noise_floor=nf, previews=False).ok
+    assert register_pair(
+        dark, bright, 4.0, model="euclidean", saturation=sat, noise_floor=nf, previews=False
+    ).ok
 
 
 def test_memo_computes_each_frame_once_and_changes_nothing(monkeypatch):
@@ -353,8 +370,9 @@ def test_memo_computes_each_frame_once_and_changes_nothing(monkeypatch):
     fresh = [residual_motion(dark, b, 4.0, **kw) for b in (bright, moved)]
     calls = []
     real = residual._structure
-    monkeypatch.setattr(residual, "_structure",
-                        lambda img, *a, **k: calls.append(img.shape) or real(img, *a, **k))
+    monkeypatch.setattr(
+        residual, "_structure", lambda img, *a, **k: calls.append(img.shape) or real(img, *a, **k)
+    )
     memo: dict = {}
     memoised = [residual_motion(dark, b, 4.0, memo=memo, **kw) for b in (bright, moved)]
     assert len(calls) == 3  # dark once, each bright frame once
@@ -368,7 +386,7 @@ def test_tile_fractions_compiled_and_summed_area_agree(monkeypatch):
     rng = np.random.default_rng(5)
     mask = rng.uniform(size=(130, 171)) < 0.3
     oy, ox = rng.integers(0, 130 - 32, 40), rng.integers(0, 171 - 32, 40)
-    truth = np.array([mask[y:y + 32, x:x + 32].mean() for y, x in zip(oy, ox, strict=True)])
+    truth = np.array([mask[y : y + 32, x : x + 32].mean() for y, x in zip(oy, ox, strict=True)])
     np.testing.assert_array_equal(residual._box_fraction(mask, oy, ox, 32), truth)
     monkeypatch.setattr(residual, "AVAILABLE", False)
     np.testing.assert_array_equal(residual._box_fraction(mask, oy, ox, 32), truth)
@@ -383,8 +401,7 @@ def test_an_unverifiable_motion_is_not_called_ok():
     rng = np.random.default_rng(0)
     ml = 4095
     dark = (np.clip(np.rint(200 + rng.standard_normal(SHAPE) * 2), 0, ml) / ml).astype(np.float32)
-    bright = (np.clip(np.rint(800 + rng.standard_normal(SHAPE) * 2), 0, ml) / ml).astype(
-        np.float32)
+    bright = (np.clip(np.rint(800 + rng.standard_normal(SHAPE) * 2), 0, ml) / ml).astype(np.float32)
     data = prepare(dark, bright, 4.0, saturation=0.98, noise_floor=3 / ml, threshold=0.02)
     far = _similarity(shift=(6.0, -3.0))
     status, message, res = _checked(data, far, "similarity", "converged")

@@ -18,9 +18,7 @@ from hdrcore.registration.transform import (
 from hdrcore.synthetic import pair_matrix
 
 SHAPE = (120, 180)
-motion = st.tuples(
-    st.floats(-40, 40), st.floats(-40, 40), st.floats(-5, 5)
-)
+motion = st.tuples(st.floats(-40, 40), st.floats(-40, 40), st.floats(-5, 5))
 
 
 @given(motion)

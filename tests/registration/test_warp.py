@@ -95,8 +95,11 @@ def test_homography_mask_is_analytic(margin):
 def test_affine_homography_takes_the_fast_paths():
     """A 3x3 matrix with last row (0, 0, 1) is warped exactly as its 2x3 form."""
     img = np.random.default_rng(2).random((H, W, 2)).astype(np.float32)
-    for m in (rigid_matrix(3.0, -2.0, 0.0, (H, W)), rigid_matrix(1.5, 2.5, 1.2, (H, W)),
-              similarity_matrix(1.5, 2.5, 1.2, 1.01, (H, W))):
+    for m in (
+        rigid_matrix(3.0, -2.0, 0.0, (H, W)),
+        rigid_matrix(1.5, 2.5, 1.2, (H, W)),
+        similarity_matrix(1.5, 2.5, 1.2, 1.01, (H, W)),
+    ):
         a, b = warp(img, m), warp(img, homogeneous(m))
         assert a.method == b.method
         np.testing.assert_array_equal(a.image, b.image)

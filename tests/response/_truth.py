@@ -33,6 +33,11 @@ def shape_rms(g: np.ndarray, truth: np.ndarray, top: float = 0.95) -> np.ndarray
 @lru_cache(maxsize=16)
 def seed_bracket(response: str, noise_sigma: float, shape=(128, 192), seed: int = 1):
     return simulate_bracket(
-        scene="window", shape=shape, exposure_times=SEED_TIMES, bits=8, response=response,
-        noise_sigma=noise_sigma, seed=seed,
+        scene="window",
+        shape=shape,
+        exposure_times=SEED_TIMES,
+        bits=8,
+        response=response,
+        noise_sigma=noise_sigma,
+        seed=seed,
     )

@@ -79,13 +79,14 @@ def top_of_data_rms(g: np.ndarray, truth: np.ndarray) -> np.ndarray:
     """Per-channel RMS over levels 2..98 %, each channel scaled to the truth at level 250."""
     sl = _levels()
     g = np.atleast_2d(g)
-    g = g / g[:, TOP_OF_DATA:TOP_OF_DATA + 1] * truth[TOP_OF_DATA]
+    g = g / g[:, TOP_OF_DATA : TOP_OF_DATA + 1] * truth[TOP_OF_DATA]
     return np.sqrt(np.mean((g[:, sl] - truth[None, sl]) ** 2, axis=1))
 
 
 @pytest.mark.parametrize("response", SIX)
 def test_every_shape_within_one_percent_scaled_at_the_top_of_the_fitted_range(
-        response: str) -> None:
+    response: str,
+) -> None:
     """Scaled per channel at the highest level the fit sees, every shape is within 1 % (the
     S-curve 0.60 %, filmic 0.43 % at worst over 2 scenes x 2 seeds); what ``g(max) = 1`` adds
     is the clip bin's value, unobservable: the truth's own step from level 254 to 255."""
@@ -109,8 +110,9 @@ def test_each_shape_on_a_real_scene(response: str, real_scene: np.ndarray) -> No
     content), the seed's camera: within 1 % after one common scale and scaled at level 250."""
     from hdrcore.synthetic import simulate_bracket
 
-    sim = simulate_bracket(real_scene, exposure_times=SEED_TIMES, bits=8, response=response,
-                           noise_sigma=1.0, seed=1)
+    sim = simulate_bracket(
+        real_scene, exposure_times=SEED_TIMES, bits=8, response=response, noise_sigma=1.0, seed=1
+    )
     curve = recover_response(sim.frames, SEED_TIMES, method="auto")
     truth = truth_g(response)
     assert np.all(common_scale_rms(curve.g, truth) < 0.01), curve.method
@@ -143,8 +145,7 @@ def test_joint_beats_the_per_channel_fit_on_hard_shapes(response: str) -> None:
     per_channel = recover_response(b.frames, SEED_TIMES, method="debevec-histogram")
     assert joint.parameters["model"] == "shared"
     assert np.max(common_scale_rms(joint.g, truth)) < 0.006
-    assert np.max(common_scale_rms(joint.g, truth)) < np.max(
-        common_scale_rms(per_channel.g, truth))
+    assert np.max(common_scale_rms(joint.g, truth)) < np.max(common_scale_rms(per_channel.g, truth))
 
 
 def test_joint_fit_reports_residuals_per_level() -> None:

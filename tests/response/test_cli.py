@@ -32,8 +32,17 @@ def _files(d):
 
 @pytest.mark.parametrize("method", ["debevec-histogram", "grossberg2003"])
 def test_json_output(bracket_dir, capsys, method) -> None:
-    rc = main(["response", *_files(bracket_dir), "--times", str(bracket_dir / "times.txt"),
-               "--method", method, "--json"])
+    rc = main(
+        [
+            "response",
+            *_files(bracket_dir),
+            "--times",
+            str(bracket_dir / "times.txt"),
+            "--method",
+            method,
+            "--json",
+        ]
+    )
     assert rc == 0
     d = json.loads(capsys.readouterr().out)
     assert d["method"] == method
@@ -47,8 +56,16 @@ def test_json_output(bracket_dir, capsys, method) -> None:
 
 def test_plot_and_save(bracket_dir, capsys) -> None:
     plot, saved = bracket_dir / "g.png", bracket_dir / "g.json"
-    args = ["response", *_files(bracket_dir), "--times", str(bracket_dir / "times.txt"),
-            "--plot", str(plot), "--save", str(saved)]
+    args = [
+        "response",
+        *_files(bracket_dir),
+        "--times",
+        str(bracket_dir / "times.txt"),
+        "--plot",
+        str(plot),
+        "--save",
+        str(saved),
+    ]
     assert main(args) == 0
     assert Image.open(plot).format == "PNG"
     out = capsys.readouterr().out
@@ -60,8 +77,20 @@ def test_plot_and_save(bracket_dir, capsys) -> None:
     assert main(args) == 2
     assert "use --force" in capsys.readouterr().err
     assert main([*args, "--force"]) == 0
-    assert main(["response", *_files(bracket_dir), "--times", str(bracket_dir / "times.txt"),
-                 "--plot", _files(bracket_dir)[0], "--force"]) == 2
+    assert (
+        main(
+            [
+                "response",
+                *_files(bracket_dir),
+                "--times",
+                str(bracket_dir / "times.txt"),
+                "--plot",
+                _files(bracket_dir)[0],
+                "--force",
+            ]
+        )
+        == 2
+    )
     assert "input" in capsys.readouterr().err
 
 
@@ -74,15 +103,28 @@ def test_outputs_checked_before_decoding(bracket_dir, tmp_path, capsys, monkeypa
     monkeypatch.setattr(response_cli, "load_bracket_from_args", no_decoding)
     kept = tmp_path / "curve.json"
     kept.write_text("keep")
-    assert main(["response", *_files(bracket_dir), "--times", str(bracket_dir / "times.txt"),
-                 "--save", str(kept)]) == 2
+    assert (
+        main(
+            [
+                "response",
+                *_files(bracket_dir),
+                "--times",
+                str(bracket_dir / "times.txt"),
+                "--save",
+                str(kept),
+            ]
+        )
+        == 2
+    )
     assert "use --force" in capsys.readouterr().err and kept.read_text() == "keep"
 
 
 def test_errors(bracket_dir, capsys) -> None:
     files = _files(bracket_dir)
-    assert main(["response", *files, "--times", str(bracket_dir / "times.txt"),
-                 "--method", "nope"]) == 2
+    assert (
+        main(["response", *files, "--times", str(bracket_dir / "times.txt"), "--method", "nope"])
+        == 2
+    )
     err = capsys.readouterr().err
     assert "debevec1997" in err and "grossberg2003" in err
     assert main(["response", files[0], "--times", str(bracket_dir / "times.txt")]) == 2
@@ -91,6 +133,14 @@ def test_errors(bracket_dir, capsys) -> None:
     assert "exposure times" in capsys.readouterr().err
     # the pipeline's --exclude-colour (one parsing for every command): a usage error
     with pytest.raises(SystemExit):
-        main(["response", *files, "--times", str(bracket_dir / "times.txt"),
-              "--exclude-colour", "1,2"])
+        main(
+            [
+                "response",
+                *files,
+                "--times",
+                str(bracket_dir / "times.txt"),
+                "--exclude-colour",
+                "1,2",
+            ]
+        )
     assert "three non-negative integer levels" in capsys.readouterr().err

@@ -28,8 +28,15 @@ LUMA = np.array([0.2126, 0.7152, 0.0722])
 
 @pytest.fixture(scope="module")
 def srgb_bracket():
-    sim = simulate_bracket(scene="patches", shape=(120, 180), exposure_times=TIMES, bits=8,
-                           response="srgb", noise_sigma=0.5, seed=4)
+    sim = simulate_bracket(
+        scene="patches",
+        shape=(120, 180),
+        exposure_times=TIMES,
+        bits=8,
+        response="srgb",
+        noise_sigma=0.5,
+        seed=4,
+    )
     frames = [f.astype(np.uint8) for f in sim.frames]
     res = merge(frames, TIMES, response=LUT, max_level=255)
     return sim, frames, res
@@ -55,13 +62,28 @@ def test_a_tinted_merge_is_flagged(srgb_bracket) -> None:
 
 
 def test_per_frame_white_balance_is_measured() -> None:
-    sim = simulate_bracket(scene="patches", shape=(120, 180), exposure_times=TIMES, bits=8,
-                           response="linear", noise_sigma=0.0, seed=4)
+    sim = simulate_bracket(
+        scene="patches",
+        shape=(120, 180),
+        exposure_times=TIMES,
+        bits=8,
+        response="linear",
+        noise_sigma=0.0,
+        seed=4,
+    )
     x = [f.astype(np.float64) / 255 for f in sim.frames]
     x[2] = x[2] * np.array([1.0, 1.0, 0.9])  # the third shot balanced bluer... less blue
-    frames = [np.clip(np.rint(255 * np.where(v <= 0.0031308, 12.92 * v,
-                                             1.055 * np.maximum(v, 0) ** (1 / 2.4) - 0.055)),
-                      0, 255).astype(np.uint8) for v in x]
+    frames = [
+        np.clip(
+            np.rint(
+                255
+                * np.where(v <= 0.0031308, 12.92 * v, 1.055 * np.maximum(v, 0) ** (1 / 2.4) - 0.055)
+            ),
+            0,
+            255,
+        ).astype(np.uint8)
+        for v in x
+    ]
     res = merge(frames, TIMES, response=LUT, max_level=255)
     cc = colour_check(frames, res.radiance, LUT, max_level=255, reference=1)
     assert cc.white_balance_differs == (2,)
@@ -73,19 +95,28 @@ def test_per_frame_white_balance_is_measured() -> None:
     assert raw > 0.01 and out < 0.5 * raw
     d = json.loads(json.dumps(cc.to_json()))
     assert [p["median_difference"] for p in d["frame_pairs_wb"]] == pytest.approx(
-        [p.median_difference for p in cc.frame_pairs_wb])
+        [p.median_difference for p in cc.frame_pairs_wb]
+    )
 
 
 def test_anchoring_gives_the_frames_colour_and_keeps_luminance(srgb_bracket) -> None:
     _, frames, res = srgb_bracket
     tinted = (res.radiance * np.array([1.1, 1.0, 0.75], np.float32)).astype(np.float32)
     y_before = tinted @ LUMA.astype(np.float32)
-    done = anchor_colour(tinted, frames, srgb_decode_lut(255), max_level=255, saturation=250,
-                         noise_floor=2, reference=1, lut=LUT, exposure_times=TIMES,
-                         shares=res.shares)
+    done = anchor_colour(
+        tinted,
+        frames,
+        srgb_decode_lut(255),
+        max_level=255,
+        saturation=250,
+        noise_floor=2,
+        reference=1,
+        lut=LUT,
+        exposure_times=TIMES,
+        shares=res.shares,
+    )
     assert done.max_shift > 0.02 and abs(sum(done.frame_shares) - 1) < 1e-9
-    np.testing.assert_allclose(tinted @ LUMA.astype(np.float32), y_before, rtol=1e-4,
-                               atol=1e-7)
+    np.testing.assert_allclose(tinted @ LUMA.astype(np.float32), y_before, rtol=1e-4, atol=1e-7)
     cc = colour_check(frames, tinted, LUT, max_level=255, reference=1)
     assert cc.merge_error < 0.005
     # where the reference is clipped the darker frame's colour is followed
@@ -95,14 +126,31 @@ def test_anchoring_gives_the_frames_colour_and_keeps_luminance(srgb_bracket) -> 
 def test_check_colour_reports_before_and_after(srgb_bracket) -> None:
     _, frames, res = srgb_bracket
     rad = (res.radiance * np.array([1.0, 1.0, 0.8], np.float32)).astype(np.float32)
-    out = check_colour(frames, rad, LUT, max_level=255, reference=1, saturation=250,
-                       noise_floor=2, exposure_times=TIMES, shares=res.shares)
+    out = check_colour(
+        frames,
+        rad,
+        LUT,
+        max_level=255,
+        reference=1,
+        saturation=250,
+        noise_floor=2,
+        exposure_times=TIMES,
+        shares=res.shares,
+    )
     assert out.before.merge_error > MAX_MERGE_ERROR > out.after.merge_error
     assert out.anchor is not None and not out.local_tone_mapping.detected
     assert "anchored" in out.message
     json.dumps(out.to_json())
-    kept = check_colour(frames, rad.copy(), LUT, max_level=255, reference=1, saturation=250,
-                        noise_floor=2, anchor=False)
+    kept = check_colour(
+        frames,
+        rad.copy(),
+        LUT,
+        max_level=255,
+        reference=1,
+        saturation=250,
+        noise_floor=2,
+        anchor=False,
+    )
     assert kept.anchor is None and kept.after is kept.before
 
 
@@ -121,8 +169,15 @@ def test_exposure_fusion() -> None:
     same = exposure_fusion([f, f], max_level=255)
     assert same.shape == f.shape and same.dtype == np.uint8
     assert np.max(np.abs(same.astype(int) - f.astype(int))) <= 1  # one frame: itself
-    sim = simulate_bracket(scene="window", shape=(96, 144), exposure_times=TIMES, bits=8,
-                           response="srgb", noise_sigma=0.5, seed=1)
+    sim = simulate_bracket(
+        scene="window",
+        shape=(96, 144),
+        exposure_times=TIMES,
+        bits=8,
+        response="srgb",
+        noise_sigma=0.5,
+        seed=1,
+    )
     fused = exposure_fusion([x.astype(np.uint8) for x in sim.frames], max_level=255, factor=2)
     assert fused.shape == (48, 72, 3)
     # fewer clipped and black pixels than any single frame
@@ -141,7 +196,8 @@ def _rebalanced(frame: np.ndarray, gains: tuple[float, float, float]) -> np.ndar
 
 @pytest.mark.parametrize("numba", [True, False])
 def test_anchoring_gives_every_frame_its_own_colour_where_it_is_best_exposed(
-        srgb_bracket, numba, monkeypatch) -> None:
+    srgb_bracket, numba, monkeypatch
+) -> None:
     """Frames that disagree in colour (a phone re-balancing each shot): each pixel takes the
     colour of the frames well exposed there, the one nearest mid-grey first, so every frame's
     best-exposed regions have that frame's colour (the issue's target measured on every frame,
@@ -153,20 +209,36 @@ def test_anchoring_gives_every_frame_its_own_colour_where_it_is_best_exposed(
     if not numba:
         monkeypatch.setattr(module, "AVAILABLE", False)
     _, frames, _ = srgb_bracket
-    frames = [_rebalanced(frames[0], (1.06, 1.0, 0.94)), frames[1],
-              _rebalanced(frames[2], (0.94, 1.0, 1.06))]
+    frames = [
+        _rebalanced(frames[0], (1.06, 1.0, 0.94)),
+        frames[1],
+        _rebalanced(frames[2], (0.94, 1.0, 1.06)),
+    ]
     res = merge(frames, TIMES, response=LUT, max_level=255)
     kw = dict(max_level=255, reference=1)
-    anchor_kw = dict(max_level=255, saturation=250, noise_floor=2, reference=1, lut=LUT,
-                     exposure_times=TIMES, shares=res.shares)
+    anchor_kw = dict(
+        max_level=255,
+        saturation=250,
+        noise_floor=2,
+        reference=1,
+        lut=LUT,
+        exposure_times=TIMES,
+        shares=res.shares,
+    )
     plain = frame_colours(frames, res.radiance, **kw)
     rad = res.radiance.copy()
     y_before = rad @ LUMA.astype(np.float32)
     done = anchor_colour(rad, frames, srgb_decode_lut(255), **anchor_kw)
     own = frame_colours(frames, rad, **kw)
     old = res.radiance.copy()
-    anchor_colour(old, frames, srgb_decode_lut(255), **anchor_kw, frame_band=None,
-                  reference_band=REFERENCE_BAND)
+    anchor_colour(
+        old,
+        frames,
+        srgb_decode_lut(255),
+        **anchor_kw,
+        frame_band=None,
+        reference_band=REFERENCE_BAND,
+    )
     ref_only = frame_colours(frames, old, **kw)
     np.testing.assert_allclose(rad @ LUMA.astype(np.float32), y_before, rtol=1e-4, atol=1e-7)
     assert done.own_colour_fraction > 0.5
@@ -182,8 +254,15 @@ def test_block_consistency_averages_the_noise_and_keeps_a_wrong_curve() -> None:
     channels disagree keeps its difference."""
     from hdrcore.merge.colour_check import block_consistency
 
-    sim = simulate_bracket(scene="patches", shape=(160, 240), exposure_times=TIMES, bits=8,
-                           response="srgb", noise_sigma=2.0, seed=5)
+    sim = simulate_bracket(
+        scene="patches",
+        shape=(160, 240),
+        exposure_times=TIMES,
+        bits=8,
+        response="srgb",
+        noise_sigma=2.0,
+        seed=5,
+    )
     frames = [f.astype(np.uint8) for f in sim.frames]
     res = merge(frames, TIMES, response=LUT, max_level=255)
     right = colour_check(frames, res.radiance, LUT, max_level=255, reference=1)
@@ -203,8 +282,15 @@ def test_per_pixel_agreement_of_a_right_curve_is_the_noise() -> None:
     0.0063 -> 0.0031, and nearly on the memorial scans), so only block means measure a curve."""
     from hdrcore.merge.colour_check import block_consistency
 
-    sim = simulate_bracket(scene="patches", shape=(192, 288), exposure_times=(1.0, 2.0, 4.0),
-                           bits=8, response="srgb", noise_sigma=1.0, seed=6)
+    sim = simulate_bracket(
+        scene="patches",
+        shape=(192, 288),
+        exposure_times=(1.0, 2.0, 4.0),
+        bits=8,
+        response="srgb",
+        noise_sigma=1.0,
+        seed=6,
+    )
     frames = [f.astype(np.uint8) for f in sim.frames]
 
     def median(block: int) -> float:
@@ -216,22 +302,37 @@ def test_per_pixel_agreement_of_a_right_curve_is_the_noise() -> None:
     assert 0.4 < two / pixel < 0.6 and 0.4 < four / two < 0.6
 
 
-def test_frame_colours_follow_the_registration_and_engines_agree(srgb_bracket,
-                                                                 monkeypatch) -> None:
+def test_frame_colours_follow_the_registration_and_engines_agree(srgb_bracket, monkeypatch) -> None:
     """Frames displaced by a known shift and given with their ``to_reference`` matrices are
     read at the right pixels (the same colours as the aligned frames away from the border),
     and the compiled pass equals the numpy one."""
     import hdrcore.merge.colour_check as module
 
     _, frames, res = srgb_bracket
-    frames = [_rebalanced(frames[0], (1.06, 1.0, 0.94)), frames[1],
-              _rebalanced(frames[2], (0.94, 1.0, 1.06))]
-    moved = [np.roll(frames[0], (2, 3), axis=(0, 1)), frames[1],
-             np.roll(frames[2], (-1, 4), axis=(0, 1))]
-    to_ref = [np.array([[1.0, 0, -3], [0, 1, -2]]), np.eye(3)[:2],
-              np.array([[1.0, 0, -4], [0, 1, 1]])]
-    kw = dict(max_level=255, saturation=250, noise_floor=2, reference=1, lut=LUT,
-              exposure_times=TIMES, shares=res.shares)
+    frames = [
+        _rebalanced(frames[0], (1.06, 1.0, 0.94)),
+        frames[1],
+        _rebalanced(frames[2], (0.94, 1.0, 1.06)),
+    ]
+    moved = [
+        np.roll(frames[0], (2, 3), axis=(0, 1)),
+        frames[1],
+        np.roll(frames[2], (-1, 4), axis=(0, 1)),
+    ]
+    to_ref = [
+        np.array([[1.0, 0, -3], [0, 1, -2]]),
+        np.eye(3)[:2],
+        np.array([[1.0, 0, -4], [0, 1, 1]]),
+    ]
+    kw = dict(
+        max_level=255,
+        saturation=250,
+        noise_floor=2,
+        reference=1,
+        lut=LUT,
+        exposure_times=TIMES,
+        shares=res.shares,
+    )
     aligned = res.radiance.copy()
     anchor_colour(aligned, frames, srgb_decode_lut(255), **kw)
     runs = {}
@@ -242,5 +343,6 @@ def test_frame_colours_follow_the_registration_and_engines_agree(srgb_bracket,
         runs[numba] = rad
     np.testing.assert_allclose(runs[True], runs[False], rtol=2e-5, atol=1e-7)
     inner = (slice(12, -12), slice(12, -12))
-    np.testing.assert_allclose(chromaticity(runs[True][inner]),
-                               chromaticity(aligned[inner]), atol=2e-3)
+    np.testing.assert_allclose(
+        chromaticity(runs[True][inner]), chromaticity(aligned[inner]), atol=2e-3
+    )

@@ -28,8 +28,11 @@ def _gamma_curve(max_level: int = 255, channels: int = 3) -> ResponseCurve:
 
 
 @settings(max_examples=60, deadline=None)
-@given(arrays(np.float64, st.tuples(st.integers(1, 3), st.integers(2, 300)),
-              elements=st.floats(-1e3, 1e3)))
+@given(
+    arrays(
+        np.float64, st.tuples(st.integers(1, 3), st.integers(2, 300)), elements=st.floats(-1e3, 1e3)
+    )
+)
 def test_normalise_gives_monotone_unit_curves(raw: np.ndarray) -> None:
     # a channel that never rises above its first value cannot be normalised: refused
     flat = np.max(raw, axis=1) <= raw[:, 0]

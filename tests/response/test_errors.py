@@ -92,8 +92,15 @@ def test_all_saturated_bracket(method: str) -> None:
 def test_every_output_is_monotone(method, response, noise, n_frames, step, seed, monotone_off):
     """Monotone and normalised whatever the data (even unconstrained fits are made usable)."""
     times = [step**k for k in range(n_frames)]
-    b = simulate_bracket(scene="window", shape=(48, 64), exposure_times=times, bits=8,
-                         response=response, noise_sigma=noise, seed=seed)
+    b = simulate_bracket(
+        scene="window",
+        shape=(48, 64),
+        exposure_times=times,
+        bits=8,
+        response=response,
+        noise_sigma=noise,
+        seed=seed,
+    )
     curve = recover_response(b.frames, times, method=method, monotone=not monotone_off)
     assert np.all(np.diff(curve.g, axis=1) >= 0)
     assert np.allclose(curve.g[:, 0], 0) and np.allclose(curve.g[:, -1], 1)

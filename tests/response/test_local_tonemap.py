@@ -17,9 +17,17 @@ TIMES = (1 / 64, 1 / 16, 1 / 4, 1.0)
 
 
 def _sim(strength: float, seed: int = 1, **kw):
-    return simulate_bracket(scene="window", shape=(192, 288), exposure_times=TIMES, bits=8,
-                            response="srgb", noise_sigma=1.0, seed=seed,
-                            local_tonemap=strength, **kw)
+    return simulate_bracket(
+        scene="window",
+        shape=(192, 288),
+        exposure_times=TIMES,
+        bits=8,
+        response="srgb",
+        noise_sigma=1.0,
+        seed=seed,
+        local_tonemap=strength,
+        **kw,
+    )
 
 
 def test_spread_of_the_transfer_across_regions() -> None:

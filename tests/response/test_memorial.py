@@ -18,8 +18,9 @@ pytestmark = pytest.mark.shared
 
 
 def _load(memorial_dir):
-    br = load_bracket(sorted(memorial_dir.glob("*.png")),
-                      exposure_times=memorial_dir / "exposure_times.txt")
+    br = load_bracket(
+        sorted(memorial_dir.glob("*.png")), exposure_times=memorial_dir / "exposure_times.txt"
+    )
     frames = [f.levels for f in br.frames]
     blue = np.zeros(frames[0].shape[:2], bool)
     for f in frames:

@@ -98,8 +98,14 @@ def test_single_channel_and_12_bit() -> None:
     assert np.all(rms(curve.g, truth_g("gamma")) <= 0.01)
     from hdrcore.synthetic import simulate_bracket
 
-    b12 = simulate_bracket(shape=(96, 128), exposure_times=SEED_TIMES, bits=12,
-                           response="gamma", noise_sigma=4.0, seed=3)
+    b12 = simulate_bracket(
+        shape=(96, 128),
+        exposure_times=SEED_TIMES,
+        bits=12,
+        response="gamma",
+        noise_sigma=4.0,
+        seed=3,
+    )
     for method in ("debevec-histogram", "grossberg2003"):
         c12 = recover_response(b12.frames, SEED_TIMES, method=method, max_level=4095)
         assert c12.g.shape == (3, 4096)
@@ -123,8 +129,9 @@ def test_unconstrained_fits_report_their_decreasing_steps() -> None:
     """The seed's question (section 4.2): unconstrained fits go non-monotone on noisy data;
     the diagnostics count the decreasing steps, the constrained fit has none."""
     b = seed_bracket("polynomial3", 1.0)
-    free = recover_response(b.frames, SEED_TIMES, method="mitsunaga1999", order=10,
-                            monotone=False, cutoff=1.0)
+    free = recover_response(
+        b.frames, SEED_TIMES, method="mitsunaga1999", order=10, monotone=False, cutoff=1.0
+    )
     assert any(f.non_monotone_steps > 0 for f in free.channels)
     assert free.status == "warning" and "not monotone" in free.message
     assert free.is_monotone  # repaired so that it can still be used

@@ -83,11 +83,14 @@ def test_wrong_exposure_time_makes_the_recovery_fall_back_with_a_warning() -> No
 def test_channels_that_disagree_are_fitted_separately_only_with_evidence() -> None:
     """Frames whose channels have different responses (film's dye layers): the separate model
     wins on held-back pairs; one response for all channels keeps the shared model."""
-    kw = dict(scene="window", shape=(128, 192), exposure_times=SEED_TIMES, bits=8,
-              noise_sigma=1.0, seed=2)
+    kw = dict(
+        scene="window", shape=(128, 192), exposure_times=SEED_TIMES, bits=8, noise_sigma=1.0, seed=2
+    )
     parts = [simulate_bracket(response=r, **kw) for r in ("gamma", "polynomial3", "s-curve")]
-    frames = [np.stack([parts[c].frames[k][..., c] for c in range(3)], axis=-1)
-              for k in range(len(SEED_TIMES))]
+    frames = [
+        np.stack([parts[c].frames[k][..., c] for c in range(3)], axis=-1)
+        for k in range(len(SEED_TIMES))
+    ]
     mixed = recover_response(frames, SEED_TIMES, method="joint-histogram")
     assert mixed.parameters["model"] == "separate"
     same = recover_response(parts[0].frames, SEED_TIMES, method="joint-histogram")
@@ -113,11 +116,14 @@ def test_degeneracy_signs() -> None:
     assert degeneracy(tinted, channels_fitted_apart=False) == []
 
 
-@pytest.mark.parametrize(("response", "family", "expected"), [
-    ("gamma", "gamma", {"gamma": 2.2}),
-    ("srgb", "srgb-toe", {"gamma": 2.4, "offset": 0.055}),
-    ("filmic", "filmic", {"white": 2.0}),
-])
+@pytest.mark.parametrize(
+    ("response", "family", "expected"),
+    [
+        ("gamma", "gamma", {"gamma": 2.2}),
+        ("srgb", "srgb-toe", {"gamma": 2.4, "offset": 0.055}),
+        ("filmic", "filmic", {"white": 2.0}),
+    ],
+)
 def test_families_recover_their_parameters(response, family, expected) -> None:
     b = seed_bracket(response, 0.0)
     pairs = [btf_pairs(b.frames, c, 255, 0.0, 0.98 * 255) for c in range(3)]
@@ -146,15 +152,21 @@ def test_the_pipeline_reports_the_fallback(tmp_path) -> None:
     from hdrcore.pipeline import Pipeline, PipelineParams
     from hdrcore.synthetic import write_bracket
 
-    sim = simulate_bracket(scene="window", shape=(96, 144), exposure_times=SEED_TIMES, bits=8,
-                           response="srgb", noise_sigma=1.0, seed=1)
+    sim = simulate_bracket(
+        scene="window",
+        shape=(96, 144),
+        exposure_times=SEED_TIMES,
+        bits=8,
+        response="srgb",
+        noise_sigma=1.0,
+        seed=1,
+    )
     write_bracket(tmp_path, sim, fmt="png")
     lines = (tmp_path / "exposure_times.txt").read_text().splitlines()
     name = lines[3].split()[0]
     lines[3] = f"{name} 24"  # 64 s recorded as 24 s
     (tmp_path / "exposure_times.txt").write_text("\n".join(lines) + "\n")
-    b = load_bracket(sorted(tmp_path.glob("*.png")),
-                     exposure_times=tmp_path / "exposure_times.txt")
+    b = load_bracket(sorted(tmp_path.glob("*.png")), exposure_times=tmp_path / "exposure_times.txt")
     r = Pipeline(b, PipelineParams(align="none")).run(until="merge")
     assert r.response.status == "fallback"
     v = next(v for v in r.verdicts if v.code == "response-fallback")

@@ -104,7 +104,11 @@ def test_integer_shift_moves_content_by_the_matrix() -> None:
     # Frame 1 moved by (dx, dy) = (3, -2): to_reference maps its pixel (x, y) to (x + 3, y - 2)
     # of the reference frame, so frame1[y, x] == frame0[y - 2, x + 3] (same exposure, no noise).
     sim = simulate_bracket(
-        shape=SHAPE, exposure_times=(1, 1), bits=16, noise_sigma=0, reference=0,
+        shape=SHAPE,
+        exposure_times=(1, 1),
+        bits=16,
+        noise_sigma=0,
+        reference=0,
         motion=[(0.0, 0.0, 0.0), (3.0, -2.0, 0.0)],
     )
     f0, f1 = (f.astype(int) for f in sim.frames)
@@ -134,14 +138,12 @@ def test_random_hand_held_motion_stays_within_bounds_and_keeps_the_reference() -
         assert abs(angle) <= 1.0 + 1e-9
     # The pair matrix composes the per-frame transforms: p_dark = P @ p_bright.
     p = sim.pair_matrix(0, 1)
-    np.testing.assert_allclose(
-        compose(sim.to_reference[0], p), sim.to_reference[1], atol=1e-12
-    )
+    np.testing.assert_allclose(compose(sim.to_reference[0], p), sim.to_reference[1], atol=1e-12)
 
 
-matrices = st.tuples(
-    st.floats(-20, 20), st.floats(-20, 20), st.floats(-10, 10)
-).map(lambda m: rigid_matrix(m[0], m[1], m[2], (48, 64)))
+matrices = st.tuples(st.floats(-20, 20), st.floats(-20, 20), st.floats(-10, 10)).map(
+    lambda m: rigid_matrix(m[0], m[1], m[2], (48, 64))
+)
 
 
 @settings(max_examples=40, deadline=None)
@@ -154,7 +156,8 @@ def test_transform_axioms(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> None:
     to_ref = (a, b, c)
     np.testing.assert_allclose(
         compose(pair_matrix(to_ref, 0, 1), pair_matrix(to_ref, 1, 2)),
-        pair_matrix(to_ref, 0, 2), atol=1e-9,
+        pair_matrix(to_ref, 0, 2),
+        atol=1e-9,
     )
 
 

@@ -24,8 +24,24 @@ def _run(capsys: pytest.CaptureFixture[str], *argv: str) -> tuple[int, str, str]
 def test_simulate_dng_json(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out_dir = tmp_path / "b"
     code, out, err = _run(
-        capsys, "simulate", str(out_dir), "--format", "dng", "--stops", "2", "--frames", "3",
-        "--size", "64x96", "--shift", "4", "--rotation", "0.5", "--seed", "3", "--json",
+        capsys,
+        "simulate",
+        str(out_dir),
+        "--format",
+        "dng",
+        "--stops",
+        "2",
+        "--frames",
+        "3",
+        "--size",
+        "64x96",
+        "--shift",
+        "4",
+        "--rotation",
+        "0.5",
+        "--seed",
+        "3",
+        "--json",
     )
     assert code == 0, err
     doc = json.loads(out)
@@ -43,8 +59,15 @@ def test_simulate_png_times_and_response(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     code, out, err = _run(
-        capsys, "simulate", str(tmp_path), "--times", "1/500,1/125", "--response", "gamma",
-        "--size", "32x48",
+        capsys,
+        "simulate",
+        str(tmp_path),
+        "--times",
+        "1/500,1/125",
+        "--response",
+        "gamma",
+        "--size",
+        "32x48",
     )
     assert code == 0, err
     assert "frame00.png  t=1/500 s" in out
@@ -56,7 +79,15 @@ def test_simulate_key_sets_the_exposure_scale(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     code, out, err = _run(
-        capsys, "simulate", str(tmp_path), "--times", "1,2", "--key", "0.01", "--size", "32x48",
+        capsys,
+        "simulate",
+        str(tmp_path),
+        "--times",
+        "1,2",
+        "--key",
+        "0.01",
+        "--size",
+        "32x48",
         "--json",
     )
     assert code == 0, err
@@ -99,9 +130,7 @@ def test_simulate_refuses_existing_output(
 def test_parsers() -> None:
     assert parse_size("480x720") == (480, 720)
     assert parse_times("1/3049, 0.5") == (Fraction(1, 3049), Fraction(1, 2))
-    assert bracket_times(2, 4, Fraction(1, 256)) == tuple(
-        Fraction(1, 256) * 4**k for k in range(4)
-    )
+    assert bracket_times(2, 4, Fraction(1, 256)) == tuple(Fraction(1, 256) * 4**k for k in range(4))
     assert bracket_times(1.5, 2, Fraction(1, 8))[1] == Fraction(2**1.5 / 8).limit_denominator(
         1_000_000
     )

@@ -31,8 +31,13 @@ from hdrcore.synthetic.dng import as_rational, cfa_channel_map
 
 SHAPE = (48, 64)
 POSTPROCESS = dict(
-    gamma=(1, 1), no_auto_bright=True, output_bps=16, user_wb=[1, 1, 1, 1],
-    output_color=rawpy.ColorSpace.raw, no_auto_scale=True, user_flip=0,
+    gamma=(1, 1),
+    no_auto_bright=True,
+    output_bps=16,
+    user_wb=[1, 1, 1, 1],
+    output_color=rawpy.ColorSpace.raw,
+    no_auto_scale=True,
+    user_flip=0,
 )
 
 
@@ -75,8 +80,9 @@ def test_linear_to_raw_scale_offset_and_clipping() -> None:
 
 def test_read_noise_can_go_below_black_and_has_its_sigma() -> None:
     x = np.full((200, 200), 0.0)
-    raw = linear_to_raw(x, black_level=256, white_level=4095, noise_sigma=4.0,
-                        rng=np.random.default_rng(1))
+    raw = linear_to_raw(
+        x, black_level=256, white_level=4095, noise_sigma=4.0, rng=np.random.default_rng(1)
+    )
     d = raw.astype(float) - 256
     assert d.std() == pytest.approx(4.0, rel=0.05)
     assert d.min() < 0
@@ -91,8 +97,14 @@ def test_round_trip_values_pattern_levels_and_time(
     lin = _linear()
     cfa_lin = mosaic(lin, pattern)
     raw_in = linear_to_raw(cfa_lin, black_level=black, white_level=white)
-    p = write_dng(tmp_path / "f.dng", raw_in, exposure_time=Fraction(1, 3049), pattern=pattern,
-                  black_level=black, white_level=white)
+    p = write_dng(
+        tmp_path / "f.dng",
+        raw_in,
+        exposure_time=Fraction(1, 3049),
+        pattern=pattern,
+        black_level=black,
+        white_level=white,
+    )
     with rawpy.imread(str(p)) as raw:
         data = raw.raw_image_visible.astype(np.float64)
         assert data.shape == SHAPE
@@ -110,8 +122,14 @@ def test_per_site_black_levels_come_back_per_colour(tmp_path: Path) -> None:
     black = (250, 256, 262, 270)  # row-major sites of GBRG: G, B, R, G
     lin = _linear()
     raw_in = linear_to_raw(mosaic(lin, "GBRG"), black_level=black, white_level=4095)
-    p = write_dng(tmp_path / "f.dng", raw_in, exposure_time=0.01, pattern="GBRG",
-                  black_level=black, white_level=4095)
+    p = write_dng(
+        tmp_path / "f.dng",
+        raw_in,
+        exposure_time=0.01,
+        pattern="GBRG",
+        black_level=black,
+        white_level=4095,
+    )
     with rawpy.imread(str(p)) as raw:
         per_colour = dict(zip(raw.color_desc.decode(), raw.black_level_per_channel, strict=True))
         by_site = [int(raw.black_level_per_channel[i]) for i in raw.raw_pattern.ravel()]
@@ -125,8 +143,14 @@ def test_per_site_black_levels_come_back_per_colour(tmp_path: Path) -> None:
 def test_exposure_time_is_exact_in_exifread(tmp_path: Path) -> None:
     raw_in = linear_to_raw(mosaic(_linear()), black_level=256, white_level=4095)
     when = datetime(2020, 5, 17, 8, 30, 15)
-    p = write_dng(tmp_path / "f.dng", raw_in, exposure_time=1 / 3049, f_number=Fraction(28, 10),
-                  iso=400, capture_time=when)
+    p = write_dng(
+        tmp_path / "f.dng",
+        raw_in,
+        exposure_time=1 / 3049,
+        f_number=Fraction(28, 10),
+        iso=400,
+        capture_time=when,
+    )
     with open(p, "rb") as fh:
         tags = exifread.process_file(fh, details=False)
     t = tags["EXIF ExposureTime"].values[0]
@@ -182,8 +206,9 @@ def test_postprocess_gives_black_subtracted_values_in_flat_areas(tmp_path: Path)
 
 
 def test_simulated_bracket_through_dng_keeps_exposure_ratios(tmp_path: Path) -> None:
-    sim = simulate_bracket(shape=SHAPE, exposure_times=(1 / 64, 1 / 16), noise_sigma=0,
-                           keep_linear=True)
+    sim = simulate_bracket(
+        shape=SHAPE, exposure_times=(1 / 64, 1 / 16), noise_sigma=0, keep_linear=True
+    )
     means = []
     for k, lin in enumerate(sim.linear_frames):
         raw_in = linear_to_raw(mosaic(lin), black_level=256, white_level=4095)

@@ -52,9 +52,12 @@ def _png(path: Path) -> np.ndarray:
 def _raw(path: Path) -> tuple[np.ndarray, np.ndarray, list[int], tuple[int, int]]:
     """(raw_image, raw_image_visible, black per channel, (top, left) margins) from LibRaw."""
     with rawpy.imread(str(path)) as raw:
-        return (np.array(raw.raw_image, copy=True), np.array(raw.raw_image_visible, copy=True),
-                [int(b) for b in raw.black_level_per_channel],
-                (int(raw.sizes.top_margin), int(raw.sizes.left_margin)))
+        return (
+            np.array(raw.raw_image, copy=True),
+            np.array(raw.raw_image_visible, copy=True),
+            [int(b) for b in raw.black_level_per_channel],
+            (int(raw.sizes.top_margin), int(raw.sizes.left_margin)),
+        )
 
 
 def _robust_sigma(x: np.ndarray) -> float:
@@ -142,7 +145,8 @@ def test_saturated_dng_frame_sits_at_the_white_level(tmp_path: Path) -> None:
 
 
 def test_duplicate_exposure_has_two_frames_of_one_time_and_independent_noise(
-        tmp_path: Path) -> None:
+    tmp_path: Path,
+) -> None:
     c = write_duplicate_exposure(tmp_path, 1, THREE)
     assert c.exposure_times == (1.0, 4.0, 4.0, 16.0)
     times = read_exposure_times(c.times_file)
@@ -232,8 +236,14 @@ def test_wide_raw_pair_is_fourteen_bits_six_stops_apart(tmp_path: Path) -> None:
 
 
 def _margin_bracket(tmp_path: Path, **kw) -> tuple[Path, Path]:
-    sim = simulate_bracket(shape=(64, 96), exposure_times=(1 / 64, 1 / 16), bits=12,
-                           noise_sigma=3.0, keep_linear=True, seed=4)
+    sim = simulate_bracket(
+        shape=(64, 96),
+        exposure_times=(1 / 64, 1 / 16),
+        bits=12,
+        noise_sigma=3.0,
+        keep_linear=True,
+        seed=4,
+    )
     plain = write_bracket(tmp_path / "plain", sim, "dng")
     masked = write_bracket(tmp_path / "masked", sim, "dng", **kw)
     return plain.frames[0], masked.frames[0]
@@ -267,8 +277,14 @@ def test_dng_margins_without_masked_areas_keep_the_black_level_tag(tmp_path: Pat
 
 def test_masked_margins_helper_and_bad_areas() -> None:
     act = np.full((4, 6), 300, np.uint16)
-    s = add_masked_margins(act, (2, 2, 0, 1), black_level=64, white_level=1023, noise_sigma=0,
-                           rng=np.random.default_rng(0))
+    s = add_masked_margins(
+        act,
+        (2, 2, 0, 1),
+        black_level=64,
+        white_level=1023,
+        noise_sigma=0,
+        rng=np.random.default_rng(0),
+    )
     assert s.data.shape == (6, 9) and s.active_area == (2, 2, 6, 8)
     assert s.masked_areas == ((0, 0, 2, 9), (2, 0, 6, 2), (2, 8, 6, 9))
     np.testing.assert_array_equal(s.active, act)
@@ -278,14 +294,26 @@ def test_masked_margins_helper_and_bad_areas() -> None:
     with pytest.raises(ParameterError, match="one value or four"):
         parse_margins((2, 2))
     with pytest.raises(ParameterError, match="overlaps the active area"):
-        encode_dng(s.data, exposure_time=0.01, black_level=64, white_level=1023,
-                   active_area=s.active_area, masked_areas=[(0, 0, 4, 9)])
+        encode_dng(
+            s.data,
+            exposure_time=0.01,
+            black_level=64,
+            white_level=1023,
+            active_area=s.active_area,
+            masked_areas=[(0, 0, 4, 9)],
+        )
     with pytest.raises(ParameterError, match="inside the stored image"):
-        encode_dng(s.data, exposure_time=0.01, black_level=64, white_level=1023,
-                   active_area=(0, 0, 8, 9))
+        encode_dng(
+            s.data, exposure_time=0.01, black_level=64, white_level=1023, active_area=(0, 0, 8, 9)
+        )
     with pytest.raises(ParameterError, match="MaskedAreas need an ActiveArea"):
-        encode_dng(s.data, exposure_time=0.01, black_level=64, white_level=1023,
-                   masked_areas=[(0, 0, 2, 9)])
+        encode_dng(
+            s.data,
+            exposure_time=0.01,
+            black_level=64,
+            white_level=1023,
+            masked_areas=[(0, 0, 2, 9)],
+        )
 
 
 def test_margins_are_for_dng_only(tmp_path: Path) -> None:
