@@ -84,3 +84,16 @@ RESPONSE_STATUSES: tuple[ResponseStatus, ...] = get_args(ResponseStatus)
 def is_response_status(value: object) -> TypeGuard[ResponseStatus]:
     """``value`` is one of :data:`RESPONSE_STATUSES` (a curve read back from a file)."""
     return value in RESPONSE_STATUSES
+
+
+RegistrationStatus = Literal[
+    "ok", "weak", "saturated", "flat", "weak-peak", "no-overlap", "diverged"
+]
+"""A registered pair: ``ok``; ``weak`` (its motion used, the residual check not satisfied); or
+one of the failures, whose motion is the identity (:data:`FAILED_REGISTRATION_STATUSES`)."""
+REGISTRATION_STATUSES: tuple[RegistrationStatus, ...] = get_args(RegistrationStatus)
+FAILED_REGISTRATION_STATUSES: tuple[RegistrationStatus, ...] = REGISTRATION_STATUSES[2:]
+
+ResidualStatus = Literal["aligned", "misaligned", "unmeasured"]
+"""The residual motion of a registered pair, measured independently of its model."""
+RESIDUAL_STATUSES: tuple[ResidualStatus, ...] = get_args(ResidualStatus)

@@ -17,6 +17,9 @@ from hdrcore.errors import InputError
 from hdrcore.exposure import BracketExposureResult, ExposureRatioResult
 from hdrcore.io import load_bracket
 from hdrcore.pipeline import Pipeline, PipelineParams
+from hdrcore.registration import FAILED_STATUSES, PairRegistration
+from hdrcore.registration.local import LocalFrame
+from hdrcore.registration.residual import RESIDUAL_STATUSES, ResidualMotion
 from hdrcore.response import ResponseCurve, srgb_response
 from hdrcore.signal import FrameSignal
 from hdrcore.synthetic.faults import (
@@ -37,6 +40,10 @@ SMALL = SEED_PROTOCOL.replace(shape=(48, 64), exposure_times=(1.0, 4.0, 16.0, 64
         (FrameSignal, "status", status.SignalStatus),
         (BracketRecord, "status", status.BatchStatus),
         (ResponseCurve, "status", status.ResponseStatus),
+        (PairRegistration, "status", status.RegistrationStatus),
+        (ResidualMotion, "status", status.ResidualStatus),
+        (LocalFrame, "before_status", status.ResidualStatus),
+        (LocalFrame, "after_status", status.ResidualStatus),
     ],
 )
 def test_result_fields_use_the_declared_aliases(cls, field, alias) -> None:
@@ -76,10 +83,19 @@ def test_every_word_a_run_writes_is_declared(tmp_path: Path, case: str) -> None:
     assert result.exposures_histogram.status in status.CHAIN_STATUSES
     assert signal_statuses <= set(status.SIGNAL_STATUSES)
     assert result.response is None or result.response.status in status.RESPONSE_STATUSES
+    for q in result.registration.pairs:
+        assert q.status in status.REGISTRATION_STATUSES
+        assert q.residual is None or q.residual.status in status.RESIDUAL_STATUSES
     if case == "black":  # runs that report something other than "ok"
         assert "black" in signal_statuses
     else:
         assert severities & {"warning", "error"}
+
+
+def test_the_registration_words_are_the_modules_own() -> None:
+    assert FAILED_STATUSES == status.FAILED_REGISTRATION_STATUSES
+    assert set(status.REGISTRATION_STATUSES) == {"ok", "weak", *FAILED_STATUSES}
+    assert RESIDUAL_STATUSES == status.RESIDUAL_STATUSES
 
 
 def test_a_record_read_back_with_an_unknown_status_is_refused(tmp_path: Path) -> None:

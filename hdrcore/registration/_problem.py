@@ -68,6 +68,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import ParameterError, validate_method
+from ..status import RegistrationStatus
 from . import _kernels
 from ._sampling import reduce2, sample
 from .fourier import FourierShift, cross_correlation_shift
@@ -810,7 +811,7 @@ def _fft_level(data: PairData, fft_size: int) -> int:
 
 def _failed(
     data: PairData,
-    status: str,
+    status: RegistrationStatus,
     message: str,
     *,
     method: str,
@@ -1031,7 +1032,8 @@ def register_with(
         )
 
     ev_after, cost_after, n_after, overlap, (dx, dy, angle, scale) = evaluated(inverse, homography)
-    status, message = "ok", res.message or "converged"
+    status: RegistrationStatus = "ok"
+    message = res.message or "converged"
     if not np.all(np.isfinite(homography)) or not np.isfinite(cost_after):
         status, message = "diverged", "the search left the frames (no valid pixels)"
     elif overlap < min_overlap:
@@ -1404,7 +1406,9 @@ def _refit_by_blocks(
     )
 
 
-def _checked(data: PairData, homography: np.ndarray, model: str, message: str):
+def _checked(
+    data: PairData, homography: np.ndarray, model: str, message: str
+) -> tuple[RegistrationStatus, str, Any]:
     """``(status, message, residual)`` of a registered pair after the independent residual
     check (see :func:`register_with`); the words are the pipeline's."""
     from .residual import residual_motion
@@ -1427,7 +1431,7 @@ def _checked(data: PairData, homography: np.ndarray, model: str, message: str):
 
 def judge_residual(
     res, homography: np.ndarray, model: str, message: str, shape: tuple[int, int]
-) -> tuple[str, str]:
+) -> tuple[RegistrationStatus, str]:
     """``(status, message)`` of a registered pair from its residual motion (the words of the
     registration and the pipeline): ``weak`` when misaligned, or when nothing can verify a
     motion of more than ``UNVERIFIED_PX``; otherwise ``ok``, the message saying what was found

@@ -54,6 +54,7 @@ from .._numba import AVAILABLE as _COMPILED
 from .._numba import njit as _njit
 from .._threads import run_row_spans
 from ..errors import ParameterError
+from ..status import ResidualStatus
 from ._kernels import keys_at
 from .field import DisplacementField, map_points
 
@@ -131,8 +132,8 @@ class LocalFrame:
     kept: bool
     before: float
     after: float
-    before_status: str
-    after_status: str
+    before_status: ResidualStatus
+    after_status: ResidualStatus
     message: str
     seconds: float
     before_p90: float = float("nan")
@@ -789,8 +790,8 @@ def refine_bracket(
         r1 = check(cand.offsets)
         med0, p90_0 = (float("nan"),) * 2 if r0 is None else (r0.median * f, r0.p90 * f)
         med1, p90_1 = (float("nan"),) * 2 if r1 is None else (r1.median * f, r1.p90 * f)
-        st0 = "unmeasured" if r0 is None else r0.status
-        st1 = "unmeasured" if r1 is None else r1.status
+        st0: ResidualStatus = "unmeasured" if r0 is None else r0.status
+        st1: ResidualStatus = "unmeasured" if r1 is None else r1.status
         said = (
             f"residual {med0:.2f} -> {med1:.2f} px median, {p90_0:.2f} -> {p90_1:.2f} px "
             f"90th percentile ({st0} -> {st1})"

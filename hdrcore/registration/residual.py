@@ -59,6 +59,8 @@ from .._numba import AVAILABLE
 from .._numba import njit as _njit
 from .._threads import run_row_spans, worker_count
 from ..errors import ParameterError
+from ..status import RESIDUAL_STATUSES as _RESIDUAL_STATUSES
+from ..status import ResidualStatus
 from ._kernels import keys_at
 
 __all__ = [
@@ -73,7 +75,7 @@ __all__ = [
 #: ``aligned``: nothing above the thresholds; ``misaligned``: a global pattern or a local
 #: residual is left (``kind`` says which); ``unmeasured``: too few textured tiles in the range
 #: both frames expose.
-RESIDUAL_STATUSES = ("aligned", "misaligned", "unmeasured")
+RESIDUAL_STATUSES = _RESIDUAL_STATUSES  # see hdrcore.status.ResidualStatus
 
 #: A tile counts when the normalised cross-correlation of its two structure tiles, re-centred,
 #: is at least this over the tile size (noise alone reaches about 8 / tile: 0.12 for 64 px) and
@@ -203,7 +205,7 @@ class ResidualMotion:
     pattern: ResidualPattern | None
     worst: int
     worst_region: str
-    status: str
+    status: ResidualStatus
     kind: str
     message: str
     aligned_px: float
@@ -1419,7 +1421,7 @@ def _verdict(
     region: str,
     aligned_px: float,
     local_px: float,
-) -> tuple[str, str, str]:
+) -> tuple[ResidualStatus, str, str]:
     """``(status, kind, message)`` from the summarised field (see :func:`residual_motion`).
 
     A local residual needs neighbouring tiles that agree (:func:`_coherent`); tiles off on their

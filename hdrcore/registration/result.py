@@ -7,12 +7,13 @@ from typing import Any
 
 import numpy as np
 
+from ..status import FAILED_REGISTRATION_STATUSES, RegistrationStatus
 from .transform import affine_part, homogeneous
 
 __all__ = ["PairPreview", "PairRegistration", "BracketRegistration", "FAILED_STATUSES"]
 
 #: Status words of a pair that did not produce a transform (its motion is the identity then).
-FAILED_STATUSES = ("saturated", "flat", "weak-peak", "no-overlap", "diverged")
+FAILED_STATUSES = FAILED_REGISTRATION_STATUSES
 
 
 @dataclass(frozen=True, eq=False)
@@ -75,7 +76,7 @@ class PairRegistration:
     initial_shift: tuple[float, float]
     peak_ncc: float
     peak_psr: float
-    status: str
+    status: RegistrationStatus
     message: str
     shape: tuple[int, int]
     seconds: float = 0.0
