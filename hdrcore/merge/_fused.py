@@ -60,6 +60,7 @@ import numpy as np
 
 from .._numba import AVAILABLE  # without numba the numpy reference runs
 from .._numba import njit as _njit
+from ..resample import keys4
 from .colour import convert_pixels
 from .weights import weight_by_code
 
@@ -217,13 +218,9 @@ def warm_up() -> float:
 
 @_njit
 def _keys(f):
-    """Keys weights of taps -1, 0, 1, 2 at fraction ``f`` (float64, as
-    :func:`hdrcore.registration._sampling.keys_weights`), returned as float32."""
-    g = 1.0 - f
-    w0 = -0.5 * f * g * g
-    w1 = (1.5 * f - 2.5) * f * f + 1.0
-    w2 = (1.5 * g - 2.5) * g * g + 1.0
-    w3 = -0.5 * f * f * g
+    """Keys weights of taps -1, 0, 1, 2 at fraction ``f`` (float64, :func:`hdrcore.resample.keys4`),
+    returned as float32."""
+    w0, w1, w2, w3 = keys4(f)
     return np.float32(w0), np.float32(w1), np.float32(w2), np.float32(w3)
 
 

@@ -38,6 +38,7 @@ import numpy as np
 from .._numba import AVAILABLE
 from .._numba import inline as _inline
 from .._numba import njit as _njit
+from ..resample import dkeys4, keys4
 
 __all__ = [
     "AVAILABLE",
@@ -202,50 +203,13 @@ def reduce2(src, out):
 
 
 @_inline
-def _keys(f, w):
-    g = 1.0 - f
-    w[0] = -0.5 * f * g * g
-    w[1] = (1.5 * f - 2.5) * f * f + 1.0
-    w[2] = (1.5 * g - 2.5) * g * g + 1.0
-    w[3] = -0.5 * f * f * g
+def _keys(f, w):  # pragma: no cover - compiled
+    w[0], w[1], w[2], w[3] = keys4(f)
 
 
 @_inline
-def keys_at(src, sx, sy):  # pragma: no cover - compiled
-    """Keys cubic (a = -1/2) of the 2-D ``src`` at ``(sx, sy)``, the 4 x 4 taps clamped to the
-    frame (a tap that is not finite makes the value not finite)."""
-    h, w = src.shape
-    ix = int(np.floor(sx))
-    iy = int(np.floor(sy))
-    fx = sx - ix
-    fy = sy - iy
-    wx0 = ((-0.5 * fx + 1.0) * fx - 0.5) * fx
-    wx1 = (1.5 * fx - 2.5) * fx * fx + 1.0
-    wx2 = ((-1.5 * fx + 2.0) * fx + 0.5) * fx
-    wx3 = (0.5 * fx - 0.5) * fx * fx
-    wy0 = ((-0.5 * fy + 1.0) * fy - 0.5) * fy
-    wy1 = (1.5 * fy - 2.5) * fy * fy + 1.0
-    wy2 = ((-1.5 * fy + 2.0) * fy + 0.5) * fy
-    wy3 = (0.5 * fy - 0.5) * fy * fy
-    x0 = min(max(ix - 1, 0), w - 1)
-    x1 = min(max(ix, 0), w - 1)
-    x2 = min(max(ix + 1, 0), w - 1)
-    x3 = min(max(ix + 2, 0), w - 1)
-    acc = 0.0
-    for dy in range(4):
-        yy = min(max(iy - 1 + dy, 0), h - 1)
-        wy = wy0 if dy == 0 else (wy1 if dy == 1 else (wy2 if dy == 2 else wy3))
-        acc += wy * (wx0 * src[yy, x0] + wx1 * src[yy, x1] + wx2 * src[yy, x2] + wx3 * src[yy, x3])
-    return acc
-
-
-@_inline
-def _dkeys(f, w):
-    g = 1.0 - f
-    w[0] = -0.5 * g * (1.0 - 3.0 * f)
-    w[1] = (4.5 * f - 5.0) * f
-    w[2] = -(4.5 * g - 5.0) * g
-    w[3] = (1.5 * f - 1.0) * f
+def _dkeys(f, w):  # pragma: no cover - compiled
+    w[0], w[1], w[2], w[3] = dkeys4(f)
 
 
 @_njit

@@ -54,8 +54,8 @@ from .._numba import AVAILABLE as _COMPILED
 from .._numba import njit as _njit
 from .._threads import run_row_spans
 from ..errors import ParameterError
+from ..resample import keys_at
 from ..status import ResidualStatus
-from ._kernels import keys_at
 from .field import DisplacementField, map_points
 
 __all__ = ["LocalFrame", "LocalRefinement", "refine_bracket", "choose_tile"]

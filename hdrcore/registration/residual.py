@@ -59,9 +59,9 @@ from .._numba import AVAILABLE
 from .._numba import njit as _njit
 from .._threads import run_row_spans, worker_count
 from ..errors import ParameterError
+from ..resample import keys4, keys_at, keys_weights
 from ..status import RESIDUAL_STATUSES as _RESIDUAL_STATUSES
 from ..status import ResidualStatus
-from ._kernels import keys_at
 
 __all__ = [
     "ResidualMotion",
@@ -341,7 +341,7 @@ def _warp_numpy(src: np.ndarray, m: np.ndarray, shape: tuple[int, int]) -> np.nd
     sy = (m[1, 0] * xx + m[1, 1] * yy + m[1, 2]) / zw
     inside = (sx >= 0) & (sx <= ws - 1) & (sy >= 0) & (sy <= hs - 1)
     ix, iy = np.floor(sx), np.floor(sy)
-    wx, wy = _keys4(sx - ix), _keys4(sy - iy)
+    wx, wy = keys_weights(sx - ix), keys_weights(sy - iy)
     ix, iy = ix.astype(np.int64), iy.astype(np.int64)
     out = np.zeros(shape)
     for j in range(4):
@@ -854,14 +854,8 @@ def _extract_tiles(img, oy, ox, dy, dx, win, out, i0, i1):  # pragma: no cover -
         fx0 = np.floor(dx[i])
         fy = dy[i] - fy0
         fx = dx[i] - fx0
-        wy0 = ((-0.5 * fy + 1.0) * fy - 0.5) * fy
-        wy1 = (1.5 * fy - 2.5) * fy * fy + 1.0
-        wy2 = ((-1.5 * fy + 2.0) * fy + 0.5) * fy
-        wy3 = (0.5 * fy - 0.5) * fy * fy
-        wx0 = ((-0.5 * fx + 1.0) * fx - 0.5) * fx
-        wx1 = (1.5 * fx - 2.5) * fx * fx + 1.0
-        wx2 = ((-1.5 * fx + 2.0) * fx + 0.5) * fx
-        wx3 = (0.5 * fx - 0.5) * fx * fx
+        wy0, wy1, wy2, wy3 = keys4(fy)
+        wx0, wx1, wx2, wx3 = keys4(fx)
         y0 = oy[i] + int(fy0) - 1
         x0 = ox[i] + int(fx0) - 1
         for r in range(t):
@@ -891,18 +885,6 @@ def _extract_tiles(img, oy, ox, dy, dx, win, out, i0, i1):  # pragma: no cover -
                 out[i, r, c] = (out[i, r, c] - mean) * win[r, c]
 
 
-def _keys4(f: np.ndarray) -> np.ndarray:
-    """Keys cubic weights ``(4, N)`` of taps -1, 0, 1, 2 at fractional positions ``f``."""
-    return np.stack(
-        [
-            ((-0.5 * f + 1.0) * f - 0.5) * f,
-            (1.5 * f - 2.5) * f * f + 1.0,
-            ((-1.5 * f + 2.0) * f + 0.5) * f,
-            (0.5 * f - 0.5) * f * f,
-        ]
-    )
-
-
 def _extract_numpy(
     img: np.ndarray, oy: np.ndarray, ox: np.ndarray, dy: np.ndarray, dx: np.ndarray, win: np.ndarray
 ) -> np.ndarray:
@@ -910,7 +892,7 @@ def _extract_numpy(
     h, w = img.shape
     t = win.shape[0]
     fy0, fx0 = np.floor(dy), np.floor(dx)
-    wy, wx = _keys4(dy - fy0), _keys4(dx - fx0)
+    wy, wx = keys_weights(dy - fy0), keys_weights(dx - fx0)
     iy = (oy + fy0.astype(int))[:, None] + np.arange(-1, t + 2)[None]
     ix = (ox + fx0.astype(int))[:, None] + np.arange(-1, t + 2)[None]
     patch = img[np.clip(iy, 0, h - 1)[:, :, None], np.clip(ix, 0, w - 1)[:, None, :]]
