@@ -46,9 +46,11 @@ import tracemalloc
 
 import numpy as np
 
-from hdrcore.merge import merge, warm_up
-from hdrcore.registration import invert, warp_to_reference
-from hdrcore.synthetic import rigid_matrix, simulate_bracket
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+from hdrcore.merge import merge, warm_up  # noqa: E402
+from hdrcore.registration import invert, warp_to_reference  # noqa: E402
+from hdrcore.synthetic import rigid_matrix, simulate_bracket  # noqa: E402
 
 TIMES = (1.0, 4.0, 16.0)
 
