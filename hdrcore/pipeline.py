@@ -56,6 +56,7 @@ from .exposure.chain import assemble_bracket
 from .exposure.interval import judge
 from .exposure.registered import bracket_exposures_from_pixels, cfa_planes
 from .exposure.result import ExposureRatioResult
+from .geometry import nearest_in_frame, scale_matrix
 from .io import Bracket
 from .merge import DEFAULT_MODEL_ERROR, MergeResult, NoiseModel, merge
 from .merge.colour import ColourConversion, colour_conversion
@@ -75,7 +76,6 @@ from .registration import (
     warp_to_reference,
 )
 from .registration.residual import PATTERN_COMPONENTS
-from .registration.transform import nearest_in_frame, scale_matrix
 from .resample import bin_channel, downsample_area, downsample_factor
 from .response import RESPONSE_METHODS, ResponseCurve, resolve_response
 from .signal import FrameSignal, frame_signal

@@ -1,28 +1,16 @@
-"""Area downsampling for previews (box filter over whole blocks plus a remainder-aware mean), and
-Keys' cubic convolution (a = -1/2), the one sampling kernel of the registration and the merge, in
-each form they read it: :func:`keys_weights` (NumPy, ``(4, N)``, and its derivative),
-:func:`keys4` / :func:`dkeys4` (compiled, one fraction: the four weights) and :func:`keys_at`
-(compiled, a 2-D image at one point)."""
+"""Area downsampling for previews (box filter over whole blocks plus a remainder-aware mean). The
+sampling kernel of the registration and the merge (Keys' cubic) is in :mod:`hdrcore.geometry`."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from ._numba import AVAILABLE
-from ._numba import inline as _inline
 from ._numba import njit as _njit
 from ._threads import run_row_spans
 from .errors import ParameterError
 
-__all__ = [
-    "downsample_factor",
-    "downsample_area",
-    "bin_channel",
-    "keys_weights",
-    "keys4",
-    "dkeys4",
-    "keys_at",
-]
+__all__ = ["downsample_factor", "downsample_area", "bin_channel"]
 
 
 def downsample_factor(shape: tuple[int, int], max_side: int | None) -> int:
@@ -137,76 +125,3 @@ def bin_channel(image: np.ndarray, channel: int, factor: int) -> np.ndarray:
         out += rows[:, j::f]
     out *= np.float32(1.0 / (f * f))
     return out
-
-
-def keys_weights(f: np.ndarray, derivative: bool = False) -> np.ndarray:
-    """Keys' cubic convolution (a = -1/2) weights ``(4, N)`` of taps at offsets -1, 0, 1, 2 for
-    fractional positions ``f`` in [0, 1).
-
-    With ``derivative`` the weights of d/df (the kernel's derivative).
-    """
-    g = 1.0 - f
-    if not derivative:
-        return np.stack(
-            [
-                -0.5 * f * g * g,
-                (1.5 * f - 2.5) * f * f + 1.0,
-                (1.5 * g - 2.5) * g * g + 1.0,
-                -0.5 * f * f * g,
-            ]
-        )
-    return np.stack(
-        [
-            -0.5 * g * (1.0 - 3.0 * f),
-            (4.5 * f - 5.0) * f,
-            -(4.5 * g - 5.0) * g,
-            (1.5 * f - 1.0) * f,
-        ]
-    )
-
-
-@_inline
-def keys4(f):  # pragma: no cover - compiled
-    """Keys weights of the taps -1, 0, 1, 2 at the fraction ``f`` in [0, 1) (float64): the
-    compiled form of :func:`keys_weights`."""
-    g = 1.0 - f
-    return (
-        -0.5 * f * g * g,
-        (1.5 * f - 2.5) * f * f + 1.0,
-        (1.5 * g - 2.5) * g * g + 1.0,
-        -0.5 * f * f * g,
-    )
-
-
-@_inline
-def dkeys4(f):  # pragma: no cover - compiled
-    """The weights of the kernel's derivative d/df at ``f``: the compiled form of
-    ``keys_weights(f, derivative=True)``."""
-    g = 1.0 - f
-    return (
-        -0.5 * g * (1.0 - 3.0 * f),
-        (4.5 * f - 5.0) * f,
-        -(4.5 * g - 5.0) * g,
-        (1.5 * f - 1.0) * f,
-    )
-
-
-@_inline
-def keys_at(src, sx, sy):  # pragma: no cover - compiled
-    """Keys cubic of the 2-D ``src`` at ``(sx, sy)``, the 4 x 4 taps clamped to the frame (a tap
-    that is not finite makes the value not finite)."""
-    h, w = src.shape
-    ix = int(np.floor(sx))
-    iy = int(np.floor(sy))
-    wx0, wx1, wx2, wx3 = keys4(sx - ix)
-    wy0, wy1, wy2, wy3 = keys4(sy - iy)
-    x0 = min(max(ix - 1, 0), w - 1)
-    x1 = min(max(ix, 0), w - 1)
-    x2 = min(max(ix + 1, 0), w - 1)
-    x3 = min(max(ix + 2, 0), w - 1)
-    acc = 0.0
-    for dy in range(4):
-        yy = min(max(iy - 1 + dy, 0), h - 1)
-        wy = wy0 if dy == 0 else (wy1 if dy == 1 else (wy2 if dy == 2 else wy3))
-        acc += wy * (wx0 * src[yy, x0] + wx1 * src[yy, x1] + wx2 * src[yy, x2] + wx3 * src[yy, x3])
-    return acc

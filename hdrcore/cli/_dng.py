@@ -42,7 +42,7 @@ def dng_layout(result: Any, requested: str = "auto") -> str:
     """``"cfa"`` or ``"linear"``: what ``requested`` gives for this result (an error when
     ``"cfa"`` is asked of a bracket that cannot have it)."""
     from ..errors import ParameterError
-    from ..registration.transform import corner_error
+    from ..geometry import corner_error
 
     b = result.bracket
     cfas = [f.cfa for f in b.frames]

@@ -60,7 +60,7 @@ import numpy as np
 
 from .._numba import AVAILABLE  # without numba the numpy reference runs
 from .._numba import njit as _njit
-from ..resample import keys4
+from ..geometry import keys4
 from .colour import convert_pixels
 from .weights import weight_by_code
 

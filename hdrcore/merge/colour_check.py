@@ -260,7 +260,7 @@ def frame_colours(
     frame's colour, not only the reference's. ``gains`` ``(N, 3)``: each frame's white balance
     against the reference (:func:`hdrcore.merge.white_balance.measure_white_balance`), for the
     ``*_balanced`` errors."""
-    from ..registration.transform import nearest_in_frame
+    from ..geometry import nearest_in_frame
 
     n = len(frames)
     if n < 1 or not 0 <= reference < n:
@@ -347,7 +347,7 @@ def block_consistency(
     exposed in both. Pixel noise (JPEG, film grain: 0.006-0.012 of chromaticity per pixel on
     the real brackets) is averaged down; the response's own error is kept. Blocks lie on the
     reference's grid, the other frames' pixels are its nearest (``to_reference``, 2x3 or 3x3)."""
-    from ..registration.transform import nearest_in_frame
+    from ..geometry import nearest_in_frame
 
     table = np.asarray(lut, dtype=np.float64)
     if table.ndim == 1:
@@ -414,7 +414,7 @@ def colour_check(
     the ``*_balanced`` errors of ``frame_colours`` (the frames that differ: what the anchoring
     divides out), its ``differs`` the frames named.
     """
-    from ..registration.transform import nearest_in_frame
+    from ..geometry import nearest_in_frame
 
     n = len(frames)
     if n < 1 or not 0 <= reference < n:
@@ -1124,7 +1124,7 @@ def _frame_band(
     frames well exposed there (each frame's decoded colour, its white balance divided out),
     mixed with weights that favour the frame nearest mid-grey; luminance kept. Returns the
     fraction of pixels some frame gave their colour fully."""
-    from ..registration.transform import homogeneous, invert
+    from ..geometry import homogeneous, invert
 
     h, w = rad.shape[:2]
     acc = np.zeros((h, w, 3), np.float32)
@@ -1265,7 +1265,7 @@ def anchor_colour(
     """
     from scipy import ndimage
 
-    from ..registration.transform import nearest_in_frame
+    from ..geometry import nearest_in_frame
 
     rad = radiance
     h, w = rad.shape[:2]

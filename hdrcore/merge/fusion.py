@@ -69,7 +69,7 @@ def exposure_fusion(
     ``to_reference[k]`` maps frame ``k``'s pixel coordinates to the reference frame's (2x3 or
     3x3; ``None``: aligned); ``factor`` reduces the frames by block means first.
     """
-    from ..registration.transform import invert, scale_matrix
+    from ..geometry import invert, scale_matrix
     from ..registration.warp import warp
     from ..resample import downsample_area
 

@@ -11,7 +11,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from ..resample import keys_weights
+from ..geometry import keys_weights
 from .maps import to_float16_nonnegative
 from .plan import Outputs, Plan, sample_model
 from .weights import WEIGHTS

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..resample import keys_weights
+from ..geometry import keys_weights
 from .plan import Plan
 from .weights import WEIGHTS
 

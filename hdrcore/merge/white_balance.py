@@ -185,7 +185,7 @@ def _num(v: float) -> float | None:
 
 
 def _sample(frames, reference, to_reference, masks, max_samples, max_level, band):
-    from ..registration.transform import nearest_in_frame
+    from ..geometry import nearest_in_frame
 
     h, w = np.asarray(frames[reference]).shape[:2]
     step = max(1, int(np.ceil(np.sqrt(h * w / max_samples))))

@@ -21,7 +21,7 @@ Motion models (``MODELS``), each with one more parameter family than the one bef
   motion.
 
 Every result carries the motion as a 3x3 ``homography`` and, for the affine models, as a 2x3
-``matrix`` (:mod:`hdrcore.registration.transform` handles both forms).
+``matrix`` (:mod:`hdrcore.geometry` handles both forms).
 
 Methods (``REGISTRATION_METHODS``):
 
@@ -40,12 +40,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from ..errors import ParameterError, validate_method
-from ._problem import AFFINE_MODELS, MODELS
-from .cerman2006 import register_pair_cerman2006
-from .fast import register_pair_fast
-from .fourier import FourierShift, cross_correlation_shift
-from .result import FAILED_STATUSES, BracketRegistration, PairPreview, PairRegistration
-from .transform import (
+from ..geometry import (
     affine_part,
     compose,
     corner_error,
@@ -58,6 +53,11 @@ from .transform import (
     similarity_parameters,
     to_reference,
 )
+from ._problem import AFFINE_MODELS, MODELS
+from .cerman2006 import register_pair_cerman2006
+from .fast import register_pair_fast
+from .fourier import FourierShift, cross_correlation_shift
+from .result import FAILED_STATUSES, BracketRegistration, PairPreview, PairRegistration
 from .warp import WarpResult, valid_mask, warp, warp_to_reference
 
 __all__ = [

@@ -38,7 +38,7 @@ import numpy as np
 from .._numba import AVAILABLE
 from .._numba import inline as _inline
 from .._numba import njit as _njit
-from ..resample import dkeys4, keys4
+from ..geometry import dkeys4, keys4
 
 __all__ = [
     "AVAILABLE",

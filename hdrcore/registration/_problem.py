@@ -68,12 +68,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import ParameterError, validate_method
-from ..status import RegistrationStatus
-from . import _kernels
-from ._sampling import reduce2, sample
-from .fourier import FourierShift, cross_correlation_shift
-from .result import PairPreview, PairRegistration
-from .transform import (
+from ..geometry import (
     affine_part,
     apply,
     corner_error,
@@ -83,6 +78,11 @@ from .transform import (
     scale_matrix,
     similarity_parameters,
 )
+from ..status import RegistrationStatus
+from . import _kernels
+from ._sampling import reduce2, sample
+from .fourier import FourierShift, cross_correlation_shift
+from .result import PairPreview, PairRegistration
 
 __all__ = [
     "MODELS",

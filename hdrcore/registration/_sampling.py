@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..resample import keys_weights
+from ..geometry import keys_weights
 
 __all__ = ["keys_weights", "sample", "reduce2", "Sampled"]
 

@@ -24,9 +24,9 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import minimize
 
+from ..geometry import corner_error, similarity_matrix, similarity_parameters
 from ._problem import PairData, RefineResult, cost, register_with, select_samples
 from .result import PairRegistration
-from .transform import corner_error, similarity_matrix, similarity_parameters
 
 __all__ = ["register_pair_cerman2006", "refine_nelder_mead", "MODELS"]
 

@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..geometry import homogeneous
 from ._problem import (
     MODELS,
     PairData,
@@ -53,7 +54,6 @@ from ._problem import (
     to_level,
 )
 from .result import PairRegistration
-from .transform import homogeneous
 
 __all__ = ["register_pair_fast", "refine_gauss_newton"]
 

@@ -54,7 +54,7 @@ from .._numba import AVAILABLE as _COMPILED
 from .._numba import njit as _njit
 from .._threads import run_row_spans
 from ..errors import ParameterError
-from ..resample import keys_at
+from ..geometry import keys_at
 from ..status import ResidualStatus
 from .field import DisplacementField, map_points
 

@@ -59,7 +59,7 @@ from .._numba import AVAILABLE
 from .._numba import njit as _njit
 from .._threads import run_row_spans, worker_count
 from ..errors import ParameterError
-from ..resample import keys4, keys_at, keys_weights
+from ..geometry import keys4, keys_at, keys_weights
 from ..status import RESIDUAL_STATUSES as _RESIDUAL_STATUSES
 from ..status import ResidualStatus
 

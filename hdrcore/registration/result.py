@@ -7,8 +7,8 @@ from typing import Any
 
 import numpy as np
 
+from ..geometry import affine_part, homogeneous
 from ..status import FAILED_REGISTRATION_STATUSES, RegistrationStatus
-from .transform import affine_part, homogeneous
 
 __all__ = ["PairPreview", "PairRegistration", "BracketRegistration", "FAILED_STATUSES"]
 

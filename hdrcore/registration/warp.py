@@ -31,9 +31,9 @@ from scipy import ndimage
 
 from .._threads import run_row_spans
 from ..errors import ParameterError
+from ..geometry import invert
 from . import _kernels
 from ._sampling import keys_weights
-from .transform import invert
 
 __all__ = ["WarpResult", "warp", "warp_to_reference", "valid_mask"]
 

@@ -83,7 +83,7 @@ def local_tone_mapping(
     ``(L,)``) linearises them; ``to_reference[k]`` maps frame ``k``'s pixels to the reference
     frame (``None``: aligned).
     """
-    from ..registration.transform import nearest_in_frame
+    from ..geometry import nearest_in_frame
 
     n = len(frames)
     if n < 2:

@@ -24,7 +24,7 @@ import numpy as np
 from scipy import ndimage
 
 from ..errors import ParameterError, validate_method
-from ..registration.transform import compose, invert, rigid_matrix
+from ..geometry import compose, invert, rigid_matrix
 from .scenes import make_scene
 
 __all__ = [
