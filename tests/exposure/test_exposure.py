@@ -180,3 +180,47 @@ def test_scale_invariance(scale: int, ratio: float) -> None:
     b = exposure_ratio(hd * scale, hb * scale)
     assert a.ratio == pytest.approx(b.ratio, rel=1e-9)
     assert abs(a.ratio / ratio - 1) < 2e-3
+
+
+def _pair_histograms(seed: int, bits: int, ratio: float) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    top = (1 << bits) - 1
+    x = np.exp(rng.normal(np.log(rng.uniform(0.02, 0.2)), rng.uniform(0.5, 1.5), 50_000))
+    dark = np.clip(np.rint(x * top + rng.normal(0, 1, x.size)), 0, top).astype(np.int64)
+    bright = np.clip(np.rint(x * ratio * top + rng.normal(0, 1, x.size)), 0, top).astype(np.int64)
+    return np.bincount(dark, minlength=top + 1), np.bincount(bright, minlength=top + 1)
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    seed=st.integers(0, 10_000),
+    bits=st.sampled_from([8, 12]),
+    ratio=st.floats(1.3, 8.0),
+)
+def test_swapping_a_pair_inverts_the_ratio(seed: int, bits: int, ratio: float) -> None:
+    """Issue 17's property: the pair given the other way round gives the inverse ratio (within
+    0.1 %; measured at most 0.07 % over 120 random 8- and 12-bit pairs), unless an estimate says
+    it is not sure: a swapped 8-bit pair 7.7x apart once measured 1/4.02 'uncertain' against
+    7.71 'ok' (the test below); never two 'ok' that disagree."""
+    hd, hb = _pair_histograms(seed, bits, ratio)
+    a, b = exposure_ratio(hd, hb), exposure_ratio(hb, hd)
+    if a.status == "ok" and b.status == "ok":
+        assert abs(np.log(a.ratio * b.ratio)) < 1e-3, (a.ratio, 1 / b.ratio)
+        assert abs(np.log(a.ratio / ratio)) < 0.02
+
+
+def test_a_swapped_pair_that_misses_the_inverse_says_so() -> None:
+    # the example the property's search found: ratio and bit depth drawn from the seed first
+    rng = np.random.default_rng(10)
+    ratio = rng.uniform(1.3, 8.0)
+    bits = int(rng.choice([8, 12]))
+    top = (1 << bits) - 1
+    x = np.exp(rng.normal(np.log(rng.uniform(0.02, 0.2)), rng.uniform(0.5, 1.5), 50_000))
+    dark = np.clip(np.rint(x * top + rng.normal(0, 1, x.size)), 0, top).astype(np.int64)
+    bright = np.clip(np.rint(x * ratio * top + rng.normal(0, 1, x.size)), 0, top).astype(np.int64)
+    hd, hb = np.bincount(dark, minlength=top + 1), np.bincount(bright, minlength=top + 1)
+    a, b = exposure_ratio(hd, hb), exposure_ratio(hb, hd)
+    assert bits == 8 and abs(ratio - 7.705) < 1e-3
+    assert a.status == "ok" and abs(a.ratio / ratio - 1) < 0.01
+    assert abs(np.log(a.ratio * b.ratio)) > 0.1  # measured 7.71 against 1 / 4.02
+    assert b.status != "ok"
