@@ -293,6 +293,11 @@ class PipelineResult:
     out of every stage: ``bracket`` then holds the frames used (all indices in the stage results
     refer to it), ``full_bracket`` the bracket as loaded and ``unused_frames`` the frames left out
     and why.
+
+    A result is a frozen dataclass, but its arrays are views of the pipeline's cache: the next
+    run that hits the cache returns the same arrays, so read them and copy what you change (a
+    write into ``radiance`` would change every later cached result); with
+    ``Pipeline(reuse_buffers=True)`` or :meth:`Pipeline.release` a later merge overwrites them.
     """
 
     bracket: Bracket
