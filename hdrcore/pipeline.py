@@ -226,10 +226,11 @@ class PipelineParams:
         colour of the frames well exposed there, the one nearest mid-grey first
         (:func:`hdrcore.merge.colour_check.anchor_colour`; the frames decoded with sRGB, as a
         screen shows them, each frame's white balance difference divided out when it was
-        corrected), keeping the merge's luminance. Either way a frame whose white balance
-        differs from the reference's by more than 3 % is measured and divided out
-        (:mod:`hdrcore.merge.white_balance`). The colour is checked before and after
+        corrected), keeping the merge's luminance. The colour is checked before and after
         (``result.colour["check"]``).
+    white_balance : non-linear input: a frame whose white balance differs from the reference's
+        by more than 3 % is divided out of the merge (:mod:`hdrcore.merge.white_balance`; the
+        balances are measured and reported either way).
     noise_sigma : the additive noise (levels) the default ratio estimator's noise matching
         assumes (``None``: the noise measured from the frames, ``noise``).
     workers : threads for the compiled kernels, scipy's convention: ``None`` the project's
@@ -259,6 +260,7 @@ class PipelineParams:
     refine_ratios: str = "pixels"
     deghost: bool = False
     colour_anchor: bool = True
+    white_balance: bool = True
     noise_sigma: float | None = None
     workers: int | None = None
 
@@ -1614,6 +1616,7 @@ def _merge_frames(
             to_reference=None if registration is None else registration.to_reference_homography,
             masks=None if excluded is None else [~e for e in excluded[0]],
             anchor=bool(p.colour_anchor) and colour is None,
+            white_balance=bool(p.white_balance),
             exposure_times=times,
             shares=result.shares,
         )
@@ -2034,7 +2037,7 @@ GRAPH = StageGraph(
         Stage(
             "merge",
             _stage_merge,
-            (*_SAT_NF, "working_space", "deghost", "colour_anchor"),
+            (*_SAT_NF, "working_space", "deghost", "colour_anchor", "white_balance"),
             ("response_used", "registration", "merge_times", "exclusions"),
         ),
         Stage(

@@ -61,6 +61,7 @@ FLAGS: dict[str, str] = {
     "refine_ratios": "--refine-ratios",
     "deghost": "--deghost",
     "colour_anchor": "--colour-anchor",
+    "white_balance": "--white-balance",
     "noise_sigma": "--noise-sigma",
     "workers": "--workers",
 }
@@ -215,6 +216,12 @@ def _spec(field: str, *, choices: Iterable[str] | None = None) -> dict[str, Any]
             action=argparse.BooleanOptionalAction,
             help="non-linear input: give the merge the colour of the frames "
             "that expose each region best",
+        ),
+        "white_balance": dict(
+            action=argparse.BooleanOptionalAction,
+            help="non-linear input: divide out a frame's white balance where "
+            "it differs from the reference's by more than 3 %% (measured and "
+            "reported either way)",
         ),
         "noise_sigma": dict(
             type=_levels,

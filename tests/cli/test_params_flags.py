@@ -145,7 +145,11 @@ def test_each_flag_reaches_its_field(command: str, tmp_path: Path) -> None:
         "noise_sigma": ("1.5", 1.5),
         "workers": ("-1", -1),
     }
-    switches = {"deghost": ("--deghost", True), "colour_anchor": ("--no-colour-anchor", False)}
+    switches = {
+        "deghost": ("--deghost", True),
+        "colour_anchor": ("--no-colour-anchor", False),
+        "white_balance": ("--no-white-balance", False),
+    }
     assert set(values) | set(switches) == set(FLAGS)
     extra = ["-o", str(tmp_path / "o.exr")] if command == "merge" else []
     for field in _fields_of(command):

@@ -207,6 +207,13 @@ def test_the_pipeline_corrects_and_says_so(tmp_path) -> None:
     assert v.frames == (REBALANCED,) and "divides it out" in v.message
     own = rep["colour"]["check"]["after"]["frame_colours"]
     assert max(f["best_error_balanced"] for f in own) < 0.005
+    # switched off (--no-white-balance): still measured and reported, not divided out
+    pipe_off = Pipeline(b, PipelineParams(align="none", response="srgb", white_balance=False))
+    off = pipe_off.run(until="merge")
+    wb_off = json.loads(json.dumps(off.to_report()))["colour"]["check"]["white_balance"]
+    assert not wb_off["applied"] and wb_off["differs"] == [REBALANCED]
+    assert wb_off["gains"][REBALANCED] == pytest.approx(wb["gains"][REBALANCED], abs=1e-6)
+    assert not np.allclose(off.radiance, r.radiance, rtol=1e-3)
 
 
 @pytest.mark.shared
