@@ -45,6 +45,7 @@ class Controls:
     tonemap: str | None = None
     tonemap_exposure: float | None = None
     deghost: bool | None = None
+    white_balance: bool | None = None
     times: str | None = None
     exposure_method: str | None = None
 

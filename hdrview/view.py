@@ -298,6 +298,12 @@ class ClientView:
                 defaults.deghost,
                 hint="fill each region where something moved from one frame",
             )
+            self.white_balance_checkbox = gui.add_checkbox(
+                "White balance",
+                defaults.white_balance,
+                hint="JPEG/PNG/TIFF: divide out a frame's white balance where it differs from "
+                "the reference frame's by more than 3 % (measured and reported either way)",
+            )
             self.reset_button = gui.add_button("Reset to defaults", icon=viser.Icon.REFRESH)
 
         with gui.add_folder("View"):
@@ -385,6 +391,7 @@ class ClientView:
         control(self.exposure_method_dropdown, "exposure_method", _unmark)
         control(self.tonemap_dropdown, "tonemap", _unmark)
         control(self.deghost_checkbox, "deghost", bool)
+        control(self.white_balance_checkbox, "white_balance", bool)
 
         def view_changed(_: viser.GuiEvent) -> None:
             if not self._syncing:
@@ -578,6 +585,7 @@ class ClientView:
             _assign(self.threshold_slider, d.threshold)
             _assign(self.exposure_slider, d.tonemap_exposure)
             _assign(self.deghost_checkbox, d.deghost)
+            _assign(self.white_balance_checkbox, d.white_balance)
             _assign(self.reference_dropdown, "middle")
             for handle, default in (
                 (self.alignment_dropdown, d.align),

@@ -50,6 +50,19 @@ def test_deghost_checkbox_reaches_the_merge(app: InspectorApp) -> None:
     assert not _errors(app)
 
 
+def test_white_balance_checkbox_reaches_the_merge(app: InspectorApp) -> None:
+    assert app.request_path("bracket")
+    assert app.wait_idle(60)
+    assert app.white_balance_checkbox.value is True and app.session.params.white_balance
+    app.set_control("white_balance", False)
+    assert app.wait_idle(60)
+    assert app.session.params.white_balance is False
+    app.reset_controls()
+    assert app.wait_idle(60)
+    assert app.white_balance_checkbox.value is True and app.session.params.white_balance
+    assert not _errors(app)
+
+
 def test_path_outside_root_is_refused(app: InspectorApp, tmp_path: Path) -> None:
     outside = tmp_path / "outside"
     write_png_bracket(outside)
