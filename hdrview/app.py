@@ -45,6 +45,10 @@ log = logging.getLogger(__name__)
 DEMO_DIR = Path(__file__).resolve().parents[1] / "assets" / "demo"
 
 
+#: Inspectors started in this process and not yet stopped (see :func:`main`).
+_LIVE: set[InspectorApp] = set()
+
+
 class InspectorApp:
     """The server-wide state; one :class:`ClientView` per connected page in ``views``."""
 
@@ -70,6 +74,7 @@ class InspectorApp:
         self.limits = limits or UploadLimits()
         # One private temporary folder: upload sets and export files; removed by stop().
         self.work_dir = make_work_dir()
+        _LIVE.add(self)  # stopped by main() even when a signal comes before it holds the app
         # Every path the inspector reads is checked by this one resolver.
         # ``batch``: an hdrcore batch's brackets, worst first (hdrview.batch); their frames may
         # be opened like the files named on the command line, the worst first.
@@ -237,6 +242,7 @@ class InspectorApp:
             if not self.work_dir.exists():
                 break
             time.sleep(0.1)
+        _LIVE.discard(self)
 
 
 def _default_params() -> PipelineParams:
@@ -507,9 +513,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     else:
         status = 0
     finally:
-        if app is not None:
-            app.stop()
-            app.server.stop()
+        # Also an app whose creation a signal interrupted before main() held it (SIGTERM right
+        # after start): its temporary folder goes too.
+        for live in [*([app] if app is not None else []), *(a for a in _LIVE if a is not app)]:
+            live.stop()
+            live.server.stop()
         for stream in (sys.stdout, sys.stderr):
             try:
                 stream.flush()
