@@ -366,14 +366,10 @@ def residual_of(p: Pair, matrix: np.ndarray | None, fld=None):
         return None
     kw = {"lut": p.lut} if p.lut is not None else {}
     if fld is not None:  # the bright frame read through H and the field onto the dark grid
-        from hdrcore.registration.field import map_points
+        from bench_local import _warp  # the same cubic-spline read through H and a field
 
-        h, w = p.shape
-        yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
-        sx, sy = map_points(np.linalg.inv(matrix), fld, xx, yy)
         lin = p.lut[p.bright] if p.lut is not None else p.bright
-        b = ndimage.map_coordinates(np.asarray(lin, np.float32), [sy, sx], order=3, mode="nearest")
-        b[~((sx >= 0) & (sx <= w - 1) & (sy >= 0) & (sy <= h - 1))] = np.nan
+        b = _warp(np.asarray(lin, np.float32), np.linalg.inv(matrix), fld)
         d = p.lut[p.dark] if p.lut is not None else p.dark
         return residual_motion(
             np.asarray(d, np.float32),

@@ -936,8 +936,7 @@ def _rcd_reference(x: np.ndarray, c: np.ndarray, base: np.ndarray) -> np.ndarray
     green = np.minimum(d * hh + (1 - d) * vv, 1.0)
     g[inner] = np.where(rb_site[inner], green, at(x, 0, 0, 4))
     # the other of red and blue at R and B sites (diagonals)
-    own = {0: base[..., 0] / scale, 2: base[..., 2] / scale}
-    red, blue = own[0], own[2]
+    red, blue = base[..., 0] / scale, base[..., 2] / scale
     red[inner] = np.where(c[inner] == 0, at(x, 0, 0, 4), red[inner])
     blue[inner] = np.where(c[inner] == 2, at(x, 0, 0, 4), blue[inner])
 

@@ -86,13 +86,16 @@ def is_response_status(value: object) -> TypeGuard[ResponseStatus]:
     return value in RESPONSE_STATUSES
 
 
-RegistrationStatus = Literal[
-    "ok", "weak", "saturated", "flat", "weak-peak", "no-overlap", "diverged"
-]
+FailedRegistrationStatus = Literal["saturated", "flat", "weak-peak", "no-overlap", "diverged"]
+"""A pair that produced no transform (its motion is the identity)."""
+FAILED_REGISTRATION_STATUSES: tuple[FailedRegistrationStatus, ...] = get_args(
+    FailedRegistrationStatus
+)
+
+RegistrationStatus = Literal["ok", "weak", FailedRegistrationStatus]
 """A registered pair: ``ok``; ``weak`` (its motion used, the residual check not satisfied); or
-one of the failures, whose motion is the identity (:data:`FAILED_REGISTRATION_STATUSES`)."""
+one of the failures (:data:`FAILED_REGISTRATION_STATUSES`)."""
 REGISTRATION_STATUSES: tuple[RegistrationStatus, ...] = get_args(RegistrationStatus)
-FAILED_REGISTRATION_STATUSES: tuple[RegistrationStatus, ...] = REGISTRATION_STATUSES[2:]
 
 ResidualStatus = Literal["aligned", "misaligned", "unmeasured"]
 """The residual motion of a registered pair, measured independently of its model."""

@@ -1344,7 +1344,7 @@ def _refit_by_blocks(
         inv2 = homogeneous(again.matrix)
         if not np.all(np.isfinite(inv2)):
             break
-        best = (again, inv2, total.copy(), probe[2])
+        best = (again, inv2, total.copy(), rects, probe[2])
         found = _off_blocks(data, probe[0], probe[1], side)
         if found is None:
             break
@@ -1352,7 +1352,7 @@ def _refit_by_blocks(
     if best is None:
         log.debug("block re-fit: no group of blocks off")
         return None
-    again, inv2, total, similar = best
+    again, inv2, total, rects, similar = best
     inv2, hom2 = _search_motion(inv2, model)
     if overlap_fraction(hom2, data.shape) < min_overlap:
         return None
@@ -1373,10 +1373,6 @@ def _refit_by_blocks(
     if similar is not None:
         # nothing independent verifies this pair: keep the perspective only where the frames
         # support it, i.e. where it lowers eq. 6 on samples the searches did not use
-        by, bx = np.nonzero(total)
-        rects = np.stack([bx * side, by * side, (bx + 1) * side, (by + 1) * side], axis=1).astype(
-            np.float64
-        )
         ev = select_samples(data, 0, 30_000, motion=inv2, by_gradient=False, seed=1, exclude=rects)
         c_h, _ = cost(data, 0, inv2, ev, _finite_gain(again))
         inv_s, _ = _search_motion(similar.matrix, "similarity")
