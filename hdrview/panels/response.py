@@ -1,6 +1,7 @@
 """Response panel: the camera response the merge used, per channel, with its fit residuals; when
 ``--response auto`` chose it, every candidate's score and, if the recovered curve was degenerate,
-that curve beside its fallback. Everything drawn comes from the pipeline's
+that curve beside its fallback; below them each frame's white balance against the reference
+(:mod:`hdrview.panels.white_balance`). Everything drawn comes from the pipeline's
 :class:`hdrcore.response.ResponseCurve` and its :class:`hdrcore.response.select.ResponseSelection`.
 """
 
@@ -15,6 +16,7 @@ import viser
 from hdrcore.io import Bracket
 
 from ._draw import fmt, md_table
+from .white_balance import WhiteBalancePanel
 
 if TYPE_CHECKING:  # the library's stages are imported on first use, not with the page
     from hdrcore.pipeline import PipelineResult
@@ -162,12 +164,16 @@ class ResponsePanel:
         self.curves = gui.add_plotly(empty, aspect=0.55, visible=False)  # height / width
         self.residuals = gui.add_plotly(empty, aspect=0.45, visible=False)
         self.table = gui.add_markdown("")
+        self.white_balance = WhiteBalancePanel(gui)
         self._figures: dict[str, go.Figure] = {}
 
     def show(
         self, bracket: Bracket | None, result: PipelineResult | None, view: dict[str, Any]
     ) -> None:
         self._figures = {}
+        self.white_balance.show(bracket, result)
+        if self.white_balance.figure is not None:
+            self._figures["white-balance"] = self.white_balance.figure
         if bracket is None or result is None:
             self.summary.content = (
                 "No bracket loaded." if bracket is None else "_Waiting for the response stage._"
