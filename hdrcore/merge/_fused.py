@@ -59,6 +59,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from .._numba import AVAILABLE  # without numba the numpy reference runs
+from .._numba import inline as _inline
 from .._numba import njit as _njit
 from ..geometry import keys4
 from .colour import convert_pixels
@@ -76,8 +77,8 @@ seconds compiling its own."""
 class FusedFrames(NamedTuple):
     """The frames (tuples padded to :data:`TUPLE_SLOTS`) and their exposures."""
 
-    frames: tuple[np.ndarray, ...]  # (H, W, 3) each
-    flats: tuple[np.ndarray, ...]  # the same as (H, W * 3)
+    frames: tuple[np.ndarray, ...]  # (H, W, C) each
+    flats: tuple[np.ndarray, ...]  # the same as (H, W * C)
     masks: tuple[np.ndarray, ...]  # (H, W) validity, or a dummy where not has_mask
     has_mask: np.ndarray  # bool (N,)
     order: np.ndarray  # int64 (N,): frame indices, shortest exposure first (unpadded)
@@ -108,11 +109,13 @@ class FusedModel(NamedTuple):
     inv_max: Any  # float32: 1 / max_level (1 for float frames)
     hi: Any  # float32: largest interpolated value (max_level or 1)
     has_lut: bool
-    lut: np.ndarray  # float32 (3, L): level -> linear value (a dummy without a LUT)
-    lut_var: np.ndarray  # float32 (3, L): level-noise variance through g'
-    tap_thr: np.ndarray  # (3,) clip thresholds in the frames' dtype (tap_thresholds)
+    lut: np.ndarray  # float32 (C, L): level -> linear value (a dummy without a LUT)
+    lut_var: np.ndarray  # float32 (C, L): level-noise variance through g'
+    # C clip thresholds in the frames' dtype (tap_thresholds), a tuple: its length, the
+    # channel count, is a compile-time constant (one specialisation per count)
+    tap_thr: tuple[Any, ...]
     use_tab: bool  # integer frames read in place through the per-level tables
-    tabs: np.ndarray  # float32 (N, 3 L, 8): engine.level_tables
+    tabs: np.ndarray  # float32 (N, C L, 8): engine.level_tables
 
 
 class FusedFinish(NamedTuple):
@@ -159,9 +162,10 @@ def _f16_bits(v):
 
 def warm_up() -> float:
     """Compile (or load from the on-disk cache) the kernels for 3 frames of uint16, uint8 and
-    float32; returns the seconds it took. Call it on a background thread at start-up to keep
-    the first merge fast. The frame tuples are padded to :data:`TUPLE_SLOTS`, so these serve
-    brackets of up to 16 frames."""
+    float32 (3 channels; uint16 with 4 and 1 channels: the RAW mosaic merge); returns the
+    seconds it took. Call it on a background thread at start-up to keep the first merge fast.
+    The frame tuples are padded to :data:`TUPLE_SLOTS`, so these serve brackets of up to 16
+    frames."""
     if not AVAILABLE:
         return 0.0
     from .merge import merge
@@ -202,6 +206,11 @@ def warm_up() -> float:
             f.setflags(write=False)
         merge(frames, (1.0, 2.0, 4.0), max_level=255, engine="numba", workers=1)
         merge(frames, (1.0, 2.0, 4.0), max_level=255, transforms=tf, engine="numba", workers=1)
+    # the RAW mosaic merge: 4 CFA sites as channels (tripod), 1 site plane (hand-held)
+    frames = [np.full((2, 3, 4), 10 * (k + 1), np.uint16) for k in range(3)]
+    merge(frames, (1.0, 2.0, 4.0), max_level=255, engine="numba", workers=1)
+    frames = [np.full((2, 3, 1), 10 * (k + 1), np.uint16) for k in range(3)]
+    merge(frames, (1.0, 2.0, 4.0), max_level=255, transforms=tf, engine="numba", workers=1)
     from .colour import camera_to_working
 
     camera_to_working(
@@ -252,7 +261,7 @@ def _finish_block(
     lo,
     nbad,
     me2,
-    thr,
+    gthr,
     wsum_out,
     shares,
     clipped_out,
@@ -266,20 +275,22 @@ def _finish_block(
     bb,
     cc,
     eb,
+    tap_thr,
 ):
-    """Radiance, ghost score, shares and fallback values of one block (the reference's
-    ``_finish`` and ``_fallback``) from interleaved sums (``den[3 i + ch]``), the sums' steps
-    straight passes (SIMD). ``fv[i]`` is the exposure-order position of the darkest valid
-    frame clipped at the pixel (``n``: none), ``lo[i]`` that of the brightest usable frame
+    """Radiance, ghost score, shares and fallback values of one block from interleaved sums
+    (``den[C i + ch]``, ``C = len(tap_thr)`` channels: only the tuple's length is read), the
+    sums' steps straight passes (SIMD). ``fv[i]`` is the exposure-order position of the darkest
+    valid frame clipped at the pixel (``n``: none), ``lo[i]`` that of the brightest usable frame
     that gave it weight (the brightest usable one when none did; -1: none usable),
     ``nbad[i]`` the number of frames dropped and ``eb[j]`` the ``E_k`` of the ``j``-th frame.
     A pixel with a channel of no weight takes (in those channels, or in all) the value of one
     frame, ``pick[i]``, which takes the whole share when no channel has weight."""
+    nch = len(tap_thr)  # a compile-time constant: one specialisation per channel count
     zero = np.float32(0.0)
     one = np.float32(1.0)
     nbk = x1 - x0
-    ne = 3 * nbk
-    ro = radf[y, 3 * x0 : 3 * x1]
+    ne = nch * nbk
+    ro = radf[y, nch * x0 : nch * x1]
     for e in range(ne):
         d = den[e]
         inv = one / (d if d >= _TINY else _TINY)
@@ -294,20 +305,23 @@ def _finish_block(
     gs = gscore[y, x0:x1]
     nz = 0
     for i in range(nbk):
-        e = 3 * i
-        spread = (bb[e] + bb[e + 1]) + bb[e + 2]
-        noise = (cc[e] + cc[e + 1]) + cc[e + 2]
+        e = nch * i
+        # the channels' sums in channel order: ((c0 + c1) + c2) ...
+        spread = bb[e]
+        noise = cc[e]
+        wsum = den[e]
+        z = den[e] <= zero
+        for ch in range(1, nch):
+            spread = spread + bb[e + ch]
+            noise = noise + cc[e + ch]
+            wsum = wsum + den[e + ch]
+            z = z | (den[e + ch] <= zero)
         noise = noise if noise >= _TINY else _TINY
         v = spread / noise
-        gh[i] = v > thr
+        gh[i] = v > gthr
         gs[i] = _f16_bits(v)
-        d0 = den[e]
-        d1 = den[e + 1]
-        d2 = den[e + 2]
-        wsum = (d0 + d1) + d2
         ws[i] = wsum
         invw[i] = one / (wsum if wsum >= _TINY else _TINY)
-        z = (d0 <= zero) | (d1 <= zero) | (d2 <= zero)
         zflag[i] = z
         nz += z
     # fallbacks (the reference's _fallback), for the few pixels with a channel of no weight:
@@ -326,8 +340,10 @@ def _finish_block(
     for i in range(nbk if nz > 0 else 0):
         if not zflag[i]:
             continue
-        e = 3 * i
-        whole = (den[e] <= zero) & (den[e + 1] <= zero) & (den[e + 2] <= zero)
+        e = nch * i
+        whole = den[e] <= zero
+        for ch in range(1, nch):
+            whole = whole & (den[e + ch] <= zero)
         f = fv[i]
         last = lo[i]
         allbad = nbad[i] == n
@@ -337,13 +353,12 @@ def _finish_block(
         if cl:
             jp = f if f < n else 0
             src = eb[jp]
-            ro[e] = src[e]
-            ro[e + 1] = src[e + 1]
-            ro[e + 2] = src[e + 2]
+            for ch in range(nch):
+                ro[e + ch] = src[e + ch]
         else:
             jp = last
             src = eb[jp]
-            for ch in range(3):
+            for ch in range(nch):
                 if den[e + ch] <= zero:
                     ro[e + ch] = src[e + ch]
         if whole:  # the whole share to that frame
@@ -460,18 +475,19 @@ def _accumulate_lut_run(
     sv,
     wbuf,
     eb,
+    tap_thr,
 ):
     """The sums of one resampled frame with a LUT over ``nbk`` pixels: each channel's
-    interpolated level read linearly between the entries of its LUT row (the reference's
-    ``LUT_MODE`` "levels"), one loop per channel (table loads: scalar code); ``eb`` as
-    :func:`_accumulate_run`."""
+    interpolated level read linearly between the entries of its LUT row, one loop per channel
+    (``C = len(tap_thr)``; table loads: scalar code); ``eb`` as :func:`_accumulate_run`."""
+    nch = len(tap_thr)
     zero = np.float32(0.0)
     lmax1 = lut.shape[1] - 2
-    for ch in range(3):
+    for ch in range(nch):
         lr = lut[ch]
         vr = lut_var[ch]
         for i in range(nbk):
-            e = 3 * i + ch
+            e = nch * i + ch
             v = xk[e]
             level = v * inv_max
             # v >= 0 (clamped interpolation): max() only tells the compiler so
@@ -539,10 +555,12 @@ def _accumulate_levels_table(
 
 
 @_njit
-def _taps_run(flat, iy0, b, e0, e1, ntap, wxe, wye, acc, xk, hi):
+def _taps_run(flat, iy0, b, e0, e1, ntap, wxe, wye, acc, xk, hi, tap_thr):
     """Interpolated values ``xk[e0:e1]`` of a run of pixels whose support starts at row
-    ``iy0`` and element ``b + e`` of the frame's flattened rows (``(H, W * 3)``). Zero-based
-    slices keep the loops free of negative-index checks, so they vectorise."""
+    ``iy0`` and element ``b + e`` of the frame's flattened rows (``(H, W * C)``, ``C =
+    len(tap_thr)``: a tap's neighbour is ``C`` elements on). Zero-based slices keep the loops
+    free of negative-index checks, so they vectorise."""
+    nch = len(tap_thr)
     zero = np.float32(0.0)
     m = e1 - e0
     a = acc[e0:e1]
@@ -553,10 +571,10 @@ def _taps_run(flat, iy0, b, e0, e1, ntap, wxe, wye, acc, xk, hi):
         wx2 = wxe[2, e0:e1]
         wx3 = wxe[3, e0:e1]
         # the 4 source rows in one pass (the same order of operations as row by row)
-        ra = flat[iy0][s0 : s0 + m + 9]
-        rb = flat[iy0 + 1][s0 : s0 + m + 9]
-        rc = flat[iy0 + 2][s0 : s0 + m + 9]
-        rd = flat[iy0 + 3][s0 : s0 + m + 9]
+        ra = flat[iy0][s0 : s0 + m + 3 * nch]
+        rb = flat[iy0 + 1][s0 : s0 + m + 3 * nch]
+        rc = flat[iy0 + 2][s0 : s0 + m + 3 * nch]
+        rd = flat[iy0 + 3][s0 : s0 + m + 3 * nch]
         wy0 = wye[0, e0:e1]
         wy1 = wye[1, e0:e1]
         wy2 = wye[2, e0:e1]
@@ -567,24 +585,24 @@ def _taps_run(flat, iy0, b, e0, e1, ntap, wxe, wye, acc, xk, hi):
             c2 = wx2[q]
             c3 = wx3[q]
             t = np.float32(ra[q]) * c0
-            t = t + np.float32(ra[q + 3]) * c1
-            t = t + np.float32(ra[q + 6]) * c2
-            t = t + np.float32(ra[q + 9]) * c3
+            t = t + np.float32(ra[q + nch]) * c1
+            t = t + np.float32(ra[q + 2 * nch]) * c2
+            t = t + np.float32(ra[q + 3 * nch]) * c3
             acc_ = t * wy0[q]
             t = np.float32(rb[q]) * c0
-            t = t + np.float32(rb[q + 3]) * c1
-            t = t + np.float32(rb[q + 6]) * c2
-            t = t + np.float32(rb[q + 9]) * c3
+            t = t + np.float32(rb[q + nch]) * c1
+            t = t + np.float32(rb[q + 2 * nch]) * c2
+            t = t + np.float32(rb[q + 3 * nch]) * c3
             acc_ = acc_ + t * wy1[q]
             t = np.float32(rc[q]) * c0
-            t = t + np.float32(rc[q + 3]) * c1
-            t = t + np.float32(rc[q + 6]) * c2
-            t = t + np.float32(rc[q + 9]) * c3
+            t = t + np.float32(rc[q + nch]) * c1
+            t = t + np.float32(rc[q + 2 * nch]) * c2
+            t = t + np.float32(rc[q + 3 * nch]) * c3
             acc_ = acc_ + t * wy2[q]
             t = np.float32(rd[q]) * c0
-            t = t + np.float32(rd[q + 3]) * c1
-            t = t + np.float32(rd[q + 6]) * c2
-            t = t + np.float32(rd[q + 9]) * c3
+            t = t + np.float32(rd[q + nch]) * c1
+            t = t + np.float32(rd[q + 2 * nch]) * c2
+            t = t + np.float32(rd[q + 3 * nch]) * c3
             a[q] = acc_ + t * wy3[q]
     else:
         wx0 = wxe[0, e0:e1]
@@ -594,9 +612,9 @@ def _taps_run(flat, iy0, b, e0, e1, ntap, wxe, wye, acc, xk, hi):
         r0 = flat[iy0]
         r1 = flat[iy0 + 1]
         t0 = r0[s0 : s0 + m]
-        t1 = r0[s0 + 3 : s0 + 3 + m]
+        t1 = r0[s0 + nch : s0 + nch + m]
         u0 = r1[s0 : s0 + m]
-        u1 = r1[s0 + 3 : s0 + 3 + m]
+        u1 = r1[s0 + nch : s0 + nch + m]
         for q in range(m):
             t = np.float32(t0[q]) * wx0[q] + np.float32(t1[q]) * wx1[q]
             u = np.float32(u0[q]) * wx0[q] + np.float32(u1[q]) * wx1[q]
@@ -695,33 +713,45 @@ def _warp_setup(
 
 
 @_njit
-def _expand3(nt, nbk, src, dst):
-    """``dst[j, 3 i + ch] = src[j, i]`` for the 3 channels (the tap loops run over elements)."""
+def _expand(nt, nbk, src, dst, tap_thr):
+    """``dst[j, C i + ch] = src[j, i]`` for the ``C = len(tap_thr)`` channels (the tap loops
+    run over elements)."""
+    nch = len(tap_thr)
     for j in range(nt):
         a = src[j]
         b = dst[j]
         for i in range(nbk):
             v = a[i]
-            b[3 * i] = v
-            b[3 * i + 1] = v
-            b[3 * i + 2] = v
+            for ch in range(nch):
+                b[nch * i + ch] = v
+
+
+@_inline
+def _any_clipped(r, e, tap_thr):
+    """Whether a sample's channels ``r[e:e + C]`` hold one at or above its threshold
+    (``tap_thr``, one per channel in the frame's dtype, :func:`tap_thresholds`); unrolled over
+    the ``C = len(tap_thr)`` channels (a compile-time constant)."""
+    c = r[e] >= tap_thr[0]
+    for ch in range(1, len(tap_thr)):
+        c = c | (r[e + ch] >= tap_thr[ch])
+    return c
 
 
 @_njit
-def _clipped_supports(flat, iy0, c0, m, ntap, t0, t1, t2, cf, out):
+def _clipped_supports(flat, iy0, c0, m, ntap, tap_thr, cf, out):
     """``out[q]`` (``q < m``): whether the ``ntap x ntap`` support with top-left tap
-    ``(c0 + q, iy0)`` holds a sample at or above its threshold (``t*``, in the frame's dtype,
-    :func:`tap_thresholds`) in any channel. A run's supports share their rows, so each column
-    is tested once (``cf``) and each support ORs ``ntap`` columns: straight loops."""
+    ``(c0 + q, iy0)`` holds a sample at or above its threshold in any channel
+    (:func:`_any_clipped`). A run's supports share their rows, so each column is tested once
+    (``cf``) and each support ORs ``ntap`` columns: straight loops."""
+    nch = len(tap_thr)
     ncol = m + ntap - 1
     for q in range(ncol):
         cf[q] = False
     for jy in range(ntap):
         row = flat[iy0 + jy]
-        r = row[3 * c0 : 3 * (c0 + ncol)]
+        r = row[nch * c0 : nch * (c0 + ncol)]
         for q in range(ncol):
-            e = 3 * q
-            cf[q] = cf[q] | ((r[e] >= t0) | (r[e + 1] >= t1) | (r[e + 2] >= t2))
+            cf[q] = cf[q] | _any_clipped(r, nch * q, tap_thr)
     if ntap == 4:
         for q in range(m):
             out[q] = (cf[q] | cf[q + 1]) | (cf[q + 2] | cf[q + 3])
@@ -764,10 +794,13 @@ def merge_rows(fr, warp, model, wfn, fin, out, r0, r1):
     rad, wsum_out, shares, clip_count = out.rad, out.wsum, out.shares, out.clip_count
     clipped_out, under_out, gscore, ghost = out.clipped, out.under, out.gscore, out.ghost
     n = len(order)  # the tuples may be padded (TUPLE_SLOTS)
+    # the channel count: a compile-time constant (the length of the thresholds' tuple), so
+    # numba compiles one specialisation per count and the channel loops unroll
+    nch = len(tap_thr)
     h = frames[0].shape[0]
     w = frames[0].shape[1]
     bw = min(w, _WBLOCK)
-    b3 = 3 * bw + 48  # padded: buffers off 4 KiB multiples (cache-set aliasing)
+    b3 = nch * bw + 48  # padded: buffers off 4 KiB multiples (cache-set aliasing)
     xk = np.empty(b3, np.float32)  # a resampled frame's interleaved values (levels or floats)
     den = np.empty(b3, np.float32)
     num = np.empty(b3, np.float32)
@@ -781,7 +814,7 @@ def merge_rows(fr, warp, model, wfn, fin, out, r0, r1):
     acc = np.empty(b3, np.float32)
     wxe = np.empty((4, b3), np.float32)
     wye = np.empty((4, b3), np.float32)
-    wxp = np.empty((4, bw), np.float32)  # per pixel, before _expand3
+    wxp = np.empty((4, bw), np.float32)  # per pixel, before _expand
     wyp = np.empty((4, bw), np.float32)
     ixs = np.empty(bw, np.int32)
     iys = np.empty(bw, np.int32)
@@ -803,18 +836,15 @@ def merge_rows(fr, warp, model, wfn, fin, out, r0, r1):
     tc = np.empty(bw, np.bool_)
     ones = np.ones(bw, np.bool_)
     cf = np.empty(bw + 4, np.bool_)  # per source column of a run: any tap clipped
-    th0 = tap_thr[0]
-    th1 = tap_thr[1]
-    th2 = tap_thr[2]
     bb = np.empty(b3, np.float32)
     cc = np.empty(b3, np.float32)
-    radf = rad.reshape(h, w * 3)
-    row_len = 3 * w
-    tab_len = tabs.shape[1] // 3  # levels a channel of the per-level tables
+    radf = rad.reshape(h, w * nch)
+    row_len = nch * w
+    tab_len = tabs.shape[1] // nch  # levels a channel of the per-level tables
     tab_max = tab_len - 1
     choff = np.empty(b3, np.int32)  # element e's channel row in the flattened tables
     for e in range(b3):
-        choff[e] = np.int32((e % 3) * tab_len)
+        choff[e] = np.int32((e % nch) * tab_len)
     lmax = lut.shape[1] - 1
     out_of_range = 0
     zero = np.float32(0.0)
@@ -830,7 +860,7 @@ def merge_rows(fr, warp, model, wfn, fin, out, r0, r1):
         x0 = (yb % nb) * _WBLOCK
         x1 = min(w, x0 + _WBLOCK)
         nbk = x1 - x0
-        ne = 3 * nbk
+        ne = nch * nbk
         den[:ne] = zero
         num[:ne] = zero
         s2[:ne] = zero
@@ -847,7 +877,7 @@ def merge_rows(fr, warp, model, wfn, fin, out, r0, r1):
             flat = flats[k]
             warped = has_mat[k]
             vrow = masks[k][y, x0:x1] if has_mask[k] else ones[:nbk]  # valid (mask)
-            frf = flat[y, 3 * x0 : 3 * x1]  # the row block in place (zero-based: vectorises)
+            frf = flat[y, nch * x0 : nch * x1]  # the row block in place (zero-based: vectorises)
             if warped:
                 m00 = mats[k, 0, 0]
                 m01 = mats[k, 0, 1]
@@ -882,17 +912,16 @@ def merge_rows(fr, warp, model, wfn, fin, out, r0, r1):
                     has_fld[k],
                     fgeo,
                 )
-                _expand3(ntap, nbk, wxp, wxe)
-                _expand3(ntap, nbk, wyp, wye)
+                _expand(ntap, nbk, wxp, wxe, tap_thr)
+                _expand(ntap, nbk, wyp, wye, tap_thr)
                 # runs of pixels whose supports share their rows and column offset: the taps
                 # and the clipped-support flags of a run are contiguous in the source rows
                 i = 0
                 while i < nbk:
                     if not ins[i]:
-                        e = 3 * i
-                        xk[e] = zero
-                        xk[e + 1] = zero
-                        xk[e + 2] = zero
+                        e = nch * i
+                        for ch in range(nch):
+                            xk[e + ch] = zero
                         tc[i] = False
                         i += 1
                         continue
@@ -905,17 +934,19 @@ def merge_rows(fr, warp, model, wfn, fin, out, r0, r1):
                     # the run's elements rounded up to whole SIMD vectors (no scalar tail;
                     # the extra values are overwritten by the next run) where the source row
                     # is long enough
-                    e1 = 3 * s + ((3 * (i - s) + 15) & ~15)
-                    if 3 * dx + e1 + 3 * ntap > row_len:
-                        e1 = 3 * i
-                    _taps_run(flat, iy0, 3 * dx, 3 * s, e1, ntap, wxe, wye, acc, xk, hi)
-                    _clipped_supports(flat, iy0, dx + s, i - s, ntap, th0, th1, th2, cf, tc[s:i])
+                    e1 = nch * s + ((nch * (i - s) + 15) & ~15)
+                    if nch * dx + e1 + nch * ntap > row_len:
+                        e1 = nch * i
+                    _taps_run(
+                        flat, iy0, nch * dx, nch * s, e1, ntap, wxe, wye, acc, xk, hi, tap_thr
+                    )
+                    _clipped_supports(flat, iy0, dx + s, i - s, ntap, tap_thr, cf, tc[s:i])
                 if oor[k]:  # levels past the LUT are clipped: count them
                     for i in range(nbk):
                         if ins[i] and tc[i]:
                             for jy in range(ntap):
                                 for jx in range(ntap):
-                                    for ch in range(3):
+                                    for ch in range(nch):
                                         if int(fr[iys[i] + jy, ixs[i] + jx, ch]) > lmax:
                                             out_of_range += 1
                 for i in range(nbk):
@@ -924,11 +955,7 @@ def merge_rows(fr, warp, model, wfn, fin, out, r0, r1):
                 # read in place (the sums convert); tap_thr: v >= th exactly when
                 # float64(v) >= sat
                 for i in range(nbk):
-                    e = 3 * i
-                    a0 = frf[e]
-                    a1 = frf[e + 1]
-                    a2 = frf[e + 2]
-                    tc[i] = (a0 >= th0) | (a1 >= th1) | (a2 >= th2)
+                    tc[i] = _any_clipped(frf, nch * i, tap_thr)
                     ins[i] = vrow[i]
             # tc: clipped, ins: valid; a frame is dropped where invalid or clipped
             cs = crow[x0:x1]
@@ -942,10 +969,9 @@ def merge_rows(fr, warp, model, wfn, fin, out, r0, r1):
                 fv[i] = np.int32(j) if (f == n) & cl else f
                 okp[i] = not b
                 okv = zero if b else one
-                e = 3 * i
-                okf[e] = okv
-                okf[e + 1] = okv
-                okf[e + 2] = okv
+                e = nch * i
+                for ch in range(nch):
+                    okf[e + ch] = okv
             itk = inv_t[k]
             it2 = inv_t2[k]
             t2k = t2[k]
@@ -972,6 +998,7 @@ def merge_rows(fr, warp, model, wfn, fin, out, r0, r1):
                     sv,
                     wbuf,
                     ebj,
+                    tap_thr,
                 )
             elif use_tab:
                 out_of_range += _accumulate_levels_table(
@@ -1037,8 +1064,10 @@ def merge_rows(fr, warp, model, wfn, fin, out, r0, r1):
             # any, e.g. a black one, only while no frame has)
             jj = np.int32(j)
             for i in range(nbk):
-                e = 3 * i
-                sh = (wbuf[e] + wbuf[e + 1]) + wbuf[e + 2]
+                e = nch * i
+                sh = wbuf[e]
+                for ch in range(1, nch):
+                    sh = sh + wbuf[e + ch]
                 share[k, i] = sh
                 sig = sh > zero
                 sn = seen[i]
@@ -1075,8 +1104,9 @@ def merge_rows(fr, warp, model, wfn, fin, out, r0, r1):
             bb,
             cc,
             eb,
+            tap_thr,
         )
-        ro = radf[y, 3 * x0 : 3 * x1]
-        if has_colour:
+        ro = radf[y, nch * x0 : nch * x1]
+        if has_colour and nch == 3:  # (merge refuses a conversion of other channel counts)
             convert_pixels(ro, clipped_out[y, x0:x1], True, cm, cwb, cneu)
     return out_of_range

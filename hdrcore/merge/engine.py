@@ -32,8 +32,6 @@ def fused_supported(plan: Plan) -> str | None:
     """Why the fused kernel cannot run this plan, or ``None`` when it can."""
     if not _fused.AVAILABLE:
         return "numba is not installed"
-    if plan.shape[2] != 3:
-        return f"{plan.shape[2]} channels (the fused kernel is unrolled for 3)"
     if plan.integer and plan.frames[0].dtype not in (np.uint8, np.uint16):
         return f"integer frames of dtype {plan.frames[0].dtype} (uint8 and uint16 only)"
     return None
@@ -135,10 +133,11 @@ def run_fused(
         and (p.lut is not None or force_tables)
         and not all(tf is not None for tf in p.transforms)
     )
+    c = p.shape[2]
     if use_tab:
         tabs = level_tables(p, m)
     else:
-        tabs = np.zeros((len(frames), 3, 8), np.float32)
+        tabs = np.zeros((len(frames), c, 8), np.float32)
     inv_t2 = np.array([1.0 / (t * t) for t in p.times], np.float32)
     t2 = np.array([float(t) ** 2 for t in p.times], np.float32)
     weighting = WEIGHTS[p.weighting]
@@ -163,10 +162,11 @@ def run_fused(
         [bool(p.fields) and p.fields[k] is not None for k in range(len(frames))], np.bool_
     )
     has_lut = p.lut is not None and p.lut_var is not None
-    lut = p.lut if p.lut is not None else np.zeros((3, 2), np.float32)
+    lut = p.lut if p.lut is not None else np.zeros((c, 2), np.float32)
     lut_var = p.lut_var if p.lut_var is not None else lut
     hi = np.float32(p.max_level if p.integer else 1.0)
-    tap_thr = _fused.tap_thresholds(sat, frames_t[0].dtype)
+    # a tuple: its length, the channel count, is a constant of each compiled specialisation
+    tap_thr = tuple(_fused.tap_thresholds(sat, frames_t[0].dtype))
     ntap = 4 if p.resample == "cubic" else 2
     # levels past the LUT (refused): only a frame that holds any is searched for them
     lmax = lut.shape[1] - 1

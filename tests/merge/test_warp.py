@@ -233,22 +233,24 @@ def test_bad_resampling_name_is_refused():
 
 
 @pytest.mark.parametrize("ntap", [4, 2])
-@pytest.mark.parametrize("dtype", [np.uint8, np.uint16, np.float32])
-def test_clipped_supports_are_the_nxn_any_of_the_taps(dtype, ntap):
+@pytest.mark.parametrize(
+    "dtype,c", [(np.uint8, 3), (np.uint16, 3), (np.float32, 3), (np.uint16, 1), (np.uint16, 4)]
+)
+def test_clipped_supports_are_the_nxn_any_of_the_taps(dtype, c, ntap):
     from hdrcore.merge import _fused
 
     rng = np.random.default_rng(5)
     h, w = 37, 29
-    fr = rng.integers(0, 250, (h, w, 3)).astype(dtype)
-    thr = _fused.tap_thresholds(np.array([240.0, 245.5, 248.0]), fr.dtype)
+    fr = rng.integers(0, 250, (h, w, c)).astype(dtype)
+    thr = _fused.tap_thresholds(np.array([240.0, 245.5, 248.0, 243.0][:c]), fr.dtype)
     clipped = (fr >= thr).any(axis=2)
-    assert clipped.mean() > 0.05
+    assert clipped.mean() > 0.05 * c / 3
     flat = fr.reshape(h, -1)
     cf = np.empty(w + 4, bool)
     for iy in range(h - ntap + 1):
         for c0, m in ((0, w - ntap + 1), (3, 7), (w - ntap, 1)):  # runs of supports in a row
             out = np.zeros(m, bool)
-            _fused._clipped_supports(flat, iy, c0, m, ntap, thr[0], thr[1], thr[2], cf, out)
+            _fused._clipped_supports(flat, iy, c0, m, ntap, tuple(thr), cf, out)
             for q in range(m):
                 x = c0 + q
                 assert out[q] == clipped[iy : iy + ntap, x : x + ntap].any(), (iy, x)
