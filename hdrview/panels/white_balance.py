@@ -87,9 +87,9 @@ def _state(wb: dict[str, Any], k: int) -> str:
         return "not measured"
     if wb.get("applied"):
         # FrameBalance.correction(): every measured frame is divided out once one differs
-        return "corrected"
+        return "differs: corrected" if k in wb.get("differs", ()) else "corrected"
     if k in wb.get("differs", ()):
-        return "measured only (switch off)"
+        return "differs: measured only (switch off)"
     return "within the threshold, not corrected"
 
 
@@ -117,8 +117,9 @@ def verdict(wb: dict[str, Any], k: int, label: str) -> str:
         body = f"{label} is " + " and ".join(words) + " than the reference"
     state = _state(wb, k)
     tail = {
-        "corrected": "corrected (divided out of the merge)",
-        "measured only (switch off)": "not corrected: the White balance switch is off",
+        "differs: corrected": "corrected (divided out of the merge)",
+        "corrected": "corrected with the others (divided out of the merge)",
+        "differs: measured only (switch off)": "not corrected: the White balance switch is off",
         "within the threshold, not corrected": (
             f"within the {100 * wb.get('threshold', 0.03):.0f} % threshold, not corrected"
             if words
@@ -185,7 +186,11 @@ def gains_figure(wb: dict[str, Any], bracket: Bracket | None) -> go.Figure:
     """R/G and B/G gain differences (%) per frame with one-standard-error bars and the
     correction threshold."""
     n = len(wb["gains"])
-    x = [frame_label(bracket, k).replace("frame ", "") for k in range(n)]
+    times = [] if bracket is None else list(bracket.exposure_times)
+    x = [
+        f"{k}<br>{_time_text(times[k])}" if k < len(times) and times[k] else str(k)
+        for k in range(n)
+    ]
     thr = 100 * wb.get("threshold", 0.03)
     data: list[dict[str, Any]] = []
     for c, name, colour in ((0, "R/G", "#d62728"), (2, "B/G", "#1f77b4")):
