@@ -34,7 +34,12 @@ Prints, in one run:
    divided out, on 2/4/8-pixel block means (noise averaged down: what stays is the curve's
    error or a frame's own rendition), and over the 4x4 image regions whose transfer matches
    the whole image's (green ratio within 5 % of the regions' median: local tone mapping left
-   out). On the memorial scans also the pedestal test: sRGB with each channel's film fog
+   out); "WB out" divides out what the run divides out (its FrameBalance's correction). Then
+   what the per-pixel difference is made of (``pair_decomposition``): over the flattest
+   quarter of the pixels the pair's difference beside the frames' own noise (a pixel against
+   the pixel two to its right in the same frame), the excess over that noise, the shared
+   colour shift, and the difference at the darker frame's toe, mid levels and the brighter
+   frame's top. On the memorial scans also the pedestal test: sRGB with each channel's film fog
    (the darkest frame's 0.1th percentile) subtracted, beside plain sRGB and the default.
 2c. Every frame's colour in the merge (the issue's colour target on every frame, not only the
    reference): per bracket and run (``--response srgb`` without and with the anchoring, the
@@ -641,8 +646,7 @@ def consistency_table(label, result, frames, masks) -> None:
     tr = None if reg is None else reg.to_reference_homography
     lut = np.asarray(result.lut, float)
     kw = dict(max_level=255, reference=ref, to_reference=tr, masks=masks)
-    cc = colour_check(frames, result.radiance, lut, **kw)
-    gains = [np.where(np.isfinite(v), v, 1.0) for v in np.asarray(cc.white_balance, float)]
+    gains = pipeline_gains(result, len(frames))
     keep, spreads = consistent_regions(frames, lut, **kw)
     cols = {
         "pixel": pair_consistency(frames, lut, **kw),
@@ -675,6 +679,132 @@ def consistency_table(label, result, frames, masks) -> None:
         f"{'median':15}"
         + "".join(f"{np.nanmedian([v[0] for v in col]):12.4f}" for col in cols.values())
     )
+
+
+def pipeline_gains(result, n: int) -> list[np.ndarray]:
+    """The white balance the run divides out of each frame (``FrameBalance.correction()``:
+    every measured frame's gains once one frame differs, else 1)."""
+    from hdrcore.merge.white_balance import FrameBalance
+
+    wb = (result.colour.get("check") or {}).get("white_balance") or {}
+    if not wb.get("differs"):
+        return [np.ones(3) for _ in range(n)]
+    g = np.asarray([[np.nan if v is None else v for v in row] for row in wb["gains"]], float)
+    fb = FrameBalance(
+        reference=wb["reference"],
+        gains=tuple(tuple(float(v) for v in row) for row in g),
+        std_error=((0.0, 0.0, 0.0),) * n,
+        pairs=(),
+        differs=tuple(wb["differs"]),
+        unmeasured=tuple(wb["unmeasured"]),
+        threshold=float(wb["threshold"]),
+        applied=bool(wb["applied"]),
+        message="",
+    )
+    return list(fb.correction())
+
+
+def pair_decomposition(frames, lut, gains, *, reference, to_reference, masks, max_samples=400_000):
+    """What a consecutive pair's per-pixel chromaticity difference is made of, per pair.
+
+    On reference-grid samples well exposed (every channel 10..90 %) in both frames, each
+    frame's white balance (``gains``) divided out: the difference ``all`` (the issue's figure);
+    over the flattest quarter of the samples (the reference's 3x3 range of linear green over
+    its mean), ``flat``; each frame's own noise there, ``noise``: the difference between a
+    pixel and the pixel two to its right in the same frame (another 4:2:0 chroma block, the
+    same exposure and rendition, so no curve, balance or registration error), over
+    ``sqrt(2)``, the two frames' added in quadrature (``pred``: what two noisy renditions of one
+    colour differ by); ``excess = sqrt(flat^2 - pred^2)``: what the frames resolve beyond
+    their noise; ``shift``: the length of the median signed difference over the flat samples
+    (a colour error shared by the pixels); ``toe``/``mid``/``top``: ``all`` where the darker
+    frame's smallest channel is 10..15 %, where both frames lie within 15..85 %, and where
+    the brighter frame's largest channel is 85..90 %."""
+    from scipy import ndimage
+
+    from hdrcore.geometry import apply, invert
+
+    table = np.asarray(lut, float)
+    h, w = frames[reference].shape[:2]
+    step = max(1, int(np.ceil(np.sqrt(h * w / max_samples))))
+    ys, xs = (a.ravel() for a in np.mgrid[2 : h - 2 : step, 2 : w - 4 : step])
+    g_ref = table[1][np.asarray(frames[reference])[..., 1].astype(np.intp)]
+    rng = ndimage.maximum_filter(g_ref, 3) - ndimage.minimum_filter(g_ref, 3)
+    contrast = (rng / np.maximum(ndimage.uniform_filter(g_ref, 3), 1e-12))[ys, xs]
+    del g_ref, rng
+    lo, hi = WELL[0] * 255, WELL[1] * 255
+    sam = []
+    for k, f in enumerate(frames):
+        f = np.asarray(f)
+        if to_reference is None or k == reference:
+            xk, yk = xs, ys
+            inside = np.ones(xs.size, bool)
+        else:
+            fx, fy = apply(invert(np.asarray(to_reference[k], float)), xs * 1.0, ys * 1.0)
+            xk, yk = np.rint(fx).astype(np.intp), np.rint(fy).astype(np.intp)
+            inside = (xk >= 0) & (xk < w - 2) & (yk >= 0) & (yk < h)
+            xk, yk = np.clip(xk, 0, w - 3), np.clip(yk, 0, h - 1)
+        out = {}
+        for name, dx in (("z", 0), ("z2", 2)):
+            z = f[yk, xk + dx].astype(np.intp)
+            ok = inside & np.all((z > lo) & (z < hi), axis=-1)
+            if masks is not None and masks[k] is not None:
+                ok &= np.asarray(masks[k], bool)[yk, xk + dx]
+            lin = np.stack([table[c][z[:, c]] for c in range(3)], -1) / np.asarray(gains[k])
+            out[name] = (z, ok, _chroma(lin))
+        sam.append(out)
+
+    def med(v):
+        v = v[np.isfinite(v)]
+        return float(np.median(v)) if v.size >= 50 else float("nan")
+
+    rows = []
+    for k in range(len(frames) - 1):
+        (za, oka, ca), (_, oka2, ca2) = sam[k]["z"], sam[k]["z2"]
+        (zb, okb, cb), (_, okb2, cb2) = sam[k + 1]["z"], sam[k + 1]["z2"]
+        both = oka & okb
+        dv = cb - ca
+        d = np.hypot(dv[:, 0], dv[:, 1])
+        row = {"pixels": int(both.sum()), "all": med(d[both])}
+        if both.sum() >= 200:
+            flat = both & (contrast <= np.quantile(contrast[both], 0.25))
+        else:
+            flat = np.zeros_like(both)
+        row["flat"] = med(d[flat])
+        fn = flat & oka2 & okb2
+        na = med(np.hypot(*(ca2 - ca)[fn].T)) / np.sqrt(2)
+        nb = med(np.hypot(*(cb2 - cb)[fn].T)) / np.sqrt(2)
+        row["pred"] = float(np.hypot(na, nb))
+        row["excess"] = float(np.sqrt(max(row["flat"] ** 2 - row["pred"] ** 2, 0.0)))
+        row["shift"] = (
+            float(np.hypot(*np.median(dv[flat], axis=0))) if flat.sum() >= 50 else float("nan")
+        )
+        row["toe"] = med(d[both & (za.min(-1) < 0.15 * 255)])
+        mid = both & np.all((za > 0.15 * 255) & (za < 0.85 * 255), -1)
+        row["mid"] = med(d[mid & np.all((zb > 0.15 * 255) & (zb < 0.85 * 255), -1)])
+        row["top"] = med(d[both & (zb.max(-1) > 0.85 * 255)])
+        rows.append(row)
+    return rows
+
+
+def decomposition_table(label, result, frames, masks) -> None:
+    reg = result.registration
+    rows = pair_decomposition(
+        frames,
+        np.asarray(result.lut, float),
+        pipeline_gains(result, len(frames)),
+        reference=0 if reg is None else reg.reference,
+        to_reference=None if reg is None else reg.to_reference_homography,
+        masks=masks,
+    )
+    cols = ("all", "flat", "pred", "excess", "shift", "toe", "mid", "top")
+    print(
+        f"  {label}: what the per-pixel difference is made of (white balance divided out as the "
+        "run does; pred = the frames' own noise, excess = sqrt(flat^2 - pred^2))"
+    )
+    print(f"  {'pair':7}{'pixels':>8}" + "".join(f"{c:>9}" for c in cols))
+    for k, r in enumerate(rows):
+        print(f"  {k}-{k + 1:<5}{r['pixels']:8d}" + "".join(f"{r[c]:9.4f}" for c in cols))
+    print(f"  {'median':15}" + "".join(f"{np.nanmedian([r[c] for r in rows]):9.4f}" for c in cols))
 
 
 def pedestal_test(frames, masks, reference, to_reference, auto_lut) -> None:
@@ -735,6 +865,7 @@ def consistency_tables() -> None:
         frames = [f.levels for f in r.bracket.frames]
         masks = None if excl is None else [~np.all(f == np.asarray(excl), axis=-1) for f in frames]
         consistency_table(label, r, frames, masks)
+        decomposition_table(label, r, frames, masks)
         if folder == "memorial-debevec":
             reg = r.registration
             pedestal_test(
