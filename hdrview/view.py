@@ -36,6 +36,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal, Protocol, TypeVar
 
+import plotly.graph_objects as go
 import viser
 from viser._messages import GuiSliderMark  # viser has no public setter of a slider's marks
 
@@ -77,6 +78,10 @@ log = logging.getLogger(__name__)
 
 PANEL_WIDTH = 900  # the strip between the panels holds the notifications
 DEFAULT_MARK = " · default"
+PLOTLY_DELAY = 0.25
+"""Seconds between a page's frames drawn and plotly.js sent: long enough for the browser to
+draw the frames before it spends 0.5-1 s evaluating the script (measured in
+``bench/bench_hdrview.py``'s first-page row)."""
 WEBGL_TOAST = "webgl-software-rendering"  # viser's own notification id (BrowserWarning.tsx)
 
 
@@ -194,6 +199,12 @@ class ClientView:
         self.uploads = UploadStore(app.work_dir / f"page{app.next_page_number()}", app.limits)
         app.resolver.allow_folder(self.uploads.dir)
         self.worker = LatestWorker(on_progress=self._on_progress, on_busy=self._on_busy)
+        # viser sends plotly.js (4.8 MB) with a page's first plot, and the browser evaluates it
+        # before it handles anything queued after it: about 0.5-1 s of this machine's Chromium
+        # between the panels arriving and the frames showing. The plots are empty until a
+        # result exists, so the script is sent just before the first one is drawn instead.
+        self._plotly_sent = False
+        gui._setup_plotly_js = True  # viser's once-per-page flag
         self._build_gui()
         install_upload_limits(
             gui, app.server, self.upload_button, self.uploads.refuse_transfer, self._upload_refused
@@ -404,6 +415,34 @@ class ClientView:
         self.export_exr_button.on_click(lambda e: self._guarded(self.export_exr, e.client))
         self.export_png_button.on_click(lambda e: self._guarded(self.export_png, e.client))
         self.export_bundle_button.on_click(lambda e: self._guarded(self.export_bundle, e.client))
+
+    def _send_plotly(self) -> None:
+        """plotly.js to the page, once, before any plot has a figure (see ``__init__``).
+        Under the view's lock, so a figure drawn by another thread is queued after it."""
+        with self._lock:
+            if self._plotly_sent:
+                return
+            self.gui._setup_plotly_js = False
+            # viser's own path: the first add_plotly of a page sends the script (the element
+            # is an empty, hidden plot at the end of the page)
+            self.gui.add_plotly(go.Figure(), visible=False)
+            self._plotly_sent = True
+
+    def _send_plotly_soon(self, delay: float = PLOTLY_DELAY) -> None:
+        """plotly.js after the frames have been drawn: the browser evaluates it while the
+        pipeline runs (a result drawn first sends it at once)."""
+        if self._plotly_sent or self.client is None:
+            return
+
+        def later() -> None:
+            time.sleep(delay)
+            if not self._closed:
+                try:
+                    self._send_plotly()
+                except Exception:  # noqa: BLE001 -- the page went away
+                    return
+
+        threading.Thread(target=later, name="hdrview-plotly", daemon=True).start()
 
     def _hide_webgl_toast(self) -> None:
         """viser warns about software WebGL, which this page does not use (no 3-D scene)."""
@@ -654,6 +693,7 @@ class ClientView:
                     early = self.app.brackets.get(list(files), times)
                     self.frames_panel.show(early)
                     self._drawn_bracket = early
+                    self._send_plotly_soon()
                     self.status.content = f"**{label}**: {len(early)} frames; processing..."
                 warm = self.app.take_warm(files, times)  # decoded and run at start
                 if warm is not None:
@@ -796,6 +836,7 @@ class ClientView:
         if bracket is not self._drawn_bracket:
             self.frames_panel.show(bracket)
             self._drawn_bracket = bracket
+            self._send_plotly_soon()
         # A black or saturated frame is left out by the pipeline: the stage results index the
         # frames it used (result.bracket); the pair choices follow them.
         used = result.bracket if result is not None else bracket
@@ -808,6 +849,8 @@ class ClientView:
         }
         if stages is None:
             self.status.content = self.status_markdown(result)
+        if result is not None:
+            self._send_plotly()
         panels: dict[str, _Panel] = {
             "btf": self.btf_panel,
             "masks": self.masks_panel,

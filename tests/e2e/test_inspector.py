@@ -146,6 +146,10 @@ def test_panels_show_their_results(page, view: ClientView) -> None:
     open_tab(page, "BTF")
     visible(page.locator(".js-plotly-plot")).wait_for(timeout=30_000)
     page.screenshot(path=str(ARTIFACTS / "hdrview-btf.png"))
+    # plotly.js is sent after the frames are drawn, once per page (view._send_plotly), and
+    # the BTF plot above drew with it
+    assert view._plotly_sent
+    assert page.evaluate("typeof window.Plotly") == "object"
     for tab in ("Masks", "Registration", "Result"):
         open_tab(page, tab)
         page.locator("img").filter(visible=True).first.wait_for(state="visible", timeout=30_000)
