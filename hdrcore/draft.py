@@ -136,6 +136,45 @@ def _to_levels(table: np.ndarray, values: np.ndarray, k: int) -> np.ndarray:
     return j * k + np.rint(frac * k).astype(np.intp)
 
 
+@njit
+def _levels_rows(tab, means, k, out, r0, r1):  # pragma: no cover - compiled
+    """Rows ``r0:r1`` of :func:`_to_levels` for every channel (``tab[c]`` per channel), the
+    same arithmetic: a binary search (numpy's ``searchsorted(side="right")``) per value."""
+    n = tab.shape[1]
+    for y in range(r0, r1):
+        for x in range(means.shape[1]):
+            for ch in range(means.shape[2]):
+                v = means[y, x, ch]
+                a, b = 0, n
+                while a < b:
+                    mid = (a + b) // 2
+                    if tab[ch, mid] <= v:
+                        a = mid + 1
+                    else:
+                        b = mid
+                j = min(max(a - 1, 0), n - 2)
+                lo, hi = tab[ch, j], tab[ch, j + 1]
+                step = hi - lo if hi > lo else 1.0
+                frac = min(max((v - lo) / step, 0.0), 1.0)
+                out[y, x, ch] = j * k + np.rint(frac * k)
+
+
+def _all_levels(tab: np.ndarray, means: np.ndarray, k: int, engine: str) -> np.ndarray:
+    """:func:`_to_levels` of every channel into uint16, compiled on the worker threads (the
+    numpy form took 0.4 of the 2.4 s of a 24 MP bracket's draft, one thread)."""
+    out = np.empty(means.shape, np.uint16)
+    if engine == "numpy" or (engine == "auto" and not AVAILABLE):
+        for ch in range(means.shape[2]):
+            out[..., ch] = _to_levels(tab[ch], means[..., ch], k)
+        return out
+    run_row_spans(
+        means.shape[0],
+        None,
+        lambda r0, r1: _levels_rows(tab, means, k, out, r0, r1),
+    )
+    return out
+
+
 def bin_levels(
     levels: np.ndarray,
     factor: int,
@@ -194,9 +233,7 @@ def bin_levels(
         out[excluded] = np.broadcast_to(ex, means.shape)[excluded]
         return out.astype(src.dtype)
     k = max(1, FINE_TOP // m)
-    out = np.empty(means.shape, np.uint16)
-    for ch in range(c):
-        out[..., ch] = _to_levels(tab[ch], means[..., ch], k)
+    out = _all_levels(np.ascontiguousarray(tab), means, k, engine)
     out[clipped] = k * m
     out[excluded] = (k * np.broadcast_to(ex, means.shape))[excluded]
     return out
