@@ -18,6 +18,13 @@ pixels *well exposed* (every channel inside :data:`WELL_EXPOSED` of the level ra
   divided out; ``frame_pairs_blocks`` -- again on 4x4-pixel means (:func:`block_consistency`):
   pixel noise averaged down, what is left is the response's error (real brackets, the
   recovered curve: Canon 0.011 per pixel, 0.003 on blocks; sRGB 0.021 and 0.018);
+* ``frame_pairs_noise`` -- what the per-pixel figure is made of (:func:`noise_consistency`):
+  over the flattest quarter of the pixels, the pair's difference beside the two frames' own
+  pixel noise (each pixel against the pixel two to its right in the same frame) and the
+  excess over it. A perfect curve leaves the noise: simulated sRGB brackets with 1 level of
+  noise decoded with their exact curve differ by 0.0099-0.0110 per pixel (own noise
+  0.0094-0.0106, excess 0); real brackets' own noise: the memorial's film grain 0.010-0.039
+  per pair, the Canon's darkest pair 0.0136, the phones' denoised JPEGs under 0.003;
 * ``white_balance`` -- per frame, the white balance against the reference frame: the chained
   measurement of :mod:`hdrcore.merge.white_balance` when given (``balance``), else the median
   per-channel ratio to the reference frame's linearised values over pixels well exposed in
@@ -63,7 +70,9 @@ __all__ = [
     "check_colour",
     "FrameColour",
     "FramePairColour",
+    "FramePairNoise",
     "frame_colours",
+    "noise_consistency",
     "chromaticity",
     "colour_check",
     "srgb_decode_lut",
@@ -112,6 +121,31 @@ class FramePairColour:
 
 
 @dataclass(frozen=True)
+class FramePairNoise:
+    """Frames ``dark`` and ``bright`` over ``n_pixels`` pixels well exposed in both, the
+    flattest quarter of them (:func:`noise_consistency`): their median chromaticity
+    difference ``flat``, the difference their own pixel noise alone makes (``noise``) and
+    ``excess = sqrt(flat^2 - noise^2)`` (0 when the noise explains it all)."""
+
+    dark: int
+    bright: int
+    flat: float
+    noise: float
+    excess: float
+    n_pixels: int
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "dark": self.dark,
+            "bright": self.bright,
+            "flat": _num(self.flat),
+            "noise": _num(self.noise),
+            "excess": _num(self.excess),
+            "n_pixels": self.n_pixels,
+        }
+
+
+@dataclass(frozen=True)
 class ColourCheck:
     """The colour of a merge checked against its frames (see the module)."""
 
@@ -130,6 +164,20 @@ class ColourCheck:
     frame_pairs_blocks: tuple[FramePairColour, ...] = ()
     frame_colours: tuple[FrameColour, ...] = ()
     balance_differs: tuple[int, ...] | None = None
+    frame_pairs_noise: tuple[FramePairNoise, ...] = ()
+
+    @property
+    def frame_noise(self) -> float:
+        """Median over the consecutive pairs of the difference their own pixel noise makes
+        (the floor of :attr:`frame_consistency` a perfect response still leaves)."""
+        v = [p.noise for p in self.frame_pairs_noise if np.isfinite(p.noise)]
+        return float(np.median(v)) if v else float("nan")
+
+    @property
+    def frame_consistency_excess(self) -> float:
+        """Median over the consecutive pairs of their difference beyond their own noise."""
+        v = [p.excess for p in self.frame_pairs_noise if np.isfinite(p.excess)]
+        return float(np.median(v)) if v else float("nan")
 
     @property
     def frame_consistency(self) -> float:
@@ -180,6 +228,9 @@ class ColourCheck:
             "frame_consistency_srgb": _num(self.frame_consistency_srgb),
             "frame_consistency_wb": _num(self.frame_consistency_wb),
             "frame_consistency_blocks": _num(self.frame_consistency_blocks),
+            "frame_noise": _num(self.frame_noise),
+            "frame_consistency_excess": _num(self.frame_consistency_excess),
+            "frame_pairs_noise": [p.to_json() for p in self.frame_pairs_noise],
             "frame_pairs_blocks": [p.to_json() for p in self.frame_pairs_blocks],
             "frame_pairs": [p.to_json() for p in self.frame_pairs],
             "frame_pairs_srgb": [p.to_json() for p in self.frame_pairs_srgb],
@@ -388,6 +439,96 @@ def block_consistency(
     return tuple(out)
 
 
+#: Offset (pixels, along a row) of the neighbour a frame's own pixel noise is measured
+#: against: two, so that the two pixels lie in different chroma blocks of a 4:2:0 JPEG.
+NOISE_OFFSET = 2
+
+
+def noise_consistency(
+    frames: Sequence[np.ndarray],
+    lut: np.ndarray,
+    *,
+    max_level: int,
+    reference: int,
+    to_reference: Sequence[np.ndarray] | None = None,
+    masks: Sequence[np.ndarray | None] | None = None,
+    gains: np.ndarray | None = None,
+    max_samples: int = 150_000,
+    well_exposed: tuple[float, float] = WELL_EXPOSED,
+) -> tuple[FramePairNoise, ...]:
+    """How much of consecutive frames' per-pixel colour difference their own noise makes.
+
+    On a grid of reference pixels (the other frames' nearest pixel through ``to_reference``),
+    over those well exposed in both frames of a pair and in the flattest quarter of them (the
+    reference's 3x3 range of linearised green over its mean), the pair's median chromaticity
+    difference ``flat``; each frame's own noise there: its pixel against the pixel
+    :data:`NOISE_OFFSET` to the right in the same frame (same exposure, curve, balance and
+    registration; another 4:2:0 chroma block), median distance over ``sqrt(2)``; the pair's
+    noise ``noise = hypot(noise_a, noise_b)`` (what two noisy renditions of one colour differ
+    by) and ``excess = sqrt(max(flat^2 - noise^2, 0))``. ``gains`` ``(N, 3)``: each frame's
+    white balance divided out (as in ``frame_pairs_wb``). Simulated sRGB brackets, 1 level of
+    noise, exact curve: ``flat`` 0.0093-0.0105, ``noise`` 0.0094-0.0106, excess 0; one
+    channel 3 % off per stop: excess 0.006-0.007 (``bench/bench_response.py``)."""
+    from ..geometry import nearest_in_frame
+
+    table = np.asarray(lut, dtype=np.float64)
+    if table.ndim == 1:
+        table = np.tile(table, (3, 1))
+    n = len(frames)
+    g = np.ones((n, 3)) if gains is None else np.asarray(gains, dtype=np.float64)
+    h, w = frames[reference].shape[:2]
+    if h < 3 or w < 3 + NOISE_OFFSET:
+        return ()
+    step = max(1, int(np.ceil(np.sqrt(h * w / max_samples))))
+    ys, xs = (a.ravel() for a in np.mgrid[1 : h - 1 : step, 1 : w - 1 : step])
+    ref = np.asarray(frames[reference])
+    green = np.stack(
+        [
+            table[1][np.clip(ref[ys + dy, xs + dx, 1].astype(np.intp), 0, max_level)]
+            for dy in (-1, 0, 1)
+            for dx in (-1, 0, 1)
+        ]
+    )
+    contrast = np.ptp(green, axis=0) / np.maximum(green.mean(axis=0), 1e-12)
+    del green
+    lo_l, hi_l = well_exposed[0] * max_level, well_exposed[1] * max_level
+    chroma, valid = [], []
+    for k, f in enumerate(frames):
+        f = np.asarray(f)
+        if k == reference or to_reference is None:
+            xk, yk, inside = xs, ys, np.ones(xs.size, bool)
+        else:
+            xk, yk, inside = nearest_in_frame(to_reference[k], xs, ys, (h, w))
+        inside = inside & (xk < w - NOISE_OFFSET)
+        xk = np.minimum(xk, w - 1 - NOISE_OFFSET)
+        pair = []
+        for dx in (0, NOISE_OFFSET):
+            z = np.clip(f[yk, xk + dx].astype(np.intp), 0, max_level)
+            ok = inside & np.all((z > lo_l) & (z < hi_l), axis=-1)
+            if masks is not None and masks[k] is not None:
+                ok &= np.asarray(masks[k], bool)[yk, xk + dx]
+            lin = np.stack([table[c][z[:, c]] for c in range(3)], axis=-1) / g[k]
+            pair.append((chromaticity(lin), ok))
+        chroma.append((pair[0][0], pair[1][0]))
+        valid.append((pair[0][1], pair[0][1] & pair[1][1]))
+    out = []
+    for k in range(n - 1):
+        both = valid[k][0] & valid[k + 1][0]
+        nan = float("nan")
+        if both.sum() < 200:
+            out.append(FramePairNoise(k, k + 1, nan, nan, nan, int(both.sum())))
+            continue
+        flat = both & (contrast <= np.quantile(contrast[both], 0.25))
+        d_flat = _median_distance(chroma[k][0][flat], chroma[k + 1][0][flat])
+        own = flat & valid[k][1] & valid[k + 1][1]
+        na = _median_distance(chroma[k][0][own], chroma[k][1][own]) / np.sqrt(2.0)
+        nb = _median_distance(chroma[k + 1][0][own], chroma[k + 1][1][own]) / np.sqrt(2.0)
+        noise = float(np.hypot(na, nb))
+        excess = float(np.sqrt(max(d_flat**2 - noise**2, 0.0))) if np.isfinite(noise) else nan
+        out.append(FramePairNoise(k, k + 1, d_flat, noise, excess, int(both.sum())))
+    return tuple(out)
+
+
 def colour_check(
     frames: Sequence[np.ndarray],
     radiance: np.ndarray,
@@ -401,14 +542,16 @@ def colour_check(
     well_exposed: tuple[float, float] = WELL_EXPOSED,
     frame_pairs_blocks: tuple[FramePairColour, ...] | None = None,
     balance: Any = None,
+    frame_pairs_noise: tuple[FramePairNoise, ...] | None = None,
 ) -> ColourCheck:
     """Check the colour of ``radiance`` (``(H, W, 3)`` linear, in the frames' primaries)
     against the integer ``frames`` linearised by ``lut`` (``(3, max_level + 1)``).
 
     ``to_reference[k]`` maps frame ``k``'s pixel coordinates to the reference frame (2x3 or
     3x3; ``None``: the frames are aligned); ``masks[k]`` marks frame ``k``'s valid pixels
-    (in its own coordinates). ``frame_pairs_blocks``: the frames' :func:`block_consistency`
-    when already measured (it does not depend on ``radiance``). ``balance``: the frames'
+    (in its own coordinates). ``frame_pairs_blocks`` / ``frame_pairs_noise``: the frames'
+    :func:`block_consistency` / :func:`noise_consistency` when already measured (they do not
+    depend on ``radiance``). ``balance``: the frames'
     :class:`~hdrcore.merge.white_balance.FrameBalance`; its gains are then the reported white
     balance, its correction is divided out in ``frame_pairs_wb`` (every measured frame's) and
     the ``*_balanced`` errors of ``frame_colours`` (the frames that differ: what the anchoring
@@ -586,6 +729,19 @@ def colour_check(
         frame_pairs_wb=tuple(pairs_wb),
         frame_colours=own,
         balance_differs=None if balance is None else tuple(balance.differs),
+        frame_pairs_noise=frame_pairs_noise
+        if frame_pairs_noise is not None
+        else noise_consistency(
+            frames,
+            table,
+            max_level=max_level,
+            reference=reference,
+            to_reference=to_reference,
+            masks=masks,
+            gains=np.asarray(gains, dtype=np.float64),
+            max_samples=max_samples,
+            well_exposed=well_exposed,
+        ),
         frame_pairs_blocks=frame_pairs_blocks
         if frame_pairs_blocks is not None
         else block_consistency(
@@ -603,7 +759,9 @@ def colour_check(
         parts.append(
             f"consecutive frames agree to {cons:.4f} (on {CONSISTENCY_BLOCK}x"
             f"{CONSISTENCY_BLOCK}-pixel means {check.frame_consistency_blocks:.4f}; "
-            f"sRGB-decoded: {check.frame_consistency_srgb:.4f})"
+            f"sRGB-decoded: {check.frame_consistency_srgb:.4f}; the frames' own pixel "
+            f"noise makes {check.frame_noise:.4f}, beyond it "
+            f"{check.frame_consistency_excess:.4f})"
         )
     odd = check.white_balance_differs
     if odd:
@@ -1546,6 +1704,7 @@ def check_colour(
             **kw,
             balance=balance,
             frame_pairs_blocks=before.frame_pairs_blocks,
+            frame_pairs_noise=before.frame_pairs_noise,
         )
     parts = []
     if balance.applied:
