@@ -16,7 +16,13 @@ from hdrcore.io import load_bracket, write_png
 from hdrcore.pipeline import Pipeline, PipelineParams
 from hdrcore.synthetic import simulate_bracket
 from hdrview.panels.response import ResponsePanel
-from hdrview.panels.white_balance import WhiteBalancePanel, balance_of, verdict
+from hdrview.panels.white_balance import (
+    WhiteBalancePanel,
+    balance_of,
+    gains_figure,
+    verdict,
+    white_balance_markdown,
+)
 
 TIMES = (1.0, 2.0, 4.0, 8.0, 16.0)
 # frame 0 shot cooler (B/G +8 %, R/G -5 %), frame 4 warmer (R/G +6 %, B/G -7 %)
@@ -149,3 +155,31 @@ def test_response_panel_carries_the_view_and_its_figure(runs, gui) -> None:
     assert "white-balance.plotly.json" in names
     panel.show(None, None, {})
     assert not panel.white_balance.plot.visible and panel.white_balance.text.content == ""
+
+
+def test_an_unmeasured_frame_is_said_so_and_left_blank(gui) -> None:
+    """A black frame (nothing well exposed in it and its neighbour) cannot be measured."""
+    from hdrcore.merge.colour_check import srgb_decode_lut
+    from hdrcore.merge.white_balance import measure_white_balance
+
+    sim = simulate_bracket(
+        scene="patches",
+        shape=(120, 180),
+        exposure_times=TIMES,
+        bits=8,
+        response="srgb",
+        noise_sigma=1.0,
+        seed=3,
+    )
+    frames = [np.asarray(f).astype(np.uint8) for f in sim.frames]
+    frames[0] = np.zeros_like(frames[0])
+    fb = measure_white_balance(
+        frames, np.tile(srgb_decode_lut(255), (3, 1)), max_level=255, reference=2
+    )
+    assert fb.unmeasured == (0,)
+    wb = fb.to_json()
+    rows = _table(white_balance_markdown(wb, None))
+    assert rows[0] == ("—", "—", "not measured")
+    assert "white balance not measured" in verdict(wb, 0, "frame 0")
+    fig = gains_figure(wb, None)
+    assert fig.data[0].y[0] is None and len(fig.data[0].y) == len(TIMES)
