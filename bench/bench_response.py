@@ -405,7 +405,7 @@ def real_tables() -> None:
     header = (
         f"{'bracket':19}{'run':27}{'curve':18}{'vs sRGB ref':>12}{'unanch.':>8}"
         f"{'others':>8}"
-        f"{'frames':>8}{'WB out':>8}{'sRGB':>8}{'4x4':>8}{'s':>6}  flags"
+        f"{'frames':>8}{'WB out':>8}{'sRGB':>8}{'4x4':>8}{'noise':>8}{'excess':>8}{'s':>6}  flags"
     )
     print(
         "vs sRGB ref: median chromaticity error of the merge against the reference frame "
@@ -417,7 +417,9 @@ def real_tables() -> None:
         "exposed (pixel-weighted mean); "
         "frames: median difference between consecutive frames linearised with the run's "
         "curve (WB out: each frame's white balance divided out; sRGB: decoded with sRGB; "
-        "4x4: the same as frames on 4x4-pixel means, pixel noise averaged down)"
+        "4x4: the same as frames on 4x4-pixel means, pixel noise averaged down; noise: what "
+        "the frames' own pixel noise alone makes of WB out, excess: the flattest quarter's "
+        "difference beyond it, hdrcore.merge.colour_check.noise_consistency)"
     )
     print(header)
     for label, folder, excl, phone in REAL:
@@ -470,10 +472,14 @@ def real_tables() -> None:
                 else " (NOT FLAGGED)"
             )
             blocks = chk["before"]["frame_consistency_blocks"] or float("nan")
+            noise = chk["before"].get("frame_noise") or float("nan")
+            excess = chk["before"].get("frame_consistency_excess")
+            excess = float("nan") if excess is None else excess
             print(
                 f"{label:19}{run:27}{resp.method[:17]:18}{err:12.4f}{err_curve:8.4f}"
                 f"{others:8.4f}"
-                f"{cons:8.4f}{cons_wb:8.4f}{cons_srgb:8.4f}{blocks:8.4f}{dt:6.0f}  "
+                f"{cons:8.4f}{cons_wb:8.4f}{cons_srgb:8.4f}{blocks:8.4f}{noise:8.4f}"
+                f"{excess:8.4f}{dt:6.0f}  "
                 f"{','.join(flagged) or '-'}"
                 + (f"; signs {','.join(sign_codes)}{caught}" if signs else "")
             )
@@ -502,7 +508,7 @@ def real_tables() -> None:
             print(
                 f"{label:19}{name:27}{'(curve only)':18}{'':>28}{cc.frame_consistency:8.4f}"
                 f"{cc.frame_consistency_wb:8.4f}{cc.frame_consistency_srgb:8.4f}"
-                f"{blocks:8.4f}      "
+                f"{blocks:8.4f}{cc.frame_noise:8.4f}{cc.frame_consistency_excess:8.4f}      "
                 f"signs {','.join(signs) or '-'}"
             )
 
