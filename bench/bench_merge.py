@@ -2,18 +2,18 @@
 
     python bench/bench_merge.py            # 3 frames x 24 MP (6000 x 4000) x 3 channels
     python bench/bench_merge.py --mp 6     # smaller
-    python bench/bench_merge.py --no-numpy # only the fused kernel
     python bench/bench_merge.py --no-old   # skip today's pipeline path (float32 + shear warp)
     python bench/bench_merge.py --handheld-only  # the 24 MP DNG hand-held merge step only
     python bench/bench_merge.py --handheld-only --retain-memory  # both without first-touch costs
-    python bench/bench_merge.py --kernel --mp 6  # the fused kernel alone, 6 input kinds, CPU s
+    python bench/bench_merge.py --kernel --mp 6  # the merge kernel alone, 6 input kinds, CPU s
 
 Frames come from ``hdrcore.synthetic.simulate_bracket`` at 750 x 500 and are upsampled by
 pixel repetition (generation time excluded). OpenCV needs 8-bit frames, so MergeDebevec always
 merges the 8-bit gamma frames (ours: the same frames with the inverse-gamma LUT and hat weights);
 the RAW-like rows merge 12-bit linear levels (and float32 linear frames, the pipeline's input) of
-the same size. Every row of ours has both engines: the fused numba kernel and the numpy
-reference. Peak memory is the rise of the process's peak resident set during the call
+the same size. Every row of ours is the merge's one implementation, its compiled kernel (the
+numpy engine was removed; ``--kernel``'s table is the before/after of a kernel change). Peak
+memory is the rise of the process's peak resident set during the call
 (``/proc/self/clear_refs`` resets the peak), which sees OpenCV's C++ allocations too.
 Timings on a shared machine are pessimistic; the ratio is what the target is about.
 
@@ -21,7 +21,7 @@ Run it from the repository root with ``PYTHONPATH=.`` (an editable install elsew
 otherwise provide ``hdrcore``; the first line prints which one ran).
 
 The "+ warp" rows give ``merge(..., transforms=...)`` a small rotation and shift for 2 of the 3
-frames: the fused kernel resamples them itself (Keys cubic from the levels), so the row is the
+frames: the kernel resamples them itself (Keys cubic from the levels), so the row is the
 whole warp + merge step. The "old path" row is what the pipeline did before: every frame to
 float32 linear, the two moved frames warped with ``hdrcore.registration.warp_to_reference``
 (clipped samples as NaN), then the merge with masks.
@@ -36,7 +36,6 @@ from __future__ import annotations
 
 import argparse
 import gc
-import itertools
 import os
 import subprocess
 import sys
@@ -96,12 +95,9 @@ def upsample(frames, factor: int):
 
 
 def accuracy_table() -> list[tuple[str, float]]:
-    """Median relative radiance error where some frame was well exposed (small brackets), both
-    engines."""
+    """Median relative radiance error where some frame was well exposed (small brackets)."""
     rows = []
-    for (bits, response), engine in itertools.product(
-        ((12, "linear"), (12, "gamma"), (8, "gamma")), ("numba", "numpy")
-    ):
+    for bits, response in ((12, "linear"), (12, "gamma"), (8, "gamma")):
         sb = simulate_bracket(
             shape=(256, 384),
             exposure_times=TIMES,
@@ -114,25 +110,20 @@ def accuracy_table() -> list[tuple[str, float]]:
         kw = {"max_level": sb.max_level}
         if response == "gamma":
             kw = {"response": np.tile(np.linspace(0, 1, sb.max_level + 1) ** 2.2, (3, 1))}
-        res = merge(sb.frames, sb.exposure_times, engine=engine, **kw)
+        res = merge(sb.frames, sb.exposure_times, **kw)
         well = np.zeros(sb.radiance.shape[:2], bool)
         for lf in sb.linear_frames:
             well |= ((lf > 0.05) & (lf < 0.9)).all(axis=2)
         err = np.abs(res.radiance / sb.key - sb.radiance) / sb.radiance
-        rows.append(
-            (f"{bits}-bit {response} ({res.weighting}, {engine})", float(np.median(err[well])))
-        )
+        rows.append((f"{bits}-bit {response} ({res.weighting})", float(np.median(err[well]))))
     return rows
 
 
 def warp_accuracy_table() -> list[tuple[str, float, float]]:
     """Hand-held brackets merged with their TRUE motion: median relative radiance error (well
-    exposed, 16 px from the border) per LUT linearisation of the resampled frames (numpy
-    reference: "levels" interpolates levels then reads the LUT between entries -- the default
-    and the fused kernel's; "samples" linearises the 16 taps first), and the ratio of the
-    sharpness (mean gradient magnitude of log luminance) to the same scene shot on a tripod."""
-    from hdrcore.merge import reference as mod  # the module, for LUT_MODE
-
+    exposed, 16 px from the border; resampled levels through a LUT are interpolated, then read
+    linearly between the LUT's entries) and the ratio of the sharpness (mean gradient magnitude
+    of log luminance) to the same scene shot on a tripod."""
     rows = []
     for bits, response in ((12, "linear"), (12, "gamma"), (8, "gamma")):
         sb = simulate_bracket(
@@ -165,24 +156,15 @@ def warp_accuracy_table() -> list[tuple[str, float, float]]:
             seed=3,
         )
         sharp_ref = _sharpness(merge(tripod.frames, TIMES, **kw).radiance, well)
-        modes = ("levels", "samples") if response == "gamma" else ("levels",)
-        for mode in modes:
-            old = mod.LUT_MODE
-            mod.LUT_MODE = mode
-            try:
-                res = merge(sb.frames, sb.exposure_times, transforms=tf, engine="numpy", **kw)
-            finally:
-                mod.LUT_MODE = old
-            err = np.abs(res.radiance / sb.key - sb.radiance) / sb.radiance
-            rows.append(
-                (
-                    f"{bits}-bit {response}, LUT mode {mode!r}"
-                    if response == "gamma"
-                    else f"{bits}-bit {response}",
-                    float(np.median(err[well])),
-                    _sharpness(res.radiance, well) / sharp_ref,
-                )
+        res = merge(sb.frames, sb.exposure_times, transforms=tf, **kw)
+        err = np.abs(res.radiance / sb.key - sb.radiance) / sb.radiance
+        rows.append(
+            (
+                f"{bits}-bit {response}",
+                float(np.median(err[well])),
+                _sharpness(res.radiance, well) / sharp_ref,
             )
+        )
         blind = merge(sb.frames, sb.exposure_times, **kw)
         err = np.abs(blind.radiance / sb.key - sb.radiance) / sb.radiance
         rows.append(
@@ -423,7 +405,7 @@ def handheld_dng(reps: int = 3) -> None:
 
 
 def kernel_table(mp: float, reps: int) -> None:
-    """The fused kernel alone on the input kinds it has paths for (one worker, ``ghost_test=
+    """The merge kernel alone on the input kinds it has paths for (one worker, ``ghost_test=
     "pixels"``: no region test), min and median CPU seconds over ``reps`` runs taken in turn:
     the before/after table of a kernel change (run both trees in turn; the machine's load
     moves wall times far more than CPU times)."""
@@ -474,7 +456,7 @@ def kernel_table(mp: float, reps: int) -> None:
         f"hdrcore from {os.path.dirname(hdrcore.__file__)}; 3 frames of {w} x {h}, "
         f"{reps} runs, load average {os.getloadavg()[0]:.2f}"
     )
-    print(f"{'fused kernel, workers=1':36s} {'min cpu s':>10s} {'median':>8s}")
+    print(f"{'merge kernel, workers=1':36s} {'min cpu s':>10s} {'median':>8s}")
     for name, v in cpu.items():
         print(f"{name:36s} {min(v):10.3f} {float(np.median(v)):8.3f}")
 
@@ -488,7 +470,6 @@ def main() -> None:
         help="only the 24 MP DNG hand-held merge step against MergeDebevec",
     )
     ap.add_argument("--mertens", action="store_true", help="also time MergeMertens")
-    ap.add_argument("--no-numpy", action="store_true", help="skip the numpy reference rows")
     ap.add_argument("--no-old", action="store_true", help="skip today's pipeline path row")
     ap.add_argument(
         "--retain-memory",
@@ -499,7 +480,7 @@ def main() -> None:
     ap.add_argument(
         "--kernel",
         action="store_true",
-        help="only the fused kernel's CPU time on 6 input kinds (before/after)",
+        help="only the merge kernel's CPU time on 6 input kinds (before/after)",
     )
     ap.add_argument("--reps", type=int, default=5, help="runs per row of --kernel")
     args = ap.parse_args()
@@ -547,45 +528,36 @@ def main() -> None:
                 *measure(lambda: cv2.createMergeMertens().process(fr8), trace=False),
             )
         )
-    engines = ("numba",) if args.no_numpy else ("numba", "numpy")
     cases = [
         ("12-bit linear, noise-aware", fr12, {"max_level": 4095}),
         ("8-bit + LUT, hat", fr8, {"response": lut}),
     ]
     for label, frames, kw in cases:
-        for engine in engines:
-            rows.append(
-                (
-                    f"ours ({engine}) {label}",
-                    *measure(
-                        lambda frames=frames, kw=kw, engine=engine: merge(
-                            frames, TIMES, engine=engine, **kw
-                        ),
-                        trace=False,
-                    ),
-                )
+        rows.append(
+            (
+                f"ours {label}",
+                *measure(lambda frames=frames, kw=kw: merge(frames, TIMES, **kw), trace=False),
             )
+        )
     # a small hand-held motion for frames 0 and 2 (frame 1 is the reference)
     to_ref = [rigid_matrix(3.3, -2.7, 0.4, (h, w)), None, rigid_matrix(-4.1, 1.9, -0.3, (h, w))]
     tf = [None if m is None else invert(m) for m in to_ref]
     for label, frames, kw in cases:
         rows.append(
             (
-                f"ours (numba) {label} + warp 2 frames",
+                f"ours {label} + warp 2 frames",
                 *measure(
-                    lambda frames=frames, kw=kw: merge(
-                        frames, TIMES, engine="numba", transforms=tf, **kw
-                    ),
+                    lambda frames=frames, kw=kw: merge(frames, TIMES, transforms=tf, **kw),
                     trace=False,
                 ),
             )
         )
         rows.append(
             (
-                f"ours (numba) {label} + warp 2 bilinear",
+                f"ours {label} + warp 2 bilinear",
                 *measure(
                     lambda frames=frames, kw=kw: merge(
-                        frames, TIMES, engine="numba", transforms=tf, resample="bilinear", **kw
+                        frames, TIMES, transforms=tf, resample="bilinear", **kw
                     ),
                     trace=False,
                 ),
@@ -601,8 +573,8 @@ def main() -> None:
     fr32 = [f.astype(np.float32) * np.float32(1 / 4095) for f in fr12]
     rows.append(
         (
-            "ours (numba) float32 linear, noise-aware",
-            *measure(lambda: merge(fr32, TIMES, engine="numba"), trace=False),
+            "ours float32 linear, noise-aware",
+            *measure(lambda: merge(fr32, TIMES), trace=False),
         )
     )
     fr32.clear()

@@ -23,6 +23,13 @@ unclipped in all frames (3 px from any clipping), relative to the x1 frame's (a 
 in the exposure gives 0 up to the rounding of its output to levels).
 
     python bench/bench_mosaic.py [--size 768x1152] [--seeds 3]
+
+Speed (``--speed [--mp 24] [--reps 3]``): a simulated 12-bit RGGB mosaic bracket (3 frames
+2 stops apart, read and shot noise, black 256) of ``--mp`` megapixels: the merge of the four
+site planes alone (:func:`hdrcore.merge.merge` on ``(H/2, W/2, 4)`` uint16, tripod), the whole
+:func:`~hdrcore.merge.mosaic.merge_mosaic` (planes, merge, ceiling, Malvar demosaic) and the
+hand-held one (four 1-channel site merges through a small rotation), wall and CPU seconds
+(min over ``--reps``), then the same for the brackets simulated from the real CRW singles.
 """
 
 from __future__ import annotations
@@ -219,6 +226,101 @@ def real_crw(path: Path) -> dict[str, list[float]]:
 GAINS = (1, 2, 4)
 
 
+def _timed(fn, reps: int) -> tuple[float, float]:
+    """(min wall s, min CPU s) of ``fn()`` over ``reps`` runs (one untimed run first: the
+    kernels are compiled or loaded from the cache)."""
+    fn()
+    walls, cpus = [], []
+    for _ in range(reps):
+        t0, c0 = time.perf_counter(), time.process_time()
+        fn()
+        walls.append(time.perf_counter() - t0)
+        cpus.append(time.process_time() - c0)
+    return min(walls), min(cpus)
+
+
+def _speed_rows(cfas, times, max_level: int, reps: int) -> list[tuple[str, float, float]]:
+    from hdrcore.exposure.registered import cfa_planes
+
+    planes = [cfa_planes(c.data, c.pattern, c.colors, c.black_level, max_level)[0] for c in cfas]
+    kw = dict(max_level=max_level, weighting="noise-aware")
+    h, w = cfas[0].data.shape
+    th = np.deg2rad(0.2)
+    rot = np.array([[np.cos(th), -np.sin(th), 2.3], [np.sin(th), np.cos(th), -1.4]])
+    return [
+        ("site-plane merge (4 channels)", *_timed(lambda: merge(planes, times, **kw), reps)),
+        (
+            "merge_mosaic, tripod",
+            *_timed(lambda: merge_mosaic(cfas, times, max_level=max_level), reps),
+        ),
+        (
+            "merge_mosaic, hand-held (4 x 1 ch)",
+            *_timed(
+                lambda: merge_mosaic(
+                    cfas, times, max_level=max_level, transforms=[rot, None, None]
+                ),
+                reps,
+            ),
+        ),
+    ]
+
+
+def speed(mp: float, reps: int) -> None:
+    """The mosaic merge's speed (see the module docstring)."""
+    import os
+
+    import hdrcore
+    from hdrcore.io.frame import RawCFA
+
+    w = int(round(np.sqrt(mp * 1e6 * 1.5) / 16)) * 16  # 3:2, whole 8 x 8 blocks
+    h = int(round(w / 1.5 / 16)) * 16
+    rng = np.random.default_rng(0)
+    # a log-normal scene of 8 x 8 blocks, RGGB gains, 2 stops between frames
+    scene = np.exp(rng.normal(0.0, 1.2, (h // 8, w // 8))).astype(np.float32)
+    scene = np.repeat(np.repeat(scene, 8, axis=0), 8, axis=1)
+    gain = np.array([[0.55, 1.0], [1.0, 0.7]], np.float32)
+    scene *= np.tile(gain, (h // 2, w // 2))
+    times = (1 / 256, 1 / 64, 1 / 16)
+    black, white = 256, 4095
+    cfas = []
+    for t in times:
+        e = scene * np.float32(t * 64 * (white - black))  # the middle frame: ~ mid-scale
+        e += rng.normal(0.0, 1.0, e.shape).astype(np.float32) * np.sqrt(4.0 + e / 4.0)
+        data = np.clip(np.rint(e) + black, 0, white).astype(np.uint16)
+        cfas.append(RawCFA(data, np.array([[0, 1], [3, 2]]), "RGBG", (black,) * 4, white))
+    del scene
+    print(
+        f"hdrcore from {os.path.dirname(hdrcore.__file__)}; simulated 12-bit RGGB mosaic "
+        f"bracket, 3 frames of {w} x {h} ({w * h / 1e6:.1f} MP); cpu count {os.cpu_count()}, "
+        f"load average {os.getloadavg()[0]:.2f}"
+    )
+    print(f"{'':36s} {'wall s':>8s} {'cpu s':>8s}   (min of {reps})")
+    for name, wall, cpu in _speed_rows(cfas, times, white - black, reps):
+        print(f"{name:36s} {wall:8.3f} {cpu:8.3f}")
+    if not SHARED.is_dir():
+        print(f"# {SHARED} absent: real-data rows skipped")
+        return
+    for p in sorted(SHARED.glob("*.CRW")):
+        cfa = read_raw(p).cfa
+        black_r = int(cfa.black_level[0])
+        white_r = int(cfa.white_level)
+        lin = np.clip(cfa.data.astype(np.int64) - black_r, 0, None)
+        real = [
+            RawCFA(
+                np.clip(black_r + lin * g, 0, white_r).astype(np.uint16),
+                cfa.pattern,
+                cfa.colors,
+                cfa.black_level,
+                white_r,
+            )
+            for g in GAINS
+        ]
+        hh, ww = cfa.data.shape
+        print(f"# real {p.name} ({ww} x {hh}), bracket SIMULATED by scaling its mosaic by 1, 2, 4")
+        for name, wall, cpu in _speed_rows(real, [g / 100 for g in GAINS], white_r - black_r, reps):
+            print(f"{name:36s} {wall:8.3f} {cpu:8.3f}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -230,7 +332,13 @@ def main() -> None:
         action="store_true",
         help="frames moved (up to 4 px, 0.3 deg), merged through the true motion",
     )
+    ap.add_argument("--speed", action="store_true", help="the mosaic merge's speed only")
+    ap.add_argument("--mp", type=float, default=24.0, help="megapixels of --speed's mosaic")
+    ap.add_argument("--reps", type=int, default=3, help="timed runs of each --speed row")
     args = ap.parse_args()
+    if args.speed:
+        speed(args.mp, args.reps)
+        return
     h, w = (int(v) for v in args.size.lower().split("x"))
     kind = "hand-held (true motion)" if args.handheld else "tripod"
     print(

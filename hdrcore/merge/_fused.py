@@ -1,25 +1,29 @@
-"""The fused merge kernel: one pass over blocks of pixels, every frame and channel.
+"""The merge kernel: one pass over blocks of pixels, every frame and channel.
 
-Same arithmetic as the numpy reference (:class:`hdrcore.merge.reference.ReferenceKernel`), in
-the same float32 order, so both give the same radiance, shares, weight sums and maps (bit for
-bit for integer frames; within float32 rounding of ``exp`` for the Gaussian weight of float
-frames).
+The merge's one implementation (:func:`hdrcore.merge.merge` runs it through
+:func:`hdrcore.merge.engine.run_fused`); :mod:`hdrcore.merge.spec` states its rules as plain
+whole-image numpy, and the tests hold the kernel to that specification.
 
-One kernel, :func:`merge_rows`, for every input: frames with a transform (resampled
-inside the merge, Keys cubic convolution (Keys 1981, a = -1/2) or bilinear, see
-:func:`hdrcore.merge.merge`) and frames read in place (float; integer levels, linear or through
-per-level tables). It is laid out for SIMD: per block of a row each frame's values form one
-interleaved run (element ``3 x + ch``), so the sums, the weights and the finish are straight
-loops over elements with no per-channel branch. A resampled frame's coordinates and Keys
-weights are computed for the whole block in one loop (float64, as the reference), then the
+One kernel, :func:`merge_rows`, for every input: any channel count ``C`` (3: RGB; 4: the RAW
+mosaic merge's CFA sites; 1: one site plane), frames with a transform (resampled inside the
+merge, Keys cubic convolution (Keys 1981, a = -1/2) or bilinear, see :func:`hdrcore.merge.merge`)
+and frames read in place (float; integer levels, linear or through per-level tables). The
+channel loops are written once; ``C`` is the length of a tuple argument (the clip thresholds,
+``FusedModel.tap_thr``), a compile-time constant: numba compiles one specialisation per channel
+count and unrolls those loops as if written for it. A new weighting needs no change here: it is
+one scalar function in :mod:`hdrcore.merge.weights` (inlined when built in, else called through
+its compiled pointer ``wfn``). It is laid out for SIMD: per block of a row each frame's values
+form one interleaved run (element ``C x + ch``), so the sums, the weights and the finish are
+straight loops over elements with no per-channel branch. A resampled frame's coordinates and
+Keys weights are computed for the whole block in one loop (float64), then the
 block is cut into runs of pixels whose 4 x 4 supports share their source rows and column offset
 (under a small rotation a run is about ``1 / sin(angle)`` pixels long): over a run the taps of
 each source row are contiguous, so the 16 taps are 16 multiply-adds over contiguous memory
 instead of 48 scattered loads per pixel. The "any tap clipped" test is made per run too: each
 source column of the run once, then ``ntap`` columns per support (:func:`_clipped_supports`).
-Integer frames read in place with a response LUT (or with the Gaussian weight, whose ``exp``
-must be the reference's to the last bit) go through per-level tables built with the numpy
-engine's arithmetic (:func:`hdrcore.merge.engine.level_tables`: the linearisation and the
+Integer frames read in place with a response LUT (or with the Gaussian weight, whose ``exp`` is
+then numpy's to the last bit) go through per-level tables built with the kernel's float32
+arithmetic (:func:`hdrcore.merge.engine.level_tables`: the linearisation and the
 weighting applied to every level of every frame and channel:
 ``E_k = g(M) / dt``, ``w`` with the noise floor applied, ``w var(E_k)``, ``w E_k`` and
 ``w E_k**2``), five loads and five adds a sample: the compiler does not vectorise table
@@ -58,7 +62,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from .._numba import AVAILABLE  # without numba the numpy reference runs
+from .._numba import AVAILABLE  # without numba the merge refuses to run (engine.kernel_engine)
 from .._numba import inline as _inline
 from .._numba import njit as _njit
 from ..geometry import keys4
@@ -221,8 +225,8 @@ def warm_up() -> float:
 
 # --------------------------------------------------------------------------------------------
 # Resampling inside the merge: frames with a transform are read at T_k (x, y, 1) with Keys'
-# cubic convolution (a = -1/2) straight from their levels (the reference is
-# hdrcore.merge.reference.ReferenceKernel._sample / _linearise_sampled).
+# cubic convolution (a = -1/2) straight from their levels (the specification:
+# hdrcore.merge.spec._sample / _linearise).
 
 
 @_njit
@@ -324,8 +328,8 @@ def _finish_block(
         invw[i] = one / (wsum if wsum >= _TINY else _TINY)
         zflag[i] = z
         nz += z
-    # fallbacks (the reference's _fallback), for the few pixels with a channel of no weight:
-    # no frame gave the pixel weight, a valid frame is clipped there and every usable frame
+    # fallbacks (hdrcore.merge.merge's docstring), for the few pixels with a channel of no
+    # weight: no frame gave the pixel weight, a valid frame is clipped there and every usable frame
     # is a shorter exposure: the darkest clipped frame's value in every channel (a lower
     # bound; shorter frames below the noise floor, a black one, say nothing against it); no
     # valid frame at all: the darkest frame's, not clipped. Otherwise (some frame usable) the
@@ -528,9 +532,9 @@ def _accumulate_levels_table(
 ):
     """The sums of one frame of integer levels read in place through its per-level table
     ``tk (C L, 8)`` (:func:`hdrcore.merge.engine.level_tables`: ``E_k, w, w var(E_k), w E_k,
-    w E_k**2`` of every level, the numpy engine's arithmetic, the noise floor applied; channel
+    w E_k**2`` of every level, the kernel's arithmetic, the noise floor applied; channel
     ``ch``'s entry of level ``v`` at ``choff[e] + v``, ``choff[e] = ch L``): five loads and five
-    adds a sample, bit for bit the reference's (the Gaussian weight's ``exp`` included).
+    adds a sample, bit for bit :func:`_accumulate_run`'s (the Gaussian weight's ``exp``: numpy's).
     Without a LUT ``E_k`` is computed (levels past the table are clipped there, and the
     fallbacks need their value); with one, levels past it are counted (the caller refuses
     them). ``eb`` as :func:`_accumulate_run`."""
@@ -655,7 +659,7 @@ def _warp_setup(
     """For pixels ``x0 .. x0 + nbk - 1`` of row ``yf`` mapped by the 3x3 matrix ``m`` (with
     the perspective divide; affine motions have ``m2 = (0, 0, 1)``): the
     weights ``wxp[j, i]``, ``wyp[j, i]`` of the ``ntap`` taps per axis (Keys cubic in float64,
-    as the reference, then float32; or bilinear ``float32(1 - f), float32(f)``), ``ins[i]``
+    then float32; or bilinear ``float32(1 - f), float32(f)``), ``ins[i]``
     whether the support lies in the frame (top-left tap ``o`` before the floor, ``<= wlim``,
     ``<= hlim``), ``ixs``/``iys`` the support's top-left tap (clamped so that an outside
     pixel's unused index stays valid) and ``same[i]`` whether pixel ``i`` continues pixel
@@ -766,17 +770,19 @@ def merge_rows(fr, warp, model, wfn, fin, out, r0, r1):
     :class:`FusedWarp`, :class:`FusedModel`, :class:`FusedFinish`, :class:`FusedOutputs`;
     ``wfn`` the weighting's compiled scalar form, used when ``model.wcode < 0``). Frame ``k``
     with ``has_mat[k]`` is read at ``mats[k] @ (x, y, 1)`` (``ntap`` 4: Keys cubic, 4 weights
-    per axis shared by the 3 channels; 2: bilinear), the others at ``(x, y)``; ``flats[k]`` is
-    frame ``k`` as ``(H, W * 3)``. A resampled frame is clipped at a pixel when any of the taps
-    of any channel is at or above its saturation level (``tap_thr``: :func:`tap_thresholds` in
-    the frames' dtype; :func:`_clipped_supports`), and invalid when the support leaves the frame
+    per axis shared by the ``C`` channels; 2: bilinear), the others at ``(x, y)``; ``flats[k]``
+    is frame ``k`` as ``(H, W * C)``, ``C = len(tap_thr)`` (a constant of each compiled
+    specialisation). A resampled frame is clipped at a pixel when any of the taps of any channel
+    is at or above its saturation level (``tap_thr``: :func:`tap_thresholds` in the frames'
+    dtype, a tuple; :func:`_clipped_supports`), and invalid when the support leaves the frame
     (its values read 0 there). ``oor[k]``: frame ``k`` (resampled, with a LUT) holds levels past
     the LUT, so clipped supports are searched for them. Resampled integer levels with a LUT are
     interpolated, then read linearly between LUT entries; with ``use_tab`` the integer frames
     read in place go through the per-level tables ``tabs (N, C L, 8)``
     (:func:`_accumulate_levels_table`: frames with a LUT, and the Gaussian weight, whose ``exp``
-    is then the reference's to the last bit); otherwise integer levels and float frames are
-    linear (``level = value * inv_max``). With ``has_colour`` each finished block is converted
+    is then numpy's to the last bit); otherwise integer levels and float frames are
+    linear (``level = value * inv_max``). With ``has_colour`` (3 channels) each finished block
+    is converted
     to the working space (:func:`hdrcore.merge.colour.convert_pixels` with ``cm``, ``cwb``,
     ``cneu``) while it is in cache. Returns the number of samples above the LUT's last level
     (the caller refuses the input).
@@ -1000,7 +1006,7 @@ def merge_rows(fr, warp, model, wfn, fin, out, r0, r1):
                     ebj,
                     tap_thr,
                 )
-            elif use_tab:
+            elif use_tab and not warped:  # (a resampled frame's values are in xk)
                 out_of_range += _accumulate_levels_table(
                     frf,
                     choff,

@@ -1,40 +1,74 @@
-"""The merge engines: the fused numba kernel (:mod:`hdrcore.merge._fused`, the default) and the
-numpy reference (:mod:`hdrcore.merge.reference`), and how the fused kernel is called."""
+"""How the merge's one kernel (:mod:`hdrcore.merge._fused`, compiled by numba) is called: its
+typed argument groups, its per-level tables, the engine names :func:`hdrcore.merge.merge`
+takes."""
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from ..errors import ParameterError
+from ..errors import ParameterError, validate_method
 from . import _fused
 from .colour import ColourConversion
 from .plan import IDENTITY, Outputs, Plan, SampleModel
 from .weights import WEIGHTS
 
-__all__ = ["MERGE_ENGINES", "default_engine", "fused_supported", "run_fused"]
+__all__ = ["MERGE_ENGINES", "default_engine", "kernel_engine", "level_tables", "run_fused"]
 
 MERGE_ENGINES: dict[str, str] = {
-    "numba": "fused one-pass kernel compiled by numba (hdrcore.merge._fused)",
-    "numpy": "vectorised numpy over chunks of rows: the reference implementation",
+    "numba": "the one-pass merge kernel compiled by numba (hdrcore.merge._fused), any channel "
+    "count",
 }
-"""Implementations of :func:`merge` by name; both give the same result."""
+"""Implementations of :func:`merge` by name: one. (``"numpy"``, the numpy engine, is gone; the
+name is a deprecated alias of the kernel for one release, see :func:`kernel_engine`.)"""
+
+DEPRECATED_ENGINES = ("numpy",)
 
 
 def default_engine() -> str:
-    """``"numba"`` when numba is importable, else ``"numpy"``."""
-    return "numba" if _fused.AVAILABLE else "numpy"
+    """``"numba"``: the only implementation (kept for callers of earlier releases)."""
+    return "numba"
 
 
-def fused_supported(plan: Plan) -> str | None:
-    """Why the fused kernel cannot run this plan, or ``None`` when it can."""
+def kernel_engine(engine: str | None) -> str:
+    """The engine a ``merge(..., engine=...)`` runs: ``"numba"`` for ``None``, ``"numba"`` and
+    the deprecated ``"numpy"`` (with a ``DeprecationWarning``); any other name and a missing
+    numba are a :class:`ParameterError`."""
+    if isinstance(engine, str) and engine.strip().lower() in DEPRECATED_ENGINES:
+        warnings.warn(
+            "merge(engine='numpy') is deprecated: the numpy merge engine was removed and the "
+            "compiled kernel runs instead (same results); drop the argument",
+            DeprecationWarning,
+            stacklevel=3,
+        )
+        engine = None
+    engine = "numba" if engine is None else validate_method(engine, MERGE_ENGINES, "merge engine")
     if not _fused.AVAILABLE:
-        return "numba is not installed"
-    if plan.integer and plan.frames[0].dtype not in (np.uint8, np.uint16):
-        return f"integer frames of dtype {plan.frames[0].dtype} (uint8 and uint16 only)"
-    return None
+        raise ParameterError(
+            "the merge needs numba (a dependency of hdrcore)",
+            expected="numba installed",
+            found="numba not importable",
+        )
+    return engine
+
+
+def _kernel_dtype(frames: tuple[np.ndarray, ...], integer: bool) -> tuple[np.ndarray, ...]:
+    """The frames in a dtype the kernel is compiled for: float32, uint8 or uint16 (integer
+    frames of mixed or other unsigned dtypes as uint16, levels above 65535 read as 65535; the
+    plan keeps ``max_level`` within 65535)."""
+    if not integer:
+        return frames
+    dtypes = {f.dtype for f in frames}
+    if len(dtypes) == 1 and dtypes <= {np.dtype(np.uint8), np.dtype(np.uint16)}:
+        return frames
+    top = np.iinfo(np.uint16).max
+    return tuple(
+        (f if np.iinfo(f.dtype).max <= top else np.minimum(f, top)).astype(np.uint16)
+        for f in frames
+    )
 
 
 def _one_type(arrays: Sequence[np.ndarray]) -> tuple[np.ndarray, ...]:
@@ -55,11 +89,12 @@ def level_tables(p: Plan, m: SampleModel) -> np.ndarray:
     """float32 ``(N, C L, 8)``: ``E_k, w, w var(E_k), w E_k, w E_k**2`` (and three zeros: one
     aligned 32-byte line a level, so a sample's five values are one cache line even when a
     16-bit table does not fit the cache) of every level ``0..max_level`` (``L`` levels) of
-    every frame, channel ``ch``'s level ``v`` at row ``ch L + v`` (the fused kernel's
+    every frame, channel ``ch``'s level ``v`` at row ``ch L + v`` (the kernel's
     :func:`~hdrcore.merge._fused._accumulate_levels_table`). The float32 operations are the
-    numpy engine's, in its order, so an entry is bit for bit what it computes for a sample of
-    that level (the noise floor applied; clipping and masks, which depend on the pixel, not).
-    """
+    kernel's own (:func:`~hdrcore.merge._fused._accumulate_run`), in its order, so an entry is
+    bit for bit what the kernel computes for a sample of that level (the noise floor applied;
+    clipping and masks, which depend on the pixel, not), ``exp`` of the Gaussian weight
+    numpy's (the kernel's vectorised ``exp`` may differ in the last place)."""
     n, c = len(p.frames), p.shape[2]
     length = int(p.max_level or 0) + 1
     levels = np.arange(length, dtype=p.frames[0].dtype)
@@ -103,12 +138,11 @@ def run_fused(
     force_tables: bool = False,
     colour: ColourConversion | None = None,
 ) -> None:
-    """The fused kernel (:func:`hdrcore.merge._fused.merge_rows`) over ``spans`` of
-    rows, ``colour`` applied inside it. Integer frames read in place go through per-level
-    tables (:func:`level_tables`) when they have a LUT or ``force_tables``."""
-    frames = p.frames
-    if p.integer and len({f.dtype for f in frames}) > 1:
-        frames = tuple(f.astype(np.uint16) for f in frames)
+    """The kernel (:func:`hdrcore.merge._fused.merge_rows`) over ``spans`` of rows (on
+    ``workers`` threads), ``colour`` applied inside it. Integer frames read in place go
+    through per-level tables (:func:`level_tables`) when they have a LUT or
+    ``force_tables``."""
+    frames = _kernel_dtype(p.frames, p.integer)
     frames_t = _one_type(frames)
     dummy = np.ones((1, 1), bool)
     masks_t = _one_type([m if m is not None else dummy for m in p.masks])

@@ -21,8 +21,8 @@ Rules that keep the result free of colour casts and honest about what it could n
   a marker or a moving object) and the pixel is flagged ``underexposed``. Such a value is that
   frame's ``E_k = g(M) / dt`` exactly as the weighted sums formed it (float32).
 * With ``colour=`` (a :class:`~hdrcore.merge.colour.ColourConversion`) the radiance comes out in
-  the working space, the pixels clipped in every frame neutral: the fused kernel converts each
-  block while it is in cache, which saves a pass over the map.
+  the working space, the pixels clipped in every frame neutral: the kernel converts each block
+  while it is in cache, which saves a pass over the map.
 
 Units: for integer frames ``saturation_level`` and ``noise_floor`` are output levels (the frames'
 own units, 0..``max_level``); for float frames (already linear, 1.0 = saturation) they are linear
@@ -32,12 +32,16 @@ values. The radiance is in the units of ``g(M) / dt``: with times relative to th
 Hand-held frames need not be warped beforehand: with ``transforms`` the merge resamples them
 itself (Keys cubic convolution from the integer levels, see :func:`merge`; ``resample="bilinear"``
 is a faster, softer opt-in), so the pipeline passes the bracket's own levels and no warped float
-copies exist. The fused kernel runs the taps and the "any tap clipped" test of pixels whose
-supports share their source rows as contiguous SIMD loops (see :mod:`hdrcore.merge._fused`); a
-support leaving the frame reads as no data.
+copies exist. The kernel runs the taps and the "any tap clipped" test of pixels whose supports
+share their source rows as contiguous SIMD loops (see :mod:`hdrcore.merge._fused`); a support
+leaving the frame reads as no data.
 
-The work runs over chunks of rows so that every temporary stays in cache (float32 throughout); the
-peak memory beyond inputs and outputs is a few megabytes per worker.
+One implementation computes all this: the compiled kernel :func:`hdrcore.merge._fused.merge_rows`
+(numba), for any channel count (3: RGB; 4 and 1: the RAW mosaic merge's CFA sites), called by
+:func:`hdrcore.merge.engine.run_fused`. :mod:`hdrcore.merge.spec` states the same rules as plain
+whole-image numpy; the tests hold the kernel to it. The work runs over blocks of rows with
+float32 temporaries that stay in cache; the peak memory beyond inputs and outputs is a few
+megabytes per worker.
 
 References
 ----------
@@ -59,10 +63,10 @@ import numpy as np
 
 from .._threads import worker_count
 from ..errors import ParameterError, validate_method
-from .colour import ColourConversion, apply_colour
+from .colour import ColourConversion
 from .consistency import GhostTestParams, consistency_regions
 from .deghost import fill_ghost_regions
-from .engine import MERGE_ENGINES, default_engine, fused_supported, run_fused
+from .engine import MERGE_ENGINES, default_engine, kernel_engine, run_fused
 from .maps import DEFAULT_GHOST_THRESHOLD, DEFAULT_MODEL_ERROR
 from .plan import (
     DEFAULT_SATURATION,
@@ -73,7 +77,6 @@ from .plan import (
     reused_outputs,
     sample_model,
 )
-from .reference import ReferenceKernel, run_reference
 from .result import MergeResult
 from .weights import NoiseModel
 
@@ -98,7 +101,8 @@ GHOST_TESTS = {
 """How the ``ghost`` map is decided (``merge(..., ghost_test=...)``)."""
 
 DEFAULT_CHUNK_PIXELS = 1 << 16
-"""Pixels per chunk: keeps a chunk's temporaries (about 40 bytes per sample) in L2 cache."""
+"""Pixels per chunk of rows (at least 1/16 of a worker's share of the rows): the chunks only
+balance the worker threads' work (the kernel's scratch is per block of a row)."""
 
 
 def _merge_one_frame(plan: Plan, k: int, y0: int, y1: int, **kw) -> MergeResult:
@@ -212,12 +216,12 @@ def merge(
     ghost_threshold, model_error
         See :mod:`hdrcore.merge.maps`.
     chunk_pixels, workers
-        Pixels per chunk of rows and worker threads (numpy releases the GIL in its loops);
+        Pixels per chunk of rows and worker threads (the kernel releases the GIL);
         ``workers=None`` uses up to two threads.
     engine
-        A name in :data:`MERGE_ENGINES`; ``None`` picks the fused numba kernel when it can run
-        the input (numba installed, uint8/uint16 or float frames) and the numpy reference
-        otherwise. Both give the same result.
+        ``None`` or ``"numba"``: the compiled kernel, the one implementation
+        (:data:`MERGE_ENGINES`). ``"numpy"`` named the numpy engine, removed: it is accepted
+        for one release as a deprecated alias of the kernel (``DeprecationWarning``).
     transforms
         Optional ``N`` entries, each ``None`` (identity) or a 2x3 affine matrix mapping OUTPUT
         (reference-frame) pixel coordinates to that frame's pixel coordinates (x right, y down,
@@ -244,7 +248,7 @@ def merge(
         :func:`~hdrcore.merge.colour.colour_conversion`): the radiance comes out converted, the
         pixels clipped in every frame made neutral, exactly as
         :func:`~hdrcore.merge.colour.camera_to_working` would; the fused kernel does it while
-        the block is in cache (one pass less over the map).
+        the block is in cache (one pass less over the map). 3-channel frames only.
     deghost
         Fill each region where the frames disagree (``ghost``, grown by 2 pixels) from one
         frame, the one with the largest share there (a frame not resampled when its share is at
@@ -263,8 +267,8 @@ def merge(
     ------
     ParameterError
         For an empty list, mismatched shapes, non-positive times, out-of-range levels, unknown
-        weighting names, a LUT or mask that does not fit the frames and a transform that is not
-        a finite 2x3 matrix.
+        weighting names, a LUT or mask that does not fit the frames, a transform that is not
+        a finite 2x3 matrix, a colour conversion of frames that are not RGB and a missing numba.
     """
     t0 = time.perf_counter()
     plan = make_plan(
@@ -294,52 +298,31 @@ def merge(
         raise ParameterError(
             "chunk_pixels and workers must be >= 1", found=f"{chunk_pixels}, {workers}"
         )
-    if engine is None:
-        engine = "numba" if fused_supported(plan) is None else "numpy"
-    else:
-        engine = validate_method(engine, MERGE_ENGINES, "merge engine")
-        why = fused_supported(plan) if engine == "numba" else None
-        if why is not None:
-            raise ParameterError(
-                "the numba merge engine cannot run this input",
-                expected="engine='numpy'",
-                found=why,
-            )
+    engine = kernel_engine(engine)
     h, w, c = plan.shape
+    if colour is not None and c != 3:
+        raise ParameterError(
+            "a colour conversion needs RGB frames", expected="3 channels", found=f"{c} channels"
+        )
     n = len(plan.frames)
     t1 = time.perf_counter()
     out = new_outputs((h, w, c), n) if reuse is None else reused_outputs(reuse, (h, w, c), n)
-    rows = max(1, int(chunk_pixels) // w)
-    if engine == "numba":
-        # no per-chunk scratch: chunks only balance the threads' work
-        rows = max(rows, -(-h // (16 * int(workers))))
+    # no per-chunk scratch: chunks only balance the threads' work
+    rows = max(1, int(chunk_pixels) // w, -(-h // (16 * int(workers))))
     spans = [(r, min(h, r + rows)) for r in range(0, h, rows)]
     workers = min(int(workers), len(spans))
-    if engine == "numba":
-        # exp() of the Gaussian weight, vectorised, may differ from the numpy engine's in the
-        # last bit: integer levels take it from the per-level tables (that engine's
-        # arithmetic), so they stay bit for bit the same
-        run_fused(
-            plan,
-            out,
-            sample_model(plan, float(ghost_threshold), float(model_error)),
-            spans,
-            workers,
-            force_tables=plan.integer and plan.weighting == "gaussian",
-            colour=colour,
-        )
-    else:
-        kernel = ReferenceKernel(plan, out, float(ghost_threshold), float(model_error))
-        try:
-            run_reference(kernel, spans, workers, rows)
-        except IndexError as exc:  # np.take of a level past the end of the LUT
-            raise ParameterError(
-                "levels above max_level have no response LUT entry",
-                expected=f"levels 0..{plan.max_level}",
-                found=str(exc),
-            ) from exc
-    if colour is not None and engine != "numba":
-        apply_colour(out.radiance, colour, clipped=out.clipped, out=out.radiance, workers=workers)
+    # exp() of the Gaussian weight, vectorised, may differ from numpy's in the last bit:
+    # integer levels take it from the per-level tables (numpy's exp, as before), so their
+    # results do not depend on the compiler's choice
+    run_fused(
+        plan,
+        out,
+        sample_model(plan, float(ghost_threshold), float(model_error)),
+        spans,
+        workers,
+        force_tables=plan.integer and plan.weighting == "gaussian",
+        colour=colour,
+    )
     t2 = time.perf_counter()
     ghost_score, ghost = out.ghost_score, out.ghost
     ghost_regions = None
@@ -358,7 +341,6 @@ def merge(
             score=ghost_score,
             params=ghost_params,
             workers=workers,
-            engine="numba" if engine == "numba" else "numpy",
         )
         np.copyto(ghost, ghost_regions.ghost)
     t_ghost = time.perf_counter()

@@ -7,11 +7,11 @@ pixel speaks for values it did not measure, and a demosaic that is not linear in
 (LibRaw's AHD) gives each frame a slightly different colour. Here the four sites of each 2x2
 cell are the channels of a half-size frame (:func:`hdrcore.exposure.registered.cfa_planes`:
 black-subtracted, held at ``max_level``), the frames are merged with the project's merge
-(:func:`hdrcore.merge.merge`: the noise-aware weights of the noise model, a frame dropped in a
-cell where any of its sites is clipped, the ghost maps), the merged cells are put back in their
-places as one float mosaic of radiance, and that mosaic is demosaiced once
-(:func:`hdrcore.demosaic.demosaic`). The merged mosaic is also what a CFA float DNG stores
-(:mod:`hdrcore.io.dng`).
+(:func:`hdrcore.merge.merge`, its compiled kernel with 4 channels: the noise-aware weights of
+the noise model, a frame dropped in a cell where any of its sites is clipped, the ghost maps),
+the merged cells are put back in their places as one float mosaic of radiance, and that mosaic
+is demosaiced once (:func:`hdrcore.demosaic.demosaic`). The merged mosaic is also what a CFA
+float DNG stores (:mod:`hdrcore.io.dng`).
 
 Tripod brackets only (no transforms): a hand-held frame would need its motion applied per
 colour plane with each site's sub-pixel phase, which is not built.

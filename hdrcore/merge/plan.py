@@ -1,5 +1,5 @@
-"""Validation of :func:`hdrcore.merge.merge`'s input, once, into a :class:`Plan` for the engines,
-and the arrays the engines write (:class:`Outputs`).
+"""Validation of :func:`hdrcore.merge.merge`'s input, once, into a :class:`Plan` for the kernel,
+and the arrays the kernel writes (:class:`Outputs`).
 
 Units: for integer frames ``saturation_level`` and ``noise_floor`` are output levels (the frames'
 own units, 0..``max_level``); for float frames (already linear, 1.0 = saturation) they are linear
@@ -76,7 +76,7 @@ class Plan:
 
 @dataclass(frozen=True)
 class SampleModel:
-    """The float32 constants every engine applies to a sample of the plan: ``level = value *
+    """The float32 constants the kernel applies to a sample of the plan: ``level = value *
     inv_max``, zero weight unless ``level > floor_norm``, ``var(x) = x shot + const_var``
     (plus the LUT's level-noise term), the ghost test's threshold and squared model error."""
 
@@ -210,10 +210,12 @@ def make_plan(
                     found="None",
                 )
         max_level = int(max_level)
-        if max_level < 1 or max_level > np.iinfo(arrs[0].dtype).max:
+        # the kernel reads integer levels as uint8 or uint16
+        top = min(np.iinfo(arrs[0].dtype).max, np.iinfo(np.uint16).max)
+        if max_level < 1 or max_level > top:
             raise ParameterError(
                 "max_level out of range for the frames' dtype",
-                expected=f"1..{np.iinfo(arrs[0].dtype).max}",
+                expected=f"1..{top} (levels of up to 16 bits; float frames otherwise)",
                 found=str(max_level),
             )
         if response is None:

@@ -39,7 +39,8 @@ class MergeResult:
         ``"regions"`` (the default) the pixels of the regions where blocks of the frames
         disagree (:func:`hdrcore.merge.consistency.consistency_regions`, in ``ghost_regions``).
     engine
-        which implementation ran (a key of :data:`MERGE_ENGINES`).
+        which implementation ran: ``"numba"``, the compiled kernel, the only one (a key of
+        :data:`MERGE_ENGINES`; results of earlier releases may say ``"numpy"``).
     deghosted
         bool ``(H, W)``: pixels filled from one frame by ``merge(..., deghost=True)`` (``None``
         without it).
@@ -65,7 +66,7 @@ class MergeResult:
     status: str
     message: str
     timings: dict[str, float] = field(default_factory=dict)
-    engine: str = "numpy"
+    engine: str = "numba"
     deghosted: np.ndarray | None = None
     ghost_test: str = "pixels"
     ghost_regions: GhostRegions | None = None

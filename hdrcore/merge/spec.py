@@ -1,11 +1,12 @@
-"""The merge written as plainly as numpy allows: the specification the tests hold the engines to.
+"""The merge written as plainly as numpy allows: the specification the tests hold the kernel to.
 
-Whole images, float64, one statement per rule, no chunks, no scratch buffers, no speed. It takes
-a validated :class:`~hdrcore.merge.plan.Plan` (so it checks no input) and returns the arrays of a
-:class:`~hdrcore.merge.result.MergeResult` that depend only on the frames (not the region ghost
-test, deghosting or colour). The engines compute the same in float32, in their own order, so a
-test compares with a tolerance; the decisions (clipped, below the floor, which frame a fallback
-takes) are the same to the bit: thresholds are compared as the kernel compares them.
+Used by the tests only (the merge runs the compiled kernel, :mod:`hdrcore.merge._fused`). Whole
+images, float64, one statement per rule, any channel count, no chunks, no scratch buffers, no
+speed. It takes a validated :class:`~hdrcore.merge.plan.Plan` (so it checks no input) and returns
+the arrays of a :class:`~hdrcore.merge.result.MergeResult` that depend only on the frames (not
+the region ghost test, deghosting or colour). The kernel computes the same in float32, in its own
+order, so a test compares with a tolerance; the decisions (clipped, below the floor, which frame a
+fallback takes) are the same to the bit: thresholds are compared as the kernel compares them.
 
 For each frame ``k`` (exposure time ``t_k``) and output pixel: the sample (the frame's own, or
 read at ``T_k (x, y, 1)`` plus its displacement field: Keys cubic or bilinear taps of the levels,
@@ -60,7 +61,8 @@ def _sample(plan: Plan, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     clipped = np.zeros((h, w), bool)
     for jy in range(ntap):
         for jx in range(ntap):
-            tap = frame[iy + jy, ix + jx]  # (H, W, C)
+            # (outside pixels read some in-frame sample: discarded below)
+            tap = frame[np.minimum(iy + jy, h - 1), np.minimum(ix + jx, w - 1)]  # (H, W, C)
             values += (wy[jy] * wx[jx])[..., None] * tap
             clipped |= (tap >= sat).any(axis=2)
     hi = float(plan.max_level or 1) if plan.integer else 1.0
@@ -81,7 +83,10 @@ def _linearise(plan: Plan, values: np.ndarray) -> tuple[np.ndarray, np.ndarray, 
         var = x * noise.shot_gain + max(const, 1e-12)
         return level, x, var
     g = plan.lut.astype(np.float64)  # (C, L)
-    slope2 = np.gradient(g, axis=1) ** 2 * noise.level_variance()
+    # g'(M)**2 (level_noise**2 + 1/12) per level, as the plan holds it (made from the float64
+    # response: the gradient of the float32 LUT would lose digits where g is flat)
+    assert plan.lut_var is not None  # a plan with a LUT has both
+    slope2 = plan.lut_var.astype(np.float64)
     x = np.empty_like(values)
     var = np.empty_like(values)
     grid = np.arange(g.shape[1])

@@ -183,10 +183,11 @@ class Weighting:
     function, ``WEIGHTS["name"] = Weighting(fn)``.
 
     Calling a ``Weighting`` applies it to whole arrays with the old signature
-    ``(level, linear, exposure_time, variance) -> float32 weights`` (the numpy reference engine,
-    the per-level tables, :func:`weights`); :attr:`code` (built-ins, inlined in the kernel) or
-    :attr:`pointer` (any other: a compiled function pointer the kernel calls) is how the fused
-    kernel runs it. Both run the same compiled scalar code."""
+    ``(level, linear, exposure_time, variance) -> float32 weights`` (the kernel's per-level
+    tables, the specification :mod:`hdrcore.merge.spec`, :func:`weights`); :attr:`code`
+    (built-ins, inlined in the kernel) or :attr:`pointer` (any other: a compiled function
+    pointer the kernel calls) is how the merge kernel runs it. Both run the same compiled
+    scalar code."""
 
     def __init__(self, fn: Callable[..., Any]) -> None:
         if not callable(fn):

@@ -108,11 +108,10 @@ def test_srgb_matrix_copy_matches_colour_science():
 
 
 @pytest.mark.parametrize("case", ["raw", "raw-warped", "lut", "float"])
-@pytest.mark.parametrize("engine", ["numba", "numpy"])
-def test_merge_applies_colour_as_camera_to_working(case, engine):
+def test_merge_applies_colour_as_camera_to_working(case):
     """merge(..., colour=) gives bit for bit what camera_to_working gives on its result, the
-    pixels clipped in every frame made neutral, on every engine and kernel (the SIMD kernel
-    converts each block inside its finishing pass; the others convert afterwards)."""
+    pixels clipped in every frame made neutral, on every path of the kernel (it converts each
+    block inside its finishing pass)."""
     from hdrcore.merge import apply_colour, colour_conversion, merge
 
     rng = np.random.default_rng(5)
@@ -136,9 +135,9 @@ def test_merge_applies_colour_as_camera_to_working(case, engine):
     if case == "raw-warped":
         kw["transforms"] = [np.array([[1.0, 0.01, 0.4], [-0.01, 1.0, -0.3]]), None, None]
     conv = colour_conversion(CAM_XYZ, WB, "sRGB")
-    plain = merge(frames, times, engine=engine, **kw)
+    plain = merge(frames, times, **kw)
     assert plain.clipped.any()
-    fused = merge(frames, times, engine=engine, colour=conv, **kw)
+    fused = merge(frames, times, colour=conv, **kw)
     expected = apply_colour(plain.radiance, conv, clipped=plain.clipped)
     np.testing.assert_array_equal(fused.radiance, expected)
     np.testing.assert_array_equal(fused.clipped, plain.clipped)

@@ -22,11 +22,10 @@ def _with_object(sb, k: int, square=SQUARE) -> list[np.ndarray]:
     return frames
 
 
-@pytest.mark.parametrize("engine", ["numba", "numpy"])
-def test_an_object_in_one_frame_is_removed_and_the_rest_unchanged(engine):
+def test_an_object_in_one_frame_is_removed_and_the_rest_unchanged():
     sb = bracket(bits=12, response="linear", noise_sigma=1.0, seed=2)
     frames = _with_object(sb, 1)
-    kw = dict(max_level=sb.max_level, engine=engine)
+    kw = dict(max_level=sb.max_level)
     mixed = merge(frames, sb.exposure_times, **kw)
     clean = merge(frames, sb.exposure_times, deghost=True, **kw)
     # the weighted mix shows the object faintly (a ghost); one frame per region does not
@@ -43,7 +42,6 @@ def test_an_object_in_one_frame_is_removed_and_the_rest_unchanged(engine):
         saturation_level=clean.saturation_level,
         noise_floor=clean.noise_floor,
         weighting=clean.weighting,
-        engine=engine,
     )
     d = clean.deghosted
     np.testing.assert_array_equal(clean.radiance[d], alone.radiance[d])
@@ -64,11 +62,11 @@ def test_hand_held_frames_are_cut_to_bands_with_their_transform_shifted():
     moved = [k for k, t in enumerate(tf) if not np.allclose(t, np.eye(2, 3))]
     frames = _with_object(sb, moved[0])
     kw = dict(max_level=sb.max_level, transforms=tf)
-    a = merge(frames, sb.exposure_times, deghost=True, engine="numba", **kw)
-    b = merge(frames, sb.exposure_times, deghost=True, engine="numpy", **kw)
-    np.testing.assert_array_equal(a.radiance, b.radiance)
-    np.testing.assert_array_equal(a.deghosted, b.deghosted)
+    a = merge(frames, sb.exposure_times, deghost=True, **kw)
+    b = merge(frames, sb.exposure_times, **kw)
     assert a.deghosted.any()
+    # outside the filled regions the weighted average stays, to the bit
+    np.testing.assert_array_equal(a.radiance[~a.deghosted], b.radiance[~a.deghosted])
     for k in range(len(frames)):
         take = a.deghosted & (a.shares[k] == 1.0)
         if not take.any():

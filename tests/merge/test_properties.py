@@ -15,9 +15,9 @@ from hdrcore.merge import merge
 ML = 4095
 
 
-def _bracket(seed: int, n: int, base: float, step: float):
+def _bracket(seed: int, n: int, base: float, step: float, channels: int = 3):
     rng = np.random.default_rng(seed)
-    radiance = np.exp(rng.uniform(np.log(0.02), np.log(50.0), (12, 16, 3)))
+    radiance = np.exp(rng.uniform(np.log(0.02), np.log(50.0), (12, 16, channels)))
     times = [base * step**k for k in range(n)]
     frames = []
     for t in times:
@@ -58,15 +58,15 @@ def test_the_order_of_the_frames_changes_nothing(b, rnd) -> None:
     np.testing.assert_allclose(e2, e1, rtol=1e-6, atol=0)
 
 
-@pytest.mark.parametrize("engine", ["numpy", "numba"])
-def test_a_black_frame_adds_nothing(engine) -> None:
+@pytest.mark.parametrize("channels", [3, 4, 1])
+def test_a_black_frame_adds_nothing(channels) -> None:
     # the example that found the bug (issue 17): 42 % of the pixels are clipped in both frames
     # (or dark in one channel of a pixel clipped in another); a black frame set them to 0
-    frames, times = _bracket(0, 2, 0.5, 2.0)
-    r1 = merge(frames, times, max_level=ML, engine=engine)
+    frames, times = _bracket(0, 2, 0.5, 2.0, channels)
+    r1 = merge(frames, times, max_level=ML)
     black = np.zeros_like(frames[0])
-    r2 = merge([black, *frames], [times[0] / 4.0, *times], max_level=ML, engine=engine)
-    assert r1.clipped.mean() > 0.3
+    r2 = merge([black, *frames], [times[0] / 4.0, *times], max_level=ML)
+    assert r1.clipped.mean() > (0.15 if channels == 1 else 0.3)
     np.testing.assert_allclose(r2.radiance, r1.radiance, rtol=1e-6, atol=0)
     np.testing.assert_array_equal(r2.clipped, r1.clipped)
     np.testing.assert_array_equal(r2.underexposed, r1.underexposed)
@@ -75,16 +75,16 @@ def test_a_black_frame_adds_nothing(engine) -> None:
 
 
 @settings(max_examples=20, deadline=None)
-@given(brackets, st.floats(1 / 64, 64.0), st.integers(0, 40), st.sampled_from(["numpy", "numba"]))
-def test_a_black_frame_of_any_time_adds_nothing_with_a_noise_floor(b, c, floor, engine) -> None:
+@given(brackets, st.floats(1 / 64, 64.0), st.integers(0, 40), st.sampled_from([1, 3, 4]))
+def test_a_black_frame_of_any_time_adds_nothing_with_a_noise_floor(b, c, floor, channels) -> None:
     # the black frame darker, between or brighter than the others; a noise floor (the
     # pipeline's) leaves channels of no weight that take a frame's value below the floor.
     # Shorter than every frame: nothing changes anywhere. Otherwise nothing changes where some
     # frame gave the pixel weight; where none did, a black frame longer than a frame clipped
     # there contradicts it (as a marker or a moving object would) and the longest reading
     # stays, and a pixel below the floor in every frame takes the longest frame's value.
-    frames, times = _bracket(*b)
-    kw = dict(max_level=ML, noise_floor=floor, engine=engine)
+    frames, times = _bracket(*b, channels)
+    kw = dict(max_level=ML, noise_floor=floor)
     r1 = merge(frames, times, **kw)
     r2 = merge([*frames, np.zeros_like(frames[0])], [*times, times[0] * c], **kw)
     if c < 1.0:

@@ -1,57 +1,33 @@
-"""The engines against the plain whole-image specification (:mod:`hdrcore.merge.spec`): the same
+"""The kernel against the plain whole-image specification (:mod:`hdrcore.merge.spec`): the same
 decisions (clipped, below the floor, which frame a fallback takes) everywhere, the same values
-within float32 rounding, on tripod and resampled brackets, every weighting, masks, floors, LUTs
-and black frames."""
+within float32 rounding, on tripod and resampled brackets (through displacement fields too), 1,
+3 and 4 channels, every weighting, masks, floors, LUTs and black frames."""
 
 from __future__ import annotations
-
-from dataclasses import replace
 
 import numpy as np
 import pytest
 
-from hdrcore.merge import DEFAULT_GHOST_THRESHOLD, DEFAULT_MODEL_ERROR, merge
-from hdrcore.merge.plan import make_plan
-from hdrcore.merge.spec import merge_spec
+from hdrcore.registration.field import DisplacementField
 from hdrcore.synthetic import simulate_bracket
 
 from ._brackets import SHAPE, TIMES, bracket, inverse_gamma_lut
+from ._spec_check import kernel_vs_spec
 
 pytest.importorskip("numba")
 
 
-def check(frames, times, engines=("numba", "numpy"), **kw) -> dict:
-    plan = make_plan(
-        frames,
-        times,
-        kw.get("response"),
-        kw.get("max_level"),
-        kw.get("masks"),
-        kw.get("saturation_level"),
-        kw.get("noise_floor"),
-        kw.get("weighting"),
-        kw.get("noise"),
-        kw.get("transforms"),
-        None,
-    )
-    plan = replace(plan, resample=kw.get("resample", "cubic"))
-    spec = merge_spec(
-        plan, ghost_threshold=DEFAULT_GHOST_THRESHOLD, model_error=DEFAULT_MODEL_ERROR
-    )
-    for engine in engines:
-        res = merge(frames, times, engine=engine, ghost_test="pixels", **kw)
-        for name in ("clip_count", "clipped", "underexposed"):
-            np.testing.assert_array_equal(getattr(res, name), spec[name], err_msg=name)
-        np.testing.assert_allclose(res.radiance, spec["radiance"], rtol=1e-4, atol=1e-12)
-        np.testing.assert_allclose(res.weight_sum, spec["weight_sum"], rtol=1e-4, atol=1e-12)
-        np.testing.assert_allclose(res.shares.astype(np.float64), spec["shares"], atol=1e-3)
-        score = res.ghost_score.astype(np.float64)
-        small = spec["ghost_score"] < 6e4  # float16's range
-        # sum(w E^2) / sum(w) - E^2 cancels in float32: a fraction of a unit of the score
-        np.testing.assert_allclose(score[small], spec["ghost_score"][small], rtol=5e-3, atol=0.5)
-        clear = np.abs(spec["ghost_score"] - DEFAULT_GHOST_THRESHOLD) > 0.6
-        np.testing.assert_array_equal(res.ghost[clear], spec["ghost"][clear])
-    return spec
+def check(frames, times, **kw) -> dict:
+    return kernel_vs_spec(frames, times, **kw)[1]
+
+
+def _channels(frames, c):
+    """1 channel: red alone; 4: the RGB frames and blue again."""
+    if c == 1:
+        return [np.ascontiguousarray(f[..., :1]) for f in frames]
+    if c == 4:
+        return [np.ascontiguousarray(np.concatenate([f, f[..., 2:]], axis=2)) for f in frames]
+    return frames
 
 
 def test_12bit_with_a_clipped_patch_and_a_moving_object() -> None:
@@ -80,27 +56,59 @@ def test_levels_through_a_lut_with_masks_and_a_noise_floor(bits) -> None:
     assert spec["underexposed"].any()
 
 
+@pytest.mark.parametrize("c", [1, 3, 4])
 @pytest.mark.parametrize("weighting", ["hat", "gaussian", "noise-aware", "uniform"])
-def test_float_frames_every_weighting(weighting) -> None:
+def test_float_frames_every_weighting(weighting, c) -> None:
     sb = bracket(bits=12, response="linear", noise_sigma=1.0, seed=4)
-    frames = [np.asarray(f, np.float32) / np.float32(4095) for f in sb.frames]
+    frames = [np.asarray(f, np.float32) / np.float32(4095) for f in _channels(sb.frames, c)]
     check(frames, sb.exposure_times, weighting=weighting, noise_floor=0.002)
 
 
+@pytest.mark.parametrize("c", [1, 3, 4])
 @pytest.mark.parametrize("resample", ["cubic", "bilinear"])
-def test_resampled_frames_linear_and_through_a_lut(resample) -> None:
+def test_resampled_frames_linear_and_through_a_lut(resample, c) -> None:
     sb = bracket(bits=8, response="gamma", noise_sigma=1.0, seed=5, scene="window")
+    frames = _channels(sb.frames, c)
     t = np.array([[np.cos(0.01), -np.sin(0.01), 1.3], [np.sin(0.01), np.cos(0.01), -0.6]])
     tf = [t, None, np.array([[1.0, 0.0, -2.25], [0.0, 1.0, 0.5]])]
     check(
-        sb.frames,
+        frames,
         sb.exposure_times,
-        response=inverse_gamma_lut(sb.max_level),
+        response=inverse_gamma_lut(sb.max_level, c),
         transforms=tf,
         resample=resample,
     )
+    check(frames, sb.exposure_times, max_level=255, transforms=tf, resample=resample, noise_floor=6)
+
+
+@pytest.mark.parametrize("c", [1, 3, 4])
+@pytest.mark.parametrize("weighting", ["hat", "gaussian", "noise-aware", "uniform"])
+def test_displacement_fields_masks_and_every_weighting(weighting, c) -> None:
+    """Frames read through a homography plus a displacement field (local refinement), one
+    through a field on the identity, masks in output coordinates."""
+    sb = bracket(bits=12, response="linear", noise_sigma=1.0, seed=9, scene="window")
+    frames = _channels(sb.frames, c)
+    h, w = SHAPE
+    gh, gw = DisplacementField.grid((h, w), 16)
+    yy, xx = np.mgrid[0:gh, 0:gw].astype(np.float64) * 16
+    bump = 2.5 * np.exp(-(((xx - w / 2) / 30) ** 2 + ((yy - h / 2) / 20) ** 2))
+    fields = [
+        DisplacementField(16, np.stack([bump, -0.5 * bump], axis=-1)),
+        None,
+        DisplacementField(16, np.stack([-0.7 * bump + 0.3, 0.4 * bump], axis=-1)),
+    ]
+    persp = np.array([[1.0, 0.002, 1.1], [-0.001, 1.0, -0.4], [1e-5, -2e-5, 1.0]])
+    mask = np.ones(SHAPE, bool)
+    mask[30:60, 50:120] = False
     check(
-        sb.frames, sb.exposure_times, max_level=255, transforms=tf, resample=resample, noise_floor=6
+        frames,
+        sb.exposure_times,
+        max_level=4095,
+        weighting=weighting,
+        transforms=[persp, None, None],
+        fields=fields,
+        masks=[None, mask, mask],
+        noise_floor=8,
     )
 
 
@@ -117,3 +125,7 @@ def test_black_frames_and_every_fallback() -> None:
         spec = check([black, *frames], (0.25, *times), max_level=4095, noise_floor=floor)
         assert spec["clipped"].any() and spec["underexposed"].any()
         check([*frames, black], (*times, 64.0), max_level=4095, noise_floor=floor)
+    for c in (1, 4):  # the CFA sites' layouts
+        fc = _channels([black, *frames], c)
+        spec = check(fc, (0.25, *times), max_level=4095, noise_floor=30)
+        assert spec["clipped"].any() and spec["underexposed"].any()
