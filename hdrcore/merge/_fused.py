@@ -101,6 +101,7 @@ class FusedWarp(NamedTuple):
     flds: np.ndarray  # float64 (N, gh, gw, 2): displacement fields on one node grid
     has_fld: np.ndarray  # bool (N,)
     fgeo: np.ndarray  # float64 (3,): 1 / step, origin x, origin y of the fields' grid
+    feather: float  # width in px over which a resampled frame's weight rises from its edge
 
 
 class FusedModel(NamedTuple):
@@ -628,6 +629,28 @@ def _taps_run(flat, iy0, b, e0, e1, ntap, wxe, wye, acc, xk, hi, tap_thr):
         out[q] = min(max(a[q], zero), hi)
 
 
+FEATHER_FLOOR = 1e-3
+"""The least factor :func:`coverage_feather` gives a resampled frame inside its support: never
+0, so a frame that is the only usable one at a pixel still decides it (the fallbacks see a
+weight, as without the feather)."""
+
+
+@_njit
+def coverage_feather(sx, sy, xf, yf, o, wlim, hlim, feather):
+    """The factor on a resampled frame's weight at output pixel ``(xf, yf)``, read at
+    ``(sx, sy)`` of the frame: its distance inside the frame's support (``o .. wlim``,
+    ``o .. hlim``) over ``min(feather, the pixel's own distance inside the output grid)``,
+    clamped to ``[FEATHER_FLOOR, 1]``. Where a frame's edge crosses the image (hand-held
+    frames cover different areas) its weight rises over ``feather`` px instead of stepping
+    from 0 to full: a locally tone-mapped frame that is brighter than its neighbours there
+    then leaves a smooth transition, not a band along the edge. A frame covering as far as
+    the output grid (no motion at that edge) keeps its full weight. Float64, as the spec."""
+    dk = min(min(sx - o, wlim - sx), min(sy - o, hlim - sy))
+    dout = min(min(xf - o, wlim - xf), min(yf - o, hlim - yf))
+    span = min(feather, max(dout, 1.0))
+    return min(max(dk / span, FEATHER_FLOOR), 1.0)
+
+
 @_njit
 def _warp_setup(
     m00,
@@ -655,6 +678,8 @@ def _warp_setup(
     fld,
     use_fld,
     fgeo,
+    fea,
+    feather,
 ):
     """For pixels ``x0 .. x0 + nbk - 1`` of row ``yf`` mapped by the 3x3 matrix ``m`` (with
     the perspective divide; affine motions have ``m2 = (0, 0, 1)``): the
@@ -667,7 +692,8 @@ def _warp_setup(
     (SIMD). With ``use_fld`` the displacement field ``fld (gh, gw, 2)`` (node ``(i, j)`` at
     output pixel ``origin + step (j, i)``; ``fgeo = (1 / step, origin_x, origin_y)``; constant
     beyond the outer nodes) is interpolated bilinearly at the output pixel and added to the
-    mapped position (local refinement: :meth:`DisplacementField.at`)."""
+    mapped position (local refinement: :meth:`DisplacementField.at`). ``fea[i]``: the
+    frame's coverage feather (:func:`coverage_feather`, 1 with ``feather`` 0)."""
     gh = fld.shape[0]
     gw = fld.shape[1]
     fy = min(max((yf - fgeo[2]) * fgeo[0], 0.0), gh - 1.0)
@@ -709,6 +735,7 @@ def _warp_setup(
             wyp[0, i] = np.float32(1.0 - fy)
             wyp[1, i] = np.float32(fy)
         ins[i] = (fx0 >= o) & (fx0 <= wlim) & (fy0 >= o) & (fy0 <= hlim)
+        fea[i] = coverage_feather(sx, sy, xf, yf, o, wlim, hlim, feather) if feather > 0.0 else 1.0
         ixs[i] = np.int32(min(max(fx0 - o, 0.0), wlim - o))
         iys[i] = np.int32(min(max(fy0 - o, 0.0), hlim - o))
     same[0] = False
@@ -826,6 +853,7 @@ def merge_rows(fr, warp, model, wfn, fin, out, r0, r1):
     iys = np.empty(bw, np.int32)
     same = np.empty(bw, np.bool_)  # pixel i continues pixel i - 1's run
     ins = np.empty(bw, np.bool_)
+    fea = np.ones(bw, np.float64)  # a resampled frame's coverage feather per pixel
     share = np.empty((n, bw), np.float32)
     # int32 (not int64): the per-pixel loops then vectorise at the float32 width
     # positions in exposure order (j, not the frame index k): the darkest valid frame clipped
@@ -917,6 +945,8 @@ def merge_rows(fr, warp, model, wfn, fin, out, r0, r1):
                     flds[k],
                     has_fld[k],
                     fgeo,
+                    fea,
+                    warp.feather,
                 )
                 _expand(ntap, nbk, wxp, wxe, tap_thr)
                 _expand(ntap, nbk, wyp, wye, tap_thr)
@@ -974,7 +1004,7 @@ def merge_rows(fr, warp, model, wfn, fin, out, r0, r1):
                 f = fv[i]
                 fv[i] = np.int32(j) if (f == n) & cl else f
                 okp[i] = not b
-                okv = zero if b else one
+                okv = zero if b else (np.float32(fea[i]) if warped else one)
                 e = nch * i
                 for ch in range(nch):
                     okf[e + ch] = okv

@@ -221,7 +221,7 @@ def run_fused(
     cm, cwb, cneu = colour if colour is not None else (np.eye(3), np.ones(3), np.ones(3))
 
     fr = _fused.FusedFrames(frames_t, flats, masks_t, has_mask, order, inv_t, inv_t2, t2)
-    warp = _fused.FusedWarp(mats, has_mat, ntap, oor, flds, has_fld, fgeo)
+    warp = _fused.FusedWarp(mats, has_mat, ntap, oor, flds, has_fld, fgeo, float(p.feather))
     model = _fused.FusedModel(
         wcode,
         m.shot,

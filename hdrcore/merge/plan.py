@@ -68,6 +68,8 @@ class Plan:
     # per frame: a displacement field added to the transform's position (local refinement,
     # :class:`hdrcore.registration.field.DisplacementField`: ``step``, ``offsets``, ``origin``)
     fields: tuple[Any, ...] = ()
+    # px over which a resampled frame's weight rises from its edge (0: a step)
+    feather: float = 0.0
 
     @property
     def warped(self) -> bool:

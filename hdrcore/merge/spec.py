@@ -25,6 +25,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..geometry import keys_weights
+from ._fused import FEATHER_FLOOR
 from .plan import Plan
 from .weights import WEIGHTS
 
@@ -68,6 +69,30 @@ def _sample(plan: Plan, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     hi = float(plan.max_level or 1) if plan.integer else 1.0
     values = np.where(inside[..., None], np.clip(values, 0.0, hi), 0.0)
     return values, clipped & inside, inside
+
+
+def _feather(plan: Plan, k: int) -> np.ndarray | float:
+    """Frame ``k``'s coverage feather per output pixel (1 without a transform or a width):
+    its distance inside its support over ``min(width, the pixel's distance inside the grid)``,
+    clamped to ``[FEATHER_FLOOR, 1]``, read where :func:`_sample` reads it."""
+    t = plan.transforms[k] if plan.transforms else None
+    if t is None or plan.feather <= 0:
+        return 1.0
+    h, w, _ = plan.shape
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    den = t[2, 0] * xx + t[2, 1] * yy + t[2, 2]
+    sx = (t[0, 0] * xx + t[0, 1] * yy + t[0, 2]) / den
+    sy = (t[1, 0] * xx + t[1, 1] * yy + t[1, 2]) / den
+    fld = plan.fields[k] if plan.fields else None
+    if fld is not None:
+        dx, dy = fld.at(xx, yy)
+        sx, sy = sx + dx, sy + dy
+    ntap, first = (4, 1) if plan.resample == "cubic" else (2, 0)
+    wlim, hlim = w - ntap + first, h - ntap + first
+    inside_frame = np.minimum(np.minimum(sx - first, wlim - sx), np.minimum(sy - first, hlim - sy))
+    inside_grid = np.minimum(np.minimum(xx - first, wlim - xx), np.minimum(yy - first, hlim - yy))
+    span = np.minimum(plan.feather, np.maximum(inside_grid, 1.0))
+    return np.clip(inside_frame / span, FEATHER_FLOOR, 1.0)
 
 
 def _linearise(plan: Plan, values: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -123,7 +148,8 @@ def merge_spec(plan: Plan, *, ghost_threshold: float, model_error: float) -> dic
         # the normalised level in float32, as the kernel forms it (the floor is a threshold)
         lv32 = values.astype(np.float32) * np.float32(inv_max)
         wgt = weight(lv32, x.astype(np.float32), t, var.astype(np.float32))
-        wk[k] = wgt * (usable_k[k][..., None] & (lv32 > floor_level))
+        fea = np.float32(_feather(plan, k))  # as the kernel rounds it
+        wk[k] = wgt * (usable_k[k][..., None] & (lv32 > floor_level)) * np.asarray(fea)[..., None]
 
     den = wk.sum(axis=0)  # (H, W, C)
     rad = np.divide((wk * ek).sum(axis=0), den, out=np.zeros_like(den), where=den > 0)

@@ -8,6 +8,7 @@ from dataclasses import replace
 import numpy as np
 
 from hdrcore.merge import DEFAULT_GHOST_THRESHOLD, DEFAULT_MODEL_ERROR, MergeResult, merge
+from hdrcore.merge.merge import default_feather
 from hdrcore.merge.plan import make_plan
 from hdrcore.merge.spec import merge_spec
 
@@ -43,7 +44,14 @@ def kernel_vs_spec(frames, times, **kw) -> tuple[MergeResult, dict]:
         kw.get("transforms"),
         kw.get("fields"),
     )
-    plan = replace(plan, resample=kw.get("resample", "cubic"))
+    feather = kw.get("feather")
+    plan = replace(
+        plan,
+        resample=kw.get("resample", "cubic"),
+        feather=(default_feather(plan.shape[:2]) if feather is None else float(feather))
+        if plan.warped
+        else 0.0,
+    )
     threshold = kw.get("ghost_threshold", DEFAULT_GHOST_THRESHOLD)
     spec = merge_spec(
         plan, ghost_threshold=threshold, model_error=kw.get("model_error", DEFAULT_MODEL_ERROR)
