@@ -27,20 +27,17 @@ from __future__ import annotations
 
 import os
 import time
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import lru_cache
 from typing import Any
 
+import numba
 import numpy as np
 
 from ._threads import run_row_spans
 from .errors import ParameterError, validate_method
-
-try:
-    import numba
-except ImportError:  # pragma: no cover - numba is a dependency; numpy does the work without it
-    numba = None  # type: ignore[assignment]  # no numba at run time (mypy sees the installed one)
 
 __all__ = [
     "AUTO_LOCAL_STOPS",
@@ -224,54 +221,56 @@ def srgb_encode_8bit(x: np.ndarray) -> np.ndarray:
 
 _OPERATOR_CODES = {"linear": 0, "reinhard": 1, "reinhard-rgb": 2}
 
-if numba is not None:
 
-    @numba.njit(nogil=True, cache=True, fastmath=False)
-    def _tonemap_rows(src, scale, code, has_white, w2, y, lut, dst, r0, r1):  # pragma: no cover
-        """The numpy path of :func:`tonemap` for rows ``r0:r1`` in one pass, the same float32
-        operations in the same order: scale, non-finite -> 0, operator, 16-bit LUT encoding."""
-        w = src.shape[1]
-        c = src.shape[2]
-        one = np.float32(1.0)
-        zero = np.float32(0.0)
-        top = np.float32(_LUT_SIZE - 1)
-        half = np.float32(0.5)
-        v = np.empty(3, np.float32)
-        for r in range(r0, r1):
-            for x in range(w):
+@numba.njit(nogil=True, cache=True, fastmath=False)
+def _tonemap_rows(src, scale, code, has_white, w2, y, lut, dst, r0, r1):  # pragma: no cover
+    """:func:`tonemap` of the built-in global operators for rows ``r0:r1`` in one pass:
+    scale, non-finite -> 0, operator, 16-bit LUT encoding, the float32 operations of the
+    operator functions (:func:`tonemap_linear`, :func:`tonemap_reinhard`,
+    :func:`tonemap_reinhard_rgb`, their readable specification) in the same order: the
+    tests hold the two to the bit (``hdrcore/tonemap_spec.py``)."""
+    w = src.shape[1]
+    c = src.shape[2]
+    one = np.float32(1.0)
+    zero = np.float32(0.0)
+    top = np.float32(_LUT_SIZE - 1)
+    half = np.float32(0.5)
+    v = np.empty(3, np.float32)
+    for r in range(r0, r1):
+        for x in range(w):
+            for ch in range(3):
+                a = np.float32(src[r, x, ch if c == 3 else 0]) * scale
+                if not np.isfinite(a):
+                    a = zero
+                v[ch] = a
+            if code == 1:
+                lum = v[0] * y[0]
+                lum = lum + v[1] * y[1]
+                lum = lum + v[2] * y[2]
+                if not (lum >= np.float32(1e-12)):
+                    lum = np.float32(1e-12)
+                ld = lum / (one + lum)
+                if has_white:
+                    ld = ld * (one + lum / w2)
+                ld = ld / lum
                 for ch in range(3):
-                    a = np.float32(src[r, x, ch if c == 3 else 0]) * scale
-                    if not np.isfinite(a):
-                        a = zero
-                    v[ch] = a
-                if code == 1:
-                    lum = v[0] * y[0]
-                    lum = lum + v[1] * y[1]
-                    lum = lum + v[2] * y[2]
-                    if not (lum >= np.float32(1e-12)):
-                        lum = np.float32(1e-12)
-                    ld = lum / (one + lum)
-                    if has_white:
-                        ld = ld * (one + lum / w2)
-                    ld = ld / lum
-                    for ch in range(3):
-                        v[ch] = v[ch] * ld
-                elif code == 2:
-                    for ch in range(3):
-                        a = v[ch]
-                        if a < zero:
-                            a = zero
-                        d = one + a
-                        if has_white:
-                            a = a * (one + a / w2)
-                        v[ch] = a / d
+                    v[ch] = v[ch] * ld
+            elif code == 2:
                 for ch in range(3):
                     a = v[ch]
-                    a = min(max(a, zero), one)
-                    a = a * top
-                    a = min(max(a, zero), top)
-                    a = a + half
-                    dst[r, x, ch] = lut[np.uint16(a)]
+                    if a < zero:
+                        a = zero
+                    d = one + a
+                    if has_white:
+                        a = a * (one + a / w2)
+                    v[ch] = a / d
+            for ch in range(3):
+                a = v[ch]
+                a = min(max(a, zero), one)
+                a = a * top
+                a = min(max(a, zero), top)
+                a = a + half
+                dst[r, x, ch] = lut[np.uint16(a)]
 
 
 def log_average_luminance(radiance: np.ndarray, *, max_samples: int = 1 << 20) -> float:
@@ -317,6 +316,32 @@ def _tonemap_numba(
 
     run_row_spans(h, workers, work)
     return dst
+
+
+def tonemap_chunks(
+    rad: np.ndarray,
+    op: Callable[..., np.ndarray],
+    scale: float,
+    white: float | None,
+    chunk_pixels: int = 1 << 18,
+) -> np.ndarray:
+    """8-bit sRGB codes of a global operator ``op`` (float32, in place on ``(N, 3)`` pixels) on
+    ``rad * scale`` ``(H, W, 1 or 3)``, non-finite values black, on chunks of ``chunk_pixels``:
+    :func:`tonemap`'s path for operators added to :data:`TONEMAP_OPERATORS` (the built-in ones
+    run compiled, :func:`_tonemap_rows`; the tests hold it to this path with their operator
+    functions, ``hdrcore/tonemap_spec.py``)."""
+    h, w, c = rad.shape
+    flat = rad.reshape(h * w, c)
+    out = np.empty((h * w, 3), np.uint8)
+    step = max(1, int(chunk_pixels))
+    for i in range(0, h * w, step):
+        x = np.multiply(flat[i : i + step], np.float32(scale), dtype=np.float32)
+        np.nan_to_num(x, copy=False, nan=0.0, posinf=0.0, neginf=0.0)
+        if c == 1:
+            x = np.repeat(x, 3, axis=1)
+        op(x, white=white)
+        out[i : i + step] = srgb_encode_8bit(x)
+    return out.reshape(h, w, 3)
 
 
 @dataclass(frozen=True, eq=False)
@@ -383,10 +408,11 @@ def tonemap(
     """Tonemap a linear radiance map ``(H, W, 3)`` (or ``(H, W)``) to an 8-bit sRGB preview.
 
     ``exposure`` is in stops; ``white`` is in exposed units (after the scaling) for the Reinhard
-    operators. Non-finite values are shown as black. ``engine``: ``"numba"`` (one fused pass
-    over row blocks on ``workers`` threads, default up to 2; the default when numba is installed
-    and the operator is one of the built-in ones) or ``"numpy"`` (chunks of ``chunk_pixels``;
-    the reference, and the path for operators added to :data:`TONEMAP_OPERATORS`).
+    operators. Non-finite values are shown as black. The built-in operators run as one compiled
+    pass over row blocks on ``workers`` threads (default up to 2); operators added to
+    :data:`TONEMAP_OPERATORS` run on chunks of ``chunk_pixels``. ``engine``: deprecated, for one
+    release: ``"numba"`` or ``None`` as before, ``"numpy"`` warns (DeprecationWarning) and the
+    compiled pass runs (the numpy engine is gone, issue 17).
 
     Local operators (``"durand"``, or ``"auto"`` choosing it) work on the whole image:
     ``pixel_size`` is the size of its pixels in full-resolution pixels (a preview made at a
@@ -409,11 +435,14 @@ def tonemap(
         raise ParameterError("key must be positive", found=str(key))
     if white is not None and (not np.isfinite(white) or white <= 0):
         raise ParameterError("white must be positive or None", found=str(white))
-    if engine is not None and (
-        engine not in ("numba", "numpy") or (engine == "numba" and numba is None)
-    ):
-        raise ParameterError(
-            "tonemap engine must be 'numba' (installed) or 'numpy'", found=str(engine)
+    if engine is not None and engine not in ("numba", "numpy"):
+        raise ParameterError("tonemap engine must be 'numba' or 'numpy'", found=str(engine))
+    if engine == "numpy":
+        warnings.warn(
+            "tonemap(engine='numpy') is deprecated: the numpy engine is gone, the compiled "
+            "pass runs (the engine= parameter goes in the next release)",
+            DeprecationWarning,
+            stacklevel=2,
         )
     if not np.isfinite(pixel_size) or pixel_size <= 0:
         raise ParameterError("pixel_size must be positive", found=str(pixel_size))
@@ -439,35 +468,20 @@ def tonemap(
     h, w, c = rad.shape
     if key_m in LOCAL_OPERATORS:
         from .tonemap_local import render_durand_8bit
-        from .tonemap_local import tonemap_durand as local
 
         if c == 1:
             rad = np.repeat(rad, 3, axis=2)
-        if engine == "numpy" or numba is None:
-            x = np.multiply(rad, np.float32(scale), dtype=np.float32)
-            np.nan_to_num(x, copy=False, nan=0.0, posinf=0.0, neginf=0.0)
-            y, st = local(
-                x,
-                _luminance_weights(),
-                state=state,
-                offset=offset,
-                pixel_size=pixel_size,
-                params=local_params,
-                engine="numpy",
-            )
-            image = srgb_encode_8bit(y)
-        else:
-            image, st = render_durand_8bit(
-                rad,
-                _luminance_weights(),
-                _srgb_lut(),
-                scale=scale,
-                state=state,
-                offset=offset,
-                pixel_size=pixel_size,
-                params=local_params,
-                workers=workers,
-            )
+        image, st = render_durand_8bit(
+            rad,
+            _luminance_weights(),
+            _srgb_lut(),
+            scale=scale,
+            state=state,
+            offset=offset,
+            pixel_size=pixel_size,
+            params=local_params,
+            workers=workers,
+        )
         t2 = time.perf_counter()
         return TonemapResult(
             image=image,
@@ -484,9 +498,7 @@ def tonemap(
             reason=reason,
             state=st,
         )
-    if engine is None:
-        engine = "numba" if numba is not None and key_m in _OPERATOR_CODES else "numpy"
-    if engine == "numba":
+    if key_m in _OPERATOR_CODES:
         image = _tonemap_numba(rad, key_m, scale, white, workers)
         t2 = time.perf_counter()
         return TonemapResult(
@@ -503,20 +515,10 @@ def tonemap(
             dynamic_range=dr,
             reason=reason,
         )
-    flat = rad.reshape(h * w, c)
-    out = np.empty((h * w, 3), np.uint8)
-    op = TONEMAP_OPERATORS[key_m]
-    step = max(1, int(chunk_pixels))
-    for i in range(0, h * w, step):
-        x = np.multiply(flat[i : i + step], np.float32(scale), dtype=np.float32)
-        np.nan_to_num(x, copy=False, nan=0.0, posinf=0.0, neginf=0.0)
-        if c == 1:
-            x = np.repeat(x, 3, axis=1)
-        op(x, white=white)
-        out[i : i + step] = srgb_encode_8bit(x)
+    image = tonemap_chunks(rad, TONEMAP_OPERATORS[key_m], scale, white, chunk_pixels)
     t2 = time.perf_counter()
     return TonemapResult(
-        image=out.reshape(h, w, 3),
+        image=image,
         method=key_m,
         exposure=float(exposure),
         key=float(key),

@@ -31,11 +31,11 @@ References
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
 
-from ._numba import AVAILABLE
 from ._numba import njit as _njit
 from .errors import ParameterError
 
@@ -176,20 +176,23 @@ def _splat(rad, scale, wts, inv_cell, l0, inv_bin, sums, counts):  # pragma: no 
 
 
 @_njit
-def _slice(lg, y0, x0, inv_cell, l0, inv_bin, grid, out, r0, r1):  # pragma: no cover
-    """Trilinear read of the grid at each pixel's position and log luminance (rows
-    ``r0:r1``); the numpy reference is :func:`_slice_numpy`."""
+def _slice(lg, ys, xs, inv_cell, l0, inv_bin, grid, out, r0, r1):  # pragma: no cover
+    """Trilinear read of the grid at the pixels of rows ``r0:r1`` of ``lg`` (log2 luminance),
+    row ``y`` at ``ys[y]``, column ``x`` at ``xs[x]`` (float64, in the pixels the grid's cells
+    are ``1 / inv_cell`` of); ``out`` (float32 or float64) takes the base. The whole image reads
+    at ``offset + arange``, :func:`local_tone_state` at its subsample's pixels. The readable
+    specification is ``hdrcore/tonemap_spec.py`` (``slice_grid``), used only by the tests."""
     w = lg.shape[1]
     nz, ny, nx = grid.shape
     for y in range(r0, r1):
-        fy = (y0 + y + 0.5) * inv_cell
+        fy = (ys[y] + 0.5) * inv_cell
         iy = min(max(int(np.floor(fy)), 0), ny - 2)
         ty = min(max(fy - iy, 0.0), 1.0)
         for x in range(w):
-            fx = (x0 + x + 0.5) * inv_cell
+            fx = (xs[x] + 0.5) * inv_cell
             ix = min(max(int(np.floor(fx)), 0), nx - 2)
             tx = min(max(fx - ix, 0.0), 1.0)
-            fz = (lg[y, x] - l0) * inv_bin
+            fz = (np.float64(lg[y, x]) - l0) * inv_bin
             iz = min(max(int(np.floor(fz)), 0), nz - 2)
             tz = min(max(fz - iz, 0.0), 1.0)
             acc = 0.0
@@ -203,36 +206,31 @@ def _slice(lg, y0, x0, inv_cell, l0, inv_bin, grid, out, r0, r1):  # pragma: no 
             out[y, x] = acc
 
 
-def _slice_points(lg, ys, xs, inv_cell, l0, inv_bin, grid) -> np.ndarray:
-    """Trilinear read of the grid at pixels ``(ys, xs)`` (broadcast) of log luminance ``lg``
-    (the numpy form of :func:`_slice`)."""
-    nz, ny, nx = grid.shape
-    fy = (np.asarray(ys, np.float64) + 0.5) * inv_cell
-    fx = (np.asarray(xs, np.float64) + 0.5) * inv_cell
-    iy = np.clip(np.floor(fy).astype(np.int64), 0, ny - 2)
-    ix = np.clip(np.floor(fx).astype(np.int64), 0, nx - 2)
-    ty = np.clip(fy - iy, 0.0, 1.0)
-    tx = np.clip(fx - ix, 0.0, 1.0)
-    fz = (np.asarray(lg, np.float64) - l0) * inv_bin
-    iz = np.clip(np.floor(fz).astype(np.int64), 0, nz - 2)
-    tz = np.clip(fz - iz, 0.0, 1.0)
-    acc = np.zeros(np.broadcast(fz, fy, fx).shape)
-    for dz in range(2):
-        wz = tz if dz else 1.0 - tz
-        for dy in range(2):
-            wy = ty if dy else 1.0 - ty
-            for dx in range(2):
-                wx = tx if dx else 1.0 - tx
-                acc += wz * wy * wx * grid[iz + dz, iy + dy, ix + dx]
-    return acc
+def _read_grid(
+    lg: np.ndarray,
+    ys: np.ndarray,
+    xs: np.ndarray,
+    inv_cell: float,
+    l0: float,
+    inv_bin: float,
+    grid: np.ndarray,
+    dtype: type = np.float32,
+    workers: int | None = None,
+) -> np.ndarray:
+    """The base at the pixels ``lg`` (rows at ``ys``, columns at ``xs``) through :func:`_slice`
+    on row blocks."""
+    from ._threads import run_row_spans
 
-
-def _slice_numpy(lg, y0, x0, inv_cell, l0, inv_bin, grid) -> np.ndarray:
-    """Whole-image numpy version of :func:`_slice` (the reference of the tests)."""
-    h, w = lg.shape
-    ys = (y0 + np.arange(h))[:, None]
-    xs = (x0 + np.arange(w))[None, :]
-    return _slice_points(lg, ys, xs, inv_cell, l0, inv_bin, grid).astype(np.float32)
+    lgc = np.ascontiguousarray(lg)
+    ysf = np.ascontiguousarray(ys, np.float64)
+    xsf = np.ascontiguousarray(xs, np.float64)
+    out: np.ndarray = np.empty(lgc.shape, dtype)
+    run_row_spans(
+        lgc.shape[0],
+        workers,
+        lambda r0, r1: _slice(lgc, ysf, xsf, inv_cell, l0, inv_bin, grid, out, r0, r1),
+    )
+    return out
 
 
 @_njit
@@ -241,7 +239,8 @@ def _render_rows(
 ):  # pragma: no cover - compiled
     """Rows ``r0:r1`` of the 8-bit sRGB rendering of ``rad * scale`` in one pass: luminance,
     its log, the base read from the grid, the compressed output, the colour ratios, the 16-bit
-    sRGB table (the numpy reference is :func:`tonemap_durand` then ``srgb_encode_8bit``)."""
+    sRGB table (the readable specification is :func:`tonemap_durand` then
+    ``srgb_encode_8bit``, within one code: that works in float32)."""
     w = rad.shape[1]
     nz, ny, nx = grid.shape
     top = lut.shape[0] - 1
@@ -281,39 +280,18 @@ def _render_rows(
                 dst[y, xx, ch] = lut[int(q * top + 0.5)]
 
 
-def _base(
-    lg: np.ndarray,
-    state_grid: np.ndarray,
-    offset: tuple[float, float],
-    cell: float,
-    l0: float,
-    bin_: float,
-    engine: str,
-) -> np.ndarray:
-    inv_cell = 1.0 / cell
-    inv_bin = 1.0 / bin_
-    if engine == "numba" and AVAILABLE:
-        out = np.empty(lg.shape, np.float32)
-        from ._threads import run_row_spans
-
-        run_row_spans(
-            lg.shape[0],
-            None,
-            lambda r0, r1: _slice(
-                lg,
-                float(offset[0]),
-                float(offset[1]),
-                inv_cell,
-                l0,
-                inv_bin,
-                state_grid,
-                out,
-                r0,
-                r1,
-            ),
+def _deprecated_engine(engine: str, where: str) -> None:
+    """``engine=`` of the local operator: ``"numba"`` is the only engine; ``"numpy"`` is a
+    deprecated alias of it for one release (issue 17)."""
+    if engine == "numpy":
+        warnings.warn(
+            f"{where}(engine='numpy') is deprecated: the numpy engine is gone, the compiled "
+            "kernel runs (the engine= parameter goes in the next release)",
+            DeprecationWarning,
+            stacklevel=3,
         )
-        return out
-    return _slice_numpy(lg, float(offset[0]), float(offset[1]), inv_cell, l0, inv_bin, state_grid)
+    elif engine != "numba":
+        raise ParameterError("tonemap engine must be 'numba' or 'numpy'", found=str(engine))
 
 
 def local_tone_state(
@@ -345,27 +323,16 @@ def local_tone_state(
     sums = np.zeros((nz, ny, nx))
     counts = np.zeros((nz, ny, nx))
     wts = np.asarray(weights, np.float64)
-    if AVAILABLE:
-        _splat(
-            np.ascontiguousarray(rad),
-            float(scale),
-            wts,
-            1.0 / cell_px,
-            l0,
-            1.0 / bin_,
-            sums,
-            counts,
-        )
-    else:  # pragma: no cover - exercised only without numba
-        x = np.asarray(rad, np.float64) * scale
-        x = np.where(np.isfinite(x) & (x > 0), x, 0.0)
-        lg = np.log2(np.maximum(x @ wts, 1e-12))
-        gy = np.clip(((np.arange(h) + 0.5) / cell_px + 0.5).astype(int), 0, ny - 1)
-        gx = np.clip(((np.arange(w) + 0.5) / cell_px + 0.5).astype(int), 0, nx - 1)
-        gz = np.clip(((lg - l0) / bin_ + 0.5).astype(int), 0, nz - 1)
-        idx = (gz, gy[:, None] + 0 * gz, gx[None, :] + 0 * gz)
-        np.add.at(sums, idx, lg)
-        np.add.at(counts, idx, 1.0)
+    _splat(
+        np.ascontiguousarray(rad),
+        float(scale),
+        wts,
+        1.0 / cell_px,
+        l0,
+        1.0 / bin_,
+        sums,
+        counts,
+    )
     sig = (float(p.range_sigma) / bin_, 1.0, 1.0)
     bs = ndimage.gaussian_filter(sums, sig, mode="constant", truncate=3.0)
     bc = ndimage.gaussian_filter(counts, sig, mode="constant", truncate=3.0)
@@ -375,9 +342,9 @@ def local_tone_state(
     weight = bc / (bc + 1e-3)
     grid = np.where(bc > 0, bs / np.maximum(bc, 1e-300), levels)
     grid = (weight * grid + (1 - weight) * levels).astype(np.float32)
-    ys = np.arange(step // 2, h, step)[:, None]
-    xs = np.arange(step // 2, w, step)[None, :]
-    base = _slice_points(lg_sub, ys, xs, 1.0 / cell_px, l0, 1.0 / bin_, grid)
+    ys = np.arange(step // 2, h, step)
+    xs = np.arange(step // 2, w, step)
+    base = _read_grid(lg_sub, ys, xs, 1.0 / cell_px, l0, 1.0 / bin_, grid, np.float64)
     b1, b99 = (float(v) for v in np.percentile(base, [1.0, 99.0]))
     c = 1.0
     if b99 > _PIVOT:
@@ -463,9 +430,15 @@ def tonemap_durand(
     ``weights``: the luminance weights. With ``state`` (from an earlier call) the image is a
     crop at ``offset`` (rows, columns in full-resolution pixels) of the image that made it, and
     ``pixel_size`` the size of its pixels in full-resolution pixels.
+
+    The float form of the operator, in float32 numpy but for the grid read (compiled,
+    :func:`_slice`): :func:`hdrcore.tonemap.tonemap` does not call it (it renders through the
+    compiled :func:`render_durand_8bit`); it is the readable specification the tests hold that
+    pass to (within one 8-bit code). ``engine``: deprecated, ignored (``"numpy"`` warns); the
+    grid is always read by the compiled kernel.
     """
-    if engine is None:
-        engine = "numba" if AVAILABLE else "numpy"
+    if engine is not None:
+        _deprecated_engine(engine, "tonemap_durand")
     x = np.where(np.isfinite(x) & (x > 0), x, 0.0).astype(np.float32)
     lg = _log_luminance(x, weights)
     bad = ~np.isfinite(lg)
@@ -478,7 +451,16 @@ def tonemap_durand(
         off = (offset[0] / float(pixel_size), offset[1] / float(pixel_size))
     p = state.params
     cell_px = state.cell / float(pixel_size)
-    base = _base(lg, state.grid, off, cell_px, state.l0, state.bin, engine)
+    h, w = lg.shape
+    base = _read_grid(
+        lg,
+        off[0] + np.arange(h),
+        off[1] + np.arange(w),
+        1.0 / cell_px,
+        state.l0,
+        1.0 / state.bin,
+        state.grid,
+    )
     out_l = _PIVOT + state.c * (base - _PIVOT) + float(p.detail_gain) * (lg - base)
     y = np.maximum(x, 0.0, dtype=np.float32) / np.exp2(lg)[..., None]  # colour ratios
     y -= 1.0

@@ -6,6 +6,7 @@ import colour
 import numpy as np
 import pytest
 
+from hdrcore import tonemap_spec as spec
 from hdrcore.errors import ParameterError
 from hdrcore.tonemap import TONEMAP_OPERATORS, srgb_encode_8bit, tonemap
 
@@ -69,17 +70,36 @@ def test_bad_input_is_refused():
 
 @pytest.mark.parametrize("method", ["linear", "reinhard", "reinhard-rgb"])
 @pytest.mark.parametrize("white", [None, 4.0])
-def test_fused_tonemap_matches_the_numpy_reference(method, white):
-    pytest.importorskip("numba")
+def test_fused_tonemap_matches_the_spec_to_the_bit(method, white):
+    """The compiled pass against the operator functions on chunks (``tonemap_spec``)."""
     rng = np.random.default_rng(0)
     rad = np.exp(rng.normal(0.0, 2.0, (64, 96, 3))).astype(np.float32)
     rad[0, 0] = (np.nan, np.inf, -1.0)
-    ref = tonemap(rad, method, white=white, exposure=0.5, engine="numpy")
-    fused = tonemap(rad, method, white=white, exposure=0.5, engine="numba", workers=2)
-    np.testing.assert_array_equal(fused.image, ref.image)
-    grey = tonemap(rad[..., 1], method, white=white, engine="numba")
+    fused = tonemap(rad, method, white=white, exposure=0.5, workers=2)
+    np.testing.assert_array_equal(fused.image, spec.global_8bit(rad, method, fused.scale, white))
+    grey = tonemap(rad[..., 1], method, white=white)
     np.testing.assert_array_equal(
-        grey.image, tonemap(rad[..., 1], method, white=white, engine="numpy").image
+        grey.image, spec.global_8bit(rad[..., 1], method, grey.scale, white)
     )
+    with pytest.warns(DeprecationWarning, match="engine='numpy'"):
+        alias = tonemap(rad, method, white=white, exposure=0.5, engine="numpy")
+    np.testing.assert_array_equal(alias.image, fused.image)
     with pytest.raises(ParameterError, match="tonemap engine"):
         tonemap(rad, method, engine="gpu")
+
+
+def test_an_added_operator_runs_on_chunks(monkeypatch):
+    """Operators added to TONEMAP_OPERATORS (no compiled form) run on chunks of pixels."""
+    calls = []
+
+    def half(x, *, white=None):
+        calls.append(x.shape)
+        x *= np.float32(0.5)
+        np.clip(x, 0.0, 1.0, out=x)
+        return x
+
+    monkeypatch.setitem(TONEMAP_OPERATORS, "half", half)
+    rad = np.full((4, 5, 3), 1.0, np.float32)
+    res = tonemap(rad, "half", auto_exposure=False, chunk_pixels=8)
+    assert res.method == "half" and [c[0] for c in calls] == [8, 8, 4]
+    assert (res.image == srgb_encode_8bit(np.full(1, 0.5, np.float32))[0]).all()

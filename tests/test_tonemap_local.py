@@ -7,9 +7,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from hdrcore import tonemap_spec as spec
 from hdrcore.errors import ParameterError
 from hdrcore.tonemap import AUTO_LOCAL_STOPS, TONEMAP_OPERATORS, tonemap
-from hdrcore.tonemap_local import LocalToneParams
+from hdrcore.tonemap_local import LocalToneParams, tonemap_durand
 
 LUMA = np.array([0.2126, 0.7152, 0.0722])
 
@@ -88,27 +89,62 @@ def test_colour_is_kept():
     assert grey.astype(int)[200:230, 250:350].std(axis=-1).mean() < 1 < spread
 
 
-def test_deterministic_and_the_compiled_pass_matches_the_numpy_reference():
-    pytest.importorskip("numba")
+def test_deterministic_and_the_compiled_pass_matches_the_spec():
     rad, _ = _room_and_window(11.0, seed=3)
     rad[0, 0] = (np.nan, np.inf, -1.0)
-    a = tonemap(rad, "durand", exposure=0.5, engine="numba")
-    b = tonemap(rad, "durand", exposure=0.5, engine="numba")
-    ref = tonemap(rad, "durand", exposure=0.5, engine="numpy")
+    a = tonemap(rad, "durand", exposure=0.5)
+    b = tonemap(rad, "durand", exposure=0.5, workers=1)
+    ref, st = spec.durand_8bit(rad, a.scale)
     np.testing.assert_array_equal(a.image, b.image)
-    assert np.abs(a.image.astype(int) - ref.image.astype(int)).max() <= 1
-    assert (a.image[0, 0] == ref.image[0, 0]).all()
+    assert np.abs(a.image.astype(int) - ref.astype(int)).max() <= 1
+    assert (a.image != ref).mean() < 0.01
+    assert (a.image[0, 0] == ref[0, 0]).all() and (a.image[0, 0] == 0).all()
+    # the spec builds its state from the float32 exposed values, the kernel from rad * scale
+    assert st.c == pytest.approx(a.state.c, rel=1e-8)
 
 
-@pytest.mark.parametrize("engine", ["numba", "numpy"])
-def test_a_crop_renders_as_the_image_around_it(engine):
+def test_the_grid_read_kernel_matches_its_spec_to_the_bit():
+    """:func:`_slice` (compiled) against ``tonemap_spec.slice_grid``: whole images at an
+    offset (float32 out, a crop's read) and a subsample's pixels (float64 out, the state's
+    statistics), levels and positions outside the grid included."""
+    from hdrcore.tonemap_local import _read_grid
+
+    rng = np.random.default_rng(5)
+    grid = rng.normal(0.0, 3.0, (9, 7, 11)).astype(np.float32)
+    lg = rng.uniform(-20.0, 12.0, (23, 31)).astype(np.float32)
+    lg[0, :4] = (-1e3, 1e3, 0.0, -6.5)
+    for ys, xs, dtype in (
+        (13.25 + np.arange(23), -3.5 + np.arange(31), np.float32),
+        (np.arange(2, 23 * 4, 4), np.arange(1, 31 * 3, 3), np.float64),
+    ):
+        got = _read_grid(lg, ys, xs, 1 / 6.5, -10.0, 1 / 1.5, grid, dtype, workers=2)
+        ref = spec.slice_grid(lg, ys, xs, 1 / 6.5, -10.0, 1 / 1.5, grid)
+        assert got.dtype == dtype
+        np.testing.assert_array_equal(got, ref.astype(dtype))
+
+
+def test_engine_numpy_is_a_deprecated_alias_of_the_kernel():
+    rad, _ = _room_and_window(11.0, shape=(60, 90), seed=2)
+    a = tonemap(rad, "durand")
+    with pytest.warns(DeprecationWarning, match="engine='numpy'"):
+        b = tonemap(rad, "durand", engine="numpy")
+    np.testing.assert_array_equal(a.image, b.image)
+    x = rad * np.float32(a.scale)
+    y, _ = tonemap_durand(x, LUMA)
+    with pytest.warns(DeprecationWarning, match="engine='numpy'"):
+        y2, _ = tonemap_durand(x, LUMA, engine="numpy")
+    np.testing.assert_array_equal(y, y2)
+    with pytest.raises(ParameterError, match="tonemap engine"):
+        tonemap_durand(x, LUMA, engine="gpu")
+
+
+def test_a_crop_renders_as_the_image_around_it():
     """The inspector's loupe: a crop of the full-resolution map, given the preview's state and
     its offset, renders exactly as the preview made at full resolution; a preview made at a
-    quarter of the size hands its state to full-resolution crops (``pixel_size``)."""
-    if engine == "numba":
-        pytest.importorskip("numba")
+    quarter of the size hands its state to full-resolution crops (``pixel_size``). The float
+    spec (``tonemap_spec.durand_8bit``) keeps the same property."""
     rad, _ = _room_and_window(11.0, shape=(240, 360))
-    full = tonemap(rad, "auto", engine=engine)
+    full = tonemap(rad, "auto")
     crop = np.ascontiguousarray(rad[70:170, 100:300])
     again = tonemap(
         crop,
@@ -117,12 +153,14 @@ def test_a_crop_renders_as_the_image_around_it(engine):
         auto_exposure=False,
         state=full.state,
         offset=(70, 100),
-        engine=engine,
     )
     np.testing.assert_array_equal(again.image, full.image[70:170, 100:300])
+    ref_full, st = spec.durand_8bit(rad, full.scale)
+    ref_crop, _ = spec.durand_8bit(crop, full.scale, state=st, offset=(70, 100))
+    np.testing.assert_array_equal(ref_crop, ref_full[70:170, 100:300])
     # a preview at half size: its state serves the full-resolution crop
     small = rad.reshape(120, 2, 180, 2, 3).mean(axis=(1, 3))
-    prev = tonemap(small, "durand", pixel_size=2, engine=engine)
+    prev = tonemap(small, "durand", pixel_size=2)
     loupe = tonemap(
         crop,
         "durand",
@@ -131,7 +169,6 @@ def test_a_crop_renders_as_the_image_around_it(engine):
         state=prev.state,
         offset=(70, 100),
         pixel_size=1,
-        engine=engine,
     )
     down = _luma(loupe.image).reshape(50, 2, 100, 2).mean(axis=(1, 3))
     assert np.abs(down - _luma(prev.image[35:85, 50:150])).mean() < 3.0
