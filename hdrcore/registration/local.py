@@ -50,7 +50,6 @@ import numpy as np
 from scipy import ndimage, sparse
 from scipy.sparse.linalg import spsolve
 
-from .._numba import AVAILABLE as _COMPILED
 from .._numba import njit as _njit
 from .._threads import run_row_spans
 from ..errors import ParameterError
@@ -222,29 +221,6 @@ def _level_for(shape: tuple[int, int], tile: int) -> int:
 
 
 # ----------------------------------------------------------------------------- images
-def _linear(img: np.ndarray, lut: np.ndarray | None) -> np.ndarray:
-    if lut is not None:
-        return lut[img]
-    return np.asarray(img, np.float32)
-
-
-def _reduce(img: np.ndarray, f: int) -> np.ndarray:
-    """Means of ``f x f`` blocks (the partial last row/column of blocks dropped)."""
-    if f == 1:
-        return np.array(img, np.float32)  # a copy: the caller's frame is never written
-    h, w = img.shape
-    hh, ww = h // f, w // f
-    return img[: hh * f, : ww * f].reshape(hh, f, ww, f).mean(axis=(1, 3), dtype=np.float32)
-
-
-def _reduce_max(img: np.ndarray, f: int) -> np.ndarray:
-    if f == 1:
-        return img
-    h, w = img.shape
-    hh, ww = h // f, w // f
-    return img[: hh * f, : ww * f].reshape(hh, f, ww, f).max(axis=(1, 3))
-
-
 @_njit
 def _prepare_rows(img, f, saturation, out, r0, r1):  # pragma: no cover
     """Rows ``r0:r1`` of :func:`_prepare` on linear frames (one pass, no full-size
@@ -284,24 +260,19 @@ def _prepare_rows_lut(img, lut, f, saturation, out, r0, r1):  # pragma: no cover
 
 def _prepare(img: np.ndarray, lut: np.ndarray | None, f: int, saturation: float) -> np.ndarray:
     """A frame at the working level: block means of the linear values, +inf where a block
-    holds a sample at or above saturation (an interpolation touching it is not finite)."""
-    if _COMPILED and img.dtype.kind in ("uif" if lut is None else "ui"):
-        h, w = img.shape
-        out = np.empty((h // f, w // f), np.float32)
-        sat = np.float32(saturation)  # the comparison of the float32 reference
-        if lut is None:
-            src = np.asarray(img, np.float32)
-            run_row_spans(
-                out.shape[0], None, lambda r0, r1: _prepare_rows(src, f, sat, out, r0, r1)
-            )
-        else:
-            run_row_spans(
-                out.shape[0], None, lambda r0, r1: _prepare_rows_lut(img, lut, f, sat, out, r0, r1)
-            )
-        return out
-    lin = _linear(img, lut)
-    out = _reduce(lin, f)
-    out[_reduce_max(lin >= saturation, f)] = np.inf
+    holds a sample at or above saturation (an interpolation touching it is not finite).
+    Compiled (:func:`_prepare_rows`, :func:`_prepare_rows_lut`); the readable specification is
+    :func:`hdrcore.registration.spec.prepare` (tests only)."""
+    h, w = img.shape
+    out = np.empty((h // f, w // f), np.float32)
+    sat = np.float32(saturation)  # the comparison of the float32 specification
+    if lut is None:
+        src = np.asarray(img, np.float32)
+        run_row_spans(out.shape[0], None, lambda r0, r1: _prepare_rows(src, f, sat, out, r0, r1))
+    else:
+        run_row_spans(
+            out.shape[0], None, lambda r0, r1: _prepare_rows_lut(img, lut, f, sat, out, r0, r1)
+        )
     return out
 
 
@@ -328,40 +299,6 @@ class _Grid:
         self.ux = (self.xs - self.cx * tile) / tile
         self.uy = (self.ys - self.cy * tile) / tile
 
-    def interpolate(self, nodes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The field ``nodes (gh, gw, 2)`` at every level pixel (full-resolution px)."""
-        return DisplacementField(self.tile, nodes).on_grid(self.xs, self.ys)
-
-    def mapped(
-        self, homography: np.ndarray, nodes: np.ndarray | None, inside: bool = False
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """The level's pixels mapped by ``H(x) + d(x)`` (``inside``: ``H(x + d(x))``)."""
-        xx, yy = np.meshgrid(self.xs, self.ys)
-        if nodes is None:
-            return map_points(homography, None, xx, yy)
-        dx, dy = self.interpolate(nodes)
-        if inside:
-            return map_points(homography, None, xx + dx, yy + dy)
-        sx, sy = map_points(homography, None, xx, yy)
-        return sx + dx, sy + dy
-
-
-def _sample(
-    frame: np.ndarray, sx: np.ndarray, sy: np.ndarray, f: int, order: int = 1
-) -> np.ndarray:
-    """``frame`` (a level image) at full-resolution positions ``(sx, sy)``: NaN outside the
-    frame, +inf where the interpolation touches a clipped block."""
-    off = (f - 1) / 2.0
-    lx = (sx - off) / f
-    ly = (sy - off) / f
-    h, w = frame.shape
-    out = ndimage.map_coordinates(
-        frame, [ly, lx], order=order, mode="nearest", prefilter=False
-    ).astype(np.float32)
-    out[~np.isfinite(out)] = np.inf
-    out[~((lx >= 0) & (lx <= w - 1) & (ly >= 0) & (ly <= h - 1))] = np.nan
-    return out
-
 
 @_njit
 def _warp_rows(src, m, nodes, tile, f, inside, cubic, clipped, out, r0, r1):  # pragma: no cover
@@ -370,7 +307,8 @@ def _warp_rows(src, m, nodes, tile, f, inside, cubic, clipped, out, r0, r1):  # 
     full-resolution position ``x = f * p + (f - 1) / 2``, ``d`` the bilinear interpolation of
     ``nodes``
     (node ``(i, j)`` at ``(j * tile, i * tile)``); NaN outside the frame, ``clipped`` where
-    a tap is a clipped block (inf). The reference: :func:`_sample` of :meth:`_Grid.mapped`."""
+    a tap is a clipped block (inf). The readable specification:
+    :func:`hdrcore.registration.spec.warped` (tests only)."""
     h, w = src.shape
     ww = out.shape[1]
     gh, gw = nodes.shape[0], nodes.shape[1]
@@ -454,10 +392,6 @@ def _warped(
     saturated). ``cubic``: Keys, as the merge reads frames (the checks: bilinear reads shift
     fine structure by an amount that depends on the sub-pixel phase, which the tiles' phase
     correlation sees)."""
-    if not _COMPILED:
-        sx, sy = grid.mapped(homography, nodes, inside)
-        out = _sample(fr, sx, sy, grid.f)
-        return np.where(np.isinf(out), np.float32(clipped), out) if clipped != np.inf else out
     out = np.empty((grid.hl, grid.wl), np.float32)
     nd = (
         np.zeros((grid.gh, grid.gw, 2))

@@ -55,11 +55,10 @@ import numpy as np
 from scipy import fft as sfft
 from scipy.special import fdtri
 
-from .._numba import AVAILABLE
 from .._numba import njit as _njit
 from .._threads import run_row_spans, worker_count
 from ..errors import ParameterError
-from ..geometry import keys4, keys_at, keys_weights
+from ..geometry import keys4, keys_at
 from ..status import RESIDUAL_STATUSES as _RESIDUAL_STATUSES
 from ..status import ResidualStatus
 
@@ -321,37 +320,6 @@ def _warp_rows(src, m, out, r0, r1):  # pragma: no cover - compiled
             out[y, x] = keys_at(src, sx, sy)
 
 
-# --------------------------------------------------------------------------- numpy references
-def _reduce_numpy(img: np.ndarray, f: int, lut: np.ndarray | None) -> np.ndarray:
-    """Block means of ``f x f`` (the reference of the compiled reduction)."""
-    a = np.asarray(img)
-    hh, ww = a.shape[0] // f, a.shape[1] // f
-    a = a[: hh * f, : ww * f]
-    a = lut[a] if lut is not None else a
-    return a.astype(np.float64).reshape(hh, f, ww, f).mean(axis=(1, 3)).astype(np.float32)
-
-
-def _warp_numpy(src: np.ndarray, m: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    """``src`` at ``m @ (x, y, 1)`` (Keys cubic), NaN outside (the compiled warp's reference)."""
-    h, w = shape
-    hs, ws = src.shape
-    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
-    zw = m[2, 0] * xx + m[2, 1] * yy + m[2, 2]
-    sx = (m[0, 0] * xx + m[0, 1] * yy + m[0, 2]) / zw
-    sy = (m[1, 0] * xx + m[1, 1] * yy + m[1, 2]) / zw
-    inside = (sx >= 0) & (sx <= ws - 1) & (sy >= 0) & (sy <= hs - 1)
-    ix, iy = np.floor(sx), np.floor(sy)
-    wx, wy = keys_weights(sx - ix), keys_weights(sy - iy)
-    ix, iy = ix.astype(np.int64), iy.astype(np.int64)
-    out = np.zeros(shape)
-    for j in range(4):
-        rows = np.clip(iy - 1 + j, 0, hs - 1)
-        for i in range(4):
-            out += wy[j] * wx[i] * src[rows, np.clip(ix - 1 + i, 0, ws - 1)]
-    out[~inside] = np.nan
-    return out.astype(np.float32)
-
-
 # ------------------------------------------------------------------------------------ helpers
 def _homogeneous(matrix: np.ndarray) -> np.ndarray:
     m = np.asarray(matrix, float)
@@ -369,8 +337,6 @@ def _reduce(img: np.ndarray, f: int, lut: np.ndarray | None, workers: int | None
     a = np.asarray(img)
     if f == 1 and lut is None:
         return a.astype(np.float32, copy=False)
-    if not AVAILABLE:
-        return _reduce_numpy(a, f, lut)
     out = np.empty((a.shape[0] // f, a.shape[1] // f), np.float32)
     if lut is not None:
         run_row_spans(
@@ -385,55 +351,15 @@ def _reduce(img: np.ndarray, f: int, lut: np.ndarray | None, workers: int | None
 def _warp(
     src: np.ndarray, m: np.ndarray, shape: tuple[int, int], workers: int | None
 ) -> np.ndarray:
-    if not AVAILABLE:
-        return _warp_numpy(src, m, shape)
     out = np.empty(shape, np.float32)
     m = np.ascontiguousarray(m, np.float64)
     run_row_spans(shape[0], workers, lambda r0, r1: _warp_rows(src, m, out, r0, r1))
     return out
 
 
-def _sobel_magnitude(img: np.ndarray) -> np.ndarray:
-    """Gradient magnitude (3x3 Sobel, /8) of ``img``; 0 on the one-pixel border."""
-    a = img
-    sy = a[:-2] + 2.0 * a[1:-1] + a[2:]  # vertical smoothing, for d/dx
-    gx = sy[:, 2:] - sy[:, :-2]
-    sx = a[:, :-2] + 2.0 * a[:, 1:-1] + a[:, 2:]  # horizontal smoothing, for d/dy
-    gy = sx[2:] - sx[:-2]
-    out = np.zeros(a.shape, np.float32)
-    out[1:-1, 1:-1] = np.sqrt(gx * gx + gy * gy) * np.float32(0.125)
-    return out
-
-
-def _smoothstep(z: np.ndarray) -> np.ndarray:
-    z = np.clip(z, 0.0, 1.0)
-    return z * z * (3.0 - 2.0 * z)
-
-
 #: Widths (as brightness factors) over which the structure fades out towards the noise floor
 #: and towards saturation.
 TAPER_LOW, TAPER_HIGH = 4.0, 2.0
-
-
-def _structure_numpy(img: np.ndarray, lo: float, hi: float) -> np.ndarray:
-    """The reference of the compiled structure kernels (see :func:`_structure`)."""
-    with np.errstate(invalid="ignore"):
-        log = np.log(np.clip(img, lo, hi))
-        g = _sobel_magnitude(log)
-        u = log - np.float32(np.log(lo))
-        g *= _smoothstep(u / np.log(TAPER_LOW)) * _smoothstep(
-            (np.float32(np.log(hi / lo)) - u) / np.log(TAPER_HIGH)
-        )
-        saturated = img >= hi
-    if saturated.any():
-        near = saturated.copy()  # 3x3 dilation
-        near[1:] |= saturated[:-1]
-        near[:-1] |= saturated[1:]
-        row = near.copy()
-        near[:, 1:] |= row[:, :-1]
-        near[:, :-1] |= row[:, 1:]
-        g[near] = 0.0
-    return g
 
 
 @_njit
@@ -502,8 +428,6 @@ def _structure(
     """
     with np.errstate(invalid="ignore"):
         inside = (img > lo) & (img < hi)
-    if not AVAILABLE:
-        return _structure_numpy(img, lo, hi), inside
     src = np.ascontiguousarray(img, np.float32)
     log = np.empty(src.shape, np.float32)
     g = np.empty(src.shape, np.float32)
@@ -707,11 +631,9 @@ class _PhasePlane:
         ``iterations`` Gauss-Newton steps on the phase plane (the phase wrapped to
         ``(-pi, pi]`` about the current shift), then the residual phase's weighted mean square
         for the covariance. The compiled kernel (:func:`_plane_rows`) reads the band straight
-        from ``cross`` (no complex temporaries of ``N x band``); :meth:`fit_numpy` is its
-        reference.
+        from ``cross`` (no complex temporaries of ``N x band``); its readable specification is
+        :func:`hdrcore.registration.spec.plane_fit` (tests only).
         """
-        if not AVAILABLE:
-            return self.fit_numpy(cross, d, iterations)
         n = cross.shape[0]
         flat = cross.reshape(n, -1)
         d0 = np.ascontiguousarray(d, np.float64)
@@ -725,35 +647,6 @@ class _PhasePlane:
             ),
         )
         return out, cov
-
-    def fit_numpy(
-        self, cross: np.ndarray, d: np.ndarray, iterations: int
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """The reference of :meth:`fit` (whole arrays)."""
-        cb = cross[:, self.band]
-        wb = np.abs(cb)
-        gx, gy = self.fx, self.fy
-        sxx = wb @ (gx * gx)
-        sxy = wb @ (gx * gy)
-        syy = wb @ (gy * gy)
-        det = sxx * syy - sxy * sxy
-        det = np.where(det > 0, det, np.inf)
-        dx, dy = d[:, 0].copy(), d[:, 1].copy()
-        for it in range(iterations + 1):
-            rot = np.exp(2j * np.pi * (dx[:, None] * gx[None] + dy[:, None] * gy[None]))
-            phase = np.angle(cb * rot)
-            if it == iterations:
-                break
-            bx = -((wb * phase) @ gx) / (2 * np.pi)  # phase ~ -2 pi (fx ddx + fy ddy)
-            by = -((wb * phase) @ gy) / (2 * np.pi)
-            dx = dx + (syy * bx - sxy * by) / det
-            dy = dy + (sxx * by - sxy * bx) / det
-        scale = np.sum(wb * phase * phase, axis=1) / (4 * np.pi**2 * self.neff)
-        cov = np.empty((len(dx), 2, 2))
-        cov[:, 0, 0] = scale * syy / det
-        cov[:, 1, 1] = scale * sxx / det
-        cov[:, 0, 1] = cov[:, 1, 0] = -scale * sxy / det
-        return np.stack([dx, dy], axis=1), cov
 
 
 @_njit
@@ -885,32 +778,12 @@ def _extract_tiles(img, oy, ox, dy, dx, win, out, i0, i1):  # pragma: no cover -
                 out[i, r, c] = (out[i, r, c] - mean) * win[r, c]
 
 
-def _extract_numpy(
-    img: np.ndarray, oy: np.ndarray, ox: np.ndarray, dy: np.ndarray, dx: np.ndarray, win: np.ndarray
-) -> np.ndarray:
-    """The reference of :func:`_extract_tiles` (all tiles)."""
-    h, w = img.shape
-    t = win.shape[0]
-    fy0, fx0 = np.floor(dy), np.floor(dx)
-    wy, wx = keys_weights(dy - fy0), keys_weights(dx - fx0)
-    iy = (oy + fy0.astype(int))[:, None] + np.arange(-1, t + 2)[None]
-    ix = (ox + fx0.astype(int))[:, None] + np.arange(-1, t + 2)[None]
-    patch = img[np.clip(iy, 0, h - 1)[:, :, None], np.clip(ix, 0, w - 1)[:, None, :]]
-    patch = patch.astype(np.float64)
-    rows = sum(wy[k][:, None, None] * patch[:, k : k + t, :] for k in range(4))
-    tiles = sum(wx[k][:, None, None] * rows[:, :, k : k + t] for k in range(4))
-    mean = np.sum(tiles * win, axis=(1, 2)) / np.sum(win)
-    return ((tiles - mean[:, None, None]) * win).astype(np.float32)
-
-
 def _tiles(
     img: np.ndarray, oy: np.ndarray, ox: np.ndarray, d: np.ndarray, win: np.ndarray, workers: int
 ) -> np.ndarray:
     """Windowed, mean-free tiles ``(N, t, t)`` of ``img`` at ``(oy, ox) + d`` (``d``: dx, dy)."""
     dy = np.ascontiguousarray(d[:, 1], np.float64)
     dx = np.ascontiguousarray(d[:, 0], np.float64)
-    if not AVAILABLE:
-        return _extract_numpy(img, oy, ox, dy, dx, win)
     n, t = oy.size, win.shape[0]
     out = np.empty((n, t, t), np.float32)
     oy64, ox64 = oy.astype(np.int64), ox.astype(np.int64)
@@ -1029,10 +902,6 @@ def _finite_mean_fill(x, out):  # pragma: no cover - compiled
 def _nan_to_mean(x: np.ndarray) -> np.ndarray:
     """A copy of ``x`` whose non-finite values are the mean of its finite ones (a structure
     image outside a warped frame: flat, so it adds no phase-correlation peak)."""
-    if not AVAILABLE or x.ndim != 2:
-        return np.where(
-            np.isfinite(x), x, np.float32(np.nanmean(np.where(np.isfinite(x), x, np.nan)))
-        )
     out = np.empty_like(x)
     _finite_mean_fill(x, out)
     return out
@@ -1040,16 +909,10 @@ def _nan_to_mean(x: np.ndarray) -> np.ndarray:
 
 def _box_fraction(mask: np.ndarray, oy: np.ndarray, ox: np.ndarray, t: int) -> np.ndarray:
     """The fraction of ``mask`` set in each ``t x t`` box at ``(oy, ox)`` (exact: counted per
-    box, or from a summed-area table without numba)."""
-    if AVAILABLE:
-        counts = np.empty(oy.size, np.int64)
-        _box_counts(mask, oy.astype(np.int64), ox.astype(np.int64), int(t), counts)
-        return counts / float(t * t)
-    sat = np.zeros((mask.shape[0] + 1, mask.shape[1] + 1), np.int64)
-    np.cumsum(mask, axis=0, out=sat[1:, 1:])
-    np.cumsum(sat[1:, 1:], axis=1, out=sat[1:, 1:])
-    total = sat[oy + t, ox + t] - sat[oy, ox + t] - sat[oy + t, ox] + sat[oy, ox]
-    return total / float(t * t)
+    box)."""
+    counts = np.empty(oy.size, np.int64)
+    _box_counts(mask, oy.astype(np.int64), ox.astype(np.int64), int(t), counts)
+    return counts / float(t * t)
 
 
 def _choose_level(shape: tuple[int, int], max_pixels: float) -> int:

@@ -13,8 +13,10 @@ row: a few vectorised multiply-adds over the image, instead of the 16-tap gather
 cubic interpolation or the full-image prefilter of cubic B-splines. A pure shift needs two
 passes. Every other matrix (a similarity's scale, an affine shear, a 3x3 homography's
 perspective) is resampled directly with the same Keys kernel, 16 taps per pixel, in a compiled
-kernel on two threads (:func:`hdrcore.registration._kernels.warp_rows`); without numba,
-:func:`scipy.ndimage.map_coordinates` (cubic spline) does it.
+kernel on two threads (:func:`hdrcore.registration._kernels.warp_rows`; its readable
+specification, used only by the tests, is :func:`hdrcore.registration.spec.warp_rows`). The
+shear passes are numpy on purpose: not a copy of that kernel but another resampling (exact for
+shifts and rotations, whole rows at a time).
 
 The validity mask is analytic: a pixel is valid when its source position lies inside the source
 frame (by ``margin`` pixels), so it never depends on the image content. For a homography each
@@ -27,7 +29,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import ndimage
 
 from .._threads import run_row_spans
 from ..errors import ParameterError
@@ -212,7 +213,8 @@ def warp(
     ``matrix`` (2x3, or 3x3 with the perspective divide) maps output pixel coordinates to source
     pixel coordinates (a backward map). Shifts and rotations use the separable shear passes
     (``method`` ``"integer"`` / ``"shear"``); every other matrix direct Keys cubic convolution
-    (``"cubic"``; ``"spline"`` without numba). Pixels whose source lies outside the frame (by
+    (``"cubic"``, compiled: :func:`~hdrcore.registration._kernels.warp_rows`). Pixels whose
+    source lies outside the frame (by
     ``margin``) get ``fill`` and ``mask`` False.
     """
     img = np.asarray(image)
@@ -225,23 +227,8 @@ def warp(
     lin, (cx, cy) = m[:2, :2], m[:2, 2]
     method = "shear"
     if m.shape == (3, 3) or not (np.allclose(lin, np.eye(2), atol=1e-12) or _is_rotation(m)):
-        if _kernels.AVAILABLE:
-            method = "cubic"
-            out = _resample_direct(src, m, h, w)
-        else:
-            method = "spline"
-            yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
-            den = 1.0 if m.shape == (2, 3) else m[2, 0] * xx + m[2, 1] * yy + m[2, 2]
-            coords = [
-                (m[1, 0] * xx + m[1, 1] * yy + m[1, 2]) / den,
-                (m[0, 0] * xx + m[0, 1] * yy + m[0, 2]) / den,
-            ]
-            chans = [src] if src.ndim == 2 else [src[..., c] for c in range(src.shape[2])]
-            res = [
-                ndimage.map_coordinates(c, coords, order=3, mode="nearest").astype(np.float32)
-                for c in chans
-            ]
-            out = res[0] if src.ndim == 2 else np.stack(res, axis=-1)
+        method = "cubic"
+        out = _resample_direct(src, m, h, w)
     elif np.allclose(lin, np.eye(2), atol=1e-12):
         if abs(cx - round(cx)) < 1e-9 and abs(cy - round(cy)) < 1e-9:
             method = "integer"

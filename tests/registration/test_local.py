@@ -229,10 +229,10 @@ def test_real_phone_bracket_residual_falls() -> None:
 
 @pytest.mark.parametrize("dtype", [np.float32, np.float64, np.uint8, np.uint16])
 @pytest.mark.parametrize("f", [1, 2, 4])
-def test_compiled_level_frames_match_the_numpy_reference(dtype, f, monkeypatch) -> None:
+def test_compiled_level_frames_match_the_spec(dtype, f) -> None:
     """The working level (block means, +inf where a block holds a clipped sample) is the same
-    from the compiled one-pass kernel as from the numpy reference, with and without a lut."""
-    from hdrcore.registration import local
+    from the compiled one-pass kernel as from its spec, with and without a lut."""
+    from hdrcore.registration import local, spec
 
     rng = np.random.default_rng(3)
     integer = np.dtype(dtype).kind == "u"
@@ -240,10 +240,32 @@ def test_compiled_level_frames_match_the_numpy_reference(dtype, f, monkeypatch) 
     img = (rng.uniform(0, 1, (203, 305)) * top).astype(dtype)
     lut = np.linspace(0, 1, int(top) + 1).astype(np.float32) if integer else None
     compiled = local._prepare(img, lut, f, 0.9)
-    monkeypatch.setattr(local, "_COMPILED", False)
-    reference = local._prepare(img, lut, f, 0.9)
+    reference = spec.prepare(img, lut, f, 0.9)
     assert compiled.shape == reference.shape == (203 // f, 305 // f)
     np.testing.assert_array_equal(np.isinf(compiled), np.isinf(reference))
     assert np.isinf(reference).any() and np.isfinite(reference).any()
     fin = np.isfinite(reference)
     np.testing.assert_allclose(compiled[fin], reference[fin], rtol=1e-6, atol=1e-7)
+
+
+@pytest.mark.parametrize("cubic", [False, True])
+@pytest.mark.parametrize("inside", [False, True])
+def test_compiled_level_reads_match_the_spec(cubic, inside) -> None:
+    """local._warped (compiled) against spec.warped: a perspective homography and a field,
+    NaN outside the frame, the clipped value where a tap is a clipped block."""
+    from hdrcore.registration import local, spec
+
+    rng = np.random.default_rng(8)
+    f, tile = 2, 32
+    grid = local._Grid((150, 210), f, tile)
+    fr = rng.uniform(0.05, 1.0, (75, 105)).astype(np.float32)
+    fr[30:33, 40:44] = np.inf  # a clipped block
+    m = np.array([[1.01, 0.01, -2.5], [-0.008, 0.995, 3.0], [2e-5, -1e-5, 1.0]])
+    nodes = rng.normal(0.0, 1.5, (grid.gh, grid.gw, 2))
+    for nd in (None, nodes):
+        got = local._warped(fr, grid, m, nd, inside=inside, cubic=cubic, clipped=7.0)
+        ref = spec.warped(fr, grid, m, nd, inside=inside, cubic=cubic, clipped=7.0)
+        np.testing.assert_array_equal(np.isnan(got), np.isnan(ref))
+        assert np.isnan(ref).any() and (ref == 7.0).any()
+        np.testing.assert_array_equal(got == 7.0, ref == 7.0)
+        np.testing.assert_allclose(got, ref, rtol=1e-6, atol=1e-6, equal_nan=True)

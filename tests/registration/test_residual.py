@@ -16,7 +16,7 @@ import pytest
 from scipy import ndimage
 
 from hdrcore.errors import ParameterError
-from hdrcore.registration import residual
+from hdrcore.registration import residual, spec
 from hdrcore.registration.residual import (
     RESIDUAL_STATUSES,
     ResidualMotion,
@@ -228,7 +228,7 @@ def test_tiles_outside_the_shared_range_are_skipped_the_rest_still_measured():
     json.dumps(res.to_json())
 
 
-def test_compiled_phase_plane_fit_matches_numpy():
+def test_compiled_phase_plane_fit_matches_its_spec():
     rng = np.random.default_rng(5)
     t, n = 64, 12
     plane = residual._PhasePlane(t)
@@ -243,7 +243,7 @@ def test_compiled_phase_plane_fit_matches_numpy():
     ).astype(np.complex64)
     start = np.round(d)
     got, cov = plane.fit(cross, start, 2, 2)
-    ref, cov_ref = plane.fit_numpy(cross, start, 2)
+    ref, cov_ref = spec.plane_fit(plane, cross, start, 2)
     np.testing.assert_allclose(got, ref, atol=1e-7)
     np.testing.assert_allclose(cov, cov_ref, rtol=1e-5)
     assert np.abs(got - d).max() < 0.1  # and it finds the planted shifts
@@ -269,17 +269,60 @@ def test_integer_levels_through_lut_match_float_frames():
     np.testing.assert_array_equal(r2.valid, r1.valid)
 
 
-def test_numpy_reference_matches_compiled(monkeypatch):
+def _run_on_specs(monkeypatch) -> None:
+    """Put the numpy specs (hdrcore.registration.spec) in the place of the residual's kernels."""
+    for name, f in spec.RESIDUAL_KERNELS.items():
+        monkeypatch.setattr(residual, name, f)
+    monkeypatch.setattr(residual._PhasePlane, "fit", spec.plane_fit)
+
+
+def test_the_specs_give_the_same_residual_motion(monkeypatch):
     h = _similarity(scale=1.002, shift=(0.6, 0.2))
     dark, bright, sat, nf = _pair(h)
     kw = dict(saturation=sat, noise_floor=nf, max_pixels=60_000)  # level 1: reduce + warp
     compiled = residual_motion(dark, bright, 4.0, h, **kw)
-    monkeypatch.setattr(residual, "AVAILABLE", False)
+    _run_on_specs(monkeypatch)
     reference = residual_motion(dark, bright, 4.0, h, **kw)
     assert compiled.level == reference.level == 1
     np.testing.assert_array_equal(compiled.valid, reference.valid)
     np.testing.assert_allclose(reference.shifts, compiled.shifts, atol=1e-3)
     assert reference.status == compiled.status == "aligned"
+
+
+def test_each_residual_kernel_matches_its_spec():
+    """Block means (float and through a table), the Keys warp (NaN outside), the structure
+    image (clipped, saturated and NaN pixels included), the tiles and the non-finite fill."""
+    rng = np.random.default_rng(11)
+    img = rng.uniform(0.001, 1.2, (70, 90)).astype(np.float32)
+    img[5:9, 10:14] = 1.5  # saturated
+    img[30, 40] = np.nan
+    levels = rng.integers(0, 4096, (70, 90)).astype(np.uint16)
+    lut = (np.arange(4096, dtype=np.float32) / 4095) ** 2
+    for f in (1, 2, 3):
+        np.testing.assert_array_equal(residual._reduce(img, f, None, 2), spec.reduce(img, f, None))
+        got = residual._reduce(levels, f, lut, 2)
+        np.testing.assert_array_equal(got, spec.reduce(levels, f, lut))
+    clean = np.nan_to_num(img, nan=0.5)
+    m = np.array([[1.01, 0.02, -1.7], [-0.015, 0.99, 2.3], [1e-5, -2e-5, 1.0]])
+    got = residual._warp(clean, m, (60, 80), 2)
+    ref = spec.warp(clean, m, (60, 80))
+    np.testing.assert_array_equal(np.isnan(got), np.isnan(ref))
+    assert np.isnan(got).any() and np.isfinite(got).any()
+    np.testing.assert_allclose(got, ref, rtol=1e-5, atol=1e-6, equal_nan=True)
+    g, inside = residual._structure(img, 0.01, 1.0, 2)
+    g_ref, inside_ref = spec.structure(img, 0.01, 1.0)
+    np.testing.assert_array_equal(inside, inside_ref)
+    np.testing.assert_array_equal(np.isnan(g), np.isnan(g_ref))
+    np.testing.assert_allclose(g, g_ref, rtol=1e-5, atol=1e-6, equal_nan=True)
+    assert (g[4:10, 9:15] == 0).all() and np.nanmax(g) > 0
+    win = np.outer(np.hanning(16), np.hanning(16)).astype(np.float32)
+    oy, ox = rng.integers(-3, 60, 9), rng.integers(-3, 80, 9)
+    d = rng.uniform(-4, 4, (9, 2))
+    np.testing.assert_allclose(
+        residual._tiles(clean, oy, ox, d, win, 2), spec.tiles(clean, oy, ox, d, win, 2), atol=1e-5
+    )
+    np.testing.assert_allclose(residual._nan_to_mean(img), spec.nan_to_mean(img), rtol=1e-6)
+    assert np.isfinite(residual._nan_to_mean(img)).all()
 
 
 def test_pyramid_level_on_large_frames_reports_full_resolution_pixels():
@@ -382,14 +425,13 @@ def test_memo_computes_each_frame_once_and_changes_nothing(monkeypatch):
     assert fresh[0].median != fresh[1].median  # the second frame did move
 
 
-def test_tile_fractions_compiled_and_summed_area_agree(monkeypatch):
+def test_tile_fractions_compiled_and_summed_area_agree():
     rng = np.random.default_rng(5)
     mask = rng.uniform(size=(130, 171)) < 0.3
     oy, ox = rng.integers(0, 130 - 32, 40), rng.integers(0, 171 - 32, 40)
     truth = np.array([mask[y : y + 32, x : x + 32].mean() for y, x in zip(oy, ox, strict=True)])
     np.testing.assert_array_equal(residual._box_fraction(mask, oy, ox, 32), truth)
-    monkeypatch.setattr(residual, "AVAILABLE", False)
-    np.testing.assert_array_equal(residual._box_fraction(mask, oy, ox, 32), truth)
+    np.testing.assert_array_equal(spec.box_fraction(mask, oy, ox, 32), truth)
 
 
 def test_an_unverifiable_motion_is_not_called_ok():
