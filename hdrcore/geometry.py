@@ -50,6 +50,7 @@ __all__ = [
     "corner_error",
     "scale_matrix",
     "nearest_in_frame",
+    "common_area",
 ]
 
 _AFFINE_TOL = 1e-12
@@ -348,3 +349,90 @@ def keys_at(src, sx, sy):  # pragma: no cover - compiled
         wy = wy0 if dy == 0 else (wy1 if dy == 1 else (wy2 if dy == 2 else wy3))
         acc += wy * (wx0 * src[yy, x0] + wx1 * src[yy, x1] + wx2 * src[yy, x2] + wx3 * src[yy, x3])
     return acc
+
+
+def _largest_rectangle(ok: np.ndarray) -> tuple[int, int, int, int]:
+    """The largest axis-aligned all-True rectangle of a boolean grid, ``(r0, c0, r1, c1)``
+    half-open (the column histograms and a stack per row; ``(0, 0, 0, 0)`` when none)."""
+    rows, cols = ok.shape
+    height = np.zeros(cols + 1, np.int64)  # a sentinel column of height 0 closes every run
+    best, rect = 0, (0, 0, 0, 0)
+    for r in range(rows):
+        height[:cols] = np.where(ok[r], height[:cols] + 1, 0)
+        stack: list[int] = []
+        for c in range(cols + 1):
+            start = c
+            while stack and height[stack[-1]] >= height[c]:
+                top = stack.pop()
+                h = int(height[top])
+                left = stack[-1] + 1 if stack else 0
+                area = h * (c - left)
+                if area > best:
+                    best, rect = area, (r - h + 1, left, r + 1, c)
+                start = left
+            del start
+            stack.append(c)
+    return rect
+
+
+def common_area(
+    to_reference: Sequence[np.ndarray | None],
+    shape: tuple[int, int],
+    *,
+    margin: float = 2.0,
+    step: int = 8,
+) -> tuple[int, int, int, int]:
+    """The largest axis-aligned rectangle of the reference grid ``shape`` (h, w) that every
+    frame covers, ``(x0, y0, x1, y1)`` in pixels, half-open: the crop that leaves out the edges
+    only some frames reach (a hand-held bracket's border strips, where a merge has fewer
+    exposures and, with locally tone-mapped frames, a different rendition).
+
+    ``to_reference[k]``: frame ``k``'s 2x3 / 3x3 matrix to the reference (``None`` or the
+    identity: the reference grid itself). A frame covers a reference pixel when the pixel maps
+    into it at least ``margin`` px inside its edges (a resampling support, plus any local
+    displacement the caller adds). Found on a grid of ``step`` px, then each side moved out
+    pixel by pixel while its whole new edge is covered."""
+    h, w = int(shape[0]), int(shape[1])
+    step = max(1, int(step))
+    inverse = []
+    for m in to_reference:
+        if m is None:
+            continue
+        hm = homogeneous(np.asarray(m, np.float64))
+        if not np.allclose(hm, np.eye(3), atol=1e-12):
+            inverse.append(invert(hm))
+
+    def covered(xx: np.ndarray, yy: np.ndarray) -> np.ndarray:
+        ok = np.ones(np.shape(xx), bool)
+        for mi in inverse:
+            sx, sy = apply(mi, xx, yy)
+            ok &= (sx >= margin) & (sx <= w - 1 - margin) & (sy >= margin)
+            ok &= sy <= h - 1 - margin
+        return ok
+
+    ys = np.arange(0, h + step - 1, step, dtype=np.float64).clip(max=h - 1)
+    xs = np.arange(0, w + step - 1, step, dtype=np.float64).clip(max=w - 1)
+    r0, c0, r1, c1 = _largest_rectangle(covered(*np.meshgrid(xs, ys)))
+    if r1 <= r0 or c1 <= c0:
+        return (0, 0, 0, 0)
+    # grid node i is pixel ys[i]; the covered nodes r0..r1-1 span pixels ys[r0]..ys[r1-1]
+    # (coverage is convex for these motions: the pixels between covered nodes are covered)
+    x0, x1 = int(xs[c0]), int(xs[c1 - 1]) + 1
+    y0, y1 = int(ys[r0]), int(ys[r1 - 1]) + 1
+
+    def edge_ok(x_a: int, x_b: int, y_a: int, y_b: int) -> bool:
+        """Every pixel of the (one pixel wide) edge ``x_a:x_b`` x ``y_a:y_b`` covered."""
+        yy, xx = np.mgrid[y_a:y_b, x_a:x_b].astype(np.float64)
+        return bool(covered(xx, yy).all())
+
+    # then outwards pixel by pixel while a whole new edge is covered (at most step - 1 each)
+    for _ in range(step - 1):
+        if x0 > 0 and edge_ok(x0 - 1, x0, y0, y1):
+            x0 -= 1
+        if x1 < w and edge_ok(x1, x1 + 1, y0, y1):
+            x1 += 1
+        if y0 > 0 and edge_ok(x0, x1, y0 - 1, y0):
+            y0 -= 1
+        if y1 < h and edge_ok(x0, x1, y1, y1 + 1):
+            y1 += 1
+    return (x0, y0, x1, y1)

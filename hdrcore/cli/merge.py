@@ -16,7 +16,7 @@ import sys
 import time
 
 from ..errors import OutputError
-from ..export import write_result
+from ..export import common_crop, crop_preview, write_result
 from ..io import EXR_COMPRESSIONS, atomic_write, check_output_path, write_png
 from ..pipeline import Pipeline
 from ._common import (
@@ -70,6 +70,14 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "(tripod RAW brackets), linear = demosaiced camera RGB (any bracket); "
         "auto picks cfa when it can (default)",
     )
+    p.add_argument(
+        "--crop",
+        default="none",
+        choices=("none", "common"),
+        help="common: write the EXR and the preview cropped to the largest rectangle every "
+        "frame covers (a hand-held bracket's border strips have fewer exposures; phones' "
+        "locally tone-mapped frames leave bands there); default none",
+    )
     p.add_argument("--float32", action="store_true", help="write float32 instead of half")
     p.add_argument(
         "--exr-compression",
@@ -119,6 +127,12 @@ def run(args: argparse.Namespace) -> int:
             path=args.output,
             expected="a name ending in .exr",
         )
+    if args.dng and args.crop != "none":
+        raise OutputError(
+            "--crop applies to the EXR and the preview, not to the DNG (a raw editor crops)",
+            path=args.dng,
+            expected="--crop none with --dng",
+        )
     check_outputs_first(outputs, args)
     t_load = time.perf_counter()
     bracket = load_bracket_from_args(args)
@@ -140,9 +154,18 @@ def run(args: argparse.Namespace) -> int:
         progress.close()
 
     t_write = time.perf_counter()
+    crop = common_crop(result) if args.crop == "common" and result.radiance is not None else None
+    if crop is not None and (crop[2] <= crop[0] or crop[3] <= crop[1]):
+        raise OutputError(
+            "no part of the image is covered by every frame: nothing to crop to",
+            path=args.output,
+            expected="frames that overlap",
+            found="--crop common",
+        )
     write_result(
         args.output,
         result,
+        crop=crop,
         half=not args.float32,
         compression=args.exr_compression,
         force=args.force,
@@ -160,8 +183,19 @@ def run(args: argparse.Namespace) -> int:
             inputs=inputs,
         )
     if args.preview and result.preview is not None:
-        write_png(args.preview, result.preview.image, force=args.force, inputs=inputs)
+        image = result.preview.image
+        if crop is not None:
+            image = crop_preview(image, crop, result.preview_factor)
+        write_png(args.preview, image, force=args.force, inputs=inputs)
     report = result.to_report()
+    if crop is not None:
+        rows, cols = result.bracket.shape
+        x0, y0, x1, y1 = crop
+        report["crop"] = {
+            "rectangle": list(crop),
+            "kept": round((x1 - x0) * (y1 - y0) / float(rows * cols), 4),
+            "source": "common",
+        }
     report["timings"]["decode"] = decode_seconds
     report["timings"]["write"] = time.perf_counter() - t_write
     report["outputs"] = {

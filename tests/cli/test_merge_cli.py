@@ -170,3 +170,66 @@ def test_png_bracket_merges_with_json_report(tmp_path: Path, png_bracket: Path, 
     assert report["registration"] is None
     assert report["response"]["method"]
     assert len(report["ratios"]["pairs"]) == 2
+
+
+def test_crop_common_writes_only_what_every_frame_covers(tmp_path: Path, capsys) -> None:
+    """The demo is hand-held: --crop common writes the EXR and the preview cropped to a
+    rectangle every frame covers (each frame's motion maps its corners inside that frame) and
+    says so in the report and the EXR."""
+    from hdrcore.geometry import apply, homogeneous, invert
+
+    exr, png, rep = tmp_path / "c.exr", tmp_path / "c.png", tmp_path / "c.json"
+    rc = main(
+        ["merge", str(DEMO), "-o", str(exr), "--preview", str(png), "--report", str(rep)]
+        + ["--crop", "common", "--quiet"]
+    )
+    assert rc == 0, capsys.readouterr().err
+    report = json.loads(rep.read_text())
+    x0, y0, x1, y1 = report["crop"]["rectangle"]
+    h, w = 432, 648
+    assert 0 <= x0 < x1 <= w and 0 <= y0 < y1 <= h
+    assert (x1 - x0) * (y1 - y0) < h * w  # the frames moved: something is cut
+    assert report["crop"]["kept"] == pytest.approx((x1 - x0) * (y1 - y0) / (h * w), abs=1e-4)
+    rgb, attrs = read_exr(exr)
+    assert rgb.shape == (y1 - y0, x1 - x0, 3)
+    assert attrs["hdrview"]["crop"] == [x0, y0, x1, y1]
+    xs = np.array([x0, x1 - 1, x0, x1 - 1], float)
+    ys = np.array([y0, y0, y1 - 1, y1 - 1], float)
+    for m in report["registration"]["to_reference"]:
+        sx, sy = apply(invert(homogeneous(np.asarray(m, float))), xs, ys)
+        assert np.all((sx >= 0) & (sx <= w - 1) & (sy >= 0) & (sy <= h - 1))
+    # and it is the largest such rectangle to within a pixel per side: one pixel more on
+    # some side leaves some frame
+    grown = [(x0 - 1, y0, x1, y1), (x0, y0 - 1, x1, y1), (x0, y0, x1 + 1, y1), (x0, y0, x1, y1 + 1)]
+    for gx0, gy0, gx1, gy1 in grown:
+        if gx0 < 0 or gy0 < 0 or gx1 > w or gy1 > h:
+            continue
+        yy, xx = np.mgrid[gy0:gy1, gx0:gx1].astype(float)
+        inside = np.ones(xx.shape, bool)
+        for m in report["registration"]["to_reference"]:
+            sx, sy = apply(invert(homogeneous(np.asarray(m, float))), xx, yy)
+            inside &= (sx >= 2) & (sx <= w - 3) & (sy >= 2) & (sy <= h - 3)
+        assert not inside.all()
+    from PIL import Image
+
+    full = tmp_path / "f.png"
+    assert (
+        main(
+            ["merge", str(DEMO), "-o", str(tmp_path / "f.exr"), "--preview", str(full)]
+            + ["--quiet"]
+        )
+        == 0
+    )
+    cw, ch = Image.open(png).size
+    fw, fh = Image.open(full).size
+    assert cw < fw or ch < fh
+
+
+def test_crop_with_dng_is_refused_before_any_work(tmp_path: Path, capsys) -> None:
+    rc = main(
+        ["merge", str(DEMO), "-o", str(tmp_path / "o.exr"), "--dng", str(tmp_path / "o.dng")]
+        + ["--crop", "common", "--quiet"]
+    )
+    err = capsys.readouterr().err
+    assert rc != 0 and "--crop" in err and "o.dng" in err
+    assert not (tmp_path / "o.exr").exists() and not (tmp_path / "o.dng").exists()
