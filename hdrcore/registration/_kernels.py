@@ -1,6 +1,6 @@
 """Compiled inner loops of the registration (numba): pyramid building and the eq. 6/7 sums.
 
-The same arithmetic as the numpy reference in :mod:`hdrcore.registration._problem` and
+The arithmetic of the specifications in :mod:`hdrcore.registration.spec` and
 :mod:`hdrcore.registration._sampling` (Cerman & Hlavac 2006, section 6, eqs. 6-7; Keys cubic
 convolution, IEEE TASSP 29(6), 1981), in one pass and without temporaries:
 
@@ -23,9 +23,12 @@ convolution, IEEE TASSP 29(6), 1981), in one pass and without temporaries:
 the motions the separable shear passes of :mod:`hdrcore.registration.warp` cannot do (scale,
 shear, perspective).
 
-Sums run sequentially in float64 (numpy sums pairwise), so results agree with the reference to
-rounding. The kernels are compiled with ``nogil`` and ``cache=True`` (machine code cached next
-to this file); without numba the numpy reference runs (``AVAILABLE`` is False).
+Sums run sequentially in float64 (numpy sums pairwise), so results agree with their readable
+specifications to rounding: :mod:`hdrcore.registration.spec` (``score_candidates``,
+``support_valid``, ``gauss_newton_sums``, ``warp_rows`` with these signatures, and
+:func:`~hdrcore.registration._sampling.reduce2` for the pyramid), used only by the tests. The
+kernels are compiled with ``nogil`` and ``cache=True``; numba is a dependency, so they are the
+only form that runs.
 """
 
 from __future__ import annotations
@@ -35,13 +38,11 @@ import math
 import numpy as np
 
 # helpers are inlined: a call passing arrays would touch their reference counts per pixel
-from .._numba import AVAILABLE
 from .._numba import inline as _inline
 from .._numba import njit as _njit
 from ..geometry import dkeys4, keys4
 
 __all__ = [
-    "AVAILABLE",
     "bin_clip",
     "reduce2",
     "gauss_newton_sums",
@@ -55,7 +56,7 @@ __all__ = [
 def bin_clip(src, lut, scale, lo, hi, out):
     """``out[i, j]`` = mean of ``clip(float32(v) * scale, lo, hi)`` over the 2x2 block at
     ``(2i, 2j)`` of ``src`` (``v = lut[src]`` unless ``lut`` is None); float32 arithmetic in
-    the order of the numpy reference (clip, then ``reduce2``)."""
+    the order of its specification (clip, then :func:`~hdrcore.registration._sampling.reduce2`)."""
     h2, w2 = out.shape
     s = np.float32(scale)
     lo32 = np.float32(lo)
@@ -214,7 +215,7 @@ def _dkeys(f, w):  # pragma: no cover - compiled
 
 @_njit
 def gauss_newton_sums(
-    img, lut, xs, ys, bs, m, frame, n_par, gradient, hess, grad, gain, n_gain, robust
+    img, lut, xs, ys, bs, m, frame, n_par, gradient, hess, grad, gain, n_gain, robust, per_sample
 ):
     """Eq. 6 weighted sum of squared eq. 7 residuals and the sum of the weights at the samples;
     with ``gradient`` also the Gauss-Newton normal equations of the first ``n_par`` motion
@@ -237,6 +238,8 @@ def gauss_newton_sums(
     (1, X, Y)_i``), so ``hess`` is at least ``(n_par + n_gain)`` square. With ``robust = c >
     0`` each sample's ``n^2`` becomes Cauchy's ``c^2 log(1 + n^2 / c^2)`` and its normal
     equations are weighted by ``1 / (1 + n^2 / c^2)`` (the Gauss-Newton step of that loss).
+    ``per_sample`` (``(N, 2)``, zeros, or ``(0, 2)``: not wanted) takes each sample's residual
+    ``n`` and weight ``w`` (both stay 0 where the sample is outside the bright frame).
     Returns ``(sum w n^2, sum w)`` (the robust sum with ``robust``).
     """
     h, w = img.shape
@@ -266,6 +269,7 @@ def gauss_newton_sums(
     ssum = 0.0
     wsum = 0.0
     inv_t = 1.0 / max(t, 1e-300)
+    keep = per_sample.shape[0] > 0
     # Two phases per block of samples: first only the loads of the 16 taps (independent of each
     # other, so the processor overlaps their cache misses), then the arithmetic.
     block = 64
@@ -335,6 +339,9 @@ def gauss_newton_sums(
             if not denom > 0:
                 denom = 1.0
             n = (a - b) / denom
+            if keep:
+                per_sample[k, 0] = n
+                per_sample[k, 1] = wt
             if robust > 0:
                 r2 = (n / robust) ** 2
                 ssum += wt * robust * robust * math.log1p(r2)

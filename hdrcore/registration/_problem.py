@@ -49,9 +49,9 @@ with the dark frame on its grid). The searches therefore estimate ``B`` and the 
 ``A = B^-1``.
 
 Speed: the pyramid's level 1, the sample scoring and the eq. 6 sums with their normal equations
-run in compiled kernels (:mod:`hdrcore.registration._kernels`); the numpy functions here
-(:func:`residuals`, the numpy branches of :func:`select_samples` and :func:`normal_equations`)
-are their reference, checked against them in the tests, and the fallback without numba.
+run in compiled kernels (:mod:`hdrcore.registration._kernels`), the only form that runs (numba
+is a dependency); their readable specifications, which the tests hold them to, are in
+:mod:`hdrcore.registration.spec` (used by the tests only).
 Frames may also be integer levels read through a table (``lut``), e.g. the green channel view
 of the raw RGB frames, so no linear copy of a 24-megapixel frame is needed.
 """
@@ -80,7 +80,7 @@ from ..geometry import (
 )
 from ..status import RegistrationStatus
 from . import _kernels
-from ._sampling import reduce2, sample
+from ._sampling import sample
 from .fourier import FourierShift, cross_correlation_shift
 from .result import PairPreview, PairRegistration
 
@@ -218,7 +218,7 @@ def prepare(
 
     ``lut``: the frames hold integer levels (uint8 or uint16, e.g. a channel view of the raw
     RGB frames, any strides) and ``lut[level]`` is the linear value; no linear copy of the
-    frames is made when the compiled kernels are available.
+    frames is made.
     """
     dark = _as_image(dark, "dark", lut)
     bright = _as_image(bright, "bright", lut)
@@ -230,8 +230,6 @@ def prepare(
                 found=str(dark.dtype),
             )
         lut = _as_lut(lut, dark.dtype)
-        if not _kernels.AVAILABLE:  # the numpy reference works on linear frames
-            dark, bright, lut = lut[dark], lut[bright], None
     if dark.shape != bright.shape:
         raise ParameterError(
             "dark and bright frames differ in size",
@@ -263,23 +261,21 @@ def prepare(
     if lo >= hi:
         data.levels = [None]
         return data
-    small = dark.size <= _SMALL
-    if small or not _kernels.AVAILABLE:
+    levels: list = [None]  # full resolution: a clipped copy for small frames only
+    if dark.size <= _SMALL:
         a0 = np.clip(data.linear(bright), lo, hi).astype(np.float32, copy=False)
         b0 = np.multiply(data.linear(dark), np.float32(k), dtype=np.float32)
         np.clip(b0, lo, hi, out=b0)
-    levels: list = [(a0, b0) if small else None]
+        levels[0] = (a0, b0)
     h, w = dark.shape
     if min(h, w) // 2 < min_level_size:
         data.levels = levels
         return data
-    if _kernels.AVAILABLE:  # level 1 straight from the raw frames: one read, no full-size copy
-        a = np.empty((h // 2, w // 2), np.float32)
-        b = np.empty_like(a)
-        _kernels.bin_clip(bright, lut, 1.0, lo, hi, a)
-        _kernels.bin_clip(dark, lut, k, lo, hi, b)
-    else:
-        a, b = reduce2(a0), reduce2(b0)
+    # level 1 straight from the raw frames: one read, no full-size copy
+    a = np.empty((h // 2, w // 2), np.float32)
+    b = np.empty_like(a)
+    _kernels.bin_clip(bright, lut, 1.0, lo, hi, a)
+    _kernels.bin_clip(dark, lut, k, lo, hi, b)
     levels.append((a, b))
     while min(a.shape) // 2 >= min_level_size:
         a, b = _reduce2(a), _reduce2(b)
@@ -289,8 +285,6 @@ def prepare(
 
 
 def _reduce2(image: np.ndarray) -> np.ndarray:
-    if not _kernels.AVAILABLE:
-        return reduce2(image)
     out = np.empty((image.shape[0] // 2, image.shape[1] // 2), np.float32)
     _kernels.reduce2(image, out)
     return out
@@ -314,7 +308,6 @@ def select_samples(
     motion: np.ndarray | None = None,
     by_gradient: bool = True,
     seed: int = 0,
-    compiled: bool | None = None,
     max_contrast: float = MAX_CONTRAST,
     check_bright: bool = True,
     reach: int = 0,
@@ -349,12 +342,10 @@ def select_samples(
     valid. ``check_bright=False`` leaves the bright frame out (the dark frame's side only).
     ``exclude``: rectangles ``(K, 4)`` of ``x0, y0, x1, y1`` in full-resolution dark-frame
     pixels whose pixels are never samples (a near object found by the residual check, see
-    :func:`register_with`).
-    ``compiled``: the numba kernels (default when available) or numpy; both select the same
-    pixels.
+    :func:`register_with`). The candidates and the bright frame's side are compiled
+    (``_kernels.score_candidates``, ``_kernels.support_valid``; their readable specifications,
+    used only by the tests, are in :mod:`hdrcore.registration.spec`).
     """
-    if compiled is None:
-        compiled = _kernels.AVAILABLE
     if level == 0:
         img, lut, k = data.dark, data.lut, data.ratio
         lo, hi = data.lo / k, data.hi / k  # the shared range in dark-frame units
@@ -376,83 +367,31 @@ def select_samples(
     contrast = float(max_contrast or 0.0)
 
     def bright_ok(xx: np.ndarray, yy: np.ndarray) -> np.ndarray:
-        x, y = xx.astype(np.float64), yy.astype(np.float64)
-        if compiled:
-            out = np.empty(x.size, np.bool_)
-            _kernels.support_valid(
-                bright,
-                lut,
-                x,
-                y,
-                m_motion,
-                level == 0,
-                data.noise_floor,
-                data.saturation,
-                contrast,
-                int(reach),
-                out,
-            )
-            return out
-        den = m_motion[2, 0] * x + m_motion[2, 1] * y + m_motion[2, 2]
-        qx, qy = apply(m_motion, x, y)
-        qx = np.where(den > 0, qx, -10.0)
-        src = data.linear(bright) if level == 0 else bright
-        ok = (qx >= 1.0) & (qx < w - 2.0) & (qy >= 1.0) & (qy < h - 2.0)
-        ix = np.floor(np.where(ok, qx, 1.0)).astype(np.int64)
-        iy = np.floor(np.where(ok, qy, 1.0)).astype(np.int64)
-        ok &= (ix <= w - 3) & (iy <= h - 3)
-        # the support widened by reach, cut at the border (clipped indices repeat border taps)
-        hi_w = np.full(x.size, -np.inf)
-        lo_s, hi_s = np.full(x.size, np.inf), np.full(x.size, -np.inf)
-        r = int(reach)
-        for dy in range(-1 - r, 3 + r):
-            yy = np.clip(iy + dy, 0, h - 1)
-            for dx in range(-1 - r, 3 + r):
-                xx = np.clip(ix + dx, 0, w - 1)
-                v = src[yy, xx].astype(np.float64)
-                np.maximum(hi_w, v, out=hi_w)
-                if -1 <= dy <= 2 and -1 <= dx <= 2:
-                    np.minimum(lo_s, v, out=lo_s)
-                    np.maximum(hi_s, v, out=hi_s)
-        if level == 0:
-            ok &= (lo_s > data.noise_floor) & (hi_w < data.saturation)
-        if contrast > 0:
-            ok &= hi_s <= contrast * np.maximum(lo_s, 1e-30)
-        return ok
+        out = np.empty(xx.size, np.bool_)
+        _kernels.support_valid(
+            bright,
+            lut,
+            xx.astype(np.float64),
+            yy.astype(np.float64),
+            m_motion,
+            level == 0,
+            data.noise_floor,
+            data.saturation,
+            contrast,
+            int(reach),
+            out,
+        )
+        return out
 
     def candidates(n_cand: int):
-        if compiled:
-            yy = np.empty(n_cand, np.int64)
-            xx = np.empty(n_cand, np.int64)
-            v = np.empty(n_cand)
-            score = np.empty(n_cand if by_gradient else 0)
-            n = _kernels.score_candidates(
-                img, lut, n_cand, m, phase, lo, hi, eps2, by_gradient, yy, xx, v, score
-            )
-            yy, xx, v, score = yy[:n], xx[:n], v[:n], score[:n]
-        else:
-            kk = np.arange(n_cand, dtype=np.float64)
-            u = kk * 0.6180339887498949 + phase
-            u -= np.floor(u)
-            idx = np.minimum(((kk + u) * (n_inner / n_cand)).astype(np.int64), n_inner - 1)
-            yy = idx // inner_w + m
-            xx = idx % inner_w + m
-
-            def at(dy: int, dx: int) -> np.ndarray:
-                val = img[yy + dy, xx + dx]  # 2-D indexing: any strides (a channel of RGB)
-                return (val if lut is None else lut[val]).astype(np.float64)
-
-            # the pixel and its four neighbours' mean in range (see _kernels.score_candidates)
-            right, left, down, up = at(0, 1), at(0, -1), at(1, 0), at(-1, 0)
-            mean = 0.25 * (right + left + down + up)
-            v = at(0, 0)
-            ok = (mean > lo) & (mean < hi) & (v > lo) & (v < hi)
-            yy, xx, mean, v = yy[ok], xx[ok], mean[ok], v[ok]
-            score = None
-            if by_gradient:
-                gx = (right - left)[ok]
-                gy = (down - up)[ok]
-                score = (gx * gx + gy * gy) / (mean * mean + eps2)
+        yy = np.empty(n_cand, np.int64)
+        xx = np.empty(n_cand, np.int64)
+        v = np.empty(n_cand)
+        score = np.empty(n_cand if by_gradient else 0)
+        n = _kernels.score_candidates(
+            img, lut, n_cand, m, phase, lo, hi, eps2, by_gradient, yy, xx, v, score
+        )
+        yy, xx, v, score = yy[:n], xx[:n], v[:n], score[:n]
         if rects is not None and yy.size:
             fx = (xx + 0.5) * (1 << level) - 0.5  # level -> full-resolution coordinates
             fy = (yy + 0.5) * (1 << level) - 0.5
@@ -509,74 +448,42 @@ def _frame(data: PairData, level: int, ramp: float = BORDER_RAMP) -> np.ndarray:
     return np.array([lo, hi, data.threshold, cx, cy, unit, ramp])
 
 
-def _generators(gx: np.ndarray, gy: np.ndarray, n_par: int) -> list[tuple]:
-    """Motion generators ``g(X, Y)`` (x and y parts) at normalised bright-frame positions."""
-    one, zero = np.ones_like(gx), np.zeros_like(gx)
-    gens = [
-        (one, zero),
-        (zero, one),
-        (-gy, gx),
-        (gx, gy),
-        (gx, -gy),
-        (gy, gx),
-        (-gx * gx, -gx * gy),
-        (-gx * gy, -gy * gy),
-    ]
-    return gens[:n_par]
+_NO_SAMPLES = np.zeros((0, 2))  # gauss_newton_sums: no per-sample output
 
 
-def _gain_factor(gain: np.ndarray | None, ux: np.ndarray, uy: np.ndarray) -> np.ndarray:
-    """``exp(g0 + g1 X + g2 Y)`` at normalised bright-frame positions (1 without a gain)."""
-    if gain is None:
-        return np.ones_like(ux)
-    g = np.asarray(gain, float)
-    return np.exp(g[0] + g[1] * ux + g[2] * uy)
-
-
-def residuals(
+def sample_residuals(
     data: PairData,
     level: int,
     inverse: np.ndarray,
     s: Samples,
     *,
-    gradient: bool = True,
     ramp: float = BORDER_RAMP,
     gain: np.ndarray | None = None,
-) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None, np.ndarray, np.ndarray, np.ndarray]:
-    """Eq. 7 normalised differences at the samples (the numpy reference of the kernel).
-
-    ``inverse`` (2x3 or 3x3, level coordinates) maps dark-frame coordinates to the bright frame,
-    i.e. it is the inverse of the pair matrix. Returns ``(n, dn_dqx, dn_dqy, weight, qx, qy)``:
-    the residuals ``(a - b) / max(a + b, t)`` with ``a`` the bright frame's taps clipped (see
-    :func:`_frame`) and interpolated, their derivatives with respect to the sampling position in
-    the bright frame, each sample's weight (0 outside the bright frame, rising to 1 over
-    ``ramp`` pixels from its border) and the sampling positions. ``gain`` ``(g0, g1, g2)``:
-    the bright frame is multiplied by ``exp(g0 + g1 X + g2 Y)`` (:func:`normal_equations`).
-    """
+) -> tuple[np.ndarray, np.ndarray]:
+    """Each sample's eq. 7 residual ``n`` and border weight (both 0 where its support is
+    outside the bright frame) under ``inverse`` (dark -> bright, level coordinates) and
+    ``gain``, from the kernel of :func:`normal_equations` (``per_sample``)."""
     m = homogeneous(inverse)
-    den = m[2, 0] * s.x + m[2, 1] * s.y + m[2, 2]
-    qx, qy = apply(m, s.x, s.y)
-    img = data.linear(data.bright) if level == 0 else data.levels[level][0]
-    h, w = img.shape
-    frame = _frame(data, level, ramp)
-    sm = sample(img, qx, qy, gradient=gradient, clip=(frame[0], frame[1]))
-    d = np.minimum(np.minimum(qx - 1.0, w - 2.0 - qx), np.minimum(qy - 1.0, h - 2.0 - qy))
-    valid = (den > 0) & (d > 0) & sm.inside
-    weight = np.where(valid, np.minimum(1.0, np.where(valid, d, 0.0) / ramp), 0.0)
-    gfac = _gain_factor(gain, (qx - frame[3]) / frame[5], (qy - frame[4]) / frame[5])
-    a = sm.value * gfac
-    b = s.b
-    total = a + b
-    t = data.threshold
-    above = total > t
-    denom = np.where(above, total, t) if t > 0 else total
-    denom = np.where(valid & (denom > 0), denom, 1.0)
-    n = np.where(valid, (a - b) / denom, 0.0)
-    if not gradient:
-        return n, None, None, weight, qx, qy
-    dn_da = np.where(above, 2.0 * b / (denom * denom), 1.0 / max(t, 1e-300))
-    dn_da = np.where(valid, dn_da, 0.0) * gfac
-    return n, dn_da * sm.gx, dn_da * sm.gy, weight, qx, qy
+    g = np.zeros(3) if gain is None else np.asarray(gain, np.float64)
+    per = np.zeros((s.x.size, 2))
+    _kernels.gauss_newton_sums(
+        data.bright if level == 0 else data.levels[level][0],
+        data.lut if level == 0 else None,
+        s.x,
+        s.y,
+        s.b,
+        m,
+        _frame(data, level, ramp),
+        2,
+        False,
+        np.zeros((2, 2)),
+        np.zeros(2),
+        g,
+        0,
+        0.0,
+        per,
+    )
+    return per[:, 0], per[:, 1]
 
 
 def normal_equations(
@@ -587,7 +494,6 @@ def normal_equations(
     *,
     n_par: int = 3,
     gradient: bool = True,
-    compiled: bool | None = None,
     ramp: float = BORDER_RAMP,
     gain: np.ndarray | None = None,
     n_gain: int = 0,
@@ -600,8 +506,8 @@ def normal_equations(
     generators of :func:`motion_update` applied on the bright side (translations in pixels,
     the others in units of the level's half-diagonal). Returns ``(sum w n^2, sum w, J'WJ
     (n_par x n_par), J'Wn (n_par))`` with ``w`` the border weights; with ``gradient=False`` the
-    matrices are zeros. ``compiled``: use the numba kernel (default: when available) or the
-    numpy reference (:func:`residuals`); both give the same numbers to rounding.
+    matrices are zeros. Compiled (``_kernels.gauss_newton_sums``; its readable specification,
+    used only by the tests: :func:`hdrcore.registration.spec.gauss_newton_sums`).
 
     ``gain`` ``(g0, g1, g2)`` (default 0): the bright frame is compared multiplied by
     ``exp(g0 + g1 X + g2 Y)`` (``X, Y`` as the generators'): a correction of the exposure
@@ -611,77 +517,33 @@ def normal_equations(
     > 0): Cauchy's loss ``c^2 log(1 + n^2 / c^2)`` instead of ``n^2`` (samples far off the
     fit, a second plane or a moving object, weigh less); the first value is then its sum.
     """
-    if compiled is None:
-        compiled = _kernels.AVAILABLE
     if n_gain not in (0, 1, 3):
         raise ParameterError("the gain has 0, 1 or 3 free coefficients", found=str(n_gain))
     m = homogeneous(inverse)
     frame = _frame(data, level, ramp)
     g = np.zeros(3) if gain is None else np.asarray(gain, np.float64)
     n_tot = n_par + n_gain
-    if compiled:
-        hess = np.zeros((n_tot, n_tot))
-        grad = np.zeros(n_tot)
-        img = data.bright if level == 0 else data.levels[level][0]
-        ssum, wsum = _kernels.gauss_newton_sums(
-            img,
-            data.lut if level == 0 else None,
-            s.x,
-            s.y,
-            s.b,
-            m,
-            frame,
-            n_par,
-            gradient,
-            hess,
-            grad,
-            g,
-            n_gain,
-            float(robust),
-        )
-        return float(ssum), float(wsum), hess, grad
-    n, gx, gy, weight, qx, qy = residuals(data, level, m, s, gradient=gradient, ramp=ramp, gain=g)
-    wsum = float(weight.sum())
-    if robust > 0:
-        r2 = (n / robust) ** 2
-        ssum = float(np.sum(weight * robust * robust * np.log1p(r2)))
-    else:
-        ssum = float(np.sum(weight * n * n))
-    if not gradient:
-        return ssum, wsum, np.zeros((n_tot, n_tot)), np.zeros(n_tot)
-    if robust > 0:
-        weight = weight / (1.0 + r2)
-    cx, cy, unit = frame[3], frame[4], frame[5]
-    ux, uy = (qx - cx) / unit, (qy - cy) / unit
-    cols = [gx * ex + gy * ey for ex, ey in _generators(ux, uy, n_par)]
-    if n_gain:
-        sm_a = _gained_values(data, level, qx, qy, g, frame)
-        dn_da = _dn_da(sm_a, s.b, data.threshold) * (weight > 0)
-        ga = dn_da * sm_a
-        cols += [ga, ga * ux, ga * uy][:n_gain]
-    jac = np.stack(cols, axis=1)
-    jac[:, 2:n_par] *= unit
-    wj = jac * weight[:, None]
-    return ssum, wsum, wj.T @ jac, wj.T @ n
-
-
-def _gained_values(
-    data: PairData, level: int, qx: np.ndarray, qy: np.ndarray, gain: np.ndarray, frame: np.ndarray
-) -> np.ndarray:
-    """The bright frame's clipped, interpolated values times the gain (numpy reference)."""
-    img = data.linear(data.bright) if level == 0 else data.levels[level][0]
-    sm = sample(img, qx, qy, gradient=False, clip=(frame[0], frame[1]))
-    v = np.where(sm.inside, sm.value, 0.0)
-    return v * _gain_factor(gain, (qx - frame[3]) / frame[5], (qy - frame[4]) / frame[5])
-
-
-def _dn_da(a: np.ndarray, b: np.ndarray, t: float) -> np.ndarray:
-    """``d n / d a`` of eq. 7 (``n = (a - b) / max(a + b, t)``)."""
-    total = a + b
-    above = total > t
-    denom = np.where(above, total, t) if t > 0 else total
-    denom = np.where(denom > 0, denom, 1.0)
-    return np.where(above, 2.0 * b / (denom * denom), 1.0 / max(t, 1e-300))
+    hess = np.zeros((n_tot, n_tot))
+    grad = np.zeros(n_tot)
+    img = data.bright if level == 0 else data.levels[level][0]
+    ssum, wsum = _kernels.gauss_newton_sums(
+        img,
+        data.lut if level == 0 else None,
+        s.x,
+        s.y,
+        s.b,
+        m,
+        frame,
+        n_par,
+        gradient,
+        hess,
+        grad,
+        g,
+        n_gain,
+        float(robust),
+        _NO_SAMPLES,
+    )
+    return float(ssum), float(wsum), hess, grad
 
 
 def motion_update(delta: np.ndarray, shape_l: tuple[int, int]) -> np.ndarray:
@@ -1249,7 +1111,7 @@ def _off_blocks(data: PairData, probe: np.ndarray, gain: np.ndarray, side: int):
     s = select_samples(data, 0, 60_000, motion=probe)
     if s.b.size < 1000:
         return None
-    n, _, _, wt, _, _ = residuals(data, 0, probe, s, gradient=False, gain=gain)
+    n, wt = sample_residuals(data, 0, probe, s, gain=gain)
     gy, gx = (s.y // side).astype(np.int64), (s.x // side).astype(np.int64)
     ny, nx = h // side + 1, w // side + 1
     sq = np.zeros((ny, nx))

@@ -88,7 +88,9 @@ def sample(
 def reduce2(image: np.ndarray) -> np.ndarray:
     """Mean of 2x2 blocks (odd last row/column dropped), float32.
 
-    A pixel centre ``x`` of the result sits at ``2 x + 0.5`` in the input.
+    A pixel centre ``x`` of the result sits at ``2 x + 0.5`` in the input. The specification of
+    the compiled pyramid kernels (:func:`hdrcore.registration._kernels.reduce2` and
+    :func:`~hdrcore.registration._kernels.bin_clip`, equal to the bit), used only by the tests.
     """
     h2, w2 = image.shape[0] // 2, image.shape[1] // 2
     a = image[0 : 2 * h2 : 2, 0 : 2 * w2 : 2].astype(np.float32)

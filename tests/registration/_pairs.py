@@ -2,9 +2,36 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
+
 import numpy as np
+import pytest
 
 from hdrcore.synthetic import simulate_bracket
+
+#: The compiled kernels of the registration's searches whose numpy specifications
+#: (hdrcore.registration.spec, same signatures) a test can put in their place.
+SEARCH_KERNELS = ("score_candidates", "support_valid", "gauss_newton_sums")
+
+
+@contextmanager
+def on_specs() -> Iterator[None]:
+    """Run the searches' kernels as their numpy specifications (hdrcore.registration.spec)."""
+    from hdrcore.registration import _kernels, spec
+
+    with pytest.MonkeyPatch.context() as mp:
+        for name in SEARCH_KERNELS:
+            mp.setattr(_kernels, name, getattr(spec, name))
+        yield
+
+
+def run(compiled: bool, f, *args, **kw):
+    """``f(*args, **kw)`` with the compiled kernels, or with their specs (``compiled`` False)."""
+    if compiled:
+        return f(*args, **kw)
+    with on_specs():
+        return f(*args, **kw)
 
 
 def green(frame: np.ndarray, max_level: int) -> np.ndarray:

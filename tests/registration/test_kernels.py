@@ -1,4 +1,5 @@
-"""The compiled registration kernels agree with the numpy reference (eqs. 6-7, pyramids)."""
+"""The compiled registration kernels agree with their numpy specifications (eqs. 6-7, pyramids;
+hdrcore.registration.spec and _sampling.reduce2)."""
 
 from __future__ import annotations
 
@@ -10,14 +11,13 @@ from hdrcore.registration._problem import (
     motion_update,
     normal_equations,
     prepare,
+    sample_residuals,
     select_samples,
 )
 from hdrcore.registration._sampling import reduce2
 from hdrcore.registration.transform import homogeneous, rigid_matrix, similarity_matrix
 
-from ._pairs import simulated_pair
-
-pytestmark = pytest.mark.skipif(not _kernels.AVAILABLE, reason="numba not installed")
+from ._pairs import run, simulated_pair
 
 
 @pytest.fixture(scope="module")
@@ -47,7 +47,7 @@ def test_bin_clip_matches_clip_then_reduce2(pair):
     np.testing.assert_array_equal(out, ref)
 
 
-def test_reduce2_matches_numpy(pair):
+def test_reduce2_matches_the_spec(pair):
     img = pair[0][:101, :77]
     out = np.empty((50, 38), np.float32)
     _kernels.reduce2(np.ascontiguousarray(img), out)
@@ -56,7 +56,7 @@ def test_reduce2_matches_numpy(pair):
 
 @pytest.mark.parametrize("level", [0, 1, 2])
 @pytest.mark.parametrize("n_par", [2, 3, 4, 8])
-def test_normal_equations_match_numpy_reference(pair, level, n_par):
+def test_normal_equations_match_the_spec(pair, level, n_par):
     dark, bright, ml = pair
     data = prepare(dark, bright, 4.0, saturation=0.98, noise_floor=3 / ml, threshold=0.1)
     s = select_samples(data, level, 5000)
@@ -69,8 +69,8 @@ def test_normal_equations_match_numpy_reference(pair, level, n_par):
         rigid_matrix(20.0, -9.0, 3.0, shape_l),
         persp,
     ):
-        c_ref = normal_equations(data, level, m, s, n_par=n_par, compiled=False)
-        c_jit = normal_equations(data, level, m, s, n_par=n_par, compiled=True)
+        c_ref = run(False, normal_equations, data, level, m, s, n_par=n_par)
+        c_jit = run(True, normal_equations, data, level, m, s, n_par=n_par)
         assert c_ref[1] > 0
         np.testing.assert_allclose(c_jit[1], c_ref[1], rtol=1e-12)
         np.testing.assert_allclose(c_jit[0], c_ref[0], rtol=1e-10)
@@ -104,19 +104,15 @@ def test_jacobian_columns_are_derivatives_of_the_residuals(pair):
 
 @pytest.mark.parametrize("level", [0, 1])
 @pytest.mark.parametrize(("n_par", "n_gain"), [(2, 1), (4, 3), (8, 3)])
-def test_normal_equations_with_gain_match_numpy_reference(pair, level, n_par, n_gain):
+def test_normal_equations_with_gain_match_the_spec(pair, level, n_par, n_gain):
     dark, bright, ml = pair
     data = prepare(dark, bright, 4.0, saturation=0.98, noise_floor=3 / ml, threshold=0.1)
     s = select_samples(data, level, 5000)
     shape_l = data.level_shape(level)
     m = rigid_matrix(-6.3 / 2**level, 4.1 / 2**level, -1.1, shape_l)
     gain = np.array([0.12, -0.05, 0.08])
-    c_ref = normal_equations(
-        data, level, m, s, n_par=n_par, compiled=False, gain=gain, n_gain=n_gain
-    )
-    c_jit = normal_equations(
-        data, level, m, s, n_par=n_par, compiled=True, gain=gain, n_gain=n_gain
-    )
+    c_ref = run(False, normal_equations, data, level, m, s, n_par=n_par, gain=gain, n_gain=n_gain)
+    c_jit = run(True, normal_equations, data, level, m, s, n_par=n_par, gain=gain, n_gain=n_gain)
     n = n_par + n_gain
     assert c_jit[2].shape == (n, n) and c_jit[3].shape == (n,)
     np.testing.assert_allclose(c_jit[0], c_ref[0], rtol=1e-10)
@@ -127,19 +123,19 @@ def test_normal_equations_with_gain_match_numpy_reference(pair, level, n_par, n_
 
 
 @pytest.mark.parametrize("level", [0, 1])
-def test_robust_normal_equations_match_numpy_reference(pair, level):
+def test_robust_normal_equations_match_the_spec(pair, level):
     dark, bright, ml = pair
     data = prepare(dark, bright, 4.0, saturation=0.98, noise_floor=3 / ml, threshold=0.1)
     s = select_samples(data, level, 5000)
     m = homogeneous(rigid_matrix(-6.0 / 2**level, 4.0 / 2**level, -1.0, data.level_shape(level)))
     kw = dict(n_par=8, gain=np.array([0.05, 0.0, 0.02]), n_gain=3, robust=0.02, ramp=1e-9)
-    c_ref = normal_equations(data, level, m, s, compiled=False, **kw)
-    c_jit = normal_equations(data, level, m, s, compiled=True, **kw)
+    c_ref = run(False, normal_equations, data, level, m, s, **kw)
+    c_jit = run(True, normal_equations, data, level, m, s, **kw)
     np.testing.assert_allclose(c_jit[0], c_ref[0], rtol=1e-10)
     np.testing.assert_allclose(c_jit[2], c_ref[2], rtol=1e-9, atol=1e-12 * abs(c_ref[2]).max())
     np.testing.assert_allclose(c_jit[3], c_ref[3], rtol=1e-9, atol=1e-12 * abs(c_ref[3]).max())
     # Cauchy's loss is below the sum of squares, and the step's gradient is its derivative
-    plain = normal_equations(data, level, m, s, compiled=True, n_par=8)
+    plain = run(True, normal_equations, data, level, m, s, n_par=8)
     assert c_jit[0] < plain[0]
     d = np.zeros(11)
     d[0] = 1e-4
@@ -172,7 +168,7 @@ def test_gain_columns_are_derivatives_of_the_residuals(pair):
 @pytest.mark.parametrize("level", [0, 1])
 @pytest.mark.parametrize("by_gradient, n", [(True, 4000), (False, 6000), (True, 10**6)])
 @pytest.mark.parametrize("motion, reach", [("identity", 0), ("truth", 0), ("homography", 1)])
-def test_select_samples_compiled_matches_numpy(pair, level, by_gradient, n, motion, reach):
+def test_select_samples_compiled_matches_the_spec(pair, level, by_gradient, n, motion, reach):
     dark, bright, ml = pair
     data = prepare(dark, bright, 4.0, saturation=0.98, noise_floor=3 / ml, threshold=0.1)
     shape_l = data.level_shape(level)
@@ -185,8 +181,8 @@ def test_select_samples_compiled_matches_numpy(pair, level, by_gradient, n, moti
         + np.array([[0, 0, 0], [0, 0, 0], [3e-5 * 2**level, -2e-5 * 2**level, 0]]),
     }[motion]
     kw = dict(motion=m, by_gradient=by_gradient, seed=3, reach=reach)
-    a = select_samples(data, level, n, compiled=False, **kw)
-    b = select_samples(data, level, n, compiled=True, **kw)
+    a = run(False, select_samples, data, level, n, **kw)
+    b = run(True, select_samples, data, level, n, **kw)
     assert 0 < a.b.size <= n
     np.testing.assert_array_equal(a.x, b.x)
     np.testing.assert_array_equal(a.y, b.y)
@@ -214,8 +210,28 @@ def test_random_subset_holds_max_samples_well_exposed_pixels(compiled):
     dark = np.full((300, 400), 0.001, np.float32)
     dark[:30] = 0.3
     data = prepare(dark, dark, 1.0, saturation=0.98, noise_floor=0.01, threshold=0.1)
-    s = select_samples(data, 0, 5000, by_gradient=False, compiled=compiled)
+    s = run(compiled, select_samples, data, 0, 5000, by_gradient=False)
     assert s.b.size == 5000
     assert np.all(s.b == np.float32(0.3))
     assert s.y.min() >= 2 and s.y.max() <= 27
     assert s.well_exposed == pytest.approx(26 / 296, abs=0.01)
+
+
+@pytest.mark.parametrize("level", [0, 1])
+def test_per_sample_residuals_match_the_spec_and_the_sums(pair, level):
+    """sample_residuals (the kernel's per_sample output; the refit's off blocks) against the
+    spec's, samples outside the bright frame included (n = w = 0), and sum w n^2 is the sum."""
+    dark, bright, ml = pair
+    data = prepare(dark, bright, 4.0, saturation=0.98, noise_floor=3 / ml, threshold=0.1)
+    s = select_samples(data, level, 5000)
+    m = homogeneous(rigid_matrix(15.0 / 2**level, -9.0 / 2**level, 2.0, data.level_shape(level)))
+    gain = np.array([0.05, -0.02, 0.03])
+    n, w = sample_residuals(data, level, m, s, gain=gain)
+    n_ref, w_ref = run(False, sample_residuals, data, level, m, s, gain=gain)
+    assert (w == 0).any() and (w > 0).sum() > 1000
+    np.testing.assert_array_equal(w == 0, w_ref == 0)
+    np.testing.assert_allclose(n, n_ref, rtol=1e-10, atol=1e-13)
+    np.testing.assert_allclose(w, w_ref, rtol=1e-12)
+    ssum, wsum, _, _ = normal_equations(data, level, m, s, gradient=False, gain=gain)
+    assert np.sum(w * n * n) == pytest.approx(ssum, rel=1e-12)
+    assert w.sum() == pytest.approx(wsum, rel=1e-12)

@@ -12,6 +12,8 @@ from hdrcore.registration._problem import normal_equations, prepare, select_samp
 from hdrcore.registration.transform import rigid_matrix
 from hdrcore.synthetic import simulate_bracket
 
+from ._pairs import run
+
 SHAPE = (144, 208)
 
 
@@ -62,7 +64,7 @@ def test_bracket_of_levels_matches_linear_bracket(bracket):
         )
 
 
-def test_numpy_reference_reads_levels_through_the_table(bracket, monkeypatch):
+def test_the_spec_reads_levels_through_the_table(bracket, monkeypatch):
     sb, lut, linear = bracket
     monkeypatch.setattr(_problem, "_SMALL", 1000)
     args = dict(saturation=float(lut[-1]) * 0.97, noise_floor=float(lut[40]), threshold=0.1)
@@ -74,8 +76,8 @@ def test_numpy_reference_reads_levels_through_the_table(bracket, monkeypatch):
     np.testing.assert_array_equal(s_lin.b, s_lev.b)
     m = rigid_matrix(1.5, -2.0, 0.4, SHAPE)
     for compiled in (False, True):
-        a = normal_equations(d_lin, 0, m, s_lin, compiled=compiled)
-        b = normal_equations(d_lev, 0, m, s_lev, compiled=compiled)
+        a = run(compiled, normal_equations, d_lin, 0, m, s_lin)
+        b = run(compiled, normal_equations, d_lev, 0, m, s_lev)
         assert a[1] == b[1] > 0
         np.testing.assert_allclose(b[0], a[0], rtol=1e-12)
         np.testing.assert_allclose(b[2], a[2], rtol=1e-12)

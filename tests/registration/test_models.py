@@ -31,7 +31,7 @@ from hdrcore.registration import (
 from hdrcore.registration._problem import cost, prepare, select_samples
 from hdrcore.registration.transform import affine_part, apply, pair_from_reference, scale_matrix
 
-from ._pairs import homography_pair, perspective, render_frames, simulated_pair
+from ._pairs import homography_pair, perspective, render_frames, run, simulated_pair
 
 SHAPE = (192, 288)
 
@@ -257,7 +257,7 @@ def test_8bit_homography_beside_a_saturated_sky():
 def test_samples_and_their_neighbours_lie_in_the_shared_range(compiled):
     dark, bright, truth, ml, shape = _landscape_8bit()
     data = prepare(dark, bright, 4.0, saturation=0.98, noise_floor=3 / ml, threshold=0.1)
-    s = select_samples(data, 0, 20_000, motion=invert(truth), compiled=compiled)
+    s = run(compiled, select_samples, data, 0, 20_000, motion=invert(truth))
     x, y = s.x.astype(int), s.y.astype(int)
     d = dark.astype(np.float64)
     mean = 0.25 * (d[y, x + 1] + d[y, x - 1] + d[y + 1, x] + d[y - 1, x])
