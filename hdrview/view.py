@@ -332,6 +332,12 @@ class ClientView:
             self.overlay_dropdown = gui.add_dropdown("Overlay", registration_panel.OVERLAYS)
 
         with gui.add_folder("Export"):
+            self.crop_checkbox = gui.add_checkbox(
+                "Crop to common area",
+                False,
+                hint="export only the largest rectangle every frame covers (hand-held "
+                "brackets: the border strips have fewer exposures)",
+            )
             self.export_exr_button = gui.add_button("HDR (.exr)", icon=viser.Icon.DOWNLOAD)
             self.export_png_button = gui.add_button("Preview (.png)", icon=viser.Icon.DOWNLOAD)
             self.export_bundle_button = gui.add_button(
@@ -925,11 +931,13 @@ class ClientView:
         return self.session.result
 
     def export_exr(self, client: viser.ClientHandle | None) -> None:
-        data = result_panel.exr_bytes(self._require_result(), work_dir=self.app.work_dir)
+        data = result_panel.exr_bytes(
+            self._require_result(), work_dir=self.app.work_dir, crop=self.crop_checkbox.value
+        )
         self._send(client, f"{self.export_stem()}.exr", data)
 
     def export_png(self, client: viser.ClientHandle | None) -> None:
-        data = result_panel.preview_png_bytes(self._require_result())
+        data = result_panel.preview_png_bytes(self._require_result(), crop=self.crop_checkbox.value)
         self._send(client, f"{self.export_stem()}-preview.png", data)
 
     def export_bundle(self, client: viser.ClientHandle | None) -> None:

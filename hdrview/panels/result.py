@@ -292,22 +292,43 @@ class ResultPanel:
         return [(f"result-{name}.png", encode_png(img)) for name, img in self._images.items()]
 
 
-def exr_bytes(result: PipelineResult, work_dir: str | Path | None = None) -> bytes:
+def _crop_of(result: PipelineResult, crop: bool) -> tuple[int, int, int, int] | None:
+    """The rectangle every frame covers (``hdrcore merge --crop common``), or None."""
+    if not crop:
+        return None
+    from hdrcore.export import common_crop
+
+    rect = common_crop(result)
+    if rect[2] <= rect[0] or rect[3] <= rect[1]:
+        raise InputError("no part of the image is covered by every frame: nothing to crop to")
+    return rect
+
+
+def exr_bytes(
+    result: PipelineResult, work_dir: str | Path | None = None, *, crop: bool = False
+) -> bytes:
     """The merged radiance as OpenEXR (half float) bytes, as ``hdrcore merge`` writes it
     (:func:`hdrcore.export.write_result`: the same attributes), through a temporary file in
-    ``work_dir``, the inspector's own temporary folder, removed when it stops."""
+    ``work_dir``, the inspector's own temporary folder, removed when it stops. ``crop``: only
+    the rectangle every frame covers, as ``hdrcore merge --crop common``."""
     if result.radiance is None:
         raise InputError("the merged HDR is not available yet")
+    rect = _crop_of(result, crop)
     with tempfile.TemporaryDirectory(prefix="exr-", dir=work_dir) as tmp:
-        path = write_result(Path(tmp) / "merged.exr", result)
+        path = write_result(Path(tmp) / "merged.exr", result, crop=rect)
         return path.read_bytes()
 
 
-def preview_png_bytes(result: PipelineResult) -> bytes:
-    """The tonemapped preview as 8-bit PNG bytes."""
+def preview_png_bytes(result: PipelineResult, *, crop: bool = False) -> bytes:
+    """The tonemapped preview as 8-bit PNG bytes (``crop``: as :func:`exr_bytes`)."""
     if result.preview is None:
         raise InputError("the preview is not available yet")
     arr = np.asarray(result.preview.image)
+    rect = _crop_of(result, crop)
+    if rect is not None:
+        from hdrcore.export import crop_preview
+
+        arr = crop_preview(arr, rect, result.preview_factor)
     if arr.dtype != np.uint8:
         arr = np.clip(arr.astype(np.float32) * 255.0 + 0.5, 0, 255).astype(np.uint8)
     return encode_png(arr)

@@ -188,3 +188,26 @@ def test_btf_panel_shows_the_histogram_fit_and_the_registered_ratio(viewer, sim_
     assert viewer.btf_panel.transfer.visible
     viewer.masks_panel.show(b, res, {"pair": 1})
     assert viewer.masks_panel.dark.visible
+
+
+def test_exports_cropped_to_the_common_area(viewer, stage_result, tmp_path) -> None:
+    """The Export folder's 'Crop to common area': the EXR and the preview hold only the
+    rectangle every frame covers, as ``hdrcore merge --crop common`` writes them."""
+    from PIL import Image
+
+    from hdrcore.export import common_crop
+    from hdrcore.io import read_exr
+
+    x0, y0, x1, y1 = common_crop(stage_result)
+    h, w = stage_result.radiance.shape[:2]
+    assert (x1 - x0, y1 - y0) != (w, h)  # the simulated bracket moved: a crop to make
+    path = tmp_path / "c.exr"
+    path.write_bytes(exr_bytes(stage_result, crop=True))
+    rgb, attrs = read_exr(path)
+    assert rgb.shape[:2] == (y1 - y0, x1 - x0)
+    assert attrs["hdrview"]["crop"] == [x0, y0, x1, y1]
+    full = Image.open(io.BytesIO(preview_png_bytes(stage_result)))
+    cut = Image.open(io.BytesIO(preview_png_bytes(stage_result, crop=True)))
+    assert cut.size[0] <= full.size[0] and cut.size[1] <= full.size[1]
+    assert cut.size != full.size
+    assert viewer.crop_checkbox.value is False  # off unless asked
