@@ -10,10 +10,10 @@ keeps the earlier path for comparison: LibRaw's ``postprocess`` (AHD) with no wh
 (``user_wb=[1,1,1,1]``), ``output_color=raw``, no gamma, no auto-brightness and
 ``no_auto_scale``.
 
-Measured (``bench/bench_mosaic.py``, loaded 2-core machine): a 24 MP 12-bit DNG frame costs
-1.78 s CPU through ``postprocess`` against 0.47 s for the mosaic read and our demosaic; across a
-bracket simulated from the real Canon CRW files (x1, x2, x4) AHD moves B/G by 0.14-0.20 % while
-ours stays within 0.001 %. Why Malvar-He-Cutler and not Hamilton-Adams by default, though the
+``bench/bench_mosaic.py`` measures the cost of both (LibRaw's ``postprocess`` several times
+ours on a 24 MP frame; figures in the README); across a bracket simulated from the real Canon
+CRW files (x1, x2, x4) AHD moves B/G by 0.14-0.20 % while ours stays within 0.001 %.
+Why Malvar-He-Cutler and not Hamilton-Adams by default, though the
 latter has the higher PSNR on three of four simulated scenes and shows no zipper on the CRW
 files' printed lines where Malvar does: merged per frame, the Hamilton-Adams frames of a
 simulated landscape gave 5-8x the squared error at the reference exposure (next to a sky
