@@ -73,7 +73,7 @@ DESTS: dict[str, str] = {field: "times_source" if field == "times" else field fo
 NOT_ON_COMMAND_LINE: dict[str, str] = {
     "working_space": "library only for now: the command line writes sRGB radiance maps",
     "registration_previews": "the inspector's overlays; the command line always switches "
-    "them off (they cost about 0.3 s a pair at 24 MP)",
+    "them off (the overlays are drawn for every pair, which only the inspector shows)",
 }
 
 #: old flag -> (field, value translation) for each command that had it; kept for one release
