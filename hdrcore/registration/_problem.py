@@ -80,7 +80,6 @@ from ..geometry import (
 )
 from ..status import RegistrationStatus
 from . import _kernels
-from ._sampling import sample
 from .fourier import FourierShift, cross_correlation_shift
 from .result import PairPreview, PairRegistration
 
@@ -645,15 +644,19 @@ def make_preview(data: PairData, matrix: np.ndarray, size: int = 320) -> PairPre
     a, b = data.clipped(level)
     h, w = a.shape
     yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
-    x, y = xx.ravel(), yy.ravel()
     t = data.threshold
+    src = np.ascontiguousarray(b, np.float32)[..., None]
     out = []
     for m in (identity(), matrix):
-        ml = level_matrix(m, level)
-        qx, qy = apply(ml, x, y)
-        sm = sample(b, qx, qy, gradient=False)
-        bw = np.where(sm.inside, sm.value, data.lo).reshape(h, w)
-        inside = sm.inside.reshape(h, w)
+        ml = homogeneous(level_matrix(m, level))
+        # b read (Keys, compiled) where its 4x4 support lies inside the frame
+        qx, qy = apply(ml, xx, yy)
+        with np.errstate(invalid="ignore"):
+            ix, iy = np.floor(qx), np.floor(qy)
+            inside = (ix >= 1) & (ix <= w - 3) & (iy >= 1) & (iy <= h - 3)
+        read = np.empty((h, w, 1), np.float32)
+        _kernels.warp_rows(src, ml, 0, h, read)  # a preview: <= size pixels a side
+        bw = np.where(inside, read[..., 0], data.lo)
         valid = inside & (a > data.lo) & (a < data.hi) & (bw > data.lo) & (bw < data.hi)
         diff = np.where(valid, (a - bw) / np.maximum(a + bw, max(t, 1e-30)), np.nan)
         ta, tb = _tone(a, data.lo, data.hi), _tone(bw, data.lo, data.hi)

@@ -1,4 +1,6 @@
-"""Cubic-convolution sampling at scattered points, and 2x2 image pyramids (private helpers).
+"""Cubic-convolution sampling at scattered points, and 2x2 image pyramids, in numpy: the
+specifications of the compiled kernels' reads (tests only; :mod:`hdrcore.registration.spec`),
+and Keys' weights for the shear passes of :mod:`hdrcore.registration.warp`.
 
 Keys' cubic convolution kernel (a = -1/2; R. Keys, "Cubic convolution interpolation for digital
 image processing", IEEE TASSP 29(6), 1981) is interpolating, third-order accurate and has a
@@ -50,7 +52,8 @@ def sample(
     ``inside`` is False where the 4x4 support leaves the image (value 0 there).
     ``tap_range`` also returns the minimum and maximum of the 16 raw taps (to discard points
     whose support touches a saturated or under-exposed pixel). ``clip``: the taps are clipped
-    to ``(lo, hi)`` before the interpolation.
+    to ``(lo, hi)`` before the interpolation. Used by the specifications
+    (:mod:`hdrcore.registration.spec`) only: the registration reads frames in compiled kernels.
     """
     h, w = image.shape
     ix = np.floor(x).astype(np.int64)
