@@ -66,6 +66,7 @@ References
 from __future__ import annotations
 
 import time
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -74,7 +75,7 @@ import numpy as np
 from .._numba import AVAILABLE
 from .._numba import njit as _njit
 from .._threads import thread_map, worker_count
-from ..errors import ParameterError
+from ..errors import ParameterError, validate_method
 from .weights import NoiseModel
 
 __all__ = [
@@ -303,7 +304,8 @@ def _tables(
     )
 
 
-#: Most frames the compiled ghost test takes (more: the numpy reference).
+#: Frames per call of the compiled chains (its tuple slots); a longer bracket goes through in
+#: groups of this many frames, the chains carried from one group to the next.
 MAX_KERNEL_FRAMES = 32
 
 
@@ -315,6 +317,7 @@ def _read_only(a: np.ndarray, dtype) -> np.ndarray:
 
 @_njit
 def _chain_rows(
+    s0,
     n,
     fl,
     ml,
@@ -338,9 +341,12 @@ def _chain_rows(
     b,
     sums,
     count,
+    prev,
+    st,
 ):  # pragma: no cover - compiled
-    """Every frame (``fl[s]``, ``s < n``, rank ``s`` in exposure order, ``ml[s]`` its mask in
-    output coordinates) over the output pixels ``(y0 + stride // 2 + i * stride, stride // 2 + j *
+    """Frames ``fl[s]``, ``s < n`` (rank ``s0 + s`` in exposure order, ``ml[s]`` its mask in
+    output coordinates; ``has_t``, ``ts``, ``has_mask``, ``ln_t`` indexed by ``s``) over the
+    output pixels ``(y0 + stride // 2 + i * stride, stride // 2 + j *
     stride)``, ``i < gh``, ``j < gw``: one output row at a time, the frames in exposure order
     along it, so each pixel's chain (per channel: the previous frame that recorded it, its
     ``ln E``, relative variances and level bin) lives in one row's state, in cache.
@@ -356,20 +362,31 @@ def _chain_rows(
     slot's sums for the pixel's block, ``sums[by, bx, slot, ch] = (sum w r, sum w, sum
     additive, sum ln E_a, sum ln E_b)`` (one block's sums side by side) and ``count``. The
     sampling is written out here once, not in a helper: a helper's array arguments cost ten
-    times the work per pixel. References: :func:`_transfer_hist_numpy`,
-    :func:`_residuals_numpy`."""
+    times the work per pixel.
+
+    The chains' state, ``prev[r, gx, ch]`` (the rank of the last frame that recorded the
+    channel, -1: none) and ``st[r, gx, ch]`` (its ln E, rel var, additive rel var and level bin),
+    is the caller's: one row (``r`` 0 for every row: a call with every frame, ``s0 == 0``) or
+    one per output row (``r = gy``: a bracket longer than the kernel's tuple slots goes through
+    in calls of up to ``MAX_KERNEL_FRAMES`` frames, each continuing the chains the previous
+    call left). A call with ``s0 == 0`` starts the chains. The specification:
+    :mod:`hdrcore.merge.consistency_spec`."""
     c = tab.shape[0] if integer else sat.shape[0]
     to_hist = hist.shape[0] > 0
     hb = hist.shape[3]
     hscale = hb / (2.0 * _HIST_RANGE)
     off = stride // 2
-    prev = np.empty((gw, c), np.int64)
-    st = np.zeros((gw, c, 4))  # the chain: ln E, rel var, additive rel var, level bin
+    per_row = prev.shape[0] > 1
     for gy in range(gh):
         y = y0 + off + gy * stride
         by = y // b
-        prev[:, :] = -1
+        r_ = gy if per_row else 0
+        pv = prev[r_]
+        sv = st[r_]
+        if s0 == 0:
+            pv[:, :] = -1
         for s in range(n):
+            gs = s0 + s
             f = fl[s]
             mask = ml[s]
             hm = has_mask[s]
@@ -418,144 +435,31 @@ def _chain_rows(
                         rvc = (shot * xl + const_var) / (xl * xl)
                         adc = 0.0
                         lbc = np.float64(min(bins - 1, max(0, int(xl * bins))))
-                    q = prev[gx, ch]
+                    q = pv[gx, ch]
                     if q >= 0:
                         if to_hist:
                             # a frame stepped over is not the pair's transfer (in a static
                             # scene only a mask or a frame's border steps over one)
-                            if q == s - 1:
-                                j = int(np.floor((lnc - st[gx, ch, 0] + _HIST_RANGE) * hscale))
-                                hist[q, ch, int(st[gx, ch, 3]), min(hb - 1, max(0, j))] += 1
+                            if q == gs - 1:
+                                j = int(np.floor((lnc - sv[gx, ch, 0] + _HIST_RANGE) * hscale))
+                                hist[q, ch, int(sv[gx, ch, 3]), min(hb - 1, max(0, j))] += 1
                         else:
-                            r = lnc - st[gx, ch, 0]
-                            if q == s - 1:
-                                r -= bias[q, ch, int(st[gx, ch, 3])]
-                            wt = 1.0 / (st[gx, ch, 1] + rvc)
+                            r = lnc - sv[gx, ch, 0]
+                            if q == gs - 1:
+                                r -= bias[q, ch, int(sv[gx, ch, 3])]
+                            wt = 1.0 / (sv[gx, ch, 1] + rvc)
                             o = sums[by, bx, q, ch]
                             o[0] += wt * r
                             o[1] += wt
-                            o[2] += st[gx, ch, 2] + adc
-                            o[3] += st[gx, ch, 0]
+                            o[2] += sv[gx, ch, 2] + adc
+                            o[3] += sv[gx, ch, 0]
                             o[4] += lnc
                             count[by, bx, q, ch] += 1
-                    st[gx, ch, 0] = lnc
-                    st[gx, ch, 1] = rvc
-                    st[gx, ch, 2] = adc
-                    st[gx, ch, 3] = lbc
-                    prev[gx, ch] = s
-
-
-# --------------------------------------------------------------------------------------------
-# numpy references (the tests compare them with the kernels; the path without numba)
-
-
-def _frame_samples(fs, k, ys, xs, t: _Tables, has_t, ts, ms, ln_t):
-    """``(compared (.., C), ln E, rel_var, additive rel_var, level bin)`` of frame ``k`` at
-    output pixels ``ys, xs``."""
-    f = fs[k]
-    h, w, c = f.shape
-    ok = np.ones(ys.shape, bool)
-    sy, sx = ys, xs
-    if has_t[k]:
-        m = ts[k]
-        sw_ = m[2, 0] * xs + m[2, 1] * ys + m[2, 2]
-        fx = (m[0, 0] * xs + m[0, 1] * ys + m[0, 2]) / sw_
-        fy = (m[1, 0] * xs + m[1, 1] * ys + m[1, 2]) / sw_
-        ok = (fx > -0.5) & (fx < w - 0.5) & (fy > -0.5) & (fy < h - 0.5)
-        sx = np.clip(np.floor(fx + 0.5), 0, w - 1).astype(np.int64)
-        sy = np.clip(np.floor(fy + 0.5), 0, h - 1).astype(np.int64)
-    if ms[k] is not None:
-        ok &= ms[k][ys, xs]
-    v = f[sy, sx]
-    if t.integer:
-        i = v.astype(np.int64)
-        okc = np.stack([t.ok[ch][i[..., ch]] for ch in range(c)], -1)
-        ln = np.stack([t.ln_x[ch][i[..., ch]] for ch in range(c)], -1) - ln_t[k]
-        rv = np.stack([t.rel_var[ch][i[..., ch]] for ch in range(c)], -1)
-        ad = np.stack([t.add_var[ch][i[..., ch]] for ch in range(c)], -1)
-        lbn = np.stack([t.lbin[ch][i[..., ch]] for ch in range(c)], -1)
-    else:
-        xl = v.astype(np.float64)
-        okc = (xl < t.sat) & (xl > t.floor) & (xl > 0)
-        safe = np.where(xl > 0, xl, 1.0)
-        ln = np.log(safe) - ln_t[k]
-        rv = (t.shot * xl + t.const_var) / safe**2
-        ad = np.zeros_like(rv)
-        lbn = np.clip((xl * t.bins).astype(np.int64), 0, t.bins - 1)
-    return okc & ok[..., None], ln, rv, ad, lbn
-
-
-def _chains_numpy(fs, order, t: _Tables, has_t, ts, ms, ln_t, ys, xs):
-    """Yield ``(slot, rank, selected (.., C), ln_a, rv_a, ad_a, lbin_a, ln_b, rv_b, ad_b)``
-    for every frame (``rank`` in exposure order) and, per channel, the previous one that
-    recorded the same pixel (``slot``: the kernels' chains)."""
-    n = len(order)
-    c = fs[0].shape[2]
-    shape = ys.shape + (c,)
-    prev = np.full(shape, -1)
-    ln_p = np.zeros(shape)
-    rv_p = np.zeros(shape)
-    ad_p = np.zeros(shape)
-    lb_p = np.zeros(shape, np.int64)
-    for s in range(n):
-        ok, ln, rv, ad, lbn = _frame_samples(fs, int(order[s]), ys, xs, t, has_t, ts, ms, ln_t)
-        pair = ok & (prev >= 0)
-        for q in range(n - 1):
-            sel = pair & (prev == q)
-            if sel.any():
-                yield q, s, sel, ln_p, rv_p, ad_p, lb_p, ln, rv, ad
-        prev = np.where(ok, s, prev)
-        ln_p = np.where(ok, ln, ln_p)
-        rv_p = np.where(ok, rv, rv_p)
-        ad_p = np.where(ok, ad, ad_p)
-        lb_p = np.where(ok, lbn, lb_p)
-
-
-def _transfer_hist_numpy(fs, order, t: _Tables, has_t, ts, ms, ln_t, stride, hist) -> None:
-    h, w = fs[0].shape[:2]
-    ys, xs = np.mgrid[stride // 2 : h : stride, stride // 2 : w : stride]
-    hb = hist.shape[3]
-    for q, s, sel, ln_a, _, _, lb_a, ln_b, _, _ in _chains_numpy(
-        fs, order, t, has_t, ts, ms, ln_t, ys, xs
-    ):
-        if q != s - 1:
-            continue
-        j = np.clip(
-            np.floor((ln_b - ln_a + _HIST_RANGE) * (hb / (2.0 * _HIST_RANGE))).astype(np.int64),
-            0,
-            hb - 1,
-        )
-        for ch in range(ln_a.shape[-1]):
-            m = sel[..., ch]
-            np.add.at(hist[q, ch], (lb_a[..., ch][m], j[..., ch][m]), 1)
-
-
-def _residuals_numpy(
-    fs, order, t: _Tables, has_t, ts, ms, ln_t, bias, b, swr, sw, sa, la, lb, count, step: int = 1
-) -> None:
-    hb, wb = count.shape[2:]
-    ys, xs = np.mgrid[step // 2 : hb * b : step, step // 2 : wb * b : step]
-    bs = b // step
-
-    def bsum(a: np.ndarray) -> np.ndarray:
-        return np.moveaxis(a.reshape(hb, bs, wb, bs, a.shape[-1]).sum(axis=(1, 3)), -1, 0)
-
-    for q, s, sel, ln_a, rv_a, ad_a, lb_a, ln_b, rv_b, ad_b in _chains_numpy(
-        fs, order, t, has_t, ts, ms, ln_t, ys, xs
-    ):
-        c = ln_a.shape[-1]
-        corr = np.stack([bias[q, ch][lb_a[..., ch]] for ch in range(c)], -1)
-        if q != s - 1:
-            corr = np.zeros_like(corr)  # a frame stepped over: no measured transfer
-        with np.errstate(divide="ignore"):
-            wt = np.where(sel, 1.0 / (rv_a + rv_b), 0.0)
-        r = ln_b - ln_a - corr
-        swr[q] += bsum(np.where(sel, wt * r, 0.0))
-        sw[q] += bsum(wt)
-        sa[q] += bsum(np.where(sel, ad_a + ad_b, 0.0))
-        la[q] += bsum(np.where(sel, ln_a, 0.0))
-        lb[q] += bsum(np.where(sel, ln_b, 0.0))
-        count[q] += bsum(sel.astype(np.int64)).astype(np.int32)
+                    sv[gx, ch, 0] = lnc
+                    sv[gx, ch, 1] = rvc
+                    sv[gx, ch, 2] = adc
+                    sv[gx, ch, 3] = lbc
+                    pv[gx, ch] = gs
 
 
 # --------------------------------------------------------------------------------------------
@@ -645,39 +549,44 @@ class PairResiduals:
     samples: int
 
 
-def pair_residuals(
+@dataclass(frozen=True, eq=False)
+class _Inputs:
+    """The frames of :func:`pair_residuals` as the kernel and the specification read them:
+    ``fs`` ``(H, W, C)`` each, ``order`` the frames by exposure time, the per-level tables,
+    the homogeneous transforms (``has_t``: not the identity), the masks, ``ln t`` and the
+    stride of the transfer histograms' sample grid."""
+
+    fs: list[np.ndarray]
+    order: np.ndarray
+    tables: _Tables
+    has_t: np.ndarray
+    ts: np.ndarray
+    masks: list[np.ndarray | None]
+    ln_t: np.ndarray
+    stride: int
+
+    @property
+    def channels(self) -> int:
+        return int(self.fs[0].shape[2])
+
+
+def _inputs(
     frames: Sequence[np.ndarray],
     exposure_times: Sequence[float],
-    *,
     saturation: Sequence[float],
     floor: float,
-    lut: np.ndarray | None = None,
-    max_level: int | None = None,
-    noise: NoiseModel | None = None,
-    transforms: Sequence[np.ndarray | None] | None = None,
-    masks: Sequence[np.ndarray | None] | None = None,
-    params: GhostTestParams | None = None,
-    workers: int | None = None,
-    engine: str | None = None,
-) -> PairResiduals:
-    """:class:`PairResiduals` of ``frames`` (steps 1-3 of the module docstring).
-
-        ``frames``: integer levels (with ``lut``/``max_level``) or float linear values, one shape;
-    X
-        output grid) as :func:`hdrcore.merge.merge` takes them; ``saturation`` (per channel) and
-        ``floor`` in the frames' units. ``engine``: ``"numba"`` (default when installed) or
-        ``"numpy"`` (the reference).
-    """
-    p = params or GhostTestParams()
+    lut: np.ndarray | None,
+    max_level: int | None,
+    noise: NoiseModel | None,
+    transforms: Sequence[np.ndarray | None] | None,
+    masks: Sequence[np.ndarray | None] | None,
+    p: GhostTestParams,
+) -> _Inputs:
     fs = [np.asarray(f) for f in frames]
     fs = [f[..., None] if f.ndim == 2 else f for f in fs]
     n = len(fs)
     h, w, c = fs[0].shape
-    b = int(p.block)
-    hb, wb = h // b, w // b
     times = np.asarray(exposure_times, np.float64)
-    order = np.argsort(times, kind="stable").astype(np.int64)
-    ln_t = np.log(times)
     t = _tables(
         fs,
         c,
@@ -701,130 +610,217 @@ def pair_residuals(
             ts[k] /= ts[k][2, 2]
         has_t[k] = m is not None and not np.allclose(ts[k], np.eye(3), atol=1e-12)
     ms = list(masks) if masks is not None else [None] * n
-    ms = [None if m is None else np.ascontiguousarray(m, dtype=bool) for m in ms]
-    has_mask = np.array([m is not None for m in ms])
-    mask_t = tuple(np.ones((1, 1), bool) if m is None else m for m in ms)
-    slots = max(n - 1, 0)
-    stride = max(1, int(np.sqrt(h * w / float(p.sample_pixels))))
-    hist = np.zeros((slots, c, p.level_bins, _HIST_BINS), np.int64)
-    if engine is None:
-        engine = "numba" if AVAILABLE else "numpy"
-    fast = engine == "numba" and AVAILABLE
-    no_hist = np.zeros((0, c, 1, 1), np.int64)
-    no_bias = np.zeros((1, c, 1))
-    if fast and n > MAX_KERNEL_FRAMES:
-        fast = False  # the numpy reference takes any number of frames
-    if fast and slots and hb and wb:
-        # The kernel takes the frames (and masks) as tuples of MAX_KERNEL_FRAMES read-only
-        # arrays, padded with placeholders: one compiled specialisation for every bracket
-        # length (numba's typed lists compile their own methods in every new process: 10 s).
-        dtype = np.result_type(*fs)
-        fl = tuple(_read_only(fs[k], dtype) for k in order)  # rank s in exposure order
-        ml = tuple(_read_only(mask_t[k], bool) for k in order)
-        fl += (_read_only(np.zeros((1, 1, c), dtype), dtype),) * (MAX_KERNEL_FRAMES - n)
-        ml += (_read_only(np.ones((1, 1), bool), bool),) * (MAX_KERNEL_FRAMES - n)
-        per = (
-            n,
-            fl,
-            ml,
-            t.integer,
-            t.packed(),
-            t.sat,
-            t.floor,
-            t.shot,
-            t.const_var,
-            t.bins,
-            np.ascontiguousarray(has_t[order]),
-            np.ascontiguousarray(ts[order]),
-            np.ascontiguousarray(has_mask[order]),
-            np.ascontiguousarray(ln_t[order]),
-        )
-    if slots and hb and wb:
-        if fast:
-            gh, gw = len(range(stride // 2, h, stride)), len(range(stride // 2, w, stride))
-            _chain_rows(
-                *per,
-                0,
-                gh,
-                gw,
-                stride,
-                hist,
-                no_bias,
-                b,
-                np.zeros((1, 1, 1, c, 5)),
-                np.zeros((1, 1, 1, c), np.int32),
+    return _Inputs(
+        fs=fs,
+        order=np.argsort(times, kind="stable").astype(np.int64),
+        tables=t,
+        has_t=has_t,
+        ts=ts,
+        masks=[None if m is None else np.ascontiguousarray(m, dtype=bool) for m in ms],
+        ln_t=np.log(times),
+        stride=max(1, int(np.sqrt(h * w / float(p.sample_pixels)))),
+    )
+
+
+#: Bytes of chain state (per output row: ``(W, C)`` ranks and ``(W, C, 4)`` values) a call of
+#: a bracket longer than ``MAX_KERNEL_FRAMES`` keeps for its rows between the frame groups.
+_STATE_BYTES = 8 << 20
+
+
+class _Chains:
+    """Calls :func:`_chain_rows` with every frame of a bracket: the frames (and masks) go in
+    tuples of ``MAX_KERNEL_FRAMES`` read-only arrays, padded with placeholders (one compiled
+    specialisation for every bracket length: numba's typed lists compile their own methods in
+    every new process, 10 s); a longer bracket in several such groups, in exposure order, the
+    chains' state carried from one to the next."""
+
+    def __init__(self, inp: _Inputs) -> None:
+        t = inp.tables
+        order = inp.order
+        n = len(order)
+        c = inp.channels
+        self.c = c
+        dtype = np.result_type(*inp.fs)
+        mask_t = [np.ones((1, 1), bool) if m is None else m for m in inp.masks]
+        fl = [_read_only(inp.fs[k], dtype) for k in order]  # rank s in exposure order
+        ml = [_read_only(mask_t[k], bool) for k in order]
+        has_t = np.ascontiguousarray(inp.has_t[order])
+        ts = np.ascontiguousarray(inp.ts[order])
+        has_mask = np.array([inp.masks[k] is not None for k in order])
+        ln_t = np.ascontiguousarray(inp.ln_t[order])
+        pad_f = _read_only(np.zeros((1, 1, c), dtype), dtype)
+        pad_m = _read_only(np.ones((1, 1), bool), bool)
+        self.groups = []
+        for s0 in range(0, n, MAX_KERNEL_FRAMES):
+            s1 = min(n, s0 + MAX_KERNEL_FRAMES)
+            pad = MAX_KERNEL_FRAMES - (s1 - s0)
+            self.groups.append(
+                (
+                    s0,
+                    s1 - s0,
+                    tuple(fl[s0:s1]) + (pad_f,) * pad,
+                    tuple(ml[s0:s1]) + (pad_m,) * pad,
+                    t.integer,
+                    t.packed(),
+                    t.sat,
+                    t.floor,
+                    t.shot,
+                    t.const_var,
+                    t.bins,
+                    has_t[s0:s1].copy(),
+                    ts[s0:s1].copy(),
+                    has_mask[s0:s1].copy(),
+                    ln_t[s0:s1].copy(),
+                )
             )
-        else:
-            _transfer_hist_numpy(fs, order, t, has_t, ts, ms, ln_t, stride, hist)
-    bias, source = _transfer_bias(hist, p) if slots else (np.zeros((0, c, p.level_bins)), [])
-    if fast:
-        # one block's sums side by side in the kernel; the fields are views of them
-        sums = np.zeros((hb, wb, slots, c, 5))
-        counts = np.zeros((hb, wb, slots, c), np.int32)
-        weighted, weights, additive, first, second = (
-            np.moveaxis(sums[..., i], (0, 1), (2, 3)) for i in range(5)
-        )
-        count = np.moveaxis(counts, (0, 1), (2, 3))
-    else:
-        weighted = np.zeros((slots, c, hb, wb))
-        weights = np.zeros_like(weighted)
-        additive = np.zeros_like(weighted)
-        first = np.zeros_like(weighted)
-        second = np.zeros_like(weighted)
-        count = np.zeros((slots, c, hb, wb), np.int32)
-    if slots and hb and wb:
-        if fast:
-            # block rows per piece of work: a few per worker (load balance); each row's chains
-            # live in the kernel's one-row state
-            span = max(1, -(-hb // (8 * worker_count(workers))))
 
-            step = int(p.pixel_step)
-
-            def work(r0: int) -> None:
-                r1 = min(hb, r0 + span)
+    def run(self, y0, gh, gw, stride, hist, bias, b, sums, counts, unit=1) -> None:
+        """The output rows ``y0 + stride // 2 + i * stride``, ``i < gh`` (see
+        :func:`_chain_rows`). A long bracket goes through in groups of rows, a multiple of
+        ``unit`` (the sample rows of a block: a block's sums are then added in the same order
+        however the rows are cut into pieces of work, so the thread count changes no bit)."""
+        c = self.c
+        if len(self.groups) == 1:
+            prev = np.empty((1, gw, c), np.int64)
+            st = np.zeros((1, gw, c, 4))
+            _chain_rows(*self.groups[0], y0, gh, gw, stride, hist, bias, b, sums, counts, prev, st)
+            return
+        # a long bracket: a few rows at a time through every group of frames, the rows'
+        # chains kept between the groups
+        rows = min(gh, max(1, _STATE_BYTES // (gw * c * 40 * unit)) * unit)
+        for g0 in range(0, gh, rows):
+            g1 = min(gh, g0 + rows)
+            prev = np.empty((max(2, g1 - g0), gw, c), np.int64)  # > 1 row: one per row
+            st = np.zeros((max(2, g1 - g0), gw, c, 4))
+            for group in self.groups:
                 _chain_rows(
-                    *per,
-                    r0 * b,
-                    (r1 - r0) * b // step,
-                    wb * b // step,
-                    step,
-                    no_hist,
+                    *group,
+                    y0 + g0 * stride,
+                    g1 - g0,
+                    gw,
+                    stride,
+                    hist,
                     bias,
                     b,
                     sums,
                     counts,
+                    prev,
+                    st,
                 )
 
-            thread_map(work, range(0, hb, span), workers)
-        else:
-            _residuals_numpy(
-                fs,
-                order,
-                t,
-                has_t,
-                ts,
-                ms,
-                ln_t,
+
+def _resolve_engine(engine: str | None, what: str) -> None:
+    """``engine=None`` or ``"numba"``: the compiled kernels; ``"numpy"``, the removed numpy
+    path, is a deprecated alias of them for one release (a ``DeprecationWarning``)."""
+    if isinstance(engine, str) and engine.strip().lower() == "numpy":
+        warnings.warn(
+            f"{what}(engine='numpy') is deprecated: the ghost test's numpy path was removed "
+            "and the compiled kernels run instead (same results); drop the argument",
+            DeprecationWarning,
+            stacklevel=3,
+        )
+        engine = None
+    if engine is not None:
+        validate_method(engine, {"numba": "the compiled kernels"}, "ghost test engine")
+    if not AVAILABLE:
+        raise ParameterError(
+            "the ghost test needs numba (a dependency of hdrcore)",
+            expected="numba installed",
+            found="numba not importable",
+        )
+
+
+def pair_residuals(
+    frames: Sequence[np.ndarray],
+    exposure_times: Sequence[float],
+    *,
+    saturation: Sequence[float],
+    floor: float,
+    lut: np.ndarray | None = None,
+    max_level: int | None = None,
+    noise: NoiseModel | None = None,
+    transforms: Sequence[np.ndarray | None] | None = None,
+    masks: Sequence[np.ndarray | None] | None = None,
+    params: GhostTestParams | None = None,
+    workers: int | None = None,
+    engine: str | None = None,
+) -> PairResiduals:
+    """:class:`PairResiduals` of ``frames`` (steps 1-3 of the module docstring), any number
+    of frames, by the compiled kernel (:mod:`hdrcore.merge.consistency_spec` states the same
+    as plain numpy, for the tests).
+
+    ``frames``: integer levels (with ``lut``/``max_level``) or float linear values, one shape;
+    ``transforms`` (output grid to frame), ``masks`` (output grid) as
+    :func:`hdrcore.merge.merge` takes them; ``saturation`` (per channel) and ``floor`` in the
+    frames' units. ``engine``: ``None`` or ``"numba"``; ``"numpy"`` (the numpy path, removed)
+    is a deprecated alias of the kernel for one release.
+    """
+    _resolve_engine(engine, "pair_residuals")
+    p = params or GhostTestParams()
+    inp = _inputs(
+        frames, exposure_times, saturation, floor, lut, max_level, noise, transforms, masks, p
+    )
+    n = len(inp.fs)
+    h, w, c = inp.fs[0].shape
+    b = int(p.block)
+    hb, wb = h // b, w // b
+    slots = max(n - 1, 0)
+    stride = inp.stride
+    hist = np.zeros((slots, c, p.level_bins, _HIST_BINS), np.int64)
+    # one block's sums side by side in the kernel; the fields are views of them
+    sums = np.zeros((hb, wb, slots, c, 5))
+    counts = np.zeros((hb, wb, slots, c), np.int32)
+    chains = _Chains(inp) if slots and hb and wb else None
+    if chains is not None:
+        gh, gw = len(range(stride // 2, h, stride)), len(range(stride // 2, w, stride))
+        chains.run(
+            0,
+            gh,
+            gw,
+            stride,
+            hist,
+            np.zeros((1, c, 1)),
+            b,
+            np.zeros((1, 1, 1, c, 5)),
+            np.zeros((1, 1, 1, c), np.int32),
+        )
+    bias, source = _transfer_bias(hist, p) if slots else (np.zeros((0, c, p.level_bins)), [])
+    if chains is not None:
+        # block rows per piece of work: a few per worker (load balance); each row's chains
+        # live in the kernel's one-row state
+        span = max(1, -(-hb // (8 * worker_count(workers))))
+        step = int(p.pixel_step)
+        no_hist = np.zeros((0, c, 1, 1), np.int64)
+
+        def work(r0: int) -> None:
+            r1 = min(hb, r0 + span)
+            chains.run(
+                r0 * b,
+                (r1 - r0) * b // step,
+                wb * b // step,
+                step,
+                no_hist,
                 bias,
                 b,
-                weighted,
-                weights,
-                additive,
-                first,
-                second,
-                count,
-                int(p.pixel_step),
+                sums,
+                counts,
+                unit=b // step,
             )
+
+        thread_map(work, range(0, hb, span), workers)
+    weighted, weights, additive, first, second = (
+        np.moveaxis(sums[..., i], (0, 1), (2, 3)) for i in range(5)
+    )
     return PairResiduals(
         weighted=weighted,
         weights=weights,
         additive=additive,
         first=first,
         second=second,
-        count=count,
+        count=np.moveaxis(counts, (0, 1), (2, 3)),
         bias=bias,
         bias_source=tuple(source),
-        order=order,
+        order=inp.order,
         block=b,
         samples=int(hist.sum()),
     )
@@ -897,23 +893,6 @@ class GhostRegions:
         }
 
 
-def _log_contrast(log_mean: np.ndarray, use: np.ndarray) -> np.ndarray:
-    """The largest |ln step| from each block to its 8 neighbours (neighbours not compared are
-    left out)."""
-    hb, wb = log_mean.shape
-    out = np.zeros_like(log_mean)
-    pad = np.pad(log_mean, 1, mode="edge")
-    ok = np.pad(use, 1, mode="constant")
-    for dy in (-1, 0, 1):
-        for dx in (-1, 0, 1):
-            if dy == 0 and dx == 0:
-                continue
-            nb = pad[1 + dy : 1 + dy + hb, 1 + dx : 1 + dx + wb]
-            nok = ok[1 + dy : 1 + dy + hb, 1 + dx : 1 + dx + wb]
-            np.maximum(out, np.where(nok, np.abs(nb - log_mean), 0.0), out=out)
-    return out
-
-
 def _pixel_map(
     blocks: np.ndarray,
     candidates: np.ndarray | None,
@@ -973,41 +952,18 @@ def _pixel_map(
     return out
 
 
-def _block_test_numpy(
-    res: PairResiduals, q: int, use: np.ndarray, delta: float, p: GhostTestParams
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Step 4 for pair slot ``q``: ``(scale per channel, z (C, hb, wb), disagreeing blocks)``
-    (the reference of :func:`_block_test`)."""
-    b = res.block
-    sw = np.where(use, res.weights[q], 1.0)
-    mean = res.weighted[q] / sw
-    # 4 / sum(w): about a quarter of a block's pixels are independent
-    var = (4.0 / p.pixel_step**2) / sw
-    scale = np.array(
+def _block_scale(res: PairResiduals, q: int, use: np.ndarray) -> np.ndarray:
+    """Per channel, the robust spread (1.4826 MAD) of pair slot ``q``'s block means over the
+    blocks compared (``use``, ``(C, hb, wb)``)."""
+    return np.array(
         [
-            1.4826 * float(np.median(np.abs(m[u] - np.median(m[u])))) if u.any() else 0.0
-            for m, u in zip(mean, use, strict=True)
+            1.4826 * float(np.median(np.abs(m - np.median(m)))) if m.size else 0.0
+            for m in (
+                res.weighted[q, ch][use[ch]] / res.weights[q, ch][use[ch]]
+                for ch in range(use.shape[0])
+            )
         ]
     )
-    nn = np.maximum(res.count[q], 1)
-    la = res.first[q] / nn  # each frame's geometric-mean radiance over the block (ln)
-    lb = res.second[q] / nn
-    reg = (
-        delta
-        / b
-        * np.minimum(
-            np.stack([_log_contrast(la[ch], use[ch]) for ch in range(len(la))]),
-            np.stack([_log_contrast(lb[ch], use[ch]) for ch in range(len(lb))]),
-        )
-    )
-    # an offset of the levels (black level, a scan's film base) is the same over a block:
-    # its variance is the block's mean, not divided by the pixels
-    add = res.additive[q] / nn
-    s2 = scale[:, None, None] ** 2 + var + add + reg**2 + p.scale_floor**2
-    z = np.abs(mean) / np.sqrt(s2)
-    z *= use
-    hit = ((z > p.z) & (np.abs(mean) > p.min_change)).any(axis=0)
-    return scale, z, hit
 
 
 @_njit
@@ -1029,7 +985,7 @@ def _block_test(
     hit,
 ):  # pragma: no cover - compiled
     """Step 4 of the module docstring for one pair slot, block by block (``z`` and ``hit``
-    written; reference :func:`_block_test_numpy`, the same arithmetic in the same order)."""
+    written; the specification: :func:`hdrcore.merge.consistency_spec.block_test_spec`)."""
     c, hb, wb = count.shape
     la = np.zeros((hb, wb))
     lb = np.zeros((hb, wb))
@@ -1089,9 +1045,10 @@ def consistency_regions(
     """Where the frames disagree beyond their noise, misregistration and the brightness
     transfer error of each pair, as spatially coherent regions (the module docstring).
 
-    The inputs are the merge's (see :func:`pair_residuals`); ``candidates`` (bool ``(H, W)``,
-    the merge's per-pixel test) and ``score`` (its per-pixel score) shape the regions at pixel
-    resolution.
+    The inputs are the merge's (see :func:`pair_residuals`; any number of frames, through the
+    compiled kernels); ``candidates`` (bool ``(H, W)``, the merge's per-pixel test) and
+    ``score`` (its per-pixel score) shape the regions at pixel resolution. ``engine``: as
+    :func:`pair_residuals` takes it (``"numpy"`` a deprecated alias of the kernels).
     """
     from scipy import ndimage
 
@@ -1123,6 +1080,7 @@ def consistency_regions(
         )
         for m in tf
     ]
+    _resolve_engine(engine, "consistency_regions")
     res = pair_residuals(
         frames,
         exposure_times,
@@ -1135,12 +1093,10 @@ def consistency_regions(
         masks=masks,
         params=p,
         workers=workers,
-        engine=engine,
     )
     t1 = time.perf_counter()
     need = max(1, int(np.ceil(p.min_shared * (b // p.pixel_step) ** 2)))
     indep = 4.0 / p.pixel_step**2  # 4 / sum(w) for every pixel of a block
-    fast = (engine or ("numba" if AVAILABLE else "numpy")) == "numba" and AVAILABLE
     zmax = np.zeros((hb, wb), np.float32)
     flagged = np.zeros((hb, wb), bool)
     tested = np.zeros((hb, wb), bool)
@@ -1152,37 +1108,26 @@ def consistency_regions(
             continue
         tested |= use.any(axis=0)
         delta = p.registration_error if (resampled[a] or resampled[k]) else p.direct_error
-        if fast:
-            scale = np.array(
-                [
-                    1.4826 * float(np.median(np.abs(m - np.median(m)))) if m.size else 0.0
-                    for m in (
-                        res.weighted[q, ch][use[ch]] / res.weights[q, ch][use[ch]]
-                        for ch in range(use.shape[0])
-                    )
-                ]
-            )
-            z = np.zeros(use.shape)
-            hit = np.zeros((hb, wb), bool)
-            _block_test(
-                res.weighted[q],
-                res.weights[q],
-                res.additive[q],
-                res.first[q],
-                res.second[q],
-                res.count[q],
-                need,
-                scale,
-                delta / b,
-                p.scale_floor**2,
-                float(p.z),
-                float(p.min_change),
-                indep,
-                z,
-                hit,
-            )
-        else:
-            scale, z, hit = _block_test_numpy(res, q, use, delta, p)
+        scale = _block_scale(res, q, use)
+        z = np.zeros(use.shape)
+        hit = np.zeros((hb, wb), bool)
+        _block_test(
+            res.weighted[q],
+            res.weights[q],
+            res.additive[q],
+            res.first[q],
+            res.second[q],
+            res.count[q],
+            need,
+            scale,
+            delta / b,
+            p.scale_floor**2,
+            float(p.z),
+            float(p.min_change),
+            indep,
+            z,
+            hit,
+        )
         np.maximum(zmax, z.max(axis=0), out=zmax)
         flagged |= hit
         pairs.append(

@@ -17,11 +17,11 @@ from scipy import ndimage
 
 from hdrcore.errors import ParameterError
 from hdrcore.merge import GhostTestParams, NoiseModel, merge
-from hdrcore.merge.consistency import consistency_regions, pair_residuals
 from hdrcore.synthetic import simulate_bracket
 from hdrcore.synthetic.camera import apply_response
 
 from ._brackets import inverse_gamma_lut
+from ._ghost_spec_check import regions_vs_spec, sums_vs_spec
 
 SHAPE = (192, 288)
 TIMES = (1.0, 4.0, 16.0)
@@ -121,7 +121,7 @@ def _kernel_inputs(seed: int = 0):
 
 
 @pytest.mark.parametrize("case", ["lut", "linear", "warped", "float", "step"])
-def test_compiled_chains_match_the_numpy_reference(case):
+def test_compiled_chains_match_the_spec(case):
     frames, tfs, masks = _kernel_inputs()
     params = GhostTestParams(
         sample_pixels=500, min_bin_samples=3, pixel_step=2 if case == "step" else 1
@@ -138,13 +138,8 @@ def test_compiled_chains_match_the_numpy_reference(case):
         frames = [f.astype(np.float32) / 255 for f in frames[:3]]
         times = times[:3]
         kw.update(saturation=[0.98] * 3, floor=0.02, transforms=tfs[:3])
-    a = pair_residuals(frames, times, engine="numba", **kw)
-    b = pair_residuals(frames, times, engine="numpy", **kw)
-    assert a.count.sum() > 1000 and a.samples == b.samples
-    for name in ("weighted", "weights", "additive", "first", "second", "count", "bias"):
-        np.testing.assert_allclose(
-            getattr(a, name), getattr(b, name), rtol=1e-9, atol=1e-12, err_msg=name
-        )
+    a, _ = sums_vs_spec(frames, times, **kw)
+    assert a.count.sum() > 1000
 
 
 def test_bad_parameters_are_refused():
@@ -205,9 +200,9 @@ def test_real_tripod_brackets_flag_almost_nothing(frobisher_dir, memorial_dir):
 
 
 @pytest.mark.parametrize("case", ["lut", "warped", "step"])
-def test_compiled_block_test_matches_the_numpy_reference(case):
+def test_compiled_block_test_matches_the_spec(case):
     """The whole test (sums, transfer error, block z, regions) through the kernels and through
-    the numpy reference: the same blocks, z and pixel map."""
+    the specification: the same blocks, z and regions."""
     frames, times, _ = _bracket("gamma", 4.0)
     kw = dict(
         saturation=[247.35] * 3,
@@ -223,21 +218,13 @@ def test_compiled_block_test_matches_the_numpy_reference(case):
             transforms=[None, t, None],
             masks=[None, None, np.random.default_rng(1).random(SHAPE) > 0.02],
         )
-    a = consistency_regions(frames, times, engine="numba", **kw)
-    b = consistency_regions(frames, times, engine="numpy", **kw)
+    a = regions_vs_spec(frames, times, **kw)
     assert a.regions >= 2 and a.blocks.any()
-    np.testing.assert_array_equal(a.blocks, b.blocks)
-    np.testing.assert_array_equal(a.tested, b.tested)
-    np.testing.assert_allclose(a.z, b.z, rtol=1e-6)
-    np.testing.assert_array_equal(a.ghost, b.ghost)
-    for pa, pb in zip(a.pairs, b.pairs, strict=True):
-        assert pa.flagged == pb.flagged and pa.blocks == pb.blocks
-        np.testing.assert_allclose(pa.scale, pb.scale, rtol=1e-12)
 
 
 def test_read_only_frames_and_long_brackets_run():
-    """The kernel takes read-only frames (a bracket's arrays); a bracket longer than it takes
-    goes to the numpy reference, with the same sums."""
+    """The kernel takes read-only frames (a bracket's arrays); a bracket longer than its tuple
+    slots goes through in groups of frames, with the specification's sums."""
     from hdrcore.merge.consistency import MAX_KERNEL_FRAMES
 
     rng = np.random.default_rng(5)
@@ -252,11 +239,8 @@ def test_read_only_frames_and_long_brackets_run():
         lut=inverse_gamma_lut(255),
         params=GhostTestParams(sample_pixels=500, min_bin_samples=3),
     )
-    for m in (3, n):
-        a = pair_residuals(frames[:m], times[:m], engine="numba", **kw)
-        b = pair_residuals(frames[:m], times[:m], engine="numpy", **kw)
-        assert a.count.sum() > 0
-        for name in ("weighted", "weights", "count"):
-            np.testing.assert_allclose(
-                getattr(a, name), getattr(b, name), rtol=1e-9, atol=1e-12, err_msg=name
-            )
+    for m in (3, MAX_KERNEL_FRAMES, n):
+        a, _ = sums_vs_spec(frames[:m], times[:m], **kw)
+        assert a.count.sum() > 0 and a.count.shape[0] == m - 1
+        # every consecutive pair, the last across the group boundary too, was compared
+        assert (a.count.sum(axis=(1, 2, 3)) > 0).all()
