@@ -21,6 +21,7 @@ real brackets by ``bench/bench_hdrview.py --draft``.
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Sequence
 from dataclasses import replace
 from fractions import Fraction
@@ -30,7 +31,7 @@ import numpy as np
 
 from ._numba import AVAILABLE, njit
 from ._threads import run_row_spans
-from .errors import ParameterError
+from .errors import ParameterError, validate_method
 from .io import Bracket
 from .io.frame import Frame
 
@@ -102,21 +103,7 @@ def _bin_rows(src, f, tab, sat, ex, has_ex, out, r0, r1):  # pragma: no cover - 
                     out[y, x, ch] = acc[x, ch] * inv
 
 
-def _bin_numpy(src, f, tab, sat, ex, has_ex):
-    hh, ww = src.shape[0] // f, src.shape[1] // f
-    blocks = src[: hh * f, : ww * f].reshape(hh, f, ww, f, src.shape[2]).astype(np.intp)
-    lin = np.stack([tab[ch][blocks[..., ch]] for ch in range(src.shape[2])], axis=-1)
-    out = lin.mean(axis=(1, 3))
-    out[blocks.max(axis=(1, 3)) >= sat] = _CLIPPED
-    if has_ex:
-        hit = np.all(blocks == np.asarray(ex, np.intp), axis=-1).any(axis=(1, 3))
-        out[hit] = _EXCLUDED
-    return out
-
-
-def _block_means(src, f, tab, sat, ex, has_ex, engine):
-    if engine == "numpy" or (engine == "auto" and not AVAILABLE):
-        return _bin_numpy(src, f, tab, sat, ex, has_ex)
+def _block_means(src, f, tab, sat, ex, has_ex):
     out = np.empty((src.shape[0] // f, src.shape[1] // f, src.shape[2]), np.float64)
     run_row_spans(
         out.shape[0],
@@ -126,20 +113,12 @@ def _block_means(src, f, tab, sat, ex, has_ex, engine):
     return out
 
 
-def _to_levels(table: np.ndarray, values: np.ndarray, k: int) -> np.ndarray:
-    """The level of ``k`` times finer steps whose value, ``table`` (increasing, one entry a
-    level) read linearly between entries, is nearest to each value."""
-    j = np.clip(np.searchsorted(table, values, side="right") - 1, 0, table.size - 2)
-    lo, hi = table[j], table[j + 1]
-    step = np.where(hi > lo, hi - lo, 1.0)
-    frac = np.clip((values - lo) / step, 0.0, 1.0)
-    return j * k + np.rint(frac * k).astype(np.intp)
-
-
 @njit
 def _levels_rows(tab, means, k, out, r0, r1):  # pragma: no cover - compiled
-    """Rows ``r0:r1`` of :func:`_to_levels` for every channel (``tab[c]`` per channel), the
-    same arithmetic: a binary search (numpy's ``searchsorted(side="right")``) per value."""
+    """Rows ``r0:r1`` of the block means as levels of ``k`` times finer steps, every channel
+    (``tab[c]`` per channel): a binary search (numpy's ``searchsorted(side="right")``) per
+    value, then the nearest fine step between the two entries
+    (:func:`hdrcore.draft_spec.to_fine_levels` states it in numpy)."""
     n = tab.shape[1]
     for y in range(r0, r1):
         for x in range(means.shape[1]):
@@ -159,20 +138,37 @@ def _levels_rows(tab, means, k, out, r0, r1):  # pragma: no cover - compiled
                 out[y, x, ch] = j * k + np.rint(frac * k)
 
 
-def _all_levels(tab: np.ndarray, means: np.ndarray, k: int, engine: str) -> np.ndarray:
-    """:func:`_to_levels` of every channel into uint16, compiled on the worker threads (the
-    numpy form took 0.4 of the 2.4 s of a 24 MP bracket's draft, one thread)."""
+def _all_levels(tab: np.ndarray, means: np.ndarray, k: int) -> np.ndarray:
+    """The levels of ``k`` times finer steps (:func:`_levels_rows`) of every channel into
+    uint16, on the worker threads (a numpy form took 0.4 of the 2.4 s of a 24 MP bracket's
+    draft, one thread)."""
     out = np.empty(means.shape, np.uint16)
-    if engine == "numpy" or (engine == "auto" and not AVAILABLE):
-        for ch in range(means.shape[2]):
-            out[..., ch] = _to_levels(tab[ch], means[..., ch], k)
-        return out
     run_row_spans(
         means.shape[0],
         None,
         lambda r0, r1: _levels_rows(tab, means, k, out, r0, r1),
     )
     return out
+
+
+def _check_engine(engine: str) -> None:
+    """``"auto"`` and ``"numba"``: the kernels; ``"numpy"``: the same, with a
+    ``DeprecationWarning``; anything else, or no numba, a :class:`ParameterError`."""
+    if isinstance(engine, str) and engine.strip().lower() == "numpy":
+        warnings.warn(
+            "bin_levels(engine='numpy') is deprecated: the numpy binning was removed and the "
+            "compiled kernels run instead (same results); drop the argument",
+            DeprecationWarning,
+            stacklevel=3,
+        )
+        engine = "auto"
+    validate_method(engine, {"auto": "the kernels", "numba": "the kernels"}, "binning engine")
+    if not AVAILABLE:
+        raise ParameterError(
+            "the draft's binning needs numba (a dependency of hdrcore)",
+            expected="numba installed",
+            found="numba not importable",
+        )
 
 
 def bin_levels(
@@ -186,8 +182,10 @@ def bin_levels(
     engine: str = "auto",
 ) -> np.ndarray:
     """Integer ``(H, W, C)`` levels binned ``factor x factor`` by the rules of the module
-    docstring (the ragged edge is cropped). ``engine``: ``"numba"``, ``"numpy"`` (the
-    reference) or ``"auto"``.
+    docstring (the ragged edge is cropped), by compiled kernels (:mod:`hdrcore.draft_spec`
+    states the same in numpy, for the tests). ``engine``: ``"auto"`` or ``"numba"``;
+    ``"numpy"`` (the numpy path, removed) is a deprecated alias of the kernels for one
+    release.
 
     Without ``lut`` the block means are of the levels (linear data), the result in the same
     dtype. With ``lut`` (``(C, max_level + 1)``, increasing: the response ``g``) they are of
@@ -197,6 +195,7 @@ def bin_levels(
     the resolution (``k * max_level`` is the top), each the level whose ``g`` (read at
     ``level / k``, linearly between entries) is nearest to the block's mean exposure.
     """
+    _check_engine(engine)
     src = np.asarray(levels)
     f = int(factor)
     if src.ndim != 3 or not np.issubdtype(src.dtype, np.integer):
@@ -225,7 +224,7 @@ def bin_levels(
         raise ParameterError(
             "levels above max_level", expected=f"<= {m}", found=str(int(src.max()))
         )
-    means = _block_means(src, f, tab, saturation, ex, has_ex, engine)
+    means = _block_means(src, f, tab, saturation, ex, has_ex)
     clipped, excluded = means == _CLIPPED, means == _EXCLUDED
     if lut is None:
         out = np.floor(means + 0.5)
@@ -233,7 +232,7 @@ def bin_levels(
         out[excluded] = np.broadcast_to(ex, means.shape)[excluded]
         return out.astype(src.dtype)
     k = max(1, FINE_TOP // m)
-    out = _all_levels(np.ascontiguousarray(tab), means, k, engine)
+    out = _all_levels(np.ascontiguousarray(tab), means, k)
     out[clipped] = k * m
     out[excluded] = (k * np.broadcast_to(ex, means.shape))[excluded]
     return out

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from hdrcore.draft import bin_levels, draft_bracket, draft_factor, run_draft
+from hdrcore.draft_spec import bin_levels_spec
 from hdrcore.errors import ParameterError
 from hdrcore.io import Bracket, load_bracket
 from hdrcore.io.frame import Frame, FrameMetadata
@@ -50,30 +51,36 @@ def _bracket(shape=(192, 288), bits=8, response="gamma") -> Bracket:
 
 @pytest.mark.parametrize("dtype,top", [(np.uint8, 255), (np.uint16, 16383)])
 @pytest.mark.parametrize("exclude", [None, (0, 0, 255)])
-def test_compiled_binning_equals_the_numpy_reference(dtype, top, exclude) -> None:
+def test_compiled_binning_equals_the_spec(dtype, top, exclude) -> None:
     rng = np.random.default_rng(1)
     lv = rng.integers(0, top + 1, (67, 53, 3)).astype(dtype)  # ragged edges for factor 4
     lv[10:14, 20:22] = (0, 0, 255)
+    lut = (np.arange(top + 1) / top) ** np.array([[2.2], [2.0], [1.8]])
     for f in (1, 3, 4):
-        a = bin_levels(lv, f, saturation=0.9 * top, max_level=top, exclude_colour=exclude)
-        b = bin_levels(
-            lv, f, saturation=0.9 * top, max_level=top, exclude_colour=exclude, engine="numpy"
-        )
-        assert a.dtype == dtype and a.shape == (67 // f, 53 // f, 3)
-        np.testing.assert_array_equal(a, b)
-        lut = (np.arange(top + 1) / top) ** np.array([[2.2], [2.0], [1.8]])
-        a = bin_levels(lv, f, saturation=0.9 * top, max_level=top, exclude_colour=exclude, lut=lut)
-        b = bin_levels(
-            lv,
-            f,
-            saturation=0.9 * top,
-            max_level=top,
-            exclude_colour=exclude,
-            lut=lut,
-            engine="numpy",
-        )
-        assert a.dtype == np.uint16
-        np.testing.assert_array_equal(a, b)
+        for table in (None, lut, lut[1]):
+            kw = dict(saturation=0.9 * top, max_level=top, exclude_colour=exclude, lut=table)
+            a = bin_levels(lv, f, **kw)
+            b = bin_levels_spec(lv, f, **kw)
+            assert a.dtype == (dtype if table is None else np.uint16) == b.dtype
+            assert a.shape == (67 // f, 53 // f, 3)
+            np.testing.assert_array_equal(a, b)
+            if exclude is not None and f == 4:
+                k = 1 if table is None else max(1, 4095 // top)  # FINE_TOP // max_level
+                assert tuple(a[2, 5]) == tuple(np.array(exclude) * k)
+
+
+def test_numpy_engine_is_a_deprecated_alias() -> None:
+    rng = np.random.default_rng(2)
+    lv = rng.integers(0, 256, (32, 40, 3)).astype(np.uint8)
+    lut = (np.arange(256) / 255.0) ** 2.2
+    for table in (None, lut):
+        kw = dict(saturation=240, max_level=255, lut=table)
+        with pytest.warns(DeprecationWarning, match="engine='numpy'"):
+            old = bin_levels(lv, 3, engine="numpy", **kw)
+        np.testing.assert_array_equal(old, bin_levels(lv, 3, **kw))
+        np.testing.assert_array_equal(old, bin_levels(lv, 3, engine="numba", **kw))
+    with pytest.raises(ParameterError, match="binning engine"):
+        bin_levels(lv, 3, saturation=240, max_level=255, engine="cuda")
 
 
 def test_binning_rules() -> None:
