@@ -238,8 +238,8 @@ def gauss_newton_sums(
     (1, X, Y)_i``), so ``hess`` is at least ``(n_par + n_gain)`` square. With ``robust = c >
     0`` each sample's ``n^2`` becomes Cauchy's ``c^2 log(1 + n^2 / c^2)`` and its normal
     equations are weighted by ``1 / (1 + n^2 / c^2)`` (the Gauss-Newton step of that loss).
-    ``per_sample`` (``(N, 2)``, zeros, or ``(0, 2)``: not wanted) takes each sample's residual
-    ``n`` and weight ``w`` (both stay 0 where the sample is outside the bright frame).
+    ``per_sample`` (``(N, 2)`` zeros, or None: not wanted) takes each sample's residual ``n``
+    and weight ``w`` (both stay 0 where the sample is outside the bright frame).
     Returns ``(sum w n^2, sum w)`` (the robust sum with ``robust``).
     """
     h, w = img.shape
@@ -269,7 +269,6 @@ def gauss_newton_sums(
     ssum = 0.0
     wsum = 0.0
     inv_t = 1.0 / max(t, 1e-300)
-    keep = per_sample.shape[0] > 0
     # Two phases per block of samples: first only the loads of the 16 taps (independent of each
     # other, so the processor overlaps their cache misses), then the arithmetic.
     block = 64
@@ -339,7 +338,7 @@ def gauss_newton_sums(
             if not denom > 0:
                 denom = 1.0
             n = (a - b) / denom
-            if keep:
+            if per_sample is not None:  # pruned at compile time when None
                 per_sample[k, 0] = n
                 per_sample[k, 1] = wt
             if robust > 0:

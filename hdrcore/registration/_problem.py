@@ -447,9 +447,6 @@ def _frame(data: PairData, level: int, ramp: float = BORDER_RAMP) -> np.ndarray:
     return np.array([lo, hi, data.threshold, cx, cy, unit, ramp])
 
 
-_NO_SAMPLES = np.zeros((0, 2))  # gauss_newton_sums: no per-sample output
-
-
 def sample_residuals(
     data: PairData,
     level: int,
@@ -540,7 +537,7 @@ def normal_equations(
         g,
         n_gain,
         float(robust),
-        _NO_SAMPLES,
+        None,  # no per-sample output
     )
     return float(ssum), float(wsum), hess, grad
 

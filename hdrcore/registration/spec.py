@@ -411,7 +411,7 @@ def gauss_newton_sums(
     denom = np.where(above, total, t) if t > 0 else total
     denom = np.where(valid & (denom > 0), denom, 1.0)
     n = np.where(valid, (a - bs) / denom, 0.0)
-    if per_sample.shape[0]:
+    if per_sample is not None:
         per_sample[:, 0] = n
         per_sample[:, 1] = weight
     wsum = float(weight.sum())
