@@ -2,10 +2,11 @@
 
 ``njit``: compiled, GIL released (``nogil``, so kernels run on Python threads side by side),
 cached on disk (only the first call on a machine compiles), no fast-math (results match the
-numpy references), numpy's error model (division by zero gives inf/nan, as numpy does).
-``inline``: the same, inlined into its callers (a call passing arrays would touch their
-reference counts per pixel). ``AVAILABLE`` is False without numba: the decorators then return
-the plain Python functions and the callers use their numpy references.
+numpy specifications the tests hold the kernels to), numpy's error model (division by zero
+gives inf/nan, as numpy does). ``inline``: the same, inlined into its callers (a call passing
+arrays would touch their reference counts per pixel). numba is a dependency: at run time only
+the compiled kernels run. ``AVAILABLE`` is False only where numba cannot be imported; the
+decorators then return the plain Python functions (slow, for debugging a kernel in Python).
 
 The compiled code of hdrcore's kernels is cached in the user's cache folder,
 :func:`cache_dir` (``$XDG_CACHE_HOME/hdrcore/numba``, else ``~/.cache/hdrcore/numba``), not in
