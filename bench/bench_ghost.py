@@ -19,6 +19,13 @@ Tables:
    wider area where two frames that recorded the pixel in range disagree about the object,
    visible in the merge or not (a sample near the floor with 5 % of the weight).
 
+3. ``--speed``: CPU seconds (``time.process_time``: all threads; best and median of
+   ``--repeats``) of the ghost test (:func:`hdrcore.merge.consistency.consistency_regions`) on
+   simulated 8-bit gamma brackets, a hand-held 3-frame one of ``--speed-mp`` megapixels and a
+   40-frame 1 MP one (more frames than the kernel's tuple slots: it goes through in groups),
+   and of the draft's binning (:func:`hdrcore.draft.bin_levels`, the 3 frames binned 6 x 6, in
+   levels and through the response). Needs no data.
+
 The merge's inputs are taken from the pipeline as it runs (every stage before the merge sees
 the object too, except the noise floor, kept at the static bracket's: a bright object in the
 darkest memorial scans moves the measured film-base pedestal from 21.1 to 12.1 levels, and the
@@ -26,6 +33,7 @@ pedestal's own disagreement between scans then floods every test), then the merg
 each test.
 
     python bench/bench_ghost.py [--quick] [--sets memorial,frobisher,pixel7,xperia] [--skip-static]
+    python bench/bench_ghost.py --speed [--speed-mp 24] [--repeats 5]
 """
 
 from __future__ import annotations
@@ -33,6 +41,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import io
+import os
 import sys
 import time
 from dataclasses import replace
@@ -369,12 +378,91 @@ def moving_table(names: list[str], contrasts: tuple[float, ...]) -> None:
             )
 
 
+def _cpu(fn, repeats: int) -> tuple[float, float]:
+    """Best and median CPU seconds of ``fn()`` over ``repeats`` calls (after one warm-up)."""
+    fn()
+    out = []
+    for _ in range(repeats):
+        c0 = time.process_time()
+        fn()
+        out.append(time.process_time() - c0)
+    return min(out), float(np.median(out))
+
+
+def speed_table(megapixels: float, repeats: int) -> None:
+    from hdrcore.draft import bin_levels
+    from hdrcore.merge import NoiseModel
+    from hdrcore.merge.consistency import MAX_KERNEL_FRAMES, consistency_regions
+    from hdrcore.registration import invert
+    from hdrcore.synthetic import simulate_bracket
+
+    lut = np.tile(np.linspace(0.0, 1.0, 256) ** 2.2, (3, 1))
+    kw = dict(saturation=[247.0] * 3, floor=5.0, lut=lut, noise=NoiseModel(level_noise=2.0))
+    h = int(round(np.sqrt(megapixels * 1e6 * 2 / 3)))
+    w = int(round(h * 1.5))
+    sb = simulate_bracket(
+        scene="window",
+        shape=(h, w),
+        bits=8,
+        response="gamma",
+        exposure_times=(1.0, 4.0, 16.0),
+        seed=5,
+        noise_sigma=1.0,
+        max_shift=4.0,
+        max_rotation_deg=0.3,
+    )
+    frames = [f.astype(np.uint8) for f in sb.frames]
+    tf = [invert(t) for t in sb.to_reference]
+    times = list(sb.exposure_times)
+    n_long = 40
+    lb = simulate_bracket(
+        scene="window",
+        shape=(800, 1200),
+        bits=8,
+        response="gamma",
+        exposure_times=tuple(2 ** (k / 6) for k in range(n_long)),
+        seed=4,
+        noise_sigma=1.0,
+    )
+    long_frames = [f.astype(np.uint8) for f in lb.frames]
+    rows = [
+        (
+            f"ghost test, {h}x{w}, 3 frames hand-held",
+            lambda: consistency_regions(frames, times, transforms=tf, **kw),
+        ),
+        (
+            f"ghost test, 800x1200, {n_long} frames (> {MAX_KERNEL_FRAMES}: frame groups)",
+            lambda: consistency_regions(long_frames, list(lb.exposure_times), **kw),
+        ),
+        (
+            f"draft binning 6x6, {h}x{w}, 3 frames, levels",
+            lambda: [bin_levels(f, 6, saturation=247, max_level=255) for f in frames],
+        ),
+        (
+            f"draft binning 6x6, {h}x{w}, 3 frames, through the response",
+            lambda: [bin_levels(f, 6, saturation=247, max_level=255, lut=lut) for f in frames],
+        ),
+    ]
+    load = os.getloadavg()[0]
+    print(f"\n3. Speed: CPU s (all threads), best / median of {repeats}, load {load:.1f}")
+    print(f"{'what':<62} {'best':>7} {'median':>7}")
+    for name, fn in rows:
+        best, med = _cpu(fn, repeats)
+        print(f"{name:<62} {best:>7.2f} {med:>7.2f}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="tripod brackets only")
     ap.add_argument("--sets", default=None, help="comma-separated subset of " + ",".join(REAL))
     ap.add_argument("--skip-static", action="store_true", help="the moving-object table only")
+    ap.add_argument("--speed", action="store_true", help="the speed table only (no data)")
+    ap.add_argument("--speed-mp", type=float, default=24.0, help="speed table's frame size, MP")
+    ap.add_argument("--repeats", type=int, default=5, help="speed table's runs per row")
     args = ap.parse_args()
+    if args.speed:
+        speed_table(args.speed_mp, args.repeats)
+        return
     if not DATA.is_dir():
         print(f"{DATA} not found: nothing to measure")
         return
