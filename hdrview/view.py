@@ -78,10 +78,14 @@ log = logging.getLogger(__name__)
 
 PANEL_WIDTH = 900  # the strip between the panels holds the notifications
 DEFAULT_MARK = " · default"
-PLOTLY_DELAY = 0.25
+PLOTLY_DELAY = 1.0
 """Seconds between a page's frames drawn and plotly.js sent: long enough for the browser to
-draw the frames before it spends 0.5-1 s evaluating the script (measured in
-``bench/bench_hdrview.py``'s first-page row)."""
+build the page and draw the frames before it spends about a second evaluating the script
+(the first-page row of ``bench/bench_hdrview.py``). The panels without plots are drawn
+meanwhile; only the plots wait."""
+PLOTLY_GAP = 0.3
+"""Seconds between a first page's status line (with the result) and plotly.js: messages that
+arrive together are handled before the browser draws, so the script would hold up the line."""
 WEBGL_TOAST = "webgl-software-rendering"  # viser's own notification id (BrowserWarning.tsx)
 
 
@@ -204,6 +208,7 @@ class ClientView:
         # between the panels arriving and the frames showing. The plots are empty until a
         # result exists, so the script is sent just before the first one is drawn instead.
         self._plotly_sent = False
+        self._plotly_due: float | None = None  # when the frames' page may take the script
         gui._setup_plotly_js = True  # viser's once-per-page flag
         self._build_gui()
         install_upload_limits(
@@ -424,7 +429,14 @@ class ClientView:
 
     def _send_plotly(self) -> None:
         """plotly.js to the page, once, before any plot has a figure (see ``__init__``).
-        Under the view's lock, so a figure drawn by another thread is queued after it."""
+        Under the view's lock, so a figure drawn by another thread is queued after it. A
+        result drawn right after the frames waits until :data:`PLOTLY_DELAY` after them, so
+        the browser shows the frames before it evaluates the script."""
+        due = self._plotly_due
+        if not self._plotly_sent and due is not None:
+            wait = due - time.perf_counter()
+            if wait > 0:
+                time.sleep(wait)
         with self._lock:
             if self._plotly_sent:
                 return
@@ -435,20 +447,11 @@ class ClientView:
             self._plotly_sent = True
 
     def _send_plotly_soon(self, delay: float = PLOTLY_DELAY) -> None:
-        """plotly.js after the frames have been drawn: the browser evaluates it while the
-        pipeline runs (a result drawn first sends it at once)."""
-        if self._plotly_sent or self.client is None:
+        """The frames are drawn: plotly.js may go ``delay`` s from now, with the first whole
+        result (:meth:`_send_plotly`), after its status line and pictures."""
+        if self._plotly_sent or self.client is None or self._plotly_due is not None:
             return
-
-        def later() -> None:
-            time.sleep(delay)
-            if not self._closed:
-                try:
-                    self._send_plotly()
-                except Exception:  # noqa: BLE001 -- the page went away
-                    return
-
-        threading.Thread(target=later, name="hdrview-plotly", daemon=True).start()
+        self._plotly_due = time.perf_counter() + delay
 
     def _hide_webgl_toast(self) -> None:
         """viser warns about software WebGL, which this page does not use (no 3-D scene)."""
@@ -855,20 +858,30 @@ class ClientView:
         }
         if stages is None:
             self.status.content = self.status_markdown(result)
-        if result is not None:
-            self._send_plotly()
+            if not self._plotly_sent and self._plotly_due is not None:
+                # and the status line drawn before the browser evaluates the script
+                self._plotly_due = max(self._plotly_due, time.perf_counter() + PLOTLY_GAP)
+        # the panels without plots first; plotly.js (sent once, a moment after the frames)
+        # before the first plot has a figure
         panels: dict[str, _Panel] = {
-            "btf": self.btf_panel,
             "masks": self.masks_panel,
+            "result": self.result_panel,
+            "btf": self.btf_panel,
             "registration": self.registration_panel,
             "response": self.response_panel,
-            "result": self.result_panel,
         }
         for name, panel in panels.items():
+            if name == "btf":
+                if stages is None or "diagnostics" in stages:
+                    self.diagnostics_panel.show(bracket, result, view)
+                if not self._plotly_sent and stages is not None:
+                    # a first page's early stages: their plots are drawn with the whole
+                    # result, after the script (the page is not held up for them)
+                    break
+                if result is not None:
+                    self._send_plotly()
             if stages is None or name in stages:
                 panel.show(used, result, view)
-        if stages is None or "diagnostics" in stages:
-            self.diagnostics_panel.show(bracket, result, view)
         if stages is None:
             self.draw_count += 1
             # No panel shows the previous result any more: the next merge may write into its
