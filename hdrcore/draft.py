@@ -52,9 +52,8 @@ def draft_factor(shape: tuple[int, int], max_side: int = DRAFT_MAX_SIDE) -> int:
 
 
 #: Non-linear frames binned in exposure get levels ``FINE_TOP // max_level`` times finer (12
-#: bits for 8-bit frames: a sixteenth of a level). At 16 bits the ratio stage alone took 4.1 of
-#: the draft's 15.1 CPU s on the Pixel 7 bracket (profiled at load 10); at 12 bits the whole
-#: draft took 9.7-10.6 CPU s in the same conditions.
+#: bits for 8-bit frames: a sixteenth of a level). 16 bits made the ratio stage's histograms
+#: the draft's largest cost on the Pixel 7 bracket for no gain (profiled; see the README).
 FINE_TOP = 4095
 
 #: Sentinels of the block means: a block clipped in a channel, a block of the excluded colour.
@@ -140,8 +139,7 @@ def _levels_rows(tab, means, k, out, r0, r1):  # pragma: no cover - compiled
 
 def _all_levels(tab: np.ndarray, means: np.ndarray, k: int) -> np.ndarray:
     """The levels of ``k`` times finer steps (:func:`_levels_rows`) of every channel into
-    uint16, on the worker threads (a numpy form took 0.4 of the 2.4 s of a 24 MP bracket's
-    draft, one thread)."""
+    uint16, on the worker threads."""
     out = np.empty(means.shape, np.uint16)
     run_row_spans(
         means.shape[0],

@@ -69,7 +69,7 @@ def _cache_file() -> str | None:
 
 
 def _compute_constants() -> tuple[np.ndarray, np.ndarray]:
-    import colour  # imported lazily: colour-science takes about 0.6 s to import
+    import colour  # imported lazily: importing colour-science is slow
 
     m = np.asarray(colour.RGB_COLOURSPACES["sRGB"].matrix_RGB_to_XYZ, dtype=np.float64)
     x = np.linspace(0.0, 1.0, _LUT_SIZE)
@@ -83,8 +83,8 @@ def _colour_constants() -> tuple[np.ndarray, np.ndarray]:
 
     Both are computed by colour-science (the Y row of its sRGB RGB -> XYZ matrix, and its sRGB
     ``cctf_encoding`` sampled at 65536 points) and kept in the user's cache folder, keyed by the
-    colour-science version: importing colour-science costs about 0.6 s, which a command that
-    only writes a preview would pay on every run. A missing, stale or unreadable cache is
+    colour-science version: importing colour-science is slow, and a command that only writes
+    a preview would pay for it on every run. A missing, stale or unreadable cache is
     computed again; a cache that cannot be written is not an error.
     """
     path = _cache_file()

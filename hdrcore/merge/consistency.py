@@ -99,7 +99,7 @@ class GhostTestParams:
     """Every ``pixel_step``-th pixel of a block (in both directions) enters its sums; the
     variance ``4 / sum(w)`` (a quarter of a block's pixels independent) becomes ``(4 /
     pixel_step**2) / sum(w)`` and ``min_shared`` counts the sampled pixels. Must divide
-    ``block``. 2 is 2.5x cheaper (24 MP: 2.3-2.8 -> 0.9-1.1 CPU s) and finds as much of a
+    ``block``. 2 is about 2.5x cheaper (``bench/bench_ghost.py``) and finds as much of a
     moving object (memorial, frobisher, x4 and x0.25: within 0.4 %), but flags more where
     nothing moved (memorial 1.86 -> 2.50 %, frobisher 0 -> 0.06 % away from an object): not
     the default."""
@@ -631,7 +631,7 @@ class _Chains:
     """Calls :func:`_chain_rows` with every frame of a bracket: the frames (and masks) go in
     tuples of ``MAX_KERNEL_FRAMES`` read-only arrays, padded with placeholders (one compiled
     specialisation for every bracket length: numba's typed lists compile their own methods in
-    every new process, 10 s); a longer bracket in several such groups, in exposure order, the
+    every new process); a longer bracket in several such groups, in exposure order, the
     chains' state carried from one to the next."""
 
     def __init__(self, inp: _Inputs) -> None:

@@ -750,8 +750,8 @@ def register_with(
     ``check_residual``: a registered pair is then also measured by
     :func:`hdrcore.registration.residual.residual_motion` (shares nothing with the search) and
     is ``ok`` only if that finds it aligned; otherwise ``weak`` with what is left and where
-    (its motion is still usable), the measurement in ``residual`` (0.3-0.4 s of CPU for a
-    9-24 MP pair).
+    (its motion is still usable), the measurement in ``residual`` (its cost:
+    ``bench/bench_registration.py``'s speed section).
     ``refit_local`` (with ``check_residual``): when the check finds a group of neighbouring
     tiles moving on their own (a nearer object: parallax, or a moving one), the search runs
     again from its estimate with those tiles' area left out of the samples (see

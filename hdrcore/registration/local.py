@@ -68,7 +68,7 @@ MAX_LEVEL_PIXELS = 3.0e6
 #: Level factors at which the keep-check reads both frames with Keys cubic, as the merge reads
 #: them (elsewhere bilinear). Measured: at half size (8 MP phone brackets) Keys gives the same
 #: fields, decisions and full-resolution residuals as a Keys check on the full-resolution frames
-#: (which cost 19.6 against 12.0 s CPU on the Xperia); at full size its wider taps drop more tiles
+#: (which costs far more: ``bench/bench_local.py``); at full size its wider taps drop more tiles
 #: next to clipped areas (a rendered near object went unseen); on the 4x4 block means of a
 #: 24 MP pair it reads their aliasing: an exactly aligned pair measures 0.35 / 0.99 px (median /
 #: 90th percentile) with Keys, 0.24 / 0.52 bilinear, 0.12 / 0.29 px on the full frames.
