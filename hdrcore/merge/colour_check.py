@@ -1479,8 +1479,19 @@ def _frame_band(
 
 
 def _frame_band_fused(
-    rad, frames, tab, gains, *, max_level, noise_floor, saturation, reference, to_reference,
-    masks, band, inv_2s2
+    rad,
+    frames,
+    tab,
+    gains,
+    *,
+    max_level,
+    noise_floor,
+    saturation,
+    reference,
+    to_reference,
+    masks,
+    band,
+    inv_2s2,
 ) -> float:
     """:func:`_frame_band` through :func:`_frame_band_fused_rows` (one pass over the output,
     every frame read at each pixel): the same result to the bit as the per-frame passes."""
@@ -1512,8 +1523,23 @@ def _frame_band_fused(
 
     def rows(r0: int, r1: int) -> None:
         c = _frame_band_fused_rows(
-            rad, fr, hmats, has_h, tuple(mks), has_m, tab, g, lo, hi, ramp, inv_2s2,
-            float(noise_floor), float(saturation), int(max_level), r0, r1,
+            rad,
+            fr,
+            hmats,
+            has_h,
+            tuple(mks),
+            has_m,
+            tab,
+            g,
+            lo,
+            hi,
+            ramp,
+            inv_2s2,
+            float(noise_floor),
+            float(saturation),
+            int(max_level),
+            r0,
+            r1,
         )
         with lock:
             counts.append(int(c))
