@@ -446,7 +446,7 @@ class ClientView:
             self.gui.add_plotly(go.Figure(), visible=False)
             self._plotly_sent = True
 
-    def _send_plotly_soon(self, delay: float = PLOTLY_DELAY) -> None:
+    def _frames_drawn(self, delay: float = PLOTLY_DELAY) -> None:
         """The frames are drawn: plotly.js may go ``delay`` s from now, with the first whole
         result (:meth:`_send_plotly`), after its status line and pictures."""
         if self._plotly_sent or self.client is None or self._plotly_due is not None:
@@ -702,7 +702,7 @@ class ClientView:
                     early = self.app.brackets.get(list(files), times)
                     self.frames_panel.show(early)
                     self._drawn_bracket = early
-                    self._send_plotly_soon()
+                    self._frames_drawn()
                     self.status.content = f"**{label}**: {len(early)} frames; processing..."
                 warm = self.app.take_warm(files, times)  # decoded and run at start
                 if warm is not None:
@@ -845,7 +845,7 @@ class ClientView:
         if bracket is not self._drawn_bracket:
             self.frames_panel.show(bracket)
             self._drawn_bracket = bracket
-            self._send_plotly_soon()
+            self._frames_drawn()
         # A black or saturated frame is left out by the pipeline: the stage results index the
         # frames it used (result.bracket); the pair choices follow them.
         used = result.bracket if result is not None else bracket
@@ -863,24 +863,29 @@ class ClientView:
                 self._plotly_due = max(self._plotly_due, time.perf_counter() + PLOTLY_GAP)
         # the panels without plots first; plotly.js (sent once, a moment after the frames)
         # before the first plot has a figure
-        panels: dict[str, _Panel] = {
-            "masks": self.masks_panel,
-            "result": self.result_panel,
-            "btf": self.btf_panel,
-            "registration": self.registration_panel,
-            "response": self.response_panel,
-        }
-        for name, panel in panels.items():
-            if name == "btf":
-                if stages is None or "diagnostics" in stages:
-                    self.diagnostics_panel.show(bracket, result, view)
-                if not self._plotly_sent and stages is not None:
-                    # a first page's early stages: their plots are drawn with the whole
-                    # result, after the script (the page is not held up for them)
-                    break
-                if result is not None:
-                    self._send_plotly()
-            if stages is None or name in stages:
+        wanted = (lambda name: True) if stages is None else (lambda name: name in stages)
+        pictures: tuple[tuple[str, _Panel], ...] = (
+            ("masks", self.masks_panel),
+            ("result", self.result_panel),
+        )
+        for name, panel in pictures:
+            if wanted(name):
+                panel.show(used, result, view)
+        if wanted("diagnostics"):
+            self.diagnostics_panel.show(bracket, result, view)
+        if not self._plotly_sent and stages is not None:
+            # a first page's early stages: their plots are drawn with the whole result, after
+            # the script (the page is not held up for them)
+            return
+        if result is not None:
+            self._send_plotly()
+        plots: tuple[tuple[str, _Panel], ...] = (
+            ("btf", self.btf_panel),
+            ("registration", self.registration_panel),
+            ("response", self.response_panel),
+        )
+        for name, panel in plots:
+            if wanted(name):
                 panel.show(used, result, view)
         if stages is None:
             self.draw_count += 1

@@ -1096,74 +1096,6 @@ FRAME_SIGMA = 0.1
 
 
 @_njit
-def _frame_band_rows(
-    acc,
-    wsum,
-    amax,
-    frame,
-    hmat,
-    has_h,
-    mask,
-    has_mask,
-    table,
-    gains,
-    lo,
-    hi,
-    ramp,
-    inv_2s2,
-    floor,
-    sat,
-    max_level,
-    r0,
-    r1,
-):  # pragma: no cover
-    """One frame's contribution to :func:`_frame_band` over output rows ``r0..r1``."""
-    fh, fw = frame.shape[0], frame.shape[1]
-    w = acc.shape[1]
-    inv_max = 1.0 / max_level
-    lin = np.empty(3)
-    for y in range(r0, r1):
-        for x in range(w):
-            if has_h:
-                den = hmat[2, 0] * x + hmat[2, 1] * y + hmat[2, 2]
-                u = (hmat[0, 0] * x + hmat[0, 1] * y + hmat[0, 2]) / den
-                v = (hmat[1, 0] * x + hmat[1, 1] * y + hmat[1, 2]) / den
-                xi = int(round(u))
-                yi = int(round(v))
-                if xi < 0 or xi >= fw or yi < 0 or yi >= fh:
-                    continue
-            else:
-                xi = x
-                yi = y
-            if has_mask and not mask[yi, xi]:
-                continue
-            band = 1.0
-            d2 = 0.0
-            tot = 0.0
-            ok = True
-            for c in range(3):
-                z = min(max(int(frame[yi, xi, c]), 0), max_level)
-                if not (z > floor and z < sat):
-                    ok = False
-                vz = z * inv_max
-                if vz < lo:
-                    band = min(band, max(0.0, 1.0 - (lo - vz) / ramp))
-                elif vz > hi:
-                    band = min(band, max(0.0, 1.0 - (vz - hi) / ramp))
-                d2 += (vz - 0.5) ** 2
-                lin[c] = table[c, z] / gains[c]
-                tot += lin[c]
-            if not ok or band <= 0.0 or not (tot > 0.0):
-                continue
-            wk = band * np.exp(-d2 * inv_2s2)
-            for c in range(3):
-                acc[y, x, c] += np.float32(wk * lin[c] / tot)
-            wsum[y, x] += np.float32(wk)
-            if band > amax[y, x]:
-                amax[y, x] = np.float32(band)
-
-
-@_njit
 def _frame_band_fused_rows(
     rad,
     frames,
@@ -1183,11 +1115,10 @@ def _frame_band_fused_rows(
     r0,
     r1,
 ):  # pragma: no cover
-    """:func:`_frame_band_rows` of every frame then :func:`_blend_rows`, pixel by pixel over
-    output rows ``r0..r1``: the same arithmetic in the same order (each frame's term rounded to
-    float32 and summed in frame order, the blend in the same types), so the same result to the
-    bit, without the full-size float32 sums (20 bytes a pixel) written and read once per
-    frame."""
+    """Step 3 of :func:`anchor_colour` over output rows ``r0..r1``, pixel by pixel: every
+    frame's term (:func:`_band_numpy`'s arithmetic, rounded to float32 and summed in frame
+    order), then the blend (:func:`_blend_numpy`'s, in the same types); no full-size sums.
+    Returns how many of its pixels some frame gave their colour fully."""
     n = len(frames)
     w = rad.shape[1]
     inv_max = 1.0 / max_level
@@ -1266,36 +1197,6 @@ def _frame_band_fused_rows(
     return full
 
 
-@_njit
-def _blend_rows(rad, acc, wsum, amax, r0, r1):  # pragma: no cover - compiled
-    """Each pixel's chromaticity moved to the frames' (``acc / wsum``) by ``amax``, its Rec. 709
-    luminance kept (the spec: :func:`_blend_numpy`)."""
-    l0, l1, l2 = 0.2126, 0.7152, 0.0722
-    w = rad.shape[1]
-    for y in range(r0, r1):
-        for x in range(w):
-            a = amax[y, x]
-            ws = wsum[y, x]
-            if not (a > 0.0) or not (ws > 0.0):
-                continue
-            r_ = np.float64(rad[y, x, 0])
-            g_ = np.float64(rad[y, x, 1])
-            b_ = np.float64(rad[y, x, 2])
-            y_old = l0 * r_ + l1 * g_ + l2 * b_
-            s = r_ + g_ + b_
-            if not (y_old > 0.0) or not (s > 0.0) or not np.isfinite(y_old):
-                continue
-            q0 = (1 - a) * r_ / s + a * acc[y, x, 0] / ws
-            q1 = (1 - a) * g_ / s + a * acc[y, x, 1] / ws
-            q2 = (1 - a) * b_ / s + a * acc[y, x, 2] / ws
-            y_new = l0 * q0 + l1 * q1 + l2 * q2
-            if y_new > 0.0:
-                k = y_old / y_new
-                rad[y, x, 0] = np.float32(q0 * k)
-                rad[y, x, 1] = np.float32(q1 * k)
-                rad[y, x, 2] = np.float32(q2 * k)
-
-
 def _band_numpy(
     acc,
     wsum,
@@ -1312,7 +1213,8 @@ def _band_numpy(
     max_level,
     rows_per_chunk,
 ) -> None:
-    """:func:`_frame_band_rows` in numpy (the spec, and the path without numba)."""
+    """One frame's term of step 3 in numpy (the spec of :func:`_frame_band_fused_rows`, and the
+    path without numba)."""
     h, w = acc.shape[:2]
     fh, fw = frame.shape[:2]
     lo, hi, ramp = band
@@ -1346,7 +1248,7 @@ def _band_numpy(
 
 
 def _blend_numpy(rad, acc, wsum, amax, rows_per_chunk) -> None:
-    """:func:`_blend_rows` in numpy."""
+    """The blend of step 3 in numpy (the spec of :func:`_frame_band_fused_rows`)."""
     lum = np.asarray(_LUMA)
     for r0 in range(0, rad.shape[0], rows_per_chunk):
         r1 = min(rad.shape[0], r0 + rows_per_chunk)
@@ -1385,8 +1287,6 @@ def _frame_band(
     frames well exposed there (each frame's decoded colour, its white balance divided out),
     mixed with weights that favour the frame nearest mid-grey; luminance kept. Returns the
     fraction of pixels some frame gave their colour fully."""
-    from ..geometry import homogeneous, invert
-
     h, w = rad.shape[:2]
     inv_2s2 = 1.0 / (2.0 * float(sigma) ** 2)
     tab = np.ascontiguousarray(table, np.float64)
@@ -1405,77 +1305,47 @@ def _frame_band(
             band=band,
             inv_2s2=inv_2s2,
         )
+    # without numba (slow: for debugging the kernel in Python): the per-frame numpy spec
     acc = np.zeros((h, w, 3), np.float32)
     wsum = np.zeros((h, w), np.float32)
     amax = np.zeros((h, w), np.float32)
+    reads = _reading_homographies(to_reference, reference, len(frames))
     for k, f in enumerate(frames):
-        frame = np.asarray(f)
-        hmat = None
+        mask = None if masks is None or masks[k] is None else np.asarray(masks[k], bool)
+        _band_numpy(
+            acc,
+            wsum,
+            amax,
+            np.asarray(f),
+            reads[k],
+            mask,
+            tab,
+            np.asarray(gains[k], np.float64),
+            band,
+            inv_2s2,
+            float(noise_floor),
+            float(saturation),
+            int(max_level),
+            rows_per_chunk,
+        )
+    _blend_numpy(rad, acc, wsum, amax, rows_per_chunk)
+    return float(np.mean(amax >= 1.0))
+
+
+def _reading_homographies(
+    to_reference: Sequence[np.ndarray] | None, reference: int | None, n: int
+) -> list[np.ndarray | None]:
+    """Per frame the 3x3 matrix reading it at a reference pixel (reference -> frame), or None
+    where the frame is read in place (the reference, no motion, the identity)."""
+    from ..geometry import homogeneous, invert
+
+    out: list[np.ndarray | None] = [None] * n
+    for k in range(n):
         if to_reference is not None and k != reference and to_reference[k] is not None:
             m = homogeneous(invert(np.asarray(to_reference[k], np.float64)))
             if not np.allclose(m, np.eye(3), atol=1e-12):
-                hmat = m
-        mask = None if masks is None or masks[k] is None else np.asarray(masks[k], bool)
-        g = np.asarray(gains[k], np.float64)
-        if AVAILABLE:
-            hm = hmat if hmat is not None else np.eye(3)
-            mk = np.ascontiguousarray(mask) if mask is not None else np.zeros((1, 1), bool)
-
-            def rows(
-                r0: int,
-                r1: int,
-                frame=frame,
-                hm=hm,
-                mk=mk,
-                g=g,
-                has_h=hmat is not None,
-                has_m=mask is not None,
-            ) -> None:
-                _frame_band_rows(
-                    acc,
-                    wsum,
-                    amax,
-                    frame,
-                    hm,
-                    has_h,
-                    mk,
-                    has_m,
-                    tab,
-                    g,
-                    float(band[0]),
-                    float(band[1]),
-                    float(band[2]),
-                    inv_2s2,
-                    float(noise_floor),
-                    float(saturation),
-                    int(max_level),
-                    r0,
-                    r1,
-                )
-
-            run_row_spans(h, None, rows)
-        else:  # pragma: no cover - exercised only without numba
-            _band_numpy(
-                acc,
-                wsum,
-                amax,
-                frame,
-                hmat,
-                mask,
-                tab,
-                g,
-                band,
-                inv_2s2,
-                float(noise_floor),
-                float(saturation),
-                int(max_level),
-                rows_per_chunk,
-            )
-    if AVAILABLE:
-        run_row_spans(h, None, lambda r0, r1: _blend_rows(rad, acc, wsum, amax, r0, r1))
-    else:  # pragma: no cover - exercised only without numba
-        _blend_numpy(rad, acc, wsum, amax, rows_per_chunk)
-    return float(np.mean(amax >= 1.0))
+                out[k] = m
+    return out
 
 
 def _frame_band_fused(
@@ -1497,21 +1367,15 @@ def _frame_band_fused(
     every frame read at each pixel): the same result to the bit as the per-frame passes."""
     import threading
 
-    from ..geometry import homogeneous, invert
-
     h, w = rad.shape[:2]
     n = len(frames)
-    hmats = np.zeros((n, 3, 3))
-    has_h = np.zeros(n, np.bool_)
+    reads = _reading_homographies(to_reference, reference, n)
+    hmats = np.stack([np.eye(3) if m is None else m for m in reads])
+    has_h = np.array([m is not None for m in reads], np.bool_)
     has_m = np.zeros(n, np.bool_)
     none_mask = np.zeros((1, 1), np.bool_)
     mks = []
     for k in range(n):
-        hmats[k] = np.eye(3)
-        if to_reference is not None and k != reference and to_reference[k] is not None:
-            m = homogeneous(invert(np.asarray(to_reference[k], np.float64)))
-            if not np.allclose(m, np.eye(3), atol=1e-12):
-                hmats[k], has_h[k] = m, True
         mk = None if masks is None or masks[k] is None else np.asarray(masks[k], np.bool_)
         has_m[k] = mk is not None
         mks.append(np.ascontiguousarray(mk) if mk is not None else none_mask)

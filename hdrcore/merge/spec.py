@@ -32,14 +32,10 @@ from .weights import WEIGHTS
 __all__ = ["merge_spec"]
 
 
-def _sample(plan: Plan, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Frame ``k`` on the output grid: ``(values (H, W, C) float64, clipped (H, W), inside)``."""
-    frame = plan.frames[k].astype(np.float64)
-    h, w, c = plan.shape
-    sat = np.asarray(plan.saturation, np.float64)
-    t = plan.transforms[k] if plan.transforms else None
-    if t is None:
-        return frame, np.asarray((frame >= sat).any(axis=2)), np.ones((h, w), bool)
+def _positions(plan: Plan, k: int, t: np.ndarray) -> tuple[np.ndarray, ...]:
+    """``(xx, yy, sx, sy)``: every output pixel and where frame ``k`` is read for it (its
+    transform ``t``, then its displacement field)."""
+    h, w, _ = plan.shape
     yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
     den = t[2, 0] * xx + t[2, 1] * yy + t[2, 2]
     sx = (t[0, 0] * xx + t[0, 1] * yy + t[0, 2]) / den
@@ -48,6 +44,18 @@ def _sample(plan: Plan, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     if fld is not None:
         dx, dy = fld.at(xx, yy)
         sx, sy = sx + dx, sy + dy
+    return xx, yy, sx, sy
+
+
+def _sample(plan: Plan, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Frame ``k`` on the output grid: ``(values (H, W, C) float64, clipped (H, W), inside)``."""
+    frame = plan.frames[k].astype(np.float64)
+    h, w, c = plan.shape
+    sat = np.asarray(plan.saturation, np.float64)
+    t = plan.transforms[k] if plan.transforms else None
+    if t is None:
+        return frame, np.asarray((frame >= sat).any(axis=2)), np.ones((h, w), bool)
+    xx, yy, sx, sy = _positions(plan, k, t)
     ntap, first = (4, 1) if plan.resample == "cubic" else (2, 0)
     x0, y0 = np.floor(sx), np.floor(sy)
     inside = (x0 >= first) & (x0 <= w - ntap + first) & (y0 >= first) & (y0 <= h - ntap + first)
@@ -79,14 +87,7 @@ def _feather(plan: Plan, k: int) -> np.ndarray | float:
     if t is None or plan.feather <= 0:
         return 1.0
     h, w, _ = plan.shape
-    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
-    den = t[2, 0] * xx + t[2, 1] * yy + t[2, 2]
-    sx = (t[0, 0] * xx + t[0, 1] * yy + t[0, 2]) / den
-    sy = (t[1, 0] * xx + t[1, 1] * yy + t[1, 2]) / den
-    fld = plan.fields[k] if plan.fields else None
-    if fld is not None:
-        dx, dy = fld.at(xx, yy)
-        sx, sy = sx + dx, sy + dy
+    xx, yy, sx, sy = _positions(plan, k, t)
     ntap, first = (4, 1) if plan.resample == "cubic" else (2, 0)
     wlim, hlim = w - ntap + first, h - ntap + first
     inside_frame = np.minimum(np.minimum(sx - first, wlim - sx), np.minimum(sy - first, hlim - sy))
