@@ -1,0 +1,123 @@
+"""The EXR writer's per-channel planes give the same file as one interleaved half-float copy.
+
+:func:`hdrcore.io.write_exr` converts the radiance into three ``(H, W)`` planes over row blocks
+(no ``(H, W, 3)`` copy); OpenEXR stores a scanline file's channels one after another in each
+line block, so the bytes must be those of the one-shot write of the same values as one
+``"RGB"`` array, the form the writer had before.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hdrcore.errors import OutputError
+from hdrcore.io import exr as exr_module
+from hdrcore.io import read_exr, write_exr
+
+
+def _reference_values(rgb: np.ndarray, half: bool) -> np.ndarray:
+    """The stored values by the writer's rule, written out in whole-array numpy."""
+    clean = np.nan_to_num(rgb.astype(np.float32), nan=0.0, posinf=65504.0, neginf=0.0)
+    clean = np.maximum(clean, 0.0) + np.float32(0.0)  # (-0.0 is stored as 0)
+    if half:
+        return np.minimum(clean, 65504.0).astype(np.float16)
+    return clean
+
+
+def _one_shot(path: Path, values: np.ndarray, like: Path) -> None:
+    """``values`` written in one call as one interleaved ``"RGB"`` array, with the header
+    attributes of the file ``like``."""
+    import OpenEXR
+
+    with OpenEXR.File(str(like)) as exr:
+        header = {
+            k: v
+            for k, v in exr.header().items()
+            if k not in ("channels", "dataWindow", "displayWindow")
+        }
+    with OpenEXR.File(header, {"RGB": np.ascontiguousarray(values)}) as out:
+        out.write(str(path))
+
+
+@pytest.mark.parametrize("half", [True, False])
+@pytest.mark.parametrize("compression", ["piz", "zip"])
+def test_planes_write_the_bytes_of_the_interleaved_one_shot_write(
+    tmp_path: Path, half: bool, compression: str
+) -> None:
+    rng = np.random.default_rng(7)
+    # 700 rows: three conversion blocks of 256 and a short one, on two threads
+    rgb = (10.0 ** rng.uniform(-6, 6, (700, 53, 3))).astype(np.float32)
+    rgb[5, 5] = (np.nan, -np.inf, np.inf)
+    rgb[7, 7] = (-0.0, 0.0, -3.0)
+    rgb[699, 52] = (65504.0, 65519.0, 65520.0)  # (65519 rounds to 65504 in half; 65520 is clipped)
+    ours = write_exr(
+        tmp_path / "planes.exr",
+        rgb,
+        half=half,
+        compression=compression,
+        exposure_times=[0.01, 0.04],
+        metadata={"reference": 1},
+        workers=2,
+    )
+    expected = _reference_values(rgb, half)
+    _one_shot(tmp_path / "one.exr", expected, like=ours)
+    assert ours.read_bytes() == (tmp_path / "one.exr").read_bytes()
+    back, attrs = read_exr(ours)
+    np.testing.assert_array_equal(back, expected.astype(np.float32))
+    # finite values past the half range are counted; +inf is not a clipped value
+    over = np.isfinite(rgb) & (rgb > 65504.0)
+    assert attrs["hdrviewClippedHalf"] == (int(np.count_nonzero(over)) if half else 0)
+
+
+def test_float64_input_converts_as_float32(tmp_path: Path) -> None:
+    rng = np.random.default_rng(8)
+    rgb64 = 10.0 ** rng.uniform(-6, 6, (300, 20, 3))
+    rgb64[0, 0] = (1e300, -1e300, 70000.0)
+    a, attrs_a = read_exr(write_exr(tmp_path / "a.exr", rgb64))
+    with np.errstate(over="ignore"):
+        rgb32 = rgb64.astype(np.float32)
+    b, attrs_b = read_exr(write_exr(tmp_path / "b.exr", rgb32))
+    np.testing.assert_array_equal(a, b)
+    # 1e300 becomes +inf in float32: written as 65504, not counted; 70000 is counted
+    over = (rgb64 > 65504.0) & (rgb64 <= np.finfo(np.float32).max)
+    assert attrs_a["hdrviewClippedHalf"] == attrs_b["hdrviewClippedHalf"] == np.count_nonzero(over)
+
+
+def test_a_failed_write_leaves_no_file(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """An error while the planes are converted or written: no output, no temporary file."""
+
+    def failing(*args: object, **kwargs: object) -> None:
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(exr_module, "_storage", failing)
+    with pytest.raises(OSError):
+        write_exr(tmp_path / "o.exr", np.ones((4, 4, 3), np.float32))
+    assert os.listdir(tmp_path) == []
+
+    import OpenEXR
+
+    class Broken:
+        def __init__(self, *args: object) -> None:
+            pass
+
+        def __enter__(self) -> Broken:
+            return self
+
+        def __exit__(self, *args: object) -> None:
+            pass
+
+        def write(self, path: str) -> None:
+            Path(path).write_bytes(b"partial")
+            raise OSError(28, "No space left on device")
+
+    monkeypatch.undo()
+    monkeypatch.setattr(OpenEXR, "File", Broken)
+    (tmp_path / "o.exr").write_bytes(b"previous")
+    with pytest.raises(OutputError, match="cannot write the output"):
+        write_exr(tmp_path / "o.exr", np.ones((4, 4, 3), np.float32), force=True)
+    assert os.listdir(tmp_path) == ["o.exr"]
+    assert (tmp_path / "o.exr").read_bytes() == b"previous"
