@@ -74,6 +74,7 @@ def write_result(
     inputs: Iterable[str | os.PathLike[str]] = (),
     workers: int | None = None,
     crop: tuple[int, int, int, int] | None = None,
+    overwrite_radiance: bool = False,
 ) -> Path:
     """Write ``result``'s merged radiance to the OpenEXR file ``path`` (atomically) with the
     run's provenance; return the path written.
@@ -83,7 +84,10 @@ def write_result(
     the output may never replace (the frames, a times list, a response curve). Raises
     :class:`~hdrcore.errors.OutputError` when the run stopped before the merge. ``crop``:
     write only the rectangle ``(x0, y0, x1, y1)`` of the radiance (:func:`common_crop`); the
-    EXR's ``hdrview`` attribute records it.
+    EXR's ``hdrview`` attribute records it. ``overwrite_radiance``: the caller no longer
+    needs ``result.radiance`` (nor the pipeline's cached merge): the half floats are made in its
+    memory, no copy of the image (:func:`hdrcore.io.write_exr`'s ``overwrite_input``; not with a
+    crop), and its values are lost.
     """
     if result.radiance is None:
         raise OutputError(
@@ -119,4 +123,5 @@ def write_result(
         force=force,
         inputs=inputs,
         workers=workers,
+        overwrite_input=overwrite_radiance,
     )

@@ -18,7 +18,8 @@ import time
 from ..errors import OutputError
 from ..export import common_crop, crop_preview, write_result
 from ..io import EXR_COMPRESSIONS, atomic_write, check_output_path, write_png
-from ..pipeline import Pipeline
+from ..io.bracket import Bracket
+from ..pipeline import Pipeline, ProgressCallback
 from ._common import (
     add_bracket_arguments,
     check_outputs_first,
@@ -115,6 +116,40 @@ class _Progress:
             sys.stderr.flush()
 
 
+def _release_mosaics(bracket: Bracket) -> int:
+    """Drop the RAW frames' CFA mosaics (:attr:`Frame.cfa`); return the bytes let go.
+
+    The command is the bracket's only user and runs the pipeline once: the mosaics are read by
+    the noise estimate (memoized by the pipeline) and the registered pixel ratios (an input of
+    the merge, so computed before it starts), never by the merge, the preview or the EXR. A
+    24 MP 16-bit mosaic is 48 MB a frame, held beside the frame's demosaiced levels while the
+    merge allocates its outputs: the command's peak memory."""
+    freed = 0
+    for frame in bracket.frames:
+        if frame.cfa is not None:
+            freed += frame.cfa.data.nbytes
+            # Frames are frozen for the library's callers; this one owns the bracket.
+            object.__setattr__(frame, "cfa", None)
+    return freed
+
+
+def _releasing_mosaics(pipeline: Pipeline, progress: _Progress) -> ProgressCallback:
+    """``progress``, which also releases the bracket's mosaics when the merge stage starts
+    (its inputs, the pixel ratios among them, are then computed: the stage cache reports a
+    stage once its inputs are ready). The noise estimate is taken first."""
+    pipeline.noise()
+    released = False
+
+    def report(stage: str, fraction: float, message: str) -> None:
+        nonlocal released
+        if stage == "merge" and not released:
+            released = True
+            _release_mosaics(pipeline.bracket)
+        progress(stage, fraction, message)
+
+    return report
+
+
 def run(args: argparse.Namespace) -> int:
     outputs = [args.output] + [p for p in (args.preview, args.report, args.dng) if p]
     if args.dng and not str(args.dng).lower().endswith(".dng"):
@@ -146,13 +181,16 @@ def run(args: argparse.Namespace) -> int:
 
     params = params_from_args(args, MERGE_FIELDS, registration_previews=False)
     progress = _Progress(not args.quiet)
+    pipeline = Pipeline(bracket, params, progress=progress)
+    if not args.dng:
+        # Only the DNG's CFA layout reads the mosaics after the merge has started.
+        pipeline.progress = _releasing_mosaics(pipeline, progress)
     try:
-        result = Pipeline(bracket, params, progress=progress).run(
-            until="preview" if args.preview else "merge"
-        )
+        result = pipeline.run(until="preview" if args.preview else "merge")
     finally:
         progress.close()
 
+    report = result.to_report()  # (before the EXR write, which may overwrite the radiance)
     t_write = time.perf_counter()
     crop = common_crop(result) if args.crop == "common" and result.radiance is not None else None
     if crop is not None and (crop[2] <= crop[0] or crop[3] <= crop[1]):
@@ -162,6 +200,7 @@ def run(args: argparse.Namespace) -> int:
             expected="frames that overlap",
             found="--crop common",
         )
+    # The EXR is the radiance's last reader (the preview is made), unless a DNG follows.
     write_result(
         args.output,
         result,
@@ -170,6 +209,7 @@ def run(args: argparse.Namespace) -> int:
         compression=args.exr_compression,
         force=args.force,
         inputs=inputs,
+        overwrite_radiance=not args.dng,
     )
     if args.dng:
         from ._dng import write_result_dng
@@ -187,7 +227,6 @@ def run(args: argparse.Namespace) -> int:
         if crop is not None:
             image = crop_preview(image, crop, result.preview_factor)
         write_png(args.preview, image, force=args.force, inputs=inputs)
-    report = result.to_report()
     if crop is not None:
         rows, cols = result.bracket.shape
         x0, y0, x1, y1 = crop

@@ -41,49 +41,68 @@ EXR_COMPRESSIONS: dict[str, str] = {
 _ROWS = 256  # rows per block of the half-float conversion
 
 
+def _clean(src: np.ndarray, tmp: np.ndarray, half: bool) -> int:
+    """``src`` into the float32 ``tmp`` (same shape) as the values stored: NaN, -inf and
+    negatives -> 0, +inf -> HALF_MAX, half: finite values past HALF_MAX clipped there; return
+    how many were clipped (half only)."""
+    if not half:
+        np.copyto(tmp, src, casting="same_kind")
+        np.nan_to_num(tmp, copy=False, nan=0.0, posinf=HALF_MAX, neginf=0.0)
+        np.maximum(tmp, np.float32(0.0), out=tmp)
+        return 0
+    # fmax: NaN and -inf (and negatives) -> 0; +inf stays and is not a clipped value
+    with np.errstate(over="ignore"):  # float64 past float32's range: +inf, as a cast
+        np.fmax(src, np.float32(0.0), out=tmp, casting="same_kind")
+    n = int(np.count_nonzero(tmp > HALF_MAX))
+    if n:
+        n -= int(np.count_nonzero(np.isposinf(tmp)))
+        np.minimum(tmp, np.float32(HALF_MAX), out=tmp)
+    return n
+
+
 def _storage(
     arr: np.ndarray, dtype: type, workers: int | None
 ) -> tuple[dict[str, np.ndarray], int]:
-    """``arr``'s channels as three ``(H, W)`` planes (``"R"``, ``"G"``, ``"B"``) of non-negative
-    finite ``dtype`` values (NaN and -inf -> 0, +inf -> HALF_MAX, half: finite values past
-    HALF_MAX clipped there), converted over row blocks on ``workers`` threads; and how many
+    """``arr``'s channels as three ``(H, W)`` planes (``"R"``, ``"G"``, ``"B"``) of the values
+    stored (:func:`_clean`), converted over row blocks on ``workers`` threads; and how many
     values were clipped (half only).
 
     Planes rather than one interleaved ``(H, W, 3)`` copy: OpenEXR writes the same file from
     either (its channels are stored one after another in each line block), and a plane is a
-    third of the size (a 24 MP half plane is the size of a freed 16-bit mosaic). The only
-    temporaries are one float32 block per channel and thread."""
+    third of the size. The only temporaries are one float32 block per thread."""
     h, w = arr.shape[:2]
     planes: dict[str, np.ndarray] = {name: np.empty((h, w), dtype) for name in "RGB"}
     half = dtype == np.float16
 
     def block(r0: int) -> int:
-        with np.errstate(over="ignore"):  # float64 past float32's range: +inf, as a cast
-            return _block(r0)
-
-    def _block(r0: int) -> int:
         r1 = min(r0 + _ROWS, h)
         tmp = np.empty((r1 - r0, w), np.float32)
         over = 0
         for c, name in enumerate("RGB"):
-            src = arr[r0:r1, :, c]
-            if half:
-                # fmax: NaN and -inf (and negatives) -> 0; +inf stays and is not a clipped value
-                np.fmax(src, np.float32(0.0), out=tmp, casting="same_kind")
-                n = int(np.count_nonzero(tmp > HALF_MAX))
-                if n:
-                    n -= int(np.count_nonzero(np.isposinf(tmp)))
-                    np.minimum(tmp, np.float32(HALF_MAX), out=tmp)
-                over += n
-            else:
-                np.copyto(tmp, src, casting="same_kind")
-                np.nan_to_num(tmp, copy=False, nan=0.0, posinf=HALF_MAX, neginf=0.0)
-                np.maximum(tmp, np.float32(0.0), out=tmp)
+            over += _clean(arr[r0:r1, :, c], tmp, half)
             planes[name][r0:r1] = tmp
         return over
 
     clipped = sum(thread_map(block, range(0, h, _ROWS), workers))
     return planes, clipped
+
+
+def _storage_in_place(arr: np.ndarray, half: bool) -> tuple[dict[str, np.ndarray], int]:
+    """The values stored (:func:`_clean`) written over ``arr`` itself (C-contiguous float32
+    ``(H, W, 3)``, whose values are lost): half floats go into the first half of its memory as
+    one interleaved ``(H, W, 3)`` array, float32 in place. Row blocks in order, one thread: a
+    block's half values land on bytes of rows already read (row ``r`` ends at byte ``6 W (r +
+    1)`` of the half array, before the end of the float row, ``12 W (r + 1)``)."""
+    h, w = arr.shape[:2]
+    out = arr.reshape(-1).view(np.float16)[: arr.size].reshape(h, w, 3) if half else arr
+    tmp = np.empty((min(_ROWS, h), w, 3), np.float32)
+    clipped = 0
+    for r0 in range(0, h, _ROWS):
+        r1 = min(r0 + _ROWS, h)
+        block = tmp[: r1 - r0]
+        clipped += _clean(arr[r0:r1], block, half)
+        out[r0:r1] = block
+    return {"RGB": out}, clipped
 
 
 def _validate_rgb(rgb: np.ndarray) -> np.ndarray:
@@ -109,12 +128,16 @@ def write_exr(
     inputs: Iterable[str | os.PathLike] = (),
     compression: str = "piz",
     workers: int | None = None,
+    overwrite_input: bool = False,
 ) -> Path:
     """Write ``rgb`` (float, ``(H, W, 3)``, linear) to an OpenEXR file atomically.
 
     NaNs and negative values are written as 0 (radiance is non-negative). ``compression``: one
     of :data:`EXR_COMPRESSIONS` (all lossless). ``workers``: threads for the conversion and
-    OpenEXR's compression (default up to two).
+    OpenEXR's compression (default up to two). ``overwrite_input``: ``rgb`` may be overwritten
+    (its values are lost, written or not) when it is a C-contiguous float32 array: the half
+    floats are made in its own memory, no copy of the image (as scipy's ``overwrite_a``);
+    other arrays are copied as without it. The file is the same.
     """
     import OpenEXR
 
@@ -126,7 +149,15 @@ def write_exr(
         "zstd": OpenEXR.ZSTD_COMPRESSION,
         "none": OpenEXR.NO_COMPRESSION,
     }
-    data, clipped = _storage(arr, np.float16 if half else np.float32, workers)
+    if (
+        overwrite_input
+        and arr.dtype == np.float32
+        and arr.flags.c_contiguous
+        and arr.flags.writeable
+    ):
+        data, clipped = _storage_in_place(arr, half)
+    else:
+        data, clipped = _storage(arr, np.float16 if half else np.float32, workers)
 
     header: dict[str, Any] = {
         "compression": codes[key],

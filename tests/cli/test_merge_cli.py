@@ -233,3 +233,88 @@ def test_crop_with_dng_is_refused_before_any_work(tmp_path: Path, capsys) -> Non
     err = capsys.readouterr().err
     assert rc != 0 and "--crop" in err and "o.dng" in err
     assert not (tmp_path / "o.exr").exists() and not (tmp_path / "o.dng").exists()
+
+
+def _merge_outputs(tmp_path: Path, name: str, *extra: str) -> tuple[bytes, bytes, object]:
+    exr, png, rep = (tmp_path / f"{name}.{s}" for s in ("exr", "png", "json"))
+    rc = main(
+        ["merge", str(DEMO), "-o", str(exr), "--preview", str(png), "--report", str(rep)]
+        + ["--quiet", *extra]
+    )
+    assert rc == 0
+    report = json.loads(rep.read_text())
+    report.pop("outputs")
+    return exr.read_bytes(), png.read_bytes(), _without_timings(report)
+
+
+def _without_timings(obj: object) -> object:
+    if isinstance(obj, dict):
+        return {k: _without_timings(v) for k, v in obj.items() if k not in ("timings", "seconds")}
+    if isinstance(obj, list):
+        return [_without_timings(v) for v in obj]
+    return obj
+
+
+def test_memory_savings_leave_every_output_as_it_was(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The command lets go of the RAW mosaics when the merge starts and makes the EXR's half
+    floats in the radiance's own memory: the EXR, the preview and the report are those of a
+    run that keeps both (the demo: a hand-held DNG bracket whose noise is measured on the
+    mosaics and whose ratios are refined on registered CFA sites)."""
+    import hdrcore.cli.merge as merge_cli
+
+    released: list[int] = []
+    overwrite: list[bool] = []
+    release, write = merge_cli._release_mosaics, merge_cli.write_result
+
+    def counting_release(bracket):
+        released.append(release(bracket))
+        assert all(f.cfa is None for f in bracket.frames)
+        return released[-1]
+
+    def recording_write(*args, **kwargs):
+        overwrite.append(kwargs["overwrite_radiance"])
+        return write(*args, **kwargs)
+
+    monkeypatch.setattr(merge_cli, "_release_mosaics", counting_release)
+    monkeypatch.setattr(merge_cli, "write_result", recording_write)
+    saving = _merge_outputs(tmp_path, "saving")
+    assert len(released) == 1 and released[0] == 5 * 432 * 648 * 2  # five 16-bit mosaics
+    assert overwrite == [True]
+
+    def no_overwrite(*args, **kwargs):
+        return write(*args, **{**kwargs, "overwrite_radiance": False})
+
+    monkeypatch.setattr(merge_cli, "_release_mosaics", lambda bracket: 0)
+    monkeypatch.setattr(merge_cli, "write_result", no_overwrite)
+    keeping = _merge_outputs(tmp_path, "keeping")
+    assert saving[0] == keeping[0]
+    assert saving[1] == keeping[1]
+    assert saving[2] == keeping[2]
+
+
+def test_mosaics_and_radiance_kept_for_the_dng(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """With --dng the mosaics (the CFA layout merges them) and the radiance (the linear layout
+    writes it) outlive the EXR: neither is let go."""
+    import hdrcore.cli.merge as merge_cli
+
+    calls: list[object] = []
+    write = merge_cli.write_result
+
+    def recording_write(*args, **kwargs):
+        calls.append(kwargs["overwrite_radiance"])
+        return write(*args, **kwargs)
+
+    monkeypatch.setattr(merge_cli, "_release_mosaics", lambda bracket: calls.append("released"))
+    monkeypatch.setattr(merge_cli, "write_result", recording_write)
+    rep = tmp_path / "r.json"
+    rc = main(
+        ["merge", str(DEMO), "-o", str(tmp_path / "o.exr"), "--dng", str(tmp_path / "o.dng")]
+        + ["--report", str(rep), "--quiet"]
+    )
+    assert rc == 0
+    assert calls == [False]
+    assert json.loads(rep.read_text())["outputs"]["dng"] == str(tmp_path / "o.dng")

@@ -121,3 +121,47 @@ def test_a_failed_write_leaves_no_file(tmp_path: Path, monkeypatch: pytest.Monke
         write_exr(tmp_path / "o.exr", np.ones((4, 4, 3), np.float32), force=True)
     assert os.listdir(tmp_path) == ["o.exr"]
     assert (tmp_path / "o.exr").read_bytes() == b"previous"
+
+
+@pytest.mark.parametrize("half", [True, False])
+@pytest.mark.parametrize("rows", [1, 255, 256, 700])
+def test_overwrite_input_writes_the_same_file_in_the_arrays_memory(
+    tmp_path: Path, half: bool, rows: int
+) -> None:
+    """``overwrite_input``: the half floats are made over the radiance itself, block by block
+    in row order (a block's half values land on rows already read); the file is the one
+    written from a copy, whatever the number of rows against the block size (256)."""
+    rng = np.random.default_rng(rows)
+    rgb = (10.0 ** rng.uniform(-6, 6, (rows, 37, 3))).astype(np.float32)
+    rgb[0, 0] = (np.nan, -np.inf, np.inf)
+    rgb[rows - 1, 36] = (-1.0, 1e9, 65519.0)
+    kept = rgb.copy()
+    copied = write_exr(tmp_path / "copy.exr", rgb, half=half, workers=2)
+    np.testing.assert_array_equal(rgb, kept)  # (without the flag the input is untouched)
+    overwritten = write_exr(tmp_path / "over.exr", rgb, half=half, overwrite_input=True)
+    assert overwritten.read_bytes() == copied.read_bytes()
+    if half:
+        # the first half of its memory now holds the half floats written
+        stored = rgb.reshape(-1).view(np.float16)[: rgb.size].reshape(rows, 37, 3)
+        np.testing.assert_array_equal(stored, _reference_values(kept, half=True))
+    else:
+        np.testing.assert_array_equal(rgb, _reference_values(kept, half=False))
+
+
+def test_overwrite_input_copies_what_it_cannot_overwrite(tmp_path: Path) -> None:
+    """A view that is not C-contiguous (a crop), float64 or read-only data: copied, untouched."""
+    rng = np.random.default_rng(9)
+    full = (10.0 ** rng.uniform(-3, 3, (300, 40, 3))).astype(np.float32)
+    kept = full.copy()
+    crop = full[10:290, 5:35]
+    a = write_exr(tmp_path / "a.exr", crop, overwrite_input=True)
+    b = write_exr(tmp_path / "b.exr", np.ascontiguousarray(kept[10:290, 5:35]))
+    assert a.read_bytes() == b.read_bytes()
+    np.testing.assert_array_equal(full, kept)
+    frozen = kept.copy()
+    frozen.setflags(write=False)
+    write_exr(tmp_path / "c.exr", frozen, overwrite_input=True)
+    np.testing.assert_array_equal(frozen, kept)
+    as64 = kept.astype(np.float64)
+    write_exr(tmp_path / "d.exr", as64, overwrite_input=True)
+    np.testing.assert_array_equal(as64, kept.astype(np.float64))
