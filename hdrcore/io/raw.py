@@ -326,6 +326,22 @@ def libraw_error(path: str | Path, exc: BaseException, said: Sequence[str] = ())
     return ImageReadError(message, path=path)
 
 
+def _channel_levels(
+    white: int, black: Sequence[float], colors: str
+) -> tuple[tuple[float, float, float], tuple[int, int, int], int]:
+    """Per output channel (R, G, B) black levels (LibRaw's colour indices follow
+    ``colors``), each channel's largest level ``white - black``, and the frame's (their
+    smallest)."""
+
+    def black_of(letter: str) -> float:
+        vals = [black[i] for i, c in enumerate(colors[: len(black)]) if c == letter]
+        return max(vals) if vals else 0.0
+
+    r, g, b = (black_of(c) for c in "RGB")
+    channel_max = (int(white - r), int(white - g), int(white - b))
+    return (r, g, b), channel_max, int(min(channel_max))
+
+
 def read_raw(
     path: str | Path,
     *,
@@ -411,16 +427,20 @@ def read_raw(
                     and not half_size
                     and float(sizes.pixel_aspect) in (0.0, 1.0)
                 )
+                # Our demosaic holds its output at the frame's largest level itself (below),
+                # but for RCD, whose passes start from the first pass's levels.
+                held = ours and method != "rcd"
                 if ours:
                     # The mosaic only: no LibRaw postprocess (GIL released in our kernel).
                     mosaic = raw.raw_image_visible if cfa is None else cfa.data
+                    top = _channel_levels(white, black, colors)[2] if held else white - min(black)
                     rgb = demosaic_mosaic(
                         mosaic,
                         pattern,
                         colors,
                         method=method,
                         black_level=black,
-                        max_level=max(white - min(black), 1),
+                        max_level=max(top, 1),
                         dtype=np.uint16,
                     )
                     rgb = apply_orientation(rgb, _FLIP_TO_ORIENTATION.get(flip, 1))
@@ -439,15 +459,7 @@ def read_raw(
     if failure is not None:
         raise libraw_error(p, failure, said) from failure
     messages = libraw_messages(said)
-
-    # Per output channel (R, G, B) black levels: LibRaw's colour indices follow color_desc.
-    def black_of(letter: str) -> float:
-        vals = [black[i] for i, c in enumerate(colors[: len(black)]) if c == letter]
-        return max(vals) if vals else 0.0
-
-    black_rgb = tuple(black_of(c) for c in "RGB")
-    channel_max = tuple(int(white - b) for b in black_rgb)
-    max_level = int(min(channel_max))
+    black_rgb, channel_max, max_level = _channel_levels(white, black, colors)
     if max_level <= 0:
         raise ImageReadError(
             "RAW white level is not above the black level",
@@ -477,7 +489,10 @@ def read_raw(
     # (saturated) samples. Every channel is held at the frame's largest level, the smallest of
     # the channels' (per-channel black levels differ by a level or so, e.g. when LibRaw measures
     # them on masked pixels: 255/255/255/256); a channel with a lower black loses that level.
-    np.minimum(levels, np.uint16(max_level), out=levels)
+    # Our demosaic holds its output there itself (it clips before it rounds, so at an integer
+    # level the levels are the same): no pass over the levels after it.
+    if not held:
+        np.minimum(levels, np.uint16(max_level), out=levels)
     meta = FrameMetadata(
         path=str(p),
         format="raw",
