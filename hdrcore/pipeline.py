@@ -76,6 +76,7 @@ from .registration import (
     warp_to_reference,
 )
 from .registration.residual import PATTERN_COMPONENTS
+from .registration.thresholds import snap_levels
 from .resample import bin_channel, downsample_area, downsample_factor
 from .response import RESPONSE_METHODS, ResponseCurve, resolve_response
 from .signal import FrameSignal, frame_signal
@@ -1864,8 +1865,29 @@ def _stage_registration_ratios(ctx: _Context, p: Any, up: Inputs) -> tuple[float
     return tuple(float(r) for r in up.ratios.starting_ratios())
 
 
+def _stage_registration_levels(ctx: _Context, p: Any, up: Inputs) -> tuple[float, float]:
+    """The saturation level and noise floor the registration reads: the requested ones
+    snapped to the bracket's quantile ladder (:mod:`hdrcore.registration.thresholds`), so a
+    slider step that moves the registration's masks by fewer than 0.1 % of the samples keeps
+    the registration's key."""
+    return snap_levels(up.histograms.counts[:, 1], _level(p.saturation), _level(p.noise_floor))
+
+
+class _RegistrationParams:
+    """The registration's view of the parameters: its snapped saturation level and noise
+    floor (:func:`_stage_registration_levels`), every other field the stage's own view."""
+
+    def __init__(self, p: Any, levels: tuple[float, float]) -> None:
+        self._p = p
+        self.saturation, self.noise_floor = levels
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._p, name)
+
+
 def _stage_registration(ctx: _Context, p: Any, up: Inputs) -> BracketRegistration | None:
-    return _register(ctx, p, _lut(ctx, up.response), up.registration_ratios)
+    params: Any = _RegistrationParams(p, up.registration_levels)
+    return _register(ctx, params, _lut(ctx, up.response), up.registration_ratios)
 
 
 def _stage_response_registered(ctx: _Context, p: Any, up: Inputs) -> ResponseCurve | None:
@@ -1982,10 +2004,17 @@ GRAPH = StageGraph(
             internal=True,
         ),
         Stage(
+            "registration_levels",
+            _stage_registration_levels,
+            _SAT_NF,
+            ("histograms",),
+            by_value=True,
+            internal=True,
+        ),
+        Stage(
             "registration",
             _stage_registration,
             (
-                *_SAT_NF,
                 "threshold",
                 "align",
                 "reference",
@@ -1994,7 +2023,7 @@ GRAPH = StageGraph(
                 "registration_max_pixels",
                 "local",
             ),
-            ("response", "registration_ratios"),
+            ("response", "registration_ratios", "registration_levels"),
         ),
         Stage(
             "response_registered",

@@ -1,0 +1,85 @@
+"""The registration reads its thresholds snapped to the bracket's quantile ladder
+(:mod:`hdrcore.registration.thresholds`, the pipeline's ``registration_levels`` step): a slider
+step inside a run keeps the cached registration, and the result still equals a fresh run's."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import tifffile
+
+from hdrcore.io import load_bracket
+from hdrcore.pipeline import Pipeline, PipelineParams
+from hdrcore.registration.thresholds import snap_levels
+from hdrcore.synthetic import simulate_bracket
+
+from ._compare import differences
+
+
+@pytest.fixture(scope="module")
+def sixteen_bit(tmp_path_factory: pytest.TempPathFactory):
+    """A hand-held 14-bit linear bracket in 16-bit TIFF files (the bench's kind, small)."""
+    sim = simulate_bracket(
+        scene="window",
+        shape=(120, 180),
+        exposure_times=(1.0, 4.0, 16.0),
+        bits=14,
+        response="linear",
+        noise_sigma=2.0,
+        max_shift=2,
+        max_rotation_deg=0.3,
+        seed=4,
+    )
+    out = tmp_path_factory.mktemp("sixteen")
+    names = []
+    for k, f in enumerate(sim.frames):
+        tifffile.imwrite(out / f"frame{k}.tif", f.astype(np.uint16))
+        names.append(f"frame{k}.tif")
+    (out / "exposure_times.txt").write_text(
+        "".join(f"{n} {t:g}\n" for n, t in zip(names, sim.exposure_times, strict=True))
+    )
+    return lambda: load_bracket([out / n for n in names], exposure_times=out / "exposure_times.txt")
+
+
+def _snapped(result) -> tuple[float, float]:
+    return snap_levels(result.histograms.counts[:, 1], result.saturation, result.noise_floor)
+
+
+def test_a_step_inside_a_run_keeps_the_registration(sixteen_bit) -> None:
+    pl = Pipeline(sixteen_bit(), PipelineParams(response="linear"))
+    first = pl.run(until="registration")
+    assert first.registration is not None
+    s = first.saturation
+    moved = [first.params.replace(saturation=s - d) for d in (1.0, 2.0, 3.0, 5.0, 8.0)]
+    kept = [p for p in moved if _snapped(pl.run(p, until="ratios")) == _snapped(first)]
+    assert kept  # some steps stay inside the run (the test's premise)
+    for p in kept:
+        again = pl.run(p, until="registration")
+        assert "registration" not in again.stages_run
+        assert "ratios" in again.stages_run  # the ratios read the requested level
+        fresh = Pipeline(sixteen_bit(), p).run(p, until="registration")
+        assert differences(again.registration, fresh.registration) == []
+
+
+def test_a_step_out_of_the_run_registers_again(sixteen_bit) -> None:
+    pl = Pipeline(sixteen_bit(), PipelineParams(response="linear"))
+    first = pl.run(until="registration")
+    far = first.params.replace(saturation=0.9 * first.saturation)
+    assert _snapped(pl.run(far, until="ratios")) != _snapped(first)
+    again = pl.run(far, until="registration")
+    assert "registration" in again.stages_run
+    fresh = Pipeline(sixteen_bit(), far).run(far, until="preview")
+    assert differences(pl.run(far), fresh) == []
+
+
+def test_the_registration_reads_the_snapped_levels(sixteen_bit) -> None:
+    """The registration at the requested thresholds is the one at the snapped thresholds
+    requested directly (the snapped pair is a fixed point of the ladder)."""
+    pl = Pipeline(sixteen_bit(), PipelineParams(response="linear"))
+    first = pl.run(until="registration")
+    s2, f2 = _snapped(first)
+    assert (s2, f2) != (first.saturation, first.noise_floor)
+    direct = Pipeline(sixteen_bit(), first.params.replace(saturation=s2, noise_floor=f2))
+    other = direct.run(until="registration")
+    assert _snapped(other) == (s2, f2)
+    assert differences(first.registration, other.registration) == []
