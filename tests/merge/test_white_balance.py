@@ -264,3 +264,41 @@ def test_a_locally_tone_mapped_bracket_keeps_its_balance_measurable() -> None:
     assert any(p.regions_kept < p.n_regions for p in wb.pairs)
     same = measure_white_balance(true, LUT, max_level=255, reference=REF)
     assert same.differs == () and same.unmeasured == ()
+
+
+def _shot_with(frame_gains, seed=3):
+    """An sRGB bracket whose frame ``k`` was shot with ``frame_gains[k]`` (R, G, B) applied to
+    the scene's linear colours."""
+    kw = dict(
+        shape=(120, 180), exposure_times=TIMES, bits=8, response="srgb", noise_sigma=1.0, seed=seed
+    )
+    sim = simulate_bracket(scene="patches", **kw)
+    out = []
+    for k, g in enumerate(frame_gains):
+        other = simulate_bracket(sim.radiance * np.asarray(g), key=sim.key, **kw)
+        out.append(other.frames[k].astype(np.uint8))
+    return out
+
+
+def test_small_steps_that_add_up_along_the_chain_are_not_a_balance() -> None:
+    """Pairs 2 % apart (under the threshold, as a response's error leaves them) chain to a
+    frame 3.9 % from the reference: named, not corrected (no pair jumps)."""
+    r = (1.0, 1.02, 1.0404, 1.0300, 1.0300)
+    shot = _shot_with([(v, 1.0, 1.0) for v in r])
+    wb = measure_white_balance(shot, LUT, max_level=255, reference=REF)
+    assert wb.gains[0][0] == pytest.approx(1.0 / 1.0404, abs=0.01)  # beyond 3 %
+    assert wb.differs == ()
+    assert "0 drift beyond the threshold only through pairs within it" in wb.message
+    np.testing.assert_array_equal(wb.correction(), 1.0)
+
+
+def test_frames_rebalanced_alike_both_differ() -> None:
+    """Frames 0 and 1 shot with the same warmer balance: the jump is in pair 1-2, and frame 0
+    is behind it, so both differ (a frame needs a jump on its chain, not in its own pair)."""
+    g = (1.08, 1.0, 0.93)
+    shot = _shot_with([g, g, (1, 1, 1), (1, 1, 1), (1, 1, 1)])
+    wb = measure_white_balance(shot, LUT, max_level=255, reference=REF)
+    assert wb.differs == (0, 1)
+    assert wb.pairs[0].gains[0] == pytest.approx(1.0, abs=0.01)
+    for k in (0, 1):
+        np.testing.assert_allclose(wb.gains[k], g, atol=0.01)
