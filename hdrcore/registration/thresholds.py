@@ -4,7 +4,7 @@ to a ladder of the bracket's own levels.
 The registration leaves out samples at or above the saturation level and at or below the noise
 floor. Moving either by a few levels changes which samples count for a handful of pixels, and the
 registration's answer by less than its own repeatability, yet a registration keyed on the exact
-value runs again for every step of a slider (1.9 CPU s on a 24 MP bracket). So the registration
+value runs again for every step of a slider (the README has its cost). So the registration
 reads :func:`snap_levels` of the requested levels instead: the levels of the channel it reads,
 counted over every frame, are cut into runs of at most ``fraction`` of the samples (a quantile
 ladder, a property of the bracket alone), and a threshold is moved to the end of its run that
