@@ -419,7 +419,10 @@ def whole_command(d: Path, repeat: int, skip: set[str]) -> None:
             "#   ours per stage (s): "
             + ", ".join(f"{k} {v:.2f}" for k, v in ours["stages"].items() if isinstance(v, float))
         )
-    print("#   targets (3 x 24 MP): ours <= 2.5 s wall, <= 0.45x the peer, peak <= 1.5 GB")
+    print(
+        "#   targets (3 x 24 MP): ours <= 2.5 s wall, <= 0.45x the peer, peak <= 1.5 GB "
+        "(peak MB: ru_maxrss in MiB; 1.5 GB = 1536 MiB, as the README's GB columns)"
+    )
 
 
 def main() -> None:
