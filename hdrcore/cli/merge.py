@@ -182,10 +182,10 @@ def run(args: argparse.Namespace) -> int:
     params = params_from_args(args, MERGE_FIELDS, registration_previews=False)
     progress = _Progress(not args.quiet)
     pipeline = Pipeline(bracket, params, progress=progress)
-    if not args.dng:
-        # Only the DNG's CFA layout reads the mosaics after the merge has started.
-        pipeline.progress = _releasing_mosaics(pipeline, progress)
     try:
+        if not args.dng:
+            # Only the DNG's CFA layout reads the mosaics after the merge has started.
+            pipeline.progress = _releasing_mosaics(pipeline, progress)
         result = pipeline.run(until="preview" if args.preview else "merge")
     finally:
         progress.close()
