@@ -432,10 +432,13 @@ def real_tables() -> None:
         pipe = Pipeline(b, PipelineParams(registration_previews=False, exclude_colour=excl))
         frames = [f.levels for f in b.frames]
         last = None
+        kept_radiance = {}
         for run, kw in runs:
             t0 = time.perf_counter()
             r = pipe.run(pipe.params.replace(**kw), until="merge")
             dt = time.perf_counter() - t0
+            if run in ("srgb (default anchoring)", "after: auto (default)"):
+                kept_radiance[run] = np.array(r.radiance, copy=True)
             chk = r.colour["check"]
             cons = chk["before"]["frame_consistency"]
             cons_wb = chk["before"]["frame_consistency_wb"]
@@ -490,6 +493,22 @@ def real_tables() -> None:
             continue
         ltm = last.colour["check"]["local_tone_mapping"]
         print(f"{'':19}   local tone mapping: {ltm['message']}")
+        if len(kept_radiance) == 2:
+            ref_k = 0 if last.registration is None else last.registration.reference
+            masks_ref = (
+                None if excl is None else ~np.all(frames[ref_k] == np.asarray(excl), axis=-1)
+            )
+            d, se, n = paired_reference_difference(
+                frames[ref_k],
+                kept_radiance["after: auto (default)"],
+                kept_radiance["srgb (default anchoring)"],
+                max_level=255,
+                mask=masks_ref,
+            )
+            print(
+                f"{'':19}   vs sRGB ref, default - --response srgb: {d:+.5f} (paired block "
+                f"bootstrap standard error {se:.5f}, {n} pixels; the issue's target: <= 0)"
+            )
         # OpenCV's curves on the same registered frames (their own samples, our registration)
         reg = last.registration
         ref = 0 if reg is None else reg.reference
@@ -511,6 +530,45 @@ def real_tables() -> None:
                 f"{blocks:8.4f}{cc.frame_noise:8.4f}{cc.frame_consistency_excess:8.4f}      "
                 f"signs {','.join(signs) or '-'}"
             )
+
+
+def paired_reference_difference(
+    ref_levels, rad_a, rad_b, *, max_level, mask=None, max_samples=150_000, block=64, seed=0
+):
+    """``median(dist_a) - median(dist_b)`` of two merges' chromaticity distances to the
+    reference frame decoded with sRGB, on colour_check's grid and pixels (every channel within
+    10..90 % of the range), with the standard error of that difference from a paired bootstrap
+    over blocks of ``block`` consecutive grid samples (neighbouring pixels are not independent),
+    300 resamples; and the number of pixels."""
+    from hdrcore.merge.colour_check import chromaticity, srgb_decode_lut
+
+    h, w = ref_levels.shape[:2]
+    step = max(1, int(np.ceil(np.sqrt(h * w / max_samples))))
+    ys, xs = (a.ravel() for a in np.mgrid[0:h:step, 0:w:step])
+    z = np.asarray(ref_levels)[ys, xs].astype(np.intp)
+    ok = np.all((z > WELL[0] * max_level) & (z < WELL[1] * max_level), axis=-1)
+    if mask is not None:
+        ok &= np.asarray(mask, bool)[ys, xs]
+    table = srgb_decode_lut(max_level)
+    lin = np.stack([table[z[:, c]] for c in range(3)], axis=-1)
+    dists = []
+    for rad in (rad_a, rad_b):
+        m = np.asarray(rad)[ys, xs].astype(np.float64)
+        ok &= np.all(np.isfinite(m), axis=-1) & (m.sum(axis=-1) > 0)
+        dists.append(m)
+    da, db = (np.linalg.norm(chromaticity(m[ok]) - chromaticity(lin[ok]), axis=-1) for m in dists)
+    diff = float(np.median(da) - np.median(db))
+    nb = da.size // block
+    if nb < 2:
+        return diff, float("nan"), int(da.size)
+    a_b = da[: nb * block].reshape(nb, block)
+    b_b = db[: nb * block].reshape(nb, block)
+    rng = np.random.default_rng(seed)
+    boot = []
+    for _ in range(300):
+        i = rng.integers(0, nb, nb)
+        boot.append(np.median(a_b[i]) - np.median(b_b[i]))
+    return diff, float(np.std(boot)), int(da.size)
 
 
 # --- consecutive frames' colour agreement, per bracket and pair (issue 15, target 3) -------
