@@ -135,7 +135,14 @@ class FusedFinish(NamedTuple):
 
 
 class FusedOutputs(NamedTuple):
-    """The arrays the kernel writes (float16 maps as their uint16 bits)."""
+    """The arrays the kernel writes (float16 maps as their uint16 bits). Without ``maps``
+    the weight sum and the shares are not kept (``wsum`` and ``shares`` are unused
+    placeholders; each worker finishes a block in a scratch row) and the provenance summary
+    is counted instead, per output row: ``prov_count[y, k]`` the pixels frame ``k`` dominates
+    (the largest float16 share, the first on a tie), ``prov_units[y, k]`` the sum of its
+    float16 shares in units of 2**-24 (every float16 value is a whole number of them, so the
+    sums are exact in any order: :func:`hdrcore.merge.maps.provenance_summary`'s figures to
+    the last bit). With ``maps`` both are unused placeholders."""
 
     rad: np.ndarray
     wsum: np.ndarray
@@ -145,6 +152,9 @@ class FusedOutputs(NamedTuple):
     under: np.ndarray
     gscore: np.ndarray
     ghost: np.ndarray
+    maps: bool
+    prov_count: np.ndarray  # int64 (H, N), or (1, N) with maps
+    prov_units: np.ndarray  # int64 (H, N), or (1, N) with maps
 
 
 _F16_MAX = np.float32(65504.0)
@@ -163,6 +173,15 @@ def _f16_bits(v):
     if s < 0:
         s = np.int32(0)
     return np.uint16(s)
+
+
+@_njit
+def _f16_units(b):
+    """The non-negative float16 of bits ``b`` as a whole number of 2**-24 (exact: the
+    smallest subnormal), int64."""
+    e = (np.int64(b) >> 10) & 31
+    m = np.int64(b) & 1023
+    return m if e == 0 else (m + 1024) << (e - 1)
 
 
 def warm_up() -> float:
@@ -281,6 +300,10 @@ def _finish_block(
     cc,
     eb,
     tap_thr,
+    ys,
+    prov,
+    pcnt,
+    punits,
 ):
     """Radiance, ghost score, shares and fallback values of one block from interleaved sums
     (``den[C i + ch]``, ``C = len(tap_thr)`` channels: only the tuple's length is read), the
@@ -289,7 +312,10 @@ def _finish_block(
     that gave it weight (the brightest usable one when none did; -1: none usable),
     ``nbad[i]`` the number of frames dropped and ``eb[j]`` the ``E_k`` of the ``j``-th frame.
     A pixel with a channel of no weight takes (in those channels, or in all) the value of one
-    frame, ``pick[i]``, which takes the whole share when no channel has weight."""
+    frame, ``pick[i]``, which takes the whole share when no channel has weight. The weight
+    sum and the shares go to row ``ys`` of ``wsum_out`` and ``shares`` (``y``, or 0 of a
+    worker's scratch row); with ``prov`` the block's provenance is added to row ``y`` of
+    ``pcnt`` and ``punits`` (:class:`FusedOutputs`)."""
     nch = len(tap_thr)  # a compile-time constant: one specialisation per channel count
     zero = np.float32(0.0)
     one = np.float32(1.0)
@@ -305,7 +331,7 @@ def _finish_block(
         b = s2[e] * inv - a
         bb[e] = b if b >= zero else zero
         cc[e] = sv[e] * inv + a * me2
-    ws = wsum_out[y, x0:x1]
+    ws = wsum_out[ys, x0:x1]
     gh = ghost[y, x0:x1]
     gs = gscore[y, x0:x1]
     nz = 0
@@ -370,12 +396,26 @@ def _finish_block(
             pick[i] = order[jp]
     for k in range(n):
         sk = share[k]
-        so = shares[k, y, x0:x1]
+        so = shares[k, ys, x0:x1]
         for i in range(nbk):
             h = _f16_bits(sk[i] * invw[i])
             p = pick[i]
             one_k = _ONE_F16 if p == k else np.uint16(0)
             so[i] = one_k if p >= 0 else h
+    if prov:
+        # maps.provenance_summary's counts and sums (its _provenance_rows), of this block
+        pc = pcnt[y]
+        pu = punits[y]
+        for i in range(nbk):
+            best = shares[0, ys, x0 + i]
+            arg = 0
+            for k in range(n):
+                b = shares[k, ys, x0 + i]
+                pu[k] += _f16_units(b)
+                if b > best:
+                    best = b
+                    arg = k
+            pc[arg] += 1
 
 
 @_njit
@@ -832,6 +872,11 @@ def merge_rows(fr, warp, model, wfn, fin, out, r0, r1):
     nch = len(tap_thr)
     h = frames[0].shape[0]
     w = frames[0].shape[1]
+    keep = out.maps
+    prov = not keep
+    if prov:  # the weight sum and the shares of a block in a scratch row (not kept)
+        wsum_out = np.empty((1, w), np.float32)
+        shares = np.empty((n, 1, w), np.uint16)
     bw = min(w, _WBLOCK)
     b3 = nch * bw + 48  # padded: buffers off 4 KiB multiples (cache-set aliasing)
     xk = np.empty(b3, np.float32)  # a resampled frame's interleaved values (levels or floats)
@@ -890,6 +935,7 @@ def merge_rows(fr, warp, model, wfn, fin, out, r0, r1):
     # outermost (which kept a block's band of source rows in cache with blocks of 512)
     for yb in range(nr * nb):
         y = r0 + yb // nb
+        ys = y if keep else 0  # the row of wsum_out and shares
         yf = np.float64(y)
         x0 = (yb % nb) * _WBLOCK
         x1 = min(w, x0 + _WBLOCK)
@@ -1141,6 +1187,10 @@ def merge_rows(fr, warp, model, wfn, fin, out, r0, r1):
             cc,
             eb,
             tap_thr,
+            ys,
+            prov,
+            out.prov_count,
+            out.prov_units,
         )
         ro = radf[y, nch * x0 : nch * x1]
         if has_colour and nch == 3:  # (merge refuses a conversion of other channel counts)

@@ -16,7 +16,14 @@ from .colour import ColourConversion
 from .plan import IDENTITY, Outputs, Plan, SampleModel
 from .weights import WEIGHTS
 
-__all__ = ["MERGE_ENGINES", "default_engine", "kernel_engine", "level_tables", "run_fused"]
+__all__ = [
+    "MERGE_ENGINES",
+    "default_engine",
+    "kernel_engine",
+    "level_tables",
+    "provenance_from_counts",
+    "run_fused",
+]
 
 MERGE_ENGINES: dict[str, str] = {
     "numba": "the one-pass merge kernel compiled by numba (hdrcore.merge._fused), any channel "
@@ -137,11 +144,13 @@ def run_fused(
     workers: int,
     force_tables: bool = False,
     colour: ColourConversion | None = None,
-) -> None:
+) -> dict[str, list[float]] | None:
     """The kernel (:func:`hdrcore.merge._fused.merge_rows`) over ``spans`` of rows (on
     ``workers`` threads), ``colour`` applied inside it. Integer frames read in place go
     through per-level tables (:func:`level_tables`) when they have a LUT or
-    ``force_tables``."""
+    ``force_tables``. Outputs without the shares and the weight sum (``None``): returns the
+    provenance summary the kernel counted instead (:func:`provenance_from_counts`), else
+    ``None``."""
     frames = _kernel_dtype(p.frames, p.integer)
     frames_t = _one_type(frames)
     dummy = np.ones((1, 1), bool)
@@ -151,15 +160,24 @@ def run_fused(
     sat = np.ascontiguousarray(p.saturation, np.float64)
     me2 = m.model_error2
     thr = m.ghost_threshold
+    maps = out.shares is not None and out.weight_sum is not None
+    n = len(p.frames)
+    # without the maps: the provenance summary, counted per output row (_fused.FusedOutputs)
+    rows = 1 if maps else p.shape[0]
+    prov_count = np.zeros((rows, n), np.int64)
+    prov_units = np.zeros((rows, n), np.int64)
     outs = (
         out.radiance,
-        out.weight_sum,
-        out.shares.view(np.uint16),
+        out.weight_sum if out.weight_sum is not None else np.empty((1, 1), np.float32),
+        (out.shares if out.shares is not None else np.empty((1, 1, 1), np.float16)).view(np.uint16),
         out.clip_count,
         out.clipped,
         out.underexposed,
         out.ghost_score.view(np.uint16),
         out.ghost,
+        maps,
+        prov_count,
+        prov_units,
     )
     inv_t = np.array([1.0 / t for t in p.times], np.float32)
     use_tab = bool(
@@ -253,3 +271,22 @@ def run_fused(
             expected=f"levels 0..{p.max_level}",
             found=f"{bad_levels} samples above {p.max_level}",
         )
+    if maps:
+        return None
+    return provenance_from_counts(prov_count.sum(axis=0), prov_units.sum(axis=0), p.shape[:2])
+
+
+def provenance_from_counts(
+    counts: np.ndarray, units: np.ndarray, shape: tuple[int, ...]
+) -> dict[str, list[float]]:
+    """:func:`hdrcore.merge.maps.provenance_summary` from the kernel's per-frame dominant
+    pixel counts and share sums in units of 2**-24 (exact integers: the float64 sums of the
+    float16 shares, which are exact in any order below 2**29 pixels, are these times
+    2**-24)."""
+    totals = np.asarray(units, np.int64).astype(np.float64) * 2.0**-24
+    size = max(int(np.prod(shape)), 1)
+    total = float(np.sum(totals))
+    return {
+        "mean_share": [float(v) for v in (totals / total if total > 0 else totals)],
+        "dominant_fraction": [float(c) / size for c in counts],
+    }

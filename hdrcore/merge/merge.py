@@ -163,7 +163,7 @@ def _merge_one_frame(plan: Plan, k: int, y0: int, y1: int, **kw) -> MergeResult:
     return replace(
         res,
         radiance=res.radiance[rows],
-        weight_sum=res.weight_sum[rows],
+        weight_sum_map=res.weight_sum[rows],
         clipped=res.clipped[rows],
         underexposed=res.underexposed[rows],
     )
@@ -194,6 +194,7 @@ def merge(
     deghost: bool = False,
     ghost_test: str = "regions",
     ghost_params: GhostTestParams | None = None,
+    weight_maps: bool = True,
 ) -> MergeResult:
     """Merge aligned frames into one radiance map ``E = sum(w g(M) / dt) / sum(w)``.
 
@@ -281,6 +282,13 @@ def merge(
         brackets: 5 % of the memorial scans, 14 % of a hand-held phone bracket) or ``"pixels"``;
         ``ghost_params`` the :class:`~hdrcore.merge.consistency.GhostTestParams` of
         ``"regions"``.
+    weight_maps
+        ``False``: the per-frame shares and the weight sum are not kept
+        (``MergeResult.shares`` and ``weight_sum`` are ``None``; ``2 N + 4`` bytes a pixel for
+        ``N`` frames, 665 MiB of a 5-frame 45 MP merge); the kernel counts the provenance
+        summary of :meth:`MergeResult.summary` instead, the same figures to the last bit.
+        For a caller that needs neither map (``hdrcore merge`` of linear input). ``deghost``
+        uses both and keeps them.
 
     Raises
     ------
@@ -331,7 +339,12 @@ def merge(
         )
     n = len(plan.frames)
     t1 = time.perf_counter()
-    out = new_outputs((h, w, c), n) if reuse is None else reused_outputs(reuse, (h, w, c), n)
+    keep = bool(weight_maps) or bool(deghost)  # deghosting reads and rewrites the shares
+    out = (
+        new_outputs((h, w, c), n, keep)
+        if reuse is None
+        else reused_outputs(reuse, (h, w, c), n, keep)
+    )
     # no per-chunk scratch: chunks only balance the threads' work
     rows = max(1, int(chunk_pixels) // w, -(-h // (16 * int(workers))))
     spans = [(r, min(h, r + rows)) for r in range(0, h, rows)]
@@ -339,7 +352,7 @@ def merge(
     # exp() of the Gaussian weight, vectorised, may differ from numpy's in the last bit:
     # integer levels take it from the per-level tables (numpy's exp, as before), so their
     # results do not depend on the compiler's choice
-    run_fused(
+    provenance = run_fused(
         plan,
         out,
         sample_model(plan, float(ghost_threshold), float(model_error)),
@@ -390,6 +403,7 @@ def merge(
         # frames not resampled are preferred where nearly as well exposed (no interpolation
         # error in their values)
         prefer = np.array([t is None for t in plan.transforms]) if plan.warped else None
+        assert out.weight_sum is not None and out.shares is not None  # (keep)
         deghosted = fill_ghost_regions(
             out.radiance, out.weight_sum, out.shares, ghost, single, prefer=prefer
         )
@@ -422,8 +436,8 @@ def merge(
     logger.debug("merge: %s", message)
     return MergeResult(
         radiance=out.radiance,
-        weight_sum=out.weight_sum,
-        shares=out.shares,
+        weight_sum_map=out.weight_sum,
+        share_maps=out.shares,
         clip_count=out.clip_count,
         clipped=out.clipped,
         underexposed=out.underexposed,
@@ -451,4 +465,5 @@ def merge(
         deghosted=deghosted,
         ghost_test=ghost_test,
         ghost_regions=ghost_regions,
+        provenance=provenance,
     )

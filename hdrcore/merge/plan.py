@@ -395,8 +395,8 @@ def as_transforms(
 @dataclass
 class Outputs:
     radiance: np.ndarray
-    weight_sum: np.ndarray
-    shares: np.ndarray
+    weight_sum: np.ndarray | None  # None: not kept (merge(..., weight_maps=False))
+    shares: np.ndarray | None  # likewise
     clip_count: np.ndarray
     clipped: np.ndarray
     underexposed: np.ndarray
@@ -419,17 +419,48 @@ def output_layout(shape: tuple[int, int, int], n: int) -> dict[str, tuple[tuple,
     }
 
 
-def new_outputs(shape: tuple[int, int, int], n: int) -> Outputs:
+WEIGHT_MAPS = ("weight_sum", "shares")
+"""The outputs ``merge(..., weight_maps=False)`` does not keep (half of the output memory of
+a 5-frame merge)."""
+
+
+_STORED = {"weight_sum": "weight_sum_map", "shares": "share_maps"}
+
+
+def _outputs(arrays: dict[str, np.ndarray | None]) -> Outputs:
+    """:class:`Outputs` of ``arrays`` (only the weight maps may be ``None``)."""
+    a = {k: v for k, v in arrays.items() if k not in WEIGHT_MAPS}
+    if any(v is None for v in a.values()):
+        raise ValueError("only the weight maps may be left out")
     return Outputs(
-        **{name: np.empty(shp, dtype) for name, (shp, dtype) in output_layout(shape, n).items()}
+        weight_sum=arrays["weight_sum"],
+        shares=arrays["shares"],
+        **{k: v for k, v in a.items() if v is not None},
     )
 
 
-def reused_outputs(res: MergeResult, shape: tuple[int, int, int], n: int) -> Outputs:
-    """The arrays of ``res`` as outputs, after checking they fit (``merge(..., reuse=res)``)."""
-    arrays = {}
+def new_outputs(shape: tuple[int, int, int], n: int, weight_maps: bool = True) -> Outputs:
+    return _outputs(
+        {
+            name: None if name in WEIGHT_MAPS and not weight_maps else np.empty(shp, dtype)
+            for name, (shp, dtype) in output_layout(shape, n).items()
+        }
+    )
+
+
+def reused_outputs(
+    res: MergeResult, shape: tuple[int, int, int], n: int, weight_maps: bool = True
+) -> Outputs:
+    """The arrays of ``res`` as outputs, after checking they fit (``merge(..., reuse=res)``).
+    The weight maps (:data:`WEIGHT_MAPS`) are left out without ``weight_maps`` and made anew
+    when ``res`` has none (a merge without them)."""
+    arrays: dict[str, np.ndarray | None] = {}
     for name, (shp, dtype) in output_layout(shape, n).items():
-        a = getattr(res, name, None)
+        # (stored as weight_sum_map and share_maps: None when not kept)
+        a = getattr(res, _STORED.get(name, name), None)
+        if name in WEIGHT_MAPS and (not weight_maps or a is None):
+            arrays[name] = np.empty(shp, dtype) if weight_maps else None
+            continue
         if not (
             isinstance(a, np.ndarray)
             and a.shape == shp
@@ -443,4 +474,4 @@ def reused_outputs(res: MergeResult, shape: tuple[int, int, int], n: int) -> Out
                 found="missing" if not isinstance(a, np.ndarray) else f"{a.dtype} {a.shape}",
             )
         arrays[name] = a
-    return Outputs(**arrays)
+    return _outputs(arrays)

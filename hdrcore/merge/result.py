@@ -25,6 +25,10 @@ class MergeResult:
     shares
         float16 ``(N, H, W)``: frame ``k``'s share of the weight at each pixel, in the order the
         frames were given; sums to 1 over ``k`` at every pixel.
+    weight_sum_map, share_maps
+        the two above as stored: ``None`` from ``merge(..., weight_maps=False)``, and then
+        reading ``weight_sum`` or ``shares`` raises ``ValueError`` (``provenance`` holds the
+        shares' summary).
     clip_count
         uint8 ``(H, W)``: number of valid frames in which the pixel is clipped (any channel).
     clipped
@@ -44,11 +48,14 @@ class MergeResult:
     deghosted
         bool ``(H, W)``: pixels filled from one frame by ``merge(..., deghost=True)`` (``None``
         without it).
+    provenance
+        the shares' summary (:func:`hdrcore.merge.maps.provenance_summary`) counted by the
+        kernel when the shares are not kept; ``None`` when they are (it is read from them).
     """
 
     radiance: np.ndarray
-    weight_sum: np.ndarray
-    shares: np.ndarray
+    weight_sum_map: np.ndarray | None  # ``weight_sum``, or None: not kept
+    share_maps: np.ndarray | None  # ``shares``, or None: not kept
     clip_count: np.ndarray
     clipped: np.ndarray
     underexposed: np.ndarray
@@ -70,10 +77,23 @@ class MergeResult:
     deghosted: np.ndarray | None = None
     ghost_test: str = "pixels"
     ghost_regions: GhostRegions | None = None
+    provenance: dict[str, list[float]] | None = None
+
+    @property
+    def weight_sum(self) -> np.ndarray:
+        if self.weight_sum_map is None:
+            raise ValueError("the merge kept no weight sum (merge(..., weight_maps=False))")
+        return self.weight_sum_map
+
+    @property
+    def shares(self) -> np.ndarray:
+        if self.share_maps is None:
+            raise ValueError("the merge kept no shares (merge(..., weight_maps=False))")
+        return self.share_maps
 
     @property
     def n_frames(self) -> int:
-        return int(self.shares.shape[0])
+        return len(self.exposure_times)
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -83,6 +103,16 @@ class MergeResult:
     def dominant_frame(self) -> np.ndarray:
         """Index of the frame with the largest share at each pixel, uint8 ``(H, W)``."""
         return dominant_frame(self.shares)
+
+    def provenance_summary(self) -> dict[str, list[float]]:
+        """Each frame's mean share and the fraction of pixels it dominates
+        (:func:`hdrcore.merge.maps.provenance_summary`), from the shares or, when they were
+        not kept, from the kernel's count."""
+        if self.share_maps is not None:
+            return provenance_summary(self.share_maps)
+        if self.provenance is None:
+            raise ValueError("the merge kept neither its shares nor their summary")
+        return self.provenance
 
     @property
     def success(self) -> bool:
@@ -113,7 +143,7 @@ class MergeResult:
             "deghosted_fraction": None
             if self.deghosted is None
             else float(np.count_nonzero(self.deghosted)) / n_pix,
-            "provenance": provenance_summary(self.shares),
+            "provenance": self.provenance_summary(),
             "timings": dict(self.timings),
             "engine": self.engine,
         }

@@ -270,3 +270,78 @@ def test_unsupported_dtype_is_refused():
     frames = [f.astype(np.int16) for f in _frames()]
     with pytest.raises(ParameterError, match="unsupported dtype"):
         merge(frames, (1, 2, 4), max_level=4095)
+
+
+_MAPS_FIELDS = ("radiance", "clip_count", "clipped", "underexposed", "ghost_score", "ghost")
+
+
+def _summary(res) -> dict:
+    s = res.summary()
+    s.pop("timings")
+    if s["ghost_regions"] is not None:
+        s["ghost_regions"].pop("timings")
+    return s
+
+
+@pytest.mark.parametrize("warped", [False, True])
+@pytest.mark.parametrize("channels", [3, 4])
+def test_without_weight_maps_the_same_merge_and_provenance(warped, channels):
+    """``weight_maps=False`` keeps no shares nor weight sum; every other output and the
+    summary (its provenance counted in the kernel) are those of a merge that keeps them, to
+    the last bit. Frame 2 repeats frame 1 (same time): their shares tie everywhere, and the
+    tie goes to the first, as :func:`provenance_summary` has it."""
+    from hdrcore.merge import provenance_summary
+    from hdrcore.registration import invert
+
+    sb = bracket(bits=12, response="linear", seed=4, max_shift=3.0, max_rotation_deg=0.5)
+    frames = list(sb.frames)
+    if channels == 4:
+        frames = [np.ascontiguousarray(np.concatenate([f, f[..., 1:2]], axis=2)) for f in frames]
+    frames = [frames[0], frames[1], frames[1].copy(), *frames[2:]]
+    times = [sb.exposure_times[0], sb.exposure_times[1], sb.exposure_times[1]]
+    times += list(sb.exposure_times[2:])
+    tf = None
+    if warped:
+        inv = [invert(t) for t in sb.to_reference]
+        tf = [inv[0], inv[1], inv[1], *inv[2:]]
+    kw = {"max_level": 4095, "transforms": tf, "workers": 2, "chunk_pixels": 512}
+    kept = merge(frames, times, **kw)
+    lean = merge(frames, times, weight_maps=False, **kw)
+    assert lean.share_maps is None and lean.weight_sum_map is None
+    with pytest.raises(ValueError, match="weight_maps"):
+        _ = lean.shares
+    with pytest.raises(ValueError, match="weight_maps"):
+        _ = lean.weight_sum
+    for name in _MAPS_FIELDS:
+        np.testing.assert_array_equal(getattr(lean, name), getattr(kept, name), err_msg=name)
+    assert lean.provenance == provenance_summary(kept.shares)
+    assert lean.provenance["dominant_fraction"][2] == 0.0  # the tie went to frame 1
+    assert lean.provenance["dominant_fraction"][1] > 0.0
+    assert _summary(lean) == _summary(kept)
+    assert lean.n_frames == kept.n_frames == len(frames)
+
+
+def test_weight_maps_kept_for_deghosting_and_made_for_a_reuse_without_them():
+    sb = bracket(bits=12, response="linear", seed=5)
+    kw = {"max_level": 4095}
+    kept = merge(sb.frames, sb.exposure_times, deghost=True, **kw)
+    lean = merge(sb.frames, sb.exposure_times, deghost=True, weight_maps=False, **kw)
+    np.testing.assert_array_equal(lean.shares, kept.shares)  # deghosting reads them
+    np.testing.assert_array_equal(lean.weight_sum, kept.weight_sum)
+    np.testing.assert_array_equal(lean.radiance, kept.radiance)
+    fresh = merge(sb.frames, sb.exposure_times, **kw)
+    old = merge(sb.frames, sb.exposure_times, weight_maps=False, saturation_level=3000, **kw)
+    radiance = old.radiance
+    again = merge(sb.frames, sb.exposure_times, reuse=old, **kw)  # maps made anew
+    assert again.radiance is radiance
+    np.testing.assert_array_equal(again.shares, fresh.shares)
+    np.testing.assert_array_equal(again.weight_sum, fresh.weight_sum)
+    lean_again = merge(sb.frames, sb.exposure_times, reuse=again, weight_maps=False, **kw)
+    assert lean_again.share_maps is None and lean_again.radiance is radiance
+    assert lean_again.provenance == provenance_summary_of(fresh)
+
+
+def provenance_summary_of(res) -> dict:
+    from hdrcore.merge import provenance_summary
+
+    return provenance_summary(res.shares)
