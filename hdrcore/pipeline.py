@@ -468,7 +468,7 @@ class _Context:
     exposures), and the progress report. Never the parameters: those come through the stage's
     declaration."""
 
-    __slots__ = ("bracket", "no_times", "pixel_size", "_noise", "_report")
+    __slots__ = ("bracket", "no_times", "pixel_size", "_noise", "_report", "weight_maps")
 
     def __init__(
         self,
@@ -476,8 +476,10 @@ class _Context:
         pixel_size: float,
         noise: Callable[[], BracketNoise],
         report: Callable[[str, float, str], None],
+        weight_maps: bool = True,
     ) -> None:
         self.bracket = bracket
+        self.weight_maps = weight_maps  # the merge keeps its shares and weight sum
         self.pixel_size = pixel_size
         self._noise = noise
         self._report = report
@@ -516,6 +518,7 @@ class Pipeline:
         progress: ProgressCallback | None = None,
         reuse_buffers: bool = False,
         pixel_size: float = 1.0,
+        weight_maps: bool = True,
     ) -> None:
         if len(bracket) < 2:
             raise ParameterError("a bracket needs at least two frames", found=str(len(bracket)))
@@ -537,7 +540,10 @@ class Pipeline:
         self._subsets: dict[tuple[int, ...], Pipeline] = {}  # runs without unusable frames
         self._active_subset: Pipeline | None = None
         # Each stage cached by the key its declaration derives (GRAPH, hdrcore.stage_graph).
-        self._ctx = _Context(bracket, self.pixel_size, self.noise, self._report)
+        # weight_maps=False: the merge of linear input keeps no shares nor weight sum (a caller
+        # that reads neither, as ``hdrcore merge``; the report's provenance is counted)
+        self.weight_maps = bool(weight_maps)
+        self._ctx = _Context(bracket, self.pixel_size, self.noise, self._report, self.weight_maps)
         self._cache = StageCache(
             GRAPH,
             self._ctx,
@@ -846,6 +852,7 @@ class Pipeline:
                 progress=self.progress,
                 reuse_buffers=self.reuse_buffers,
                 pixel_size=self.pixel_size,
+                weight_maps=self.weight_maps,
             )
             sub._noise = self.noise()
             self._subsets[keep] = sub
@@ -1602,6 +1609,7 @@ def _merge_frames(
         reuse=reuse,
         colour=colour,  # converted inside the merge's finishing pass
         deghost=bool(p.deghost),
+        weight_maps=ctx.weight_maps or lut is not None,  # the colour check reads the shares
     )
     if lut is not None:
         # Non-linear input: the merge's colour checked against the frames and (sRGB
