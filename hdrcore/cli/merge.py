@@ -181,7 +181,9 @@ def run(args: argparse.Namespace) -> int:
 
     params = params_from_args(args, MERGE_FIELDS, registration_previews=False)
     progress = _Progress(not args.quiet)
-    pipeline = Pipeline(bracket, params, progress=progress)
+    # The command reads the merge's shares only through the report's summary (and the colour
+    # check of non-linear input, for which the pipeline keeps them): the maps are not kept.
+    pipeline = Pipeline(bracket, params, progress=progress, weight_maps=False)
     try:
         if not args.dng:
             # Only the DNG's CFA layout reads the mosaics after the merge has started.

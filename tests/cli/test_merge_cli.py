@@ -318,3 +318,43 @@ def test_mosaics_and_radiance_kept_for_the_dng(
     assert rc == 0
     assert calls == [False]
     assert json.loads(rep.read_text())["outputs"]["dng"] == str(tmp_path / "o.dng")
+
+
+def test_the_merge_keeps_no_weight_maps_and_every_output_is_as_it_was(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``hdrcore merge`` runs the pipeline with ``weight_maps=False`` (issue 18: the shares and
+    the weight sum of a linear bracket's merge are not kept, their summary is counted in the
+    kernel): the EXR, the preview and the report (its provenance included) are those of a run
+    that keeps them (the demo: a hand-held DNG bracket)."""
+    import hdrcore.cli.merge as merge_cli
+    from hdrcore.pipeline import Pipeline
+
+    merges: list[object] = []
+
+    def pipeline_with(weight_maps: bool):
+        def make(*args, **kwargs):
+            assert kwargs.get("weight_maps") is False  # the command asks for no maps
+            pipe = Pipeline(*args, **{**kwargs, "weight_maps": weight_maps})
+            run = pipe.run
+
+            def recording_run(*a, **k):
+                res = run(*a, **k)
+                merges.append(res.merge)
+                return res
+
+            pipe.run = recording_run  # type: ignore[method-assign]
+            return pipe
+
+        return make
+
+    monkeypatch.setattr(merge_cli, "Pipeline", pipeline_with(False))
+    lean = _merge_outputs(tmp_path, "lean")
+    monkeypatch.setattr(merge_cli, "Pipeline", pipeline_with(True))
+    kept = _merge_outputs(tmp_path, "kept")
+    assert merges[0].share_maps is None and merges[0].weight_sum_map is None
+    assert merges[1].share_maps is not None and merges[1].weight_sum_map is not None
+    assert lean[0] == kept[0]
+    assert lean[1] == kept[1]
+    assert lean[2] == kept[2]
+    assert lean[2]["merge"]["provenance"]["mean_share"][0] > 0
