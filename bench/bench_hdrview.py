@@ -3,7 +3,11 @@
 * first page ready: from starting ``hdrview`` (a subprocess on the demo bracket) to the page in
   chromium showing the loaded bracket;
 * a saturation or noise-floor change on a large bracket: new ratios and BTF plot drawn;
-* a threshold-t change: registration re-run (preview resolution inside the pipeline) and drawn.
+* a threshold-t change: registration re-run (preview resolution inside the pipeline) and drawn;
+* per control, how many of its steps kept the previous registration (the registration reads
+  its thresholds snapped to the bracket's quantile ladder, :mod:`hdrcore.registration.thresholds`:
+  the first saturation and noise-floor steps jump far from the defaults, the next move one
+  level).
 
 With ``hdrcore.pipeline`` installed the changes go through the app exactly as a slider does
 (``set_control`` then wait for the worker); without it the stage functions the pipeline would call
@@ -223,7 +227,9 @@ def bench_pipeline(sim, repeat: int, drafts: bool = True) -> list[tuple]:
             ):
                 times, quick, reg, cpu = [], [], [], {"quick": [], "reg": [], "all": []}
                 draft, cpu["draft"] = [], []
+                kept = 0  # steps whose result holds the previous step's registration object
                 for v in values:
+                    before = getattr(app, "_drawn_result", None)
                     app.last_draft_seconds = app.last_draft_cpu = None
                     t = time.perf_counter()
                     app.set_control(control, float(v))
@@ -236,6 +242,13 @@ def bench_pipeline(sim, repeat: int, drafts: bool = True) -> list[tuple]:
                     cpu["quick"].append(getattr(app, "last_ratios_cpu", None) or float("nan"))
                     cpu["reg"].append(getattr(app, "last_registration_cpu", None) or float("nan"))
                     cpu["all"].append(getattr(app, "last_job_cpu", None) or float("nan"))
+                    shown = getattr(app, "_drawn_result", None)
+                    kept += (
+                        before is not None
+                        and shown is not None
+                        and shown.registration is not None
+                        and shown.registration is before.registration
+                    )
                 quick_target = " (target < 0.3 s)" if control != "threshold" else ""
                 reg_target = " (target < 1.5 s)" if control == "threshold" else ""
                 rows.append(
@@ -269,6 +282,11 @@ def bench_pipeline(sim, repeat: int, drafts: bool = True) -> list[tuple]:
                         "app",
                         float(np.median(cpu["all"])),
                     )
+                )
+                # the registration reads its thresholds snapped to the bracket's quantile
+                # ladder (hdrcore.registration.thresholds): which steps kept it
+                rows.append(
+                    (f"{label}: steps that kept the registration: {kept} of {len(values)}",)
                 )
             errors = [n for n in app.notifications if n[0] == "error"]
             if errors:
@@ -459,7 +477,11 @@ def main() -> int:
         "shared machine the load stretches the wall time, not these"
     )
     print(f"{'what':<62} {'seconds':>9} {'cpu':>7}  by")
-    for what, sec, by, *cpu in rows:
+    for what, *timed in rows:
+        if not timed:  # a line of words
+            print(f"{what}")
+            continue
+        sec, by, *cpu = timed
         c = f"{cpu[0]:>7.3f}" if cpu else f"{'':>7}"
         print(f"{what:<62} {sec:>9.3f} {c}  {by}")
     return 0
