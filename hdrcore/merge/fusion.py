@@ -57,6 +57,19 @@ def _up(a: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
     return out
 
 
+def _extend_edges(image: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """``image`` with every pixel outside ``valid`` (where a warped frame does not reach) set
+    to the nearest valid pixel's value. A filled constant there would be a step in the frame's
+    Laplacian pyramid at the edge of its coverage, which the blend carries into the result
+    (its weight is zero there, but the pyramid's coarse levels reach across): on the Pixel 7
+    bracket the preview's bottom 16 rows came out 20 % darker and a bright line ran 4 px
+    inside the top edge."""
+    if valid.all() or not valid.any():
+        return image
+    idx = ndimage.distance_transform_edt(~valid, return_distances=False, return_indices=True)
+    return np.asarray(image[idx[0], idx[1]])
+
+
 def exposure_fusion(
     frames: Sequence[np.ndarray],
     *,
@@ -87,7 +100,8 @@ def exposure_fusion(
             if not np.allclose(back, np.eye(3)[: back.shape[0]], atol=1e-6):
                 res = warp(a, back, fill=0.0)
                 a = np.nan_to_num(res.image, nan=0.0)
-                valid = res.mask
+                valid = np.asarray(res.mask, bool)
+                a = _extend_edges(a, valid)
         a = np.clip(a, 0.0, 1.0).astype(np.float32)
         images.append(a)
         weights.append(fusion_weights(a) * valid)
