@@ -136,8 +136,9 @@ class FusedFinish(NamedTuple):
 
 class FusedOutputs(NamedTuple):
     """The arrays the kernel writes (float16 maps as their uint16 bits). Without ``maps``
-    the weight sum and the shares are not kept (``wsum`` and ``shares`` are unused
-    placeholders; each worker finishes a block in a scratch row) and the provenance summary
+    the weight sum, the shares and the clip count are not kept (``wsum``, ``shares`` and
+    ``clip_count`` are unused placeholders; each worker finishes a block in a scratch row)
+    and the provenance summary
     is counted instead, per output row: ``prov_count[y, k]`` the pixels frame ``k`` dominates
     (the largest float16 share, the first on a tie), ``prov_units[y, k]`` the sum of its
     float16 shares in units of 2**-24 (every float16 value is a whole number of them, so the
@@ -874,9 +875,10 @@ def merge_rows(fr, warp, model, wfn, fin, out, r0, r1):
     w = frames[0].shape[1]
     keep = out.maps
     prov = not keep
-    if prov:  # the weight sum and the shares of a block in a scratch row (not kept)
+    if prov:  # the weight sum, the shares and the clip count in a scratch row (not kept)
         wsum_out = np.empty((1, w), np.float32)
         shares = np.empty((n, 1, w), np.uint16)
+        clip_count = np.empty((1, w), np.uint8)
     bw = min(w, _WBLOCK)
     b3 = nch * bw + 48  # padded: buffers off 4 KiB multiples (cache-set aliasing)
     xk = np.empty(b3, np.float32)  # a resampled frame's interleaved values (levels or floats)
@@ -935,7 +937,7 @@ def merge_rows(fr, warp, model, wfn, fin, out, r0, r1):
     # outermost (which kept a block's band of source rows in cache with blocks of 512)
     for yb in range(nr * nb):
         y = r0 + yb // nb
-        ys = y if keep else 0  # the row of wsum_out and shares
+        ys = y if keep else 0  # the row of wsum_out, shares and clip_count
         yf = np.float64(y)
         x0 = (yb % nb) * _WBLOCK
         x1 = min(w, x0 + _WBLOCK)
@@ -949,7 +951,7 @@ def merge_rows(fr, warp, model, wfn, fin, out, r0, r1):
         fv[:nbk] = n
         lo[:nbk] = -1
         seen[:nbk] = False
-        crow = clip_count[y]
+        crow = clip_count[ys]
         crow[x0:x1] = 0
         for j in range(n):
             k = order[j]

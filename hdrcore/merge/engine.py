@@ -160,7 +160,7 @@ def run_fused(
     sat = np.ascontiguousarray(p.saturation, np.float64)
     me2 = m.model_error2
     thr = m.ghost_threshold
-    maps = out.shares is not None and out.weight_sum is not None
+    maps = out.shares is not None and out.weight_sum is not None and out.clip_count is not None
     n = len(p.frames)
     # without the maps: the provenance summary, counted per output row (_fused.FusedOutputs)
     rows = 1 if maps else p.shape[0]
@@ -170,7 +170,7 @@ def run_fused(
         out.radiance,
         out.weight_sum if out.weight_sum is not None else np.empty((1, 1), np.float32),
         (out.shares if out.shares is not None else np.empty((1, 1, 1), np.float16)).view(np.uint16),
-        out.clip_count,
+        out.clip_count if out.clip_count is not None else np.empty((1, 1), np.uint8),
         out.clipped,
         out.underexposed,
         out.ghost_score.view(np.uint16),

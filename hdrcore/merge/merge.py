@@ -283,12 +283,12 @@ def merge(
         ``ghost_params`` the :class:`~hdrcore.merge.consistency.GhostTestParams` of
         ``"regions"``.
     weight_maps
-        ``False``: the per-frame shares and the weight sum are not kept
-        (``MergeResult.shares`` and ``weight_sum`` are ``None``; ``2 N + 4`` bytes a pixel for
-        ``N`` frames, 665 MiB of a 5-frame 45 MP merge); the kernel counts the provenance
-        summary of :meth:`MergeResult.summary` instead, the same figures to the last bit.
-        For a caller that needs neither map (``hdrcore merge`` of linear input). ``deghost``
-        uses both and keeps them.
+        ``False``: the per-frame shares, the weight sum and the clip count are not kept
+        (``MergeResult.share_maps``, ``weight_sum_map`` and ``clip_count_map`` are ``None``;
+        ``2 N + 5`` bytes a pixel for ``N`` frames, 712 MiB of a 5-frame 45 MP merge); the
+        kernel counts the provenance summary of :meth:`MergeResult.summary` instead, the same
+        figures to the last bit. For a caller that reads none of these maps (``hdrcore merge``
+        of linear input). ``deghost`` uses them and keeps them.
 
     Raises
     ------
@@ -438,7 +438,7 @@ def merge(
         radiance=out.radiance,
         weight_sum_map=out.weight_sum,
         share_maps=out.shares,
-        clip_count=out.clip_count,
+        clip_count_map=out.clip_count,
         clipped=out.clipped,
         underexposed=out.underexposed,
         ghost_score=ghost_score,

@@ -397,7 +397,7 @@ class Outputs:
     radiance: np.ndarray
     weight_sum: np.ndarray | None  # None: not kept (merge(..., weight_maps=False))
     shares: np.ndarray | None  # likewise
-    clip_count: np.ndarray
+    clip_count: np.ndarray | None  # likewise
     clipped: np.ndarray
     underexposed: np.ndarray
     ghost_score: np.ndarray
@@ -419,12 +419,12 @@ def output_layout(shape: tuple[int, int, int], n: int) -> dict[str, tuple[tuple,
     }
 
 
-WEIGHT_MAPS = ("weight_sum", "shares")
-"""The outputs ``merge(..., weight_maps=False)`` does not keep (half of the output memory of
-a 5-frame merge)."""
+WEIGHT_MAPS = ("weight_sum", "shares", "clip_count")
+"""The outputs ``merge(..., weight_maps=False)`` does not keep (more than half of the output
+memory of a 5-frame merge)."""
 
 
-_STORED = {"weight_sum": "weight_sum_map", "shares": "share_maps"}
+_STORED = {"weight_sum": "weight_sum_map", "shares": "share_maps", "clip_count": "clip_count_map"}
 
 
 def _outputs(arrays: dict[str, np.ndarray | None]) -> Outputs:
@@ -435,6 +435,7 @@ def _outputs(arrays: dict[str, np.ndarray | None]) -> Outputs:
     return Outputs(
         weight_sum=arrays["weight_sum"],
         shares=arrays["shares"],
+        clip_count=arrays["clip_count"],
         **{k: v for k, v in a.items() if v is not None},
     )
 
@@ -456,7 +457,7 @@ def reused_outputs(
     when ``res`` has none (a merge without them)."""
     arrays: dict[str, np.ndarray | None] = {}
     for name, (shp, dtype) in output_layout(shape, n).items():
-        # (stored as weight_sum_map and share_maps: None when not kept)
+        # (stored as weight_sum_map, share_maps, clip_count_map: None when not kept)
         a = getattr(res, _STORED.get(name, name), None)
         if name in WEIGHT_MAPS and (not weight_maps or a is None):
             arrays[name] = np.empty(shp, dtype) if weight_maps else None

@@ -25,10 +25,10 @@ class MergeResult:
     shares
         float16 ``(N, H, W)``: frame ``k``'s share of the weight at each pixel, in the order the
         frames were given; sums to 1 over ``k`` at every pixel.
-    weight_sum_map, share_maps
-        the two above as stored: ``None`` from ``merge(..., weight_maps=False)``, and then
-        reading ``weight_sum`` or ``shares`` raises ``ValueError`` (``provenance`` holds the
-        shares' summary).
+    weight_sum_map, share_maps, clip_count_map
+        ``weight_sum``, ``shares`` and ``clip_count`` as stored: ``None`` from
+        ``merge(..., weight_maps=False)``, and then reading the property raises
+        ``ValueError`` (``provenance`` holds the shares' summary).
     clip_count
         uint8 ``(H, W)``: number of valid frames in which the pixel is clipped (any channel).
     clipped
@@ -56,7 +56,7 @@ class MergeResult:
     radiance: np.ndarray
     weight_sum_map: np.ndarray | None  # ``weight_sum``, or None: not kept
     share_maps: np.ndarray | None  # ``shares``, or None: not kept
-    clip_count: np.ndarray
+    clip_count_map: np.ndarray | None  # ``clip_count``, or None: not kept
     clipped: np.ndarray
     underexposed: np.ndarray
     ghost_score: np.ndarray
@@ -90,6 +90,12 @@ class MergeResult:
         if self.share_maps is None:
             raise ValueError("the merge kept no shares (merge(..., weight_maps=False))")
         return self.share_maps
+
+    @property
+    def clip_count(self) -> np.ndarray:
+        if self.clip_count_map is None:
+            raise ValueError("the merge kept no clip count (merge(..., weight_maps=False))")
+        return self.clip_count_map
 
     @property
     def n_frames(self) -> int:

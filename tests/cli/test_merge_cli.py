@@ -353,6 +353,7 @@ def test_the_merge_keeps_no_weight_maps_and_every_output_is_as_it_was(
     monkeypatch.setattr(merge_cli, "Pipeline", pipeline_with(True))
     kept = _merge_outputs(tmp_path, "kept")
     assert merges[0].share_maps is None and merges[0].weight_sum_map is None
+    assert merges[0].clip_count_map is None
     assert merges[1].share_maps is not None and merges[1].weight_sum_map is not None
     assert lean[0] == kept[0]
     assert lean[1] == kept[1]

@@ -272,7 +272,7 @@ def test_unsupported_dtype_is_refused():
         merge(frames, (1, 2, 4), max_level=4095)
 
 
-_MAPS_FIELDS = ("radiance", "clip_count", "clipped", "underexposed", "ghost_score", "ghost")
+_MAPS_FIELDS = ("radiance", "clipped", "underexposed", "ghost_score", "ghost")
 
 
 def _summary(res) -> dict:
@@ -308,6 +308,9 @@ def test_without_weight_maps_the_same_merge_and_provenance(warped, channels):
     kept = merge(frames, times, **kw)
     lean = merge(frames, times, weight_maps=False, **kw)
     assert lean.share_maps is None and lean.weight_sum_map is None
+    assert lean.clip_count_map is None
+    with pytest.raises(ValueError, match="weight_maps"):
+        _ = lean.clip_count
     with pytest.raises(ValueError, match="weight_maps"):
         _ = lean.shares
     with pytest.raises(ValueError, match="weight_maps"):
@@ -328,6 +331,7 @@ def test_weight_maps_kept_for_deghosting_and_made_for_a_reuse_without_them():
     lean = merge(sb.frames, sb.exposure_times, deghost=True, weight_maps=False, **kw)
     np.testing.assert_array_equal(lean.shares, kept.shares)  # deghosting reads them
     np.testing.assert_array_equal(lean.weight_sum, kept.weight_sum)
+    np.testing.assert_array_equal(lean.clip_count, kept.clip_count)
     np.testing.assert_array_equal(lean.radiance, kept.radiance)
     fresh = merge(sb.frames, sb.exposure_times, **kw)
     old = merge(sb.frames, sb.exposure_times, weight_maps=False, saturation_level=3000, **kw)
@@ -336,6 +340,7 @@ def test_weight_maps_kept_for_deghosting_and_made_for_a_reuse_without_them():
     assert again.radiance is radiance
     np.testing.assert_array_equal(again.shares, fresh.shares)
     np.testing.assert_array_equal(again.weight_sum, fresh.weight_sum)
+    np.testing.assert_array_equal(again.clip_count, fresh.clip_count)
     lean_again = merge(sb.frames, sb.exposure_times, reuse=again, weight_maps=False, **kw)
     assert lean_again.share_maps is None and lean_again.radiance is radiance
     assert lean_again.provenance == provenance_summary_of(fresh)
