@@ -28,6 +28,9 @@ Targets (issue 6): ours <= 4 s end to end without decode, peak <= 3 GB; the merg
 
     python bench/bench_pipeline.py [--size 4000x6000] [--frames 3] [--bits 12] [--skip ...]
 
+``--skip ours,opencv,hdrutils,libraw,dng,peer --repeat 1`` runs the plain ``hdrcore merge``
+command alone (the 45 MP bracket's peak memory in one run).
+
 The synthetic bracket is cached under ``bench/out/`` (gitignored) between runs.
 """
 
@@ -377,14 +380,20 @@ def whole_command(d: Path, repeat: int, skip: set[str]) -> None:
     """The issue-18 table: the whole command, decode included, beside the peer."""
     runs: dict[str, list[dict]] = {}
     contenders = [
-        ("hdrcore merge (ours: mosaic read + demosaic)", "command", {}),
-        ("hdrcore merge, LibRaw AHD decode", "command", {"HDRCORE_RAW_DEMOSAIC": "libraw-ahd"}),
-        ("hdrcore merge (ours) + --dng", "command", {"HDRCORE_BENCH_DNG": "1"}),
-        ("rawpy + AlignMTB + MergeDebevec + EXR", "peer", {}),
+        ("hdrcore merge (ours: mosaic read + demosaic)", "command", {}, "command"),
+        (
+            "hdrcore merge, LibRaw AHD decode",
+            "command",
+            {"HDRCORE_RAW_DEMOSAIC": "libraw-ahd"},
+            "libraw",
+        ),
+        ("hdrcore merge (ours) + --dng", "command", {"HDRCORE_BENCH_DNG": "1"}, "dng"),
+        ("rawpy + AlignMTB + MergeDebevec + EXR", "peer", {}, "peer"),
     ]
-    contenders = [c for c in contenders if c[1] not in skip]
+    # --skip names a child (command: every hdrcore row) or a row (libraw, dng)
+    contenders = [c for c in contenders if c[1] not in skip and c[3] not in skip]
     for _ in range(repeat):
-        for label, child, env in contenders:
+        for label, child, env, _ in contenders:
             runs.setdefault(label, []).append(run_child(child, d, **env))
     print(
         "\n## the whole command, decode INCLUDED (each in a new process; best of "
@@ -440,7 +449,12 @@ def main() -> None:
     )
     ap.add_argument("--child", choices=sorted(CHILDREN))
     ap.add_argument("--dir")
-    ap.add_argument("--skip", default="", help="comma list of contenders to skip")
+    ap.add_argument(
+        "--skip",
+        default="",
+        help="comma list of contenders to skip: ours, opencv, hdrutils, command (every "
+        "hdrcore merge row), libraw, dng (one of those rows), peer",
+    )
     args = ap.parse_args()
     if args.child:
         print(json.dumps(CHILDREN[args.child](Path(args.dir))))
