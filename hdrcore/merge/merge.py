@@ -55,7 +55,7 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import replace
 from typing import Any
 
@@ -195,6 +195,7 @@ def merge(
     ghost_test: str = "regions",
     ghost_params: GhostTestParams | None = None,
     weight_maps: bool = True,
+    progress: Callable[[float, str], None] | None = None,
 ) -> MergeResult:
     """Merge aligned frames into one radiance map ``E = sum(w g(M) / dt) / sum(w)``.
 
@@ -289,6 +290,10 @@ def merge(
         kernel counts the provenance summary of :meth:`MergeResult.summary` instead, the same
         figures to the last bit. For a caller that reads none of these maps (``hdrcore merge``
         of linear input). ``deghost`` uses them and keeps them.
+    progress
+        Called as ``progress(0.5, "ghost test")`` when the kernel has written the outputs and
+        the region ghost test starts (``hdrcore merge`` gives the heap's free pages back
+        there: the test's block sums are its largest new allocation).
 
     Raises
     ------
@@ -365,6 +370,8 @@ def merge(
     ghost_score, ghost = out.ghost_score, out.ghost
     ghost_regions = None
     if ghost_test == "regions":
+        if progress is not None:
+            progress(0.5, "ghost test")
         ghost_regions = consistency_regions(
             plan.frames,
             [float(t) for t in plan.times],

@@ -350,3 +350,19 @@ def provenance_summary_of(res) -> dict:
     from hdrcore.merge import provenance_summary
 
     return provenance_summary(res.shares)
+
+
+def test_progress_is_told_when_the_region_ghost_test_starts():
+    sb = bracket(bits=12, response="linear", seed=6)
+    calls: list[tuple[float, str]] = []
+    merge(sb.frames, sb.exposure_times, max_level=4095, progress=lambda f, m: calls.append((f, m)))
+    assert calls == [(0.5, "ghost test")]
+    calls.clear()
+    merge(
+        sb.frames,
+        sb.exposure_times,
+        max_level=4095,
+        ghost_test="pixels",
+        progress=lambda f, m: calls.append((f, m)),
+    )
+    assert calls == []  # no region test, nothing to tell
