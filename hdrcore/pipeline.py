@@ -1610,6 +1610,7 @@ def _merge_frames(
         colour=colour,  # converted inside the merge's finishing pass
         deghost=bool(p.deghost),
         weight_maps=ctx.weight_maps or lut is not None,  # the colour check reads the shares
+        progress=lambda fraction, message: ctx.report("merge", fraction, message),
     )
     if lut is not None:
         # Non-linear input: the merge's colour checked against the frames and (sRGB
