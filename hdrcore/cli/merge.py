@@ -133,18 +133,49 @@ def _release_mosaics(bracket: Bracket) -> int:
     return freed
 
 
+def _trim_heap() -> bool:
+    """Give the free pages inside the heap back to the system (glibc ``malloc_trim``); ``True``
+    if it ran.
+
+    The program keeps freed memory for reuse (:mod:`hdrcore._memory`), so the process holds
+    the high-water mark of the stages before the merge (the registered pixel ratios on the
+    mosaics) in holes of many sizes. The merge's outputs fill some of them, and the ghost
+    test's block sums (356 MiB at 45 MP) fit in none: on a 5 x 45 MP bracket the holes made
+    the merge's peak 3.3 GB where what it uses is 3.0 GB. Called once the merge's outputs are
+    written (its ``"ghost test"`` progress), so they reuse the kept pages; what is given back
+    is only what they left free."""
+    if not sys.platform.startswith("linux"):
+        return False
+    try:
+        import ctypes
+        import ctypes.util
+
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+        trim = libc.malloc_trim
+    except (OSError, AttributeError):  # not glibc
+        return False
+    trim.argtypes = (ctypes.c_size_t,)
+    trim.restype = ctypes.c_int
+    trim(0)
+    return True
+
+
 def _releasing_mosaics(pipeline: Pipeline, progress: _Progress) -> ProgressCallback:
     """``progress``, which also releases the bracket's mosaics when the merge stage starts
     (its inputs, the pixel ratios among them, are then computed: the stage cache reports a
-    stage once its inputs are ready). The noise estimate is taken first."""
+    stage once its inputs are ready) and gives the heap's free pages back when the merge's
+    ghost test starts (:func:`_trim_heap`). The noise estimate is taken first."""
     pipeline.noise()
-    released = False
+    released = trimmed = False
 
     def report(stage: str, fraction: float, message: str) -> None:
-        nonlocal released
+        nonlocal released, trimmed
         if stage == "merge" and not released:
             released = True
             _release_mosaics(pipeline.bracket)
+        if stage == "merge" and message == "ghost test" and not trimmed:
+            trimmed = True
+            _trim_heap()
         progress(stage, fraction, message)
 
     return report

@@ -323,10 +323,11 @@ def test_mosaics_and_radiance_kept_for_the_dng(
 def test_the_merge_keeps_no_weight_maps_and_every_output_is_as_it_was(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """``hdrcore merge`` runs the pipeline with ``weight_maps=False`` (issue 18: the shares and
-    the weight sum of a linear bracket's merge are not kept, their summary is counted in the
-    kernel): the EXR, the preview and the report (its provenance included) are those of a run
-    that keeps them (the demo: a hand-held DNG bracket)."""
+    """``hdrcore merge`` runs the pipeline with ``weight_maps=False`` (issue 18: the shares,
+    the weight sum and the clip count of a linear bracket's merge are not kept, the shares'
+    summary is counted in the kernel) and gives the heap's free pages back when the ghost
+    test starts: the EXR, the preview and the report (its provenance included) are those of
+    a run that keeps the maps and trims nothing (the demo: a hand-held DNG bracket)."""
     import hdrcore.cli.merge as merge_cli
     from hdrcore.pipeline import Pipeline
 
@@ -348,8 +349,13 @@ def test_the_merge_keeps_no_weight_maps_and_every_output_is_as_it_was(
 
         return make
 
+    trims: list[bool] = []
+    trim = merge_cli._trim_heap
+    monkeypatch.setattr(merge_cli, "_trim_heap", lambda: trims.append(trim()))
     monkeypatch.setattr(merge_cli, "Pipeline", pipeline_with(False))
     lean = _merge_outputs(tmp_path, "lean")
+    assert len(trims) == 1  # the heap's free pages given back once, at the ghost test
+    monkeypatch.setattr(merge_cli, "_trim_heap", lambda: False)
     monkeypatch.setattr(merge_cli, "Pipeline", pipeline_with(True))
     kept = _merge_outputs(tmp_path, "kept")
     assert merges[0].share_maps is None and merges[0].weight_sum_map is None
