@@ -340,6 +340,7 @@ def _chain_rows(
     bias,
     b,
     sums,
+    sums32,
     count,
     prev,
     st,
@@ -359,8 +360,10 @@ def _chain_rows(
     With a non-empty ``hist`` the comparison ``ln(E / E_prev)`` of consecutive frames goes to
     the transfer histogram of the earlier frame's slot, the channel and its level bin; else
     the residual, less the slot's transfer error when the frames are consecutive, goes to the
-    slot's sums for the pixel's block, ``sums[by, bx, slot, ch] = (sum w r, sum w, sum
-    additive, sum ln E_a, sum ln E_b)`` (one block's sums side by side) and ``count``. The
+    slot's sums for the pixel's block, ``sums[by, bx, slot, ch] = (sum w r, sum ln E_a, sum
+    ln E_b)`` (float64: terms of either sign), ``sums32[by, bx, slot, ch] = (sum w, sum
+    additive)`` (float32: positive terms, at most ``b**2`` of them, ~1e-6 relative) and
+    ``count``. The
     sampling is written out here once, not in a helper: a helper's array arguments cost ten
     times the work per pixel.
 
@@ -449,11 +452,12 @@ def _chain_rows(
                                 r -= bias[q, ch, int(sv[gx, ch, 3])]
                             wt = 1.0 / (sv[gx, ch, 1] + rvc)
                             o = sums[by, bx, q, ch]
+                            o32 = sums32[by, bx, q, ch]
                             o[0] += wt * r
-                            o[1] += wt
-                            o[2] += sv[gx, ch, 2] + adc
-                            o[3] += sv[gx, ch, 0]
-                            o[4] += lnc
+                            o32[0] += wt
+                            o32[1] += sv[gx, ch, 2] + adc
+                            o[1] += sv[gx, ch, 0]
+                            o[2] += lnc
                             count[by, bx, q, ch] += 1
                     sv[gx, ch, 0] = lnc
                     sv[gx, ch, 1] = rvc
@@ -674,7 +678,7 @@ class _Chains:
                 )
             )
 
-    def run(self, y0, gh, gw, stride, hist, bias, b, sums, counts, unit=1) -> None:
+    def run(self, y0, gh, gw, stride, hist, bias, b, sums, sums32, counts, unit=1) -> None:
         """The output rows ``y0 + stride // 2 + i * stride``, ``i < gh`` (see
         :func:`_chain_rows`). A long bracket goes through in groups of rows, a multiple of
         ``unit`` (the sample rows of a block: a block's sums are then added in the same order
@@ -683,7 +687,9 @@ class _Chains:
         if len(self.groups) == 1:
             prev = np.empty((1, gw, c), np.int64)
             st = np.zeros((1, gw, c, 4))
-            _chain_rows(*self.groups[0], y0, gh, gw, stride, hist, bias, b, sums, counts, prev, st)
+            _chain_rows(
+                *self.groups[0], y0, gh, gw, stride, hist, bias, b, sums, sums32, counts, prev, st
+            )
             return
         # a long bracket: a few rows at a time through every group of frames, the rows'
         # chains kept between the groups
@@ -703,6 +709,7 @@ class _Chains:
                     bias,
                     b,
                     sums,
+                    sums32,
                     counts,
                     prev,
                     st,
@@ -767,8 +774,11 @@ def pair_residuals(
     slots = max(n - 1, 0)
     stride = inp.stride
     hist = np.zeros((slots, c, p.level_bins, _HIST_BINS), np.int64)
-    # one block's sums side by side in the kernel; the fields are views of them
-    sums = np.zeros((hb, wb, slots, c, 5))
+    # one block's sums side by side in the kernel; the fields are views of them. The weights
+    # and additive variances (positive terms) in float32: at 45 MP x 5 frames the sums were
+    # 356 MiB of the whole command's peak, the two float32 fields save 71 MiB of it
+    sums = np.zeros((hb, wb, slots, c, 3))
+    sums32 = np.zeros((hb, wb, slots, c, 2), np.float32)
     counts = np.zeros((hb, wb, slots, c), np.int32)
     chains = _Chains(inp) if slots and hb and wb else None
     if chains is not None:
@@ -781,7 +791,8 @@ def pair_residuals(
             hist,
             np.zeros((1, c, 1)),
             b,
-            np.zeros((1, 1, 1, c, 5)),
+            np.zeros((1, 1, 1, c, 3)),
+            np.zeros((1, 1, 1, c, 2), np.float32),
             np.zeros((1, 1, 1, c), np.int32),
         )
     bias, source = _transfer_bias(hist, p) if slots else (np.zeros((0, c, p.level_bins)), [])
@@ -803,14 +814,14 @@ def pair_residuals(
                 bias,
                 b,
                 sums,
+                sums32,
                 counts,
                 unit=b // step,
             )
 
         thread_map(work, range(0, hb, span), workers)
-    weighted, weights, additive, first, second = (
-        np.moveaxis(sums[..., i], (0, 1), (2, 3)) for i in range(5)
-    )
+    weighted, first, second = (np.moveaxis(sums[..., i], (0, 1), (2, 3)) for i in range(3))
+    weights, additive = (np.moveaxis(sums32[..., i], (0, 1), (2, 3)) for i in range(2))
     return PairResiduals(
         weighted=weighted,
         weights=weights,

@@ -16,7 +16,8 @@ SUMS = ("weighted", "weights", "additive", "first", "second", "count", "bias")
 
 def sums_vs_spec(frames, times, **kw):
     """``pair_residuals`` against :func:`pair_residuals_spec`: the sums within 1e-9 (the
-    kernel adds in its own order), the counts, samples and transfer errors' sources equal."""
+    kernel adds in its own order; its float32 weights and additive variances within 2e-6), the
+    counts, samples and transfer errors' sources equal."""
     a = pair_residuals(frames, times, **kw)
     kw.pop("workers", None)
     b = pair_residuals_spec(frames, times, **kw)
@@ -24,8 +25,11 @@ def sums_vs_spec(frames, times, **kw):
     np.testing.assert_array_equal(a.order, b.order)
     np.testing.assert_array_equal(a.count, b.count)
     for name in SUMS:
+        # the weights and additive variances are summed in float32 (positive terms, at most
+        # block**2 of them): ~1e-6 relative; the rest in float64
+        rtol = 2e-6 if name in ("weights", "additive") else 1e-9
         np.testing.assert_allclose(
-            getattr(a, name), getattr(b, name), rtol=1e-9, atol=1e-12, err_msg=name
+            getattr(a, name), getattr(b, name), rtol=rtol, atol=1e-12, err_msg=name
         )
     return a, b
 
@@ -66,7 +70,8 @@ def regions_vs_spec(frames, times, **kw) -> GhostRegions:
     for got, (frames_ak, blocks, n_hit, scale, delta) in zip(res.pairs, pairs, strict=True):
         assert got.frames == frames_ak and got.blocks == blocks and got.delta == delta
         assert got.flagged == n_hit
-        np.testing.assert_allclose(got.scale, scale, rtol=1e-9, atol=1e-15)
+        # (the scale reads the float32 weights: ~1e-7 relative)
+        np.testing.assert_allclose(got.scale, scale, rtol=1e-6, atol=1e-15)
     np.testing.assert_allclose(res.z, zmax, rtol=1e-6, atol=1e-6)
     labels, count = ndimage.label(flagged, structure=np.ones((3, 3), bool))
     area = np.bincount(labels.ravel(), minlength=count + 1)
