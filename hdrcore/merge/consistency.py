@@ -775,8 +775,8 @@ def pair_residuals(
     stride = inp.stride
     hist = np.zeros((slots, c, p.level_bins, _HIST_BINS), np.int64)
     # one block's sums side by side in the kernel; the fields are views of them. The weights
-    # and additive variances (positive terms) in float32: at 45 MP x 5 frames the sums were
-    # 356 MiB of the whole command's peak, the two float32 fields save 71 MiB of it
+    # and additive variances (positive terms) in float32: at 45 MP x 5 frames the five float64
+    # fields were 356 MiB, two of them at half the bytes save 71 MiB of that
     sums = np.zeros((hb, wb, slots, c, 3))
     sums32 = np.zeros((hb, wb, slots, c, 2), np.float32)
     counts = np.zeros((hb, wb, slots, c), np.int32)

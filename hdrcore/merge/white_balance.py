@@ -368,22 +368,13 @@ def measure_white_balance(
         lo, hi = min(k, reference), max(k, reference)
         return any(steps[j] for j in range(lo, hi))
 
-    differs = tuple(
+    beyond = [
         k
         for k in range(n)
-        if k not in unmeasured
-        and k != reference
-        and significant(log_g[k], se[k])
-        and crosses_a_jump(k)
-    )
-    drifted = tuple(
-        k
-        for k in range(n)
-        if k not in unmeasured
-        and k != reference
-        and k not in differs
-        and significant(log_g[k], se[k])
-    )
+        if k not in unmeasured and k != reference and significant(log_g[k], se[k])
+    ]
+    differs = tuple(k for k in beyond if crosses_a_jump(k))
+    drifted = tuple(k for k in beyond if k not in differs)
     parts = []
     if differs:
         parts.append(

@@ -374,7 +374,7 @@ def select_response(
     srgb_score = cands[-1].score
     # the radiometrically credible candidates: within SCORE_TOLERANCE of the best held-back
     # score among those not degenerate (the recovered curve's signs so far: binding, flat,
-    # channels, worse than sRGB)
+    # channels; one worse than sRGB by SRGB_MARGIN, flagged below, is never that best)
     sound = [c for c in cands if np.isfinite(c.score) and not (c.name == recovered and signs)]
     best_sound = min(sound, key=lambda c: c.score) if sound else None
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -178,11 +179,11 @@ def test_the_pipeline_reports_the_fallback(tmp_path) -> None:
     assert max(f["best_error"] for f in own if f["best_error"] is not None) < 0.01
 
 
-PIXEL7 = __import__("pathlib").Path(__file__).resolve().parents[3] / "shared" / "data"
+DATA = Path(__file__).resolve().parents[3] / "shared" / "data"
 
 
 @pytest.mark.skipif(
-    not (PIXEL7 / "handheld-pixel7-lab").is_dir(), reason="../shared/data not available"
+    not (DATA / "handheld-pixel7-lab").is_dir(), reason="../shared/data not available"
 )
 def test_radiometry_first_colour_second_on_the_pixel7() -> None:
     """The Pixel 7 bracket: the filmic curve gives the most consistent colours between frames
@@ -193,7 +194,7 @@ def test_radiometry_first_colour_second_on_the_pixel7() -> None:
     from hdrcore.pipeline import Pipeline, PipelineParams
     from hdrcore.response.select import SCORE_TOLERANCE
 
-    b = load_bracket([PIXEL7 / "handheld-pixel7-lab"])
+    b = load_bracket([DATA / "handheld-pixel7-lab"])
     r = Pipeline(b, PipelineParams(registration_previews=False)).run(until="response")
     sel = r.response.selection
     assert sel is not None
