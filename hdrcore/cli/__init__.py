@@ -25,9 +25,9 @@ __all__ = ["main", "build_parser"]
 SUBCOMMANDS = ("info", "simulate", "ratios", "response", "align", "merge", "batch")
 
 
-def _modules() -> list:
+def _modules(names: Sequence[str] = SUBCOMMANDS) -> list:
     mods = []
-    for name in SUBCOMMANDS:
+    for name in names:
         full = f"{__name__}.{name}"
         if importlib.util.find_spec(full) is not None:
             mods.append(importlib.import_module(full))
@@ -42,7 +42,20 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
 
 
-def build_parser() -> argparse.ArgumentParser:
+def _named_command(argv: Sequence[str]) -> str | None:
+    """The subcommand ``argv`` names before any other word (options first allowed), or None."""
+    for word in argv:
+        if word == "--":
+            return None
+        if not word.startswith("-"):
+            return word if word in SUBCOMMANDS else None
+    return None
+
+
+def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
+    """The whole parser; given ``argv`` that names a subcommand, only that subcommand's module
+    is imported (``hdrcore merge`` does not load the simulator's or the batch runner's
+    modules: 0.5 s of a 24 MP merge's start)."""
     parser = _Parser(
         prog="hdrcore",
         description="Exposure brackets to HDR (Cerman & Hlavac 2006): ratios from histograms, "
@@ -52,7 +65,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--debug", action="store_true", help="show tracebacks and debug logs")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
-    for mod in _modules():
+    named = None if argv is None else _named_command(argv)
+    for mod in _modules(SUBCOMMANDS if named is None else (named,)):
         mod.add_parser(sub)
     return parser
 
@@ -85,7 +99,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
         retain_freed_memory()
         catch_termination()
-    parser = build_parser()
+    parser = build_parser(sys.argv[1:] if argv is None else argv)
     args = parser.parse_args(argv)
     try:
         with library_chatter(debug=args.debug):

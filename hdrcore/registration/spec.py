@@ -41,17 +41,25 @@ __all__ = [
 
 # ------------------------------------------------------------------ residual.py (residual_motion)
 def reduce(
-    img: np.ndarray, f: int, lut: np.ndarray | None, workers: int | None = None
+    img: np.ndarray,
+    f: int,
+    lut: np.ndarray | None,
+    workers: int | None = None,
+    sat: float = np.inf,
 ) -> np.ndarray:
-    """Block means of ``f x f`` (float64 sums, float32 out) of ``img`` or ``lut[img]``: the
-    spec of ``residual._reduce`` (kernels ``_reduce_float_rows``, ``_reduce_lut_rows``)."""
+    """Block means of ``f x f`` (float64 sums, float32 out) of ``img`` or ``lut[img]``, a block
+    holding a value at or above ``sat`` set to ``2 * sat``: the spec of ``residual._reduce``
+    (kernels ``_reduce_float_rows``, ``_reduce_lut_rows``)."""
     if f == 1 and lut is None:
         return np.asarray(img).astype(np.float32, copy=False)
     a = np.asarray(img)
     hh, ww = a.shape[0] // f, a.shape[1] // f
     a = a[: hh * f, : ww * f]
     a = lut[a] if lut is not None else a
-    return a.astype(np.float64).reshape(hh, f, ww, f).mean(axis=(1, 3)).astype(np.float32)
+    blocks = a.astype(np.float64).reshape(hh, f, ww, f)
+    mean = blocks.mean(axis=(1, 3))
+    clipped = (blocks >= sat).any(axis=(1, 3)) & np.isfinite(mean)
+    return np.where(clipped, 2.0 * sat, mean).astype(np.float32)
 
 
 def warp(

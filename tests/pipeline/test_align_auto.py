@@ -47,12 +47,14 @@ PIXEL7 = Path(__file__).resolve().parents[3] / "shared" / "data" / "handheld-pix
 @pytest.mark.skipif(not PIXEL7.is_dir(), reason="../shared/data not available")
 def test_auto_takes_the_homography_that_removes_a_perspective_tilt() -> None:
     """The Pixel 7's darkest pair: the similarity leaves a perspective tilt at the corners; the
-    homography removes it with the tiles' median lower, so ``auto`` keeps it although the
-    median falls by less than a fifth. Measured through the recovered curve (the default since
-    the selection weighs radiometry first): similarity 0.62 px median and a 2.2 px pattern,
-    homography 0.51 px and 0.2 px; through the filmic fallback it chose before: 0.45 / 4.0 and
-    0.41 / 0.1 px (the residual is measured on the linearised frames, so its scale follows the
-    curve's shadows on this dark pair)."""
+    homography removes it and lowers the tiles' median, so ``auto`` keeps it (by the median
+    falling by more than a fifth, or, when it falls less, by the pattern it removes). Measured
+    through the recovered curve (the default since the selection weighs radiometry first):
+    similarity 0.62 px median and a 2.2 px pattern, homography 0.47 px with no pattern since
+    the residual check saturates a whole analysis block that holds a clipped pixel (0.51 px
+    before, kept by the pattern rule); through the filmic fallback it chose before: 0.45 / 4.0
+    and 0.41 / 0.1 px (the residual is measured on the linearised frames, so its scale
+    follows the curve's shadows on this dark pair)."""
     b = load_bracket([PIXEL7])
     reg = (
         Pipeline(b, PipelineParams(local="off", registration_previews=False))
@@ -61,7 +63,6 @@ def test_auto_takes_the_homography_that_removes_a_perspective_tilt() -> None:
     )
     q = reg.pairs[0]
     assert q.model == "homography", q.message
-    assert "perspective pattern" in q.message, q.message
     assert max(q.residual.pattern.component_px().values()) < 1.0
     m = re.search(r"similarity left ([0-9.]+) px median.*homography ([0-9.]+) px", q.message)
     assert m is not None, q.message
