@@ -95,6 +95,7 @@ __all__ = [
     "PipelineParams",
     "PipelineResult",
     "run_pipeline",
+    "scale_registration",
 ]
 
 log = logging.getLogger(__name__)
@@ -468,7 +469,15 @@ class _Context:
     exposures), and the progress report. Never the parameters: those come through the stage's
     declaration."""
 
-    __slots__ = ("bracket", "no_times", "pixel_size", "_noise", "_report", "weight_maps")
+    __slots__ = (
+        "bracket",
+        "no_times",
+        "pixel_size",
+        "_noise",
+        "_report",
+        "weight_maps",
+        "fixed_registration",
+    )
 
     def __init__(
         self,
@@ -484,6 +493,7 @@ class _Context:
         self._noise = noise
         self._report = report
         self.no_times = not all(e is not None for e in _recorded_exposures(self))
+        self.fixed_registration: BracketRegistration | None = None
 
     def noise(self) -> BracketNoise:
         return self._noise()
@@ -508,6 +518,10 @@ class Pipeline:
     :meth:`release` is the precise form of the same saving, for a caller that keeps showing
     the latest result while the next one is computed: it hands back a result the caller no
     longer uses, and the next merge writes into that one's arrays.
+
+    ``registration``: a motion known already (a draft of a large bracket takes the full
+    resolution run's, through :func:`scale_registration`), used by every run that aligns in
+    place of the registration stage; it must have a pair per neighbouring frames.
     """
 
     def __init__(
@@ -519,6 +533,7 @@ class Pipeline:
         reuse_buffers: bool = False,
         pixel_size: float = 1.0,
         weight_maps: bool = True,
+        registration: BracketRegistration | None = None,
     ) -> None:
         if len(bracket) < 2:
             raise ParameterError("a bracket needs at least two frames", found=str(len(bracket)))
@@ -544,6 +559,15 @@ class Pipeline:
         # that reads neither, as ``hdrcore merge``; the report's provenance is counted)
         self.weight_maps = bool(weight_maps)
         self._ctx = _Context(bracket, self.pixel_size, self.noise, self._report, self.weight_maps)
+        # registration: a motion known already (a draft's, scaled from the full-resolution run
+        # by scale_registration) used in place of the registration stage when a run aligns
+        if registration is not None and len(registration.pairs) != len(bracket) - 1:
+            raise ParameterError(
+                "the given registration must have a pair per neighbouring frames",
+                expected=str(len(bracket) - 1),
+                found=str(len(registration.pairs)),
+            )
+        self._ctx.fixed_registration = registration
         self._cache = StageCache(
             GRAPH,
             self._ctx,
@@ -1246,6 +1270,53 @@ def _linear_level(
     return float(np.interp(_level(level), np.arange(m + 1), lut[channel]))
 
 
+def scale_registration(
+    reg: BracketRegistration, factor: float, shape: tuple[int, int], note: str = ""
+) -> BracketRegistration:
+    """``reg`` expressed on frames resampled by ``factor`` (2: twice the size; 1/4: binned 4x4)
+    of size ``shape``: each pair's motion conjugated by the change of pixel grid
+    (:func:`hdrcore.geometry.scale_matrix`), the per-frame chain to the reference rebuilt,
+    ``note`` appended to each pair's message. Residual measurements are kept as they were
+    (in the frames they were measured on)."""
+    h, w = shape
+    pairs = []
+    for q in reg.pairs:
+        # the motion on the new grid: the 2x3 matrix of an affine model (the homography
+        # follows from it), else the homography (a perspective pair has no 2x3 form)
+        affine = q.matrix is not None
+        mat = (
+            scale_matrix(_pair_motion(q), float(factor))
+            if q.usable
+            else np.eye(2, 3)
+            if affine
+            else np.eye(3)
+        )
+        dx, dy, angle = rigid_parameters(mat, (h, w))
+        preview = q.preview
+        if preview is not None:
+            preview = replace(preview, scale=preview.scale / factor)
+        pairs.append(
+            replace(
+                q,
+                matrix=mat if affine else None,
+                homography=None if affine else mat,
+                dx=dx,
+                dy=dy,
+                angle_deg=angle,
+                shape=(h, w),
+                initial_shift=(q.initial_shift[0] * factor, q.initial_shift[1] * factor),
+                preview=preview,
+                message=q.message + note,
+            )
+        )
+    matrices = [q.matrix for q in pairs]
+    if all(m is not None for m in matrices):
+        chain = to_reference([m for m in matrices if m is not None], reg.reference)
+        return replace(reg, pairs=tuple(pairs), to_reference=chain)
+    chain = to_reference([_pair_motion(q) for q in pairs], reg.reference)
+    return replace(reg, pairs=tuple(pairs), to_reference=None, to_reference_homography=chain)
+
+
 def _register(
     ctx: _Context, p: PipelineParams, lut: np.ndarray | None, ratios: tuple[float, ...]
 ) -> BracketRegistration | None:
@@ -1311,43 +1382,12 @@ def _register(
         if p.local != "off":
             reg = _refine_locally(ctx, reg, images, p, lut, extra["lut"])
         return reg
-    pairs = []
-    for q in reg.pairs:
-        # the motion at full resolution: the 2x3 matrix of an affine model (the homography
-        # follows from it), else the homography (a perspective pair has no 2x3 form)
-        affine = q.matrix is not None
-        mat = (
-            scale_matrix(_pair_motion(q), float(factor))
-            if q.usable
-            else np.eye(2, 3)
-            if affine
-            else np.eye(3)
-        )
-        dx, dy, angle = rigid_parameters(mat, (h, w))
-        preview = q.preview
-        if preview is not None:
-            preview = replace(preview, scale=preview.scale / factor)
-        pairs.append(
-            replace(
-                q,
-                matrix=mat if affine else None,
-                homography=None if affine else mat,
-                dx=dx,
-                dy=dy,
-                angle_deg=angle,
-                shape=(h, w),
-                initial_shift=(q.initial_shift[0] * factor, q.initial_shift[1] * factor),
-                preview=preview,
-                message=q.message + f" (registered on the green channel binned {factor}x{factor})",
-            )
-        )
-    matrices = [q.matrix for q in pairs]
-    if all(m is not None for m in matrices):
-        chain = to_reference([m for m in matrices if m is not None], reg.reference)
-        full = replace(reg, pairs=tuple(pairs), to_reference=chain)
-    else:
-        chain = to_reference([_pair_motion(q) for q in pairs], reg.reference)
-        full = replace(reg, pairs=tuple(pairs), to_reference=None, to_reference_homography=chain)
+    full = scale_registration(
+        reg,
+        float(factor),
+        (h, w),
+        note=f" (registered on the green channel binned {factor}x{factor})",
+    )
     return _with_residuals(ctx, full, p, lut)
 
 
@@ -1895,6 +1935,8 @@ class _RegistrationParams:
 
 
 def _stage_registration(ctx: _Context, p: Any, up: Inputs) -> BracketRegistration | None:
+    if ctx.fixed_registration is not None and p.align != "none":
+        return ctx.fixed_registration
     params: Any = _RegistrationParams(p, up.registration_levels)
     return _register(ctx, params, _lut(ctx, up.response), up.registration_ratios)
 
