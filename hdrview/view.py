@@ -33,6 +33,7 @@ import time
 import traceback
 import zipfile
 from collections.abc import Callable, Sequence
+from functools import cache
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal, Protocol, TypeVar
 
@@ -124,8 +125,11 @@ NOTES = {
 }
 
 
+@cache
 def _registry_names() -> dict[str, tuple[str, ...]]:
-    """The choices of each dropdown, from the library's registries."""
+    """The choices of each dropdown, from the library's registries (imported once: the
+    inspector imports them on a thread of its own at start, while the browser loads the page,
+    :meth:`hdrview.app.InspectorApp.warm_up`)."""
     from hdrcore.exposure import EXPOSURE_METHODS
     from hdrcore.pipeline import ALIGN_CHOICES, LOCAL_CHOICES
     from hdrcore.response import RESPONSE_METHODS, SPECIAL_RESPONSES
