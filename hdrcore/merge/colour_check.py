@@ -947,6 +947,7 @@ def _anchor_rows(
     l0, l1, l2 = 0.2126, 0.7152, 0.0722
     col = np.empty(3)
     lin = np.empty(3)
+    fl = np.empty(4)
     lt_min = 0.0
     if use_redecode:
         lt_min = log_t[0]
@@ -970,7 +971,6 @@ def _anchor_rows(
             y_old = l0 * r_ + l1 * g_ + l2 * b_
             if not (y_old > 0) or not np.isfinite(y_old):
                 continue
-            fl = np.empty(4)
             for q in range(4):
                 a0 = fields[y0, x0, q] * (1 - fx) + fields[y0, x1, q] * fx
                 a1 = fields[y1, x0, q] * (1 - fx) + fields[y1, x1, q] * fx
