@@ -783,7 +783,8 @@ class Pipeline:
             return  # another bracket's: it does not fit
         with self._lock:
             entry = self._cache.entries.get("merge")
-            if entry is not None and entry.value[0] is merged:
+            # (the cached merge, or its completed ghost test: the same arrays)
+            if entry is not None and entry.value[0].radiance is merged.radiance:
                 return
             self._spare = merged
 
@@ -809,15 +810,28 @@ class Pipeline:
     # -- the run ----------------------------------------------------------------------------
 
     def run(
-        self, params: PipelineParams | None = None, *, until: str = "preview"
+        self,
+        params: PipelineParams | None = None,
+        *,
+        until: str = "preview",
+        ghost_test: str = "now",
     ) -> PipelineResult:
         """Run (or re-use) every stage up to ``until`` and return the result.
 
         ``until="ratios"`` stops after the whole-frame exposure ratios (a fast re-fit from the
         cached histograms, for sliders); later stages are then ``None`` in the result.
+
+        ``ghost_test="later"``: a merge without deghost comes back before its region ghost test
+        (which changes no pixel): ``result.merge.ghost_test_pending``, no ghost known yet;
+        :meth:`finish_ghost_test` completes it. The inspector shows the picture first, the
+        command writes its EXR while the test runs. ``"now"`` (the default): complete.
         """
         if until not in STAGES:
             raise ParameterError(f"unknown stage {until!r}", expected=", ".join(STAGES))
+        if ghost_test not in ("now", "later"):
+            raise ParameterError(
+                f"unknown ghost_test {ghost_test!r}", expected="now, later", found=ghost_test
+            )
         # (the lock is taken before the workers are read: ``with A, B`` enters A first)
         with self._lock, set_workers((params or self.params).workers):
             p_in = params or self.params
@@ -842,16 +856,41 @@ class Pipeline:
             if all(sig.usable for sig in signals):
                 self._active_subset = None
                 try:
-                    return self._run(p, STAGES.index(until), signals, run, t_start)
+                    return self._run(p, STAGES.index(until), signals, run, t_start, ghost_test)
                 except _Unlinked as gap:
                     signals = tuple(
                         replace(sig, status="unlinked") if sig.index in gap.drop else sig
                         for sig in signals
                     )
-            return self._run_subset(p, reference, signals, until)
+            return self._run_subset(p, reference, signals, until, ghost_test)
+
+    def finish_ghost_test(self, result: PipelineResult) -> PipelineResult:
+        """``result`` (of :meth:`run` with ``ghost_test="later"``) with its merge's region ghost
+        test done and the verdicts that read it; ``result`` itself when nothing is pending."""
+        merged = result.merge
+        if merged is None or not merged.ghost_test_pending:
+            return result
+        with self._lock:
+            t = time.perf_counter()
+            done = merged.with_ghost_test()
+            timings = dict(result.timings, ghost_test=time.perf_counter() - t)
+            res = replace(result, merge=done, timings=timings)
+            res = replace(res, verdicts=tuple(diagnose(res)))
+            if self.last_result is result:
+                self.last_result = res
+            sub = self._active_subset
+            if sub is not None and sub.last_result is not None:
+                if sub.last_result.merge is merged:
+                    sub.last_result = replace(sub.last_result, merge=done)
+            return res
 
     def _run_subset(
-        self, p: PipelineParams, reference: int | None, signals: tuple[FrameSignal, ...], until: str
+        self,
+        p: PipelineParams,
+        reference: int | None,
+        signals: tuple[FrameSignal, ...],
+        until: str,
+        ghost_test: str = "now",
     ) -> PipelineResult:
         """Run without the frames that carry no signal (black, saturated): they are left out of
         every stage, the rest of the bracket is merged, and the result says which and why."""
@@ -885,7 +924,7 @@ class Pipeline:
         if reference is not None:
             # The kept frame nearest to the one asked for (the darker one on a tie).
             ref = min(range(len(keep)), key=lambda i: (abs(keep[i] - int(reference)), keep[i]))
-        res = sub.run(replace(p, reference=ref), until=until)
+        res = sub.run(replace(p, reference=ref), until=until, ghost_test=ghost_test)
         if res.unused_frames:
             # The subset left more frames out (a ratio gap without EXIF): back to our indices.
             more = {keep[u.index]: replace(u, index=keep[u.index]) for u in res.unused_frames}
@@ -923,6 +962,7 @@ class Pipeline:
         signals: tuple[FrameSignal, ...],
         run: Any,
         t_start: float,
+        ghost_test: str = "now",
     ) -> PipelineResult:
         """The stages up to ``STAGES[last]``: which to ask for, never how they are keyed (each
         stage's key comes from its declaration in :data:`GRAPH`)."""
@@ -955,6 +995,12 @@ class Pipeline:
             merge_result, radiance, colour_info = run.get("merge", reuse=reuse)
             if want("preview"):
                 preview, factor = run.get("preview")
+            if ghost_test == "now" and merge_result.ghost_test_pending:
+                # the merge stage leaves its region ghost test for last (after the preview):
+                # done here, once (a cached merge returns the same completed result)
+                t = time.perf_counter()
+                merge_result = merge_result.with_ghost_test()
+                timings["ghost_test"] = time.perf_counter() - t
         timings["total"] = time.perf_counter() - t_start
         res = PipelineResult(
             bracket=b,
@@ -1599,6 +1645,7 @@ def _merge_frames(
     registration: BracketRegistration | None,
     excluded: Any = None,
     reuse: Any = None,
+    defer_ghost_test: bool = False,
 ):
     b = ctx.bracket
     n = len(b)
@@ -1649,6 +1696,7 @@ def _merge_frames(
         reuse=reuse,
         colour=colour,  # converted inside the merge's finishing pass
         deghost=bool(p.deghost),
+        defer_ghost_test=defer_ghost_test,
         weight_maps=ctx.weight_maps or lut is not None,  # the colour check reads the shares
         progress=lambda fraction, message: ctx.report("merge", fraction, message),
     )
@@ -2011,8 +2059,17 @@ def _stage_merge_times(ctx: _Context, p: Any, up: Inputs) -> tuple[tuple[float, 
 def _stage_merge(ctx: _Context, p: Any, up: Inputs, reuse: Any = None) -> tuple:
     response, _ = up.response_used
     times, _ = up.merge_times
+    # The region ghost test (no pixel changes without deghost) is left to the run, which does
+    # it after the preview or leaves it to the caller (Pipeline.run(ghost_test="later")).
     return _merge_frames(
-        ctx, p, _lut(ctx, response), times, up.registration, up.exclusions, reuse=reuse
+        ctx,
+        p,
+        _lut(ctx, response),
+        times,
+        up.registration,
+        up.exclusions,
+        reuse=reuse,
+        defer_ghost_test=True,
     )
 
 

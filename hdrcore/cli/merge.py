@@ -14,6 +14,8 @@ import argparse
 import json
 import sys
 import time
+from concurrent.futures import ThreadPoolExecutor
+from typing import Any
 
 from ..errors import OutputError
 from ..export import common_crop, crop_preview, write_result
@@ -219,11 +221,57 @@ def run(args: argparse.Namespace) -> int:
         if not args.dng:
             # Only the DNG's CFA layout reads the mosaics after the merge has started.
             pipeline.progress = _releasing_mosaics(pipeline, progress)
-        result = pipeline.run(until="preview" if args.preview else "merge")
-    finally:
+        # The region ghost test (no pixel changes without --deghost) runs on a thread of its
+        # own while the EXR, DNG and preview are written: the write is mostly one thread.
+        result = pipeline.run(until="preview" if args.preview else "merge", ghost_test="later")
+    except BaseException:
         progress.close()
+        raise
+    finishing = None
+    if result.merge is not None and result.merge.ghost_test_pending:
+        ghost_thread = ThreadPoolExecutor(1, thread_name_prefix="hdrcore-ghost-test")
+        finishing = ghost_thread.submit(pipeline.finish_ghost_test, result)
+        ghost_thread.shutdown(wait=False)  # the one task still runs
+    try:
+        written = _write_outputs(args, result, inputs)
+    finally:
+        if finishing is not None:
+            try:
+                result = finishing.result()
+            finally:
+                progress.close()
+        else:
+            progress.close()
+    report = result.to_report()
+    report["timings"]["decode"] = decode_seconds
+    report["timings"]["write"] = written["write_seconds"]
+    if written["crop"] is not None:
+        report["crop"] = written["crop"]
+    report["outputs"] = {
+        "exr": args.output,
+        "preview": args.preview,
+        "report": args.report,
+        "dng": args.dng,
+        "dng_layout": written["layout"] if args.dng else None,
+    }
+    if args.report:
+        text = json.dumps(to_jsonable(report), indent=2)
+        atomic_write(args.report, lambda tmp: tmp.write_text(text), force=args.force, inputs=inputs)
+    for v in result.verdicts:
+        if v.severity in ("error", "warning"):
+            print(f"hdrcore: {v.severity}: {v.message}", file=sys.stderr)
+    if args.json:
+        print_json(report)
+    errors = [v for v in result.verdicts if v.severity == "error"]
+    if errors:
+        print(f"hdrcore: merge finished with errors: {errors[0].message}", file=sys.stderr)
+        return 1
+    return 0
 
-    report = result.to_report()  # (before the EXR write, which may overwrite the radiance)
+
+def _write_outputs(args: argparse.Namespace, result: Any, inputs: Any) -> dict[str, Any]:
+    """The EXR, the DNG and the preview PNG; returns the DNG's layout, the crop's report entry
+    and the seconds spent."""
     t_write = time.perf_counter()
     crop = common_crop(result) if args.crop == "common" and result.radiance is not None else None
     if crop is not None and (crop[2] <= crop[0] or crop[3] <= crop[1]):
@@ -244,6 +292,7 @@ def run(args: argparse.Namespace) -> int:
         inputs=inputs,
         overwrite_radiance=not args.dng,
     )
+    dng_layout = None
     if args.dng:
         from ._dng import write_result_dng
 
@@ -260,33 +309,17 @@ def run(args: argparse.Namespace) -> int:
         if crop is not None:
             image = crop_preview(image, crop, result.preview_factor)
         write_png(args.preview, image, force=args.force, inputs=inputs)
+    crop_entry = None
     if crop is not None:
         rows, cols = result.bracket.shape
         x0, y0, x1, y1 = crop
-        report["crop"] = {
+        crop_entry = {
             "rectangle": list(crop),
             "kept": round((x1 - x0) * (y1 - y0) / float(rows * cols), 4),
             "source": "common",
         }
-    report["timings"]["decode"] = decode_seconds
-    report["timings"]["write"] = time.perf_counter() - t_write
-    report["outputs"] = {
-        "exr": args.output,
-        "preview": args.preview,
-        "report": args.report,
-        "dng": args.dng,
-        "dng_layout": dng_layout if args.dng else None,
+    return {
+        "layout": dng_layout,
+        "crop": crop_entry,
+        "write_seconds": time.perf_counter() - t_write,
     }
-    if args.report:
-        text = json.dumps(to_jsonable(report), indent=2)
-        atomic_write(args.report, lambda tmp: tmp.write_text(text), force=args.force, inputs=inputs)
-    for v in result.verdicts:
-        if v.severity in ("error", "warning"):
-            print(f"hdrcore: {v.severity}: {v.message}", file=sys.stderr)
-    if args.json:
-        print_json(report)
-    errors = [v for v in result.verdicts if v.severity == "error"]
-    if errors:
-        print(f"hdrcore: merge finished with errors: {errors[0].message}", file=sys.stderr)
-        return 1
-    return 0

@@ -54,6 +54,7 @@ SIGGRAPH 1997, eq. 6. doi:10.1145/258734.258884
 from __future__ import annotations
 
 import logging
+import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import replace
@@ -64,7 +65,7 @@ import numpy as np
 from .._threads import worker_count
 from ..errors import ParameterError, validate_method
 from .colour import ColourConversion
-from .consistency import GhostTestParams, consistency_regions
+from .consistency import GhostRegions, GhostTestParams, consistency_regions
 from .deghost import fill_ghost_regions
 from .engine import MERGE_ENGINES, default_engine, kernel_engine, run_fused
 from .maps import DEFAULT_GHOST_THRESHOLD, DEFAULT_MODEL_ERROR
@@ -196,6 +197,7 @@ def merge(
     ghost_params: GhostTestParams | None = None,
     weight_maps: bool = True,
     progress: Callable[[float, str], None] | None = None,
+    defer_ghost_test: bool = False,
 ) -> MergeResult:
     """Merge aligned frames into one radiance map ``E = sum(w g(M) / dt) / sum(w)``.
 
@@ -294,6 +296,12 @@ def merge(
         Called as ``progress(0.5, "ghost test")`` when the kernel has written the outputs and
         the region ghost test starts (``hdrcore merge`` gives the heap's free pages back
         there: the test's block sums are its largest new allocation).
+    defer_ghost_test
+        With the region ghost test and without ``deghost``: the test (which changes no pixel of
+        the radiance) is left for later. The result's ``ghost`` is empty and its
+        ``ghost_regions`` None; :meth:`MergeResult.with_ghost_test` runs it (once) and returns
+        the complete result. A viewer shows the merge a ghost test sooner (24 MP: 1.1 s), a
+        command writes its EXR while the test runs.
 
     Raises
     ------
@@ -368,11 +376,9 @@ def merge(
     )
     t2 = time.perf_counter()
     ghost_score, ghost = out.ghost_score, out.ghost
-    ghost_regions = None
-    if ghost_test == "regions":
-        if progress is not None:
-            progress(0.5, "ghost test")
-        ghost_regions = consistency_regions(
+
+    def region_test() -> GhostRegions:
+        regions = consistency_regions(
             plan.frames,
             [float(t) for t in plan.times],
             saturation=[float(v) for v in plan.saturation],
@@ -387,7 +393,15 @@ def merge(
             params=ghost_params,
             workers=workers,
         )
-        np.copyto(ghost, ghost_regions.ghost)
+        np.copyto(ghost, regions.ghost)
+        return regions
+
+    ghost_regions = None
+    deferred = ghost_test == "regions" and bool(defer_ghost_test) and not deghost
+    if ghost_test == "regions" and not deferred:
+        if progress is not None:
+            progress(0.5, "ghost test")
+        ghost_regions = region_test()
     t_ghost = time.perf_counter()
     deghosted = None
     if deghost:
@@ -419,29 +433,36 @@ def merge(
     n_pix = h * w
     n_clipped = int(np.count_nonzero(out.clipped))
     n_under = int(np.count_nonzero(out.underexposed))
-    notes = []
-    if n_clipped:
-        notes.append(
-            f"{100.0 * n_clipped / n_pix:.2f}% of pixels clipped in every frame "
-            "(darkest frame's value, a lower bound)"
-        )
-    if n_under:
-        notes.append(
-            f"{100.0 * n_under / n_pix:.2f}% of pixels below the noise floor in every frame "
-            "in some channel (brightest frame's value)"
-        )
-    n_ghost = int(np.count_nonzero(ghost))
-    if n_ghost:
-        notes.append(f"{100.0 * n_ghost / n_pix:.2f}% of pixels disagree between frames (ghosts)")
-    if deghosted is not None and deghosted.any():
-        notes.append(
-            f"{100.0 * np.count_nonzero(deghosted) / n_pix:.2f}% of pixels filled "
-            "from one frame (deghost)"
-        )
-    status = "warning" if notes else "ok"
-    message = "; ".join(notes) if notes else f"merged {n} frames"
+
+    def summary(ghosts: np.ndarray) -> tuple[str, str]:
+        notes = []
+        if n_clipped:
+            notes.append(
+                f"{100.0 * n_clipped / n_pix:.2f}% of pixels clipped in every frame "
+                "(darkest frame's value, a lower bound)"
+            )
+        if n_under:
+            notes.append(
+                f"{100.0 * n_under / n_pix:.2f}% of pixels below the noise floor in every frame "
+                "in some channel (brightest frame's value)"
+            )
+        n_ghost = int(np.count_nonzero(ghosts))
+        if n_ghost:
+            notes.append(
+                f"{100.0 * n_ghost / n_pix:.2f}% of pixels disagree between frames (ghosts)"
+            )
+        if deghosted is not None and deghosted.any():
+            notes.append(
+                f"{100.0 * np.count_nonzero(deghosted) / n_pix:.2f}% of pixels filled "
+                "from one frame (deghost)"
+            )
+        return ("warning" if notes else "ok"), ("; ".join(notes) if notes else f"merged {n} frames")
+
+    # deferred: no ghost known yet (the kernel's per-pixel candidates are the test's input,
+    # not its answer)
+    status, message = summary(np.zeros((0,), bool) if deferred else ghost)
     logger.debug("merge: %s", message)
-    return MergeResult(
+    result = MergeResult(
         radiance=out.radiance,
         weight_sum_map=out.weight_sum,
         share_maps=out.shares,
@@ -449,7 +470,7 @@ def merge(
         clipped=out.clipped,
         underexposed=out.underexposed,
         ghost_score=ghost_score,
-        ghost=ghost,
+        ghost=np.zeros(ghost.shape, bool) if deferred else ghost,
         exposure_times=tuple(float(t) for t in plan.times),
         weighting=plan.weighting,
         units="levels" if plan.integer else "linear",
@@ -474,3 +495,32 @@ def merge(
         ghost_regions=ghost_regions,
         provenance=provenance,
     )
+    if not deferred:
+        return result
+    lock = threading.Lock()
+    done: list[MergeResult] = []
+
+    def finish() -> MergeResult:
+        with lock:
+            if not done:
+                t = time.perf_counter()
+                if progress is not None:
+                    progress(0.5, "ghost test")
+                regions = region_test()
+                status, message = summary(ghost)
+                logger.debug("merge (ghost test done): %s", message)
+                timings = dict(result.timings, ghosts=time.perf_counter() - t)
+                done.append(
+                    replace(
+                        result,
+                        ghost=ghost,
+                        ghost_regions=regions,
+                        status=status,
+                        message=message,
+                        timings=timings,
+                        pending_ghost_test=None,
+                    )
+                )
+            return done[0]
+
+    return replace(result, pending_ghost_test=finish)

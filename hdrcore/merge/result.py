@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -78,6 +79,22 @@ class MergeResult:
     ghost_test: str = "pixels"
     ghost_regions: GhostRegions | None = None
     provenance: dict[str, list[float]] | None = None
+    pending_ghost_test: Callable[[], MergeResult] | None = field(
+        default=None, repr=False, compare=False
+    )
+
+    @property
+    def ghost_test_pending(self) -> bool:
+        """The region ghost test was left for later (``merge(..., defer_ghost_test=True)``):
+        ``ghost`` is empty and ``ghost_regions`` None until :meth:`with_ghost_test`."""
+        return self.pending_ghost_test is not None
+
+    def with_ghost_test(self) -> MergeResult:
+        """This result with its region ghost test done (itself when none is pending). The test
+        runs once, whoever asks first; later calls return the same result."""
+        if self.pending_ghost_test is None:
+            return self
+        return self.pending_ghost_test()
 
     @property
     def weight_sum(self) -> np.ndarray:
