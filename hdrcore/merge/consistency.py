@@ -85,6 +85,7 @@ __all__ = [
     "PairResiduals",
     "pair_residuals",
     "consistency_regions",
+    "block_sums_bytes",
 ]
 
 
@@ -735,6 +736,20 @@ def _resolve_engine(engine: str | None, what: str) -> None:
             expected="numba installed",
             found="numba not importable",
         )
+
+
+def block_sums_bytes(
+    shape: tuple[int, ...], frames: int, params: GhostTestParams | None = None
+) -> int:
+    """Bytes of the per-block sums :func:`pair_residuals` holds for ``frames`` frames of
+    ``shape`` (``(H, W)`` or ``(H, W, C)``): its working memory beyond its inputs (3 x 24 MP
+    RGB: 77 MiB; 5 x 45 MP: 320 MiB)."""
+    p = params or GhostTestParams()
+    h, w = int(shape[0]), int(shape[1])
+    c = int(shape[2]) if len(shape) > 2 else 1
+    blocks = (h // int(p.block)) * (w // int(p.block))
+    # three float64 and two float32 fields, an int32 count
+    return blocks * max(int(frames) - 1, 0) * c * (3 * 8 + 2 * 4 + 4)
 
 
 def pair_residuals(
