@@ -13,14 +13,17 @@ With ``hdrcore.pipeline`` installed the changes go through the app exactly as a 
 (``set_control`` then wait for the worker); without it the stage functions the pipeline would call
 are timed directly (re-fit from cached histograms + drawing), and the table says so.
 
-* a large bracket's draft preview (:mod:`hdrcore.draft`) drawn before the full re-merge.
+* a large bracket's draft preview (:mod:`hdrcore.draft`) drawn before the full re-merge, and
+  which registration each step's draft used (the last full run's, scaled, or its own of the
+  binned frames).
 
 Usage: ``python bench/bench_hdrview.py [--megapixels 24] [--repeat 3]``. Numbers measured while
 other work runs on the machine are pessimistic.
 
 ``--draft sim,pixel7,xperia,frobisher,memorial`` (or ``all``) prints only the draft's table: per
 bracket a saturation change run as the inspector runs it (the draft with the previous full run's
-response and times, then the full re-run), CPU and wall seconds of both, and how far the draft's
+response, times and motion, its frames binned by the draft before it, then the full re-run),
+CPU and wall seconds of both, and how far the draft's
 preview is from the full merge's own preview made at the draft's size; ``--draft-side`` sets
 the draft's longer side (1024, the inspector's; smaller sides bin the small real brackets).
 """
@@ -228,9 +231,12 @@ def bench_pipeline(sim, repeat: int, drafts: bool = True) -> list[tuple]:
                 times, quick, reg, cpu = [], [], [], {"quick": [], "reg": [], "all": []}
                 draft, cpu["draft"] = [], []
                 kept = 0  # steps whose result holds the previous step's registration object
+                motion: list[str] = []  # which registration each step's draft used
                 for v in values:
                     before = getattr(app, "_drawn_result", None)
                     app.last_draft_seconds = app.last_draft_cpu = None
+                    if hasattr(app.session, "draft_registration"):
+                        app.session.draft_registration = ""
                     t = time.perf_counter()
                     app.set_control(control, float(v))
                     app.wait_idle(600)
@@ -242,6 +248,7 @@ def bench_pipeline(sim, repeat: int, drafts: bool = True) -> list[tuple]:
                     cpu["quick"].append(getattr(app, "last_ratios_cpu", None) or float("nan"))
                     cpu["reg"].append(getattr(app, "last_registration_cpu", None) or float("nan"))
                     cpu["all"].append(getattr(app, "last_job_cpu", None) or float("nan"))
+                    motion.append(getattr(app.session, "draft_registration", "") or "no draft")
                     shown = getattr(app, "_drawn_result", None)
                     kept += (
                         before is not None
@@ -288,6 +295,15 @@ def bench_pipeline(sim, repeat: int, drafts: bool = True) -> list[tuple]:
                 rows.append(
                     (f"{label}: steps that kept the registration: {kept} of {len(values)}",)
                 )
+                # the draft takes the last full run's motion, scaled, unless the kind of
+                # motion changed (hdrview.session.Session.draft_motion)
+                used = {m: motion.count(m) for m in dict.fromkeys(motion)}
+                rows.append(
+                    (
+                        f"{label}: the drafts' registration: "
+                        + "; ".join(f"{m} ({n} of {len(values)})" for m, n in used.items()),
+                    )
+                )
             errors = [n for n in app.notifications if n[0] == "error"]
             if errors:
                 rows.append((f"errors during the bench: {errors[-1][2][:80]}", float("nan"), "app"))
@@ -325,21 +341,32 @@ def draft_agreement(bracket, extra: dict, max_side: int) -> dict:
     The draft's preview is compared with the full merge's own preview made at the draft's size
     (the same operator on the full radiance map area-reduced: what the draft approximates) and
     with the full preview area-reduced in display values (what the page swaps)."""
-    from hdrcore.draft import run_draft
+    from hdrcore.draft import DraftCache, run_draft
     from hdrcore.pipeline import Pipeline, PipelineParams
     from hdrcore.resample import downsample_area
 
     pipe = Pipeline(bracket, PipelineParams(**extra))
     first = pipe.run()
     p = first.params.replace(saturation=first.params.saturation - 1)
-    draft, t_draft, c_draft = _timed(
-        lambda: run_draft(
+    # As hdrview.session.Session.draft_motion: the full run's motion, scaled, when it is of
+    # the whole bracket; the frames binned by an earlier draft (a slider step's draft)
+    motion = first.registration if first.full_bracket is None else None
+    cache = DraftCache()
+
+    def step(params):
+        return run_draft(
             bracket,
-            p.replace(response=first.response if first.response is not None else p.response),
+            params.replace(
+                response=first.response if first.response is not None else params.response
+            ),
             max_side=max_side,
             exposure_times=first.exposure_times,
+            registration=motion,
+            cache=cache,
         )
-    )
+
+    _, t_bin, _ = _timed(lambda: step(first.params))
+    draft, t_draft, c_draft = _timed(lambda: step(p))
     full, t_full, c_full = _timed(lambda: pipe.run(p))
     a = np.asarray(draft.preview.image)
     same_size = pipe.run(p.replace(preview_max_side=max(a.shape[:2]))).preview.image
@@ -357,6 +384,8 @@ def draft_agreement(bracket, extra: dict, max_side: int) -> dict:
         "shown": float(shown.mean()),
         "size": f"{a.shape[1]}x{a.shape[0]}",
         "ops": f"{full.preview.method}/{draft.preview.method}",
+        "first_s": t_bin,
+        "reg": "none" if draft.registration is None else "full" if motion is not None else "own",
     }
 
 
@@ -368,11 +397,14 @@ def bench_draft(names: list[str], max_side: int, sim=None) -> None:
         "re-merge after a saturation change: |difference| of 8-bit previews, max over RGB, "
         "against the full merge's preview made at the draft's size (mean, 99th percentile, "
         "share over 10 levels) and against the full preview area-reduced ('shown', mean); "
-        f"times wall / CPU s, load average {os.getloadavg()[0]:.1f}"
+        "times wall / CPU s: 'draft s' a slider step's draft (frames binned by the draft "
+        "before it, 'first s' wall, which bins them); 'reg': the draft's registration (the "
+        f"full run's, scaled, or its own); load average {os.getloadavg()[0]:.1f}"
     )
     print(
-        f"{'bracket':<22} {'draft':>10} {'full s':>7} {'cpu':>6} {'draft s':>7} {'cpu':>6} "
-        f"{'mean':>6} {'p99':>5} {'>10':>7} {'shown':>6}  tonemap full/draft"
+        f"{'bracket':<22} {'draft':>10} {'full s':>7} {'cpu':>6} {'first s':>7} {'draft s':>7} "
+        f"{'cpu':>6} {'reg':>4} {'mean':>6} {'p99':>5} {'>10':>7} {'shown':>6}  "
+        "tonemap full/draft"
     )
     rows = []
     if sim is not None:
@@ -391,8 +423,9 @@ def bench_draft(names: list[str], max_side: int, sim=None) -> None:
         r = draft_agreement(b, extra, max_side)
         print(
             f"{label:<22} {r['size']:>10} {r['full_s']:>7.2f} {r['full_cpu']:>6.2f} "
-            f"{r['draft_s']:>7.2f} {r['draft_cpu']:>6.2f} {r['mean']:>6.2f} {r['p99']:>5.0f} "
-            f"{100 * r['over10']:>6.2f}% {r['shown']:>6.2f}  {r['ops']}"
+            f"{r['first_s']:>7.2f} {r['draft_s']:>7.2f} {r['draft_cpu']:>6.2f} {r['reg']:>4} "
+            f"{r['mean']:>6.2f} {r['p99']:>5.0f} {100 * r['over10']:>6.2f}% {r['shown']:>6.2f}  "
+            f"{r['ops']}"
         )
 
 
