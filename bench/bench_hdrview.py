@@ -341,7 +341,7 @@ def draft_agreement(bracket, extra: dict, max_side: int) -> dict:
     The draft's preview is compared with the full merge's own preview made at the draft's size
     (the same operator on the full radiance map area-reduced: what the draft approximates) and
     with the full preview area-reduced in display values (what the page swaps)."""
-    from hdrcore.draft import DraftCache, run_draft
+    from hdrcore.draft import DraftCache, draft_factor, run_draft
     from hdrcore.pipeline import Pipeline, PipelineParams
     from hdrcore.resample import downsample_area
 
@@ -385,7 +385,12 @@ def draft_agreement(bracket, extra: dict, max_side: int) -> dict:
         "size": f"{a.shape[1]}x{a.shape[0]}",
         "ops": f"{full.preview.method}/{draft.preview.method}",
         "first_s": t_bin,
-        "reg": "none" if draft.registration is None else "full" if motion is not None else "own",
+        # (at factor 1 the draft registers its frames: the full-resolution registration)
+        "reg": "none"
+        if draft.registration is None
+        else "full"
+        if motion is not None and draft_factor(bracket.shape, max_side) > 1
+        else "own",
     }
 
 

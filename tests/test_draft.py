@@ -208,6 +208,16 @@ def test_factor_one_is_the_bracket_itself() -> None:
     d = draft_bracket(b, 1, saturation=255)
     for a, c in zip(b.frames, d.frames, strict=True):
         np.testing.assert_array_equal(a.levels, c.levels)
+    # nothing binned: the draft's own registration is the full-resolution one for its
+    # parameters, preferred to a given one (a step old); binned, the given one scaled
+    full = Pipeline(b).run()
+    p = full.params.replace(response=full.response)
+    kw = dict(exposure_times=full.exposure_times, registration=full.registration)
+    own = run_draft(b, p, max_side=96, **kw).registration
+    scaled = run_draft(b, p, max_side=48, **kw).registration
+    assert own is not None and scaled is not None
+    assert all("scaled to the draft" not in q.message for q in own.pairs)
+    assert all("scaled to the draft binned 2x2" in q.message for q in scaled.pairs)
 
 
 @pytest.mark.skipif(not (DATA / "frobisher-colour-hdri").is_dir(), reason="no real data")
