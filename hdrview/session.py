@@ -123,9 +123,15 @@ class Session:
         return self.default_params().replace(**controls.changes())
 
     def run(
-        self, controls: Controls, progress: ProgressCallback | None = None, until: str | None = None
+        self,
+        controls: Controls,
+        progress: ProgressCallback | None = None,
+        until: str | None = None,
+        ghost_test: str = "now",
     ) -> PipelineResult:
-        """Run (or re-run what changed in) the pipeline; return its result."""
+        """Run (or re-run what changed in) the pipeline; return its result. ``ghost_test=
+        "later"``: the merge comes back before its region ghost test
+        (:meth:`finish_ghost_test` completes it)."""
         if self.bracket is None:
             raise InputError("no bracket loaded: load one first")
         from hdrcore.pipeline import Pipeline
@@ -135,14 +141,22 @@ class Session:
             self.pipeline = Pipeline(self.bracket, params, progress=progress)
         elif progress is not None:
             self.pipeline.progress = progress
-        result = (
-            self.pipeline.run(params) if until is None else self.pipeline.run(params, until=until)
-        )
+        result = self.pipeline.run(params, until=until or "preview", ghost_test=ghost_test)
         self.params = params
         self.result = result
         if until is None:
             self.full_params = params
         return result
+
+    def finish_ghost_test(self, result: PipelineResult) -> PipelineResult:
+        """``result`` with its merge's region ghost test done (the verdicts that read it too);
+        itself when none is pending."""
+        if self.pipeline is None:
+            return result
+        done = self.pipeline.finish_ghost_test(result)
+        if self.result is result:
+            self.result = done
+        return done
 
     def draft_wanted(
         self, controls: Controls, max_side: int | None = None, min_factor: int = 2

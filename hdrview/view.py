@@ -192,6 +192,9 @@ class ClientView:
         self.draft_max_side: int | None = None  # the draft's longer side (None: hdrcore's)
         self.last_draft_seconds: float | None = None  # job start -> draft preview drawn
         self.last_draft_cpu: float | None = None
+        # job start -> the full-resolution result drawn (before its ghost test)
+        self.last_shown_seconds: float | None = None
+        self.last_shown_cpu: float | None = None
         self._t_created = time.perf_counter()
         self._lock = threading.RLock()
         self._syncing = False
@@ -775,10 +778,20 @@ class ClientView:
             self.last_registration_seconds = time.perf_counter() - t0
             self.last_registration_cpu = time.process_time() - c0
             ctx.check()
-            result = self.session.run(self.controls, progress=progress)
+            # the full-resolution picture first; the region ghost test (no pixel changes
+            # without deghost) after it is drawn
+            result = self.session.run(self.controls, progress=progress, ghost_test="later")
             self.app.first_run = False
         ctx.check()
         self._draw(result)
+        self.last_shown_seconds = time.perf_counter() - t0
+        self.last_shown_cpu = time.process_time() - c0
+        if result is not None and result.merge is not None and result.merge.ghost_test_pending:
+            ctx.progress(0.97, "ghost test: where the frames disagree")
+            done = self.session.finish_ghost_test(result)
+            ctx.check()
+            self._draw_ghost_test(done)
+            result = done
         self.last_job_seconds = time.perf_counter() - t0
         self.last_job_cpu = time.process_time() - c0
         if self.ready_seconds is None and result is not None:
@@ -843,6 +856,21 @@ class ClientView:
             self._syncing = False
 
     # -- drawing -----------------------------------------------------------------------------
+
+    def _draw_ghost_test(self, result: PipelineResult) -> None:
+        """The drawn result's ghost test done: what reads it drawn again (the status line, the
+        Result tab's layers and summary, the verdicts); the same arrays, nothing released."""
+        bracket = self.session.bracket
+        used = result.bracket
+        view = {
+            "pair": self.pair,
+            "layer": self.layer_dropdown.value,
+            "overlay": self.overlay_dropdown.value,
+        }
+        self.status.content = self.status_markdown(result)
+        self.result_panel.show(used, result, view)
+        self.diagnostics_panel.show(bracket, result, view)
+        self._drawn_result = result
 
     def _draw(self, result: PipelineResult | None, stages: tuple[str, ...] | None = None) -> None:
         bracket = self.session.bracket

@@ -196,11 +196,15 @@ class ResultPanel:
         lines = []
         if merged is not None:
             s = merged.summary()
+            ghosts = (
+                " of the pixels; the ghost test is running."
+                if getattr(merged, "ghost_test_pending", False)
+                else f", ghosts {s.get('ghost_fraction', 0):.2%} of the pixels."
+            )
             lines.append(
                 f"Merge **{merged.status}**: {merged.message}. Weighting {merged.weighting}; "
                 f"clipped {s.get('clipped_fraction', 0):.2%}, under the noise floor "
-                f"{s.get('underexposed_fraction', 0):.2%}, ghosts {s.get('ghost_fraction', 0):.2%}"
-                " of the pixels."
+                f"{s.get('underexposed_fraction', 0):.2%}{ghosts}"
                 + (
                     f" Deghosted {s['deghosted_fraction']:.2%}."
                     if s.get("deghosted_fraction") is not None

@@ -200,3 +200,27 @@ def test_main_refuses_missing_root(capsys: pytest.CaptureFixture[str]) -> None:
 
     assert main(["--root", "/nonexistent/dir"]) == 2
     assert "not a folder" in capsys.readouterr().err
+
+
+def test_the_result_is_drawn_before_its_ghost_test(app: InspectorApp, monkeypatch) -> None:
+    """The full-resolution result is drawn with its ghost test pending, then the status line,
+    the Result tab and the verdicts again once it is done."""
+    drawn: list[bool] = []
+    original = type(app.result_panel).show
+
+    def show(panel, bracket, result, view):
+        if result is not None and result.merge is not None:
+            drawn.append(result.merge.ghost_test_pending)
+        return original(panel, bracket, result, view)
+
+    monkeypatch.setattr(type(app.result_panel), "show", show)
+    assert app.request_path("bracket")
+    assert app.wait_idle(60)
+    assert True in drawn and drawn[-1] is False  # pending first, complete last
+    assert drawn.index(True) < len(drawn) - 1
+    res = app.session.result
+    assert res is not None and not res.merge.ghost_test_pending
+    assert app._drawn_result is res
+    assert app.last_shown_seconds is not None and app.last_job_seconds is not None
+    assert app.last_shown_seconds <= app.last_job_seconds
+    assert "ghost test is running" not in app.result_panel.summary.content
