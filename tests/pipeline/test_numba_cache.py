@@ -36,7 +36,8 @@ PROBE = textwrap.dedent("""
         src = np.zeros((4, 4, 3), np.uint16)
         tab = np.zeros((3, 1), np.float64)
         dst = np.zeros((2, 2, 3), np.float64)
-        draft._bin_rows(src, 2, tab, 1.0, np.zeros(3, np.int64), False, dst, 0, 2)
+        top = np.zeros((2, 2, 3), np.uint16)
+        draft._bin_rows(src, 2, tab, np.zeros(3, np.int64), False, dst, top, 0, 2)
     print(json.dumps(out))
 """)
 
