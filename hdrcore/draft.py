@@ -396,13 +396,12 @@ def draft_registration(
     the full-resolution grid, and a fraction of a binned pixel)."""
     from .pipeline import scale_registration
 
-    scaled = scale_registration(
+    return scale_registration(
         replace(registration, local=None),
         1.0 / int(factor),
         shape,
         note=f" (the full-resolution run's motion, scaled to the draft binned {factor}x{factor})",
     )
-    return scaled
 
 
 def _lut_digest(lut: np.ndarray | None) -> str | None:

@@ -179,6 +179,13 @@ class Session:
         )
         return new != self.full_params
 
+    def _last_full_run(self) -> PipelineResult | None:
+        """The pipeline's last run to the end (the preview), when there was one."""
+        last = self.pipeline.last_result if self.pipeline is not None else None
+        if last is None or self.full_params is None or last.until != "preview":
+            return None
+        return last
+
     def draft_motion(self, quick: PipelineResult) -> BracketRegistration | None:
         """The last full run's registration, for a draft with the parameters of ``quick``, when
         it is that run's motion of the whole loaded bracket and the parameters that choose the
@@ -195,14 +202,13 @@ class Session:
         against 0.19-0.29 (1.76); Pixel 7 0.008-0.28 (4.4, a pair that changed model) against
         0.70-0.88 (5.9). The last full run's motion is the better draft until the new one is
         known, and it costs nothing (registering the binned frames: 0.47 s at 24 MP)."""
-        last = self.pipeline.last_result if self.pipeline is not None else None
+        last = self._last_full_run()
         full = self.full_params
         bracket = self.bracket
         if (
             last is None
             or full is None
             or bracket is None
-            or last.until != "preview"
             or last.bracket is not bracket  # frames left out: pairs of a sub-bracket
             or last.registration is None
             or len(last.registration.pairs) != len(bracket) - 1
@@ -231,23 +237,17 @@ class Session:
         bracket = self.bracket
         assert bracket is not None  # quick is a run of the loaded bracket
         p = quick.params
-        last = self.pipeline.last_result if self.pipeline is not None else None
+        last = self._last_full_run()
         curve = quick.response
         times: tuple[float, ...] | None = quick.exposure_times
         if (
             last is not None
             and self.full_params is not None
-            and last.until == "preview"
             and self.full_params.response == p.response
             and last.response is not None
         ):
             curve = last.response
-        if (
-            last is not None
-            and self.full_params is not None
-            and last.until == "preview"
-            and len(last.exposure_times) == len(bracket)
-        ):
+        if last is not None and len(last.exposure_times) == len(bracket):
             times = last.exposure_times  # measured on the registered pixels
         if times is not None and len(times) != len(bracket):
             times = None  # a run without unusable frames: the draft measures its own

@@ -857,16 +857,20 @@ class ClientView:
 
     # -- drawing -----------------------------------------------------------------------------
 
+    def _view_choices(self) -> dict[str, Any]:
+        """What the panels show of a result: the pair, the Result layer, the overlay."""
+        return {
+            "pair": self.pair,
+            "layer": self.layer_dropdown.value,
+            "overlay": self.overlay_dropdown.value,
+        }
+
     def _draw_ghost_test(self, result: PipelineResult) -> None:
         """The drawn result's ghost test done: what reads it drawn again (the status line, the
         Result tab's layers and summary, the verdicts); the same arrays, nothing released."""
         bracket = self.session.bracket
         used = result.bracket
-        view = {
-            "pair": self.pair,
-            "layer": self.layer_dropdown.value,
-            "overlay": self.overlay_dropdown.value,
-        }
+        view = self._view_choices()
         self.status.content = self.status_markdown(result)
         self.result_panel.show(used, result, view)
         self.diagnostics_panel.show(bracket, result, view)
@@ -883,11 +887,7 @@ class ClientView:
         used = result.bracket if result is not None else bracket
         if used is not None and used is not self._pairs_bracket:
             self._sync_pairs(used)
-        view = {
-            "pair": self.pair,
-            "layer": self.layer_dropdown.value,
-            "overlay": self.overlay_dropdown.value,
-        }
+        view = self._view_choices()
         if stages is None:
             self.status.content = self.status_markdown(result)
             if not self._plotly_sent and self._plotly_due is not None:
