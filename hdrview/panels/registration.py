@@ -104,9 +104,12 @@ def draw_arrows(
     return np.asarray(im)
 
 
-def _linear_green(frame: Frame, lut: np.ndarray | None) -> np.ndarray:
-    """The frame's green channel as linear values in [0, 1] (RAW: levels / max level)."""
-    g = frame.levels[..., 1] if frame.levels.ndim == 3 else frame.levels
+def _linear_green(
+    frame: Frame, lut: np.ndarray | None, rows: slice = slice(None), cols: slice = slice(None)
+) -> np.ndarray:
+    """The frame's green channel as linear values in [0, 1] (RAW: levels / max level), of the
+    ``rows`` and ``cols`` asked for only (a crop never linearises a whole 24 MP frame)."""
+    g = frame.levels[rows, cols, 1] if frame.levels.ndim == 3 else frame.levels[rows, cols]
     if lut is None:
         return g.astype(np.float32) / float(frame.max_level)
     table = np.asarray(lut)[1 if np.asarray(lut).ndim == 2 else 0]
@@ -119,19 +122,20 @@ def local_fields(reg: BracketRegistration) -> tuple[Any, ...]:
     return tuple(local.fields) if local is not None else (None,) * (len(reg.pairs) + 1)
 
 
-def _sample_region(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """``img`` read bilinearly at ``(x, y)`` (0 outside); only the part they cover is read
-    (a linearised copy of a whole 24 MP frame is not needed for a crop)."""
+def _sample_green(frame: Frame, lut: np.ndarray | None, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """The frame's linear green read bilinearly at ``(x, y)`` (0 outside); only the part they
+    cover is linearised and read."""
     from scipy.ndimage import map_coordinates
 
-    h, w = img.shape
+    h, w = frame.levels.shape[:2]
     x0 = int(max(0, np.floor(x.min()) - 2))
     y0 = int(max(0, np.floor(y.min()) - 2))
     x1 = int(min(w, np.ceil(x.max()) + 3))
     y1 = int(min(h, np.ceil(y.max()) + 3))
     if x1 <= x0 or y1 <= y0:
         return np.zeros(x.shape, np.float32)
-    return map_coordinates(img[y0:y1, x0:x1], [y - y0, x - x0], order=1, mode="constant", cval=0.0)
+    region = _linear_green(frame, lut, slice(y0, y1), slice(x0, x1))
+    return map_coordinates(region, [y - y0, x - x0], order=1, mode="constant", cval=0.0)
 
 
 def local_summary(reg: BracketRegistration, k: int) -> str:
@@ -180,7 +184,9 @@ def overlay_crop(
         x0 = min(max(0, int(round(cx * w - cw / 2))), w - cw)
         y0 = min(max(0, int(round(cy * h - ch / 2))), h - ch)
     ys, xs = np.mgrid[y0 : y0 + ch : step, x0 : x0 + cw : step].astype(np.float64)
-    dark = _linear_green(dark_f, lut)[y0 : y0 + ch : step, x0 : x0 + cw : step] * float(pair.ratio)
+    dark = _linear_green(dark_f, lut, slice(y0, y0 + ch, step), slice(x0, x0 + cw, step)) * float(
+        pair.ratio
+    )
     fields = local_fields(reg)
     if aligned and (fields[pair.dark] is not None or fields[pair.bright] is not None):
         # local refinement: both frames read on the reference grid through their motion and
@@ -191,7 +197,7 @@ def overlay_crop(
         dx_, dy_ = map_points(
             np.linalg.inv(np.asarray(chain[pair.dark], np.float64)), fields[pair.dark], xs, ys
         )
-        dark = _sample_region(_linear_green(dark_f, lut), dx_, dy_) * float(pair.ratio)
+        dark = _sample_green(dark_f, lut, dx_, dy_) * float(pair.ratio)
         bx, by = map_points(
             np.linalg.inv(np.asarray(chain[pair.bright], np.float64)), fields[pair.bright], xs, ys
         )
@@ -202,7 +208,7 @@ def overlay_crop(
         by = (inv[1, 0] * xs + inv[1, 1] * ys + inv[1, 2]) / den
     else:
         bx, by = xs, ys
-    bright = _sample_region(_linear_green(bright_f, lut), bx, by)
+    bright = _sample_green(bright_f, lut, bx, by)
     scale = float(np.percentile(np.concatenate([bright.ravel(), dark.ravel()]), 99.0)) or 1.0
     rgb = np.stack([bright, dark, dark], axis=-1) / scale
     img = (np.clip(rgb, 0.0, 1.0) ** (1 / 2.2) * 255.0 + 0.5).astype(np.uint8)
