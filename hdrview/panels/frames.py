@@ -38,10 +38,15 @@ def _histogram_strip(levels: np.ndarray, max_level: int, width: int) -> np.ndarr
 
 
 def _seconds(t: Any) -> str:
+    """An exposure time as a camera shows it: ``1/15 s`` for a time whose inverse is a whole
+    number (within 1 %: a times file's 0.06666666667), else decimal seconds (``0.3 s``)."""
     v = float(t)
     if v <= 0:
         return f"{v:g} s"
-    return f"1/{1 / v:.0f} s" if v < 0.4 else f"{v:.3g} s"
+    inv = 1.0 / v
+    if v < 0.4 and abs(inv - round(inv)) <= 0.01 * inv:
+        return f"1/{round(inv)} s"
+    return f"{v:.3g} s"
 
 
 def contact_sheet(bracket: Bracket, columns: int = COLUMNS, width: int = THUMB_WIDTH) -> np.ndarray:
@@ -91,7 +96,7 @@ def frames_table(bracket: Bracket) -> str:
                 m.format,
                 m.bit_depth,
                 m.max_level,
-                "—" if t is None else f"{t} s",
+                "—" if t is None else _seconds(t),
                 m.exposure_time_source,
                 None if m.f_number is None else f"f/{float(m.f_number):g}",
                 m.iso,

@@ -211,3 +211,17 @@ def test_exports_cropped_to_the_common_area(viewer, stage_result, tmp_path) -> N
     assert cut.size[0] <= full.size[0] and cut.size[1] <= full.size[1]
     assert cut.size != full.size
     assert viewer.crop_checkbox.value is False  # off unless asked
+
+
+def test_exposure_times_read_as_a_camera_shows_them() -> None:
+    # a times file's decimals (the Xperia bracket's 0.06666666667) were shown as the exact
+    # fraction 6666666667/100000000000 s in the frames table
+    from fractions import Fraction
+
+    from hdrview.panels.frames import _seconds
+
+    assert _seconds(Fraction(6666666667, 100000000000)) == "1/15 s"
+    assert _seconds(Fraction(1, 803)) == "1/803 s"
+    assert _seconds(0.125) == "1/8 s"
+    assert _seconds(0.3) == "0.3 s"  # not 1/3
+    assert _seconds(8) == "8 s"
