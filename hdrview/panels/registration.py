@@ -123,19 +123,28 @@ def local_fields(reg: BracketRegistration) -> tuple[Any, ...]:
 
 
 def _sample_green(frame: Frame, lut: np.ndarray | None, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """The frame's linear green read bilinearly at ``(x, y)`` (0 outside); only the part they
-    cover is linearised and read."""
-    from scipy.ndimage import map_coordinates
-
-    h, w = frame.levels.shape[:2]
-    x0 = int(max(0, np.floor(x.min()) - 2))
-    y0 = int(max(0, np.floor(y.min()) - 2))
-    x1 = int(min(w, np.ceil(x.max()) + 3))
-    y1 = int(min(h, np.ceil(y.max()) + 3))
-    if x1 <= x0 or y1 <= y0:
-        return np.zeros(x.shape, np.float32)
-    region = _linear_green(frame, lut, slice(y0, y1), slice(x0, x1))
-    return map_coordinates(region, [y - y0, x - x0], order=1, mode="constant", cval=0.0)
+    """The frame's linear green read bilinearly at ``(x, y)`` (0 outside), as
+    ``map_coordinates(order=1, mode="constant")`` reads the linearised plane: the four
+    neighbours of each point are linearised, not the frame (a fitted overlay of a 24 MP frame
+    reads 0.7 M points)."""
+    levels = frame.levels[..., 1] if frame.levels.ndim == 3 else frame.levels
+    h, w = levels.shape
+    x = np.asarray(x, np.float64)
+    y = np.asarray(y, np.float64)
+    inside = (x >= 0) & (x <= w - 1) & (y >= 0) & (y <= h - 1)
+    x0 = np.clip(np.floor(x), 0, max(w - 2, 0)).astype(np.intp)
+    y0 = np.clip(np.floor(y), 0, max(h - 2, 0)).astype(np.intp)
+    x1 = np.minimum(x0 + 1, w - 1)
+    y1 = np.minimum(y0 + 1, h - 1)
+    fx = np.clip(x - x0, 0.0, 1.0).astype(np.float32)
+    fy = np.clip(y - y0, 0.0, 1.0).astype(np.float32)
+    if lut is None:
+        table = np.arange(frame.max_level + 1, dtype=np.float32) / float(frame.max_level)
+    else:
+        table = np.asarray(np.asarray(lut)[1 if np.asarray(lut).ndim == 2 else 0], np.float32)
+    top = table[levels[y0, x0]] * (1 - fx) + table[levels[y0, x1]] * fx
+    bottom = table[levels[y1, x0]] * (1 - fx) + table[levels[y1, x1]] * fx
+    return np.where(inside, top * (1 - fy) + bottom * fy, 0.0).astype(np.float32)
 
 
 def local_summary(reg: BracketRegistration, k: int) -> str:

@@ -225,3 +225,27 @@ def test_exposure_times_read_as_a_camera_shows_them() -> None:
     assert _seconds(0.125) == "1/8 s"
     assert _seconds(0.3) == "0.3 s"  # not 1/3
     assert _seconds(8) == "8 s"
+
+
+@pytest.mark.parametrize("with_lut", [False, True])
+def test_overlay_samples_read_the_linearised_plane_bilinearly(with_lut: bool) -> None:
+    # the registration overlay reads its points from the four neighbours' linear values,
+    # as scipy's map_coordinates reads the whole linearised plane (which it no longer makes)
+    from types import SimpleNamespace
+
+    from scipy.ndimage import map_coordinates
+
+    from hdrview.panels.registration import _linear_green, _sample_green
+
+    rng = np.random.default_rng(0)
+    lut = np.sort(rng.random((3, 256)), axis=1).astype(np.float32) if with_lut else None
+    frame = SimpleNamespace(
+        levels=rng.integers(0, 256, (50, 70, 3)).astype(np.uint8), max_level=255
+    )
+    x, y = rng.uniform(-3, 73, 5000), rng.uniform(-3, 53, 5000)
+    x[:5], y[:5] = [0, 69, 69, 0, 34.5], [0, 49, 0, 49, 49]  # corners and the last row
+    plane = _linear_green(frame, lut)  # type: ignore[arg-type]
+    want = map_coordinates(plane, [y, x], order=1, mode="constant", cval=0.0)
+    got = _sample_green(frame, lut, x, y)  # type: ignore[arg-type]
+    assert np.abs(got - want).max() < 1e-6
+    assert np.count_nonzero(got == 0) > 100  # points outside read 0
