@@ -150,7 +150,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--format", default="png", choices=sorted(FORMATS), help="file format (png)")
     p.add_argument(
-        "--cfa", default="RGGB", choices=sorted(CFA_PATTERNS), help="Bayer pattern for dng (RGGB)"
+        "--cfa",
+        default="RGGB",
+        choices=sorted(CFA_PATTERNS),
+        help="colour filter array for dng (RGGB; XTRANS: Fujifilm's 6x6 cell)",
     )
     p.add_argument(
         "--sixteen-bit",

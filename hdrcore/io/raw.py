@@ -326,6 +326,17 @@ def libraw_error(path: str | Path, exc: BaseException, said: Sequence[str] = ())
     return ImageReadError(message, path=path)
 
 
+def _is_bayer(pattern: np.ndarray, colors: str) -> bool:
+    """Whether rawpy's ``raw_pattern`` and ``color_desc`` describe a 2x2 Bayer cell."""
+    from ..demosaic import bayer_channels
+
+    try:
+        bayer_channels(pattern, colors)
+    except ParameterError:
+        return False
+    return True
+
+
 def _channel_levels(
     white: int, black: Sequence[float], colors: str
 ) -> tuple[tuple[float, float, float], tuple[int, int, int], int]:
@@ -390,6 +401,10 @@ def read_raw(
                 black = tuple(float(b) for b in raw.black_level_per_channel)
                 colors = raw.color_desc.decode("ascii", "replace")
                 pattern = np.array(raw.raw_pattern, dtype=np.int64)
+                # A 2x2 Bayer cell: our mosaic paths. Anything else (Fujifilm's 6x6 X-Trans)
+                # goes through LibRaw's own demosaic, and keeps no mosaic (every reader of
+                # Frame.cfa takes a Bayer cell).
+                bayer = _is_bayer(pattern, colors)
                 cam_wb = tuple(float(v) for v in raw.camera_whitebalance)
                 xyz = np.asarray(raw.rgb_xyz_matrix, float)[:3]
                 wb_source = "as-shot"
@@ -409,12 +424,12 @@ def read_raw(
                     height=int(sizes.height),
                     width=int(sizes.width),
                     black_level=black,
-                    pattern=pattern,
+                    pattern=pattern if bayer else None,
                 )
                 flip = int(sizes.flip)
                 other = raw.other
                 cfa = None
-                if keep_cfa:
+                if keep_cfa and bayer:
                     cfa = RawCFA(
                         data=np.array(raw.raw_image_visible, copy=True),
                         pattern=pattern,
@@ -422,8 +437,16 @@ def read_raw(
                         black_level=black,
                         white_level=white,
                     )
+                if not bayer and method != "libraw-ahd":
+                    log.info(
+                        "%s: %dx%d colour filter array (not Bayer): LibRaw's demosaic, not %s",
+                        p.name,
+                        *pattern.shape,
+                        method,
+                    )
                 ours = (
-                    method != "libraw-ahd"
+                    bayer
+                    and method != "libraw-ahd"
                     and not half_size
                     and float(sizes.pixel_aspect) in (0.0, 1.0)
                 )

@@ -89,12 +89,22 @@ __all__ = [
     "write_dng",
 ]
 
-# Colour of each site of the 2x2 repeat cell, row-major (0 red, 1 green, 2 blue: DNG CFAPattern).
-CFA_PATTERNS: dict[str, tuple[int, int, int, int]] = {
+# Colour of each site of the repeat cell, row-major (0 red, 1 green, 2 blue: DNG CFAPattern):
+# the four 2x2 Bayer cells and Fujifilm's 6x6 X-Trans cell (dcraw's ``xtrans_abs``: 20 green,
+# 8 red, 8 blue sites), which DNGs converted from RAF files carry (CFARepeatPatternDim 6x6).
+CFA_PATTERNS: dict[str, tuple[int, ...]] = {
     "RGGB": (0, 1, 1, 2),
     "BGGR": (2, 1, 1, 0),
     "GRBG": (1, 0, 2, 1),
     "GBRG": (1, 2, 0, 1),
+    "XTRANS": (
+        *(1, 1, 0, 1, 1, 2),
+        *(1, 1, 2, 1, 1, 0),
+        *(2, 0, 1, 0, 2, 1),
+        *(1, 1, 2, 1, 1, 0),
+        *(1, 1, 0, 1, 1, 2),
+        *(0, 2, 1, 2, 0, 1),
+    ),
 }
 
 # XYZ (D65) -> linear sRGB: the simulated camera's native space is linear sRGB, so ColorMatrix1
@@ -103,7 +113,7 @@ CFA_PATTERNS: dict[str, tuple[int, int, int, int]] = {
 _DEFAULT_TIME = datetime(2006, 2, 6, 12, 0, 0)
 
 
-def _pattern(name: str) -> tuple[int, int, int, int]:
+def _pattern(name: str) -> tuple[int, ...]:
     key = str(name).upper()
     if key not in CFA_PATTERNS:
         raise ParameterError(
@@ -116,13 +126,20 @@ def _pattern(name: str) -> tuple[int, int, int, int]:
 
 def cfa_channel_map(pattern: str, shape: tuple[int, int]) -> np.ndarray:
     """``(H, W)`` int array: the colour channel (0 R, 1 G, 2 B) sampled at each pixel."""
-    cell = np.array(_pattern(pattern), np.int64).reshape(2, 2)
+    cells = _pattern(pattern)
+    side = _side(cells)
+    cell = np.array(cells, np.int64).reshape(side, side)
     h, w = int(shape[0]), int(shape[1])
-    return np.tile(cell, ((h + 1) // 2, (w + 1) // 2))[:h, :w]
+    return np.tile(cell, (-(-h // side), -(-w // side)))[:h, :w]
+
+
+def _side(cells: tuple[int, ...]) -> int:
+    """Side of a square repeat cell of ``cells`` sites (2 Bayer, 6 X-Trans)."""
+    return 6 if len(cells) == 36 else 2
 
 
 def mosaic(rgb: np.ndarray, pattern: str = "RGGB") -> np.ndarray:
-    """Sample an ``(H, W, 3)`` frame through a Bayer CFA: ``(H, W)`` of the same dtype."""
+    """Sample an ``(H, W, 3)`` frame through a CFA (Bayer or X-Trans): ``(H, W)``, same dtype."""
     arr = np.asarray(rgb)
     if arr.ndim != 3 or arr.shape[2] != 3:
         raise ParameterError(
@@ -434,7 +451,7 @@ def encode_dng(
         TiffTag(284, 3, (1,)),
         TiffTag(305, 2, "hdrcore simulator"),
         TiffTag(306, 2, _exif_time(when)),
-        TiffTag(33421, 3, (2, 2)),
+        TiffTag(33421, 3, (_side(cells),) * 2),
         TiffTag(33422, 1, bytes(cells)),
         TiffTag(50706, 1, bytes((1, 4, 0, 0))),
         TiffTag(50707, 1, bytes((1, 1, 0, 0))),

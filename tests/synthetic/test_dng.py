@@ -52,15 +52,17 @@ def _letters(raw: rawpy.RawPy) -> str:
 
 
 def test_mosaic_picks_the_pattern_colour_at_each_site() -> None:
-    rgb = np.zeros((4, 6, 3))
+    rgb = np.zeros((12, 18, 3))
     rgb[..., 0], rgb[..., 1], rgb[..., 2] = 10, 20, 30
     for name, cell in CFA_PATTERNS.items():
+        side = 6 if name == "XTRANS" else 2
         m = mosaic(rgb, name)
-        expect = (np.array(cell).reshape(2, 2) + 1) * 10
-        np.testing.assert_array_equal(m[:2, :2], expect)
-        np.testing.assert_array_equal(m, np.tile(expect, (2, 3)))
+        expect = (np.array(cell).reshape(side, side) + 1) * 10
+        np.testing.assert_array_equal(m[:side, :side], expect)
+        np.testing.assert_array_equal(m, np.tile(expect, (12 // side, 18 // side)))
         np.testing.assert_array_equal(
-            cfa_channel_map(name, (4, 6)), np.tile(np.array(cell).reshape(2, 2), (2, 3))
+            cfa_channel_map(name, (12, 18)),
+            np.tile(np.array(cell).reshape(side, side), (12 // side, 18 // side)),
         )
 
 
