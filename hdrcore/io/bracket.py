@@ -678,6 +678,8 @@ def load_bracket(
     """
     files = expand_paths(paths)
     if len(files) < 2:
+        for file in files:  # a path that is missing or unreadable is what is wrong with it
+            input_file(file, "file or folder" if not os.path.lexists(file) else "file")
         where = files[0] if files else None
         raise BracketError(
             "a bracket needs at least two frames", path=where, found=f"{len(files)} frame(s)"

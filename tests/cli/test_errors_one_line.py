@@ -320,6 +320,14 @@ def test_empty_and_unreadable_frames_and_folders(tmp_path, pngs, capfd) -> None:
     one_line_error(capfd, ["info", tmp_path / "gone.png", pngs[0]], "gone.png", "not found")
 
 
+def test_a_lone_missing_path_is_not_found_not_a_one_frame_bracket(tmp_path, capfd) -> None:
+    # a mistyped folder read "a bracket needs at least two frames (found 1 frame(s))"
+    for cmd in ("merge", "ratios", "info"):
+        args = [cmd, tmp_path / "no-such-folder"] + (["-o", tmp_path / "o.exr"] * (cmd == "merge"))
+        line = one_line_error(capfd, args, "no-such-folder", "file or folder not found")
+        assert "two frames" not in line
+
+
 @pytest.mark.skipif(hasattr(os, "geteuid") and os.geteuid() == 0, reason="root reads any file")
 def test_file_we_may_not_read(tmp_path, pngs, capfd) -> None:
     pngs[1].chmod(0)
