@@ -326,6 +326,21 @@ def libraw_error(path: str | Path, exc: BaseException, said: Sequence[str] = ())
     return ImageReadError(message, path=path)
 
 
+def _linear_raw_levels(
+    image: np.ndarray, white: int, black: Sequence[float], colors: str
+) -> np.ndarray:
+    """``(H, W, 3)`` uint16 levels of a LinearRaw image (rawpy ``raw_image_visible``, three or
+    more samples a pixel): each channel's black level subtracted, held at the frame's largest
+    level (:func:`_channel_levels`), as the mosaic paths give them."""
+    black_rgb, _, max_level = _channel_levels(white, black, colors)
+    out = np.empty(image.shape[:2] + (3,), np.uint16)
+    for c in range(3):
+        plane = image[..., c].astype(np.float32) - np.float32(black_rgb[c])
+        np.clip(np.rint(plane), 0, max(max_level, 0), out=plane)
+        out[..., c] = plane
+    return out
+
+
 def _is_bayer(pattern: np.ndarray, colors: str) -> bool:
     """Whether rawpy's ``raw_pattern`` and ``color_desc`` describe a 2x2 Bayer cell."""
     from ..demosaic import bayer_channels
@@ -390,21 +405,28 @@ def read_raw(
             with rawpy.imread(str(p)) as raw:
                 sizes = raw.sizes
                 check_frame_pixels(p, int(sizes.width), int(sizes.height), max_pixels)
-                if raw.num_colors < 3 or raw.raw_type != rawpy.RawType.Flat:
+                # LinearRaw (iPhone ProRAW, Adobe's linear DNG, a merged float DNG): three
+                # linear values a pixel already, read as they are stored.
+                stack = raw.raw_type == rawpy.RawType.Stack and raw.num_colors == 3
+                if raw.num_colors < 3 or (raw.raw_type != rawpy.RawType.Flat and not stack):
                     raise ImageReadError(
                         "unsupported RAW layout",
                         path=p,
-                        expected="a Bayer CFA sensor",
+                        expected="a colour filter array (Bayer, X-Trans) or LinearRaw RGB",
                         found=f"{raw.num_colors} colours, {raw.raw_type}",
                     )
                 white = int(raw.white_level)
                 black = tuple(float(b) for b in raw.black_level_per_channel)
                 colors = raw.color_desc.decode("ascii", "replace")
-                pattern = np.array(raw.raw_pattern, dtype=np.int64)
+                pattern = (
+                    np.zeros((0, 0), np.int64)
+                    if stack
+                    else np.array(raw.raw_pattern, dtype=np.int64)
+                )
                 # A 2x2 Bayer cell: our mosaic paths. Anything else (Fujifilm's 6x6 X-Trans)
                 # goes through LibRaw's own demosaic, and keeps no mosaic (every reader of
                 # Frame.cfa takes a Bayer cell).
-                bayer = _is_bayer(pattern, colors)
+                bayer = not stack and _is_bayer(pattern, colors)
                 cam_wb = tuple(float(v) for v in raw.camera_whitebalance)
                 xyz = np.asarray(raw.rgb_xyz_matrix, float)[:3]
                 wb_source = "as-shot"
@@ -437,7 +459,7 @@ def read_raw(
                         black_level=black,
                         white_level=white,
                     )
-                if not bayer and method != "libraw-ahd":
+                if not bayer and not stack and method != "libraw-ahd":
                     log.info(
                         "%s: %dx%d colour filter array (not Bayer): LibRaw's demosaic, not %s",
                         p.name,
@@ -452,8 +474,11 @@ def read_raw(
                 )
                 # Our demosaic holds its output at the frame's largest level itself (below),
                 # but for RCD, whose passes start from the first pass's levels.
-                held = ours and method != "rcd"
-                if ours:
+                held = (ours and method != "rcd") or stack
+                if stack:
+                    rgb = _linear_raw_levels(raw.raw_image_visible, white, black, colors)
+                    rgb = apply_orientation(rgb, _FLIP_TO_ORIENTATION.get(flip, 1))
+                elif ours:
                     # The mosaic only: no LibRaw postprocess (GIL released in our kernel).
                     mosaic = raw.raw_image_visible if cfa is None else cfa.data
                     top = _channel_levels(white, black, colors)[2] if held else white - min(black)
@@ -540,7 +565,7 @@ def read_raw(
         read_noise_source=None if ob is None else "optical-black",
         optical_black_offset=None if ob is None else ob.offset,
         rgb_xyz_matrix=tuple(tuple(float(v) for v in row) for row in xyz),
-        cfa_pattern=tuple(tuple(int(v) for v in row) for row in pattern),
+        cfa_pattern=None if stack else tuple(tuple(int(v) for v in row) for row in pattern),
         cfa_colors=colors,
         decoder_messages=tuple(messages),
     )

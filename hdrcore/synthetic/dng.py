@@ -407,7 +407,9 @@ def encode_dng(
     active_area: Rect | None = None,
     masked_areas: Sequence[Rect] = (),
 ) -> bytes:
-    """Bytes of a DNG holding the raw CFA numbers ``cfa`` ``(H, W)`` (see the module docstring).
+    """Bytes of a DNG holding the raw CFA numbers ``cfa`` ``(H, W)`` (see the module docstring),
+    or, for ``(H, W, 3)``, a LinearRaw DNG of three samples a pixel (as iPhone ProRAW and Adobe's
+    linear DNGs store them; ``pattern`` unused, one black level).
 
     ``black_level`` is one value or four (per 2x2 site, row-major, written with
     BlackLevelRepeatDim 2x2). ``exposure_time`` is written as an exact rational.
@@ -416,8 +418,12 @@ def encode_dng(
     8); :func:`add_masked_margins` makes all three. Both default to none: the whole image active.
     """
     data = np.asarray(cfa)
-    if data.ndim != 2 or data.shape[0] < 2 or data.shape[1] < 2:
-        raise ParameterError("CFA data must be (H, W) with H, W >= 2", found=str(data.shape))
+    linear = data.ndim == 3 and data.shape[2] == 3  # LinearRaw: three samples a pixel
+    if (data.ndim != 2 and not linear) or data.shape[0] < 2 or data.shape[1] < 2:
+        raise ParameterError(
+            "CFA data must be (H, W) with H, W >= 2 (or (H, W, 3): LinearRaw)",
+            found=str(data.shape),
+        )
     if data.dtype.kind not in "ui":
         raise ParameterError("CFA data must be integers", found=str(data.dtype))
     cells = _pattern(pattern)
@@ -432,34 +438,43 @@ def encode_dng(
         raise ParameterError(
             "orientation must be an EXIF value", expected="1..8", found=str(orientation)
         )
-    h, w = data.shape
+    h, w = data.shape[:2]
     act, rects = _check_areas((h, w), active_area, masked_areas)
     when = capture_time or _DEFAULT_TIME
     uniform = len(set(black)) == 1
+    if linear and not uniform:
+        raise ParameterError("a LinearRaw DNG takes one black level", found=str(black))
+    spp = 3 if linear else 1
+    if linear:  # PhotometricInterpretation LinearRaw; BlackLevel one value per sample
+        layout = [TiffTag(50713, 3, (1, 1)), TiffTag(50714, 4, black[:1] * 3)]
+    else:
+        layout = [
+            TiffTag(33421, 3, (_side(cells),) * 2),
+            TiffTag(33422, 1, bytes(cells)),
+            TiffTag(50710, 1, bytes((0, 1, 2))),
+            TiffTag(50711, 3, (1,)),
+            TiffTag(50713, 3, (1, 1) if uniform else (2, 2)),
+            TiffTag(50714, 4, black[:1] if uniform else black),
+        ]
     ifd0 = [
         TiffTag(254, 4, (0,)),
         TiffTag(256, 4, (w,)),
         TiffTag(257, 4, (h,)),
-        TiffTag(258, 3, (16,)),
+        TiffTag(258, 3, (16,) * spp),
         TiffTag(259, 3, (1,)),
-        TiffTag(262, 3, (32803,)),
+        TiffTag(262, 3, (34892 if linear else 32803,)),
         TiffTag(271, 2, make),
         TiffTag(272, 2, model),
         TiffTag(274, 3, (int(orientation),)),
-        TiffTag(277, 3, (1,)),
+        TiffTag(277, 3, (spp,)),
         TiffTag(278, 4, (h,)),
         TiffTag(284, 3, (1,)),
         TiffTag(305, 2, "hdrcore simulator"),
         TiffTag(306, 2, _exif_time(when)),
-        TiffTag(33421, 3, (_side(cells),) * 2),
-        TiffTag(33422, 1, bytes(cells)),
         TiffTag(50706, 1, bytes((1, 4, 0, 0))),
         TiffTag(50707, 1, bytes((1, 1, 0, 0))),
         TiffTag(50708, 2, f"{make} {model}"),
-        TiffTag(50710, 1, bytes((0, 1, 2))),
-        TiffTag(50711, 3, (1,)),
-        TiffTag(50713, 3, (1, 1) if uniform else (2, 2)),
-        TiffTag(50714, 4, black[:1] if uniform else black),
+        *layout,
         TiffTag(50717, 4, (white,)),
         TiffTag(
             50721,
