@@ -106,6 +106,16 @@ _CAPTURE: dict[str, tuple[Severity, str]] = {
     ),
     "frame-saturated": ("warning", "A frame is almost entirely saturated and contributes little."),
     "frame-black": ("warning", "A frame is almost entirely black and contributes little."),
+    "colour-space-unknown": (
+        "warning",
+        "A frame's ICC profile names a colour space hdrcore does not convert: its colours were "
+        "taken as sRGB and may be off.",
+    ),
+    "colour-space-differs": (
+        "warning",
+        "The frames are encoded in different colour spaces: the merge took them all as the one "
+        "most of them use; export them alike.",
+    ),
 }
 
 

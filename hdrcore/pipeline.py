@@ -59,7 +59,12 @@ from .exposure.result import ExposureRatioResult
 from .geometry import nearest_in_frame, scale_matrix
 from .io import Bracket
 from .merge import DEFAULT_MODEL_ERROR, MergeResult, NoiseModel, merge
-from .merge.colour import ColourConversion, colour_conversion
+from .merge.colour import (
+    ColourConversion,
+    colour_conversion,
+    convert_space_in_place,
+    space_to_space_matrix,
+)
 from .merge.colour_check import check_colour
 from .merge.fusion import exposure_fusion
 from .noise import BracketNoise, FrameNoise, bracket_noise, frame_noise
@@ -1719,6 +1724,12 @@ def _merge_frames(
             shares=result.shares,
         )
         colour_info["check"] = checked.to_json()
+        source = colour_info.get("source_space", "sRGB")
+        if colour is None and source != "sRGB":
+            # frames in Display P3 or Adobe RGB: checked and anchored in their own primaries,
+            # then taken to the working space
+            convert_space_in_place(result.radiance, space_to_space_matrix(source, p.working_space))
+            colour_info["conversion"] += f", converted to {p.working_space} after the colour check"
     return result, result.radiance, colour_info
 
 
@@ -1739,10 +1750,28 @@ def _colour(ctx: _Context, p: PipelineParams) -> tuple[ColourConversion | None, 
             "as-shot white balance applied"
         )
         return colour_conversion(None, f0.camera_whitebalance, p.working_space), info
-    info["conversion"] = "linearised sRGB-primaries data"
+    source, where = _frames_space(b)
+    info["conversion"] = f"linearised {source}-primaries data" + (f" ({where})" if where else "")
+    info["source_space"] = source
+    m = space_to_space_matrix(source, p.working_space)
     if p.working_space.lower() != "srgb":
-        return colour_conversion(None, None, p.working_space), info
+        return ColourConversion(m, np.ones(3), m @ np.ones(3)), info
+    # the sRGB working space: the merge stays in the frames' primaries for the colour check and
+    # anchoring (they compare it with the frames) and is converted after them (_merge_frames)
     return None, info
+
+
+def _frames_space(b: Bracket) -> tuple[str, str]:
+    """The RGB space a non-linear bracket's levels are encoded in (the one most of its frames
+    name; sRGB when none does) and where it was read."""
+    named = [f.meta.colour_space for f in b.frames if f.meta.colour_space is not None]
+    if not named:
+        return "sRGB", ""
+    source = max(set(named), key=named.count)
+    where = next(
+        f.meta.colour_space_source or "" for f in b.frames if f.meta.colour_space == source
+    )
+    return source, where
 
 
 def _preview(

@@ -155,6 +155,40 @@ class Bracket:
         return tuple(w.code for w in self.warnings)
 
 
+def _colour_space_warnings(frames: Sequence[Frame]) -> list[BracketWarning]:
+    """Frames whose profile names a colour space we do not know (taken as sRGB), and frames
+    that name different spaces (the merge uses the one most of them name)."""
+    out = []
+    unknown = [
+        k
+        for k, f in enumerate(frames)
+        if not f.meta.is_linear and f.meta.colour_space is None and f.meta.colour_space_source
+    ]
+    if unknown:
+        f = frames[unknown[0]]
+        out.append(
+            BracketWarning(
+                "colour-space-unknown",
+                f"{f.name} carries an {f.meta.colour_space_source}, a colour space hdrcore does "
+                "not convert: its colours are taken as sRGB (export the frames in sRGB, Display "
+                "P3 or Adobe RGB)",
+                tuple(unknown),
+            )
+        )
+    spaces = [(f.name, f.meta.colour_space or "sRGB") for f in frames if not f.meta.is_linear]
+    if len({space for _, space in spaces}) > 1:
+        out.append(
+            BracketWarning(
+                "colour-space-differs",
+                "the frames are encoded in different colour spaces ("
+                + ", ".join(f"{name} {space}" for name, space in spaces)
+                + "): the merge takes them all as the one most of them use",
+                tuple(range(len(frames))),
+            )
+        )
+    return out
+
+
 def expand_paths(paths: Iterable[str | os.PathLike]) -> list[Path]:
     """Expand directories into their image files (sorted by name); keep files as given.
 
@@ -777,6 +811,7 @@ def load_bracket(
     # Indices in warnings refer to the sorted order.
     warns.extend(_capture_warnings(sorted_frames))
     warns.extend(_white_balance_warnings(sorted_frames))
+    warns.extend(_colour_space_warnings(sorted_frames))
     for k, f in enumerate(sorted_frames):
         if f.meta.decoder_messages:
             warns.append(

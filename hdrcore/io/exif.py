@@ -33,6 +33,10 @@ class ExifData:
     orientation: int | None = None
     #: fraction of a second of ``capture_time`` (``SubSecTimeOriginal``: "123" -> 0.123)
     capture_subsec: float | None = None
+    #: ``ColorSpace`` (1 sRGB, 65535 uncalibrated) and the DCF ``InteroperabilityIndex``
+    #: ("R98" sRGB, "R03" Adobe RGB): how a camera marks Adobe RGB without a profile
+    colour_space: int | None = None
+    interop_index: str | None = None
 
 
 def _first(tag: Any) -> Any:
@@ -126,6 +130,8 @@ def parse_exif_tags(tags: dict[str, Any]) -> ExifData:
         ),
         orientation=_int(get("Image Orientation")),
         capture_subsec=_subsec(get("EXIF SubSecTimeOriginal", "EXIF SubSecTime")),
+        colour_space=_int(get("EXIF ColorSpace")),
+        interop_index=_str(get("Interoperability InteroperabilityIndex")),
     )
 
 

@@ -40,6 +40,10 @@ class FrameMetadata:
 
     ``orientation`` is the EXIF orientation the levels were turned by (the file's own tag, or
     the bracket's when the frames' tags disagree: see :func:`hdrcore.io.load_bracket`).
+    ``colour_space`` (JPEG, PNG, TIFF): the RGB space the levels are encoded in, a name of
+    :data:`hdrcore.merge.colour.WORKING_SPACES` read from the file's ICC profile or EXIF
+    (:mod:`hdrcore.io.colour_space`), ``None`` when not stated or not known (taken as sRGB);
+    ``colour_space_source`` says where it was read (a profile we do not know: its name).
     ``decoder_messages``: what the decoder said about the file while decoding it anyway (LibRaw:
     "its image data is corrupt (from byte 1328385)"), in plain words; empty when it said nothing.
     """
@@ -73,6 +77,8 @@ class FrameMetadata:
     read_noise_source: str | None = None
     optical_black_offset: float | None = None
     decoder_messages: tuple[str, ...] = ()
+    colour_space: str | None = None
+    colour_space_source: str | None = None
 
     @property
     def exposure_time_actual(self) -> float | None:
@@ -128,6 +134,8 @@ class FrameMetadata:
             "read_noise_source": self.read_noise_source,
             "optical_black_offset": self.optical_black_offset,
             "decoder_messages": list(self.decoder_messages),
+            "colour_space": self.colour_space,
+            "colour_space_source": self.colour_space_source,
         }
 
 

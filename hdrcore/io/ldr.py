@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, cast
 import numpy as np
 
 from ..errors import ImageReadError
+from .colour_space import file_colour_space
 from .exif import ExifData, read_exif
 from .frame import Frame, FrameMetadata, apply_orientation
 from .header import allow_pillow_pixels, check_frame_pixels, image_size
@@ -126,6 +127,7 @@ def read_ldr(path: str | Path, fmt: str | None = None, *, max_pixels: int | None
         )
     check_frame_pixels(p, *image_size(p, fmt), max_pixels)
     exif: ExifData = read_exif(p)
+    space = file_colour_space(p, fmt, exif)
     orientation = exif.orientation
     if fmt == "png" and _png_bit_depth(p) == 16:
         arr = _decode_png16(p)
@@ -170,5 +172,7 @@ def read_ldr(path: str | Path, fmt: str | None = None, *, max_pixels: int | None
         black_level=(0.0, 0.0, 0.0),
         white_level=max_level,
         channel_max_levels=(max_level,) * 3,
+        colour_space=space.name,
+        colour_space_source=space.source,
     )
     return Frame(levels=levels, meta=meta)

@@ -40,6 +40,8 @@ __all__ = [
     "camera_to_working_matrix",
     "camera_to_working",
     "colour_conversion",
+    "convert_space_in_place",
+    "space_to_space_matrix",
 ]
 
 WORKING_SPACES: dict[str, str] = {
@@ -131,6 +133,35 @@ def camera_to_working_matrix(
             dtype=np.float64,
         )
     return to_space @ rgb_cam @ np.diag(wb)
+
+
+def space_to_space_matrix(source: str, target: str) -> np.ndarray:
+    """The 3x3 matrix taking linear ``source`` RGB (a :data:`WORKING_SPACES` name: the space a
+    JPEG's levels are encoded in, such as Display P3) to linear ``target`` RGB (Bradford when
+    their whites differ); exactly the identity between spaces of the same primaries."""
+    src = WORKING_SPACES[validate_method(source, WORKING_SPACES, "colour space")]
+    dst = WORKING_SPACES[validate_method(target, WORKING_SPACES, "working space")]
+    if src == dst or (src in _SRGB_PRIMARIES and dst in _SRGB_PRIMARIES):
+        return np.eye(3)
+    import colour  # lazily, as above
+
+    return np.asarray(
+        colour.matrix_RGB_to_RGB(
+            colour.RGB_COLOURSPACES[src],
+            colour.RGB_COLOURSPACES[dst],
+            chromatic_adaptation_transform="Bradford",
+        ),
+        dtype=np.float64,
+    )
+
+
+def convert_space_in_place(rgb: np.ndarray, matrix: np.ndarray, rows: int = 256) -> None:
+    """``rgb`` ``(H, W, 3)`` float32 replaced by ``matrix @ rgb`` pixel by pixel, ``rows`` rows
+    at a time (no full-size copy)."""
+    m = np.asarray(matrix, np.float64).T.astype(rgb.dtype)
+    for r0 in range(0, rgb.shape[0], rows):
+        part = rgb[r0 : r0 + rows]
+        np.matmul(part, m, out=part)
 
 
 class ColourConversion(NamedTuple):

@@ -84,6 +84,16 @@ def contact_sheet(bracket: Bracket, columns: int = COLUMNS, width: int = THUMB_W
     return sheet
 
 
+def _colour_space(m: Any) -> str:
+    """The RGB space a frame's levels are in, as the file says (RAW: the camera's own)."""
+    if m.is_linear:
+        return "camera RGB"
+    if m.colour_space is not None:
+        return str(m.colour_space)
+    src = m.colour_space_source
+    return f"sRGB (assumed; {src} not known)" if src else "sRGB (assumed)"
+
+
 def frames_table(bracket: Bracket) -> str:
     rows = []
     for k, f in enumerate(bracket.frames):
@@ -101,6 +111,7 @@ def frames_table(bracket: Bracket) -> str:
                 None if m.f_number is None else f"f/{float(m.f_number):g}",
                 m.iso,
                 m.camera,
+                _colour_space(m),
             ]
         )
     header = [
@@ -114,6 +125,7 @@ def frames_table(bracket: Bracket) -> str:
         "aperture",
         "ISO",
         "camera",
+        "colours",
     ]
     h, w = bracket.shape
     lin = "linear (RAW)" if bracket.is_linear else "non-linear (needs a response)"

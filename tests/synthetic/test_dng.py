@@ -243,7 +243,7 @@ def test_rational_conversion() -> None:
 @pytest.mark.parametrize(
     ("cfa", "kwargs", "message"),
     [
-        (np.zeros((4, 4, 3), np.uint16), {}, r"CFA data must be \(H, W\)"),
+        (np.zeros((4, 4, 4), np.uint16), {}, r"CFA data must be \(H, W\)"),
         (np.zeros((4, 4), np.float32), {}, r"CFA data must be integers"),
         (np.full((4, 4), 5000, np.uint16), {}, r"CFA values outside \[0, white level\].*5000"),
         (np.zeros((4, 4), np.uint16), {"pattern": "RGBW"}, r"unknown CFA pattern 'RGBW'"),
