@@ -264,7 +264,8 @@ def _response_and_colour(result: PipelineResult) -> list[Verdict]:
                 + ", ".join(
                     f"frame {k} red/green x{wb[k][0]:.3f}, blue/green x{wb[k][2]:.3f}" for k in odd
                 )
-                + " against the reference frame. The camera re-balanced each shot (auto white balance, or a scan balanced frame by frame); "
+                + " against the reference frame. The camera re-balanced each shot (auto white "
+                "balance, or a scan balanced frame by frame); "
                 + (
                     "the merge divides it out (those frames' regions take the reference's balance)."
                     if (check.get("white_balance") or {}).get("applied")
