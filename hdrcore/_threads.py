@@ -26,6 +26,7 @@ R = TypeVar("R")
 __all__ = [
     "cpu_count",
     "resolve_workers",
+    "ordered_map",
     "run_row_spans",
     "set_workers",
     "thread_map",
@@ -108,6 +109,38 @@ def thread_map(fn: Callable[[T], R], items: Sequence[T], workers: int | None = N
     with ThreadPoolExecutor(max_workers=n) as pool:
         futures = [pool.submit(contextvars.copy_context().run, fn, x) for x in items]
         return [f.result() for f in futures]
+
+
+def ordered_map(
+    fn: Callable[[T], R],
+    items: Sequence[T],
+    workers: int | None = None,
+    done: Callable[[int], None] | None = None,
+) -> list[R]:
+    """:func:`thread_map` that calls ``done(i)`` on the calling thread as the results come in,
+    in order (a progress bar); when ``done`` raises (a cancelled run), the calls not started
+    are dropped and the exception goes on once the running ones end."""
+    n = worker_count(workers)
+    if n == 1 or len(items) < 2:
+        out = []
+        for i, x in enumerate(items):
+            out.append(fn(x))
+            if done is not None:
+                done(i)
+        return out
+    with ThreadPoolExecutor(max_workers=min(n, len(items))) as pool:
+        futures = [pool.submit(contextvars.copy_context().run, fn, x) for x in items]
+        try:
+            out = []
+            for i, f in enumerate(futures):
+                out.append(f.result())
+                if done is not None:
+                    done(i)
+            return out
+        except BaseException:
+            for f in futures:
+                f.cancel()
+            raise
 
 
 def run_row_spans(h: int, workers: int | None, fn: Callable[[int, int], None]) -> None:

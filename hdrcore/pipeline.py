@@ -36,7 +36,7 @@ from typing import Any
 
 import numpy as np
 
-from ._threads import set_workers
+from ._threads import ordered_map, set_workers
 from .diagnose import Verdict, diagnose
 from .errors import EstimationError, ParameterError, validate_method
 from .exposure import (
@@ -1525,12 +1525,16 @@ def _upgrade_to_homography(
     homography leaves 0.33 px."""
     pairs = list(reg.pairs)
     changed = False
-    for i, q in enumerate(pairs):
-        res = q.residual
-        if q.status != "weak" or res is None or res.status != "misaligned":
-            continue
-        ctx.report("registration", 1.0, f"pair {i}: trying the homography model")
-        h = register_pair(
+    tried = [
+        i
+        for i, q in enumerate(pairs)
+        if q.status == "weak" and q.residual is not None and q.residual.status == "misaligned"
+    ]
+    if tried:
+        ctx.report("registration", 1.0, f"trying the homography model on {len(tried)} pair(s)")
+
+    def homography(i: int) -> Any:
+        return register_pair(
             images[i],
             images[i + 1],
             ratios[i],
@@ -1539,6 +1543,14 @@ def _upgrade_to_homography(
             bright_index=i + 1,
             **search,
         )
+
+    # independent pairs, side by side (as register_bracket registers them)
+    fits = dict(zip(tried, ordered_map(homography, tried), strict=True))
+    for i, q in enumerate(pairs):
+        res = q.residual
+        if i not in fits or res is None:
+            continue
+        h = fits[i]
         if not h.usable:
             continue
         h = _with_residuals(ctx, replace(reg, pairs=(h,)), p, lut).pairs[0]

@@ -39,6 +39,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
+from .._threads import ordered_map
 from ..errors import ParameterError, validate_method
 from ..geometry import (
     affine_part,
@@ -176,24 +177,28 @@ def register_bracket(
         )
     key = validate_method(method, REGISTRATION_METHODS, "registration")
     model = validate_method(model, MODELS, "motion model")
-    pairs = []
-    for i in range(n - 1):
-        pairs.append(
-            REGISTRATION_METHODS[key](
-                frames[i],
-                frames[i + 1],
-                ratios[i],
-                saturation=saturation,
-                noise_floor=noise_floor,
-                threshold=threshold,
-                model=model,
-                dark_index=i,
-                bright_index=i + 1,
-                **options,
-            )
+
+    def one(i: int) -> PairRegistration:
+        return REGISTRATION_METHODS[key](
+            frames[i],
+            frames[i + 1],
+            ratios[i],
+            saturation=saturation,
+            noise_floor=noise_floor,
+            threshold=threshold,
+            model=model,
+            dark_index=i,
+            bright_index=i + 1,
+            **options,
         )
-        if progress is not None:
-            progress(i + 1, n - 1)
+
+    # The pairs are independent: registered side by side on the default workers (much of a
+    # pair's search is single-threaded Python and numpy between compiled kernels).
+    pairs = ordered_map(
+        one,
+        list(range(n - 1)),
+        done=None if progress is None else (lambda i: progress(i + 1, n - 1)),
+    )
     if model in AFFINE_MODELS:
         chain = to_reference([_present(p.matrix) for p in pairs], ref)
         return BracketRegistration(ref, tuple(pairs), chain, model, key)

@@ -42,6 +42,7 @@ DIS optical flow.
 from __future__ import annotations
 
 import logging
+import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -51,7 +52,7 @@ from scipy import ndimage, sparse
 from scipy.sparse.linalg import spsolve
 
 from .._numba import njit as _njit
-from .._threads import run_row_spans
+from .._threads import run_row_spans, thread_map
 from ..errors import ParameterError
 from ..geometry import keys_at
 from ..status import ResidualStatus
@@ -613,16 +614,25 @@ def refine_bracket(
     details: list[LocalFrame] = []
     grid = _Grid(shape, f, t)
     est_tile = max(16, t // f)  # analysed pixels: one measured tile per cell of nodes
-    for done, (k, j) in enumerate(order):
+    counted = [0]
+    lock = threading.Lock()
+
+    def advance() -> None:
+        if progress is not None:
+            with lock:
+                counted[0] += 1
+                done = counted[0]
+            progress(done, len(order))
+
+    def step(k: int, j: int) -> None:
         t0 = time.perf_counter()
         prev = fields[j]
         if refine is not None and not refine[min(j, k)]:
             if j in moved:  # carried along with its neighbour
                 moved[k] = moved[j]
                 fields[k] = _as_source_field(mats[k], moved[j], t)
-            if progress is not None:
-                progress(done + 1, len(order))
-            continue
+            advance()
+            return
         prev_off = None if prev is None else prev.offsets
         dark_first = exposures[j] <= exposures[k]
         ratio = float(exposures[k] / exposures[j] if dark_first else exposures[j] / exposures[k])
@@ -759,8 +769,19 @@ def refine_bracket(
                 k, j, cand, keep, med0, med1, st0, st1, why, time.perf_counter() - t0, p90_0, p90_1
             )
         )
-        if progress is not None:
-            progress(done + 1, len(order))
+        advance()
+
+    # The frames above the reference and those below are two independent chains (each frame is
+    # refined against its neighbour towards the reference, through that neighbour's field):
+    # refined side by side. Every frame's computation is the one it was in a single loop.
+    level_frame(reference)  # both chains start from it
+
+    def chain(steps: list[tuple[int, int]]) -> None:
+        for k, j in steps:
+            step(k, j)
+
+    sides = [[kj for kj in order if kj[0] > reference], [kj for kj in order if kj[0] < reference]]
+    thread_map(chain, [side for side in sides if side])
     details.sort(key=lambda d: d.frame)
     return LocalRefinement(
         reference, t, level, tuple(fields), tuple(details), time.perf_counter() - t_start

@@ -94,3 +94,40 @@ def test_results_do_not_depend_on_workers_real() -> None:
 def test_bad_workers_is_a_parameter_error(handheld: Bracket) -> None:
     with pytest.raises(ParameterError, match="workers out of range"):
         Pipeline(handheld).run(PipelineParams(workers=0))
+
+
+def test_ordered_map_reports_in_order_on_the_calling_thread() -> None:
+    import threading
+    import time
+
+    from hdrcore._threads import ordered_map
+
+    caller = threading.get_ident()
+    seen: list[tuple[int, int]] = []
+    ran_on: set[int] = set()
+
+    def slow_first(x: int) -> int:
+        ran_on.add(threading.get_ident())
+        time.sleep(0.05 if x == 0 else 0.0)  # the second finishes first
+        return 10 * x
+
+    out = ordered_map(
+        slow_first, [0, 1, 2, 3], workers=2, done=lambda i: seen.append((i, threading.get_ident()))
+    )
+    assert out == [0, 10, 20, 30]
+    assert [i for i, _ in seen] == [0, 1, 2, 3] and {t for _, t in seen} == {caller}
+    assert caller not in ran_on  # the work ran on the pool's threads
+
+    started: list[int] = []
+
+    def record(x: int) -> int:
+        started.append(x)
+        time.sleep(0.02)
+        return x
+
+    def cancel(i: int) -> None:
+        raise KeyboardInterrupt  # a cancelled run: the rest is not started
+
+    with pytest.raises(KeyboardInterrupt):
+        ordered_map(record, list(range(20)), workers=2, done=cancel)
+    assert len(started) < 20
