@@ -4,6 +4,7 @@ the preview must not darken or draw a line (issue 15, the Pixel 7's preview edge
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from hdrcore.merge.fusion import exposure_fusion
 
@@ -37,3 +38,34 @@ def test_a_frame_that_does_not_reach_the_edge_leaves_no_band() -> None:
         assert np.abs(o[:edge] / t[:edge] - 1).max() < 0.015
         assert np.abs(o[edge + 15 :] / e[edge + 15 :] - 1).max() < 0.01
         assert np.all((o >= np.minimum(t, e) * 0.99) & (o <= np.maximum(t, e) * 1.01))
+
+
+@pytest.mark.parametrize("shape", [(5, 7, 3), (6, 8), (1, 1, 3), (2, 3)])
+def test_upsampling_is_repetition_smoothed_by_1_2_1(shape) -> None:
+    # _up computes what repeating every pixel and smoothing by 1-2-1 gives (its spec), without
+    # the repeated copy
+    from scipy import ndimage
+
+    from hdrcore.merge.fusion import _KERNEL, _up
+
+    a = np.random.default_rng(0).random(shape).astype(np.float32)
+    for size in [(2 * shape[0], 2 * shape[1]), (2 * shape[0] - 1, 2 * shape[1])]:
+        spec = np.repeat(np.repeat(a, 2, axis=0), 2, axis=1)[: size[0], : size[1]]
+        for axis in (0, 1):
+            spec = ndimage.correlate1d(spec, _KERNEL, axis=axis, mode="nearest")
+        got = _up(a, size)
+        assert got.shape == spec.shape and got.dtype == np.float32
+        assert np.abs(got - spec).max() < 1e-6
+
+
+def test_weights_are_mertens_contrast_saturation_exposedness() -> None:
+    from scipy import ndimage
+
+    from hdrcore.merge.fusion import WELL_EXPOSED_SIGMA, fusion_weights
+
+    img = np.random.default_rng(1).random((40, 60, 3)).astype(np.float32)
+    c = np.abs(ndimage.laplace(img.mean(axis=-1)))
+    s = img.std(axis=-1)
+    e = np.exp(-np.sum((img - 0.5) ** 2, axis=-1) / (2 * WELL_EXPOSED_SIGMA**2))
+    want = (c + 1e-6) * (s + 1e-6) * e
+    assert np.allclose(fusion_weights(img), want, rtol=1e-5, atol=1e-12)
