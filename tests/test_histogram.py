@@ -56,3 +56,44 @@ def test_bad_input() -> None:
         histogram(np.full((4, 4), -1, np.int32), 255)
     with pytest.raises(ParameterError, match="mask shape"):
         histograms(np.zeros((4, 4, 3), np.uint16), 255, np.zeros((3, 3), bool))
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
+@pytest.mark.parametrize("stride", [1, 3])
+def test_compiled_counts_equal_bincount(dtype, stride) -> None:
+    # the compiled one-pass counts (every channel at once, in place) against np.bincount of the
+    # masked, strided copy they replaced
+    rng = np.random.default_rng(7)
+    top = 255 if dtype == np.uint8 else 4095
+    frame = rng.integers(0, top + 1, (37, 53, 3)).astype(dtype)
+    frame[5:9, 10:20] = top // 2  # runs of one level, as real images have
+    mask = rng.random((37, 53)) < 0.6
+    for m in (None, mask):
+        want = np.stack(
+            [
+                np.bincount(
+                    (
+                        frame[..., c][::stride, ::stride][m[::stride, ::stride]]
+                        if m is not None
+                        else frame[..., c][::stride, ::stride].ravel()
+                    ),
+                    minlength=top + 1,
+                )
+                for c in range(3)
+            ]
+        )
+        assert np.array_equal(histograms(frame, top, m, stride=stride), want)
+        for c in range(3):
+            assert np.array_equal(histogram(frame[..., c], top, m, stride=stride), want[c])
+
+
+def test_compiled_counts_refuse_levels_above_max_only_where_counted() -> None:
+    frame = np.full((4, 5, 3), 10, np.uint16)
+    frame[1, 2, 0] = 300
+    with pytest.raises(ParameterError, match="above max_level.*300"):
+        histograms(frame, 255)
+    with pytest.raises(ParameterError, match="above max_level.*300"):
+        histogram(frame[..., 0], 255)
+    mask = np.ones((4, 5), bool)
+    mask[1, 2] = False  # the pixel is not counted: no error
+    assert histograms(frame, 255, mask)[0, 10] == 19

@@ -292,6 +292,7 @@ def btf_pairs(
     *,
     mask: np.ndarray | None = None,
     stride: int = 1,
+    hists: Sequence[np.ndarray] | None = None,
 ) -> Correspondences:
     """Level pairs of consecutive frames from their brightness transfer functions.
 
@@ -300,12 +301,17 @@ def btf_pairs(
     (:func:`hdrcore.btf.brightness_transfer_function`, Grossberg & Nayar 2002). Pairs with both
     values inside ``(lo, hi)`` are kept, weighted by the square root of the pixel count at the
     edge (the mean of the two neighbouring bins), so a histogram pair acts like that many
-    pixels.
+    pixels. ``hists``: the frames' histograms of ``channel`` with this ``mask`` and ``stride``
+    when already counted (every channel of a frame in one pass,
+    :func:`hdrcore.histogram.histograms`).
     """
     from ..btf import brightness_transfer_function
     from ..histogram import histogram
 
-    hists = [histogram(np.asarray(f)[..., channel], max_level, mask, stride=stride) for f in frames]
+    if hists is None:  # else the frames' histograms of this channel (counted as below)
+        hists = [
+            histogram(np.asarray(f)[..., channel], max_level, mask, stride=stride) for f in frames
+        ]
     dark, bright, pair, weight = [], [], [], []
     edge = np.arange(max_level + 1, dtype=np.float64) + 0.5
     for k in range(len(frames) - 1):

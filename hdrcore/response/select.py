@@ -38,6 +38,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import EstimationError, ParameterError
+from ..histogram import histograms
 from .curve import ResponseCurve
 from .degeneracy import Degeneracy, degeneracy
 from .holdout import colour_consistency, fold_masks, pair_residuals, sample_levels
@@ -258,7 +259,14 @@ def select_response(
                 )
                 for c in range(n_ch)
             ]
-        return [btf_pairs(frames, c, max_level, lo, hi, mask=m, stride=stride) for c in range(n_ch)]
+        # every channel of a frame counted in one pass (the frames are interleaved)
+        counted = [histograms(np.asarray(f), max_level, m, stride=stride) for f in frames]
+        return [
+            btf_pairs(
+                frames, c, max_level, lo, hi, mask=m, stride=stride, hists=[h[c] for h in counted]
+            )
+            for c in range(n_ch)
+        ]
 
     recovered = "joint-histogram" if source == "histograms" else "joint-pixels"
     all_pairs = make_pairs(None)
