@@ -132,7 +132,8 @@ def histogram(
         if mask is None:
             counts, top = _count_plane(a, _NO_MASK, False, s, m + 1)
         else:
-            mk = np.asarray(mask, bool)
+            # C-contiguous like _NO_MASK: one compiled signature per kind of frame
+            mk = np.ascontiguousarray(mask, bool)
             if mk.shape != a.shape:
                 raise ParameterError(
                     "mask shape differs from the frame",
@@ -173,7 +174,7 @@ def histograms(
     a = _check_levels(levels_hwc, 3, "levels")
     m = _check_max_level(max_level)
     if a.dtype in (np.uint8, np.uint16) and (mask is None or np.shape(mask) == a.shape[:2]):
-        mk2 = _NO_MASK if mask is None else np.asarray(mask, bool)
+        mk2 = _NO_MASK if mask is None else np.ascontiguousarray(mask, bool)
         counts, top = _count_channels(a, mk2, mask is not None, max(int(stride), 1), m + 1)
         if top > m:
             raise ParameterError(
