@@ -262,46 +262,21 @@ def bench_pipeline(sim, repeat: int, drafts: bool = True) -> list[tuple]:
                     )
                 quick_target = " (target < 0.3 s)" if control != "threshold" else ""
                 reg_target = " (target < 1.5 s)" if control == "threshold" else ""
-                rows.append(
-                    (
-                        f"{label}: ratios + BTF drawn{quick_target}",
-                        float(np.median(quick)),
-                        "app",
-                        float(np.median(cpu["quick"])),
+                for what, walls, key in (
+                    (f"ratios + BTF drawn{quick_target}", quick, "quick"),
+                    ("draft preview drawn (target < 2 s)", draft, "draft"),
+                    (f"re-registered + overlays drawn{reg_target}", reg, "reg"),
+                    ("full-resolution result drawn (target < 2 s)", shown_full, "shown"),
+                    ("every stage re-run and drawn (ghost test too)", times, "all"),
+                ):
+                    rows.append(
+                        (
+                            f"{label}: {what}",
+                            float(np.median(walls)),
+                            "app",
+                            float(np.median(cpu[key])),
+                        )
                     )
-                )
-                rows.append(
-                    (
-                        f"{label}: draft preview drawn (target < 2 s)",
-                        float(np.median(draft)),
-                        "app",
-                        float(np.median(cpu["draft"])),
-                    )
-                )
-                rows.append(
-                    (
-                        f"{label}: re-registered + overlays drawn{reg_target}",
-                        float(np.median(reg)),
-                        "app",
-                        float(np.median(cpu["reg"])),
-                    )
-                )
-                rows.append(
-                    (
-                        f"{label}: full-resolution result drawn (target < 2 s)",
-                        float(np.median(shown_full)),
-                        "app",
-                        float(np.median(cpu["shown"])),
-                    )
-                )
-                rows.append(
-                    (
-                        f"{label}: every stage re-run and drawn (ghost test too)",
-                        float(np.median(times)),
-                        "app",
-                        float(np.median(cpu["all"])),
-                    )
-                )
                 # the registration reads its thresholds snapped to the bracket's quantile
                 # ladder (hdrcore.registration.thresholds): which steps kept it
                 rows.append(

@@ -103,12 +103,7 @@ def worker_count(workers: int | None) -> int:
 def thread_map(fn: Callable[[T], R], items: Sequence[T], workers: int | None = None) -> list[R]:
     """``[fn(x) for x in items]`` on ``worker_count(workers)`` threads (in order); each call
     runs in a copy of the caller's context, so a nested kernel sees the same default."""
-    n = worker_count(workers)
-    if n == 1 or len(items) < 2:
-        return [fn(x) for x in items]
-    with ThreadPoolExecutor(max_workers=n) as pool:
-        futures = [pool.submit(contextvars.copy_context().run, fn, x) for x in items]
-        return [f.result() for f in futures]
+    return ordered_map(fn, items, workers)
 
 
 def ordered_map(

@@ -67,32 +67,15 @@ def _count(values: np.ndarray, max_level: int, what: str) -> np.ndarray:
 
 
 @_njit
-def _count_plane(a, mask, use_mask, stride, n):  # pragma: no cover - numba
-    """Counts of levels ``0 .. n - 1`` over every ``stride``-th pixel of the 2-D unsigned
-    ``a`` (where ``mask``, with ``use_mask``), read in place (any strides); and the highest
-    level met (``n`` or more: out of range). No branch per pixel: a pixel outside the mask or
-    the range lands in a spare bin (a random mask costs no mispredictions)."""
-    # four interleaved tables: neighbouring pixels of a real image share a level, and one
-    # table would make each increment wait for the last (3 ns a pixel on a phone frame)
-    counts = np.zeros((4, n + 1), np.int64)
-    top = 0
-    for y in range(0, a.shape[0], stride):
-        i = 0
-        for x in range(0, a.shape[1], stride):
-            v = np.int64(a[y, x])
-            keep = np.int64(mask[y, x]) if use_mask else np.int64(1)
-            top = max(top, v * keep)
-            counts[i & 3, min(v, n) if keep else n] += 1
-            i += 1
-    out = counts[0, :n] + counts[1, :n] + counts[2, :n] + counts[3, :n]
-    return out, top
-
-
-@_njit
 def _count_channels(a, mask, use_mask, stride, n):  # pragma: no cover - numba
-    """:func:`_count_plane` of every channel of the 3-D ``a`` ``(H, W, C)`` in one pass: a
-    channel's plane read alone loads the others' bytes too (the frames are interleaved), and
-    on a 2-core machine the counts are bound by that traffic."""
+    """Counts of levels ``0 .. n - 1`` of every channel of the unsigned ``a`` ``(H, W, C)``
+    over every ``stride``-th pixel (where ``mask``, with ``use_mask``), read in place (any
+    strides), in one pass: a channel's plane read alone loads the others' bytes too (the
+    frames are interleaved), and on a 2-core machine the counts are bound by that traffic. And
+    the highest level met (``n`` or more: out of range). No branch per pixel: a pixel outside
+    the mask or the range lands in a spare bin (a random mask costs no mispredictions); four
+    interleaved tables, since neighbouring pixels of a real image share a level and one table
+    would make each increment wait for the last."""
     nc = a.shape[2]
     counts = np.zeros((nc, 4, n + 1), np.int64)
     top = 0
@@ -115,6 +98,21 @@ def _count_channels(a, mask, use_mask, stride, n):  # pragma: no cover - numba
 _NO_MASK = np.zeros((1, 1), np.bool_)
 
 
+def _compiled_counts(
+    a: np.ndarray, mask: np.ndarray | None, stride: int, max_level: int
+) -> np.ndarray:
+    """``(C, max_level + 1)`` counts of the uint8/uint16 ``(H, W, C)`` ``a`` by
+    :func:`_count_channels`; ``mask`` ``(H, W)`` (made C-contiguous like the no-mask
+    placeholder: one compiled signature per kind of frame)."""
+    mk = _NO_MASK if mask is None else np.ascontiguousarray(mask, bool)
+    counts, top = _count_channels(a, mk, mask is not None, max(int(stride), 1), max_level + 1)
+    if top > max_level:
+        raise ParameterError(
+            "levels holds levels above max_level", expected=f"<= {max_level}", found=str(int(top))
+        )
+    return counts
+
+
 def histogram(
     levels_2d: np.ndarray, max_level: int, mask: np.ndarray | None = None, *, stride: int = 1
 ) -> np.ndarray:
@@ -126,36 +124,20 @@ def histogram(
     m = _check_max_level(max_level)
     a = _check_levels(levels_2d, 2, "levels")
     s = max(int(stride), 1)
+    if mask is not None and np.shape(mask) != a.shape:
+        raise ParameterError(
+            "mask shape differs from the frame",
+            expected=str(levels_2d.shape),
+            found=str(np.shape(mask)),
+        )
     if a.dtype in (np.uint8, np.uint16):
         # one pass in place: no masked or strided copy, no separate range check (the response
         # recovery counts hundreds of 9 MP planes)
-        if mask is None:
-            counts, top = _count_plane(a, _NO_MASK, False, s, m + 1)
-        else:
-            # C-contiguous like _NO_MASK: one compiled signature per kind of frame
-            mk = np.ascontiguousarray(mask, bool)
-            if mk.shape != a.shape:
-                raise ParameterError(
-                    "mask shape differs from the frame",
-                    expected=str(levels_2d.shape),
-                    found=str(mk.shape),
-                )
-            counts, top = _count_plane(a, mk, True, s, m + 1)
-        if top > m:
-            raise ParameterError(
-                "levels holds levels above max_level", expected=f"<= {m}", found=str(int(top))
-            )
-        return counts
+        return _compiled_counts(a[:, :, None], mask, s, m)[0]
     if s > 1:
         a = a[::s, ::s]
     if mask is not None:
         mk = np.asarray(mask, bool)
-        if mk.shape != np.asarray(levels_2d).shape:
-            raise ParameterError(
-                "mask shape differs from the frame",
-                expected=str(levels_2d.shape),
-                found=str(mk.shape),
-            )
         if s > 1:
             mk = mk[::s, ::s]
         values = a[mk]
@@ -172,15 +154,8 @@ def histograms(
     ``mask`` is ``(H, W)`` (the same pixels in every channel) or ``(H, W, C)``.
     """
     a = _check_levels(levels_hwc, 3, "levels")
-    m = _check_max_level(max_level)
     if a.dtype in (np.uint8, np.uint16) and (mask is None or np.shape(mask) == a.shape[:2]):
-        mk2 = _NO_MASK if mask is None else np.ascontiguousarray(mask, bool)
-        counts, top = _count_channels(a, mk2, mask is not None, max(int(stride), 1), m + 1)
-        if top > m:
-            raise ParameterError(
-                "levels holds levels above max_level", expected=f"<= {m}", found=str(int(top))
-            )
-        return counts
+        return _compiled_counts(a, mask, stride, _check_max_level(max_level))
     if mask is not None:
         mk = np.asarray(mask, bool)
         if mk.shape == a.shape[:2]:

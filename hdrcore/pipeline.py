@@ -1545,12 +1545,9 @@ def _upgrade_to_homography(
         )
 
     # independent pairs, side by side (as register_bracket registers them)
-    fits = dict(zip(tried, ordered_map(homography, tried), strict=True))
-    for i, q in enumerate(pairs):
-        res = q.residual
-        if i not in fits or res is None:
-            continue
-        h = fits[i]
+    for i, h in zip(tried, ordered_map(homography, tried), strict=True):
+        res = pairs[i].residual
+        assert res is not None  # a tried pair was measured misaligned
         if not h.usable:
             continue
         h = _with_residuals(ctx, replace(reg, pairs=(h,)), p, lut).pairs[0]
@@ -1765,9 +1762,8 @@ def _colour(ctx: _Context, p: PipelineParams) -> tuple[ColourConversion | None, 
     source, where = _frames_space(b)
     info["conversion"] = f"linearised {source}-primaries data" + (f" ({where})" if where else "")
     info["source_space"] = source
-    m = space_to_space_matrix(source, p.working_space)
     if p.working_space.lower() != "srgb":
-        return ColourConversion(m, np.ones(3), m @ np.ones(3)), info
+        return colour_conversion(None, None, p.working_space, source_space=source), info
     # the sRGB working space: the merge stays in the frames' primaries for the colour check and
     # anchoring (they compare it with the frames) and is converted after them (_merge_frames)
     return None, info

@@ -85,17 +85,20 @@ def camera_to_working_matrix(
     rgb_xyz_matrix: np.ndarray | None = None,
     camera_whitebalance: Sequence[float] | np.ndarray | None = None,
     working_space: str = "sRGB",
+    source_space: str = "sRGB",
 ) -> np.ndarray:
     """The 3x3 matrix taking (black-subtracted) camera RGB to linear ``working_space`` RGB.
 
     ``rgb_xyz_matrix`` is rawpy's XYZ -> camera matrix (3x3 or the first 3 rows of 4x3); ``None``
-    or all zeros means the data are already in linear sRGB primaries (a JPEG/PNG/TIFF linearised
-    by its response), so only the white balance and the sRGB -> working-space step apply.
+    or all zeros means the data are already in linear ``source_space`` primaries (a JPEG/PNG/TIFF
+    linearised by its response: sRGB, or the Display P3 or Adobe RGB its profile names), so only
+    the white balance and the source -> working-space step apply.
     ``camera_whitebalance`` holds rawpy's as-shot multipliers (normalised to green here).
     """
     key = validate_method(working_space, WORKING_SPACES, "working space")
     wb = _white_balance(camera_whitebalance)
     rgb_cam = np.eye(3)
+    source = source_space  # the camera's matrix, when there is one, leads to linear sRGB
     if rgb_xyz_matrix is not None:
         cam_xyz = np.asarray(rgb_xyz_matrix, dtype=np.float64)
         if cam_xyz.ndim != 2 or cam_xyz.shape[1] != 3 or cam_xyz.shape[0] not in (3, 4):
@@ -108,6 +111,7 @@ def camera_to_working_matrix(
         if not np.all(np.isfinite(cam_xyz)):
             raise ParameterError("camera matrix must be finite")
         if np.any(cam_xyz != 0):
+            source = "sRGB"
             cam_rgb = cam_xyz @ _SRGB_TO_XYZ
             sums = cam_rgb.sum(axis=1, keepdims=True)
             if np.any(np.abs(sums) < 1e-12):
@@ -119,31 +123,19 @@ def camera_to_working_matrix(
                 raise ParameterError(
                     "camera matrix is singular", found=str(cam_xyz.tolist())
                 ) from exc
-    if WORKING_SPACES[key] in _SRGB_PRIMARIES:
-        # Same primaries and white: exactly the identity (colour's rounded IEC matrices are not
-        # exact inverses of each other).
-        to_space = np.eye(3)
-    else:
-        import colour  # lazily: colour-science (with colour.plotting) takes about a second
-
-        srgb = colour.RGB_COLOURSPACES["sRGB"]
-        target = colour.RGB_COLOURSPACES[WORKING_SPACES[key]]
-        to_space = np.asarray(
-            colour.matrix_RGB_to_RGB(srgb, target, chromatic_adaptation_transform="Bradford"),
-            dtype=np.float64,
-        )
-    return to_space @ rgb_cam @ np.diag(wb)
+    return space_to_space_matrix(source, key) @ rgb_cam @ np.diag(wb)
 
 
 def space_to_space_matrix(source: str, target: str) -> np.ndarray:
     """The 3x3 matrix taking linear ``source`` RGB (a :data:`WORKING_SPACES` name: the space a
     JPEG's levels are encoded in, such as Display P3) to linear ``target`` RGB (Bradford when
-    their whites differ); exactly the identity between spaces of the same primaries."""
+    their whites differ); exactly the identity between spaces of the same primaries (colour's
+    rounded IEC matrices are not exact inverses of each other)."""
     src = WORKING_SPACES[validate_method(source, WORKING_SPACES, "colour space")]
     dst = WORKING_SPACES[validate_method(target, WORKING_SPACES, "working space")]
     if src == dst or (src in _SRGB_PRIMARIES and dst in _SRGB_PRIMARIES):
         return np.eye(3)
-    import colour  # lazily, as above
+    import colour  # lazily: colour-science (with colour.plotting) takes about a second
 
     return np.asarray(
         colour.matrix_RGB_to_RGB(
@@ -183,9 +175,12 @@ def colour_conversion(
     rgb_xyz_matrix: np.ndarray | None = None,
     camera_whitebalance: Sequence[float] | np.ndarray | None = None,
     working_space: str = "sRGB",
+    source_space: str = "sRGB",
 ) -> ColourConversion:
     """The :class:`ColourConversion` of :func:`camera_to_working_matrix`'s arguments."""
-    matrix = camera_to_working_matrix(rgb_xyz_matrix, camera_whitebalance, working_space)
+    matrix = camera_to_working_matrix(
+        rgb_xyz_matrix, camera_whitebalance, working_space, source_space
+    )
     wb = _white_balance(camera_whitebalance)
     return ColourConversion(
         np.ascontiguousarray(matrix, np.float64),

@@ -614,14 +614,15 @@ def refine_bracket(
     details: list[LocalFrame] = []
     grid = _Grid(shape, f, t)
     est_tile = max(16, t // f)  # analysed pixels: one measured tile per cell of nodes
-    counted = [0]
+    counted = 0
     lock = threading.Lock()
 
     def advance() -> None:
+        nonlocal counted
         if progress is not None:
             with lock:
-                counted[0] += 1
-                done = counted[0]
+                counted += 1
+                done = counted
             progress(done, len(order))
 
     def step(k: int, j: int) -> None:

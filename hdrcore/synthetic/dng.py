@@ -50,6 +50,7 @@ hand held camera", Computer Vision Winter Workshop, 2006.
 
 from __future__ import annotations
 
+import math
 import os
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
@@ -135,7 +136,7 @@ def cfa_channel_map(pattern: str, shape: tuple[int, int]) -> np.ndarray:
 
 def _side(cells: tuple[int, ...]) -> int:
     """Side of a square repeat cell of ``cells`` sites (2 Bayer, 6 X-Trans)."""
-    return 6 if len(cells) == 36 else 2
+    return math.isqrt(len(cells))
 
 
 def mosaic(rgb: np.ndarray, pattern: str = "RGGB") -> np.ndarray:

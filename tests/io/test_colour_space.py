@@ -115,3 +115,13 @@ def test_unknown_and_mixed_spaces_are_capture_warnings(tmp_path: Path) -> None:
     assert "colour-space-unknown" in codes and "colour-space-differs" in codes
     assert "Some printer profile" in codes["colour-space-unknown"].message
     assert codes["colour-space-unknown"].frames == (1,)
+
+
+def test_a_p3_source_reaches_another_working_space_in_one_matrix() -> None:
+    # working spaces other than sRGB convert inside the merge: from the frames' own primaries
+    from hdrcore.merge.colour import colour_conversion
+
+    conv = colour_conversion(None, None, "Rec.2020", source_space="Display P3")
+    assert np.allclose(conv.matrix, space_to_space_matrix("Display P3", "Rec.2020"))
+    assert not np.allclose(conv.matrix, colour_conversion(None, None, "Rec.2020").matrix)
+    assert np.array_equal(space_to_space_matrix("sRGB", "Rec.709"), np.eye(3))
