@@ -65,7 +65,7 @@ from .merge.colour import (
     convert_space_in_place,
     space_to_space_matrix,
 )
-from .merge.colour_check import check_colour
+from .merge.colour_check import check_colour, measure_frames
 from .merge.fusion import exposure_fusion
 from .noise import BracketNoise, FrameNoise, bracket_noise, frame_noise
 from .registration import (
@@ -1660,6 +1660,7 @@ def _merge_frames(
     excluded: Any = None,
     reuse: Any = None,
     defer_ghost_test: bool = False,
+    frame_measures: tuple[Any, Any] | None = None,
 ):
     b = ctx.bracket
     n = len(b)
@@ -1731,6 +1732,7 @@ def _merge_frames(
             white_balance=bool(p.white_balance),
             exposure_times=times,
             shares=result.shares,
+            frame_measures=frame_measures,
         )
         colour_info["check"] = checked.to_json()
         source = colour_info.get("source_space", "sRGB")
@@ -1785,11 +1787,13 @@ def _frames_space(b: Bracket) -> tuple[str, str]:
 def _preview(
     ctx: _Context,
     p: PipelineParams,
-    radiance: np.ndarray,
+    radiance: np.ndarray | None,
     fusion: bool = False,
     registration: BracketRegistration | None = None,
 ):
-    factor = downsample_factor(radiance.shape[:2], p.preview_max_side)
+    """The preview of ``radiance`` tone mapped, or (``fusion``) the frames' exposure fusion;
+    and its downsampling factor."""
+    factor = downsample_factor(ctx.bracket.shape, p.preview_max_side)
     if fusion:
         # Locally tone-mapped frames: no radiance map is right, so the preview is their
         # exposure fusion (Mertens et al. 2007), the frames' own colours and contrast.
@@ -1811,6 +1815,7 @@ def _preview(
             white=None,
             timings={"total": time.perf_counter() - t0},
         ), factor
+    assert radiance is not None
     small = downsample_area(radiance, factor) if factor > 1 else radiance
     return tonemap(
         small, p.tonemap, exposure=p.tonemap_exposure, pixel_size=factor * ctx.pixel_size
@@ -1996,13 +2001,30 @@ def _stage_registration_ratios(ctx: _Context, p: Any, up: Inputs) -> tuple[float
         return tuple(times[k + 1] / times[k] for k in range(len(times) - 1))
     # Registration tolerates the few per cent that motion leaves in the whole-frame estimate,
     # not a wild ratio: those are replaced by EXIF or the median step.
-    return tuple(float(r) for r in up.ratios.starting_ratios())
+    return tuple(snap_ratio(float(r)) for r in up.ratios.starting_ratios())
+
+
+#: The grid the registration's starting ratios are snapped to, in stops: a saturation or
+#: noise-floor step moves the whole-frame ratios by 0.01-0.1 % (real phone brackets), and the
+#: registration re-ran for each (10-12 s). Measured on the real Xperia and Pixel 7 brackets,
+#: ratios off by 0.5 % moved its transforms by at most 0.003 px at the frame corners (Xperia)
+#: and 0.008 px (Pixel 7; 0.084 px on its dim darkest frame, the least constrained pair), so a
+#: ratio is read to the nearest 1/64 stop (within 0.55 %).
+RATIO_GRID_STOPS = 1.0 / 64
+
+
+def snap_ratio(ratio: float, grid: float = RATIO_GRID_STOPS) -> float:
+    """``ratio`` rounded to the nearest multiple of ``grid`` stops (non-finite or non-positive
+    ratios as they are)."""
+    if not (math.isfinite(ratio) and ratio > 0.0):
+        return ratio
+    return float(2.0 ** (round(math.log2(ratio) / grid) * grid))
 
 
 def _stage_registration_levels(ctx: _Context, p: Any, up: Inputs) -> tuple[float, float]:
     """The saturation level and noise floor the registration reads: the requested ones
     snapped to the bracket's quantile ladder (:mod:`hdrcore.registration.thresholds`), so a
-    slider step that moves the registration's masks by fewer than 0.1 % of the samples keeps
+    slider step that moves the registration's masks by fewer than 0.5 % of the samples keeps
     the registration's key."""
     return snap_levels(up.histograms.counts[:, 1], _level(p.saturation), _level(p.noise_floor))
 
@@ -2098,22 +2120,55 @@ def _stage_merge(ctx: _Context, p: Any, up: Inputs, reuse: Any = None) -> tuple:
     times, _ = up.merge_times
     # The region ghost test (no pixel changes without deghost) is left to the run, which does
     # it after the preview or leaves it to the caller (Pipeline.run(ghost_test="later")).
+    lut = _lut(ctx, response)
     return _merge_frames(
         ctx,
         p,
-        _lut(ctx, response),
+        lut,
         times,
         up.registration,
         up.exclusions,
         reuse=reuse,
         defer_ghost_test=True,
+        frame_measures=None if lut is None else up.frame_measures,
+    )
+
+
+def _stage_frame_measures(ctx: _Context, p: Any, up: Inputs) -> tuple[Any, Any] | None:
+    """A non-linear bracket's white balance per frame and local tone mapping test: they read
+    the frames, their response and motion, never the merge or its levels, so a saturation or
+    noise-floor step takes them from the cache (0.35 s a step on the real Pixel 7 bracket)."""
+    response, _ = up.response_used
+    lut = _lut(ctx, response)
+    if lut is None:
+        return None
+    registration, excluded = up.registration, up.exclusions
+    return measure_frames(
+        [f.levels for f in ctx.bracket.frames],
+        lut,
+        max_level=ctx.bracket.max_level,
+        reference=0 if registration is None else registration.reference,
+        to_reference=None if registration is None else registration.to_reference_homography,
+        masks=None if excluded is None else [~e for e in excluded[0]],
     )
 
 
 def _stage_preview(ctx: _Context, p: Any, up: Inputs) -> tuple[TonemapResult, int]:
     _, radiance, colour_info = up.merge
     ltm = colour_info.get("check", {}).get("local_tone_mapping") or {}
-    return _preview(ctx, p, radiance, bool(ltm.get("detected")), up.registration)
+    if ltm.get("detected"):
+        # the frames' exposure fusion: read from its own stage, kept while only the merge's
+        # levels move (it reads the frames and their motion, never the merge)
+        return up.fusion
+    return _preview(ctx, p, radiance)
+
+
+def _stage_fusion(ctx: _Context, p: Any, up: Inputs) -> tuple[TonemapResult, int]:
+    """The preview of locally tone-mapped frames: their exposure fusion (Mertens et al.
+    2007) at the preview's size. A function of the frames, their motion and the preview's
+    size alone, so a saturation or noise-floor step (a new merge, the same motion) draws it
+    from the cache: 2.0-2.6 s a step on the real Pixel 7 bracket."""
+    return _preview(ctx, p, None, True, up.registration)
 
 
 _SAT_NF = ("saturation", "noise_floor")
@@ -2209,16 +2264,32 @@ GRAPH = StageGraph(
             internal=True,
         ),
         Stage(
+            "frame_measures",
+            _stage_frame_measures,
+            (),
+            ("response_used", "registration", "exclusions"),
+            internal=True,
+        ),
+        Stage(
             "merge",
             _stage_merge,
             (*_SAT_NF, "working_space", "deghost", "colour_anchor", "white_balance"),
             ("response_used", "registration", "merge_times", "exclusions"),
+            lazy=("frame_measures",),
+        ),
+        Stage(
+            "fusion",
+            _stage_fusion,
+            ("preview_max_side",),
+            ("registration",),
+            internal=True,
         ),
         Stage(
             "preview",
             _stage_preview,
             ("tonemap", "tonemap_exposure", "preview_max_side"),
-            ("merge", "registration"),
+            ("merge",),
+            lazy=("fusion",),
         ),
     ],
     param_fields=[f.name for f in dataclass_fields(PipelineParams)],

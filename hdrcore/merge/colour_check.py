@@ -68,6 +68,7 @@ __all__ = [
     "ColourResult",
     "anchor_colour",
     "check_colour",
+    "measure_frames",
     "FrameColour",
     "FramePairColour",
     "FramePairNoise",
@@ -1708,6 +1709,35 @@ class ColourResult:
         }
 
 
+def measure_frames(
+    frames: Sequence[np.ndarray],
+    lut: np.ndarray,
+    *,
+    max_level: int,
+    reference: int,
+    to_reference: Sequence[np.ndarray] | None = None,
+    masks: Sequence[np.ndarray | None] | None = None,
+) -> tuple[Any, Any]:
+    """What :func:`check_colour` measures on the frames alone: each frame's white balance
+    against the reference (:func:`hdrcore.merge.white_balance.measure_white_balance`) and the
+    local tone mapping test (:func:`hdrcore.response.local_tonemap.local_tone_mapping`)."""
+    from ..response.local_tonemap import local_tone_mapping
+    from .white_balance import measure_white_balance
+
+    balance = measure_white_balance(
+        frames,
+        lut,
+        max_level=max_level,
+        reference=reference,
+        to_reference=to_reference,
+        masks=masks,
+    )
+    ltm = local_tone_mapping(
+        frames, lut, max_level=max_level, to_reference=to_reference, reference=reference
+    )
+    return balance, ltm
+
+
 def check_colour(
     frames: Sequence[np.ndarray],
     radiance: np.ndarray,
@@ -1725,6 +1755,7 @@ def check_colour(
     reference_band: tuple[float, float, float] | None = None,
     white_balance: bool = True,
     frame_band: tuple[float, float, float] | None = FRAME_BAND,
+    frame_measures: tuple[Any, Any] | None = None,
 ) -> ColourResult:
     """Check a non-linear merge's colour, measure each frame's white balance
     (:func:`hdrcore.merge.white_balance.measure_white_balance`, with the merge's ``lut``) and
@@ -1732,18 +1763,18 @@ def check_colour(
     whose balance differs, test for local tone mapping, and (``anchor``) give the merge the
     frames' own colour (:func:`anchor_colour`, frames decoded with sRGB, as a screen shows
     them, their balance divided out alike), then check it again. ``radiance`` is modified in
-    place."""
-    from ..response.local_tonemap import local_tone_mapping
-    from .white_balance import correct_merge, measure_white_balance
+    place.
+
+    ``frame_measures``: :func:`measure_frames` of the same frames, ``lut``, ``reference``,
+    ``to_reference`` and ``masks`` when known already (they read neither the merge nor its
+    levels: a saturation step keeps them)."""
+    from .white_balance import correct_merge
 
     kw: dict[str, Any] = dict(
         max_level=max_level, reference=reference, to_reference=to_reference, masks=masks
     )
-    balance = measure_white_balance(frames, lut, **kw)
+    balance, ltm = frame_measures or measure_frames(frames, lut, **kw)
     before = colour_check(frames, radiance, lut, **kw, balance=balance)
-    ltm = local_tone_mapping(
-        frames, lut, max_level=max_level, to_reference=to_reference, reference=reference
-    )
     correction = balance.correction()
     if white_balance and balance.differs and shares is not None:
         correct_merge(radiance, shares, correction)

@@ -11,7 +11,12 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from hdrcore.errors import ParameterError
-from hdrcore.registration.thresholds import MASK_FRACTION, MAX_STEP, snap_levels
+from hdrcore.registration.thresholds import (
+    MASK_FRACTION,
+    MAX_STEP,
+    MIN_STEP_LEVELS,
+    snap_levels,
+)
 
 
 def _counts(seed: int, levels: int) -> np.ndarray:
@@ -48,8 +53,9 @@ def test_snapped_thresholds_keep_a_subset_within_the_bounds(
         n = c.sum()
         assert c[(z >= s2) & (z < s)].sum() < fraction * n
         assert c[(z > f) & (z <= f2)].sum() < fraction * n
-        assert s - s2 < max_step * (levels - 1) + 1e-9
-        assert f2 - f < max_step * (levels - 1)
+        step = max(max_step * (levels - 1), MIN_STEP_LEVELS)
+        assert s - s2 < step + 1e-9
+        assert f2 - f < step
 
 
 @pytest.mark.parametrize("levels", [16384, 65536])
@@ -69,15 +75,25 @@ def test_a_level_holding_more_than_the_fraction_is_never_stepped_over() -> None:
     for s in np.arange(3000.5, 3012.0, 0.5):  # z < s keeps level 3000: so must the snapped one
         assert snap_levels(c, s, 4.0)[0] >= 3001.0
     assert snap_levels(c, 3000.0, 4.0)[0] <= 3000.0
-    # 8-bit frames: the range is too short for a step (every level its own threshold)
-    assert snap_levels(np.full(256, 1.0), 250.0, 4.0) == (250.0, 4.0)
+    # 8-bit frames: 1/512 of the range is under a level; the ladder's runs still span up to
+    # MIN_STEP_LEVELS levels, each holding under the fraction of the samples
+    flat = np.full(256, 1.0)
+    flat[:64] = 1000.0  # most samples dark: a bright level holds 0.002 % of them
+    out = [snap_levels(flat, s, 4.0) for s in np.arange(240.0, 252.0, 1.0)]
+    assert len(set(out)) < len(out) / 2
+    for s, (s2, f2) in zip(np.arange(240.0, 252.0, 1.0), out, strict=True):
+        assert s - MIN_STEP_LEVELS < s2 <= s and f2 == 4.0
+    # a level holding more than the fraction is its own run at 8 bits too
+    heavy = flat.copy()
+    heavy[245] = 1e3
+    assert snap_levels(heavy, 246.0, 4.0)[0] == 246.0
 
 
 def test_no_fraction_or_no_step_returns_the_request() -> None:
     c = _counts(1, 4096)
     assert snap_levels(c, 4000.3, 20.7, fraction=0.0) == (4000.3, 20.7)
     assert snap_levels(c, 4000.3, 20.7, max_step=0.0) == (4000.3, 20.7)
-    assert MASK_FRACTION == 1e-3 and MAX_STEP == 1 / 512
+    assert MASK_FRACTION == 5e-3 and MAX_STEP == 1 / 512 and MIN_STEP_LEVELS == 3
 
 
 def test_bad_input_is_refused() -> None:
