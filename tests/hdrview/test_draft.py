@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -10,7 +11,7 @@ import pytest
 import viser
 
 from hdrview.app import InspectorApp
-from hdrview.session import Controls, Session
+from hdrview.session import FUSION, Controls, Session
 from hdrview.view import ClientView
 
 from ._brackets import write_png_bracket
@@ -80,6 +81,26 @@ def test_draft_wanted(tmp_path: Path) -> None:
     assert not s.draft_wanted(Controls(tonemap_exposure=1.0, tonemap="reinhard"), max_side=64)
     assert s.draft_wanted(Controls(saturation=240.0), max_side=64)
     assert s.draft_wanted(Controls(threshold=0.2), max_side=64)
+
+
+def test_no_draft_of_an_exposure_fusion_for_a_step_it_does_not_read(tmp_path: Path) -> None:
+    """Locally tone-mapped frames are previewed by their exposure fusion, which reads the
+    frames and their motion only: a saturation or noise-floor step leaves the picture as it is
+    and draws no draft of it; a change of the registration's threshold or model does."""
+    s = Session()
+    s.load(write_png_bracket(tmp_path / "b", shape=(96, 144)))
+    s.run(Controls())
+    assert s.pipeline is not None and s.pipeline.last_result is not None
+    last = s.pipeline.last_result
+    assert last.preview is not None and last.preview.method != FUSION
+    assert s.draft_wanted(Controls(saturation=240.0), max_side=64)
+    s.pipeline.last_result = dataclasses.replace(
+        last, preview=dataclasses.replace(last.preview, method=FUSION)
+    )
+    assert not s.draft_wanted(Controls(saturation=240.0), max_side=64)
+    assert not s.draft_wanted(Controls(noise_floor=9.0, deghost=True), max_side=64)
+    assert s.draft_wanted(Controls(threshold=0.2), max_side=64)
+    assert s.draft_wanted(Controls(saturation=240.0, align="translation"), max_side=64)
 
 
 def test_a_failed_draft_does_not_stop_the_full_run(large: ClientView, monkeypatch) -> None:
