@@ -1660,7 +1660,7 @@ def _merge_frames(
     excluded: Any = None,
     reuse: Any = None,
     defer_ghost_test: bool = False,
-    frame_measures: tuple[Any, Any] | None = None,
+    frame_measures: tuple[Any, Any, dict[str, Any]] | None = None,
 ):
     b = ctx.bracket
     n = len(b)
@@ -2134,10 +2134,13 @@ def _stage_merge(ctx: _Context, p: Any, up: Inputs, reuse: Any = None) -> tuple:
     )
 
 
-def _stage_frame_measures(ctx: _Context, p: Any, up: Inputs) -> tuple[Any, Any] | None:
-    """A non-linear bracket's white balance per frame and local tone mapping test: they read
-    the frames, their response and motion, never the merge or its levels, so a saturation or
-    noise-floor step takes them from the cache (0.35 s a step on the real Pixel 7 bracket)."""
+def _stage_frame_measures(
+    ctx: _Context, p: Any, up: Inputs
+) -> tuple[Any, Any, dict[str, Any]] | None:
+    """A non-linear bracket's white balance per frame and local tone mapping test, and what
+    the colour checks measure on the frames alone: they read the frames, their response and
+    motion, never the merge or its levels, so a saturation or noise-floor step takes them from
+    the cache (0.35 s a step on the real Pixel 7 bracket, and the checks' frame side)."""
     response, _ = up.response_used
     lut = _lut(ctx, response)
     if lut is None:

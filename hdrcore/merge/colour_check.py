@@ -320,6 +320,7 @@ def frame_colours(
     gains: np.ndarray | None = None,
     max_samples: int = 150_000,
     well_exposed: tuple[float, float] = WELL_EXPOSED,
+    shared: dict[str, Any] | None = None,
 ) -> tuple[FrameColour, ...]:
     """Every frame's colour in the merge: per frame ``k`` the median chromaticity distance of
     ``radiance`` to frame ``k`` decoded with sRGB, over the pixels well exposed in ``k`` and
@@ -327,7 +328,7 @@ def frame_colours(
     The issue's colour target, honestly: the regions another frame exposes best must have that
     frame's colour, not only the reference's. ``gains`` ``(N, 3)``: each frame's white balance
     against the reference (:func:`hdrcore.merge.white_balance.measure_white_balance`), for the
-    ``*_balanced`` errors."""
+    ``*_balanced`` errors. ``shared``: as :func:`colour_check`'s (the same ``gains`` too)."""
     from ..geometry import nearest_in_frame
 
     n = len(frames)
@@ -347,34 +348,42 @@ def frame_colours(
     if g.shape != (n, 3):
         raise ParameterError("gains must be (N, 3)", expected=str((n, 3)), found=str(g.shape))
     g = np.where(np.isfinite(g) & (g > 0), g, 1.0)
-    step = max(1, int(np.ceil(np.sqrt(h * w / max_samples))))
-    ys, xs = (a.ravel() for a in np.mgrid[0:h:step, 0:w:step])
-    lo_l, hi_l = well_exposed[0] * max_level, well_exposed[1] * max_level
-    srgb = srgb_decode_lut(max_level)
+    part = None if shared is None else shared.get("colours")
+    if part is None:
+        step = max(1, int(np.ceil(np.sqrt(h * w / max_samples))))
+        ys, xs = (a.ravel() for a in np.mgrid[0:h:step, 0:w:step])
+        lo_l, hi_l = well_exposed[0] * max_level, well_exposed[1] * max_level
+        srgb = srgb_decode_lut(max_level)
+        levels, exposed, plain, balanced = [], [], [], []
+        for k, f in enumerate(frames):
+            if k == reference or to_reference is None:
+                xk, yk, inside = xs, ys, np.ones(xs.size, bool)
+            else:
+                xk, yk, inside = nearest_in_frame(to_reference[k], xs, ys, (h, w))
+            z = np.clip(np.asarray(f)[yk, xk].astype(np.intp), 0, max_level)
+            ok = inside & _all3((z > lo_l) & (z < hi_l))
+            if masks is not None and masks[k] is not None:
+                ok &= np.asarray(masks[k], bool)[yk, xk]
+            levels.append(z)
+            exposed.append(ok)
+            lin = srgb[z]
+            plain.append(chromaticity(lin))
+            balanced.append(chromaticity(lin / g[k]))
+        part = (ys, xs, levels, exposed, plain, balanced)
+        if shared is not None:
+            shared["colours"] = part
+    ys, xs, levels, exposed, plain, balanced = part
     merged = rad[ys, xs].astype(np.float64)
     mok = _all3(np.isfinite(merged)) & (_sum3(merged) > 0)
     cm = chromaticity(merged)
-    levels, valid = [], []
-    for k, f in enumerate(frames):
-        if k == reference or to_reference is None:
-            xk, yk, inside = xs, ys, np.ones(xs.size, bool)
-        else:
-            xk, yk, inside = nearest_in_frame(to_reference[k], xs, ys, (h, w))
-        z = np.clip(np.asarray(f)[yk, xk].astype(np.intp), 0, max_level)
-        ok = inside & mok & _all3((z > lo_l) & (z < hi_l))
-        if masks is not None and masks[k] is not None:
-            ok &= np.asarray(masks[k], bool)[yk, xk]
-        levels.append(z)
-        valid.append(ok)
+    valid = [ok & mok for ok in exposed]
     score = np.stack(
         [np.where(valid[k], -_max3(np.abs(levels[k] / max_level - 0.5)), -np.inf) for k in range(n)]
     )
     best = np.argmax(score, axis=0)
     out = []
     for k in range(n):
-        lin = srgb[levels[k]]
-        c_plain = chromaticity(lin)
-        c_bal = chromaticity(lin / g[k])
+        c_plain, c_bal = plain[k], balanced[k]
         well = valid[k]
         sel = well & (best == k)
         out.append(
@@ -543,6 +552,145 @@ def noise_consistency(
     return tuple(out)
 
 
+@dataclass(frozen=True)
+class _CheckFrames:
+    """What :func:`colour_check` measures on the frames alone (kept in its ``shared`` dict):
+    the sample grid, each frame's linearised samples there (the curve's and sRGB's) and where
+    they are well exposed, the best-exposed frame per sample, the consecutive pairs'
+    differences (plain, sRGB-decoded, balance divided out) and the white balance."""
+
+    ys: np.ndarray
+    xs: np.ndarray
+    valid: list[np.ndarray]
+    lin: list[np.ndarray]
+    lin_srgb: list[np.ndarray]
+    best: np.ndarray
+    pairs: tuple[FramePairColour, ...]
+    pairs_srgb: tuple[FramePairColour, ...]
+    pairs_wb: tuple[FramePairColour, ...]
+    wb: tuple[tuple[float, float, float], ...]
+    colour_gains: np.ndarray
+    noise: tuple[FramePairNoise, ...]
+    blocks: tuple[FramePairColour, ...]
+
+
+def _check_frames(
+    frames: Sequence[np.ndarray],
+    table: np.ndarray,
+    *,
+    max_level: int,
+    reference: int,
+    to_reference: Sequence[np.ndarray] | None,
+    masks: Sequence[np.ndarray | None] | None,
+    max_samples: int,
+    well_exposed: tuple[float, float],
+    balance: Any,
+    frame_pairs_noise: tuple[FramePairNoise, ...] | None,
+    frame_pairs_blocks: tuple[FramePairColour, ...] | None,
+) -> _CheckFrames:
+    from ..geometry import nearest_in_frame
+
+    n = len(frames)
+    h, w = frames[reference].shape[:2]
+    step = max(1, int(np.ceil(np.sqrt(h * w / max_samples))))
+    ys, xs = (a.ravel() for a in np.mgrid[0:h:step, 0:w:step])
+    lo_l, hi_l = well_exposed[0] * max_level, well_exposed[1] * max_level
+    srgb = srgb_decode_lut(max_level)
+    levels, valid = [], []
+    for k, f in enumerate(frames):
+        if k == reference or to_reference is None:
+            xk, yk = xs, ys
+            inside = np.ones(xs.size, bool)
+        else:
+            xk, yk, inside = nearest_in_frame(to_reference[k], xs, ys, (h, w))
+        z = np.asarray(f)[yk, xk].astype(np.intp)
+        ok = inside & _all3((z > lo_l) & (z < hi_l))
+        if masks is not None and masks[k] is not None:
+            ok &= np.asarray(masks[k], bool)[yk, xk]
+        levels.append(np.clip(z, 0, max_level))
+        valid.append(ok)
+    lin = [np.stack([table[c][z[:, c]] for c in range(3)], axis=-1) for z in levels]
+    lin_srgb = [srgb[z] for z in levels]
+    score = np.stack(
+        [np.where(valid[k], -_max3(np.abs(levels[k] / max_level - 0.5)), -np.inf) for k in range(n)]
+    )
+    best = np.argmax(score, axis=0)
+
+    def pair(a: np.ndarray, b: np.ndarray, both: np.ndarray, k: int) -> FramePairColour:
+        return FramePairColour(
+            k,
+            k + 1,
+            _median_distance(chromaticity(a[both]), chromaticity(b[both])),
+            int(both.sum()),
+        )
+
+    boths = [valid[k] & valid[k + 1] for k in range(n - 1)]
+    pairs = tuple(pair(lin[k], lin[k + 1], boths[k], k) for k in range(n - 1))
+    pairs_srgb = tuple(pair(lin_srgb[k], lin_srgb[k + 1], boths[k], k) for k in range(n - 1))
+    own_gains = None
+    wb: list[tuple[float, float, float]]
+    if balance is not None:
+        wb = [_triple(g) for g in balance.gains]
+        gains = list(balance.correction())
+        own_gains = balance.correction(every_measured=False)
+    else:
+        wb = []
+        ref_lin = lin[reference]
+        for k in range(n):
+            both = valid[k] & valid[reference]
+            if k == reference:
+                wb.append((1.0, 1.0, 1.0))
+                continue
+            if both.sum() < 50:
+                wb.append((float("nan"),) * 3)
+                continue
+            ratio = lin[k][both] / np.maximum(ref_lin[both], 1e-12)
+            med = np.median(ratio, axis=0)
+            wb.append(_triple(med / med[1]))
+        gains = [np.where(np.isfinite(g), g, 1.0) for g in np.asarray(wb, dtype=np.float64)]
+    # the consecutive frames again with each frame's white balance divided out
+    pairs_wb = tuple(
+        pair(lin[k] / gains[k], lin[k + 1] / gains[k + 1], boths[k], k) for k in range(n - 1)
+    )
+    return _CheckFrames(
+        ys=ys,
+        xs=xs,
+        valid=valid,
+        lin=lin,
+        lin_srgb=lin_srgb,
+        best=best,
+        pairs=pairs,
+        pairs_srgb=pairs_srgb,
+        pairs_wb=pairs_wb,
+        wb=tuple(wb),
+        colour_gains=np.asarray(gains) if own_gains is None else own_gains,
+        noise=frame_pairs_noise
+        if frame_pairs_noise is not None
+        else noise_consistency(
+            frames,
+            table,
+            max_level=max_level,
+            reference=reference,
+            to_reference=to_reference,
+            masks=masks,
+            gains=np.asarray(gains, dtype=np.float64),
+            max_samples=max_samples,
+            well_exposed=well_exposed,
+        ),
+        blocks=frame_pairs_blocks
+        if frame_pairs_blocks is not None
+        else block_consistency(
+            frames,
+            table,
+            max_level=max_level,
+            reference=reference,
+            to_reference=to_reference,
+            masks=masks,
+            well_exposed=well_exposed,
+        ),
+    )
+
+
 def colour_check(
     frames: Sequence[np.ndarray],
     radiance: np.ndarray,
@@ -557,6 +705,7 @@ def colour_check(
     frame_pairs_blocks: tuple[FramePairColour, ...] | None = None,
     balance: Any = None,
     frame_pairs_noise: tuple[FramePairNoise, ...] | None = None,
+    shared: dict[str, Any] | None = None,
 ) -> ColourCheck:
     """Check the colour of ``radiance`` (``(H, W, 3)`` linear, in the frames' primaries)
     against the integer ``frames`` linearised by ``lut`` (``(3, max_level + 1)``).
@@ -570,9 +719,12 @@ def colour_check(
     balance, its correction is divided out in ``frame_pairs_wb`` (every measured frame's) and
     the ``*_balanced`` errors of ``frame_colours`` (the frames that differ: what the anchoring
     divides out), its ``differs`` the frames named.
-    """
-    from ..geometry import nearest_in_frame
 
+    ``shared``: a dict kept between checks of the same frames, ``lut``, ``reference``,
+    ``to_reference``, ``masks``, ``balance`` gains and sampling (the check before and after
+    the anchoring; a merge's levels moved): what reads only the frames is measured once and
+    kept in it.
+    """
     n = len(frames)
     if n < 1 or not 0 <= reference < n:
         raise ParameterError(
@@ -595,114 +747,41 @@ def colour_check(
             expected=str((3, max_level + 1)),
             found=str(table.shape),
         )
-    step = max(1, int(np.ceil(np.sqrt(h * w / max_samples))))
-    ys, xs = np.mgrid[0:h:step, 0:w:step]
-    ys = ys.ravel()
-    xs = xs.ravel()
-    lo_l, hi_l = well_exposed[0] * max_level, well_exposed[1] * max_level
-    srgb = srgb_decode_lut(max_level)
+    fp = None if shared is None else shared.get("check")
+    if fp is None:
+        fp = _check_frames(
+            frames,
+            table,
+            max_level=max_level,
+            reference=reference,
+            to_reference=to_reference,
+            masks=masks,
+            max_samples=max_samples,
+            well_exposed=well_exposed,
+            balance=balance,
+            frame_pairs_noise=frame_pairs_noise,
+            frame_pairs_blocks=frame_pairs_blocks,
+        )
+        if shared is not None:
+            shared["check"] = fp
+    ys, xs, valid, lin, lin_srgb = fp.ys, fp.xs, fp.valid, fp.lin, fp.lin_srgb
 
-    levels, valid = [], []
-    for k, f in enumerate(frames):
-        if k == reference or to_reference is None:
-            xk, yk = xs, ys
-            inside = np.ones(xs.size, bool)
-        else:
-            xk, yk, inside = nearest_in_frame(to_reference[k], xs, ys, (h, w))
-        z = np.asarray(f)[yk, xk].astype(np.intp)
-        ok = inside & _all3((z > lo_l) & (z < hi_l))
-        if masks is not None and masks[k] is not None:
-            ok &= np.asarray(masks[k], bool)[yk, xk]
-        levels.append(np.clip(z, 0, max_level))
-        valid.append(ok)
-
-    def linear(k: int, table_c: np.ndarray | None = None) -> np.ndarray:
-        z = levels[k]
-        if table_c is None:
-            return np.stack([table[c][z[:, c]] for c in range(3)], axis=-1)
-        return table_c[z]
-
-    ref_ok = valid[reference]
     merged = rad[ys, xs].astype(np.float64)
-    ref_ok &= _all3(np.isfinite(merged)) & (_sum3(merged) > 0)
+    mok = _all3(np.isfinite(merged)) & (_sum3(merged) > 0)
+    ref_ok = valid[reference] & mok
     cm = chromaticity(merged[ref_ok])
-    err = _median_distance(cm, chromaticity(linear(reference)[ref_ok]))
-    err_srgb = _median_distance(cm, chromaticity(linear(reference, srgb)[ref_ok]))
+    err = _median_distance(cm, chromaticity(lin[reference][ref_ok]))
+    err_srgb = _median_distance(cm, chromaticity(lin_srgb[reference][ref_ok]))
 
     # every frame against the merge where it is the best exposed (nearest mid-grey) frame
-    score = np.stack(
-        [np.where(valid[k], -_max3(np.abs(levels[k] / max_level - 0.5)), -np.inf) for k in range(n)]
-    )
-    best = np.argmax(score, axis=0)
-    mok = _all3(np.isfinite(merged)) & (_sum3(merged) > 0)
     best_errors = []
     for k in range(n):
-        sel = (best == k) & valid[k] & mok
+        sel = (fp.best == k) & valid[k] & mok
         best_errors.append(
             (
-                _median_distance(chromaticity(merged[sel]), chromaticity(linear(k)[sel])),
-                _median_distance(chromaticity(merged[sel]), chromaticity(linear(k, srgb)[sel])),
+                _median_distance(chromaticity(merged[sel]), chromaticity(lin[k][sel])),
+                _median_distance(chromaticity(merged[sel]), chromaticity(lin_srgb[k][sel])),
                 int(sel.sum()),
-            )
-        )
-
-    pairs, pairs_srgb = [], []
-    for k in range(n - 1):
-        both = valid[k] & valid[k + 1]
-        cnt = int(both.sum())
-        pairs.append(
-            FramePairColour(
-                k,
-                k + 1,
-                _median_distance(chromaticity(linear(k)[both]), chromaticity(linear(k + 1)[both])),
-                cnt,
-            )
-        )
-        pairs_srgb.append(
-            FramePairColour(
-                k,
-                k + 1,
-                _median_distance(
-                    chromaticity(linear(k, srgb)[both]), chromaticity(linear(k + 1, srgb)[both])
-                ),
-                cnt,
-            )
-        )
-
-    own_gains = None
-    wb: list[tuple[float, float, float]]
-    if balance is not None:
-        wb = [_triple(g) for g in balance.gains]
-        gains = list(balance.correction())
-        own_gains = balance.correction(every_measured=False)
-    else:
-        wb = []
-        ref_lin = linear(reference)
-        for k in range(n):
-            both = valid[k] & valid[reference]
-            if k == reference:
-                wb.append((1.0, 1.0, 1.0))
-                continue
-            if both.sum() < 50:
-                wb.append((float("nan"),) * 3)
-                continue
-            ratio = linear(k)[both] / np.maximum(ref_lin[both], 1e-12)
-            med = np.median(ratio, axis=0)
-            wb.append(_triple(med / med[1]))
-        gains = [np.where(np.isfinite(g), g, 1.0) for g in np.asarray(wb, dtype=np.float64)]
-    # the consecutive frames again with each frame's white balance divided out
-    pairs_wb = []
-    for k in range(n - 1):
-        both = valid[k] & valid[k + 1]
-        pairs_wb.append(
-            FramePairColour(
-                k,
-                k + 1,
-                _median_distance(
-                    chromaticity(linear(k)[both] / gains[k]),
-                    chromaticity(linear(k + 1)[both] / gains[k + 1]),
-                ),
-                int(both.sum()),
             )
         )
     own = frame_colours(
@@ -712,10 +791,12 @@ def colour_check(
         reference=reference,
         to_reference=to_reference,
         masks=masks,
-        gains=np.asarray(gains) if own_gains is None else own_gains,
+        gains=fp.colour_gains,
         max_samples=max_samples,
         well_exposed=well_exposed,
+        shared=shared,
     )
+    pairs, pairs_srgb, pairs_wb, wb = fp.pairs, fp.pairs_srgb, fp.pairs_wb, fp.wb
 
     status = "ok"
     parts = [
@@ -740,30 +821,8 @@ def colour_check(
         frame_pairs_wb=tuple(pairs_wb),
         frame_colours=own,
         balance_differs=None if balance is None else tuple(balance.differs),
-        frame_pairs_noise=frame_pairs_noise
-        if frame_pairs_noise is not None
-        else noise_consistency(
-            frames,
-            table,
-            max_level=max_level,
-            reference=reference,
-            to_reference=to_reference,
-            masks=masks,
-            gains=np.asarray(gains, dtype=np.float64),
-            max_samples=max_samples,
-            well_exposed=well_exposed,
-        ),
-        frame_pairs_blocks=frame_pairs_blocks
-        if frame_pairs_blocks is not None
-        else block_consistency(
-            frames,
-            table,
-            max_level=max_level,
-            reference=reference,
-            to_reference=to_reference,
-            masks=masks,
-            well_exposed=well_exposed,
-        ),
+        frame_pairs_noise=fp.noise,
+        frame_pairs_blocks=fp.blocks,
     )
     cons = check.frame_consistency
     if np.isfinite(cons):
@@ -1717,10 +1776,12 @@ def measure_frames(
     reference: int,
     to_reference: Sequence[np.ndarray] | None = None,
     masks: Sequence[np.ndarray | None] | None = None,
-) -> tuple[Any, Any]:
+) -> tuple[Any, Any, dict[str, Any]]:
     """What :func:`check_colour` measures on the frames alone: each frame's white balance
-    against the reference (:func:`hdrcore.merge.white_balance.measure_white_balance`) and the
-    local tone mapping test (:func:`hdrcore.response.local_tonemap.local_tone_mapping`)."""
+    against the reference (:func:`hdrcore.merge.white_balance.measure_white_balance`), the
+    local tone mapping test (:func:`hdrcore.response.local_tonemap.local_tone_mapping`) and a
+    dict the colour checks of merges of these frames fill with what they measure on the frames
+    (:func:`colour_check`'s ``shared``)."""
     from ..response.local_tonemap import local_tone_mapping
     from .white_balance import measure_white_balance
 
@@ -1735,7 +1796,7 @@ def measure_frames(
     ltm = local_tone_mapping(
         frames, lut, max_level=max_level, to_reference=to_reference, reference=reference
     )
-    return balance, ltm
+    return balance, ltm, {}
 
 
 def check_colour(
@@ -1755,7 +1816,7 @@ def check_colour(
     reference_band: tuple[float, float, float] | None = None,
     white_balance: bool = True,
     frame_band: tuple[float, float, float] | None = FRAME_BAND,
-    frame_measures: tuple[Any, Any] | None = None,
+    frame_measures: tuple[Any, Any, dict[str, Any]] | None = None,
 ) -> ColourResult:
     """Check a non-linear merge's colour, measure each frame's white balance
     (:func:`hdrcore.merge.white_balance.measure_white_balance`, with the merge's ``lut``) and
@@ -1773,8 +1834,10 @@ def check_colour(
     kw: dict[str, Any] = dict(
         max_level=max_level, reference=reference, to_reference=to_reference, masks=masks
     )
-    balance, ltm = frame_measures or measure_frames(frames, lut, **kw)
-    before = colour_check(frames, radiance, lut, **kw, balance=balance)
+    if frame_measures is None:
+        frame_measures = measure_frames(frames, lut, **kw)
+    balance, ltm, shared = frame_measures
+    before = colour_check(frames, radiance, lut, **kw, balance=balance, shared=shared)
     correction = balance.correction()
     if white_balance and balance.differs and shares is not None:
         correct_merge(radiance, shares, correction)
@@ -1806,8 +1869,7 @@ def check_colour(
             lut,
             **kw,
             balance=balance,
-            frame_pairs_blocks=before.frame_pairs_blocks,
-            frame_pairs_noise=before.frame_pairs_noise,
+            shared=shared,
         )
     parts = []
     if balance.applied:
