@@ -220,6 +220,37 @@ def _response_and_colour(result: PipelineResult) -> list[Verdict]:
     check = (result.colour or {}).get("check")
     if not check:
         return out
+    if check.get("before") is not None and check.get("after") is not None:
+        out.extend(_colour_measured(check))  # not measured in a draft
+    balance = check.get("white_balance") or {}
+    if balance.get("unmeasured"):
+        out.append(
+            Verdict(
+                "white-balance-unmeasured",
+                "info",
+                f"{balance['message'][0].upper()}{balance['message'][1:]}.",
+                tuple(balance["unmeasured"]),
+            )
+        )
+    ltm = check.get("local_tone_mapping") or {}
+    if ltm.get("detected"):
+        out.append(
+            Verdict(
+                "locally-tone-mapped",
+                "warning",
+                f"{ltm['message'][0].upper()}{ltm['message'][1:]}. No single response turns such "
+                "frames into radiance: the merged map is a compromise (exposure ratios and "
+                "contrast are approximate), its colours are taken from the frames; the preview is "
+                "an exposure fusion of the frames (Mertens et al. 2007).",
+            )
+        )
+    return out
+
+
+def _colour_measured(check: dict) -> list[Verdict]:
+    """The verdicts on a non-linear merge's measured colour (``check``: its
+    ``result.colour["check"]`` with ``before`` and ``after``)."""
+    out: list[Verdict] = []
     before, after = check["before"], check["after"]
     err = after.get("merge_error_srgb")
     own = [
@@ -272,28 +303,6 @@ def _response_and_colour(result: PipelineResult) -> list[Verdict]:
                     else "the regions those frames expose best keep their colours."
                 ),
                 tuple(odd),
-            )
-        )
-    balance = check.get("white_balance") or {}
-    if balance.get("unmeasured"):
-        out.append(
-            Verdict(
-                "white-balance-unmeasured",
-                "info",
-                f"{balance['message'][0].upper()}{balance['message'][1:]}.",
-                tuple(balance["unmeasured"]),
-            )
-        )
-    ltm = check.get("local_tone_mapping") or {}
-    if ltm.get("detected"):
-        out.append(
-            Verdict(
-                "locally-tone-mapped",
-                "warning",
-                f"{ltm['message'][0].upper()}{ltm['message'][1:]}. No single response turns such "
-                "frames into radiance: the merged map is a compromise (exposure ratios and "
-                "contrast are approximate), its colours are taken from the frames; the preview is "
-                "an exposure fusion of the frames (Mertens et al. 2007).",
             )
         )
     return out

@@ -515,7 +515,10 @@ def run_draft(
     given = (
         None if registration is None or f == 1 else draft_registration(registration, f, small.shape)
     )
-    pipe = Pipeline(small, progress=progress, pixel_size=float(f), registration=given)
+    # Only the draft's picture is shown: its colour is anchored, not measured.
+    pipe = Pipeline(
+        small, progress=progress, pixel_size=float(f), registration=given, colour_report=False
+    )
     # What only the verdicts or the inspector's other panels read is left out: local
     # refinement (a fraction of a binned pixel), the registration overlays and, with the
     # times given, the ratios measured again over the registered field of view.

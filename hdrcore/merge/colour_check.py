@@ -1746,10 +1746,11 @@ class ColourResult:
     """The colour stage of a non-linear merge: the check of the merge as made (``before``),
     the local tone-mapping test, the frames' white balance
     (:class:`~hdrcore.merge.white_balance.FrameBalance`, ``applied`` when the merge was
-    corrected), the anchoring (``None`` when off) and the check of the result (``after``)."""
+    corrected), the anchoring (``None`` when off) and the check of the result (``after``);
+    ``before`` and ``after`` are ``None`` when the colour was not measured (a draft)."""
 
-    before: ColourCheck
-    after: ColourCheck
+    before: ColourCheck | None
+    after: ColourCheck | None
     anchor: ColourAnchor | None
     local_tone_mapping: Any
     message: str
@@ -1758,8 +1759,8 @@ class ColourResult:
     def to_json(self) -> dict[str, Any]:
         return {
             "white_balance": None if self.white_balance is None else self.white_balance.to_json(),
-            "before": self.before.to_json(),
-            "after": self.after.to_json(),
+            "before": None if self.before is None else self.before.to_json(),
+            "after": None if self.after is None else self.after.to_json(),
             "anchor": None if self.anchor is None else self.anchor.to_json(),
             "local_tone_mapping": None
             if self.local_tone_mapping is None
@@ -1817,6 +1818,7 @@ def check_colour(
     white_balance: bool = True,
     frame_band: tuple[float, float, float] | None = FRAME_BAND,
     frame_measures: tuple[Any, Any, dict[str, Any]] | None = None,
+    report: bool = True,
 ) -> ColourResult:
     """Check a non-linear merge's colour, measure each frame's white balance
     (:func:`hdrcore.merge.white_balance.measure_white_balance`, with the merge's ``lut``) and
@@ -1825,6 +1827,9 @@ def check_colour(
     frames' own colour (:func:`anchor_colour`, frames decoded with sRGB, as a screen shows
     them, their balance divided out alike), then check it again. ``radiance`` is modified in
     place.
+
+    ``report=False`` (a draft, whose picture is all that is shown): the merge's colour is not
+    measured before and after (``before`` and ``after`` are ``None``); the pixels are the same.
 
     ``frame_measures``: :func:`measure_frames` of the same frames, ``lut``, ``reference``,
     ``to_reference`` and ``masks`` when known already (they read neither the merge nor its
@@ -1837,7 +1842,11 @@ def check_colour(
     if frame_measures is None:
         frame_measures = measure_frames(frames, lut, **kw)
     balance, ltm, shared = frame_measures
-    before = colour_check(frames, radiance, lut, **kw, balance=balance, shared=shared)
+    before = (
+        colour_check(frames, radiance, lut, **kw, balance=balance, shared=shared)
+        if report
+        else None
+    )
     correction = balance.correction()
     if white_balance and balance.differs and shares is not None:
         correct_merge(radiance, shares, correction)
@@ -1862,7 +1871,7 @@ def check_colour(
             gains=balance.correction(every_measured=False) if balance.applied else None,
             frame_band=frame_band,
         )
-    if anchor or balance.applied:
+    if report and (anchor or balance.applied):
         after = colour_check(
             frames,
             radiance,
@@ -1876,7 +1885,10 @@ def check_colour(
         parts.append("white balance corrected: " + balance.message)
     else:
         parts.append(balance.message)
-    if done is not None:
+    if before is None or after is None:
+        parts.append("colour anchored to the frames" if done is not None else "colour not anchored")
+        parts.append("not measured (a draft)")
+    elif done is not None:
         best = [
             f.best_error_balanced for f in after.frame_colours if np.isfinite(f.best_error_balanced)
         ]

@@ -1,0 +1,47 @@
+"""What a non-linear merge's colour check measures on the frames alone is kept between the
+checks and the slider steps of one bracket (the ``frame_measures`` stage); a draft's merge is
+anchored but not measured (``Pipeline(colour_report=False)``). Neither changes a pixel or a
+reported figure."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from hdrcore.io import load_bracket
+from hdrcore.pipeline import Pipeline
+from tests.hdrview._brackets import write_png_bracket
+
+
+def _bracket(tmp_path: Path):
+    return load_bracket(write_png_bracket(tmp_path / "b", shape=(120, 180)))
+
+
+def test_a_step_reads_the_frames_measures_from_the_cache(tmp_path: Path) -> None:
+    pl = Pipeline(_bracket(tmp_path))
+    first = pl.run()
+    assert first.colour["check"]["before"] is not None
+    # a step that keeps the registration (its levels snap to a ladder): the frames' measures
+    # come from the cache, the merge is new
+    for d in (0.5, 1.0, 1.5, 2.0):
+        step = first.params.replace(saturation=first.saturation - d)
+        kept = pl.run(step)
+        if "registration" not in kept.stages_run:
+            break
+    assert "registration" not in kept.stages_run and "merge" in kept.stages_run
+    fresh = Pipeline(_bracket(tmp_path)).run(step)
+    # the same report and pixels as a pipeline that measured everything afresh
+    assert kept.colour["check"] == fresh.colour["check"]
+    assert np.array_equal(kept.radiance, fresh.radiance)
+
+
+def test_a_merge_not_measured_has_the_same_pixels(tmp_path: Path) -> None:
+    measured = Pipeline(_bracket(tmp_path)).run()
+    draft = Pipeline(_bracket(tmp_path), colour_report=False).run()
+    check = draft.colour["check"]
+    assert check["before"] is None and check["after"] is None
+    assert "not measured" in check["message"]
+    assert check["local_tone_mapping"] == measured.colour["check"]["local_tone_mapping"]
+    assert np.array_equal(draft.radiance, measured.radiance)
+    assert np.array_equal(draft.preview.image, measured.preview.image)
