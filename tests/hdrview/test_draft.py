@@ -100,7 +100,7 @@ def test_no_draft_of_an_exposure_fusion_for_a_step_it_does_not_read(tmp_path: Pa
     assert not s.draft_wanted(Controls(saturation=240.0), max_side=64)
     assert not s.draft_wanted(Controls(noise_floor=9.0, deghost=True), max_side=64)
     assert s.draft_wanted(Controls(threshold=0.2), max_side=64)
-    assert s.draft_wanted(Controls(saturation=240.0, align="translation"), max_side=64)
+    assert s.draft_wanted(Controls(saturation=240.0, align="shift"), max_side=64)
 
 
 def test_a_failed_draft_does_not_stop_the_full_run(large: ClientView, monkeypatch) -> None:

@@ -45,3 +45,43 @@ def test_a_merge_not_measured_has_the_same_pixels(tmp_path: Path) -> None:
     assert check["local_tone_mapping"] == measured.colour["check"]["local_tone_mapping"]
     assert np.array_equal(draft.radiance, measured.radiance)
     assert np.array_equal(draft.preview.image, measured.preview.image)
+
+
+def test_an_exposure_fusion_preview_is_kept_across_a_step(tmp_path: Path, monkeypatch) -> None:
+    """Locally tone-mapped frames (the test forced to say so) are previewed by their exposure
+    fusion, a stage of its own keyed on the frames' motion: a step that keeps the registration
+    draws it from the cache, the same picture."""
+    import dataclasses
+
+    from hdrcore.merge import fusion
+    from hdrcore.response import local_tonemap
+
+    real = local_tonemap.local_tone_mapping
+
+    def detected(*args, **kwargs):
+        return dataclasses.replace(real(*args, **kwargs), detected=True)
+
+    monkeypatch.setattr(local_tonemap, "local_tone_mapping", detected)
+    calls = []
+    real_fusion = fusion.exposure_fusion
+
+    def counted(*args, **kwargs):
+        calls.append(1)
+        return real_fusion(*args, **kwargs)
+
+    monkeypatch.setattr("hdrcore.pipeline.exposure_fusion", counted)
+    pl = Pipeline(_bracket(tmp_path))
+    first = pl.run()
+    assert first.preview is not None and first.preview.method == "exposure-fusion"
+    assert len(calls) == 1
+    for d in (0.5, 1.0, 1.5, 2.0):
+        step = pl.run(first.params.replace(saturation=first.saturation - d))
+        if "registration" not in step.stages_run:
+            break
+    assert "registration" not in step.stages_run and "merge" in step.stages_run
+    assert len(calls) == 1  # the fusion from the cache
+    assert step.preview is not None
+    assert np.array_equal(step.preview.image, first.preview.image)
+    # a new motion makes a new fusion
+    pl.run(first.params.replace(align="shift"))
+    assert len(calls) == 2
