@@ -86,3 +86,27 @@ def test_the_registration_reads_the_snapped_levels(sixteen_bit) -> None:
     other = direct.run(until="registration")
     assert _snapped(other) == (s2, f2)
     assert differences(first.registration, other.registration) == []
+
+
+def test_one_level_steps_of_an_8_bit_bracket_keep_the_registration(tmp_path) -> None:
+    """8-bit frames: 1/512 of the range is under a level, yet the ladder's runs span up to
+    MIN_STEP_LEVELS levels (and the starting ratios are read to 1/64 stop), so one-level
+    saturation steps keep the registration most of the time; a kept one equals a fresh run."""
+    from hdrcore.registration.thresholds import MIN_STEP_LEVELS
+    from tests.hdrview._brackets import write_png_bracket
+
+    files = write_png_bracket(tmp_path / "b", shape=(120, 180))
+    pl = Pipeline(load_bracket(files))
+    first = pl.run(until="registration")
+    assert first.registration is not None
+    top = float(np.floor(first.saturation))
+    steps = [top - d for d in range(1, 3 * MIN_STEP_LEVELS + 1)]
+    kept = []
+    for s in steps:
+        p = first.params.replace(saturation=s)
+        if "registration" not in pl.run(p, until="registration").stages_run:
+            kept.append(p)
+    assert len(kept) >= len(steps) // 2
+    p = kept[-1]
+    fresh = Pipeline(load_bracket(files), p).run(p, until="registration")
+    assert differences(pl.run(p, until="registration").registration, fresh.registration) == []
