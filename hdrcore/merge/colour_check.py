@@ -51,6 +51,7 @@ from .._numba import AVAILABLE
 from .._numba import njit as _njit
 from .._threads import run_row_spans
 from ..errors import ParameterError
+from .white_balance import frame_samples
 
 __all__ = [
     "MAX_MERGE_ERROR",
@@ -309,6 +310,30 @@ class FrameColour:
         }
 
 
+def _well_exposed(
+    frames: Sequence[np.ndarray],
+    xs: np.ndarray,
+    ys: np.ndarray,
+    reference: int,
+    to_reference: Sequence[np.ndarray] | None,
+    masks: Sequence[np.ndarray | None] | None,
+    max_level: int,
+    well_exposed: tuple[float, float],
+) -> list[tuple[np.ndarray, np.ndarray]]:
+    """:func:`~hdrcore.merge.white_balance.frame_samples` inside the ``well_exposed`` band."""
+    return frame_samples(
+        frames,
+        xs,
+        ys,
+        reference=reference,
+        to_reference=to_reference,
+        masks=masks,
+        max_level=max_level,
+        lo=well_exposed[0] * max_level,
+        hi=well_exposed[1] * max_level,
+    )
+
+
 def frame_colours(
     frames: Sequence[np.ndarray],
     radiance: np.ndarray,
@@ -329,7 +354,6 @@ def frame_colours(
     frame's colour, not only the reference's. ``gains`` ``(N, 3)``: each frame's white balance
     against the reference (:func:`hdrcore.merge.white_balance.measure_white_balance`), for the
     ``*_balanced`` errors. ``shared``: as :func:`colour_check`'s (the same ``gains`` too)."""
-    from ..geometry import nearest_in_frame
 
     n = len(frames)
     if n < 1 or not 0 <= reference < n:
@@ -352,18 +376,11 @@ def frame_colours(
     if part is None:
         step = max(1, int(np.ceil(np.sqrt(h * w / max_samples))))
         ys, xs = (a.ravel() for a in np.mgrid[0:h:step, 0:w:step])
-        lo_l, hi_l = well_exposed[0] * max_level, well_exposed[1] * max_level
         srgb = srgb_decode_lut(max_level)
         levels, exposed, plain, balanced = [], [], [], []
-        for k, f in enumerate(frames):
-            if k == reference or to_reference is None:
-                xk, yk, inside = xs, ys, np.ones(xs.size, bool)
-            else:
-                xk, yk, inside = nearest_in_frame(to_reference[k], xs, ys, (h, w))
-            z = np.clip(np.asarray(f)[yk, xk].astype(np.intp), 0, max_level)
-            ok = inside & _all3((z > lo_l) & (z < hi_l))
-            if masks is not None and masks[k] is not None:
-                ok &= np.asarray(masks[k], bool)[yk, xk]
+        for k, (z, ok) in enumerate(
+            _well_exposed(frames, xs, ys, reference, to_reference, masks, max_level, well_exposed)
+        ):
             levels.append(z)
             exposed.append(ok)
             lin = srgb[z]
@@ -421,7 +438,6 @@ def block_consistency(
     exposed in both. Pixel noise (JPEG, film grain: 0.006-0.012 of chromaticity per pixel on
     the real brackets) is averaged down; the response's own error is kept. Blocks lie on the
     reference's grid, the other frames' pixels are its nearest (``to_reference``, 2x3 or 3x3)."""
-    from ..geometry import nearest_in_frame
 
     table = np.asarray(lut, dtype=np.float64)
     if table.ndim == 1:
@@ -434,17 +450,10 @@ def block_consistency(
     ys = (oy.ravel()[:, None] + dy.ravel()[None, :]).ravel()
     xs = (ox.ravel()[:, None] + dx.ravel()[None, :]).ravel()
     nb = oy.size
-    lo_l, hi_l = well_exposed[0] * max_level, well_exposed[1] * max_level
     lins, oks = [], []
-    for k, f in enumerate(frames):
-        if k == reference or to_reference is None:
-            xk, yk, inside = xs, ys, np.ones(xs.size, bool)
-        else:
-            xk, yk, inside = nearest_in_frame(to_reference[k], xs, ys, (h, w))
-        z = np.clip(np.asarray(f)[yk, xk].astype(np.intp), 0, max_level)
-        ok = inside & _all3((z > lo_l) & (z < hi_l))
-        if masks is not None and masks[k] is not None:
-            ok &= np.asarray(masks[k], bool)[yk, xk]
+    for z, ok in _well_exposed(
+        frames, xs, ys, reference, to_reference, masks, max_level, well_exposed
+    ):
         lin = np.stack([table[c][z[:, c]] for c in range(3)], axis=-1)
         lins.append(lin.reshape(nb, b * b, 3).mean(axis=1))
         oks.append(ok.reshape(nb, b * b).all(axis=1))
@@ -588,27 +597,15 @@ def _check_frames(
     frame_pairs_noise: tuple[FramePairNoise, ...] | None,
     frame_pairs_blocks: tuple[FramePairColour, ...] | None,
 ) -> _CheckFrames:
-    from ..geometry import nearest_in_frame
 
     n = len(frames)
     h, w = frames[reference].shape[:2]
     step = max(1, int(np.ceil(np.sqrt(h * w / max_samples))))
     ys, xs = (a.ravel() for a in np.mgrid[0:h:step, 0:w:step])
-    lo_l, hi_l = well_exposed[0] * max_level, well_exposed[1] * max_level
     srgb = srgb_decode_lut(max_level)
-    levels, valid = [], []
-    for k, f in enumerate(frames):
-        if k == reference or to_reference is None:
-            xk, yk = xs, ys
-            inside = np.ones(xs.size, bool)
-        else:
-            xk, yk, inside = nearest_in_frame(to_reference[k], xs, ys, (h, w))
-        z = np.asarray(f)[yk, xk].astype(np.intp)
-        ok = inside & _all3((z > lo_l) & (z < hi_l))
-        if masks is not None and masks[k] is not None:
-            ok &= np.asarray(masks[k], bool)[yk, xk]
-        levels.append(np.clip(z, 0, max_level))
-        valid.append(ok)
+    sampled = _well_exposed(frames, xs, ys, reference, to_reference, masks, max_level, well_exposed)
+    levels = [z for z, _ in sampled]
+    valid = [ok for _, ok in sampled]
     lin = [np.stack([table[c][z[:, c]] for c in range(3)], axis=-1) for z in levels]
     lin_srgb = [srgb[z] for z in levels]
     score = np.stack(

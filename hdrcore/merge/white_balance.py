@@ -194,24 +194,56 @@ def _num(v: float) -> float | None:
     return float(v) if np.isfinite(v) else None
 
 
-def _sample(frames, reference, to_reference, masks, max_samples, max_level, band):
+def frame_samples(
+    frames: Sequence[np.ndarray],
+    xs: np.ndarray,
+    ys: np.ndarray,
+    *,
+    reference: int,
+    to_reference: Sequence[np.ndarray] | None,
+    masks: Sequence[np.ndarray | None] | None,
+    max_level: int,
+    lo: float,
+    hi: float,
+) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Per frame, its levels at the reference frame's pixels ``(xs, ys)`` (each frame read at
+    its nearest pixel through ``to_reference``, clipped to ``0..max_level``, ``(M, 3)``) and
+    where they may be used: inside the frame, every channel strictly between ``lo`` and ``hi``
+    and (``masks``) not masked out."""
     from ..geometry import nearest_in_frame
 
-    h, w = np.asarray(frames[reference]).shape[:2]
-    step = max(1, int(np.ceil(np.sqrt(h * w / max_samples))))
-    ys, xs = (a.ravel() for a in np.mgrid[step // 2 : h : step, step // 2 : w : step])
-    lo, hi = band[0] * max_level, band[1] * max_level
+    shape = np.asarray(frames[reference]).shape[:2]
     out = []
     for k, f in enumerate(frames):
         if to_reference is None or k == reference:
             xk, yk, inside = xs, ys, np.ones(xs.size, bool)
         else:
-            xk, yk, inside = nearest_in_frame(to_reference[k], xs, ys, (h, w))
+            xk, yk, inside = nearest_in_frame(to_reference[k], xs, ys, shape)
         z = np.clip(np.asarray(f)[yk, xk].astype(np.intp), 0, max_level)
-        ok = inside & np.all((z > lo) & (z < hi), axis=-1)
+        ok = inside & (z[:, 0] > lo) & (z[:, 0] < hi)
+        for c in (1, 2):
+            ok &= (z[:, c] > lo) & (z[:, c] < hi)
         if masks is not None and masks[k] is not None:
             ok &= np.asarray(masks[k], bool)[yk, xk]
         out.append((z, ok))
+    return out
+
+
+def _sample(frames, reference, to_reference, masks, max_samples, max_level, band):
+    h, w = np.asarray(frames[reference]).shape[:2]
+    step = max(1, int(np.ceil(np.sqrt(h * w / max_samples))))
+    ys, xs = (a.ravel() for a in np.mgrid[step // 2 : h : step, step // 2 : w : step])
+    out = frame_samples(
+        frames,
+        xs,
+        ys,
+        reference=reference,
+        to_reference=to_reference,
+        masks=masks,
+        max_level=max_level,
+        lo=band[0] * max_level,
+        hi=band[1] * max_level,
+    )
     return ys, xs, (h, w), out
 
 
