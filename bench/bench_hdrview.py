@@ -13,6 +13,9 @@ With ``hdrcore.pipeline`` installed the changes go through the app exactly as a 
 (``set_control`` then wait for the worker); without it the stage functions the pipeline would call
 are timed directly (re-fit from cached histograms + drawing), and the table says so.
 
+* ``--steps pixel7,xperia`` (or ``all``): one-level saturation and noise-floor steps on the real
+  brackets through the app, whether each kept the registration, its draft and full result;
+
 * a large bracket's draft preview (:mod:`hdrcore.draft`) drawn before the full re-merge, and
   which registration each step's draft used (the last full run's, scaled, or its own of the
   binned frames).
@@ -32,6 +35,7 @@ from __future__ import annotations
 
 import argparse
 import importlib.util
+import math
 import os
 import re
 import socket
@@ -421,6 +425,66 @@ def bench_draft(names: list[str], max_side: int, sim=None) -> None:
         )
 
 
+def bench_steps(names: list[str]) -> None:
+    """One-level slider steps on the real brackets, through the app (a headless page) as a
+    slider sends them: per step whether the registration was kept, the draft and the
+    full-resolution result drawn (seconds after the change)."""
+    import viser
+
+    from hdrview.app import InspectorApp
+
+    print(
+        "\nslider steps on the real brackets (headless page, one level at a time; seconds from "
+        f"the change; load average {os.getloadavg()[0]:.1f})"
+    )
+    print(
+        f"{'bracket':<10} {'control':<12} {'value':>6} {'registration':>13} "
+        f"{'draft':>6} {'full':>6}"
+    )
+    for name in names:
+        folder, _, _ = REAL[name]
+        if not (DATA / folder).is_dir():
+            print(f"{name:<10} skipped: {DATA / folder} absent")
+            continue
+        server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+        inspector = InspectorApp(server, root=DATA, demo_dir=None)
+        app = inspector.headless_view()
+        try:
+            app.request_path(folder)
+            app.wait_idle(900)
+            first = app.session.result
+            assert first is not None
+            top = math.floor(first.saturation)
+            floor = first.noise_floor
+            steps = [("saturation", float(top - d)) for d in range(1, 7)]
+            steps += [("noise_floor", round(floor + d, 1)) for d in (0.2, 0.5, 1.1, 1.4)]
+            kept = {"saturation": 0, "noise_floor": 0}
+            for control, value in steps:
+                before = app.session.result
+                app.last_draft_seconds = app.last_shown_seconds = None
+                app.set_control(control, value)
+                app.wait_idle(900)
+                after = app.session.result
+                same = (
+                    before is not None
+                    and after is not None
+                    and after.registration is before.registration
+                )
+                kept[control] += same
+                print(
+                    f"{name:<10} {control:<12} {value:>6g} {'kept' if same else 'registered':>13} "
+                    f"{app.last_draft_seconds or float('nan'):>6.2f} "
+                    f"{app.last_shown_seconds or float('nan'):>6.2f}"
+                )
+            print(
+                f"{name:<10} registration kept: saturation {kept['saturation']} of 6, "
+                f"noise floor {kept['noise_floor']} of 4"
+            )
+        finally:
+            inspector.stop()
+            server.stop()
+
+
 def _sim_bracket(sim):
     """The simulated frames as a Bracket (linear 14-bit TIFF-like levels, the times known)."""
     import tifffile
@@ -452,6 +516,13 @@ def main() -> int:
     )
     ap.add_argument("--draft-side", type=int, default=1024)
     ap.add_argument(
+        "--steps",
+        default=None,
+        metavar="NAMES",
+        help="only one-level slider steps on real brackets through the app "
+        f"({','.join(REAL)}, comma-separated, or 'all'): registration kept, draft, full result",
+    )
+    ap.add_argument(
         "--no-draft",
         action="store_true",
         help="the app without its draft previews (the full re-merge's own cost)",
@@ -462,6 +533,9 @@ def main() -> int:
     from hdrcore._memory import retain_freed_memory
 
     retained = retain_freed_memory()
+    if args.steps is not None:
+        bench_steps(list(REAL) if args.steps == "all" else args.steps.split(","))
+        return 0
     if args.draft is not None:
         names = list(REAL) + ["sim"] if args.draft == "all" else args.draft.split(",")
         sim = _sim_bracket(large_bracket(args.megapixels)) if "sim" in names else None
