@@ -66,6 +66,7 @@ from .merge.colour import (
     space_to_space_matrix,
 )
 from .merge.colour_check import check_colour, measure_frames
+from .merge.fusion import METHOD as FUSION_METHOD
 from .merge.fusion import exposure_fusion
 from .noise import BracketNoise, FrameNoise, bracket_noise, frame_noise
 from .registration import (
@@ -958,6 +959,11 @@ class Pipeline:
             self.last_result = res
         return res
 
+    def fields_read(self, stage: str, skip: tuple[str, ...] = ()) -> set[str]:
+        """The parameter fields ``stage``'s value depends on for this bracket (not those read
+        only through the stages in ``skip``): :meth:`hdrcore.stage_graph.StageGraph.fields_read`."""
+        return GRAPH.fields_read(stage, self._ctx, skip)
+
     def _merge(
         self,
         p: PipelineParams,
@@ -1795,41 +1801,38 @@ def _frames_space(b: Bracket) -> tuple[str, str]:
     return source, where
 
 
-def _preview(
-    ctx: _Context,
-    p: PipelineParams,
-    radiance: np.ndarray | None,
-    fusion: bool = False,
-    registration: BracketRegistration | None = None,
-):
-    """The preview of ``radiance`` tone mapped, or (``fusion``) the frames' exposure fusion;
-    and its downsampling factor."""
-    factor = downsample_factor(ctx.bracket.shape, p.preview_max_side)
-    if fusion:
-        # Locally tone-mapped frames: no radiance map is right, so the preview is their
-        # exposure fusion (Mertens et al. 2007), the frames' own colours and contrast.
-        t0 = time.perf_counter()
-        image = exposure_fusion(
-            [f.levels for f in ctx.bracket.frames],
-            max_level=ctx.bracket.max_level,
-            to_reference=None if registration is None else registration.to_reference_homography,
-            factor=factor,
-        )
-        return TonemapResult(
-            image=image,
-            method="exposure-fusion",
-            exposure=0.0,
-            key=0.0,
-            auto_exposure=False,
-            log_average=float("nan"),
-            scale=1.0,
-            white=None,
-            timings={"total": time.perf_counter() - t0},
-        ), factor
-    assert radiance is not None
+def _preview(ctx: _Context, p: PipelineParams, radiance: np.ndarray) -> tuple[TonemapResult, int]:
+    """The preview of ``radiance`` tone mapped, and its downsampling factor."""
+    factor = downsample_factor(radiance.shape[:2], p.preview_max_side)
     small = downsample_area(radiance, factor) if factor > 1 else radiance
     return tonemap(
         small, p.tonemap, exposure=p.tonemap_exposure, pixel_size=factor * ctx.pixel_size
+    ), factor
+
+
+def _fusion_preview(
+    ctx: _Context, p: PipelineParams, registration: BracketRegistration | None
+) -> tuple[TonemapResult, int]:
+    """Locally tone-mapped frames: no radiance map is right, so the preview is their exposure
+    fusion (Mertens et al. 2007), the frames' own colours and contrast; and its factor."""
+    factor = downsample_factor(ctx.bracket.shape, p.preview_max_side)
+    t0 = time.perf_counter()
+    image = exposure_fusion(
+        [f.levels for f in ctx.bracket.frames],
+        max_level=ctx.bracket.max_level,
+        to_reference=None if registration is None else registration.to_reference_homography,
+        factor=factor,
+    )
+    return TonemapResult(
+        image=image,
+        method=FUSION_METHOD,
+        exposure=0.0,
+        key=0.0,
+        auto_exposure=False,
+        log_average=float("nan"),
+        scale=1.0,
+        white=None,
+        timings={"total": time.perf_counter() - t0},
     ), factor
 
 
@@ -2182,10 +2185,15 @@ def _stage_fusion(ctx: _Context, p: Any, up: Inputs) -> tuple[TonemapResult, int
     2007) at the preview's size. A function of the frames, their motion and the preview's
     size alone, so a saturation or noise-floor step (a new merge, the same motion) draws it
     from the cache: 2.0-2.6 s a step on the real Pixel 7 bracket."""
-    return _preview(ctx, p, None, True, up.registration)
+    return _fusion_preview(ctx, p, up.registration)
 
 
 _SAT_NF = ("saturation", "noise_floor")
+
+#: The registration's inputs it reads snapped (its levels to the bracket's ladder, its starting
+#: ratios to 1/64 stop): a small move of the fields behind them keeps the motion, or moves it by
+#: hundredths of a pixel (:mod:`hdrcore.registration.thresholds`, :data:`RATIO_GRID_STOPS`).
+SNAPPED_INPUTS = ("registration_levels", "registration_ratios")
 
 #: The pipeline's stages: what each reads, in one place. The reported ones are :data:`STAGES`;
 #: the internal ones are steps between them (the merge's times, the response the later stages

@@ -203,22 +203,25 @@ class StageGraph:
             visit(name, ())
         return tuple(order)
 
-    def upstream(self, name: str) -> set[str]:
-        """Every stage ``name`` may read, directly or through others."""
+    def upstream(self, name: str, skip: Iterable[str] = ()) -> set[str]:
+        """Every stage ``name`` may read, directly or through others (not through the stages
+        in ``skip``, which are left out with what only they read)."""
         seen: set[str] = set()
         todo = [name]
+        left_out = set(skip)
         while todo:
             st = self.stages[todo.pop()]
             for up in (*st.inputs, *st.lazy):
-                if up not in seen:
+                if up not in seen and up not in left_out:
                     seen.add(up)
                     todo.append(up)
         return seen
 
-    def fields_read(self, name: str, context: Any) -> set[str]:
-        """The parameter fields ``name``'s value depends on, its upstream stages' included."""
+    def fields_read(self, name: str, context: Any, skip: Iterable[str] = ()) -> set[str]:
+        """The parameter fields ``name``'s value depends on, its upstream stages' included
+        (not those read only through the stages in ``skip``)."""
         out = set(self.stages[name].fields(context))
-        for up in self.upstream(name):
+        for up in self.upstream(name, skip):
             out.update(self.stages[up].fields(context))
         return out
 

@@ -38,25 +38,6 @@ def pipeline_available() -> bool:
     return True
 
 
-#: The preview of locally tone-mapped frames (:func:`hdrcore.merge.fusion.exposure_fusion`).
-FUSION = "exposure-fusion"
-#: Parameters an exposure-fusion preview does not read: the merge's levels and colour, how the
-#: ratios are measured (the frames' motion moves by hundredths of a pixel when the levels the
-#: registration reads step, see :mod:`hdrcore.registration.thresholds`).
-FUSION_KEEPS = (
-    "saturation",
-    "noise_floor",
-    "deghost",
-    "colour_anchor",
-    "white_balance",
-    "working_space",
-    "exposure_method",
-    "refine_ratios",
-    "noise_sigma",
-    "ratio_fallback_stops",
-)
-
-
 @dataclass(frozen=True)
 class Controls:
     """The values of the page's parameter widgets (``None``: the pipeline's default). Each
@@ -198,16 +179,19 @@ class Session:
         )
         if new == self.full_params:
             return False
+        from hdrcore.merge.fusion import METHOD as FUSION
+        from hdrcore.pipeline import SNAPPED_INPUTS
+
         last = self._last_full_run()
         if last is not None and last.preview is not None and last.preview.method == FUSION:
             # Locally tone-mapped frames: the preview is their exposure fusion, which reads
             # the frames and their motion, not the merge's levels or colour: a step of these
-            # leaves the picture as it is (a draft of it cost 2.5-3.2 s a step on the real
-            # Pixel 7 bracket and showed the same picture, binned).
-            merge_only = dataclasses.replace(
-                new, **{k: getattr(self.full_params, k) for k in FUSION_KEEPS}
-            )
-            return merge_only != self.full_params
+            # (or of the fields the registration reads snapped) leaves the picture as it is (a
+            # draft of it cost 2.5-3.2 s a step on the real Pixel 7 bracket and showed the same
+            # picture, binned).
+            assert self.pipeline is not None
+            read = self.pipeline.fields_read("fusion", skip=SNAPPED_INPUTS)
+            return any(getattr(new, k) != getattr(self.full_params, k) for k in read)
         return True
 
     def _last_full_run(self) -> PipelineResult | None:

@@ -310,30 +310,6 @@ class FrameColour:
         }
 
 
-def _well_exposed(
-    frames: Sequence[np.ndarray],
-    xs: np.ndarray,
-    ys: np.ndarray,
-    reference: int,
-    to_reference: Sequence[np.ndarray] | None,
-    masks: Sequence[np.ndarray | None] | None,
-    max_level: int,
-    well_exposed: tuple[float, float],
-) -> list[tuple[np.ndarray, np.ndarray]]:
-    """:func:`~hdrcore.merge.white_balance.frame_samples` inside the ``well_exposed`` band."""
-    return frame_samples(
-        frames,
-        xs,
-        ys,
-        reference=reference,
-        to_reference=to_reference,
-        masks=masks,
-        max_level=max_level,
-        lo=well_exposed[0] * max_level,
-        hi=well_exposed[1] * max_level,
-    )
-
-
 def frame_colours(
     frames: Sequence[np.ndarray],
     radiance: np.ndarray,
@@ -379,7 +355,7 @@ def frame_colours(
         srgb = srgb_decode_lut(max_level)
         levels, exposed, plain, balanced = [], [], [], []
         for k, (z, ok) in enumerate(
-            _well_exposed(frames, xs, ys, reference, to_reference, masks, max_level, well_exposed)
+            frame_samples(frames, xs, ys, reference, to_reference, masks, max_level, well_exposed)
         ):
             levels.append(z)
             exposed.append(ok)
@@ -451,7 +427,7 @@ def block_consistency(
     xs = (ox.ravel()[:, None] + dx.ravel()[None, :]).ravel()
     nb = oy.size
     lins, oks = [], []
-    for z, ok in _well_exposed(
+    for z, ok in frame_samples(
         frames, xs, ys, reference, to_reference, masks, max_level, well_exposed
     ):
         lin = np.stack([table[c][z[:, c]] for c in range(3)], axis=-1)
@@ -603,7 +579,7 @@ def _check_frames(
     step = max(1, int(np.ceil(np.sqrt(h * w / max_samples))))
     ys, xs = (a.ravel() for a in np.mgrid[0:h:step, 0:w:step])
     srgb = srgb_decode_lut(max_level)
-    sampled = _well_exposed(frames, xs, ys, reference, to_reference, masks, max_level, well_exposed)
+    sampled = frame_samples(frames, xs, ys, reference, to_reference, masks, max_level, well_exposed)
     levels = [z for z, _ in sampled]
     valid = [ok for _, ok in sampled]
     lin = [np.stack([table[c][z[:, c]] for c in range(3)], axis=-1) for z in levels]

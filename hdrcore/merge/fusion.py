@@ -87,6 +87,10 @@ def _extend_edges(image: np.ndarray, valid: np.ndarray) -> np.ndarray:
     return np.asarray(image[idx[0], idx[1]])
 
 
+#: ``TonemapResult.method`` of a preview made by :func:`exposure_fusion`.
+METHOD = "exposure-fusion"
+
+
 def exposure_fusion(
     frames: Sequence[np.ndarray],
     *,

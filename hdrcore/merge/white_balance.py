@@ -198,19 +198,19 @@ def frame_samples(
     frames: Sequence[np.ndarray],
     xs: np.ndarray,
     ys: np.ndarray,
-    *,
     reference: int,
     to_reference: Sequence[np.ndarray] | None,
     masks: Sequence[np.ndarray | None] | None,
     max_level: int,
-    lo: float,
-    hi: float,
+    band: tuple[float, float],
 ) -> list[tuple[np.ndarray, np.ndarray]]:
     """Per frame, its levels at the reference frame's pixels ``(xs, ys)`` (each frame read at
     its nearest pixel through ``to_reference``, clipped to ``0..max_level``, ``(M, 3)``) and
-    where they may be used: inside the frame, every channel strictly between ``lo`` and ``hi``
-    and (``masks``) not masked out."""
+    where they may be used: inside the frame, every channel strictly inside ``band`` (fractions
+    of ``max_level``) and (``masks``) not masked out."""
     from ..geometry import nearest_in_frame
+
+    lo, hi = band[0] * max_level, band[1] * max_level
 
     shape = np.asarray(frames[reference]).shape[:2]
     out = []
@@ -233,17 +233,7 @@ def _sample(frames, reference, to_reference, masks, max_samples, max_level, band
     h, w = np.asarray(frames[reference]).shape[:2]
     step = max(1, int(np.ceil(np.sqrt(h * w / max_samples))))
     ys, xs = (a.ravel() for a in np.mgrid[step // 2 : h : step, step // 2 : w : step])
-    out = frame_samples(
-        frames,
-        xs,
-        ys,
-        reference=reference,
-        to_reference=to_reference,
-        masks=masks,
-        max_level=max_level,
-        lo=band[0] * max_level,
-        hi=band[1] * max_level,
-    )
+    out = frame_samples(frames, xs, ys, reference, to_reference, masks, max_level, band)
     return ys, xs, (h, w), out
 
 
@@ -502,7 +492,7 @@ def correct_merge(
     g32 = g.astype(np.float32)
     if AVAILABLE and rad.dtype == np.float32 and rad.flags.c_contiguous:
         # one pass a pixel (the shares, float16, read as float32 a chunk of rows at a time),
-        # row spans on the worker threads: 1.05 s on one core -> 0.16 s, on 12 MP and 8 frames
+        # row spans on the worker threads: 12 MP, 8 frames 1.05 s (numpy, one thread) -> 0.13 s
         idx = moving.astype(np.int64)
         delta = (g32[idx] - np.float32(1.0)).astype(np.float32)
 

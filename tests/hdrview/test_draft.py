@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 import viser
 
+from hdrcore.merge.fusion import METHOD as FUSION
 from hdrview.app import InspectorApp
-from hdrview.session import FUSION, Controls, Session
+from hdrview.session import Controls, Session
 from hdrview.view import ClientView
 
 from ._brackets import write_png_bracket

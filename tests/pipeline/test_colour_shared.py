@@ -85,3 +85,16 @@ def test_an_exposure_fusion_preview_is_kept_across_a_step(tmp_path: Path, monkey
     # a new motion makes a new fusion
     pl.run(first.params.replace(align="shift"))
     assert len(calls) == 2
+
+
+def test_the_fusion_reads_the_merge_levels_only_through_the_snapped_registration(
+    tmp_path: Path,
+) -> None:
+    from hdrcore.pipeline import SNAPPED_INPUTS
+
+    pl = Pipeline(_bracket(tmp_path))
+    every = pl.fields_read("fusion")
+    direct = pl.fields_read("fusion", skip=SNAPPED_INPUTS)
+    assert {"saturation", "noise_floor"} <= every  # through the registration's levels
+    assert not {"saturation", "noise_floor", "deghost", "white_balance"} & direct
+    assert {"preview_max_side", "threshold", "align", "response"} <= direct
