@@ -117,15 +117,18 @@ def first_page_ready() -> tuple[float, float] | None:
 def large_bracket(megapixels: float):
     from hdrcore.synthetic import simulate_bracket
 
+    # 16-bit linear TIFFs as a raw converter writes them (the full 16-bit range; 14-bit levels
+    # left in a 16-bit container clip at a quarter of it, which the pipeline then read as
+    # unclipped, and their recovered response was a filmic curve). Noise: 2 levels at 14 bits.
     w = int(round(np.sqrt(megapixels * 1e6 * 1.5)))
     h = int(round(w / 1.5))
     return simulate_bracket(
         scene="window",
         shape=(h, w),
         exposure_times=(1.0, 4.0, 16.0),
-        bits=14,
+        bits=16,
         response="linear",
-        noise_sigma=2.0,
+        noise_sigma=8.0,
         seed=5,
     )
 
@@ -486,7 +489,7 @@ def bench_steps(names: list[str]) -> None:
 
 
 def _sim_bracket(sim):
-    """The simulated frames as a Bracket (linear 14-bit TIFF-like levels, the times known)."""
+    """The simulated frames as a Bracket (16-bit linear TIFF levels, the times known)."""
     import tifffile
 
     from hdrcore.io import load_bracket
@@ -563,7 +566,7 @@ def main() -> int:
     sim = large_bracket(args.megapixels)
     h, w = sim.frames[0].shape[:2]
     print(
-        f"simulated 3-frame {w}x{h} ({w * h / 1e6:.1f} MP) 14-bit bracket in "
+        f"simulated 3-frame {w}x{h} ({w * h / 1e6:.1f} MP) 16-bit linear TIFF bracket in "
         f"{time.perf_counter() - t:.1f} s"
     )
     if importlib.util.find_spec("hdrcore.pipeline") is not None:

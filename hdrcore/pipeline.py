@@ -235,7 +235,9 @@ class PipelineParams:
         (:func:`hdrcore.merge.colour_check.anchor_colour`; the frames decoded with sRGB, as a
         screen shows them, each frame's white balance difference divided out when it was
         corrected), keeping the merge's luminance. The colour is checked before and after
-        (``result.colour["check"]``).
+        (``result.colour["check"]``). Not applied to linear-encoded frames (a recovered
+        response nearer linear than sRGB, :func:`hdrcore.merge.colour_check.frame_encoding`),
+        whose colour the merge already holds.
     white_balance : non-linear input: a frame whose white balance differs from the reference's
         by more than 3 % is divided out of the merge (:mod:`hdrcore.merge.white_balance`; the
         balances are measured and reported either way).

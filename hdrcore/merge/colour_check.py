@@ -67,6 +67,8 @@ __all__ = [
     "ColourAnchor",
     "ColourCheck",
     "ColourResult",
+    "FrameEncoding",
+    "frame_encoding",
     "anchor_colour",
     "check_colour",
     "measure_frames",
@@ -117,6 +119,41 @@ def srgb_decode_lut(max_level: int) -> np.ndarray:
     """``(max_level + 1,)`` sRGB decoding (IEC 61966-2-1) of every level."""
     v = np.arange(max_level + 1, dtype=np.float64) / max_level
     return np.where(v <= 0.04045, v / 12.92, ((v + 0.055) / 1.055) ** 2.4)
+
+
+@dataclass(frozen=True)
+class FrameEncoding:
+    """Whether a bracket's frames are sRGB-like or linear-encoded, read from their recovered
+    response (its mean over the channels): the encoding it is nearer, and its largest
+    distance (in the linear value, 0-1) from each. The colour anchoring decodes the frames
+    with sRGB, which is right for frames a camera rendered for a screen (the real JPEG and PNG
+    brackets in ``../shared/data``: 0.04-0.23 from sRGB, 0.25-0.44 from linear) and wrong for
+    linear-encoded ones (a 16-bit linear TIFF as raw converters write it: simulated, median
+    chromaticity error against the truth 0.0002 merged, 0.067 once anchored to its sRGB
+    decoding)."""
+
+    linear: bool
+    from_linear: float
+    from_srgb: float
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "encoding": "linear" if self.linear else "sRGB-like",
+            "from_linear": self.from_linear,
+            "from_srgb": self.from_srgb,
+        }
+
+
+def frame_encoding(lut: np.ndarray) -> FrameEncoding:
+    """:class:`FrameEncoding` of frames whose recovered response is ``lut`` (``(C, L)`` or
+    ``(L,)``, every level's linear value, 0 at level 0 and 1 at the top)."""
+    g = np.asarray(lut, dtype=np.float64)
+    g = g.mean(axis=0) if g.ndim == 2 else g
+    top = g.size - 1
+    v = np.arange(g.size, dtype=np.float64) / top
+    from_linear = float(np.max(np.abs(g - v)))
+    from_srgb = float(np.max(np.abs(g - srgb_decode_lut(top))))
+    return FrameEncoding(from_linear < from_srgb, from_linear, from_srgb)
 
 
 @dataclass(frozen=True)
@@ -1719,7 +1756,8 @@ class ColourResult:
     """The colour stage of a non-linear merge: the check of the merge as made (``before``),
     the local tone-mapping test, the frames' white balance
     (:class:`~hdrcore.merge.white_balance.FrameBalance`, ``applied`` when the merge was
-    corrected), the anchoring (``None`` when off) and the check of the result (``after``);
+    corrected), the anchoring (``None`` when off, or when the frames are linear-encoded:
+    ``encoding``, :func:`frame_encoding`) and the check of the result (``after``);
     ``before`` and ``after`` are ``None`` when the colour was not measured (a draft)."""
 
     before: ColourCheck | None
@@ -1728,10 +1766,12 @@ class ColourResult:
     local_tone_mapping: Any
     message: str
     white_balance: Any = None
+    encoding: FrameEncoding | None = None
 
     def to_json(self) -> dict[str, Any]:
         return {
             "white_balance": None if self.white_balance is None else self.white_balance.to_json(),
+            "frame_encoding": None if self.encoding is None else self.encoding.to_json(),
             "before": None if self.before is None else self.before.to_json(),
             "after": None if self.after is None else self.after.to_json(),
             "anchor": None if self.anchor is None else self.anchor.to_json(),
@@ -1826,7 +1866,8 @@ def check_colour(
         balance = replace(balance, applied=True)
     done = None
     after = before
-    if anchor:
+    encoding = frame_encoding(lut)
+    if anchor and not encoding.linear:
         done = anchor_colour(
             radiance,
             frames,
@@ -1844,7 +1885,7 @@ def check_colour(
             gains=balance.correction(every_measured=False) if balance.applied else None,
             frame_band=frame_band,
         )
-    if report and (anchor or balance.applied):
+    if report and (done is not None or balance.applied):
         after = colour_check(
             frames,
             radiance,
@@ -1858,8 +1899,17 @@ def check_colour(
         parts.append("white balance corrected: " + balance.message)
     else:
         parts.append(balance.message)
+    if anchor and encoding.linear:
+        parts.append(
+            "colour not anchored: the frames are linear-encoded (their response is "
+            f"{encoding.from_linear:.3f} from linear, {encoding.from_srgb:.3f} from sRGB), so "
+            "the merge holds their colour; anchoring to their sRGB decoding would distort it"
+        )
     if before is None or after is None:
-        parts.append("colour anchored to the frames" if done is not None else "colour not anchored")
+        if not (anchor and encoding.linear):
+            parts.append(
+                "colour anchored to the frames" if done is not None else "colour not anchored"
+            )
         parts.append("not measured (a draft)")
     elif done is not None:
         best = [
@@ -1883,4 +1933,5 @@ def check_colour(
         local_tone_mapping=ltm,
         message="; ".join(parts),
         white_balance=balance,
+        encoding=encoding,
     )
