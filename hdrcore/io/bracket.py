@@ -687,6 +687,42 @@ def _white_balance_warnings(frames: list[Frame]) -> list[BracketWarning]:
     return warns
 
 
+#: Bit depths cameras and scanners write that a 16-bit file can carry unscaled.
+NARROW_DEPTHS = (10, 12, 14)
+#: A clipping pile-up: at least this share of the brightest frame's pixels (any channel) at the
+#: bracket's top level.
+CLIP_PILE = 1e-3
+
+
+def narrow_container(frames: list[Frame]) -> tuple[list[Frame], BracketWarning | None]:
+    """Non-linear 16-bit frames whose levels stop at ``2**b - 1`` (``b`` in
+    :data:`NARROW_DEPTHS`) with a clipping pile-up there (:data:`CLIP_PILE` of the brightest
+    frame's pixels): ``b``-bit data left unscaled in 16-bit files (a scientific camera, a raw
+    converter's document mode). Their levels are read against ``2**b - 1``, so the saturation
+    level (a share of the range) finds the clipped pixels; read against 65535 the clipped
+    highlights merged as valid data and the response recovered from a quarter of the range
+    came out a filmic curve for linear frames. Other frames as they are."""
+    if any(f.is_linear or f.max_level != 65535 for f in frames):
+        return frames, None
+    top = max(int(f.levels.max()) for f in frames)
+    depth = next((b for b in NARROW_DEPTHS if top == (1 << b) - 1), None)
+    if depth is None:
+        return frames, None
+    brightest = max(range(len(frames)), key=lambda k: frames[k].mean_level())
+    pile = float(np.mean(np.any(frames[brightest].levels == top, axis=-1)))
+    if pile < CLIP_PILE:
+        return frames, None
+    narrowed = [
+        f.with_meta(bit_depth=depth, max_level=top, white_level=top, channel_max_levels=(top,) * 3)
+        for f in frames
+    ]
+    return narrowed, BracketWarning(
+        "narrow-container",
+        f"the frames' levels stop at {top} ({pile:.1%} of {frames[brightest].name}'s pixels "
+        f"clip there): {depth}-bit data in 16-bit files, read against {top} instead of 65535",
+    )
+
+
 def load_bracket(
     paths: Iterable[str | os.PathLike],
     *,
@@ -766,6 +802,9 @@ def load_bracket(
 
     frames, orientation = _unify_orientation(frames)
     _check_consistent(frames)
+    frames, narrow = narrow_container(frames)
+    if narrow is not None:
+        warns.append(narrow)
 
     n = len(frames)
     means = [f.mean_level() for f in frames]
