@@ -252,7 +252,10 @@ def _colour_measured(check: dict) -> list[Verdict]:
     ``result.colour["check"]`` with ``before`` and ``after``)."""
     out: list[Verdict] = []
     before, after = check["before"], check["after"]
-    err = after.get("merge_error_srgb")
+    # linear-encoded frames (colour_check.frame_encoding) are compared as their response
+    # decodes them, not as sRGB (which would call their own colour a drift)
+    linear = (check.get("frame_encoding") or {}).get("encoding") == "linear"
+    err = after.get("merge_error" if linear else "merge_error_srgb")
     own = [
         f["best_error_balanced"]
         for f in after.get("frame_colours") or []

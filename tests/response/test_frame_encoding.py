@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 import tifffile
 
+from hdrcore.diagnose import diagnose
 from hdrcore.io import load_bracket
 from hdrcore.merge.colour_check import frame_encoding, srgb_decode_lut
 from hdrcore.pipeline import Pipeline
@@ -81,6 +82,8 @@ def test_linear_tiffs_keep_their_colour(tmp_path, response, bits, anchored, limi
     assert (check["anchor"] is not None) == anchored
     if not anchored:
         assert "linear-encoded" in check["message"]
+        # their own colour is no drift (judged as their response decodes them, not as sRGB)
+        assert "colour-drift" not in {v.code for v in diagnose(result)}
     assert _chromaticity_error(result.radiance, sim.radiance) < limit
 
 
