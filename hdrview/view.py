@@ -88,6 +88,13 @@ PLOTLY_GAP = 0.3
 """Seconds between a first page's status line (with the result) and plotly.js: messages that
 arrive together are handled before the browser draws, so the script would hold up the line."""
 WEBGL_TOAST = "webgl-software-rendering"  # viser's own notification id (BrowserWarning.tsx)
+DRAFT_WORTH_SECONDS = 2.0
+"""A draft is drawn before the full re-merge only when the last full re-merge of the bracket
+(its stages after the registration, to the result drawn) took at least this long. A draft
+costs 0.5-0.7 s at 24 MP; under 2 s (the inspector's target for the full result) the full
+result comes about as soon, and the draft would only delay it: the 24 MP bench bracket's
+re-merge takes 1.7-1.9 s after a saturation step (the draft drawn at 0.8-0.9 s, the full result
+at 2.6-2.8 s); the real Xperia's 4.5-6 s keeps its drafts."""
 
 
 def _term(word: str, paper: str) -> str:
@@ -195,6 +202,8 @@ class ClientView:
         # job start -> the full-resolution result drawn (before its ghost test)
         self.last_shown_seconds: float | None = None
         self.last_shown_cpu: float | None = None
+        # the last full re-merge of this bracket: registration drawn -> result drawn
+        self.last_merge_seconds: float | None = None
         self._t_created = time.perf_counter()
         self._lock = threading.RLock()
         self._syncing = False
@@ -726,6 +735,7 @@ class ClientView:
                     self.uploads.close_set()  # the next upload starts a new set
                 raise
             self._loaded = wanted
+            self.last_merge_seconds = None  # another bracket: its re-merge not timed yet
             self._sync_widgets_to_bracket()
             self.notify("Loaded", f"{label}: {len(self.session.bracket or ())} frames")
         ctx.check()
@@ -751,7 +761,14 @@ class ClientView:
             self.last_ratios_seconds = time.perf_counter() - t0
             self.last_ratios_cpu = time.process_time() - c0
             ctx.check()
-            if self.drafts and self.session.draft_wanted(self.controls, self.draft_max_side):
+            if (
+                self.drafts
+                and (
+                    self.last_merge_seconds is None
+                    or self.last_merge_seconds >= DRAFT_WORTH_SECONDS
+                )
+                and self.session.draft_wanted(self.controls, self.draft_max_side)
+            ):
                 # A large bracket: the preview of a binned copy (hdrcore.draft) first, so the
                 # page follows a slider in a fraction of the full re-merge's time.
                 from hdrcore.pipeline import Cancelled
@@ -773,10 +790,16 @@ class ClientView:
             ctx.check()
             registered = self.session.run(self.controls, progress=progress, until="registration")
             ctx.check()
-            if getattr(registered, "registration", None) is not None:
+            drawn = self._drawn_result
+            if getattr(registered, "registration", None) is not None and not (
+                drawn is not None and drawn.registration is registered.registration
+            ):
+                # a new registration drawn at once (a kept one is on the page already, drawn
+                # with the response the full result reads)
                 self._draw(registered, stages=("registration",))
             self.last_registration_seconds = time.perf_counter() - t0
             self.last_registration_cpu = time.process_time() - c0
+            t_registered = time.perf_counter()
             ctx.check()
             # the full-resolution picture first; the region ghost test (no pixel changes
             # without deghost) after it is drawn
@@ -785,6 +808,8 @@ class ClientView:
         ctx.check()
         self._draw(result)
         self.last_shown_seconds = time.perf_counter() - t0
+        if result is not None and result.timings.get("merge", 0.0) > 0.0:
+            self.last_merge_seconds = time.perf_counter() - t_registered
         self.last_shown_cpu = time.process_time() - c0
         if result is not None and result.merge is not None and result.merge.ghost_test_pending:
             ctx.progress(0.97, "ghost test: where the frames disagree")

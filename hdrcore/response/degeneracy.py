@@ -90,17 +90,15 @@ def _flat_runs(g: np.ndarray, lo: float, hi: float) -> tuple[int, int]:
         return 0, a
     lg = np.log(np.maximum(g[a : b + 1], 1e-300))
     flat = np.diff(lg) < FLAT_SLOPE * 255.0 / m
-    best, start, run, run_start = 0, a, 0, a
-    for i, f in enumerate(flat):
-        if f:
-            if run == 0:
-                run_start = a + i
-            run += 1
-            if run > best:
-                best, start = run, run_start
-        else:
-            run = 0
-    return best, start
+    # the runs of flat steps from the edges of the padded mask (a loop over a 16-bit curve's
+    # 65536 levels took 30-40 ms a channel); the first longest run, as a scan would find it
+    edges = np.diff(np.concatenate(([0], flat.astype(np.int8), [0])))
+    starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+    if starts.size == 0:
+        return 0, a
+    lengths = ends - starts
+    i = int(np.argmax(lengths))
+    return int(lengths[i]), a + int(starts[i])
 
 
 def degeneracy(

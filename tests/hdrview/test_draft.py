@@ -11,6 +11,7 @@ import pytest
 import viser
 
 from hdrcore.merge.fusion import METHOD as FUSION
+from hdrview import view as view_module
 from hdrview.app import InspectorApp
 from hdrview.session import Controls, Session
 from hdrview.view import ClientView
@@ -39,6 +40,7 @@ def _errors(view: ClientView) -> list[str]:
 
 
 def test_draft_first_then_the_full_result(large: ClientView, monkeypatch) -> None:
+    monkeypatch.setattr(view_module, "DRAFT_WORTH_SECONDS", 0.0)  # however quick the re-merge
     shown: list[tuple[str, tuple[int, ...]]] = []
     panel = large.result_panel
     original = panel.show_draft
@@ -68,6 +70,27 @@ def test_draft_first_then_the_full_result(large: ClientView, monkeypatch) -> Non
     large.set_control("tonemap_exposure", 1.0)
     assert large.wait_idle(120)
     assert len(shown) == 2 and large.last_draft_seconds is None
+    assert not _errors(large)
+
+
+def test_no_draft_when_the_full_re_merge_is_quick(large: ClientView, monkeypatch) -> None:
+    """A draft delays the full result by its own cost: it is drawn only when the last full
+    re-merge (registration drawn -> result drawn) took DRAFT_WORTH_SECONDS or longer."""
+    assert large.request_path("bracket")
+    assert large.wait_idle(120)
+    assert large.last_draft_seconds is not None  # a new bracket: its re-merge not timed yet
+    quick = large.last_merge_seconds
+    assert quick is not None and 0.0 < quick < view_module.DRAFT_WORTH_SECONDS
+    large.last_draft_seconds = None
+    large.set_control("saturation", 240.0)
+    assert large.wait_idle(120)
+    assert large.last_draft_seconds is None and large.last_shown_seconds is not None
+    assert large.result_panel.image.label == "tonemapped"
+    # a slower re-merge than the threshold: the next step draws its draft first
+    monkeypatch.setattr(view_module, "DRAFT_WORTH_SECONDS", 0.0)
+    large.set_control("saturation", 235.0)
+    assert large.wait_idle(120)
+    assert large.last_draft_seconds is not None
     assert not _errors(large)
 
 
