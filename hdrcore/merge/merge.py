@@ -383,7 +383,7 @@ def merge(
             [float(t) for t in plan.times],
             saturation=[float(v) for v in plan.saturation],
             floor=plan.floor,
-            lut=plan.lut,
+            lut=plan.response,
             max_level=plan.max_level,
             noise=plan.noise,
             masks=plan.masks,

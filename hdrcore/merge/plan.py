@@ -70,10 +70,29 @@ class Plan:
     fields: tuple[Any, ...] = ()
     # px over which a resampled frame's weight rises from its edge (0: a step)
     feather: float = 0.0
+    # float32 (C, L): the response LUT as given, which the region ghost test reads (its level
+    # error and margins are those of non-linear data); ``lut`` is None when it is the
+    # identity (:data:`IDENTITY_LUT_TOLERANCE`: the kernel's linear path)
+    response: np.ndarray | None = None
 
     @property
     def warped(self) -> bool:
         return any(t is not None for t in self.transforms)
+
+
+#: A response LUT within this relative distance of the identity at every level is applied as
+#: the identity. Its table costs the merge a lookup per sample where the linear path is
+#: vectorised: the 24 MP bench bracket of 16-bit linear TIFFs (recovered gamma 1.0000005,
+#: 5.3e-6 from the identity at level 1, less elsewhere) merged in 0.87 s with the table, 0.15 s
+#: without, the radiance the same to 3e-7 (weights and shares to the bit).
+IDENTITY_LUT_TOLERANCE = 1e-5
+
+
+def _identity(g: np.ndarray, max_level: int) -> bool:
+    """Whether every channel of LUT ``g`` ``(C, max_level + 1)`` is the identity ``v /
+    max_level`` within :data:`IDENTITY_LUT_TOLERANCE` of ``v`` (relative)."""
+    v = np.arange(g.shape[1], dtype=np.float64) / float(max_level)
+    return bool(np.all(np.abs(g - v) <= IDENTITY_LUT_TOLERANCE * v + 1e-12))
 
 
 @dataclass(frozen=True)
@@ -178,7 +197,7 @@ def make_plan(
         )
     order = np.argsort(times, kind="stable")
 
-    lut = lut_var = None
+    lut = lut_var = response_lut = None
     lut_len = 0
     if integer:
         if response is not None:
@@ -220,12 +239,25 @@ def make_plan(
                 expected=f"1..{top} (levels of up to 16 bits; float frames otherwise)",
                 found=str(max_level),
             )
-        if response is None:
+        if response is not None:
+            response_lut = np.ascontiguousarray(g, dtype=np.float32)
+        if response is None or _identity(g, max_level):
+            # (a response that is the identity: the levels are the linear values, read by the
+            # kernel's vectorised linear path, their level noise the same as through the LUT)
             lut_len = max_level + 1
+            if response is not None:
+                # a LUT has no entry past max_level (the table path counts such samples)
+                top = max(int(a.max(initial=0)) for a in arrs)
+                if top > max_level:
+                    raise ParameterError(
+                        "levels above max_level have no response LUT entry",
+                        expected=f"levels 0..{max_level}",
+                        found=f"level {top}",
+                    )
         else:
             nl = noise or NoiseModel()
             slope = np.gradient(g, axis=1)  # g'(M) per level
-            lut = np.ascontiguousarray(g, dtype=np.float32)
+            lut = response_lut
             lut_var = np.ascontiguousarray(slope**2 * nl.level_variance(), dtype=np.float32)
         unit_max = float(max_level)
     else:
@@ -317,6 +349,7 @@ def make_plan(
         noise=noise,
         transforms=tf_list,
         fields=fld_list,
+        response=response_lut,
     )
 
 
