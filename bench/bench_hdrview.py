@@ -114,21 +114,27 @@ def first_page_ready() -> tuple[float, float] | None:
     return elapsed, result
 
 
-def large_bracket(megapixels: float):
+#: The large bracket's encodings: ``linear16`` 16-bit linear TIFFs as raw converters write them,
+#: ``srgb8`` 8-bit sRGB TIFFs (a camera's JPEG rendering, without its compression).
+ENCODINGS = {"linear16": (16, "linear", 8.0), "srgb8": (8, "srgb", 0.5)}
+
+
+def large_bracket(megapixels: float, encoding: str = "linear16"):
     from hdrcore.synthetic import simulate_bracket
 
-    # 16-bit linear TIFFs as a raw converter writes them (the full 16-bit range; 14-bit levels
-    # left in a 16-bit container clip at a quarter of it, which the pipeline then read as
-    # unclipped, and their recovered response was a filmic curve). Noise: 2 levels at 14 bits.
+    # 16-bit linear TIFFs use the full 16-bit range (14-bit levels left in a 16-bit container
+    # clip at a quarter of it; the loader reads those as 14-bit, narrow-container). Noise: 2
+    # levels at 14 bits; half a level at 8 bits.
+    bits, response, noise = ENCODINGS[encoding]
     w = int(round(np.sqrt(megapixels * 1e6 * 1.5)))
     h = int(round(w / 1.5))
     return simulate_bracket(
         scene="window",
         shape=(h, w),
         exposure_times=(1.0, 4.0, 16.0),
-        bits=16,
-        response="linear",
-        noise_sigma=8.0,
+        bits=bits,
+        response=response,
+        noise_sigma=noise,
         seed=5,
     )
 
@@ -207,7 +213,7 @@ def bench_pipeline(sim, repeat: int, drafts: bool = True) -> list[tuple]:
         names = []
         for k, f in enumerate(sim.frames):
             p = folder / f"frame{k}.tif"
-            tifffile.imwrite(p, f.astype(np.uint16))
+            tifffile.imwrite(p, f.astype(np.uint8 if sim.bits == 8 else np.uint16))
             names.append(p.name)
         (folder / "exposure_times.txt").write_text(
             "".join(f"{n} {t:g}\n" for n, t in zip(names, sim.exposure_times, strict=True))
@@ -489,7 +495,7 @@ def bench_steps(names: list[str]) -> None:
 
 
 def _sim_bracket(sim):
-    """The simulated frames as a Bracket (16-bit linear TIFF levels, the times known)."""
+    """The simulated frames as a Bracket (TIFF levels, the times known)."""
     import tifffile
 
     from hdrcore.io import load_bracket
@@ -497,7 +503,7 @@ def _sim_bracket(sim):
     tmp = Path(tempfile.mkdtemp(prefix="bench_hdrview_"))
     names = []
     for k, f in enumerate(sim.frames):
-        tifffile.imwrite(tmp / f"frame{k}.tif", f.astype(np.uint16))
+        tifffile.imwrite(tmp / f"frame{k}.tif", f.astype(np.uint8 if sim.bits == 8 else np.uint16))
         names.append(f"frame{k}.tif")
     (tmp / "exposure_times.txt").write_text(
         "".join(f"{n} {t:g}\n" for n, t in zip(names, sim.exposure_times, strict=True))
@@ -510,6 +516,12 @@ def main() -> int:
     ap.add_argument("--megapixels", type=float, default=24.0)
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--skip-browser", action="store_true")
+    ap.add_argument(
+        "--encoding",
+        choices=sorted(ENCODINGS),
+        default="linear16",
+        help="the large bracket's TIFFs: 16-bit linear (default) or 8-bit sRGB",
+    )
     ap.add_argument(
         "--draft",
         default=None,
@@ -541,7 +553,9 @@ def main() -> int:
         return 0
     if args.draft is not None:
         names = list(REAL) + ["sim"] if args.draft == "all" else args.draft.split(",")
-        sim = _sim_bracket(large_bracket(args.megapixels)) if "sim" in names else None
+        sim = (
+            _sim_bracket(large_bracket(args.megapixels, args.encoding)) if "sim" in names else None
+        )
         bench_draft([n for n in names if n != "sim"], args.draft_side, sim)
         return 0
     os.environ.setdefault("PYTHONPATH", str(ROOT))
@@ -563,10 +577,11 @@ def main() -> int:
             )
         )
     t = time.perf_counter()
-    sim = large_bracket(args.megapixels)
+    sim = large_bracket(args.megapixels, args.encoding)
     h, w = sim.frames[0].shape[:2]
     print(
-        f"simulated 3-frame {w}x{h} ({w * h / 1e6:.1f} MP) 16-bit linear TIFF bracket in "
+        f"simulated 3-frame {w}x{h} ({w * h / 1e6:.1f} MP) {sim.bits}-bit {sim.response} TIFF "
+        "bracket in "
         f"{time.perf_counter() - t:.1f} s"
     )
     if importlib.util.find_spec("hdrcore.pipeline") is not None:
