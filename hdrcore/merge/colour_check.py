@@ -1033,6 +1033,17 @@ def _anchor_rows(
         lt_min = log_t[0]
         for k in range(n):
             lt_min = min(lt_min, log_t[k])
+    # each column's cells of the field grid, once for all rows
+    cx0 = np.empty(w, np.int64)
+    cx1 = np.empty(w, np.int64)
+    cfx = np.empty(w)
+    for x in range(w):
+        gx = (x - step // 2) / step
+        gx = min(max(gx, 0.0), gw - 1.0)
+        cx0[x] = min(int(gx), max(gw - 2, 0))
+        cx1[x] = min(cx0[x] + 1, gw - 1)
+        cfx[x] = gx - cx0[x]
+    nq = 4 if use_ref else 3  # the reference's share (4th field) is read by use_ref only
     for y in range(r0, r1):
         gy = (y - step // 2) / step
         gy = min(max(gy, 0.0), gh - 1.0)
@@ -1040,18 +1051,16 @@ def _anchor_rows(
         y1 = min(y0 + 1, gh - 1)
         fy = gy - y0
         for x in range(w):
-            gx = (x - step // 2) / step
-            gx = min(max(gx, 0.0), gw - 1.0)
-            x0 = min(int(gx), max(gw - 2, 0))
-            x1 = min(x0 + 1, gw - 1)
-            fx = gx - x0
+            x0 = cx0[x]
+            x1 = cx1[x]
+            fx = cfx[x]
             r_ = rad[y, x, 0]
             g_ = rad[y, x, 1]
             b_ = rad[y, x, 2]
             y_old = l0 * r_ + l1 * g_ + l2 * b_
             if not (y_old > 0) or not np.isfinite(y_old):
                 continue
-            for q in range(4):
+            for q in range(nq):
                 a0 = fields[y0, x0, q] * (1 - fx) + fields[y0, x1, q] * fx
                 a1 = fields[y1, x0, q] * (1 - fx) + fields[y1, x1, q] * fx
                 fl[q] = a0 * (1 - fy) + a1 * fy
