@@ -11,6 +11,7 @@ import tifffile
 from hdrcore.io import load_bracket
 from hdrcore.pipeline import Pipeline
 from hdrcore.synthetic import simulate_bracket
+from tests.response.test_frame_encoding import _chromaticity_error
 
 TIMES = (1.0, 4.0, 16.0)
 
@@ -24,14 +25,6 @@ def _write(tmp_path: Path, frames, times=TIMES) -> list[Path]:
         "".join(f"{p.name} {t:g}\n" for p, t in zip(paths, times, strict=True))
     )
     return paths
-
-
-def _chromaticity_error(rad: np.ndarray, truth: np.ndarray) -> float:
-    rad = np.asarray(rad, np.float64)
-    ok = np.all(np.isfinite(rad), -1) & (rad.sum(-1) > 0) & (truth.sum(-1) > 0)
-    a = rad[ok] / rad[ok].sum(-1, keepdims=True)
-    b = truth[ok] / truth[ok].sum(-1, keepdims=True)
-    return float(np.median(np.abs(a - b).max(-1)))
 
 
 def test_fourteen_bit_levels_in_sixteen_bit_files(tmp_path) -> None:
