@@ -1118,42 +1118,6 @@ def _anchor_rows(
                     rad[y, x, c] = col[c] * sc
 
 
-def _apply_numba(
-    rad,
-    fields,
-    step,
-    shares,
-    log_t,
-    redecode,
-    ref_frame,
-    table,
-    noise_floor,
-    saturation,
-    max_level,
-    band,
-) -> None:
-    """The full-resolution pass of :func:`anchor_colour` with the numba kernel, row spans on
-    up to two threads (it releases the GIL)."""
-    run_row_spans(
-        rad.shape[0],
-        None,
-        _apply_rows(
-            rad,
-            fields,
-            step,
-            shares,
-            log_t,
-            redecode,
-            ref_frame,
-            table,
-            noise_floor,
-            saturation,
-            max_level,
-            band,
-        ),
-    )
-
-
 def _apply_rows(
     rad,
     fields,
@@ -1168,7 +1132,9 @@ def _apply_rows(
     max_level,
     band,
 ) -> Callable[[int, int], None]:
-    """``rows(r0, r1)``: :func:`_apply_numba`'s pass over output rows ``r0..r1``."""
+    """``rows(r0, r1)``: steps 1-2 of :func:`anchor_colour` (the re-decoded colour times the
+    smooth gains; the reference's own colour with ``ref_frame``) over output rows ``r0..r1``
+    with the numba kernel (it releases the GIL)."""
     use_redecode = redecode is not None
     use_ref = ref_frame is not None
     sh = shares if use_redecode else np.zeros((1, 1, 1), np.float16)
@@ -1424,13 +1390,11 @@ def _frame_band(
     mixed with weights that favour the frame nearest mid-grey; luminance kept. Returns the
     fraction of pixels some frame gave their colour fully."""
     h, w = rad.shape[:2]
-    inv_2s2 = 1.0 / (2.0 * float(sigma) ** 2)
-    tab = np.ascontiguousarray(table, np.float64)
     if AVAILABLE:
-        return _frame_band_fused(
+        rows, counts = _frame_band_rows(
             rad,
             frames,
-            tab,
+            table,
             gains,
             max_level=max_level,
             noise_floor=noise_floor,
@@ -1439,8 +1403,12 @@ def _frame_band(
             to_reference=to_reference,
             masks=masks,
             band=band,
-            inv_2s2=inv_2s2,
+            sigma=sigma,
         )
+        run_row_spans(h, None, rows)
+        return float(sum(counts)) / float(h * w)
+    inv_2s2 = 1.0 / (2.0 * float(sigma) ** 2)
+    tab = np.ascontiguousarray(table, np.float64)
     # without numba (slow: for debugging the kernel in Python): the per-frame numpy spec
     acc = np.zeros((h, w, 3), np.float32)
     wsum = np.zeros((h, w), np.float32)
@@ -1484,46 +1452,10 @@ def _reading_homographies(
     return out
 
 
-def _frame_band_fused(
-    rad,
-    frames,
-    tab,
-    gains,
-    *,
-    max_level,
-    noise_floor,
-    saturation,
-    reference,
-    to_reference,
-    masks,
-    band,
-    inv_2s2,
-) -> float:
-    """:func:`_frame_band` through :func:`_frame_band_fused_rows` (one pass over the output,
-    every frame read at each pixel): the same result to the bit as the per-frame passes."""
-    h, w = rad.shape[:2]
-    rows, counts = _frame_band_rows(
-        rad,
-        frames,
-        tab,
-        gains,
-        max_level=max_level,
-        noise_floor=noise_floor,
-        saturation=saturation,
-        reference=reference,
-        to_reference=to_reference,
-        masks=masks,
-        band=band,
-        inv_2s2=inv_2s2,
-    )
-    run_row_spans(h, None, rows)
-    return float(sum(counts)) / float(h * w)
-
-
 def _frame_band_rows(
     rad,
     frames,
-    tab,
+    table,
     gains,
     *,
     max_level,
@@ -1533,13 +1465,16 @@ def _frame_band_rows(
     to_reference,
     masks,
     band,
-    inv_2s2,
+    sigma,
 ) -> tuple[Callable[[int, int], None], list[int]]:
-    """``rows(r0, r1)``: :func:`_frame_band_fused`'s pass over output rows ``r0..r1``, and the
-    list each call appends its count of pixels given a frame's colour fully to."""
+    """``rows(r0, r1)``: :func:`_frame_band` through :func:`_frame_band_fused_rows` over
+    output rows ``r0..r1`` (every frame read at each pixel: the same result to the bit as the
+    per-frame passes), and the list each call appends its count of pixels given a frame's
+    colour fully to."""
     import threading
 
-    h, w = rad.shape[:2]
+    tab = np.ascontiguousarray(table, np.float64)
+    inv_2s2 = 1.0 / (2.0 * float(sigma) ** 2)
     n = len(frames)
     reads = _reading_homographies(to_reference, reference, n)
     hmats = np.stack([np.eye(3) if m is None else m for m in reads])
@@ -1769,50 +1704,9 @@ def anchor_colour(
     ref_frame = (
         None if reference is None or frame_band is not None else np.asarray(frames[reference])
     )
-    if AVAILABLE and frame_band is not None and ref_frame is None:
-        # steps 1-2 and 3 over the same few rows in turn, while they are in cache (two whole
-        # passes over a 24 MP merge: 1.46 s)
-        apply_rows = _apply_rows(
-            rad,
-            fields.astype(np.float32),
-            step,
-            shares,
-            log_t,
-            redecode,
-            None,
-            table,
-            noise_floor,
-            saturation,
-            max_level,
-            reference_band,
-        )
-        band_rows, counts = _frame_band_rows(
-            rad,
-            frames,
-            np.ascontiguousarray(table, np.float64),
-            frame_gains,
-            max_level=max_level,
-            noise_floor=noise_floor,
-            saturation=saturation,
-            reference=reference,
-            to_reference=to_reference,
-            masks=masks,
-            band=frame_band,
-            inv_2s2=1.0 / (2.0 * float(frame_sigma) ** 2),
-        )
-
-        def both(r0: int, r1: int) -> None:
-            for c0 in range(r0, r1, ANCHOR_CHUNK_ROWS):
-                c1 = min(r1, c0 + ANCHOR_CHUNK_ROWS)
-                apply_rows(c0, c1)
-                band_rows(c0, c1)
-
-        run_row_spans(h, None, both)
-        return _anchor_result(
-            step, shift, shares_out, decode_name, frame_gains, float(sum(counts)) / float(h * w)
-        )
+    own_fraction = 0.0
     if AVAILABLE:
-        _apply_numba(
+        apply_rows = _apply_rows(
             rad,
             fields.astype(np.float32),
             step,
@@ -1826,6 +1720,36 @@ def anchor_colour(
             max_level,
             reference_band,
         )
+        band_rows: Callable[[int, int], None] | None = None
+        counts: list[int] = []
+        if frame_band is not None:
+            band_rows, counts = _frame_band_rows(
+                rad,
+                frames,
+                table,
+                frame_gains,
+                max_level=max_level,
+                noise_floor=noise_floor,
+                saturation=saturation,
+                reference=reference,
+                to_reference=to_reference,
+                masks=masks,
+                band=frame_band,
+                sigma=frame_sigma,
+            )
+
+        def rows(r0: int, r1: int) -> None:
+            # steps 1-2 and 3 over the same few rows in turn, while they are in cache (two
+            # whole passes over a 24 MP merge: 1.46 s)
+            for c0 in range(r0, r1, ANCHOR_CHUNK_ROWS):
+                c1 = min(r1, c0 + ANCHOR_CHUNK_ROWS)
+                apply_rows(c0, c1)
+                if band_rows is not None:
+                    band_rows(c0, c1)
+
+        run_row_spans(h, None, rows)
+        if frame_band is not None:
+            own_fraction = float(sum(counts)) / float(h * w)
     else:  # pragma: no cover - exercised only without numba
         _apply_numpy(
             rad,
@@ -1843,23 +1767,22 @@ def anchor_colour(
             pixel_log_time,
             reference_band,
         )
-    own_fraction = 0.0
-    if frame_band is not None:
-        own_fraction = _frame_band(
-            rad,
-            frames,
-            table,
-            frame_gains,
-            max_level=max_level,
-            noise_floor=noise_floor,
-            saturation=saturation,
-            reference=reference,
-            to_reference=to_reference,
-            masks=masks,
-            band=frame_band,
-            sigma=frame_sigma,
-            rows_per_chunk=rows_per_chunk,
-        )
+        if frame_band is not None:
+            own_fraction = _frame_band(
+                rad,
+                frames,
+                table,
+                frame_gains,
+                max_level=max_level,
+                noise_floor=noise_floor,
+                saturation=saturation,
+                reference=reference,
+                to_reference=to_reference,
+                masks=masks,
+                band=frame_band,
+                sigma=frame_sigma,
+                rows_per_chunk=rows_per_chunk,
+            )
     return _anchor_result(step, shift, shares_out, decode_name, frame_gains, own_fraction)
 
 
@@ -2004,7 +1927,8 @@ def check_colour(
     done = None
     after = before
     encoding = frame_encoding(lut)
-    if anchor and not encoding.linear:
+    unanchored = anchor and encoding.linear  # asked for, not applied: why is said below
+    if anchor and not unanchored:
         done = anchor_colour(
             radiance,
             frames,
@@ -2036,14 +1960,14 @@ def check_colour(
         parts.append("white balance corrected: " + balance.message)
     else:
         parts.append(balance.message)
-    if anchor and encoding.linear:
+    if unanchored:
         parts.append(
             "colour not anchored: the frames are linear-encoded (their response is "
             f"{encoding.from_linear:.3f} from linear, {encoding.from_srgb:.3f} from sRGB), so "
             "the merge holds their colour; anchoring to their sRGB decoding would distort it"
         )
     if before is None or after is None:
-        if not (anchor and encoding.linear):
+        if not unanchored:
             parts.append(
                 "colour anchored to the frames" if done is not None else "colour not anchored"
             )
