@@ -142,6 +142,9 @@ class PairData:
     # levels[l] = (bright_l, k*dark_l) clipped to [lo, hi]; levels[0] is None for large frames
     levels: list = field(default_factory=list)
     lut: np.ndarray | None = None
+    # select_samples' candidates, which do not depend on the motion: a search selects again at
+    # each level's start, after moving and for a re-fit (each 1 M candidates at 24 MP)
+    candidates: dict = field(default_factory=dict, repr=False, compare=False)
 
     def linear(self, frame: np.ndarray) -> np.ndarray:
         """A raw frame (``self.dark`` or ``self.bright``) as linear float values."""
@@ -382,7 +385,12 @@ def select_samples(
         )
         return out
 
-    def candidates(n_cand: int):
+    def scored(n_cand: int):
+        """The well-exposed candidates of the dark frame's side, in raster order (cached)."""
+        key = (level, n_cand, phase, by_gradient, None if rects is None else rects.tobytes())
+        hit = data.candidates.get(key)
+        if hit is not None:
+            return hit
         yy = np.empty(n_cand, np.int64)
         xx = np.empty(n_cand, np.int64)
         v = np.empty(n_cand)
@@ -399,22 +407,34 @@ def select_samples(
                 out |= (fx >= x0) & (fx < x1) & (fy >= y0) & (fy < y1)
             keep_c = ~out
             yy, xx, v = yy[keep_c], xx[keep_c], v[keep_c]
-            if score is not None and score.size:
+            if score.size:
                 score = score[keep_c]
+        data.candidates[key] = hit = (yy, xx, v, score)
+        return hit
+
+    def candidates(n_cand: int):
+        yy, xx, v, score = scored(n_cand)
         if not check_bright:
             return yy, xx, v, score
         n_top = int(1.3 * max_samples)
-        if by_gradient and score is not None and v.size > n_top:
+        if by_gradient and v.size > n_top:
             # the bright frame's side only for the best-scoring candidates (it is the slower
-            # test): the top 1.3 max_samples, all of them if too few of those pass
-            top = np.argpartition(score, -n_top)[-n_top:]
-            top.sort()
+            # test): the top 1.3 max_samples, then the others if too few of those pass
+            top = _raster(np.argpartition(score, -n_top)[-n_top:], v.size)
             ok = bright_ok(xx[top], yy[top])
-            if ok.sum() >= max_samples:
+            if np.count_nonzero(ok) < max_samples:
+                rest = np.ones(v.size, bool)
+                rest[top] = False
+                others = np.flatnonzero(rest)
+                sel = np.zeros(v.size, bool)
+                sel[top[ok]] = True
+                sel[others[bright_ok(xx[others], yy[others])]] = True
+                top = np.flatnonzero(sel)
+            else:
                 top = top[ok]
-                return yy[top], xx[top], v[top], score[top]
+            return yy[top], xx[top], v[top], score[top]
         ok = bright_ok(xx, yy)
-        return yy[ok], xx[ok], v[ok], score[ok] if score is not None and by_gradient else score
+        return yy[ok], xx[ok], v[ok], score[ok] if by_gradient else score
 
     yy, xx, v, score = candidates(n_cand)
     if not by_gradient and 0 < v.size < max_samples and n_cand < n_inner:
@@ -429,9 +449,17 @@ def select_samples(
     elif v.size > max_samples:
         keep = np.random.default_rng(seed).choice(v.size, max_samples, replace=False)
     if keep is not None:
-        keep.sort()  # raster order: the searches' reads stay local in memory
+        keep = _raster(keep, v.size)  # the searches' reads stay local in memory
         yy, xx, v = yy[keep], xx[keep], v[keep]
     return Samples(xx.astype(np.float64), yy.astype(np.float64), k * v, well_exposed)
+
+
+def _raster(idx: np.ndarray, n: int) -> np.ndarray:
+    """Distinct indices into ``n`` candidates, in increasing (raster) order: a mask read back,
+    cheaper than sorting a large fraction of ``n``."""
+    mask = np.zeros(n, bool)
+    mask[idx] = True
+    return np.flatnonzero(mask)
 
 
 def _frame(data: PairData, level: int, ramp: float = BORDER_RAMP) -> np.ndarray:
