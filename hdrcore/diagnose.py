@@ -13,8 +13,6 @@ import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-import numpy as np
-
 from .status import Severity
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -323,12 +321,6 @@ def exif_pairs(times_source: str) -> set[str]:
     return {part.strip() for part in tail.split(",") if part.strip()}
 
 
-def _fraction(mask: np.ndarray) -> float:
-    """The share of True pixels (a count: a 24 MP mask's ``mean`` converts it to floats, 30-50
-    ms)."""
-    return float(np.count_nonzero(mask)) / mask.size if mask.size else 0.0
-
-
 def diagnose(result: PipelineResult) -> list[Verdict]:
     """Verdicts for one pipeline run, most severe first."""
     out: list[Verdict] = []
@@ -501,7 +493,7 @@ def diagnose(result: PipelineResult) -> list[Verdict]:
         order = {"error": 0, "warning": 1, "info": 2}
         out.sort(key=lambda v: order.get(v.severity, 3))
         return out
-    summary_clipped = _fraction(m.clipped)
+    summary_clipped = m.clipped_fraction
     if summary_clipped > CLIPPED_FRACTION:
         out.append(
             Verdict(
@@ -513,7 +505,7 @@ def diagnose(result: PipelineResult) -> list[Verdict]:
                 (0,),
             )
         )
-    under = _fraction(m.underexposed)
+    under = m.underexposed_fraction
     if under > UNDEREXPOSED_FRACTION:
         out.append(
             Verdict(
@@ -525,7 +517,7 @@ def diagnose(result: PipelineResult) -> list[Verdict]:
                 (len(names) - 1,),
             )
         )
-    ghost = _fraction(m.ghost)
+    ghost = m.ghost_fraction
     if ghost > GHOST_FRACTION:
         out.append(
             Verdict(

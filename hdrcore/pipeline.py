@@ -65,7 +65,7 @@ from .merge.colour import (
     convert_space_in_place,
     space_to_space_matrix,
 )
-from .merge.colour_check import check_colour, measure_frames
+from .merge.colour_check import FrameMeasures, check_colour, measure_frames
 from .merge.fusion import METHOD as FUSION_METHOD
 from .merge.fusion import exposure_fusion
 from .noise import BracketNoise, FrameNoise, bracket_noise, frame_noise
@@ -1700,7 +1700,7 @@ def _merge_frames(
     excluded: Any = None,
     reuse: Any = None,
     defer_ghost_test: bool = False,
-    frame_measures: tuple[Any, Any, dict[str, Any]] | None = None,
+    frame_measures: FrameMeasures | None = None,
 ):
     b = ctx.bracket
     n = len(b)
@@ -2173,9 +2173,7 @@ def _stage_merge(ctx: _Context, p: Any, up: Inputs, reuse: Any = None) -> tuple:
     )
 
 
-def _stage_frame_measures(
-    ctx: _Context, p: Any, up: Inputs
-) -> tuple[Any, Any, dict[str, Any]] | None:
+def _stage_frame_measures(ctx: _Context, p: Any, up: Inputs) -> FrameMeasures | None:
     """A non-linear bracket's white balance per frame and local tone mapping test, and what
     the colour checks measure on the frames alone: they read the frames, their response and
     motion, never the merge or its levels, so a saturation or noise-floor step takes them from

@@ -42,7 +42,7 @@ a grid of at most ``max_samples`` reference pixels (nearest pixel in the other f
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -72,6 +72,7 @@ __all__ = [
     "anchor_colour",
     "check_colour",
     "measure_frames",
+    "FrameMeasures",
     "FrameColour",
     "FramePairColour",
     "FramePairNoise",
@@ -1842,6 +1843,19 @@ class ColourResult:
         }
 
 
+@dataclass(frozen=True)
+class FrameMeasures:
+    """What :func:`check_colour` measures on the frames alone (:func:`measure_frames`): each
+    frame's white balance against the reference
+    (:class:`~hdrcore.merge.white_balance.FrameBalance`), the local tone mapping test and a
+    dict the colour checks of merges of these frames fill with what they measure on the frames
+    (:func:`colour_check`'s ``shared``)."""
+
+    balance: Any
+    local_tone_mapping: Any
+    shared: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
+
+
 def measure_frames(
     frames: Sequence[np.ndarray],
     lut: np.ndarray,
@@ -1850,12 +1864,11 @@ def measure_frames(
     reference: int,
     to_reference: Sequence[np.ndarray] | None = None,
     masks: Sequence[np.ndarray | None] | None = None,
-) -> tuple[Any, Any, dict[str, Any]]:
+) -> FrameMeasures:
     """What :func:`check_colour` measures on the frames alone: each frame's white balance
-    against the reference (:func:`hdrcore.merge.white_balance.measure_white_balance`), the
-    local tone mapping test (:func:`hdrcore.response.local_tonemap.local_tone_mapping`) and a
-    dict the colour checks of merges of these frames fill with what they measure on the frames
-    (:func:`colour_check`'s ``shared``)."""
+    against the reference (:func:`hdrcore.merge.white_balance.measure_white_balance`) and the
+    local tone mapping test (:func:`hdrcore.response.local_tonemap.local_tone_mapping`); see
+    :class:`FrameMeasures`."""
     from ..response.local_tonemap import local_tone_mapping
     from .white_balance import measure_white_balance
 
@@ -1870,7 +1883,7 @@ def measure_frames(
     ltm = local_tone_mapping(
         frames, lut, max_level=max_level, to_reference=to_reference, reference=reference
     )
-    return balance, ltm, {}
+    return FrameMeasures(balance, ltm)
 
 
 def check_colour(
@@ -1890,7 +1903,7 @@ def check_colour(
     reference_band: tuple[float, float, float] | None = None,
     white_balance: bool = True,
     frame_band: tuple[float, float, float] | None = FRAME_BAND,
-    frame_measures: tuple[Any, Any, dict[str, Any]] | None = None,
+    frame_measures: FrameMeasures | None = None,
     report: bool = True,
 ) -> ColourResult:
     """Check a non-linear merge's colour, measure each frame's white balance
@@ -1914,7 +1927,11 @@ def check_colour(
     )
     if frame_measures is None:
         frame_measures = measure_frames(frames, lut, **kw)
-    balance, ltm, shared = frame_measures
+    balance, ltm, shared = (
+        frame_measures.balance,
+        frame_measures.local_tone_mapping,
+        frame_measures.shared,
+    )
     before = (
         colour_check(frames, radiance, lut, **kw, balance=balance, shared=shared)
         if report

@@ -76,6 +76,7 @@ from .._numba import AVAILABLE
 from .._numba import njit as _njit
 from .._threads import thread_map, worker_count
 from ..errors import ParameterError, validate_method
+from .plan import levels_past_lut
 from .weights import NoiseModel
 
 __all__ = [
@@ -265,11 +266,7 @@ def _tables(
     levels = g.shape[1] if g is not None else int(max_level) + 1
     if top >= levels:
         if g is not None:
-            raise ParameterError(
-                "levels above max_level have no response LUT entry",
-                expected=f"levels 0..{levels - 1}",
-                found=str(top),
-            )
+            raise levels_past_lut(levels - 1, str(top))
         levels = top + 1
     lv = np.arange(levels, dtype=np.float64)
     inv_max = 1.0 / float(max_level)

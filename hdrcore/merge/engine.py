@@ -13,7 +13,7 @@ import numpy as np
 from ..errors import ParameterError, validate_method
 from . import _fused
 from .colour import ColourConversion
-from .plan import IDENTITY, Outputs, Plan, SampleModel
+from .plan import IDENTITY, Outputs, Plan, SampleModel, levels_past_lut
 from .weights import WEIGHTS
 
 __all__ = [
@@ -266,11 +266,7 @@ def run_fused(
         with ThreadPoolExecutor(max_workers=workers) as pool:
             bad_levels = sum(pool.map(work, spans))
     if bad_levels:
-        raise ParameterError(
-            "levels above max_level have no response LUT entry",
-            expected=f"levels 0..{p.max_level}",
-            found=f"{bad_levels} samples above {p.max_level}",
-        )
+        raise levels_past_lut(p.max_level, f"{bad_levels} samples above {p.max_level}")
     if maps:
         return None
     return provenance_from_counts(prov_count.sum(axis=0), prov_units.sum(axis=0), p.shape[:2])

@@ -47,6 +47,16 @@ RESAMPLING: dict[str, str] = {
 """Interpolations of frames with a transform, by name (``merge(..., resample=...)``)."""
 
 
+def levels_past_lut(last: int | None, found: str) -> ParameterError:
+    """The error for frame levels past the response table's last entry ``last`` (the plan's
+    check of an identity table, the kernel's count, the consistency test's)."""
+    return ParameterError(
+        "levels above max_level have no response LUT entry",
+        expected=f"levels 0..{last}",
+        found=found,
+    )
+
+
 @dataclass(frozen=True, eq=False)
 class Plan:
     frames: tuple[np.ndarray, ...]
@@ -249,11 +259,7 @@ def make_plan(
                 # a LUT has no entry past max_level (the table path counts such samples)
                 top = max(int(a.max(initial=0)) for a in arrs)
                 if top > max_level:
-                    raise ParameterError(
-                        "levels above max_level have no response LUT entry",
-                        expected=f"levels 0..{max_level}",
-                        found=f"level {top}",
-                    )
+                    raise levels_past_lut(max_level, f"level {top}")
         else:
             nl = noise or NoiseModel()
             slope = np.gradient(g, axis=1)  # g'(M) per level

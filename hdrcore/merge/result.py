@@ -141,9 +141,23 @@ class MergeResult:
     def success(self) -> bool:
         return self.status in ("ok", "warning")
 
+    @property
+    def clipped_fraction(self) -> float:
+        """Share of the pixels saturated in every frame."""
+        return _fraction(self.clipped)
+
+    @property
+    def underexposed_fraction(self) -> float:
+        """Share of the pixels under the noise floor in every frame."""
+        return _fraction(self.underexposed)
+
+    @property
+    def ghost_fraction(self) -> float:
+        """Share of the pixels the ghost test flagged."""
+        return _fraction(self.ghost)
+
     def summary(self) -> dict:
         """JSON-ready diagnostics (no arrays)."""
-        n_pix = max(self.clipped.size, 1)
         return {
             "status": self.status,
             "message": self.message,
@@ -158,15 +172,19 @@ class MergeResult:
             "noise": self.noise.to_json(),
             "ghost_threshold": self.ghost_threshold,
             "model_error": self.model_error,
-            "clipped_fraction": float(np.count_nonzero(self.clipped)) / n_pix,
-            "underexposed_fraction": float(np.count_nonzero(self.underexposed)) / n_pix,
+            "clipped_fraction": self.clipped_fraction,
+            "underexposed_fraction": self.underexposed_fraction,
             "ghost_test": self.ghost_test,
-            "ghost_fraction": float(np.count_nonzero(self.ghost)) / n_pix,
+            "ghost_fraction": self.ghost_fraction,
             "ghost_regions": None if self.ghost_regions is None else self.ghost_regions.to_json(),
-            "deghosted_fraction": None
-            if self.deghosted is None
-            else float(np.count_nonzero(self.deghosted)) / n_pix,
+            "deghosted_fraction": None if self.deghosted is None else _fraction(self.deghosted),
             "provenance": self.provenance_summary(),
             "timings": dict(self.timings),
             "engine": self.engine,
         }
+
+
+def _fraction(mask: np.ndarray) -> float:
+    """The share of True pixels (a count: a 24 MP mask's ``mean`` converts it to floats, 30-50
+    ms)."""
+    return float(np.count_nonzero(mask)) / mask.size if mask.size else 0.0
