@@ -1691,6 +1691,30 @@ def _negligible_motion(to_ref: np.ndarray, shape: tuple[int, int]) -> bool:
     )
 
 
+def _reading_chain(
+    registration: BracketRegistration, shape: tuple[int, ...]
+) -> list[np.ndarray | None]:
+    """Per frame the 3x3 matrix (frame -> reference) through which the merge reads it, or
+    None where it reads the frame in place: the reference, and a frame whose motion is
+    negligible (:data:`MIN_APPLIED_MOTION_PX`; unless a local field moves it)."""
+    chain = registration.to_reference_homography
+    hw = (int(shape[0]), int(shape[1]))
+    return [
+        None
+        if k == registration.reference
+        or (registration.local is None and _negligible_motion(chain[k], hw))
+        else chain[k]
+        for k in range(len(chain))
+    ]
+
+
+def _read_in_place(registration: BracketRegistration, shape: tuple[int, ...]) -> list[np.ndarray]:
+    """The chain to the reference with the identity for the frames the merge reads in place
+    (:func:`_reading_chain`): the colour checks and the anchoring read each frame's pixels where
+    the merge took them (and skip a per-pixel mapping of those frames)."""
+    return [np.eye(3) if m is None else m for m in _reading_chain(registration, shape)]
+
+
 def _merge_frames(
     ctx: _Context,
     p: PipelineParams,
@@ -1710,14 +1734,8 @@ def _merge_frames(
         # The merge samples each frame at the reference pixel mapped into it (Keys cubic on
         # the integer levels; a frame whose 4x4 support touches a clipped sample counts as
         # clipped there): no warped copies of the frames. 3x3: homographies too.
-        chain = registration.to_reference_homography
-        transforms = [
-            None
-            if k == registration.reference
-            or (registration.local is None and _negligible_motion(chain[k], b.shape[:2]))
-            else invert(chain[k])
-            for k in range(n)
-        ]
+        reading = _reading_chain(registration, b.shape[:2])
+        transforms = [None if r is None else invert(r) for r in reading]
     masks: list[np.ndarray | None] | None = None
     if excluded is not None:
         masks = []
@@ -1767,7 +1785,7 @@ def _merge_frames(
             reference=0 if registration is None else registration.reference,
             saturation=_level(p.saturation),
             noise_floor=_level(p.noise_floor),
-            to_reference=None if registration is None else registration.to_reference_homography,
+            to_reference=None if registration is None else _read_in_place(registration, b.shape),
             masks=None if excluded is None else [~e for e in excluded[0]],
             anchor=bool(p.colour_anchor) and colour is None,
             white_balance=bool(p.white_balance),
@@ -2188,7 +2206,9 @@ def _stage_frame_measures(ctx: _Context, p: Any, up: Inputs) -> FrameMeasures | 
         lut,
         max_level=ctx.bracket.max_level,
         reference=0 if registration is None else registration.reference,
-        to_reference=None if registration is None else registration.to_reference_homography,
+        to_reference=None
+        if registration is None
+        else _read_in_place(registration, ctx.bracket.shape),
         masks=None if excluded is None else [~e for e in excluded[0]],
     )
 

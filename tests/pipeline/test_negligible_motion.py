@@ -49,3 +49,20 @@ def test_a_real_tripod_bracket_merges_its_frames_in_place(monkeypatch) -> None:
     monkeypatch.setattr(pl, "MIN_APPLIED_MOTION_PX", 0.0)  # motion applied however small
     resampled = pl.Pipeline(bracket).run().preview.image.astype(np.float64)
     assert np.abs(resampled[:, 0] - resampled[:, 1]).mean() > edge
+
+
+def test_the_colour_checks_read_each_frame_where_the_merge_reads_it() -> None:
+    """A frame the merge reads in place (the reference, negligible motion) is read in place by
+    the colour checks and the anchoring too (the identity); a moved frame through its chain."""
+    from hdrcore.registration import BracketRegistration
+
+    tiny = np.vstack([rigid_matrix(0.03, -0.02, 0.0, SHAPE), [0.0, 0.0, 1.0]])
+    moved = np.vstack([rigid_matrix(3.0, 1.0, 0.1, SHAPE), [0.0, 0.0, 1.0]])
+    reg = BracketRegistration(
+        1, (), None, "similarity", "fast", to_reference_homography=(tiny, np.eye(3), moved)
+    )
+    assert [m is None for m in pl._reading_chain(reg, SHAPE)] == [True, True, False]
+    read = pl._read_in_place(reg, (*SHAPE, 3))
+    np.testing.assert_array_equal(read[0], np.eye(3))
+    np.testing.assert_array_equal(read[1], np.eye(3))
+    np.testing.assert_array_equal(read[2], moved)
