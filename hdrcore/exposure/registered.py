@@ -516,10 +516,13 @@ def exposure_ratio_registered(
 def _frame_unusable(frame: np.ndarray, saturation: float, noise_floor: float) -> str | None:
     """``"black (at or below the noise floor)"`` or ``"saturated"`` when no level of ``frame``
     lies strictly between the floor and ``Z``, else ``None``. Checked on every 4th row and
-    column (a whole-frame pass costs 0.1 s at 24 MP)."""
+    column (a whole-frame pass costs 0.1 s at 24 MP), every 64th first: a usable frame has a
+    level in range there already (a subset of the same grid: the same answer, 0.03 s -> 0.1 ms
+    a frame at 24 MP)."""
     lv = np.asarray(frame)[::4, ::4]
-    if lv.size and np.any((lv > noise_floor) & (lv < saturation)):
-        return None
+    for grid in (lv[::16, ::16], lv):
+        if grid.size and np.any((grid > noise_floor) & (grid < saturation)):
+            return None
     if lv.size == 0:
         return "no pixels"
     return "black (at or below the noise floor)" if np.median(lv) <= noise_floor else "saturated"
