@@ -32,11 +32,12 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field, replace
 from dataclasses import fields as dataclass_fields
+from functools import partial
 from typing import Any
 
 import numpy as np
 
-from ._threads import ordered_map, set_workers
+from ._threads import set_workers
 from .diagnose import Verdict, diagnose
 from .errors import EstimationError, ParameterError, validate_method
 from .exposure import (
@@ -1436,18 +1437,26 @@ def _register(
         # nearer object the check finds (register_pair's check_residual; _with_residuals
         # then keeps these measurements)
         search["check_residual"] = True
+    then: Callable[[PairRegistration], PairRegistration] | None = None
+    if factor == 1:
+        # each pair measured (and, with "auto", tried with the homography) on its worker as
+        # soon as it is registered: no pair waits for the others' first pass
+        measure = _residual_measure(ctx, p, lut)
+        then = measure
+        if p.align == "auto":
+            then = partial(_measured_then_upgraded, measure, images, ratios, search)
     reg = register_bracket(
         images,
         ratios,
         reference=p.reference,
         model="similarity" if p.align == "auto" else p.align,
         progress=progress,
+        then=then,
         **search,
     )
     if factor == 1:
-        reg = _with_residuals(ctx, reg, p, lut)
-        if p.align == "auto":
-            reg = _upgrade_to_homography(ctx, reg, images, ratios, search, p, lut)
+        if p.align == "auto" and any(q.model != reg.model for q in reg.pairs):
+            reg = replace(reg, model="auto")  # pairs of both models, chained as 3x3 matrices
         if p.local != "off":
             reg = _refine_locally(ctx, reg, images, p, lut, extra["lut"])
         return reg
@@ -1525,94 +1534,77 @@ def _refine_locally(
     return replace(reg, pairs=tuple(out), local=local)
 
 
-def _upgrade_to_homography(
-    ctx: _Context,
-    reg: BracketRegistration,
+def _measured_then_upgraded(
+    measure: Callable[[PairRegistration], PairRegistration],
     images: list,
     ratios: tuple,
     search: dict,
-    p: PipelineParams,
-    lut: np.ndarray | None,
-) -> BracketRegistration:
+    q: PairRegistration,
+) -> PairRegistration:
+    return _upgraded_pair(measure(q), images, ratios, search, measure)
+
+
+def _upgraded_pair(
+    q: PairRegistration,
+    images: list,
+    ratios: tuple,
+    search: dict,
+    measure: Callable[[PairRegistration], PairRegistration],
+) -> PairRegistration:
     """``--align auto``: a pair the residual check calls misaligned after the similarity is
     registered again with the homography model, which is kept when its own residual is
     smaller (median over the tiles, or aligned where the similarity was not). The
     simplest model that explains the motion stays. Every misaligned pair is tried, not
     only those whose residual shows a perspective pattern: on the Xperia bracket the pair
     whose residual read as "local" (0.87 px median) was left at the similarity while the
-    homography leaves 0.33 px."""
-    pairs = list(reg.pairs)
-    changed = False
-    tried = [
-        i
-        for i, q in enumerate(pairs)
-        if q.status == "weak" and q.residual is not None and q.residual.status == "misaligned"
-    ]
-    if tried:
-        ctx.report("registration", 1.0, f"trying the homography model on {len(tried)} pair(s)")
-
-    def homography(i: int) -> Any:
-        return register_pair(
-            images[i],
-            images[i + 1],
-            ratios[i],
-            model="homography",
-            dark_index=i,
-            bright_index=i + 1,
-            **search,
-        )
-
-    # independent pairs, side by side (as register_bracket registers them)
-    for i, h in zip(tried, ordered_map(homography, tried), strict=True):
-        res = pairs[i].residual
-        assert res is not None  # a tried pair was measured misaligned
-        if not h.usable:
-            continue
-        h = _with_residuals(ctx, replace(reg, pairs=(h,)), p, lut).pairs[0]
-        if h.residual is None:
-            continue
-        hr = h.residual
-        better = (hr.aligned and not res.aligned) or (
-            math.isfinite(hr.median) and hr.median < 0.8 * res.median
-        )
-        # a global pattern left by the similarity (a perspective tilt at the corners) that
-        # the homography removes, the tiles no worse: the Pixel 7's darkest pair leaves a 4.0
-        # px tilt, 0.45 / 1.82 px median / 90th percentile, which the homography takes to
-        # 0.38 / 1.18 px with no pattern left
-        left, after = _pattern_px(res), _pattern_px(hr)
-        removes = (
-            res.kind in PATTERN_COMPONENTS
-            and math.isfinite(left)
-            and math.isfinite(after)
-            and after <= 0.5 * left
-            and hr.median <= res.median
-            and hr.p90 <= res.p90
-        )
-        if better or removes:
-            said = (
-                f"{res.median:.2f} px median"
-                if better
-                else f"{res.median:.2f} px median and a {res.kind} pattern of {left:.1f} px"
-            )
-            pairs[i] = replace(
-                h,
-                message=h.message + f" (auto: the similarity left "
-                f"{said}, the homography {hr.median:.2f} px"
-                f"{'' if better else f' and {after:.1f} px'})",
-            )
-            changed = True
-    if not changed:
-        return reg
-    mats = [_pair_homography(q) if q.usable else np.eye(3) for q in pairs]
-    chain = to_reference(mats, reg.reference)
-    return BracketRegistration(
-        reg.reference,
-        tuple(pairs),
-        None,
-        "auto",
-        reg.method,
-        to_reference_homography=tuple(chain),
-        local=reg.local,
+    homography leaves 0.33 px. ``measure``: :func:`_residual_measure`'s."""
+    res = q.residual
+    if not (q.status == "weak" and res is not None and res.status == "misaligned"):
+        return q
+    i = q.dark
+    h = register_pair(
+        images[i],
+        images[i + 1],
+        ratios[i],
+        model="homography",
+        dark_index=i,
+        bright_index=i + 1,
+        **search,
+    )
+    if not h.usable:
+        return q
+    h = measure(h)
+    if h.residual is None:
+        return q
+    hr = h.residual
+    better = (hr.aligned and not res.aligned) or (
+        math.isfinite(hr.median) and hr.median < 0.8 * res.median
+    )
+    # a global pattern left by the similarity (a perspective tilt at the corners) that
+    # the homography removes, the tiles no worse: the Pixel 7's darkest pair leaves a 4.0
+    # px tilt, 0.45 / 1.82 px median / 90th percentile, which the homography takes to
+    # 0.38 / 1.18 px with no pattern left
+    left, after = _pattern_px(res), _pattern_px(hr)
+    removes = (
+        res.kind in PATTERN_COMPONENTS
+        and math.isfinite(left)
+        and math.isfinite(after)
+        and after <= 0.5 * left
+        and hr.median <= res.median
+        and hr.p90 <= res.p90
+    )
+    if not (better or removes):
+        return q
+    said = (
+        f"{res.median:.2f} px median"
+        if better
+        else f"{res.median:.2f} px median and a {res.kind} pattern of {left:.1f} px"
+    )
+    return replace(
+        h,
+        message=h.message + f" (auto: the similarity left "
+        f"{said}, the homography {hr.median:.2f} px"
+        f"{'' if better else f' and {after:.1f} px'})",
     )
 
 
@@ -1627,12 +1619,20 @@ def _pattern_px(res) -> float:
 def _with_residuals(
     ctx: _Context, reg: BracketRegistration, p: PipelineParams, lut: np.ndarray | None
 ) -> BracketRegistration:
-    """Each registered pair checked by a measurement that shares nothing with the search
+    """Each registered pair checked by :func:`_residual_measure`'s measurement."""
+    measure = _residual_measure(ctx, p, lut)
+    return replace(reg, pairs=tuple(measure(q) for q in reg.pairs))
+
+
+def _residual_measure(
+    ctx: _Context, p: PipelineParams, lut: np.ndarray | None
+) -> Callable[[PairRegistration], PairRegistration]:
+    """A registered pair checked by a measurement that shares nothing with the search
     (:func:`hdrcore.registration.residual.residual_motion`: phase correlation of tiles of
     the aligned frames' structure): a pair is ``ok`` only when what is left is small and
     unstructured; otherwise ``weak`` (its motion is still used) with a message saying what
     is left and where (:func:`hdrcore.registration._problem.judge_residual`, the words
-    register_pair's own check uses)."""
+    register_pair's own check uses). A failed pair, or one register_pair measured, is kept."""
     from .registration._problem import judge_residual
     from .registration.residual import residual_motion
 
@@ -1645,11 +1645,10 @@ def _with_residuals(
     )
     sat = _linear_level(ctx, lut, p.saturation)
     floor = _linear_level(ctx, lut, p.noise_floor)
-    pairs = []
-    for q in reg.pairs:
+
+    def measure(q: PairRegistration) -> PairRegistration:
         if not q.ok or q.residual is not None:  # failed, or measured by register_pair
-            pairs.append(q)
-            continue
+            return q
         try:
             res = residual_motion(
                 b.frames[q.dark].levels[..., 1],
@@ -1662,11 +1661,11 @@ def _with_residuals(
             )
         except (ValueError, ParameterError) as exc:  # too small a frame to tile
             log.debug("residual of pair %d-%d not measured: %s", q.dark, q.bright, exc)
-            pairs.append(q)
-            continue
+            return q
         status, message = judge_residual(res, np.asarray(q.homography), q.model, q.message, q.shape)
-        pairs.append(replace(q, status=status, message=message, residual=res))
-    return replace(reg, pairs=tuple(pairs))
+        return replace(q, status=status, message=message, residual=res)
+
+    return measure
 
 
 #: A frame whose motion moves no corner of it by this many pixels is merged where it lies

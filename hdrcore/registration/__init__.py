@@ -155,13 +155,17 @@ def register_bracket(
     threshold: float = 0.1,
     model: str = "similarity",
     progress: Callable[[int, int], None] | None = None,
+    then: Callable[[PairRegistration], PairRegistration] | None = None,
     **options,
 ) -> BracketRegistration:
     """Register consecutive pairs of a bracket (darkest first) and chain them to ``reference``.
 
     ``frames``: single-channel linear images; ``ratios[i] = t[i + 1] / t[i]``; ``reference``
-    defaults to the middle frame. ``progress(done, total)`` is called after each pair. Other
-    arguments as :func:`register_pair`.
+    defaults to the middle frame. ``progress(done, total)`` is called after each pair. ``then``
+    is applied to each registered pair on its worker, as soon as it is registered (e.g. a
+    second motion model tried on it: no pair waits for the others' first pass); when it gives
+    a pair without a 2x3 matrix (a homography), the chain is of 3x3 matrices. Other arguments
+    as :func:`register_pair`.
     """
     n = len(frames)
     if n < 2:
@@ -179,7 +183,7 @@ def register_bracket(
     model = validate_method(model, MODELS, "motion model")
 
     def one(i: int) -> PairRegistration:
-        return REGISTRATION_METHODS[key](
+        pair = REGISTRATION_METHODS[key](
             frames[i],
             frames[i + 1],
             ratios[i],
@@ -191,6 +195,7 @@ def register_bracket(
             bright_index=i + 1,
             **options,
         )
+        return pair if then is None else then(pair)
 
     # The pairs are independent: registered side by side on the default workers (much of a
     # pair's search is single-threaded Python and numpy between compiled kernels).
@@ -199,7 +204,7 @@ def register_bracket(
         list(range(n - 1)),
         done=None if progress is None else (lambda i: progress(i + 1, n - 1)),
     )
-    if model in AFFINE_MODELS:
+    if model in AFFINE_MODELS and all(p.matrix is not None for p in pairs):
         chain = to_reference([_present(p.matrix) for p in pairs], ref)
         return BracketRegistration(ref, tuple(pairs), chain, model, key)
     chain = to_reference([_present(p.homography) for p in pairs], ref)

@@ -188,3 +188,41 @@ def test_initial_matrix_without_overlap_fails_as_no_overlap():
     res = _register(dark, bright, ml, initial=far)
     assert res.status == "no-overlap" and res.overlap < 0.2
     assert np.allclose(res.matrix, np.eye(2, 3))
+
+
+def test_bracket_then_runs_on_each_pair_before_the_chain():
+    """``then`` is applied to every registered pair (on its worker) and its pairs are chained;
+    a pair it gives without a 2x3 matrix makes the chain 3x3 matrices."""
+    from dataclasses import replace
+
+    sb = simulate_bracket(
+        shape=SHAPE,
+        exposure_times=(1.0, 4.0, 16.0),
+        bits=12,
+        noise_sigma=1.0,
+        max_shift=6.0,
+        max_rotation_deg=1.0,
+        seed=4,
+    )
+    frames = [green(f, sb.max_level) for f in sb.frames]
+    kw = dict(saturation=0.98, noise_floor=3 / sb.max_level, previews=False)
+    seen: list[int] = []
+
+    def note(q):
+        seen.append(q.dark)
+        return replace(q, message=q.message + " (seen)")
+
+    kept = register_bracket(frames, sb.ratios, then=note, **kw)
+    assert sorted(seen) == [0, 1]
+    assert all(q.message.endswith("(seen)") for q in kept.pairs)
+    assert kept.to_reference is not None  # every pair still affine: 2x3 chain
+
+    def as_homography(q):
+        return replace(q, matrix=None, model="homography") if q.dark == 0 else q
+
+    mixed = register_bracket(frames, sb.ratios, then=as_homography, **kw)
+    assert mixed.to_reference is None and len(mixed.to_reference_homography) == 3
+    for k in range(3):
+        np.testing.assert_allclose(
+            mixed.to_reference_homography[k][:2], kept.to_reference[k], atol=1e-9
+        )
