@@ -105,7 +105,9 @@ def test_fourier_shift_sign_convention():
     assert shift.ncc > 0.9 and shift.psr > 10
 
 
-def test_bracket_chain_matches_truth_and_reference():
+@pytest.fixture(scope="module")
+def three_frames():
+    """A simulated 12-bit hand-held bracket of three frames and their green channels."""
     sb = simulate_bracket(
         shape=SHAPE,
         exposure_times=(1.0, 4.0, 16.0),
@@ -115,7 +117,11 @@ def test_bracket_chain_matches_truth_and_reference():
         max_rotation_deg=1.0,
         seed=4,
     )
-    frames = [green(f, sb.max_level) for f in sb.frames]
+    return sb, [green(f, sb.max_level) for f in sb.frames]
+
+
+def test_bracket_chain_matches_truth_and_reference(three_frames):
+    sb, frames = three_frames
     res = register_bracket(frames, sb.ratios, saturation=0.98, noise_floor=3 / sb.max_level)
     assert res.ok and res.reference == 1
     for k in range(3):
@@ -190,21 +196,12 @@ def test_initial_matrix_without_overlap_fails_as_no_overlap():
     assert np.allclose(res.matrix, np.eye(2, 3))
 
 
-def test_bracket_then_runs_on_each_pair_before_the_chain():
+def test_bracket_then_runs_on_each_pair_before_the_chain(three_frames):
     """``then`` is applied to every registered pair (on its worker) and its pairs are chained;
     a pair it gives without a 2x3 matrix makes the chain 3x3 matrices."""
     from dataclasses import replace
 
-    sb = simulate_bracket(
-        shape=SHAPE,
-        exposure_times=(1.0, 4.0, 16.0),
-        bits=12,
-        noise_sigma=1.0,
-        max_shift=6.0,
-        max_rotation_deg=1.0,
-        seed=4,
-    )
-    frames = [green(f, sb.max_level) for f in sb.frames]
+    sb, frames = three_frames
     kw = dict(saturation=0.98, noise_floor=3 / sb.max_level, previews=False)
     seen: list[int] = []
 
