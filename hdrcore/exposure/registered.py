@@ -94,23 +94,35 @@ def _tile_sums(
     ho, wo = other.shape[0], other.shape[1]
     nt = tiles.shape[0]
     out = np.zeros((nt, nc, 3), np.float64)
+    # one matrix for every channel (not the planes of a mosaic): the point mapped once a pixel
+    same = True
+    for c in range(1, nc):
+        for i in range(3):
+            for j in range(3):
+                if mat[c, i, j] != mat[0, i, j]:
+                    same = False
+    xs = 0.0
+    ys = 0.0
+    inside = False
     for t in range(nt):
         y0 = tiles[t, 0]
         x0 = tiles[t, 1]
         for y in range(max(y0, 1), min(y0 + tile, h - 1)):
             for x in range(max(x0, 1), min(x0 + tile, w - 1)):
                 for c in range(nc):
-                    zw = mat[c, 2, 0] * x + mat[c, 2, 1] * y + mat[c, 2, 2]
-                    if not zw > 0.0:
-                        continue
-                    xs = (mat[c, 0, 0] * x + mat[c, 0, 1] * y + mat[c, 0, 2]) / zw
-                    ys = (mat[c, 1, 0] * x + mat[c, 1, 1] * y + mat[c, 1, 2]) / zw
-                    if xs < 1.0 or ys < 1.0:
+                    if c == 0 or not same:
+                        inside = False
+                        zw = mat[c, 2, 0] * x + mat[c, 2, 1] * y + mat[c, 2, 2]
+                        if zw > 0.0:
+                            xs = (mat[c, 0, 0] * x + mat[c, 0, 1] * y + mat[c, 0, 2]) / zw
+                            ys = (mat[c, 1, 0] * x + mat[c, 1, 1] * y + mat[c, 1, 2]) / zw
+                            inside = (
+                                xs >= 1.0 and ys >= 1.0 and int(xs) < wo - 2 and int(ys) < ho - 2
+                            )
+                    if not inside:
                         continue
                     ix = int(xs)
                     iy = int(ys)
-                    if ix >= wo - 2 or iy >= ho - 2:
-                        continue
                     fx = xs - ix
                     fy = ys - iy
                     rx = ix + 1 if fx >= 0.5 else ix
