@@ -1316,13 +1316,6 @@ def _pair_motion(q: PairRegistration) -> np.ndarray:
     return motion
 
 
-def _pair_homography(q: PairRegistration) -> np.ndarray:
-    """The pair's 3x3 homography (``PairRegistration`` sets it from the matrix if need be)."""
-    if q.homography is None:
-        raise ValueError(f"pair {q.dark}-{q.bright} has no homography")
-    return q.homography
-
-
 def _level(value: float | None) -> float:
     """A level of checked parameters (``Pipeline._check`` replaced each ``None`` by its value:
     the saturation level and the noise floor)."""
@@ -1444,7 +1437,7 @@ def _register(
         measure = _residual_measure(ctx, p, lut)
         then = measure
         if p.align == "auto":
-            then = partial(_measured_then_upgraded, measure, images, ratios, search)
+            then = partial(_upgraded_pair, measure, images, ratios, search)
     reg = register_bracket(
         images,
         ratios,
@@ -1534,30 +1527,22 @@ def _refine_locally(
     return replace(reg, pairs=tuple(out), local=local)
 
 
-def _measured_then_upgraded(
-    measure: Callable[[PairRegistration], PairRegistration],
-    images: list,
-    ratios: tuple,
-    search: dict,
-    q: PairRegistration,
-) -> PairRegistration:
-    return _upgraded_pair(measure(q), images, ratios, search, measure)
-
-
 def _upgraded_pair(
-    q: PairRegistration,
+    measure: Callable[[PairRegistration], PairRegistration],
     images: list,
     ratios: tuple,
     search: dict,
-    measure: Callable[[PairRegistration], PairRegistration],
+    q: PairRegistration,
 ) -> PairRegistration:
-    """``--align auto``: a pair the residual check calls misaligned after the similarity is
+    """``--align auto``: the pair measured (``measure``: :func:`_residual_measure`'s); a pair
+    the residual check calls misaligned after the similarity is
     registered again with the homography model, which is kept when its own residual is
     smaller (median over the tiles, or aligned where the similarity was not). The
     simplest model that explains the motion stays. Every misaligned pair is tried, not
     only those whose residual shows a perspective pattern: on the Xperia bracket the pair
     whose residual read as "local" (0.87 px median) was left at the similarity while the
-    homography leaves 0.33 px. ``measure``: :func:`_residual_measure`'s."""
+    homography leaves 0.33 px."""
+    q = measure(q)
     res = q.residual
     if not (q.status == "weak" and res is not None and res.status == "misaligned"):
         return q

@@ -1727,6 +1727,17 @@ def anchor_colour(
         None if reference is None or frame_band is not None else np.asarray(frames[reference])
     )
     own_fraction = 0.0
+    # step 3's arguments, the same for the compiled rows and the numpy path
+    band_kw: dict[str, Any] = dict(
+        max_level=max_level,
+        noise_floor=noise_floor,
+        saturation=saturation,
+        reference=reference,
+        to_reference=to_reference,
+        masks=masks,
+        band=frame_band,
+        sigma=frame_sigma,
+    )
     if AVAILABLE:
         apply_rows = _apply_rows(
             rad,
@@ -1745,20 +1756,7 @@ def anchor_colour(
         band_rows: Callable[[int, int], None] | None = None
         counts: list[int] = []
         if frame_band is not None:
-            band_rows, counts = _frame_band_rows(
-                rad,
-                frames,
-                table,
-                frame_gains,
-                max_level=max_level,
-                noise_floor=noise_floor,
-                saturation=saturation,
-                reference=reference,
-                to_reference=to_reference,
-                masks=masks,
-                band=frame_band,
-                sigma=frame_sigma,
-            )
+            band_rows, counts = _frame_band_rows(rad, frames, table, frame_gains, **band_kw)
 
         def rows(r0: int, r1: int) -> None:
             # steps 1-2 and 3 over the same few rows in turn, while they are in cache (two
@@ -1791,19 +1789,7 @@ def anchor_colour(
         )
         if frame_band is not None:
             own_fraction = _frame_band(
-                rad,
-                frames,
-                table,
-                frame_gains,
-                max_level=max_level,
-                noise_floor=noise_floor,
-                saturation=saturation,
-                reference=reference,
-                to_reference=to_reference,
-                masks=masks,
-                band=frame_band,
-                sigma=frame_sigma,
-                rows_per_chunk=rows_per_chunk,
+                rad, frames, table, frame_gains, **band_kw, rows_per_chunk=rows_per_chunk
             )
     return _anchor_result(step, shift, shares_out, decode_name, frame_gains, own_fraction)
 

@@ -426,10 +426,8 @@ def select_samples(
                 rest = np.ones(v.size, bool)
                 rest[top] = False
                 others = np.flatnonzero(rest)
-                sel = np.zeros(v.size, bool)
-                sel[top[ok]] = True
-                sel[others[bright_ok(xx[others], yy[others])]] = True
-                top = np.flatnonzero(sel)
+                passed = others[bright_ok(xx[others], yy[others])]
+                top = _raster(np.concatenate([top[ok], passed]), v.size)
             else:
                 top = top[ok]
             return yy[top], xx[top], v[top], score[top]
