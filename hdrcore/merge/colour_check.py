@@ -1002,29 +1002,58 @@ def _apply_numpy(
 
 
 @_njit
-def _anchor_rows(
+def _anchor_pass(
     rad,
+    r0,
+    r1,
+    steps12,
     fields,
     step,
-    shares,
+    sh_bits,
+    sh_f,
+    half,
+    values,
+    sh_off,
     log_t,
     redecode,
+    use_redecode,
+    use_ref,
     ref,
     table,
     noise_floor,
     saturation,
+    ref_band,
+    use_band,
+    frames,
+    hmats,
+    has_h,
+    masks,
+    has_mask,
+    tabg,
+    bt,
+    ew,
     max_level,
-    use_redecode,
-    use_ref,
-    r0,
-    r1,
-    sh_off,
-    band,
 ):  # pragma: no cover
+    """The per-pixel steps of :func:`anchor_colour` over rows ``r0..r1``, in one pass.
+
+    Steps 1-2 (``steps12``): the colour re-decoded at the exposure of the frames that made the
+    pixel (``use_redecode``: its shares' mean of ``log_t``, float16 shares read as their bits
+    ``sh_bits`` with ``values`` their float64 values when ``half``, else float32 rows ``sh_f``
+    from row ``sh_off``) times the smooth gains ``fields``; with ``use_ref`` the reference's own
+    colour where it is well exposed (``ref_band``), else its share (4th field). Step 3
+    (``use_band``): every frame's term (:func:`_band_numpy`'s arithmetic, rounded to float32
+    and summed in frame order), then the blend (:func:`_blend_numpy`'s, in the same types).
+    Per level of one channel (:func:`_band_tables`): ``bt`` the band weight, zero outside the
+    noise floor and saturation, ``ew`` the Gaussian factor, ``tabg[k, c]`` frame ``k``'s
+    decoded value with its balance divided out (no ``exp``, division or range test per
+    channel). Step 3's sums come first: where some frame gives the pixel its colour fully (band
+    weight 1) steps 1-2 are skipped, their colour replaced (their luminance is the merge's
+    own). Luminance (Rec. 709) kept throughout. Returns how many pixels some frame gave their
+    colour fully."""
     w = rad.shape[1]
     gh, gw = fields.shape[0], fields.shape[1]
-    n = shares.shape[0]
     size = redecode.shape[1]
+    n = len(frames)
     l0, l1, l2 = 0.2126, 0.7152, 0.0722
     col = np.empty(3)
     lin = np.empty(3)
@@ -1032,7 +1061,7 @@ def _anchor_rows(
     lt_min = 0.0
     if use_redecode:
         lt_min = log_t[0]
-        for k in range(n):
+        for k in range(log_t.shape[0]):
             lt_min = min(lt_min, log_t[k])
     # each column's cells of the field grid, once for all rows
     cx0 = np.empty(w, np.int64)
@@ -1045,6 +1074,7 @@ def _anchor_rows(
         cx1[x] = min(cx0[x] + 1, gw - 1)
         cfx[x] = gx - cx0[x]
     nq = 4 if use_ref else 3  # the reference's share (4th field) is read by use_ref only
+    full = 0  # pixels some frame gave their colour fully (band weight 1)
     for y in range(r0, r1):
         gy = (y - step // 2) / step
         gy = min(max(gy, 0.0), gh - 1.0)
@@ -1052,212 +1082,118 @@ def _anchor_rows(
         y1 = min(y0 + 1, gh - 1)
         fy = gy - y0
         for x in range(w):
-            x0 = cx0[x]
-            x1 = cx1[x]
-            fx = cfx[x]
-            r_ = rad[y, x, 0]
-            g_ = rad[y, x, 1]
-            b_ = rad[y, x, 2]
-            y_old = l0 * r_ + l1 * g_ + l2 * b_
-            if not (y_old > 0) or not np.isfinite(y_old):
-                continue
-            for q in range(nq):
-                a0 = fields[y0, x0, q] * (1 - fx) + fields[y0, x1, q] * fx
-                a1 = fields[y1, x0, q] * (1 - fx) + fields[y1, x1, q] * fx
-                fl[q] = a0 * (1 - fy) + a1 * fy
-            if use_redecode:
-                tot = 0.0
-                acc = 0.0
-                for k in range(n):
-                    sk = np.float64(shares[k, y - sh_off, x])
-                    tot += sk
-                    acc += sk * log_t[k]
-                lt = acc / tot if tot > 0 else lt_min
-                t = np.exp(lt)
-                for c in range(3):
-                    v = rad[y, x, c] * t
-                    v = min(max(v, 0.0), 1.0) * (size - 1)
-                    i0 = min(int(v), size - 2)
-                    f = v - i0
-                    col[c] = (redecode[c, i0] * (1 - f) + redecode[c, i0 + 1] * f) / t
-            else:
-                for c in range(3):
-                    col[c] = rad[y, x, c]
-            for c in range(3):
-                col[c] *= fl[c]
-            if use_ref:
-                ok = True
-                for c in range(3):
-                    z = ref[y, x, c]
-                    if not (z > noise_floor and z < saturation):
-                        ok = False
-                # the reference's own colour where it is well exposed (band), else its share
-                a = fl[3]
-                if ok and band[0] < band[1]:
-                    bw = 1.0
-                    for c in range(3):
-                        v = ref[y, x, c] / max_level
-                        if v < band[0]:
-                            bw = min(bw, max(0.0, 1.0 - (band[0] - v) / band[2]))
-                        elif v > band[1]:
-                            bw = min(bw, max(0.0, 1.0 - (v - band[1]) / band[2]))
-                    a = max(a, bw)
-                if ok and a > 0:
-                    s_ref = 0.0
-                    for c in range(3):
-                        zc = min(max(int(ref[y, x, c]), 0), max_level)
-                        lin[c] = table[c, zc]
-                        s_ref += lin[c]
-                    s_col = col[0] + col[1] + col[2]
-                    if s_ref > 0 and s_col > 0:
-                        for c in range(3):
-                            col[c] = (1 - a) * col[c] / s_col + a * lin[c] / s_ref
-            y_new = l0 * col[0] + l1 * col[1] + l2 * col[2]
-            if y_new > 0 and np.isfinite(y_new):
-                sc = y_old / y_new
-                for c in range(3):
-                    rad[y, x, c] = col[c] * sc
-
-
-def _apply_rows(
-    rad,
-    fields,
-    step,
-    shares,
-    log_t,
-    redecode,
-    ref_frame,
-    table,
-    noise_floor,
-    saturation,
-    max_level,
-    band,
-) -> Callable[[int, int], None]:
-    """``rows(r0, r1)``: steps 1-2 of :func:`anchor_colour` (the re-decoded colour times the
-    smooth gains; the reference's own colour with ``ref_frame``) over output rows ``r0..r1``
-    with the numba kernel (it releases the GIL)."""
-    use_redecode = redecode is not None
-    use_ref = ref_frame is not None
-    sh = shares if use_redecode else np.zeros((1, 1, 1), np.float16)
-    lt = np.asarray(log_t, np.float64) if use_redecode else np.zeros(1)
-    rd = np.ascontiguousarray(redecode, np.float64) if use_redecode else np.zeros((3, 2))
-    ref = ref_frame if use_ref else np.zeros((1, 1, 3), np.uint8)
-    tab = np.ascontiguousarray(table, np.float64)
-    bands = np.asarray(band if band is not None else (1.0, 0.0, 1.0), np.float64)
-
-    def rows(r0: int, r1: int) -> None:
-        # numba has no float16: the shares of these rows as float32
-        part = sh[:, r0:r1].astype(np.float32) if use_redecode else sh.astype(np.float32)
-        _anchor_rows(
-            rad,
-            fields,
-            int(step),
-            part,
-            lt,
-            rd,
-            ref,
-            tab,
-            float(noise_floor),
-            float(saturation),
-            int(max_level),
-            use_redecode,
-            use_ref,
-            r0,
-            r1,
-            r0 if use_redecode else 0,
-            bands,
-        )
-
-    return rows
-
-
-#: ``(low, high, ramp)``: a frame gives a pixel its own colour where every channel of it lies
-#: inside ``low..high`` of the range (the :data:`WELL_EXPOSED` band the colour check measures),
-#: its weight falling linearly to zero over ``ramp`` outside.
-FRAME_BAND = (WELL_EXPOSED[0], WELL_EXPOSED[1], 0.05)
-#: Spread (fraction of the range, every channel) of the weight around mid-grey with which the
-#: frames' own colours are mixed where several are well exposed: the frame nearest mid-grey
-#: gives nearly all of it (one level step of a 1-stop bracket is about 0.13: a weight ratio of
-#: 10 or more), the weight still a smooth function of the levels. Real brackets, median
-#: chromaticity error against each frame where it is the best exposed (per pixel, measured
-#: on the sampled pixels of the Xperia bracket): sigma 0.05 -> at most 0.0045, 0.1 -> 0.0077,
-#: 0.2 -> 0.0165 (the sRGB merge: 0.012-0.027); against every pixel a frame exposes well
-#: 0.005-0.045 whatever sigma (frames that disagree cannot all be met).
-FRAME_SIGMA = 0.1
-
-
-@_njit
-def _frame_band_fused_rows(
-    rad,
-    frames,
-    hmats,
-    has_h,
-    masks,
-    has_mask,
-    tabg,
-    bt,
-    ew,
-    max_level,
-    r0,
-    r1,
-):  # pragma: no cover
-    """Step 3 of :func:`anchor_colour` over output rows ``r0..r1``, pixel by pixel: every
-    frame's term (:func:`_band_numpy`'s arithmetic, rounded to float32 and summed in frame
-    order), then the blend (:func:`_blend_numpy`'s, in the same types); no full-size sums.
-    Per level of one channel (:func:`_band_tables`): ``bt`` the band weight, zero outside the
-    noise floor and saturation, ``ew`` the Gaussian factor, ``tabg[k, c]`` frame ``k``'s decoded
-    value with its balance divided out: a pixel's weight is the smallest of its channels' ``bt``
-    times the product of their ``ew``; no ``exp``, division or range test per channel. Returns
-    how many of its pixels some frame gave their colour fully."""
-    n = len(frames)
-    w = rad.shape[1]
-    l0, l1, l2 = 0.2126, 0.7152, 0.0722
-    full = 0  # pixels some frame gave their colour fully (band weight 1)
-    for y in range(r0, r1):
-        for x in range(w):
+            # step 3's sums
             s0 = np.float32(0.0)
             s1 = np.float32(0.0)
             s2 = np.float32(0.0)
             ws = np.float32(0.0)
             a = np.float32(0.0)
-            for k in range(n):
-                frame = frames[k]
-                fh, fw = frame.shape[0], frame.shape[1]
-                if has_h[k]:
-                    hm = hmats[k]
-                    den = hm[2, 0] * x + hm[2, 1] * y + hm[2, 2]
-                    u = (hm[0, 0] * x + hm[0, 1] * y + hm[0, 2]) / den
-                    v = (hm[1, 0] * x + hm[1, 1] * y + hm[1, 2]) / den
-                    xi = int(round(u))
-                    yi = int(round(v))
-                    if xi < 0 or xi >= fw or yi < 0 or yi >= fh:
+            if use_band:
+                for k in range(n):
+                    frame = frames[k]
+                    fh, fw = frame.shape[0], frame.shape[1]
+                    if has_h[k]:
+                        hm = hmats[k]
+                        den = hm[2, 0] * x + hm[2, 1] * y + hm[2, 2]
+                        u = (hm[0, 0] * x + hm[0, 1] * y + hm[0, 2]) / den
+                        v = (hm[1, 0] * x + hm[1, 1] * y + hm[1, 2]) / den
+                        xi = int(round(u))
+                        yi = int(round(v))
+                        if xi < 0 or xi >= fw or yi < 0 or yi >= fh:
+                            continue
+                    else:
+                        xi = x
+                        yi = y
+                    if has_mask[k] and not masks[k][yi, xi]:
                         continue
-                else:
-                    xi = x
-                    yi = y
-                if has_mask[k] and not masks[k][yi, xi]:
-                    continue
-                z0 = min(max(int(frame[yi, xi, 0]), 0), max_level)
-                z1 = min(max(int(frame[yi, xi, 1]), 0), max_level)
-                z2 = min(max(int(frame[yi, xi, 2]), 0), max_level)
-                band = min(bt[z0], min(bt[z1], bt[z2]))
-                if band <= 0.0:
-                    continue
-                lin0 = tabg[k, 0, z0]
-                lin1 = tabg[k, 1, z1]
-                lin2 = tabg[k, 2, z2]
-                tot = lin0 + lin1 + lin2
-                if not (tot > 0.0):
-                    continue
-                wk = band * (ew[z0] * ew[z1] * ew[z2])
-                s0 += np.float32(wk * lin0 / tot)
-                s1 += np.float32(wk * lin1 / tot)
-                s2 += np.float32(wk * lin2 / tot)
-                ws += np.float32(wk)
-                if band > a:
-                    a = np.float32(band)
-            if a >= 1.0:
-                full += 1
+                    z0 = min(max(int(frame[yi, xi, 0]), 0), max_level)
+                    z1 = min(max(int(frame[yi, xi, 1]), 0), max_level)
+                    z2 = min(max(int(frame[yi, xi, 2]), 0), max_level)
+                    band = min(bt[z0], min(bt[z1], bt[z2]))
+                    if band <= 0.0:
+                        continue
+                    b0 = tabg[k, 0, z0]
+                    b1 = tabg[k, 1, z1]
+                    b2 = tabg[k, 2, z2]
+                    tot = b0 + b1 + b2
+                    if not (tot > 0.0):
+                        continue
+                    wk = band * (ew[z0] * ew[z1] * ew[z2])
+                    s0 += np.float32(wk * b0 / tot)
+                    s1 += np.float32(wk * b1 / tot)
+                    s2 += np.float32(wk * b2 / tot)
+                    ws += np.float32(wk)
+                    if band > a:
+                        a = np.float32(band)
+                if a >= 1.0:
+                    full += 1
+            # steps 1-2, unless a frame's colour replaces theirs
+            if steps12 and not (a >= 1.0 and ws > 0.0):
+                r_ = rad[y, x, 0]
+                g_ = rad[y, x, 1]
+                b_ = rad[y, x, 2]
+                y_old = l0 * r_ + l1 * g_ + l2 * b_
+                if y_old > 0 and np.isfinite(y_old):
+                    for q in range(nq):
+                        a0 = fields[y0, cx0[x], q] * (1 - cfx[x]) + fields[y0, cx1[x], q] * cfx[x]
+                        a1 = fields[y1, cx0[x], q] * (1 - cfx[x]) + fields[y1, cx1[x], q] * cfx[x]
+                        fl[q] = a0 * (1 - fy) + a1 * fy
+                    if use_redecode:
+                        tot = 0.0
+                        acc = 0.0
+                        for k in range(log_t.shape[0]):
+                            if half:
+                                sk = values[sh_bits[k, y, x]]
+                            else:
+                                sk = np.float64(sh_f[k, y - sh_off, x])
+                            tot += sk
+                            acc += sk * log_t[k]
+                        lt = acc / tot if tot > 0 else lt_min
+                        t = np.exp(lt)
+                        for c in range(3):
+                            v = rad[y, x, c] * t
+                            v = min(max(v, 0.0), 1.0) * (size - 1)
+                            i0 = min(int(v), size - 2)
+                            f = v - i0
+                            col[c] = (redecode[c, i0] * (1 - f) + redecode[c, i0 + 1] * f) / t
+                    else:
+                        for c in range(3):
+                            col[c] = rad[y, x, c]
+                    for c in range(3):
+                        col[c] *= fl[c]
+                    if use_ref:
+                        ok = True
+                        for c in range(3):
+                            z = ref[y, x, c]
+                            if not (z > noise_floor and z < saturation):
+                                ok = False
+                        # the reference's own colour where it is well exposed, else its share
+                        ar = fl[3]
+                        if ok and ref_band[0] < ref_band[1]:
+                            bw = 1.0
+                            for c in range(3):
+                                v = ref[y, x, c] / max_level
+                                if v < ref_band[0]:
+                                    bw = min(bw, max(0.0, 1.0 - (ref_band[0] - v) / ref_band[2]))
+                                elif v > ref_band[1]:
+                                    bw = min(bw, max(0.0, 1.0 - (v - ref_band[1]) / ref_band[2]))
+                            ar = max(ar, bw)
+                        if ok and ar > 0:
+                            s_ref = 0.0
+                            for c in range(3):
+                                zc = min(max(int(ref[y, x, c]), 0), max_level)
+                                lin[c] = table[c, zc]
+                                s_ref += lin[c]
+                            s_col = col[0] + col[1] + col[2]
+                            if s_ref > 0 and s_col > 0:
+                                for c in range(3):
+                                    col[c] = (1 - ar) * col[c] / s_col + ar * lin[c] / s_ref
+                    y_new = l0 * col[0] + l1 * col[1] + l2 * col[2]
+                    if y_new > 0 and np.isfinite(y_new):
+                        sc = y_old / y_new
+                        for c in range(3):
+                            rad[y, x, c] = col[c] * sc
+            # step 3's blend
             if not (a > 0.0) or not (ws > 0.0):
                 continue
             r_ = np.float64(rad[y, x, 0])
@@ -1277,6 +1213,133 @@ def _frame_band_fused_rows(
                 rad[y, x, 1] = np.float32(q1 * kk)
                 rad[y, x, 2] = np.float32(q2 * kk)
     return full
+
+
+def _pass_rows(
+    rad: np.ndarray,
+    *,
+    max_level: int,
+    steps12: dict[str, Any] | None = None,
+    band_args: tuple | None = None,
+) -> tuple[Callable[[int, int], None], list[int]]:
+    """``rows(r0, r1)``: :func:`_anchor_pass` over output rows ``r0..r1`` (the kernel releases
+    the GIL: rows run side by side on threads), and the list each call appends its count of
+    pixels given a frame's colour fully to. ``steps12``: :func:`_apply_rows`' arguments (steps
+    1-2 run); ``band_args``: :func:`_band_args` (step 3 runs). float16 shares are read as their
+    bits (no conversion pass); others as float32 a chunk of rows at a time."""
+    import threading
+
+    from .maps import _HALF_VALUES
+
+    none3 = np.zeros((1, 1, 1), np.float32)
+    st = steps12 or {}
+    shares, redecode = st.get("shares"), st.get("redecode")
+    use_redecode = redecode is not None and shares is not None
+    half = use_redecode and shares.dtype == np.float16
+    bits = shares.view(np.uint16) if half else np.zeros((1, 1, 1), np.uint16)
+    ref_frame = st.get("ref_frame")
+    ref_band = st.get("band")
+    fields = st.get("fields")
+    common = (
+        steps12 is not None,
+        np.zeros((1, 1, 4), np.float32) if fields is None else fields,
+        int(st.get("step", 1)),
+        bits,
+    )
+    later = (
+        half,
+        _HALF_VALUES if half else np.zeros(1),
+        np.asarray(st["log_t"], np.float64) if use_redecode else np.zeros(1),
+        np.ascontiguousarray(redecode, np.float64) if use_redecode else np.zeros((3, 2)),
+        use_redecode,
+        ref_frame is not None,
+        np.zeros((1, 1, 3), np.uint8) if ref_frame is None else ref_frame,
+        np.ascontiguousarray(st.get("table", np.zeros((3, 1))), np.float64),
+        float(st.get("noise_floor", 0.0)),
+        float(st.get("saturation", 0.0)),
+        np.asarray(ref_band if ref_band is not None else (1.0, 0.0, 1.0), np.float64),
+    )
+    if band_args is None:
+        band = (
+            False,
+            (np.zeros((1, 1, 3), np.uint8),),
+            np.eye(3)[None],
+            np.zeros(1, np.bool_),
+            (np.zeros((1, 1), np.bool_),),
+            np.zeros(1, np.bool_),
+            np.zeros((1, 3, 1)),
+            np.zeros(1),
+            np.zeros(1),
+        )
+    else:
+        band = (True, *band_args[:-1])
+    counts: list[int] = []
+    lock = threading.Lock()
+
+    def rows(r0: int, r1: int) -> None:
+        chunk = ANCHOR_CHUNK_ROWS if use_redecode and not half else r1 - r0
+        for c0 in range(r0, r1, chunk):
+            c1 = min(r1, c0 + chunk)
+            # numba has no float16: other shares' rows as float32
+            part = shares[:, c0:c1].astype(np.float32) if use_redecode and not half else none3
+            c = _anchor_pass(
+                rad, c0, c1, *common, part, *later[:2], c0, *later[2:], *band, int(max_level)
+            )
+            with lock:
+                counts.append(int(c))
+
+    return rows, counts
+
+
+def _apply_rows(
+    rad,
+    fields,
+    step,
+    shares,
+    log_t,
+    redecode,
+    ref_frame,
+    table,
+    noise_floor,
+    saturation,
+    max_level,
+    band,
+) -> Callable[[int, int], None]:
+    """``rows(r0, r1)``: steps 1-2 of :func:`anchor_colour` alone (the re-decoded colour times
+    the smooth gains; the reference's own colour with ``ref_frame``) over output rows
+    ``r0..r1``."""
+    rows, _ = _pass_rows(
+        rad,
+        max_level=max_level,
+        steps12=dict(
+            fields=fields,
+            step=step,
+            shares=shares,
+            log_t=log_t,
+            redecode=redecode,
+            ref_frame=ref_frame,
+            table=table,
+            noise_floor=noise_floor,
+            saturation=saturation,
+            band=band,
+        ),
+    )
+    return rows
+
+
+#: ``(low, high, ramp)``: a frame gives a pixel its own colour where every channel of it lies
+#: inside ``low..high`` of the range (the :data:`WELL_EXPOSED` band the colour check measures),
+#: its weight falling linearly to zero over ``ramp`` outside.
+FRAME_BAND = (WELL_EXPOSED[0], WELL_EXPOSED[1], 0.05)
+#: Spread (fraction of the range, every channel) of the weight around mid-grey with which the
+#: frames' own colours are mixed where several are well exposed: the frame nearest mid-grey
+#: gives nearly all of it (one level step of a 1-stop bracket is about 0.13: a weight ratio of
+#: 10 or more), the weight still a smooth function of the levels. Real brackets, median
+#: chromaticity error against each frame where it is the best exposed (per pixel, measured
+#: on the sampled pixels of the Xperia bracket): sigma 0.05 -> at most 0.0045, 0.1 -> 0.0077,
+#: 0.2 -> 0.0165 (the sRGB merge: 0.012-0.027); against every pixel a frame exposes well
+#: 0.005-0.045 whatever sigma (frames that disagree cannot all be met).
+FRAME_SIGMA = 0.1
 
 
 def _band_tables(
@@ -1471,8 +1534,7 @@ def _reading_homographies(
     return out
 
 
-def _frame_band_rows(
-    rad,
+def _band_args(
     frames,
     table,
     gains,
@@ -1485,13 +1547,9 @@ def _frame_band_rows(
     masks,
     band,
     sigma,
-) -> tuple[Callable[[int, int], None], list[int]]:
-    """``rows(r0, r1)``: :func:`_frame_band` through :func:`_frame_band_fused_rows` over
-    output rows ``r0..r1`` (every frame read at each pixel: the same result to the bit as the
-    per-frame passes), and the list each call appends its count of pixels given a frame's
-    colour fully to."""
-    import threading
-
+) -> tuple:
+    """Step 3's arguments as its kernels read them (:func:`_band_sums`): ``(frames, hmats,
+    has_h, masks, has_mask, tabg, bt, ew, max_level)``."""
     inv_2s2 = 1.0 / (2.0 * float(sigma) ** 2)
     n = len(frames)
     reads = _reading_homographies(to_reference, reference, n)
@@ -1514,28 +1572,19 @@ def _frame_band_rows(
         float(noise_floor),
         float(saturation),
     )
-    counts: list[int] = []
-    lock = threading.Lock()
+    return fr, hmats, has_h, tuple(mks), has_m, tabg, bt, ew, int(max_level)
 
-    def rows(r0: int, r1: int) -> None:
-        c = _frame_band_fused_rows(
-            rad,
-            fr,
-            hmats,
-            has_h,
-            tuple(mks),
-            has_m,
-            tabg,
-            bt,
-            ew,
-            int(max_level),
-            r0,
-            r1,
-        )
-        with lock:
-            counts.append(int(c))
 
-    return rows, counts
+def _frame_band_rows(
+    rad, frames, table, gains, **band_kw: Any
+) -> tuple[Callable[[int, int], None], list[int]]:
+    """``rows(r0, r1)``: :func:`_frame_band` through :func:`_anchor_pass` (step 3 alone) over
+    output rows ``r0..r1`` (every frame read at each pixel: the same result to the bit as the
+    per-frame passes), and the list each call appends its count of pixels given a frame's
+    colour fully to."""
+    return _pass_rows(
+        rad, max_level=band_kw["max_level"], band_args=_band_args(frames, table, gains, **band_kw)
+    )
 
 
 def anchor_colour(
@@ -1739,34 +1788,37 @@ def anchor_colour(
         sigma=frame_sigma,
     )
     if AVAILABLE:
-        apply_rows = _apply_rows(
-            rad,
-            fields.astype(np.float32),
-            step,
-            shares,
-            log_t,
-            redecode,
-            ref_frame,
-            table,
-            noise_floor,
-            saturation,
-            max_level,
-            reference_band,
-        )
-        band_rows: Callable[[int, int], None] | None = None
         counts: list[int] = []
         if frame_band is not None:
-            band_rows, counts = _frame_band_rows(rad, frames, table, frame_gains, **band_kw)
-
-        def rows(r0: int, r1: int) -> None:
-            # steps 1-2 and 3 over the same few rows in turn, while they are in cache (two
-            # whole passes over a 24 MP merge: 1.46 s)
-            for c0 in range(r0, r1, ANCHOR_CHUNK_ROWS):
-                c1 = min(r1, c0 + ANCHOR_CHUNK_ROWS)
-                apply_rows(c0, c1)
-                if band_rows is not None:
-                    band_rows(c0, c1)
-
+            # steps 1-2 and 3 in one pass, steps 1-2 only where step 3 leaves some of their
+            # colour (24 MP sRGB bench bracket: 84 % of the pixels take a frame's colour fully)
+            rows, counts = _pass_rows(
+                rad,
+                max_level=max_level,
+                steps12=dict(
+                    fields=fields.astype(np.float32),
+                    step=step,
+                    shares=shares,
+                    log_t=log_t,
+                    redecode=redecode,
+                ),
+                band_args=_band_args(frames, table, frame_gains, **band_kw),
+            )
+        else:
+            rows = _apply_rows(
+                rad,
+                fields.astype(np.float32),
+                step,
+                shares,
+                log_t,
+                redecode,
+                ref_frame,
+                table,
+                noise_floor,
+                saturation,
+                max_level,
+                reference_band,
+            )
         run_row_spans(h, None, rows)
         if frame_band is not None:
             own_fraction = float(sum(counts)) / float(h * w)
@@ -1794,9 +1846,9 @@ def anchor_colour(
     return _anchor_result(step, shift, shares_out, decode_name, frame_gains, own_fraction)
 
 
-#: Rows :func:`anchor_colour` takes through its per-pixel steps at a time (a 6000-pixel row of
-#: the merge is 72 kB: the rows stay in cache from one step to the next).
-ANCHOR_CHUNK_ROWS = 8
+#: Rows :func:`anchor_colour`'s per-pixel pass takes at a time when it converts shares that are
+#: not float16 to float32 (float16 shares are read as their bits, without a conversion).
+ANCHOR_CHUNK_ROWS = 32
 
 
 def _anchor_result(
