@@ -1233,8 +1233,9 @@ def _pass_rows(
 
     none3 = np.zeros((1, 1, 1), np.float32)
     st = steps12 or {}
-    shares, redecode = st.get("shares"), st.get("redecode")
-    use_redecode = redecode is not None and shares is not None
+    redecode = st.get("redecode")
+    shares: np.ndarray = np.zeros((1, 1, 1), np.float32) if redecode is None else st["shares"]
+    use_redecode = redecode is not None and st.get("shares") is not None
     half = use_redecode and shares.dtype == np.float16
     bits = shares.view(np.uint16) if half else np.zeros((1, 1, 1), np.uint16)
     ref_frame = st.get("ref_frame")
