@@ -1765,13 +1765,19 @@ def anchor_colour(
         & np.all(own > 0, axis=-1)
         & np.all(target > 0, axis=-1)
     )
-    gain = np.ones((ys.size, 3))
-    gain[good] = target[good] / own[good]
-    shift = np.hypot(*(target[good, :2] / d[good, None] - own[good, :2] / d[good, None]).T)
-    alpha = np.zeros(ys.size)
+    # the same quotients as on the good cells alone (most of the grid): whole-array divisions
+    # written where good, no gathered copies
+    fields = np.zeros((ys.size, 4))
+    fields[:, :3] = 1.0
+    gain = fields[:, :3]
+    np.divide(target, own, out=gain, where=good[:, None])
+    dg = np.where(good, d, 1.0)[:, None]
+    shift = np.hypot(*(target[:, :2] / dg - own[:, :2] / dg).T)[good]
     if ref_weight is not None:
-        alpha[good] = np.clip(blur(ref_weight)[good] / d[good], 0.0, 1.0)
-    fields = np.concatenate([gain, alpha[:, None]], axis=-1).reshape(*shape, 4)
+        alpha = fields[:, 3]
+        np.divide(blur(ref_weight), d, out=alpha, where=good)
+        np.clip(alpha, 0.0, 1.0, out=alpha)
+    fields = fields.reshape(*shape, 4)
 
     ref_frame = (
         None if reference is None or frame_band is not None else np.asarray(frames[reference])
