@@ -22,7 +22,6 @@ method for function minimization", The Computer Journal 7(4), 1965.
 from __future__ import annotations
 
 import numpy as np
-from scipy.optimize import minimize
 
 from ..geometry import corner_error, similarity_matrix, similarity_parameters
 from ._problem import PairData, RefineResult, cost, register_with, select_samples
@@ -50,6 +49,8 @@ def refine_nelder_mead(
     inverse of the pair matrix), at full resolution. ``initial_step``: the simplex's first
     steps in pixels, degrees and scale; ``xatol``: convergence in the same units.
     """
+    from scipy.optimize import minimize  # here: scipy.optimize is 0.2 s to import
+
     shape = data.shape
     n_par = {"shift": 2, "euclidean": 3, "similarity": 4}[model]
     history: list[float] = []

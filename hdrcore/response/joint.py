@@ -47,7 +47,6 @@ import numpy as np
 import scipy.linalg
 import scipy.sparse
 import scipy.sparse.linalg
-from scipy.optimize import nnls
 
 from ..errors import EstimationError, ParameterError
 from .curve import ChannelFit, ResponseCurve, normalise_curve
@@ -215,6 +214,8 @@ def _solve(
     sts = (stacked.T @ stacked).toarray()
     ata = to_u.T @ sts @ to_u
     atb = to_u.T @ (stacked.T @ rhs)
+    from scipy.optimize import nnls  # here: scipy.optimize is 0.2 s to import
+
     try:
         low = np.linalg.cholesky(ata + 1e-12 * np.trace(ata) / len(ata) * np.eye(len(ata)))
         r = low.T

@@ -21,7 +21,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.linalg
-from scipy.optimize import nnls
 from scipy.special import comb
 
 from ..errors import EstimationError
@@ -66,6 +65,8 @@ def fit_increments(
     if monotone and np.any(d < 0):
         # the unconstrained optimum is not monotone: non-negative least squares (all the
         # unknowns are increments, so the bounds are exactly d >= 0)
+        from scipy.optimize import nnls  # here: scipy.optimize is 0.2 s to import
+
         d = nnls(a, rhs, maxiter=50 * k)[0]
         active = int(np.sum(d <= 1e-9 * max(1.0, float(np.abs(d).max()))))
     u = np.concatenate([[0.0], np.cumsum(d)])
@@ -134,6 +135,8 @@ def _solve_homogeneous(a: np.ndarray, monotone: bool) -> tuple[np.ndarray, int]:
     rhs = np.zeros(aa.shape[0])
     rhs[-1] = w
     if monotone:
+        from scipy.optimize import nnls
+
         d = nnls(aa, rhs, maxiter=100 * n)[0]
     else:
         d = np.linalg.lstsq(aa, rhs, rcond=None)[0]

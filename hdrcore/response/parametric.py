@@ -24,7 +24,6 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from ..errors import ParameterError
 from .curve import ResponseCurve, normalise_curve
@@ -163,6 +162,8 @@ def fit_family(
     starts = [np.asarray(fam.start, float)]
     if name == "filmic":
         starts += [np.array([0.6]), np.array([6.0])]
+    from scipy.optimize import least_squares  # here: scipy.optimize is 0.2 s to import
+
     for x0 in starts:
         sol = least_squares(residual, x0, bounds=(fam.lower, fam.upper), x_scale="jac")
         if best is None or sol.cost < best.cost:
