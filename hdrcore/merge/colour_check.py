@@ -1767,17 +1767,17 @@ def anchor_colour(
     )
     # the same quotients as on the good cells alone (most of the grid): whole-array divisions
     # written where good, no gathered copies
-    fields = np.zeros((ys.size, 4))
-    fields[:, :3] = 1.0
-    gain = fields[:, :3]
+    cells = np.zeros((ys.size, 4))
+    cells[:, :3] = 1.0
+    gain = cells[:, :3]
     np.divide(target, own, out=gain, where=good[:, None])
     dg = np.where(good, d, 1.0)[:, None]
     shift = np.hypot(*(target[:, :2] / dg - own[:, :2] / dg).T)[good]
     if ref_weight is not None:
-        alpha = fields[:, 3]
+        alpha = cells[:, 3]
         np.divide(blur(ref_weight), d, out=alpha, where=good)
         np.clip(alpha, 0.0, 1.0, out=alpha)
-    fields = fields.reshape(*shape, 4)
+    fields = cells.reshape(*shape, 4)
 
     ref_frame = (
         None if reference is None or frame_band is not None else np.asarray(frames[reference])
