@@ -104,13 +104,21 @@ def test_draft_wanted(tmp_path: Path) -> None:
     assert not s.draft_wanted(Controls(), max_side=64)  # the full run is current
     assert not s.draft_wanted(Controls(tonemap_exposure=1.0, tonemap="reinhard"), max_side=64)
     assert s.draft_wanted(Controls(saturation=240.0), max_side=64)
-    assert s.draft_wanted(Controls(threshold=0.2), max_side=64)
+    # the draft takes the last full run's motion: what only the registration reads (threshold
+    # t, local refinement) changes nothing in it, unless the kind of motion changes too
+    assert s.pipeline is not None and s.pipeline.last_result is not None
+    assert s.pipeline.last_result.registration is not None
+    assert not s.draft_wanted(Controls(threshold=0.2), max_side=64)
+    assert not s.draft_wanted(Controls(local="off"), max_side=64)
+    assert s.draft_wanted(Controls(threshold=0.2, align="shift"), max_side=64)
+    assert s.draft_wanted(Controls(threshold=0.2, noise_floor=9.0), max_side=64)
 
 
 def test_no_draft_of_an_exposure_fusion_for_a_step_it_does_not_read(tmp_path: Path) -> None:
     """Locally tone-mapped frames are previewed by their exposure fusion, which reads the
     frames and their motion only: a saturation or noise-floor step leaves the picture as it is
-    and draws no draft of it; a change of the registration's threshold or model does."""
+    and draws no draft of it, nor does a threshold step (the draft would take the last full
+    run's motion); a change of the motion model does."""
     s = Session()
     s.load(write_png_bracket(tmp_path / "b", shape=(96, 144)))
     s.run(Controls())
@@ -123,7 +131,8 @@ def test_no_draft_of_an_exposure_fusion_for_a_step_it_does_not_read(tmp_path: Pa
     )
     assert not s.draft_wanted(Controls(saturation=240.0), max_side=64)
     assert not s.draft_wanted(Controls(noise_floor=9.0, deghost=True), max_side=64)
-    assert s.draft_wanted(Controls(threshold=0.2), max_side=64)
+    # the draft would fuse the frames with the last full run's motion: the same picture
+    assert not s.draft_wanted(Controls(threshold=0.2), max_side=64)
     assert s.draft_wanted(Controls(saturation=240.0, align="shift"), max_side=64)
 
 
