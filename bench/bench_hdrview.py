@@ -467,7 +467,10 @@ def bench_steps(names: list[str]) -> None:
             floor = first.noise_floor
             steps = [("saturation", float(top - d)) for d in range(1, 7)]
             steps += [("noise_floor", round(floor + d, 1)) for d in (0.2, 0.5, 1.1, 1.4)]
-            kept = {"saturation": 0, "noise_floor": 0}
+            # threshold t: read by the registration alone (it always registers again; no draft)
+            t0 = float(first.params.threshold)
+            steps += [("threshold", round(t0 + d, 3)) for d in (0.02, 0.04)]
+            kept = {"saturation": 0, "noise_floor": 0, "threshold": 0}
             for control, value in steps:
                 before = app.session.result
                 app.last_draft_seconds = app.last_shown_seconds = None
@@ -487,7 +490,7 @@ def bench_steps(names: list[str]) -> None:
                 )
             print(
                 f"{name:<10} registration kept: saturation {kept['saturation']} of 6, "
-                f"noise floor {kept['noise_floor']} of 4"
+                f"noise floor {kept['noise_floor']} of 4, threshold {kept['threshold']} of 2"
             )
         finally:
             inspector.stop()
