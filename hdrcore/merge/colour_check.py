@@ -1224,9 +1224,12 @@ def _pass_rows(
 ) -> tuple[Callable[[int, int], None], list[int]]:
     """``rows(r0, r1)``: :func:`_anchor_pass` over output rows ``r0..r1`` (the kernel releases
     the GIL: rows run side by side on threads), and the list each call appends its count of
-    pixels given a frame's colour fully to. ``steps12``: :func:`_apply_rows`' arguments (steps
-    1-2 run); ``band_args``: :func:`_band_args` (step 3 runs). float16 shares are read as their
-    bits (no conversion pass); others as float32 a chunk of rows at a time."""
+    pixels given a frame's colour fully to. ``steps12``: steps 1-2's arguments (they run: the
+    smooth ``fields`` and their grid ``step``; ``shares``, ``log_t``, ``redecode`` for the
+    re-decoding; ``ref_frame``, ``table``, ``noise_floor``, ``saturation``, ``band`` for the
+    reference's own colour); ``band_args``: :func:`_band_args` (step 3 runs). float16 shares
+    are read as their bits (no conversion pass); others as float32 a chunk of rows at a
+    time."""
     import threading
 
     from .maps import _HALF_VALUES
@@ -1290,42 +1293,6 @@ def _pass_rows(
                 counts.append(int(c))
 
     return rows, counts
-
-
-def _apply_rows(
-    rad,
-    fields,
-    step,
-    shares,
-    log_t,
-    redecode,
-    ref_frame,
-    table,
-    noise_floor,
-    saturation,
-    max_level,
-    band,
-) -> Callable[[int, int], None]:
-    """``rows(r0, r1)``: steps 1-2 of :func:`anchor_colour` alone (the re-decoded colour times
-    the smooth gains; the reference's own colour with ``ref_frame``) over output rows
-    ``r0..r1``."""
-    rows, _ = _pass_rows(
-        rad,
-        max_level=max_level,
-        steps12=dict(
-            fields=fields,
-            step=step,
-            shares=shares,
-            log_t=log_t,
-            redecode=redecode,
-            ref_frame=ref_frame,
-            table=table,
-            noise_floor=noise_floor,
-            saturation=saturation,
-            band=band,
-        ),
-    )
-    return rows
 
 
 #: ``(low, high, ramp)``: a frame gives a pixel its own colour where every channel of it lies
@@ -1795,37 +1762,31 @@ def anchor_colour(
         sigma=frame_sigma,
     )
     if AVAILABLE:
-        counts: list[int] = []
-        if frame_band is not None:
-            # steps 1-2 and 3 in one pass, steps 1-2 only where step 3 leaves some of their
-            # colour (24 MP sRGB bench bracket: 84 % of the pixels take a frame's colour fully)
-            rows, counts = _pass_rows(
-                rad,
-                max_level=max_level,
-                steps12=dict(
-                    fields=fields.astype(np.float32),
-                    step=step,
-                    shares=shares,
-                    log_t=log_t,
-                    redecode=redecode,
-                ),
-                band_args=_band_args(frames, table, frame_gains, **band_kw),
+        # steps 1-2 and 3 in one pass, steps 1-2 only where step 3 leaves some of their colour
+        # (24 MP sRGB bench bracket: 84 % of the pixels take a frame's colour fully)
+        steps12: dict[str, Any] = dict(
+            fields=fields.astype(np.float32),
+            step=step,
+            shares=shares,
+            log_t=log_t,
+            redecode=redecode,
+        )
+        if frame_band is None:
+            steps12.update(
+                ref_frame=ref_frame,
+                table=table,
+                noise_floor=noise_floor,
+                saturation=saturation,
+                band=reference_band,
             )
-        else:
-            rows = _apply_rows(
-                rad,
-                fields.astype(np.float32),
-                step,
-                shares,
-                log_t,
-                redecode,
-                ref_frame,
-                table,
-                noise_floor,
-                saturation,
-                max_level,
-                reference_band,
-            )
+        rows, counts = _pass_rows(
+            rad,
+            max_level=max_level,
+            steps12=steps12,
+            band_args=None
+            if frame_band is None
+            else _band_args(frames, table, frame_gains, **band_kw),
+        )
         run_row_spans(h, None, rows)
         if frame_band is not None:
             own_fraction = float(sum(counts)) / float(h * w)
