@@ -404,6 +404,7 @@ def _chain_rows(
             t20 = ts[s, 2, 0]
             t21 = ts[s, 2, 1]
             t22 = ts[s, 2, 2]
+            affine = t20 == 0.0 and t21 == 0.0 and t22 == 1.0
             for gx in range(gw):
                 x = off + gx * stride
                 if hm and not mask[y, x]:
@@ -411,9 +412,13 @@ def _chain_rows(
                 sy = y
                 sx = x
                 if ht:
-                    sw_ = t20 * x + t21 * y + t22
-                    fx = (t00 * x + t01 * y + t02) / sw_
-                    fy = (t10 * x + t11 * y + t12) / sw_
+                    if affine:  # the same values: the denominator is exactly 1
+                        fx = t00 * x + t01 * y + t02
+                        fy = t10 * x + t11 * y + t12
+                    else:
+                        sw_ = t20 * x + t21 * y + t22
+                        fx = (t00 * x + t01 * y + t02) / sw_
+                        fy = (t10 * x + t11 * y + t12) / sw_
                     if not (fx > -0.5 and fx < w - 0.5 and fy > -0.5 and fy < h - 0.5):
                         continue
                     sx = int(np.floor(fx + 0.5))
