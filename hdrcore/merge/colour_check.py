@@ -612,67 +612,51 @@ def _check_frames(
     frame_pairs_blocks: tuple[FramePairColour, ...] | None,
 ) -> _CheckFrames:
 
+    kw: dict[str, Any] = dict(
+        max_level=max_level,
+        reference=reference,
+        to_reference=to_reference,
+        masks=masks,
+        well_exposed=well_exposed,
+    )
+
+    def sampled() -> _CheckFrames:
+        return _sampled_frames(frames, table, max_samples=max_samples, balance=balance, **kw)
+
     def noise(gains: Sequence[np.ndarray]) -> tuple[FramePairNoise, ...]:
         if frame_pairs_noise is not None:
             return frame_pairs_noise
         return noise_consistency(
-            frames,
-            table,
-            max_level=max_level,
-            reference=reference,
-            to_reference=to_reference,
-            masks=masks,
-            gains=np.asarray(gains, dtype=np.float64),
-            max_samples=max_samples,
-            well_exposed=well_exposed,
+            frames, table, gains=np.asarray(gains, np.float64), max_samples=max_samples, **kw
         )
 
     def blocks() -> tuple[FramePairColour, ...]:
         if frame_pairs_blocks is not None:
             return frame_pairs_blocks
-        return block_consistency(
-            frames,
-            table,
-            max_level=max_level,
-            reference=reference,
-            to_reference=to_reference,
-            masks=masks,
-            well_exposed=well_exposed,
-        )
+        return block_consistency(frames, table, **kw)
 
     if balance is not None:
         # the per-pixel noise and block tests read the frames alone (the gains are the
         # balance's): side by side with the sampling (real Xperia bracket, the check after a
         # registration: 0.67 s of mostly single-threaded numpy in a row)
         given = list(balance.correction())
-        parts: list[Any] = thread_map(
-            lambda part: part(),
-            [
-                lambda: _sampled_frames(
-                    frames,
-                    table,
-                    max_level,
-                    reference,
-                    to_reference,
-                    masks,
-                    max_samples,
-                    well_exposed,
-                    balance,
-                ),
-                lambda: noise(given),
-                blocks,
-            ],
-        )
-        sampled: _CheckFrames = parts[0]
-        return replace(sampled, noise=parts[1], blocks=parts[2])
-    sampled = _sampled_frames(
-        frames, table, max_level, reference, to_reference, masks, max_samples, well_exposed, None
-    )
-    return replace(sampled, noise=noise(list(sampled.colour_gains)), blocks=blocks())
+        parts: list[Any] = thread_map(lambda part: part(), [sampled, lambda: noise(given), blocks])
+        return replace(parts[0], noise=parts[1], blocks=parts[2])
+    alone = sampled()
+    return replace(alone, noise=noise(list(alone.colour_gains)), blocks=blocks())
 
 
 def _sampled_frames(
-    frames, table, max_level, reference, to_reference, masks, max_samples, well_exposed, balance
+    frames,
+    table,
+    *,
+    max_level,
+    reference,
+    to_reference,
+    masks,
+    max_samples,
+    well_exposed,
+    balance,
 ) -> _CheckFrames:
     """What :func:`_check_frames` measures on sampled pixels (its ``noise`` and ``blocks``
     left empty for the caller)."""
@@ -1048,14 +1032,14 @@ def _anchor_pass(
     rad,
     r0,
     r1,
+    sh_f,
+    sh_off,
     steps12,
     fields,
     step,
     sh_bits,
-    sh_f,
     half,
     values,
-    sh_off,
     log_t,
     redecode,
     use_redecode,
@@ -1276,28 +1260,26 @@ def _pass_rows(
 
     from .maps import _HALF_VALUES
 
-    none3 = np.zeros((1, 1, 1), np.float32)
     st = steps12 or {}
-    redecode = st.get("redecode")
-    shares: np.ndarray = np.zeros((1, 1, 1), np.float32) if redecode is None else st["shares"]
-    use_redecode = redecode is not None and st.get("shares") is not None
-    half = use_redecode and shares.dtype == np.float16
-    bits = shares.view(np.uint16) if half else np.zeros((1, 1, 1), np.uint16)
+    shares: np.ndarray | None = st.get("shares") if st.get("redecode") is not None else None
+    half = shares is not None and shares.dtype == np.float16
+    # numba has no float16: float16 shares are read as their bits, others as float32 rows
+    float_rows = shares if shares is not None and not half else None
     ref_frame = st.get("ref_frame")
     ref_band = st.get("band")
     fields = st.get("fields")
-    common = (
+    fixed = (
         steps12 is not None,
         np.zeros((1, 1, 4), np.float32) if fields is None else fields,
         int(st.get("step", 1)),
-        bits,
-    )
-    later = (
+        shares.view(np.uint16) if shares is not None and half else np.zeros((1, 1, 1), np.uint16),
         half,
         _HALF_VALUES if half else np.zeros(1),
-        np.asarray(st["log_t"], np.float64) if use_redecode else np.zeros(1),
-        np.ascontiguousarray(redecode, np.float64) if use_redecode else np.zeros((3, 2)),
-        use_redecode,
+        np.asarray(st["log_t"], np.float64) if shares is not None else np.zeros(1),
+        np.ascontiguousarray(st["redecode"], np.float64)
+        if shares is not None
+        else np.zeros((3, 2)),
+        shares is not None,
         ref_frame is not None,
         np.zeros((1, 1, 3), np.uint8) if ref_frame is None else ref_frame,
         np.ascontiguousarray(st.get("table", np.zeros((3, 1))), np.float64),
@@ -1318,19 +1300,17 @@ def _pass_rows(
             np.zeros(1),
         )
     else:
-        band = (True, *band_args[:-1])
+        band = (True, *band_args)
+    none3 = np.zeros((1, 1, 1), np.float32)
     counts: list[int] = []
     lock = threading.Lock()
 
     def rows(r0: int, r1: int) -> None:
-        chunk = ANCHOR_CHUNK_ROWS if use_redecode and not half else r1 - r0
+        chunk = r1 - r0 if float_rows is None else ANCHOR_CHUNK_ROWS
         for c0 in range(r0, r1, chunk):
             c1 = min(r1, c0 + chunk)
-            # numba has no float16: other shares' rows as float32
-            part = shares[:, c0:c1].astype(np.float32) if use_redecode and not half else none3
-            c = _anchor_pass(
-                rad, c0, c1, *common, part, *later[:2], c0, *later[2:], *band, int(max_level)
-            )
+            part = none3 if float_rows is None else float_rows[:, c0:c1].astype(np.float32)
+            c = _anchor_pass(rad, c0, c1, part, c0, *fixed, *band, int(max_level))
             with lock:
                 counts.append(int(c))
 
@@ -1361,7 +1341,7 @@ def _band_tables(
     noise_floor: float,
     saturation: float,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The per-level tables of :func:`_frame_band_fused_rows`: ``(tabg, bt, ew)``, ``tabg[k, c,
+    """The per-level tables of :func:`_anchor_pass`'s step 3: ``(tabg, bt, ew)``, ``tabg[k, c,
     z] = table[c, z] / gains[k, c]`` (the same division the pixel would make), ``bt`` the band
     weight of :func:`_level_weights` set to zero at levels outside ``(noise_floor,
     saturation)``, ``ew`` its Gaussian factor (24 MP x 3 random frames, one thread: 1.35 ->
@@ -1407,7 +1387,7 @@ def _band_numpy(
     max_level,
     rows_per_chunk,
 ) -> None:
-    """One frame's term of step 3 in numpy (the spec of :func:`_frame_band_fused_rows`, and the
+    """One frame's term of step 3 in numpy (the spec of :func:`_anchor_pass`'s step 3, and the
     path without numba)."""
     h, w = acc.shape[:2]
     fh, fw = frame.shape[:2]
@@ -1442,7 +1422,7 @@ def _band_numpy(
 
 
 def _blend_numpy(rad, acc, wsum, amax, rows_per_chunk) -> None:
-    """The blend of step 3 in numpy (the spec of :func:`_frame_band_fused_rows`)."""
+    """The blend of step 3 in numpy (the spec of :func:`_anchor_pass`'s)."""
     lum = np.asarray(_LUMA)
     for r0 in range(0, rad.shape[0], rows_per_chunk):
         r1 = min(rad.shape[0], r0 + rows_per_chunk)
@@ -1558,7 +1538,7 @@ def _band_args(
     band,
     sigma,
 ) -> tuple:
-    """Step 3's arguments as its kernels read them (:func:`_band_sums`): ``(frames, hmats,
+    """Step 3's arguments as :func:`_anchor_pass` reads them: ``(frames, hmats,
     has_h, masks, has_mask, tabg, bt, ew, max_level)``."""
     inv_2s2 = 1.0 / (2.0 * float(sigma) ** 2)
     n = len(frames)
@@ -1582,7 +1562,7 @@ def _band_args(
         float(noise_floor),
         float(saturation),
     )
-    return fr, hmats, has_h, tuple(mks), has_m, tabg, bt, ew, int(max_level)
+    return fr, hmats, has_h, tuple(mks), has_m, tabg, bt, ew
 
 
 def _frame_band_rows(
