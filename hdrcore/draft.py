@@ -537,5 +537,5 @@ def run_draft(
         p = p.replace(times="exif", refine_ratios="none", exposure_method="Cerman 2006")
     # The region ghost test changes no pixel without deghost: left pending
     # (``result.merge.ghost_test_pending``; 0.09-0.15 s of the bench bracket's draft).
-    res = pipe.run(p, ghost_test="later")
+    res = pipe.run(p, checks="later")
     return replace(res, preview_factor=res.preview_factor * f)

@@ -33,7 +33,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field, replace
 from dataclasses import fields as dataclass_fields
 from functools import partial
-from typing import Any
+from typing import Any, Generic, TypeVar
 
 import numpy as np
 
@@ -66,7 +66,7 @@ from .merge.colour import (
     convert_space_in_place,
     space_to_space_matrix,
 )
-from .merge.colour_check import FrameMeasures, check_colour, measure_frames
+from .merge.colour_check import ColourResult, FrameMeasures, check_colour, measure_frames
 from .merge.fusion import METHOD as FUSION_METHOD
 from .merge.fusion import exposure_fusion
 from .noise import BracketNoise, FrameNoise, bracket_noise, frame_noise
@@ -126,6 +126,7 @@ LOCAL_CHOICES = ("auto", "on", "off")
 REFINE_CHOICES = ("pixels", "histograms", "none")
 
 ProgressCallback = Callable[[str, float, str], None]
+T = TypeVar("T")
 
 #: The model-error floor of ratios measured through a response recovered from a moved bracket
 #: (relative, per stop between the frames). Measured on the seed's hand-held brackets (8 and 12
@@ -342,6 +343,20 @@ class PipelineResult:
     #: left out of the estimation as ``exclude_colour`` would (``None``: none found, or the
     #: caller chose ``exclude_colour``)
     marker_colour: tuple[int, int, int] | None = None
+    #: a run with ``checks="later"``: the call that measures the colour checks (``colour`` has
+    #: no ``before`` and ``after`` until :meth:`Pipeline.finish_checks`)
+    colour_pending: Callable[[], dict[str, Any]] | None = field(
+        default=None, repr=False, compare=False
+    )
+
+    @property
+    def checks_pending(self) -> bool:
+        """Measurements that change no pixel were left for later (``Pipeline.run(...,
+        checks="later")``): the merge's region ghost test, a non-linear merge's colour checks.
+        :meth:`Pipeline.finish_checks` makes them."""
+        return self.colour_pending is not None or (
+            self.merge is not None and self.merge.ghost_test_pending
+        )
 
     @property
     def ok(self) -> bool:
@@ -832,23 +847,26 @@ class Pipeline:
         params: PipelineParams | None = None,
         *,
         until: str = "preview",
-        ghost_test: str = "now",
+        checks: str = "now",
     ) -> PipelineResult:
         """Run (or re-use) every stage up to ``until`` and return the result.
 
         ``until="ratios"`` stops after the whole-frame exposure ratios (a fast re-fit from the
         cached histograms, for sliders); later stages are then ``None`` in the result.
 
-        ``ghost_test="later"``: a merge without deghost comes back before its region ghost test
-        (which changes no pixel): ``result.merge.ghost_test_pending``, no ghost known yet;
-        :meth:`finish_ghost_test` completes it. The inspector shows the picture first, the
-        command writes its EXR while the test runs. ``"now"`` (the default): complete.
+        ``checks="later"``: the merge comes back before the measurements that change no pixel
+        (``result.checks_pending``): its region ghost test without deghost
+        (``result.merge.ghost_test_pending``, no ghost known yet) and a non-linear merge's
+        colour checks before and after the anchoring (``result.colour["check"]`` without
+        ``before`` and ``after``; its pixels on the checks' grid kept); :meth:`finish_checks`
+        makes them. The inspector shows the picture first, the command writes its EXR while
+        they run. ``"now"`` (the default): complete.
         """
         if until not in STAGES:
             raise ParameterError(f"unknown stage {until!r}", expected=", ".join(STAGES))
-        if ghost_test not in ("now", "later"):
+        if checks not in ("now", "later"):
             raise ParameterError(
-                f"unknown ghost_test {ghost_test!r}", expected="now, later", found=ghost_test
+                f"unknown checks {checks!r}", expected="now, later", found=str(checks)
             )
         # (the lock is taken before the workers are read: ``with A, B`` enters A first)
         with self._lock, set_workers((params or self.params).workers):
@@ -874,32 +892,34 @@ class Pipeline:
             if all(sig.usable for sig in signals):
                 self._active_subset = None
                 try:
-                    return self._run(p, STAGES.index(until), signals, run, t_start, ghost_test)
+                    return self._run(p, STAGES.index(until), signals, run, t_start, checks)
                 except _Unlinked as gap:
                     signals = tuple(
                         replace(sig, status="unlinked") if sig.index in gap.drop else sig
                         for sig in signals
                     )
-            return self._run_subset(p, reference, signals, until, ghost_test)
+            return self._run_subset(p, reference, signals, until, checks)
 
-    def finish_ghost_test(self, result: PipelineResult) -> PipelineResult:
-        """``result`` (of :meth:`run` with ``ghost_test="later"``) with its merge's region ghost
-        test done and the verdicts that read it; ``result`` itself when nothing is pending."""
-        merged = result.merge
-        if merged is None or not merged.ghost_test_pending:
+    def finish_checks(self, result: PipelineResult) -> PipelineResult:
+        """``result`` (of :meth:`run` with ``checks="later"``) with the measurements it left
+        for later made (its merge's region ghost test, its colour checks) and the verdicts
+        that read them; ``result`` itself when nothing is pending."""
+        if not result.checks_pending:
             return result
         with self._lock:
-            t = time.perf_counter()
-            done = merged.with_ghost_test()
-            timings = dict(result.timings, ghost_test=time.perf_counter() - t)
-            res = replace(result, merge=done, timings=timings)
-            res = replace(res, verdicts=tuple(diagnose(res)))
+            res = _checks_done(result)
             if self.last_result is result:
                 self.last_result = res
             sub = self._active_subset
             if sub is not None and sub.last_result is not None:
-                if sub.last_result.merge is merged:
-                    sub.last_result = replace(sub.last_result, merge=done)
+                last = sub.last_result
+                if last.merge is result.merge or last.colour_pending is result.colour_pending:
+                    sub.last_result = replace(
+                        last,
+                        merge=res.merge if last.merge is result.merge else last.merge,
+                        colour=res.colour,
+                        colour_pending=None,
+                    )
             return res
 
     def _run_subset(
@@ -908,7 +928,7 @@ class Pipeline:
         reference: int | None,
         signals: tuple[FrameSignal, ...],
         until: str,
-        ghost_test: str = "now",
+        checks: str = "now",
     ) -> PipelineResult:
         """Run without the frames that carry no signal (black, saturated): they are left out of
         every stage, the rest of the bracket is merged, and the result says which and why."""
@@ -943,7 +963,7 @@ class Pipeline:
         if reference is not None:
             # The kept frame nearest to the one asked for (the darker one on a tie).
             ref = min(range(len(keep)), key=lambda i: (abs(keep[i] - int(reference)), keep[i]))
-        res = sub.run(replace(p, reference=ref), until=until, ghost_test=ghost_test)
+        res = sub.run(replace(p, reference=ref), until=until, checks=checks)
         if res.unused_frames:
             # The subset left more frames out (a ratio gap without EXIF): back to our indices.
             more = {keep[u.index]: replace(u, index=keep[u.index]) for u in res.unused_frames}
@@ -977,7 +997,7 @@ class Pipeline:
         reuse: Any = None,
     ) -> tuple:
         """The merge step alone (``bench/bench_merge.py``, ``bench/bench_pipeline.py``)."""
-        return _merge_frames(self._ctx, p, lut, times, registration, excluded, reuse=reuse)
+        return _merge_frames(self._ctx, p, lut, times, registration, excluded, reuse=reuse)[:3]
 
     def _run(
         self,
@@ -986,7 +1006,7 @@ class Pipeline:
         signals: tuple[FrameSignal, ...],
         run: Any,
         t_start: float,
-        ghost_test: str = "now",
+        checks: str = "now",
     ) -> PipelineResult:
         """The stages up to ``STAGES[last]``: which to ask for, never how they are keyed (each
         stage's key comes from its declaration in :data:`GRAPH`)."""
@@ -1005,6 +1025,7 @@ class Pipeline:
         merge_result = None
         radiance = None
         colour_info: dict[str, Any] = {}
+        colour_pending: _Once[dict[str, Any]] | None = None
         preview, factor = None, 1
         times, times_source = run.get("times_histogram")
         if want("registration"):
@@ -1016,15 +1037,20 @@ class Pipeline:
         lut = _lut(self._ctx, response)
         if want("merge"):
             reuse = self._take_spare(run.key("merge"))
-            merge_result, radiance, colour_info = run.get("merge", reuse=reuse)
+            merge_result, radiance, colour_info, colour_pending = run.get("merge", reuse=reuse)
             if want("preview"):
                 preview, factor = run.get("preview")
-            if ghost_test == "now" and merge_result.ghost_test_pending:
-                # the merge stage leaves its region ghost test for last (after the preview):
-                # done here, once (a cached merge returns the same completed result)
+            # the merge stage leaves its region ghost test and colour checks for last (after
+            # the preview): made here, once (a cached merge returns the same completed ones)
+            if checks == "now" and merge_result.ghost_test_pending:
                 t = time.perf_counter()
                 merge_result = merge_result.with_ghost_test()
                 timings["ghost_test"] = time.perf_counter() - t
+            if colour_pending is not None and (checks == "now" or colour_pending.done):
+                t = time.perf_counter()
+                colour_info = colour_pending()
+                timings["colour_checks"] = time.perf_counter() - t
+                colour_pending = None
         timings["total"] = time.perf_counter() - t_start
         res = PipelineResult(
             bracket=b,
@@ -1050,6 +1076,7 @@ class Pipeline:
             noise=self.noise(),
             frame_signals=signals,
             marker_colour=self._marker_used,
+            colour_pending=colour_pending,
         )
         res = replace(res, verdicts=tuple(diagnose(res)))
         if upto == STAGES[-1] or self.last_result is None:
@@ -1709,7 +1736,12 @@ def _merge_frames(
     reuse: Any = None,
     defer_ghost_test: bool = False,
     frame_measures: FrameMeasures | None = None,
-):
+    colour_later: bool = False,
+) -> tuple[MergeResult, np.ndarray, dict[str, Any], _Once[dict[str, Any]] | None]:
+    """The merge, its radiance, its colour (``result.colour``) and, with ``colour_later`` (and
+    a non-linear bracket whose colour is reported: ``ctx.colour_report``), the call that
+    measures the colour checks (:func:`check_colour`'s ``report="later"``) and returns the
+    colour with them; else ``None`` (measured already, or never)."""
     b = ctx.bracket
     n = len(b)
     levels = [f.levels for f in b.frames]  # the bracket's own arrays: no copies
@@ -1776,7 +1808,7 @@ def _merge_frames(
             exposure_times=times,
             shares=result.shares,
             frame_measures=frame_measures,
-            report=ctx.colour_report,
+            report=("later" if colour_later else True) if ctx.colour_report else False,
         )
         colour_info["check"] = checked.to_json()
         source = colour_info.get("source_space", "sRGB")
@@ -1785,7 +1817,55 @@ def _merge_frames(
             # then taken to the working space
             convert_space_in_place(result.radiance, space_to_space_matrix(source, p.working_space))
             colour_info["conversion"] += f", converted to {p.working_space} after the colour check"
-    return result, result.radiance, colour_info
+        if checked.pending is not None:
+            return result, result.radiance, colour_info, _colour_measured(checked, colour_info)
+    return result, result.radiance, colour_info, None
+
+
+class _Once(Generic[T]):
+    """``fn()`` computed once, whoever calls first (the others wait for it); ``done`` says
+    whether it has been."""
+
+    def __init__(self, fn: Callable[[], T]) -> None:
+        self._fn: Callable[[], T] | None = fn
+        self._lock = threading.Lock()
+        self._value: list[T] = []
+
+    @property
+    def done(self) -> bool:
+        return bool(self._value)
+
+    def __call__(self) -> T:
+        with self._lock:
+            if not self._value:
+                assert self._fn is not None
+                self._value.append(self._fn())
+                self._fn = None  # what it read is freed
+            return self._value[0]
+
+
+def _colour_measured(checked: ColourResult, colour_info: dict[str, Any]) -> _Once[dict[str, Any]]:
+    """The call that completes a merge's ``colour_info`` with its colour checks (measured
+    once, whoever asks first; every call returns the same dict)."""
+    return _Once(lambda: {**colour_info, "check": checked.measured().to_json()})
+
+
+def _checks_done(result: PipelineResult) -> PipelineResult:
+    """``result`` with its pending region ghost test and colour checks made (timed) and its
+    verdicts drawn again."""
+    timings = dict(result.timings)
+    res = result
+    merged = result.merge
+    if merged is not None and merged.ghost_test_pending:
+        t = time.perf_counter()
+        res = replace(res, merge=merged.with_ghost_test())
+        timings["ghost_test"] = time.perf_counter() - t
+    if result.colour_pending is not None:
+        t = time.perf_counter()
+        res = replace(res, colour=result.colour_pending(), colour_pending=None)
+        timings["colour_checks"] = time.perf_counter() - t
+    res = replace(res, timings=timings)
+    return replace(res, verdicts=tuple(diagnose(res)))
 
 
 def _colour(ctx: _Context, p: PipelineParams) -> tuple[ColourConversion | None, dict[str, Any]]:
@@ -2160,7 +2240,8 @@ def _stage_merge(ctx: _Context, p: Any, up: Inputs, reuse: Any = None) -> tuple:
     response, _ = up.response_used
     times, _ = up.merge_times
     # The region ghost test (no pixel changes without deghost) is left to the run, which does
-    # it after the preview or leaves it to the caller (Pipeline.run(ghost_test="later")).
+    # it after the preview or leaves it to the caller (Pipeline.run(checks="later")); so are
+    # the colour checks of a non-linear merge (they change no pixel either).
     lut = _lut(ctx, response)
     return _merge_frames(
         ctx,
@@ -2172,6 +2253,7 @@ def _stage_merge(ctx: _Context, p: Any, up: Inputs, reuse: Any = None) -> tuple:
         reuse=reuse,
         defer_ghost_test=True,
         frame_measures=None if lut is None else up.frame_measures,
+        colour_later=True,
     )
 
 
@@ -2198,7 +2280,7 @@ def _stage_frame_measures(ctx: _Context, p: Any, up: Inputs) -> FrameMeasures | 
 
 
 def _stage_preview(ctx: _Context, p: Any, up: Inputs) -> tuple[TonemapResult, int]:
-    _, radiance, colour_info = up.merge
+    _, radiance, colour_info, _ = up.merge
     ltm = colour_info.get("check", {}).get("local_tone_mapping") or {}
     if ltm.get("detected"):
         # the frames' exposure fusion: read from its own stage, kept while only the merge's

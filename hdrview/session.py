@@ -127,11 +127,11 @@ class Session:
         controls: Controls,
         progress: ProgressCallback | None = None,
         until: str | None = None,
-        ghost_test: str = "now",
+        checks: str = "now",
     ) -> PipelineResult:
-        """Run (or re-run what changed in) the pipeline; return its result. ``ghost_test=
-        "later"``: the merge comes back before its region ghost test
-        (:meth:`finish_ghost_test` completes it)."""
+        """Run (or re-run what changed in) the pipeline; return its result. ``checks="later"``:
+        the merge comes back before the measurements that change no pixel, its region ghost
+        test and colour checks (:meth:`finish_checks` makes them)."""
         if self.bracket is None:
             raise InputError("no bracket loaded: load one first")
         from hdrcore.pipeline import Pipeline
@@ -141,19 +141,20 @@ class Session:
             self.pipeline = Pipeline(self.bracket, params, progress=progress)
         elif progress is not None:
             self.pipeline.progress = progress
-        result = self.pipeline.run(params, until=until or "preview", ghost_test=ghost_test)
+        result = self.pipeline.run(params, until=until or "preview", checks=checks)
         self.params = params
         self.result = result
         if until is None:
             self.full_params = params
         return result
 
-    def finish_ghost_test(self, result: PipelineResult) -> PipelineResult:
-        """``result`` with its merge's region ghost test done (the verdicts that read it too);
-        itself when none is pending."""
+    def finish_checks(self, result: PipelineResult) -> PipelineResult:
+        """``result`` with the measurements it left for later made (its merge's region ghost
+        test, its colour checks; the verdicts that read them too); itself when none is
+        pending."""
         if self.pipeline is None:
             return result
-        done = self.pipeline.finish_ghost_test(result)
+        done = self.pipeline.finish_checks(result)
         if self.result is result:
             self.result = done
         return done

@@ -803,8 +803,8 @@ class ClientView:
             t_registered = time.perf_counter()
             ctx.check()
             # the full-resolution picture first; the region ghost test (no pixel changes
-            # without deghost) after it is drawn
-            result = self.session.run(self.controls, progress=progress, ghost_test="later")
+            # without deghost) and the colour checks after it is drawn
+            result = self.session.run(self.controls, progress=progress, checks="later")
             self.app.first_run = False
         ctx.check()
         self._draw(result)
@@ -812,11 +812,16 @@ class ClientView:
         if result is not None and result.timings.get("merge", 0.0) > 0.0:
             self.last_merge_seconds = time.perf_counter() - t_registered
         self.last_shown_cpu = time.process_time() - c0
-        if result is not None and result.merge is not None and result.merge.ghost_test_pending:
-            ctx.progress(0.97, "ghost test: where the frames disagree")
-            done = self.session.finish_ghost_test(result)
+        if result is not None and result.checks_pending:
+            ctx.progress(
+                0.97,
+                "ghost test: where the frames disagree"
+                if result.merge is not None and result.merge.ghost_test_pending
+                else "colour checks",
+            )
+            done = self.session.finish_checks(result)
             ctx.check()
-            self._draw_ghost_test(done)
+            self._draw_checks(done)
             result = done
         self.last_job_seconds = time.perf_counter() - t0
         self.last_job_cpu = time.process_time() - c0
@@ -891,9 +896,10 @@ class ClientView:
             "overlay": self.overlay_dropdown.value,
         }
 
-    def _draw_ghost_test(self, result: PipelineResult) -> None:
-        """The drawn result's ghost test done: what reads it drawn again (the status line, the
-        Result tab's layers and summary, the verdicts); the same arrays, nothing released."""
+    def _draw_checks(self, result: PipelineResult) -> None:
+        """The drawn result's ghost test and colour checks done: what reads them drawn again
+        (the status line, the Result tab's layers and summary, the verdicts); the same arrays,
+        nothing released."""
         bracket = self.session.bracket
         used = result.bracket
         view = self._view_choices()

@@ -229,19 +229,26 @@ def run(args: argparse.Namespace) -> int:
         if not args.dng:
             # Only the DNG's CFA layout reads the mosaics after the merge has started.
             pipeline.progress = _releasing_mosaics(pipeline, progress)
-        # The region ghost test (no pixel changes without --deghost) runs on a thread of its
-        # own while the EXR, DNG and preview are written: the write is mostly one thread.
-        result = pipeline.run(until="preview" if args.preview else "merge", ghost_test="later")
+        # The region ghost test (no pixel changes without --deghost) and a non-linear merge's
+        # colour checks run on a thread of their own while the EXR, DNG and preview are
+        # written: the write is mostly one thread.
+        result = pipeline.run(until="preview" if args.preview else "merge", checks="later")
     except BaseException:
         progress.close()
         raise
     finishing = None
-    if result.merge is not None and result.merge.ghost_test_pending:
-        if block_sums_bytes(result.merge.radiance.shape, len(result.bracket)) > BESIDE_WRITE_BYTES:
-            result = pipeline.finish_ghost_test(result)  # before the write: peak memory
+    if result.checks_pending:
+        ghost = result.merge is not None and result.merge.ghost_test_pending
+        if (
+            ghost
+            and result.merge is not None
+            and block_sums_bytes(result.merge.radiance.shape, len(result.bracket))
+            > BESIDE_WRITE_BYTES
+        ):
+            result = pipeline.finish_checks(result)  # before the write: peak memory
         else:
-            ghost_thread = ThreadPoolExecutor(1, thread_name_prefix="hdrcore-ghost-test")
-            finishing = ghost_thread.submit(pipeline.finish_ghost_test, result)
+            ghost_thread = ThreadPoolExecutor(1, thread_name_prefix="hdrcore-checks")
+            finishing = ghost_thread.submit(pipeline.finish_checks, result)
             ghost_thread.shutdown(wait=False)  # the one task still runs
     try:
         written = _write_outputs(args, result, inputs)

@@ -41,6 +41,7 @@ a grid of at most ``max_samples`` reference pixels (nearest pixel in the other f
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -59,6 +60,7 @@ __all__ = [
     "WELL_EXPOSED",
     "ANCHOR_BLUR",
     "ANCHOR_SIGMA",
+    "CHECK_SAMPLES",
     "CONSISTENCY_BLOCK",
     "FRAME_BAND",
     "FRAME_SIGMA",
@@ -67,6 +69,8 @@ __all__ = [
     "ColourAnchor",
     "ColourCheck",
     "ColourResult",
+    "RadianceSamples",
+    "sample_grid",
     "FrameEncoding",
     "frame_encoding",
     "anchor_colour",
@@ -90,6 +94,8 @@ WELL_EXPOSED = (0.10, 0.90)
 MAX_MERGE_ERROR = 0.02
 #: Relative difference of a frame's red/green or blue/green balance that is reported.
 MAX_WB_DIFFERENCE = 0.03
+#: Most reference pixels the colour checks sample (:func:`sample_grid`).
+CHECK_SAMPLES = 150_000
 
 
 def _all3(b: np.ndarray) -> np.ndarray:
@@ -313,6 +319,53 @@ def _triple(v: Sequence[float] | np.ndarray) -> tuple[float, float, float]:
     return (float(v[0]), float(v[1]), float(v[2]))
 
 
+def sample_grid(shape: tuple[int, ...], max_samples: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(ys, xs)``: the grid of at most ``max_samples`` reference pixels the colour checks
+    read (:func:`colour_check`, :func:`frame_colours`), for frames of ``shape``."""
+    h, w = int(shape[0]), int(shape[1])
+    step = max(1, int(np.ceil(np.sqrt(h * w / max_samples))))
+    ys, xs = (a.ravel() for a in np.mgrid[0:h:step, 0:w:step])
+    return ys, xs
+
+
+@dataclass(frozen=True)
+class RadianceSamples:
+    """A radiance map ``(H, W, 3)`` as the colour checks read it: its pixels on the grid of
+    :func:`sample_grid` (``values`` ``(M, 3)`` float64), taken when it is made and checked
+    later (:func:`check_colour` with ``report="later"``: the picture first, its measurements
+    after). Stands in for the map in :func:`colour_check` and :func:`frame_colours` with the
+    same ``max_samples``."""
+
+    shape: tuple[int, int, int]
+    max_samples: int
+    values: np.ndarray
+
+    @property
+    def ndim(self) -> int:
+        return 3
+
+    @classmethod
+    def of(cls, radiance: np.ndarray, max_samples: int) -> RadianceSamples:
+        ys, xs = sample_grid(radiance.shape, max_samples)
+        h, w = radiance.shape[:2]
+        return cls((int(h), int(w), 3), int(max_samples), radiance[ys, xs].astype(np.float64))
+
+
+def _merged_at(
+    rad: np.ndarray | RadianceSamples, ys: np.ndarray, xs: np.ndarray, max_samples: int
+) -> np.ndarray:
+    """The merged pixels on the checks' grid ``(ys, xs)`` (of ``max_samples``), float64."""
+    if isinstance(rad, RadianceSamples):
+        if rad.max_samples != max_samples:
+            raise ParameterError(
+                "radiance samples taken on another grid",
+                expected=f"max_samples={max_samples}",
+                found=f"max_samples={rad.max_samples}",
+            )
+        return rad.values
+    return rad[ys, xs].astype(np.float64)
+
+
 def _median_distance(a: np.ndarray, b: np.ndarray) -> float:
     d = np.hypot(a[..., 0] - b[..., 0], a[..., 1] - b[..., 1])
     d = d[np.isfinite(d)]
@@ -350,14 +403,14 @@ class FrameColour:
 
 def frame_colours(
     frames: Sequence[np.ndarray],
-    radiance: np.ndarray,
+    radiance: np.ndarray | RadianceSamples,
     *,
     max_level: int,
     reference: int,
     to_reference: Sequence[np.ndarray] | None = None,
     masks: Sequence[np.ndarray | None] | None = None,
     gains: np.ndarray | None = None,
-    max_samples: int = 150_000,
+    max_samples: int = CHECK_SAMPLES,
     well_exposed: tuple[float, float] = WELL_EXPOSED,
     shared: dict[str, Any] | None = None,
 ) -> tuple[FrameColour, ...]:
@@ -374,7 +427,7 @@ def frame_colours(
         raise ParameterError(
             "reference frame out of range", expected=f"0..{n - 1}", found=str(reference)
         )
-    rad = np.asarray(radiance)
+    rad = radiance if isinstance(radiance, RadianceSamples) else np.asarray(radiance)
     h, w = np.asarray(frames[reference]).shape[:2]
     if rad.shape != (h, w, 3):
         raise ParameterError(
@@ -388,8 +441,7 @@ def frame_colours(
     g = np.where(np.isfinite(g) & (g > 0), g, 1.0)
     part = None if shared is None else shared.get("colours")
     if part is None:
-        step = max(1, int(np.ceil(np.sqrt(h * w / max_samples))))
-        ys, xs = (a.ravel() for a in np.mgrid[0:h:step, 0:w:step])
+        ys, xs = sample_grid((h, w), max_samples)
         srgb = srgb_decode_lut(max_level)
         levels, exposed, plain, balanced = [], [], [], []
         for k, (z, ok) in enumerate(
@@ -404,7 +456,7 @@ def frame_colours(
         if shared is not None:
             shared["colours"] = part
     ys, xs, levels, exposed, plain, balanced = part
-    merged = rad[ys, xs].astype(np.float64)
+    merged = _merged_at(rad, ys, xs, max_samples)
     mok = _all3(np.isfinite(merged)) & (_sum3(merged) > 0)
     cm = chromaticity(merged)
     valid = [ok & mok for ok in exposed]
@@ -499,7 +551,7 @@ def noise_consistency(
     to_reference: Sequence[np.ndarray] | None = None,
     masks: Sequence[np.ndarray | None] | None = None,
     gains: np.ndarray | None = None,
-    max_samples: int = 150_000,
+    max_samples: int = CHECK_SAMPLES,
     well_exposed: tuple[float, float] = WELL_EXPOSED,
 ) -> tuple[FramePairNoise, ...]:
     """How much of consecutive frames' per-pixel colour difference their own noise makes.
@@ -661,9 +713,7 @@ def _sampled_frames(
     """What :func:`_check_frames` measures on sampled pixels (its ``noise`` and ``blocks``
     left empty for the caller)."""
     n = len(frames)
-    h, w = frames[reference].shape[:2]
-    step = max(1, int(np.ceil(np.sqrt(h * w / max_samples))))
-    ys, xs = (a.ravel() for a in np.mgrid[0:h:step, 0:w:step])
+    ys, xs = sample_grid(frames[reference].shape, max_samples)
     srgb = srgb_decode_lut(max_level)
     sampled = frame_samples(frames, xs, ys, reference, to_reference, masks, max_level, well_exposed)
     levels = [z for z, _ in sampled]
@@ -730,14 +780,14 @@ def _sampled_frames(
 
 def colour_check(
     frames: Sequence[np.ndarray],
-    radiance: np.ndarray,
+    radiance: np.ndarray | RadianceSamples,
     lut: np.ndarray,
     *,
     max_level: int,
     reference: int,
     to_reference: Sequence[np.ndarray] | None = None,
     masks: Sequence[np.ndarray | None] | None = None,
-    max_samples: int = 150_000,
+    max_samples: int = CHECK_SAMPLES,
     well_exposed: tuple[float, float] = WELL_EXPOSED,
     frame_pairs_blocks: tuple[FramePairColour, ...] | None = None,
     balance: Any = None,
@@ -767,7 +817,7 @@ def colour_check(
         raise ParameterError(
             "reference frame out of range", expected=f"0..{n - 1}", found=str(reference)
         )
-    rad = np.asarray(radiance)
+    rad = radiance if isinstance(radiance, RadianceSamples) else np.asarray(radiance)
     h, w = frames[reference].shape[:2]
     if rad.shape[:2] != (h, w) or rad.ndim != 3 or rad.shape[2] != 3:
         raise ParameterError(
@@ -803,7 +853,7 @@ def colour_check(
             shared["check"] = fp
     ys, xs, valid, lin, lin_srgb = fp.ys, fp.xs, fp.valid, fp.lin, fp.lin_srgb
 
-    merged = rad[ys, xs].astype(np.float64)
+    merged = _merged_at(rad, ys, xs, max_samples)
     mok = _all3(np.isfinite(merged)) & (_sum3(merged) > 0)
     ref_ok = valid[reference] & mok
     cm = chromaticity(merged[ref_ok])
@@ -1877,6 +1927,12 @@ class ColourResult:
     message: str
     white_balance: Any = None
     encoding: FrameEncoding | None = None
+    pending: Callable[[], ColourResult] | None = field(default=None, repr=False, compare=False)
+
+    def measured(self) -> ColourResult:
+        """This result with its measurements made (itself when none is pending: see
+        :func:`check_colour`'s ``report="later"``); they are made once, whoever asks first."""
+        return self if self.pending is None else self.pending()
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -1960,7 +2016,7 @@ def check_colour(
     white_balance: bool = True,
     frame_band: tuple[float, float, float] | None = FRAME_BAND,
     frame_measures: FrameMeasures | None = None,
-    report: bool = True,
+    report: bool | str = True,
 ) -> ColourResult:
     """Check a non-linear merge's colour, measure each frame's white balance
     (:func:`hdrcore.merge.white_balance.measure_white_balance`, with the merge's ``lut``) and
@@ -1972,12 +2028,22 @@ def check_colour(
 
     ``report=False`` (a draft, whose picture is all that is shown): the merge's colour is not
     measured before and after (``before`` and ``after`` are ``None``); the pixels are the same.
+    ``report="later"``: the merge's pixels on the checks' grid are taken before and after
+    (:class:`RadianceSamples`, a few MB) and measured when :meth:`ColourResult.measured` is
+    called (``pending`` until then): the pixels are ready 0.3-0.55 s sooner on the 24 MP
+    sRGB bench bracket, the measurements are the same numbers.
 
     ``frame_measures``: :func:`measure_frames` of the same frames, ``lut``, ``reference``,
     ``to_reference`` and ``masks`` when known already (they read neither the merge nor its
     levels: a saturation step keeps them)."""
     from .white_balance import correct_merge
 
+    if report not in (True, False, "now", "later"):
+        raise ParameterError(
+            f"unknown colour report {report!r}", expected="True, False, 'now', 'later'"
+        )
+    later = report == "later"
+    measure = report is True or report == "now"
     kw: dict[str, Any] = dict(
         max_level=max_level, reference=reference, to_reference=to_reference, masks=masks
     )
@@ -1988,9 +2054,13 @@ def check_colour(
         frame_measures.local_tone_mapping,
         frame_measures.shared,
     )
+    # what the check before reads: the merge itself, or its pixels on the grid (later)
+    as_made: np.ndarray | RadianceSamples = radiance
+    if later:
+        as_made = RadianceSamples.of(radiance, CHECK_SAMPLES)
     before = (
         colour_check(frames, radiance, lut, **kw, balance=balance, shared=shared)
-        if report
+        if measure
         else None
     )
     correction = balance.correction()
@@ -1998,7 +2068,6 @@ def check_colour(
         correct_merge(radiance, shares, correction)
         balance = replace(balance, applied=True)
     done = None
-    after = before
     encoding = frame_encoding(lut)
     unanchored = anchor and encoding.linear  # asked for, not applied: why is said below
     if anchor and not unanchored:
@@ -2019,15 +2088,54 @@ def check_colour(
             gains=balance.correction(every_measured=False) if balance.applied else None,
             frame_band=frame_band,
         )
-    if report and (done is not None or balance.applied):
-        after = colour_check(
-            frames,
-            radiance,
-            lut,
-            **kw,
-            balance=balance,
-            shared=shared,
+    changed = done is not None or balance.applied
+    parts = dict(
+        balance=balance,
+        ltm=ltm,
+        encoding=encoding,
+        anchored=done,
+        unanchored=unanchored,
+        reference=reference,
+    )
+    if later:
+        final: np.ndarray | RadianceSamples = (
+            RadianceSamples.of(radiance, CHECK_SAMPLES) if changed else as_made
         )
+        lock = threading.Lock()
+        measured: list[ColourResult] = []
+
+        def finish() -> ColourResult:
+            with lock:
+                if not measured:
+                    first = colour_check(frames, as_made, lut, **kw, balance=balance, shared=shared)
+                    second = (
+                        colour_check(frames, final, lut, **kw, balance=balance, shared=shared)
+                        if changed
+                        else first
+                    )
+                    measured.append(_colour_result(first, second, **parts))
+                return measured[0]
+
+        return replace(_colour_result(None, None, **parts, pending=True), pending=finish)
+    after = before
+    if measure and changed:
+        after = colour_check(frames, radiance, lut, **kw, balance=balance, shared=shared)
+    return _colour_result(before, after, **parts)
+
+
+def _colour_result(
+    before: ColourCheck | None,
+    after: ColourCheck | None,
+    *,
+    balance: Any,
+    ltm: Any,
+    encoding: FrameEncoding,
+    anchored: ColourAnchor | None,
+    unanchored: bool,
+    reference: int,
+    pending: bool = False,
+) -> ColourResult:
+    """:func:`check_colour`'s result and its message (``pending``: measured later)."""
     parts = []
     if balance.applied:
         parts.append("white balance corrected: " + balance.message)
@@ -2042,10 +2150,10 @@ def check_colour(
     if before is None or after is None:
         if not unanchored:
             parts.append(
-                "colour anchored to the frames" if done is not None else "colour not anchored"
+                "colour anchored to the frames" if anchored is not None else "colour not anchored"
             )
-        parts.append("not measured (a draft)")
-    elif done is not None:
+        parts.append("being measured" if pending else "not measured (a draft)")
+    elif anchored is not None:
         best = [
             f.best_error_balanced for f in after.frame_colours if np.isfinite(f.best_error_balanced)
         ]
@@ -2063,7 +2171,7 @@ def check_colour(
     return ColourResult(
         before=before,
         after=after,
-        anchor=done,
+        anchor=anchored,
         local_tone_mapping=ltm,
         message="; ".join(parts),
         white_balance=balance,

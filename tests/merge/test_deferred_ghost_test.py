@@ -1,4 +1,4 @@
-"""``merge(..., defer_ghost_test=True)`` and ``Pipeline.run(ghost_test="later")``: the region
+"""``merge(..., defer_ghost_test=True)`` and ``Pipeline.run(checks="later")``: the region
 ghost test left for later gives, once done, the merge made with it, and the radiance and preview
 do not wait for it."""
 
@@ -70,10 +70,10 @@ def test_the_pipeline_finishes_the_ghost_test_later_to_the_same_result():
     p = PipelineParams(align="none")
     now = Pipeline(b).run(p)
     pipe = Pipeline(b)
-    later = pipe.run(p, ghost_test="later")
+    later = pipe.run(p, checks="later")
     assert later.merge.ghost_test_pending and later.preview is not None
     assert "ghosts" not in {v.code for v in later.verdicts}
-    done = pipe.finish_ghost_test(later)
+    done = pipe.finish_checks(later)
     assert not done.merge.ghost_test_pending
     np.testing.assert_array_equal(done.merge.ghost, now.merge.ghost)
     assert [v.to_json() for v in done.verdicts] == [v.to_json() for v in now.verdicts]

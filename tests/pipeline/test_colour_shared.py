@@ -98,3 +98,54 @@ def test_the_fusion_reads_the_merge_levels_only_through_the_snapped_registration
     assert {"saturation", "noise_floor"} <= every  # through the registration's levels
     assert not {"saturation", "noise_floor", "deghost", "white_balance"} & direct
     assert {"preview_max_side", "threshold", "align", "response"} <= direct
+
+
+def test_colour_checks_made_later_report_the_same(tmp_path: Path) -> None:
+    """``checks="later"``: the picture comes back before the colour checks (the anchored
+    pixels are the same), which :meth:`Pipeline.finish_checks` makes from the merge's pixels as
+    they were before and after the anchoring: the same report, to the figure."""
+    now = Pipeline(_bracket(tmp_path)).run()
+    pl = Pipeline(_bracket(tmp_path))
+    later = pl.run(checks="later")
+    assert later.checks_pending and later.colour_pending is not None
+    check = later.colour["check"]
+    assert check["before"] is None and check["after"] is None
+    assert "being measured" in check["message"]
+    assert check["anchor"] == now.colour["check"]["anchor"]  # anchored already
+    assert np.array_equal(later.radiance, now.radiance)
+    assert np.array_equal(later.preview.image, now.preview.image)
+    assert "colour-anchored" not in {v.code for v in later.verdicts}
+    done = pl.finish_checks(later)
+    assert not done.checks_pending and pl.last_result is done
+    assert done.colour == now.colour
+    assert [v.to_json() for v in done.verdicts] == [v.to_json() for v in now.verdicts]
+    assert "colour_checks" in done.timings
+    # "before" is the merge as made: what an unanchored merge of the same frames measures
+    plain = Pipeline(_bracket(tmp_path)).run(now.params.replace(colour_anchor=False))
+    assert plain.colour["check"]["anchor"] is None
+    assert done.colour["check"]["before"] == plain.colour["check"]["before"]
+    assert done.colour["check"]["after"] != done.colour["check"]["before"]
+    # the cached merge serves the next run, measured (either way it is asked)
+    for checks in ("later", "now"):
+        again = pl.run(checks=checks)
+        assert "merge" not in again.stages_run
+        assert again.colour == now.colour and again.colour_pending is None
+
+
+def test_the_checks_read_radiance_samples_as_the_map(tmp_path: Path) -> None:
+    from hdrcore.errors import ParameterError
+    from hdrcore.merge.colour_check import RadianceSamples, colour_check, frame_colours
+
+    res = Pipeline(_bracket(tmp_path)).run()
+    frames = [f.levels for f in res.bracket.frames]
+    kw = dict(max_level=255, reference=1)
+    full = colour_check(frames, res.radiance, res.lut, **kw)
+    sampled = colour_check(frames, RadianceSamples.of(res.radiance, 150_000), res.lut, **kw)
+    assert sampled.to_json() == full.to_json()
+    assert frame_colours(frames, RadianceSamples.of(res.radiance, 2_000), **kw, max_samples=2_000)
+    try:
+        colour_check(frames, RadianceSamples.of(res.radiance, 2_000), res.lut, **kw)
+    except ParameterError as e:
+        assert "another grid" in str(e)
+    else:
+        raise AssertionError("samples on another grid were read")
