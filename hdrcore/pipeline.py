@@ -501,6 +501,7 @@ class _Context:
         "_report",
         "weight_maps",
         "fixed_registration",
+        "fixed_ratios",
         "colour_report",
     )
 
@@ -519,6 +520,7 @@ class _Context:
         self._report = report
         self.no_times = not all(e is not None for e in _recorded_exposures(self))
         self.fixed_registration: BracketRegistration | None = None
+        self.fixed_ratios: BracketExposureResult | None = None
         self.colour_report = True  # a non-linear merge's colour measured before and after
 
     def noise(self) -> BracketNoise:
@@ -549,6 +551,11 @@ class Pipeline:
     resolution run's, through :func:`scale_registration`), used by every run that aligns in
     place of the registration stage; it must have a pair per neighbouring frames.
 
+    ``ratios``: the whole-frame exposure ratios known already (a draft that merges with the
+    full-resolution run's times takes that run's, which it only reports: 0.3 s of the real
+    Xperia bracket's draft), used in place of the ratios stage's fit; it must have a pair per
+    neighbouring frames.
+
     ``colour_report=False`` (a draft: only its picture is shown): a non-linear merge's colour
     is anchored as always but not measured before and after (``result.colour["check"]``'s
     ``before`` and ``after`` are ``None``; 1.1 s of a 2.6 s draft of the real Pixel 7 bracket).
@@ -565,6 +572,7 @@ class Pipeline:
         weight_maps: bool = True,
         registration: BracketRegistration | None = None,
         colour_report: bool = True,
+        ratios: BracketExposureResult | None = None,
     ) -> None:
         if len(bracket) < 2:
             raise ParameterError("a bracket needs at least two frames", found=str(len(bracket)))
@@ -599,6 +607,13 @@ class Pipeline:
                 found=str(len(registration.pairs)),
             )
         self._ctx.fixed_registration = registration
+        if ratios is not None and len(ratios.pairs) != len(bracket) - 1:
+            raise ParameterError(
+                "the given ratios must have a pair per neighbouring frames",
+                expected=str(len(bracket) - 1),
+                found=str(len(ratios.pairs)),
+            )
+        self._ctx.fixed_ratios = ratios
         self.colour_report = bool(colour_report)
         self._ctx.colour_report = self.colour_report
         self._cache = StageCache(
@@ -2107,6 +2122,8 @@ def _stage_response(ctx: _Context, p: Any, up: Inputs) -> ResponseCurve | None:
 
 
 def _stage_ratios(ctx: _Context, p: Any, up: Inputs) -> BracketExposureResult:
+    if ctx.fixed_ratios is not None:
+        return ctx.fixed_ratios  # a draft's: the full-resolution frames' (Pipeline(ratios=))
     return bracket_exposures_from_histograms(
         up.histograms, **_ratio_fit(ctx, p, _lut(ctx, up.response))
     )

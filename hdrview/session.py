@@ -286,6 +286,9 @@ class Session:
             times = last.exposure_times  # measured on the registered pixels
         if times is not None and len(times) != len(bracket):
             times = None  # a run without unusable frames: the draft measures its own
+        # merged with those times, the draft only reports its whole-frame ratios: the full
+        # frames' of the same parameters (quick's) stand in for its own fit
+        ratios = quick.exposures if quick.bracket is bracket else None
         if curve is not None:
             p = p.replace(response=curve)
         motion = self.draft_motion(quick)
@@ -299,6 +302,7 @@ class Session:
             max_side=max_side or DRAFT_MAX_SIDE,
             registration=motion,
             cache=self.draft_cache,
+            ratios=ratios,
         )
         self.draft_registration = (
             "none"

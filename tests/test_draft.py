@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -241,3 +242,24 @@ def test_real_bracket_draft_is_near_the_full_preview() -> None:
     diff = diff.max(axis=2)
     assert diff.mean() < 1.5
     assert np.percentile(diff, 99) < 10
+
+
+def test_a_draft_merged_with_given_times_takes_given_ratios() -> None:
+    """With the full run's times the draft only reports its whole-frame ratios: the full
+    frames' (``ratios=``) stand in for its own fit, the picture is the same; without the
+    times they are not used (the draft measures the times it merges with)."""
+    b = _bracket((384, 576))
+    full = Pipeline(b).run()
+    p = full.params.replace(response=full.response)
+    kw = dict(max_side=144, exposure_times=full.exposure_times, registration=full.registration)
+    own = run_draft(b, p, **kw)
+    given = run_draft(b, p, **kw, ratios=full.exposures_histogram)
+    assert given.exposures_histogram is full.exposures_histogram
+    assert own.exposures_histogram is not full.exposures_histogram
+    np.testing.assert_array_equal(given.radiance, own.radiance)
+    np.testing.assert_array_equal(given.preview.image, own.preview.image)
+    alone = run_draft(b, p, max_side=144, ratios=full.exposures_histogram)
+    assert alone.exposures_histogram is not full.exposures_histogram
+    short = dataclasses.replace(own.exposures_histogram, pairs=own.exposures_histogram.pairs[:1])
+    with pytest.raises(ParameterError, match="a pair per neighbouring frames"):
+        Pipeline(b, ratios=short)

@@ -116,3 +116,11 @@ def test_the_binned_frames_are_kept_and_clipped_again(session: Session) -> None:
     assert cache.binnings == 2
     session.run_draft(session.run(Controls(saturation=200.0), until="ratios"), max_side=48)
     assert cache.binnings == 3
+
+
+def test_a_step_draft_reports_the_full_frames_ratios(session: Session) -> None:
+    """Merged with the last full run's times, the draft takes the step's whole-frame ratios
+    of the full frames (the quick run's) instead of fitting its own."""
+    quick = session.run(Controls(saturation=240.0), until="ratios")
+    draft = session.run_draft(quick, max_side=SIDE)
+    assert draft.exposures_histogram is quick.exposures
