@@ -29,6 +29,7 @@ import logging
 import math
 import threading
 import time
+import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field, replace
 from dataclasses import fields as dataclass_fields
@@ -863,6 +864,7 @@ class Pipeline:
         *,
         until: str = "preview",
         checks: str = "now",
+        ghost_test: str | None = None,
     ) -> PipelineResult:
         """Run (or re-use) every stage up to ``until`` and return the result.
 
@@ -875,8 +877,16 @@ class Pipeline:
         colour checks before and after the anchoring (``result.colour["check"]`` without
         ``before`` and ``after``; its pixels on the checks' grid kept); :meth:`finish_checks`
         makes them. The inspector shows the picture first, the command writes its EXR while
-        they run. ``"now"`` (the default): complete.
+        they run. ``"now"`` (the default): complete. ``ghost_test``: the former name of
+        ``checks``, accepted for one release (``DeprecationWarning``).
         """
+        if ghost_test is not None:
+            warnings.warn(
+                "Pipeline.run(ghost_test=...) is now checks=...",
+                DeprecationWarning,
+                stacklevel=2,
+            )
+            checks = ghost_test
         if until not in STAGES:
             raise ParameterError(f"unknown stage {until!r}", expected=", ".join(STAGES))
         if checks not in ("now", "later"):
@@ -914,6 +924,16 @@ class Pipeline:
                         for sig in signals
                     )
             return self._run_subset(p, reference, signals, until, checks)
+
+    def finish_ghost_test(self, result: PipelineResult) -> PipelineResult:
+        """The former name of :meth:`finish_checks`, kept for one release
+        (``DeprecationWarning``)."""
+        warnings.warn(
+            "Pipeline.finish_ghost_test is now finish_checks (it makes the colour checks too)",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        return self.finish_checks(result)
 
     def finish_checks(self, result: PipelineResult) -> PipelineResult:
         """``result`` (of :meth:`run` with ``checks="later"``) with the measurements it left

@@ -5,6 +5,7 @@ do not wait for it."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from hdrcore.io import Bracket
 from hdrcore.io.frame import Frame, FrameMetadata
@@ -82,3 +83,15 @@ def test_the_pipeline_finishes_the_ghost_test_later_to_the_same_result():
     again = pipe.run(p)
     assert "merge" not in again.stages_run and not again.merge.ghost_test_pending
     np.testing.assert_array_equal(again.merge.ghost, now.merge.ghost)
+
+
+def test_the_former_names_still_work_with_a_warning():
+    sb = bracket(bits=12, response="linear", noise_sigma=1.0, seed=2)
+    b = _as_bracket(sb, _with_object(sb, 1))
+    pipe = Pipeline(b)
+    with pytest.warns(DeprecationWarning, match="checks="):
+        later = pipe.run(PipelineParams(align="none"), ghost_test="later")
+    assert later.checks_pending
+    with pytest.warns(DeprecationWarning, match="finish_checks"):
+        done = pipe.finish_ghost_test(later)
+    assert not done.checks_pending
