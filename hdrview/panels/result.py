@@ -211,6 +211,11 @@ class ResultPanel:
                     else ""
                 )
             )
+        if getattr(result, "colour_pending", None) is not None:
+            lines.append(
+                "_The colour checks (the merge against each frame's own colour) are being "
+                "measured; their verdicts follow._"
+            )
         if layer == "deghosted" and merged is not None and merged.deghosted is None:
             lines.append(
                 "_Layer deghosted: tick Deghost (Parameters) to fill each ghost region "

@@ -224,3 +224,32 @@ def test_the_result_is_drawn_before_its_ghost_test(app: InspectorApp, monkeypatc
     assert app.last_shown_seconds is not None and app.last_job_seconds is not None
     assert app.last_shown_seconds <= app.last_job_seconds
     assert "ghost test is running" not in app.result_panel.summary.content
+
+
+def test_the_result_is_drawn_before_its_colour_checks(app: InspectorApp, monkeypatch) -> None:
+    """A non-linear bracket's colour checks (which change no pixel) are measured after the
+    result is drawn: the Result tab says so, then the verdicts they give are drawn."""
+    drawn: list[tuple[bool, bool, bool]] = []
+    original = type(app.result_panel).show
+
+    def show(panel, bracket, result, view):
+        out = original(panel, bracket, result, view)
+        if result is not None and result.merge is not None:
+            check = result.colour["check"]
+            drawn.append(
+                (
+                    result.colour_pending is not None,
+                    check["before"] is None,
+                    "being measured" in panel.summary.content,
+                )
+            )
+        return out
+
+    monkeypatch.setattr(type(app.result_panel), "show", show)
+    assert app.request_path("bracket")
+    assert app.wait_idle(60)
+    assert drawn[0] == (True, True, True) and drawn[-1] == (False, False, False)
+    res = app.session.result
+    assert res is not None and res.colour_pending is None
+    assert "colour-anchored" in {v.code for v in res.verdicts}
+    assert "being measured" not in app.result_panel.summary.content
