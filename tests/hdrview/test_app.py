@@ -253,3 +253,35 @@ def test_the_result_is_drawn_before_its_colour_checks(app: InspectorApp, monkeyp
     assert res is not None and res.colour_pending is None
     assert "colour-anchored" in {v.code for v in res.verdicts}
     assert "being measured" not in app.result_panel.summary.content
+
+
+def test_a_newer_request_goes_before_the_checks(app: InspectorApp, monkeypatch) -> None:
+    """A slider moved again while a result is drawn: that result's checks (which change no
+    pixel) are not made, the newer request runs at once and its own result is finished."""
+    from hdrview.session import Session
+
+    assert app.request_path("bracket")
+    assert app.wait_idle(60)
+    finished: list[float] = []
+    original_finish = Session.finish_checks
+
+    def finish(self, result):
+        finished.append(result.params.saturation)
+        return original_finish(self, result)
+
+    original_draw = type(app)._draw
+    moved: list[bool] = []
+
+    def draw(view, result, stages=None):
+        original_draw(view, result, stages)
+        if stages is None and result is not None and result.checks_pending and not moved:
+            moved.append(True)
+            view.set_control("saturation", 230.0)  # the next step, while this one is drawn
+
+    monkeypatch.setattr(Session, "finish_checks", finish)
+    monkeypatch.setattr(type(app), "_draw", draw)
+    app.set_control("saturation", 240.0)
+    assert app.wait_idle(60)
+    assert moved and finished == [230.0]
+    res = app.session.result
+    assert res is not None and res.params.saturation == 230.0 and not res.checks_pending
