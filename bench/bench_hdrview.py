@@ -354,6 +354,9 @@ def draft_agreement(bracket, extra: dict, max_side: int) -> dict:
     cache = DraftCache()
 
     def step(params):
+        # as Session.run_draft: the step's whole-frame ratios of the full frames (the quick
+        # run's) and, with the full run's motion, its frame measures
+        quick = pipe.run(params, until="ratios")
         return run_draft(
             bracket,
             params.replace(
@@ -363,6 +366,8 @@ def draft_agreement(bracket, extra: dict, max_side: int) -> dict:
             exposure_times=first.exposure_times,
             registration=motion,
             cache=cache,
+            ratios=quick.exposures if quick.bracket is bracket else None,
+            frame_measures=first.frame_measures if motion is not None else None,
         )
 
     _, t_bin, _ = _timed(lambda: step(first.params))

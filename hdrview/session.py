@@ -289,9 +289,19 @@ class Session:
         # merged with those times, the draft only reports its whole-frame ratios: the full
         # frames' of the same parameters (quick's) stand in for its own fit
         ratios = quick.exposures if quick.bracket is bracket else None
+        # and with the last full run's motion and response, that run's white balance per frame
+        # and local tone mapping test (measured on the full frames)
+        motion = self.draft_motion(quick)
+        measures = (
+            last.frame_measures
+            if last is not None
+            and motion is not None
+            and curve is last.response
+            and p.exclude_colour == last.params.exclude_colour
+            else None
+        )
         if curve is not None:
             p = p.replace(response=curve)
-        motion = self.draft_motion(quick)
         if self.draft_cache is None:
             self.draft_cache = DraftCache()
         draft = run_draft(
@@ -303,6 +313,7 @@ class Session:
             registration=motion,
             cache=self.draft_cache,
             ratios=ratios,
+            frame_measures=measures,
         )
         self.draft_registration = (
             "none"

@@ -263,3 +263,25 @@ def test_a_draft_merged_with_given_times_takes_given_ratios() -> None:
     short = dataclasses.replace(own.exposures_histogram, pairs=own.exposures_histogram.pairs[:1])
     with pytest.raises(ParameterError, match="a pair per neighbouring frames"):
         Pipeline(b, ratios=short)
+
+
+def test_a_draft_with_the_full_runs_motion_takes_its_frame_measures() -> None:
+    """With the full run's motion and response the draft takes that run's white balance per
+    frame and local tone mapping test (``frame_measures=``), measured on the full frames; a
+    draft that registers its own frames measures its own."""
+    b = _bracket((384, 576))
+    full = Pipeline(b).run()
+    assert full.frame_measures is not None
+    p = full.params.replace(response=full.response)
+    kw = dict(max_side=144, exposure_times=full.exposure_times)
+    measures = full.frame_measures
+    given = run_draft(b, p, **kw, registration=full.registration, frame_measures=measures)
+    assert given.frame_measures is not None
+    assert given.frame_measures.balance is full.frame_measures.balance
+    assert given.frame_measures.shared is not full.frame_measures.shared  # its own samples
+    own = run_draft(b, p, **kw, frame_measures=full.frame_measures)  # registers its own frames
+    assert own.frame_measures is not None
+    assert own.frame_measures.balance is not full.frame_measures.balance
+    # the same picture within what the balance measured on binned frames moves
+    d = np.abs(np.asarray(given.preview.image, float) - np.asarray(own.preview.image, float))
+    assert d.mean() < 2.0

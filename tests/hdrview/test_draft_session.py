@@ -124,3 +124,17 @@ def test_a_step_draft_reports_the_full_frames_ratios(session: Session) -> None:
     quick = session.run(Controls(saturation=240.0), until="ratios")
     draft = session.run_draft(quick, max_side=SIDE)
     assert draft.exposures_histogram is quick.exposures
+
+
+def test_a_step_draft_takes_the_full_runs_frame_measures(session: Session) -> None:
+    """A step that keeps the kind of motion: the draft reads the last full run's white balance
+    and local tone mapping test; a new kind of motion (the draft registers its binned frames)
+    measures its own."""
+    full = session.result
+    assert full is not None and full.frame_measures is not None
+    draft = _draft(session, Controls(saturation=240.0))
+    assert draft.frame_measures is not None
+    assert draft.frame_measures.balance is full.frame_measures.balance
+    other = _draft(session, Controls(align="shift"))
+    assert other.frame_measures is not None
+    assert other.frame_measures.balance is not full.frame_measures.balance
