@@ -353,10 +353,10 @@ def draft_agreement(bracket, extra: dict, max_side: int) -> dict:
     motion = first.registration if first.full_bracket is None else None
     cache = DraftCache()
 
-    def step(params):
+    def step(params, quick):
         # as Session.run_draft: the step's whole-frame ratios of the full frames (the quick
-        # run's) and, with the full run's motion, its frame measures
-        quick = pipe.run(params, until="ratios")
+        # run's, made before the draft as the inspector does, not timed with it) and, with the
+        # full run's motion, its frame measures
         return run_draft(
             bracket,
             params.replace(
@@ -370,8 +370,10 @@ def draft_agreement(bracket, extra: dict, max_side: int) -> dict:
             frame_measures=first.frame_measures if motion is not None else None,
         )
 
-    _, t_bin, _ = _timed(lambda: step(first.params))
-    draft, t_draft, c_draft = _timed(lambda: step(p))
+    quick = pipe.run(first.params, until="ratios")
+    _, t_bin, _ = _timed(lambda: step(first.params, quick))
+    quick = pipe.run(p, until="ratios")
+    draft, t_draft, c_draft = _timed(lambda: step(p, quick))
     full, t_full, c_full = _timed(lambda: pipe.run(p))
     a = np.asarray(draft.preview.image)
     same_size = pipe.run(p.replace(preview_max_side=max(a.shape[:2]))).preview.image

@@ -34,10 +34,11 @@ from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field, replace
 from dataclasses import fields as dataclass_fields
 from functools import partial
-from typing import Any, Generic, TypeVar
+from typing import Any
 
 import numpy as np
 
+from ._once import Once
 from ._threads import set_workers, thread_map
 from .diagnose import Verdict, diagnose
 from .errors import EstimationError, ParameterError, validate_method
@@ -127,7 +128,6 @@ LOCAL_CHOICES = ("auto", "on", "off")
 REFINE_CHOICES = ("pixels", "histograms", "none")
 
 ProgressCallback = Callable[[str, float, str], None]
-T = TypeVar("T")
 
 #: The model-error floor of ratios measured through a response recovered from a moved bracket
 #: (relative, per stop between the frames). Measured on the seed's hand-held brackets (8 and 12
@@ -613,19 +613,14 @@ class Pipeline:
         self._ctx = _Context(bracket, self.pixel_size, self.noise, self._report, self.weight_maps)
         # registration: a motion known already (a draft's, scaled from the full-resolution run
         # by scale_registration) used in place of the registration stage when a run aligns
-        if registration is not None and len(registration.pairs) != len(bracket) - 1:
-            raise ParameterError(
-                "the given registration must have a pair per neighbouring frames",
-                expected=str(len(bracket) - 1),
-                found=str(len(registration.pairs)),
-            )
+        for name, given in (("registration", registration), ("ratios", ratios)):
+            if given is not None and len(given.pairs) != len(bracket) - 1:
+                raise ParameterError(
+                    f"the given {name} must have a pair per neighbouring frames",
+                    expected=str(len(bracket) - 1),
+                    found=str(len(given.pairs)),
+                )
         self._ctx.fixed_registration = registration
-        if ratios is not None and len(ratios.pairs) != len(bracket) - 1:
-            raise ParameterError(
-                "the given ratios must have a pair per neighbouring frames",
-                expected=str(len(bracket) - 1),
-                found=str(len(ratios.pairs)),
-            )
         self._ctx.fixed_ratios = ratios
         self._ctx.fixed_frame_measures = (
             None
@@ -1083,7 +1078,7 @@ class Pipeline:
         merge_result = None
         radiance = None
         colour_info: dict[str, Any] = {}
-        colour_pending: _Once[dict[str, Any]] | None = None
+        colour_pending: Once[dict[str, Any]] | None = None
         frame_measures: FrameMeasures | None = None
         preview, factor = None, 1
         times, times_source = run.get("times_histogram")
@@ -1799,7 +1794,7 @@ def _merge_frames(
     defer_ghost_test: bool = False,
     frame_measures: FrameMeasures | None = None,
     colour_later: bool = False,
-) -> tuple[MergeResult, np.ndarray, dict[str, Any], _Once[dict[str, Any]] | None]:
+) -> tuple[MergeResult, np.ndarray, dict[str, Any], Once[dict[str, Any]] | None]:
     """The merge, its radiance, its colour (``result.colour``) and, with ``colour_later`` (and
     a non-linear bracket whose colour is reported: ``ctx.colour_report``), the call that
     measures the colour checks (:func:`check_colour`'s ``report="later"``) and returns the
@@ -1884,32 +1879,10 @@ def _merge_frames(
     return result, result.radiance, colour_info, None
 
 
-class _Once(Generic[T]):
-    """``fn()`` computed once, whoever calls first (the others wait for it); ``done`` says
-    whether it has been."""
-
-    def __init__(self, fn: Callable[[], T]) -> None:
-        self._fn: Callable[[], T] | None = fn
-        self._lock = threading.Lock()
-        self._value: list[T] = []
-
-    @property
-    def done(self) -> bool:
-        return bool(self._value)
-
-    def __call__(self) -> T:
-        with self._lock:
-            if not self._value:
-                assert self._fn is not None
-                self._value.append(self._fn())
-                self._fn = None  # what it read is freed
-            return self._value[0]
-
-
-def _colour_measured(checked: ColourResult, colour_info: dict[str, Any]) -> _Once[dict[str, Any]]:
+def _colour_measured(checked: ColourResult, colour_info: dict[str, Any]) -> Once[dict[str, Any]]:
     """The call that completes a merge's ``colour_info`` with its colour checks (measured
     once, whoever asks first; every call returns the same dict)."""
-    return _Once(lambda: {**colour_info, "check": checked.measured().to_json()})
+    return Once(lambda: {**colour_info, "check": checked.measured().to_json()})
 
 
 def _checks_done(result: PipelineResult) -> PipelineResult:

@@ -50,6 +50,7 @@ import numpy as np
 
 from .._numba import AVAILABLE
 from .._numba import njit as _njit
+from .._once import Once
 from .._threads import run_row_spans, thread_map
 from ..errors import ParameterError
 from .white_balance import frame_samples
@@ -1306,7 +1307,6 @@ def _pass_rows(
     reference's own colour); ``band_args``: :func:`_band_args` (step 3 runs). float16 shares
     are read as their bits (no conversion pass); others as float32 a chunk of rows at a
     time."""
-    import threading
 
     from .maps import _HALF_VALUES
 
@@ -2099,22 +2099,17 @@ def check_colour(
         final: np.ndarray | RadianceSamples = (
             RadianceSamples.of(radiance, CHECK_SAMPLES) if changed else as_made
         )
-        lock = threading.Lock()
-        measured: list[ColourResult] = []
 
         def finish() -> ColourResult:
-            with lock:
-                if not measured:
-                    first = colour_check(frames, as_made, lut, **kw, balance=balance, shared=shared)
-                    second = (
-                        colour_check(frames, final, lut, **kw, balance=balance, shared=shared)
-                        if changed
-                        else first
-                    )
-                    measured.append(_colour_result(first, second, **parts))
-                return measured[0]
+            first = colour_check(frames, as_made, lut, **kw, balance=balance, shared=shared)
+            second = (
+                colour_check(frames, final, lut, **kw, balance=balance, shared=shared)
+                if changed
+                else first
+            )
+            return _colour_result(first, second, **parts)
 
-        return replace(_colour_result(None, None, **parts, pending=True), pending=finish)
+        return replace(_colour_result(None, None, **parts, pending=True), pending=Once(finish))
     after = before
     if measure and changed:
         after = colour_check(frames, radiance, lut, **kw, balance=balance, shared=shared)

@@ -54,7 +54,6 @@ SIGGRAPH 1997, eq. 6. doi:10.1145/258734.258884
 from __future__ import annotations
 
 import logging
-import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import replace
@@ -62,6 +61,7 @@ from typing import Any
 
 import numpy as np
 
+from .._once import Once
 from .._threads import worker_count
 from ..errors import ParameterError, validate_method
 from .colour import ColourConversion
@@ -497,30 +497,24 @@ def merge(
     )
     if not deferred:
         return result
-    lock = threading.Lock()
-    done: list[MergeResult] = []
 
     def finish() -> MergeResult:
-        with lock:
-            if not done:
-                t = time.perf_counter()
-                if progress is not None:
-                    progress(0.5, "ghost test")
-                regions = region_test()
-                status, message = summary(ghost)
-                logger.debug("merge (ghost test done): %s", message)
-                timings = dict(result.timings, ghosts=time.perf_counter() - t)
-                done.append(
-                    replace(
-                        result,
-                        ghost=ghost,
-                        ghost_regions=regions,
-                        status=status,
-                        message=message,
-                        timings=timings,
-                        pending_ghost_test=None,
-                    )
-                )
-            return done[0]
+        t = time.perf_counter()
+        if progress is not None:
+            progress(0.5, "ghost test")
+        regions = region_test()
+        status, message = summary(ghost)
+        logger.debug("merge (ghost test done): %s", message)
+        timings = dict(result.timings, ghosts=time.perf_counter() - t)
+        return replace(
+            result,
+            ghost=ghost,
+            ghost_regions=regions,
+            status=status,
+            message=message,
+            timings=timings,
+            pending_ghost_test=None,
+        )
 
-    return replace(result, pending_ghost_test=finish)
+    # the test runs once, whoever asks first; later calls return the same result
+    return replace(result, pending_ghost_test=Once(finish))
