@@ -1123,7 +1123,10 @@ def _anchor_pass(
     Per level of one channel (:func:`_band_tables`): ``bt`` the band weight, zero outside the
     noise floor and saturation, ``ew`` the Gaussian factor, ``tabg[k, c]`` frame ``k``'s
     decoded value with its balance divided out (no ``exp``, division or range test per
-    channel). Step 3's sums come first: where some frame gives the pixel its colour fully (band
+    channel). Step 3's sums come first, a frame at a time along the row into row buffers (the
+    same sums in the same frame order; one frame's reads in a run instead of every frame's at
+    each pixel: the 24 MP sRGB bench bracket's pass on one thread 1.01-1.08 -> 0.70-0.89 s, the
+    result the same to the bit): where some frame gives the pixel its colour fully (band
     weight 1) steps 1-2 are skipped, their colour replaced (their luminance is the merge's
     own). Luminance (Rec. 709) kept throughout. Returns how many pixels some frame gave their
     colour fully."""
@@ -1151,6 +1154,11 @@ def _anchor_pass(
         cx1[x] = min(cx0[x] + 1, gw - 1)
         cfx[x] = gx - cx0[x]
     nq = 4 if use_ref else 3  # the reference's share (4th field) is read by use_ref only
+    rs0 = np.empty(w, np.float32)
+    rs1 = np.empty(w, np.float32)
+    rs2 = np.empty(w, np.float32)
+    rws = np.empty(w, np.float32)
+    ra = np.empty(w, np.float32)
     full = 0  # pixels some frame gave their colour fully (band weight 1)
     for y in range(r0, r1):
         gy = (y - step // 2) / step
@@ -1158,22 +1166,29 @@ def _anchor_pass(
         y0 = min(int(gy), max(gh - 2, 0))
         y1 = min(y0 + 1, gh - 1)
         fy = gy - y0
+        # step 3's sums, frame by frame over the row (the same per-pixel order: frames 0..n-1)
         for x in range(w):
-            # step 3's sums
-            s0 = np.float32(0.0)
-            s1 = np.float32(0.0)
-            s2 = np.float32(0.0)
-            ws = np.float32(0.0)
-            a = np.float32(0.0)
-            if use_band:
-                for k in range(n):
-                    frame = frames[k]
-                    fh, fw = frame.shape[0], frame.shape[1]
-                    if has_h[k]:
-                        hm = hmats[k]
-                        den = hm[2, 0] * x + hm[2, 1] * y + hm[2, 2]
-                        u = (hm[0, 0] * x + hm[0, 1] * y + hm[0, 2]) / den
-                        v = (hm[1, 0] * x + hm[1, 1] * y + hm[1, 2]) / den
+            rs0[x] = 0.0
+            rs1[x] = 0.0
+            rs2[x] = 0.0
+            rws[x] = 0.0
+            ra[x] = 0.0
+        if use_band:
+            for k in range(n):
+                frame = frames[k]
+                fh, fw = frame.shape[0], frame.shape[1]
+                hk = has_h[k]
+                mk = has_mask[k]
+                mask = masks[k]
+                hm = hmats[k]
+                h01y = hm[0, 1] * y
+                h11y = hm[1, 1] * y
+                h21y = hm[2, 1] * y
+                for x in range(w):
+                    if hk:
+                        den = hm[2, 0] * x + h21y + hm[2, 2]
+                        u = (hm[0, 0] * x + h01y + hm[0, 2]) / den
+                        v = (hm[1, 0] * x + h11y + hm[1, 2]) / den
                         xi = int(round(u))
                         yi = int(round(v))
                         if xi < 0 or xi >= fw or yi < 0 or yi >= fh:
@@ -1181,7 +1196,7 @@ def _anchor_pass(
                     else:
                         xi = x
                         yi = y
-                    if has_mask[k] and not masks[k][yi, xi]:
+                    if mk and not mask[yi, xi]:
                         continue
                     z0 = min(max(int(frame[yi, xi, 0]), 0), max_level)
                     z1 = min(max(int(frame[yi, xi, 1]), 0), max_level)
@@ -1196,14 +1211,20 @@ def _anchor_pass(
                     if not (tot > 0.0):
                         continue
                     wk = band * (ew[z0] * ew[z1] * ew[z2])
-                    s0 += np.float32(wk * b0 / tot)
-                    s1 += np.float32(wk * b1 / tot)
-                    s2 += np.float32(wk * b2 / tot)
-                    ws += np.float32(wk)
-                    if band > a:
-                        a = np.float32(band)
-                if a >= 1.0:
-                    full += 1
+                    rs0[x] += np.float32(wk * b0 / tot)
+                    rs1[x] += np.float32(wk * b1 / tot)
+                    rs2[x] += np.float32(wk * b2 / tot)
+                    rws[x] += np.float32(wk)
+                    if band > ra[x]:
+                        ra[x] = np.float32(band)
+        for x in range(w):
+            s0 = rs0[x]
+            s1 = rs1[x]
+            s2 = rs2[x]
+            ws = rws[x]
+            a = ra[x]
+            if use_band and a >= 1.0:
+                full += 1
             # steps 1-2, unless a frame's colour replaces theirs
             if steps12 and not (a >= 1.0 and ws > 0.0):
                 r_ = rad[y, x, 0]
