@@ -493,7 +493,8 @@ def merge(
         deghosted=deghosted,
         ghost_test=ghost_test,
         ghost_regions=ghost_regions,
-        provenance=provenance,
+        # the kernel's count, unless deghost gave pixels' shares to one frame since
+        provenance=provenance if deghosted is None or not deghosted.any() else None,
     )
     if not deferred:
         return result
