@@ -1754,16 +1754,20 @@ def anchor_colour(
         lt_ = np.tensordot(log_t.astype(np.float32), s_, axes=(0, 0))
         return np.where(tot > 0, lt_ / np.where(tot > 0, tot, 1), float(log_t.min()))
 
-    merged = rad[ys, xs].astype(np.float64)
-    if redecode is not None and shares is not None:  # redecode is only set with shares
-        merged = _redecode(merged, pixel_log_time(shares[:, ys, xs]), redecode)
-    msum = _sum3(merged)
-    okm = np.isfinite(msum) & (msum > 0)
-    qm = np.where(okm[:, None], merged / np.where(okm, msum, 1.0)[:, None], 0.0)
+    def merge_cells() -> tuple[np.ndarray, np.ndarray]:
+        merged = rad[ys, xs].astype(np.float64)
+        if redecode is not None and shares is not None:  # redecode is only set with shares
+            merged = _redecode(merged, pixel_log_time(shares[:, ys, xs]), redecode)
+        msum = _sum3(merged)
+        okm = np.isfinite(msum) & (msum > 0)
+        return okm, np.where(okm[:, None], merged / np.where(okm, msum, 1.0)[:, None], 0.0)
 
-    lins, weights, wells = [], [], []
     lo_w, hi_w = WELL_EXPOSED[0] * max_level, WELL_EXPOSED[1] * max_level
-    for k, f in enumerate(frames):
+
+    def frame_cells(k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Frame ``k``'s decoded colour, weight and well-exposed flag on the grid, before the
+        merge's own cells are known (``okm`` is applied after)."""
+        f = frames[k]
         if to_reference is None or k == reference:
             xk, yk = xs, ys
             inside = np.ones(xs.size, bool)
@@ -1774,14 +1778,22 @@ def anchor_colour(
         # (reductions over the channels written out: numpy's over a last axis of three are
         # slow, 0.07 of this loop's 0.09 s on the 24 MP bench bracket's grid)
         wk = np.exp(-_sum3((x - 0.5) ** 2) / (2.0 * ANCHOR_SIGMA**2))
-        ok = inside & okm & _all3((z < saturation) & (z > noise_floor))
+        ok = inside & _all3((z < saturation) & (z > noise_floor))
         if masks is not None and masks[k] is not None:
             ok &= np.asarray(masks[k], bool)[yk, xk]
         lin = np.stack([table[c][z[:, c]] for c in range(3)], axis=-1)
         wk = np.where(ok & (_sum3(lin) > 0), wk, 0.0)
-        lins.append(lin)
-        weights.append(wk)
-        wells.append(ok & _all3((z > lo_w) & (z < hi_w)))
+        return lin, wk, ok & _all3((z > lo_w) & (z < hi_w))
+
+    # the merge's cells and each frame's side by side (numpy's gathers and arithmetic release
+    # the GIL); a cell the merge cannot colour is no frame's either
+    parts: list[Any] = thread_map(
+        lambda k: merge_cells() if k < 0 else frame_cells(k), range(-1, len(frames))
+    )
+    okm, qm = parts[0]
+    lins = [c[0] for c in parts[1:]]
+    weights = [np.where(okm, c[1], 0.0) for c in parts[1:]]
+    wells = [c[2] & okm for c in parts[1:]]
 
     # per-frame white balance against the reference (median channel ratios over pixels well
     # exposed in both, normalised to green), divided out: one rendition of the colours

@@ -58,7 +58,7 @@ from typing import Any
 import numpy as np
 
 from .._numba import AVAILABLE, njit
-from .._threads import run_row_spans
+from .._threads import run_row_spans, thread_map
 from ..errors import ParameterError
 
 __all__ = [
@@ -339,18 +339,21 @@ def measure_white_balance(
     gr, gc = int(grid[0]), int(grid[1])
     region = np.minimum(ys * gr // h, gr - 1) * gc + np.minimum(xs * gc // w, gc - 1)
     lins = [np.stack([table[c][z[:, c]] for c in range(3)], axis=-1) for z, _ in sam]
+    # the pairs side by side (numpy's sorts and reductions release the GIL)
     pairs = tuple(
-        _pair(
-            lins[k],
-            lins[k + 1],
-            sam[k][0][:, 1],
-            sam[k][1] & sam[k + 1][1],
-            region,
-            gr * gc,
-            k,
-            k + 1,
+        thread_map(
+            lambda k: _pair(
+                lins[k],
+                lins[k + 1],
+                sam[k][0][:, 1],
+                sam[k][1] & sam[k + 1][1],
+                region,
+                gr * gc,
+                k,
+                k + 1,
+            ),
+            range(n - 1),
         )
-        for k in range(n - 1)
     )
     # step 5: what every pair shares is the response's (a channel's curve too steep or too
     # flat shifts every pair's balance the same way); only what is left is the frames'
