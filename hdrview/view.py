@@ -88,36 +88,6 @@ PLOTLY_GAP = 0.3
 """Seconds between a first page's status line (with the result) and plotly.js: messages that
 arrive together are handled before the browser draws, so the script would hold up the line."""
 WEBGL_TOAST = "webgl-software-rendering"  # viser's own notification id (BrowserWarning.tsx)
-
-
-class _Beside:
-    """``fn()`` on a thread of its own, started at once; :meth:`join` waits for it and raises
-    its exception, if any. ``done_at``, ``cpu_at``: ``time.perf_counter()`` and the process's
-    ``time.process_time()`` when it ended."""
-
-    def __init__(self, fn: Callable[[], object]) -> None:
-        self._error: BaseException | None = None
-        self.done_at = time.perf_counter()
-        self.cpu_at = time.process_time()
-
-        def run() -> None:
-            try:
-                fn()
-            except BaseException as exc:  # handed to the joining thread
-                self._error = exc
-            finally:
-                self.done_at = time.perf_counter()
-                self.cpu_at = time.process_time()
-
-        self._thread = threading.Thread(target=run, name="hdrview-draw", daemon=True)
-        self._thread.start()
-
-    def join(self) -> None:
-        self._thread.join()
-        if self._error is not None:
-            raise self._error
-
-
 DRAFT_WORTH_SECONDS = 2.0
 """A draft is drawn before the full re-merge only when the last full re-merge of the bracket
 (its stages after the registration, to the result drawn) took at least this long. A draft
@@ -822,29 +792,19 @@ class ClientView:
             registered = self.session.run(self.controls, progress=progress, until="registration")
             ctx.check()
             drawn = self._drawn_result
-            beside: _Beside | None = None
             if getattr(registered, "registration", None) is not None and not (
                 drawn is not None and drawn.registration is registered.registration
             ):
                 # a new registration drawn at once (a kept one is on the page already, drawn
-                # with the response the full result reads), beside the stages after it (its
-                # overlays are numpy and messages; the next stages' kernels release the GIL)
-                beside = _Beside(lambda: self._draw(registered, stages=("registration",)))
+                # with the response the full result reads)
+                self._draw(registered, stages=("registration",))
+            self.last_registration_seconds = time.perf_counter() - t0
+            self.last_registration_cpu = time.process_time() - c0
             t_registered = time.perf_counter()
-            c_registered = time.process_time()
-            try:
-                ctx.check()
-                # the full-resolution picture first; the region ghost test (no pixel changes
-                # without deghost) and the colour checks after it is drawn
-                result = self.session.run(self.controls, progress=progress, checks="later")
-            finally:
-                if beside is not None:
-                    beside.join()  # its error, if any, raised here
-                    self.last_registration_seconds = beside.done_at - t0
-                    self.last_registration_cpu = beside.cpu_at - c0
-            if beside is None:
-                self.last_registration_seconds = t_registered - t0
-                self.last_registration_cpu = c_registered - c0
+            ctx.check()
+            # the full-resolution picture first; the region ghost test (no pixel changes
+            # without deghost) and the colour checks after it is drawn
+            result = self.session.run(self.controls, progress=progress, checks="later")
             self.app.first_run = False
         ctx.check()
         self._draw(result)

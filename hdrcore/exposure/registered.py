@@ -379,22 +379,16 @@ def exposure_ratio_registered(
     else:
         ud = ub = np.ones((1, 1), np.uint8)
     # forward: grid = bright, sampled = dark at mat @ p; inverse: grid = dark, sampled = bright.
-    # the two directions side by side (the kernel releases the GIL): a bracket's pairs are
-    # spread over the workers already, but an odd count of them left one idle at the end
-    jobs = [
-        (bb, dd, ub, ud, np.ascontiguousarray(mats), tf),
-        (dd, bb, ud, ub, np.ascontiguousarray(invs), ti),
-    ]
-
-    def sums(j: tuple) -> np.ndarray:
-        grid, other, use_g, use_o, m_, t_ = j
-        return _group(
-            _tile_sums(grid, other, use_g, use_o, has_mask, g, g, m_, floor, z, t_, tile),
-            groups,
-            nc,
-        )
-
-    sf, si = thread_map(sums, jobs)
+    sf = _group(
+        _tile_sums(bb, dd, ub, ud, has_mask, g, g, np.ascontiguousarray(mats), floor, z, tf, tile),
+        groups,
+        nc,
+    )
+    si = _group(
+        _tile_sums(dd, bb, ud, ub, has_mask, g, g, np.ascontiguousarray(invs), floor, z, ti, tile),
+        groups,
+        nc,
+    )
 
     n_f, n_i = sf[:, :, 2].sum(axis=1), si[:, :, 2].sum(axis=1)
     pixels = int(min(n_f.sum(), n_i.sum()) / max(nk, 1))

@@ -136,14 +136,14 @@ class FusedFinish(NamedTuple):
 
 class FusedOutputs(NamedTuple):
     """The arrays the kernel writes (float16 maps as their uint16 bits). Without ``maps``
-        the weight sum, the shares and the clip count are not kept (``wsum``, ``shares`` and
-        ``clip_count`` are unused placeholders; each worker finishes a block in a scratch row)
-    . With ``prov_count`` of one row per output row (kept maps or not) the
-        provenance summary is counted as the shares are written: ``prov_count[y, k]`` the pixels
-        frame ``k`` dominates (the largest float16 share, the first on a tie), ``prov_units[y, k]``
-        the sum of its float16 shares in units of 2**-24 (every float16 value is a whole number of
-        them, so the sums are exact in any order: :func:`hdrcore.merge.maps.provenance_summary`'s
-        figures to the last bit); of one row (and ``H > 1``) they are unused placeholders."""
+    the weight sum, the shares and the clip count are not kept (``wsum``, ``shares`` and
+    ``clip_count`` are unused placeholders; each worker finishes a block in a scratch row)
+    and the provenance summary
+    is counted instead, per output row: ``prov_count[y, k]`` the pixels frame ``k`` dominates
+    (the largest float16 share, the first on a tie), ``prov_units[y, k]`` the sum of its
+    float16 shares in units of 2**-24 (every float16 value is a whole number of them, so the
+    sums are exact in any order: :func:`hdrcore.merge.maps.provenance_summary`'s figures to
+    the last bit). With ``maps`` both are unused placeholders."""
 
     rad: np.ndarray
     wsum: np.ndarray
@@ -154,8 +154,8 @@ class FusedOutputs(NamedTuple):
     gscore: np.ndarray
     ghost: np.ndarray
     maps: bool
-    prov_count: np.ndarray  # int64 (H, N), or (1, N): not counted
-    prov_units: np.ndarray  # int64 (H, N), or (1, N): not counted
+    prov_count: np.ndarray  # int64 (H, N), or (1, N) with maps
+    prov_units: np.ndarray  # int64 (H, N), or (1, N) with maps
 
 
 _F16_MAX = np.float32(65504.0)
@@ -874,9 +874,8 @@ def merge_rows(fr, warp, model, wfn, fin, out, r0, r1):
     h = frames[0].shape[0]
     w = frames[0].shape[1]
     keep = out.maps
-    # the provenance summary counted as the shares are written (cache-hot), kept or not
-    prov = out.prov_count.shape[0] == h
-    if not keep:  # the weight sum, the shares and the clip count in a scratch row (not kept)
+    prov = not keep
+    if prov:  # the weight sum, the shares and the clip count in a scratch row (not kept)
         wsum_out = np.empty((1, w), np.float32)
         shares = np.empty((n, 1, w), np.uint16)
         clip_count = np.empty((1, w), np.uint8)

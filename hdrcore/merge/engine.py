@@ -148,8 +148,9 @@ def run_fused(
     """The kernel (:func:`hdrcore.merge._fused.merge_rows`) over ``spans`` of rows (on
     ``workers`` threads), ``colour`` applied inside it. Integer frames read in place go
     through per-level tables (:func:`level_tables`) when they have a LUT or
-    ``force_tables``. Returns the provenance summary the kernel counted
-    (:func:`provenance_from_counts`), with or without the shares and the weight sum."""
+    ``force_tables``. Outputs without the shares and the weight sum (``None``): returns the
+    provenance summary the kernel counted instead (:func:`provenance_from_counts`), else
+    ``None``."""
     frames = _kernel_dtype(p.frames, p.integer)
     frames_t = _one_type(frames)
     dummy = np.ones((1, 1), bool)
@@ -161,10 +162,8 @@ def run_fused(
     thr = m.ghost_threshold
     maps = out.shares is not None and out.weight_sum is not None and out.clip_count is not None
     n = len(p.frames)
-    # the provenance summary, counted per output row (_fused.FusedOutputs) as the shares are
-    # written: without the maps it is all that is left of them; with them, a second pass over
-    # 2 N bytes a pixel saved (24 MP sRGB bench bracket: 0.05 s before the result is drawn)
-    rows = p.shape[0]
+    # without the maps: the provenance summary, counted per output row (_fused.FusedOutputs)
+    rows = 1 if maps else p.shape[0]
     prov_count = np.zeros((rows, n), np.int64)
     prov_units = np.zeros((rows, n), np.int64)
     outs = (
@@ -268,6 +267,8 @@ def run_fused(
             bad_levels = sum(pool.map(work, spans))
     if bad_levels:
         raise levels_past_lut(p.max_level, f"{bad_levels} samples above {p.max_level}")
+    if maps:
+        return None
     return provenance_from_counts(prov_count.sum(axis=0), prov_units.sum(axis=0), p.shape[:2])
 
 

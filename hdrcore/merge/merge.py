@@ -493,8 +493,7 @@ def merge(
         deghosted=deghosted,
         ghost_test=ghost_test,
         ghost_regions=ghost_regions,
-        # the kernel's count, unless deghost gave pixels' shares to one frame since
-        provenance=provenance if deghosted is None or not deghosted.any() else None,
+        provenance=provenance,
     )
     if not deferred:
         return result

@@ -51,8 +51,7 @@ class MergeResult:
         without it).
     provenance
         the shares' summary (:func:`hdrcore.merge.maps.provenance_summary`) counted by the
-        kernel as it wrote them (kept or not); ``None`` when deghost changed them since (it is
-        read from them).
+        kernel when the shares are not kept; ``None`` when they are (it is read from them).
     """
 
     radiance: np.ndarray
@@ -130,13 +129,13 @@ class MergeResult:
 
     def provenance_summary(self) -> dict[str, list[float]]:
         """Each frame's mean share and the fraction of pixels it dominates
-        (:func:`hdrcore.merge.maps.provenance_summary`): the kernel's count (the same figures
-        to the last bit), else (shares changed since, by deghost) from the shares."""
-        if self.provenance is not None:
-            return self.provenance
-        if self.share_maps is None:
+        (:func:`hdrcore.merge.maps.provenance_summary`), from the shares or, when they were
+        not kept, from the kernel's count."""
+        if self.share_maps is not None:
+            return provenance_summary(self.share_maps)
+        if self.provenance is None:
             raise ValueError("the merge kept neither its shares nor their summary")
-        return provenance_summary(self.share_maps)
+        return self.provenance
 
     @property
     def success(self) -> bool:
