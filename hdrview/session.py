@@ -138,7 +138,10 @@ class Session:
 
         params = self.params_for(controls)
         if self.pipeline is None:
-            self.pipeline = Pipeline(self.bracket, params, progress=progress)
+            # the sliders register the same frames again and again
+            self.pipeline = Pipeline(
+                self.bracket, params, progress=progress, keep_registration_inputs=True
+            )
         elif progress is not None:
             self.pipeline.progress = progress
         result = self.pipeline.run(params, until=until or "preview", checks=checks)

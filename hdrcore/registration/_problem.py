@@ -80,6 +80,7 @@ from ..geometry import (
 )
 from ..status import RegistrationStatus
 from . import _kernels
+from ._memo import array_key, table_key
 from .fourier import FourierShift, cross_correlation_shift
 from .result import PairPreview, PairRegistration
 
@@ -215,12 +216,15 @@ def prepare(
     threshold: float,
     min_level_size: int = 12,
     lut: np.ndarray | None = None,
+    memo: Any = None,
 ) -> PairData:
     """Validate a pair and build the clipped, exposure-equalised pyramids.
 
     ``lut``: the frames hold integer levels (uint8 or uint16, e.g. a channel view of the raw
     RGB frames, any strides) and ``lut[level]`` is the linear value; no linear copy of the
-    frames is made.
+    frames is made. ``memo`` (a :class:`~hdrcore.registration._memo.RunMemo`): pyramids of
+    the same frames, table, ratio and range made before are taken from it (they do not depend
+    on the threshold).
     """
     dark = _as_image(dark, "dark", lut)
     bright = _as_image(bright, "bright", lut)
@@ -263,6 +267,14 @@ def prepare(
     if lo >= hi:
         data.levels = [None]
         return data
+    key: tuple | None = None
+    if memo is not None:
+        key = ("pyramid", array_key(dark), array_key(bright), k, lo, hi, table_key(lut))
+        key += (int(min_level_size),)
+        hit = memo.get(key)
+        if hit is not None:
+            data.levels = hit[2]
+            return data
     levels: list = [None]  # full resolution: a clipped copy for small frames only
     if dark.size <= _SMALL:
         a0 = np.clip(data.linear(bright), lo, hi).astype(np.float32, copy=False)
@@ -283,6 +295,8 @@ def prepare(
         a, b = _reduce2(a), _reduce2(b)
         levels.append((a, b))
     data.levels = levels
+    if memo is not None:
+        memo[key] = (dark, bright, levels)  # the frames kept alive: their keys are addresses
     return data
 
 
@@ -768,6 +782,7 @@ def register_with(
     bright_index: int = 1,
     check_residual: bool = False,
     refit_local: bool = True,
+    memo: Any = None,
     **refine_options,
 ) -> PairRegistration:
     """The common driver: checks, eq. 5 integer shift, ``refine``, costs, status, previews.
@@ -783,6 +798,9 @@ def register_with(
     again from its estimate with those tiles' area left out of the samples (see
     :func:`_refit_without_local`), so the global motion is the dominant plane's; the re-fit
     is kept when the tiles outside that area are left no worse.
+    ``memo`` (:class:`~hdrcore.registration._memo.RunMemo`): what a registration of the same
+    frames made before and this one would make the same (the pyramids, the residual check's
+    block means and fixed structure image) is taken from it: the same result, sooner.
     """
     t0 = time.perf_counter()
     accepted = [
@@ -811,6 +829,7 @@ def register_with(
         noise_floor=noise_floor,
         threshold=threshold,
         lut=lut,
+        memo=memo,
     )
     common: dict[str, Any] = dict(
         method=method, model=model, dark_index=dark_index, bright_index=bright_index, t0=t0
@@ -945,7 +964,7 @@ def register_with(
         )
     residual = None
     if check_residual:
-        status, message, residual = _checked(data, homography, model, message)
+        status, message, residual = _checked(data, homography, model, message, memo)
         again = None
         if (
             refit_local
@@ -954,7 +973,7 @@ def register_with(
             and (residual.kind == "local")
         ):
             again = _refit_without_local(
-                refine, data, inverse, model, residual, refine_options, min_overlap
+                refine, data, inverse, model, residual, refine_options, min_overlap, memo
             )
             if again is not None:
                 res, inverse, homography, status, message, residual = again
@@ -1073,6 +1092,7 @@ def _refit_without_local(
     residual,
     refine_options: dict,
     min_overlap: float,
+    memo: Any = None,
 ):
     """The search again from ``inverse`` with the residual's local-motion area left out, or
     None when that does not leave the rest of the frame at least as well aligned (median of
@@ -1092,7 +1112,7 @@ def _refit_without_local(
     if overlap_fraction(hom2, data.shape) < min_overlap:
         return None
     msg2 = f"{res.message or 'converged'}; re-fitted without the local motion"
-    status2, msg2, res2 = _checked(data, hom2, model, msg2)
+    status2, msg2, res2 = _checked(data, hom2, model, msg2, memo)
     if res2 is None:
         return None
     before, n_before = _outside_median(residual, rects)
@@ -1291,7 +1311,7 @@ def _refit_by_blocks(
 
 
 def _checked(
-    data: PairData, homography: np.ndarray, model: str, message: str
+    data: PairData, homography: np.ndarray, model: str, message: str, memo: Any = None
 ) -> tuple[RegistrationStatus, str, Any]:
     """``(status, message, residual)`` of a registered pair after the independent residual
     check (see :func:`register_with`); the words are the pipeline's."""
@@ -1306,6 +1326,7 @@ def _checked(
             saturation=data.saturation,
             noise_floor=data.noise_floor,
             lut=data.lut,
+            memo=memo,
         )
     except ParameterError as exc:  # too small a frame to tile
         return "ok", f"{message}; residual not measured: {exc}", None

@@ -61,6 +61,7 @@ from ..errors import ParameterError
 from ..geometry import keys4, keys_at
 from ..status import RESIDUAL_STATUSES as _RESIDUAL_STATUSES
 from ..status import ResidualStatus
+from ._memo import array_key, table_key
 
 __all__ = [
     "ResidualMotion",
@@ -1040,10 +1041,13 @@ def residual_motion(
         standard error of its shift at most ``MAX_SIGMA`` analysed pixels and at least
         ``min_in_range`` of it is exposed well in both frames; ``min_tiles``: fewer confident
         tiles are ``unmeasured``. ``workers``: threads of the compiled passes (default two).
-    memo : a dict kept by a caller that measures one frame against several others (local
-        refinement): each frame's structure image is computed once and looked up by the frame
-        object (which the memo keeps alive); the frames must not be changed while it is used.
-        Frames warped by ``matrix`` are not memoised.
+    memo : a dict (or a :class:`~hdrcore.registration._memo.RunMemo`) kept by a caller that
+        measures one frame against several others (local refinement) or the same frames again
+        (a registration run again, :func:`hdrcore.registration._problem.register_with`): each
+        frame's block means and structure image are computed once and looked up by where the
+        frame's pixels lie (the memo keeps the frame alive) and the values they depend on; the
+        frames must not be changed while it is used. Frames warped by ``matrix`` are not
+        memoised (their block means before the warp are).
     only : a flag per tile of the grid (raster order, as ``centres``): only these are measured
         (the others are not valid). Local refinement measures again, through its field, only
         the tiles a first measurement of the same grid found confident.
@@ -1096,8 +1100,20 @@ def residual_motion(
     # each frame's blocks saturated where a pixel leaves the range both frames share: the dark
     # frame is compared times k, so its pixels at saturation / k already do (the same blocks
     # in both frames, up to noise)
-    al = _reduce(a, f, lut, nw, float(saturation) / max(float(ratio), 1.0))
-    bl = _reduce(b, f, lut, nw, saturation)
+    lut_k = table_key(lut) if memo is not None else None
+
+    def reduced(src: np.ndarray, sat: float) -> np.ndarray:
+        key = ("reduce", array_key(src), f, lut_k, float(sat))
+        hit = None if memo is None else memo.get(key)
+        if hit is not None:
+            return hit[1]
+        out = _reduce(src, f, lut, nw, sat)
+        if memo is not None:
+            memo[key] = (src, out)
+        return out
+
+    al = reduced(a, float(saturation) / max(float(ratio), 1.0))
+    bl = reduced(b, float(saturation))
     hl, wl = al.shape
     if matrix is not None:
         hm = _homogeneous(matrix)
@@ -1112,9 +1128,10 @@ def residual_motion(
     def structure(
         src: np.ndarray, level: np.ndarray, scale: float | None, warped: bool
     ) -> tuple[np.ndarray, np.ndarray]:
-        key = (id(src), scale, k * lo, hi, f, id(lut))
-        if memo is not None and not warped and key in memo:
-            return memo[key][1]
+        key = ("structure", array_key(src), scale, k * lo, hi, f, lut_k)
+        hit = None if memo is None or warped else memo.get(key)
+        if hit is not None:
+            return hit[1]
         out = _structure(level if scale is None else level * np.float32(scale), k * lo, hi, nw)
         if memo is not None and not warped:
             memo[key] = (src, out, lut)  # the frame and lut kept alive: ids stay unique
