@@ -1776,7 +1776,7 @@ def _negligible_motion(to_ref: np.ndarray, shape: tuple[int, int]) -> bool:
 
 
 def _reading_chain(
-    registration: BracketRegistration, shape: tuple[int, ...]
+    registration: BracketRegistration | _Reading, shape: tuple[int, ...]
 ) -> list[np.ndarray | None]:
     """Per frame the 3x3 matrix (frame -> reference) through which the merge reads it, or
     None where it reads the frame in place: the reference, and a frame whose motion is
@@ -1792,7 +1792,23 @@ def _reading_chain(
     ]
 
 
-def _read_in_place(registration: BracketRegistration, shape: tuple[int, ...]) -> list[np.ndarray]:
+@dataclass(frozen=True)
+class _Reading:
+    """What the merge and the frame measures read of a registration: per frame the 3x3 matrix
+    (frame -> reference) through which the merge reads it, the identity where it reads the frame
+    in place (:func:`_reading_chain`), the reference and the local fields. A value stage: a
+    re-registration that leaves every frame where the merge reads it (a tripod bracket, whose
+    frames moved by less than :data:`MIN_APPLIED_MOTION_PX`, after a step of the threshold t)
+    keeps their cached results, which would come out the same to the bit."""
+
+    reference: int
+    to_reference_homography: tuple[np.ndarray, ...]
+    local: Any = None
+
+
+def _read_in_place(
+    registration: BracketRegistration | _Reading, shape: tuple[int, ...]
+) -> list[np.ndarray]:
     """The chain to the reference with the identity for the frames the merge reads in place
     (:func:`_reading_chain`): the colour checks and the anchoring read each frame's pixels where
     the merge took them (and skip a per-pixel mapping of those frames)."""
@@ -1804,7 +1820,7 @@ def _merge_frames(
     p: PipelineParams,
     lut: np.ndarray | None,
     times: tuple[float, ...],
-    registration: BracketRegistration | None,
+    registration: BracketRegistration | _Reading | None,
     excluded: Any = None,
     reuse: Any = None,
     defer_ghost_test: bool = False,
@@ -2314,12 +2330,24 @@ def _stage_merge(ctx: _Context, p: Any, up: Inputs, reuse: Any = None) -> tuple:
         p,
         lut,
         times,
-        up.registration,
+        up.reading,
         up.exclusions,
         reuse=reuse,
         defer_ghost_test=True,
         frame_measures=None if lut is None else up.frame_measures,
         colour_later=True,
+    )
+
+
+def _stage_reading(ctx: _Context, p: Any, up: Inputs) -> _Reading | None:
+    registration = up.registration
+    if registration is None:
+        return None
+    chain = _reading_chain(registration, ctx.bracket.shape[:2])
+    return _Reading(
+        int(registration.reference),
+        tuple(np.eye(3) if m is None else np.asarray(m, np.float64) for m in chain),
+        registration.local,
     )
 
 
@@ -2334,7 +2362,7 @@ def _stage_frame_measures(ctx: _Context, p: Any, up: Inputs) -> FrameMeasures | 
         return None
     if ctx.fixed_frame_measures is not None:
         return ctx.fixed_frame_measures  # a draft's: the full frames' (Pipeline(frame_measures=))
-    registration, excluded = up.registration, up.exclusions
+    registration, excluded = up.reading, up.exclusions
     return measure_frames(
         [f.levels for f in ctx.bracket.frames],
         lut,
@@ -2436,6 +2464,8 @@ GRAPH = StageGraph(
             ("response",),
             ("response", "registration"),
             lazy=("response_registered",),
+            # by value: a registration that moves nothing leaves it as it was (_Reading)
+            by_value=True,
             internal=True,
         ),
         Stage("overlap_histograms", _stage_overlap_histograms, (), ("registration", "exclusions")),
@@ -2462,18 +2492,19 @@ GRAPH = StageGraph(
             by_value=True,
             internal=True,
         ),
+        Stage("reading", _stage_reading, (), ("registration",), by_value=True, internal=True),
         Stage(
             "frame_measures",
             _stage_frame_measures,
             (),
-            ("response_used", "registration", "exclusions"),
+            ("response_used", "reading", "exclusions"),
             internal=True,
         ),
         Stage(
             "merge",
             _stage_merge,
             (*_SAT_NF, "working_space", "deghost", "colour_anchor", "white_balance"),
-            ("response_used", "registration", "merge_times", "exclusions"),
+            ("response_used", "reading", "merge_times", "exclusions"),
             lazy=("frame_measures",),
         ),
         Stage(

@@ -66,3 +66,45 @@ def test_the_colour_checks_read_each_frame_where_the_merge_reads_it() -> None:
     np.testing.assert_array_equal(read[0], np.eye(3))
     np.testing.assert_array_equal(read[1], np.eye(3))
     np.testing.assert_array_equal(read[2], moved)
+
+
+def _tripod_srgb(tmp_path):
+    import tifffile
+
+    from hdrcore.synthetic import simulate_bracket
+
+    sb = simulate_bracket(
+        scene="window",
+        shape=(240, 360),
+        exposure_times=(1.0, 4.0, 16.0),
+        bits=8,
+        response="srgb",
+        noise_sigma=0.5,
+        max_shift=0,
+        max_rotation_deg=0.0,
+        seed=3,
+    )
+    names = []
+    for k, f in enumerate(sb.frames):
+        tifffile.imwrite(tmp_path / f"f{k}.tif", f.astype(np.uint8))
+        names.append(f"f{k}.tif")
+    times = "".join(f"{n} {t:g}\n" for n, t in zip(names, sb.exposure_times, strict=True))
+    (tmp_path / "times.txt").write_text(times)
+    return load_bracket([tmp_path / n for n in names], exposure_times=tmp_path / "times.txt")
+
+
+def test_a_new_registration_that_moves_no_frame_keeps_what_reads_the_frames(tmp_path) -> None:
+    """The merge and the frame measures read a registration only through how the merge reads
+    each frame (``_Reading``): a tripod bracket registered again (threshold t moved) keeps its
+    frame measures, which would come out the same; a frame that moves is measured again."""
+    bracket = _tripod_srgb(tmp_path)
+    pipe = pl.Pipeline(bracket)
+    first = pipe.run()
+    assert first.frame_measures is not None
+    assert all(m is None for m in pl._reading_chain(first.registration, bracket.shape))
+    again = pipe.run(first.params.replace(threshold=first.params.threshold * 1.5))
+    assert again.registration is not first.registration  # registered again ...
+    assert again.frame_measures is first.frame_measures  # ... nothing read differently
+    fresh = pl.Pipeline(bracket).run(again.params)
+    np.testing.assert_array_equal(again.radiance, fresh.radiance)
+    assert again.frame_measures.balance == fresh.frame_measures.balance
