@@ -1373,7 +1373,15 @@ def _pixel_ratios(
         saturation=p.saturation,
         noise_floor=p.noise_floor,
     )
-    matrices = [_pair_motion(q) for q in registration.pairs]
+    # Each pair compared where the merge takes its pixels: in place when the merge reads both
+    # frames in place (motion below what the registration resolves, _reading_chain), so a
+    # tripod bracket registered again (a threshold step) measures the same ratios and keeps
+    # its merge; through the pair's motion otherwise.
+    reading = _reading_chain(registration, b.shape[:2])
+    matrices = [
+        np.eye(3) if reading[q.dark] is None and reading[q.bright] is None else _pair_motion(q)
+        for q in registration.pairs
+    ]
     cfas = [f.cfa for f in b.frames if f.cfa is not None]
     cfa_ok = (
         masks is None

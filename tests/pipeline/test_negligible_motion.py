@@ -88,23 +88,57 @@ def _tripod_srgb(tmp_path):
     for k, f in enumerate(sb.frames):
         tifffile.imwrite(tmp_path / f"f{k}.tif", f.astype(np.uint8))
         names.append(f"f{k}.tif")
-    times = "".join(f"{n} {t:g}\n" for n, t in zip(names, sb.exposure_times, strict=True))
+    # recorded times 5 % off per step: the merge takes the measured ratios, not these
+    off = [t * 1.05**k for k, t in enumerate(sb.exposure_times)]
+    times = "".join(f"{n} {t:g}\n" for n, t in zip(names, off, strict=True))
     (tmp_path / "times.txt").write_text(times)
     return load_bracket([tmp_path / n for n in names], exposure_times=tmp_path / "times.txt")
 
 
 def test_a_new_registration_that_moves_no_frame_keeps_what_reads_the_frames(tmp_path) -> None:
     """The merge and the frame measures read a registration only through how the merge reads
-    each frame (``_Reading``): a tripod bracket registered again (threshold t moved) keeps its
-    frame measures, which would come out the same; a frame that moves is measured again."""
+    each frame (``_Reading``), and the registered-pixel ratios compare frames the merge reads
+    in place in place: a tripod bracket registered again (threshold t moved) keeps its frame
+    measures and its merge, which would come out the same."""
     bracket = _tripod_srgb(tmp_path)
     pipe = pl.Pipeline(bracket)
     first = pipe.run()
     assert first.frame_measures is not None
     assert all(m is None for m in pl._reading_chain(first.registration, bracket.shape))
+    assert first.times_source == "estimated", first.times_source
     again = pipe.run(first.params.replace(threshold=first.params.threshold * 1.5))
     assert again.registration is not first.registration  # registered again ...
     assert again.frame_measures is first.frame_measures  # ... nothing read differently
+    # the pairs compared in place, as the merge reads them: the same ratios, the same merge
+    assert "overlap_ratios" in again.stages_run and "merge" not in again.stages_run
+    assert again.merge is first.merge
     fresh = pl.Pipeline(bracket).run(again.params)
     np.testing.assert_array_equal(again.radiance, fresh.radiance)
     assert again.frame_measures.balance == fresh.frame_measures.balance
+
+
+def test_pairs_the_merge_reads_in_place_are_compared_in_place(tmp_path) -> None:
+    """The registered-pixel ratios of a pair whose frames the merge reads in place do not
+    depend on the pair's sub-resolution motion (the same ratios to the bit)."""
+    from dataclasses import replace
+
+    bracket = _tripod_srgb(tmp_path)
+    pipe = pl.Pipeline(bracket)
+    res = pipe.run()
+    reg = res.registration
+    nudged = replace(
+        reg,
+        pairs=tuple(
+            replace(q, matrix=np.asarray(q.matrix) + [[0, 0, 0.02], [0, 0, -0.01]])
+            if q.matrix is not None
+            else q
+            for q in reg.pairs
+        ),
+    )
+    assert any(
+        not np.array_equal(a.matrix, b.matrix) for a, b in zip(reg.pairs, nudged.pairs, strict=True)
+    )
+    p = res.params.replace(saturation=res.saturation, noise_floor=res.noise_floor)
+    a = pl._pixel_ratios(pipe._ctx, p, res.lut, reg, res.exposures_histogram, None)
+    b = pl._pixel_ratios(pipe._ctx, p, res.lut, nudged, res.exposures_histogram, None)
+    assert [q.ratio for q in a.pairs] == [q.ratio for q in b.pairs]
