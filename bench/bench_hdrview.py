@@ -7,7 +7,9 @@
 * per control, how many of its steps kept the previous registration (the registration reads
   its thresholds snapped to the bracket's quantile ladder, :mod:`hdrcore.registration.thresholds`:
   the first saturation and noise-floor steps jump far from the defaults, the next move one
-  level).
+  level), and how many kept the previous merge (the bench bracket is a tripod one: after a
+  threshold step its registration moves no frame the merge reads, so the merge is kept; a
+  hand-held bracket's threshold step re-merges).
 
 With ``hdrcore.pipeline`` installed the changes go through the app exactly as a slider does
 (``set_control`` then wait for the worker); without it the stage functions the pipeline would call
@@ -245,6 +247,8 @@ def bench_pipeline(sim, repeat: int, drafts: bool = True) -> list[tuple]:
                 draft, cpu["draft"] = [], []
                 shown_full, cpu["shown"] = [], []  # the full-resolution result drawn
                 kept = 0  # steps whose result holds the previous step's registration object
+                merged = 0  # steps whose result holds the previous step's merge (a tripod
+                # bracket's threshold step: nothing the merge reads changed, see _Reading)
                 motion: list[str] = []  # which registration each step's draft used
                 for v in values:
                     before = getattr(app, "_drawn_result", None)
@@ -273,6 +277,12 @@ def bench_pipeline(sim, repeat: int, drafts: bool = True) -> list[tuple]:
                         and shown.registration is not None
                         and shown.registration is before.registration
                     )
+                    merged += (
+                        before is not None
+                        and shown is not None
+                        and shown.merge is not None
+                        and shown.merge is before.merge
+                    )
                 quick_target = " (target < 0.3 s)" if control != "threshold" else ""
                 reg_target = " (target < 1.5 s)" if control == "threshold" else ""
                 for what, walls, key in (
@@ -295,6 +305,7 @@ def bench_pipeline(sim, repeat: int, drafts: bool = True) -> list[tuple]:
                 rows.append(
                     (f"{label}: steps that kept the registration: {kept} of {len(values)}",)
                 )
+                rows.append((f"{label}: steps that kept the merge: {merged} of {len(values)}",))
                 # the draft takes the last full run's motion, scaled, unless the kind of
                 # motion changed (hdrview.session.Session.draft_motion)
                 used = {m: motion.count(m) for m in dict.fromkeys(motion)}

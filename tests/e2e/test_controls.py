@@ -58,7 +58,15 @@ def test_reset_to_defaults(page, view: ClientView) -> None:
     thumb.focus()
     for _ in range(3):
         page.keyboard.press("ArrowRight")
-    wait_until(lambda: view.controls.threshold is not None, 15, "t to change")
+    # every press on the server (the slider sends its value every 50 ms) before the reset
+    wait_until(
+        lambda: (
+            view.controls.threshold is not None
+            and view.controls.threshold == pytest.approx(slider_value(page, "Threshold t"))
+        ),
+        15,
+        "t to change on the page and the server",
+    )
     assert view.wait_idle(TIMEOUT)
     assert slider_value(page, "Threshold t") > 0.1
     page.get_by_role("button", name="Reset to defaults").click()

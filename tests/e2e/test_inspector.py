@@ -89,8 +89,20 @@ def test_each_slider_changes_page_and_server(
     )
     page.keyboard.press(key)
     page.keyboard.press(key)
-    wait_until(lambda: getattr(view.controls, control) != before, 15, f"{control} to change")
-    assert view.wait_idle(TIMEOUT)
+
+    def settled() -> bool:
+        # both presses reached the server (the slider sends its value every 50 ms: a first
+        # step's job may end before the second arrives) and their job ended
+        value = getattr(view.controls, control)
+        shown = float(thumb.get_attribute("aria-valuenow"))
+        return (
+            value is not None
+            and value != before
+            and abs(value - shown) <= 1e-9 * max(1.0, abs(shown))
+            and view.wait_idle(0.05)
+        )
+
+    wait_until(settled, TIMEOUT, f"{control} to change on the page and the server")
     after = getattr(view.controls, control)
     assert view.status.content != status_before
     # The page shows the new value in the status line.
