@@ -2351,10 +2351,9 @@ def _stage_reading(ctx: _Context, p: Any, up: Inputs) -> _Reading | None:
     registration = up.registration
     if registration is None:
         return None
-    chain = _reading_chain(registration, ctx.bracket.shape[:2])
     return _Reading(
         int(registration.reference),
-        tuple(np.eye(3) if m is None else np.asarray(m, np.float64) for m in chain),
+        tuple(_read_in_place(registration, ctx.bracket.shape[:2])),
         registration.local,
     )
 

@@ -1223,7 +1223,7 @@ def _anchor_pass(
             s2 = rs2[x]
             ws = rws[x]
             a = ra[x]
-            if use_band and a >= 1.0:
+            if a >= 1.0:  # (0 without step 3)
                 full += 1
             # steps 1-2, unless a frame's colour replaces theirs
             if steps12 and not (a >= 1.0 and ws > 0.0):

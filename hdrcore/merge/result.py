@@ -156,6 +156,11 @@ class MergeResult:
         """Share of the pixels the ghost test flagged."""
         return _fraction(self.ghost)
 
+    @property
+    def deghosted_fraction(self) -> float | None:
+        """Share of the pixels deghost filled from one frame (``None`` without deghost)."""
+        return None if self.deghosted is None else _fraction(self.deghosted)
+
     def summary(self) -> dict:
         """JSON-ready diagnostics (no arrays)."""
         return {
@@ -177,7 +182,7 @@ class MergeResult:
             "ghost_test": self.ghost_test,
             "ghost_fraction": self.ghost_fraction,
             "ghost_regions": None if self.ghost_regions is None else self.ghost_regions.to_json(),
-            "deghosted_fraction": None if self.deghosted is None else _fraction(self.deghosted),
+            "deghosted_fraction": self.deghosted_fraction,
             "provenance": self.provenance_summary(),
             "timings": dict(self.timings),
             "engine": self.engine,

@@ -78,8 +78,3 @@ class RunMemo:
         """After a run: only what it used is kept."""
         with self._lock:
             self._kept = {}
-
-    def clear(self) -> None:
-        with self._lock:
-            self._kept = {}
-            self._used = {}

@@ -269,8 +269,16 @@ def prepare(
         return data
     key: tuple | None = None
     if memo is not None:
-        key = ("pyramid", array_key(dark), array_key(bright), k, lo, hi, table_key(lut))
-        key += (int(min_level_size),)
+        key = (
+            "pyramid",
+            array_key(dark),
+            array_key(bright),
+            k,
+            lo,
+            hi,
+            table_key(lut),
+            min_level_size,
+        )
         hit = memo.get(key)
         if hit is not None:
             data.levels = hit[2]

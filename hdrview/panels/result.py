@@ -202,16 +202,12 @@ class ResultPanel:
                 if getattr(merged, "ghost_test_pending", False)
                 else f", ghosts {merged.ghost_fraction:.2%} of the pixels."
             )
-            deghosted = getattr(merged, "deghosted", None)
+            deghosted = merged.deghosted_fraction
             lines.append(
                 f"Merge **{merged.status}**: {merged.message}. Weighting {merged.weighting}; "
                 f"clipped {merged.clipped_fraction:.2%}, under the noise floor "
                 f"{merged.underexposed_fraction:.2%}{ghosts}"
-                + (
-                    f" Deghosted {np.count_nonzero(deghosted) / max(deghosted.size, 1):.2%}."
-                    if deghosted is not None
-                    else ""
-                )
+                + (f" Deghosted {deghosted:.2%}." if deghosted is not None else "")
             )
         if getattr(result, "colour_pending", None) is not None:
             lines.append(

@@ -69,9 +69,7 @@ def test_the_colour_checks_read_each_frame_where_the_merge_reads_it() -> None:
 
 
 def _tripod_srgb(tmp_path):
-    import tifffile
-
-    from hdrcore.synthetic import simulate_bracket
+    from hdrcore.synthetic import simulate_bracket, write_bracket
 
     sb = simulate_bracket(
         scene="window",
@@ -84,15 +82,13 @@ def _tripod_srgb(tmp_path):
         max_rotation_deg=0.0,
         seed=3,
     )
-    names = []
-    for k, f in enumerate(sb.frames):
-        tifffile.imwrite(tmp_path / f"f{k}.tif", f.astype(np.uint8))
-        names.append(f"f{k}.tif")
+    written = write_bracket(tmp_path / "tripod", sb, fmt="tiff")
     # recorded times 5 % off per step: the merge takes the measured ratios, not these
-    off = [t * 1.05**k for k, t in enumerate(sb.exposure_times)]
-    times = "".join(f"{n} {t:g}\n" for n, t in zip(names, off, strict=True))
-    (tmp_path / "times.txt").write_text(times)
-    return load_bracket([tmp_path / n for n in names], exposure_times=tmp_path / "times.txt")
+    off = {
+        p.name: float(t) * 1.05**k
+        for k, (p, t) in enumerate(zip(written.frames, sb.exposure_times, strict=True))
+    }
+    return load_bracket(list(written.frames), exposure_times=off)
 
 
 def test_a_new_registration_that_moves_no_frame_keeps_what_reads_the_frames(tmp_path) -> None:
