@@ -79,6 +79,41 @@ METHOD = "registered pixels"
 
 
 @_njit
+def _good_box(flat, nc, r0, r1, c0, c1, lo, hi, vg, out):  # pragma: no cover - numba
+    """``out[y - r0, nc (x - c0) + c]``: whether the 3x3 neighbourhood of ``(y, x)`` in
+    channel ``c`` lies strictly between the integers ``lo`` and ``hi`` (int32), for ``r0 <= y
+    < r1``, ``c0 <= x < c1`` (every neighbour inside the frame; ``flat``: the frame as ``(H, W
+    nc)``). Each column is tested once over three rows (``vg``), then three columns are
+    combined: straight loops, 2 tests a sample instead of 9."""
+    m = nc * (c1 - c0 + 2)
+    b = nc * (c0 - 1)
+    for y in range(r0, r1):
+        ra = flat[y - 1, b : b + m]
+        rb = flat[y, b : b + m]
+        rc = flat[y + 1, b : b + m]
+        for e in range(m):
+            a = np.int32(ra[e])
+            u = np.int32(rb[e])
+            d = np.int32(rc[e])
+            vg[e] = ((a > lo) & (a < hi)) & ((u > lo) & (u < hi)) & ((d > lo) & (d < hi))
+        oy = out[y - r0]
+        for e in range(m - 2 * nc):
+            oy[e] = vg[e] & vg[e + nc] & vg[e + 2 * nc]
+
+
+@_njit
+def _in_range3(src, y, x, c, lo, hi):  # pragma: no cover - numba
+    """Whether the 3x3 neighbourhood of ``(y, x)`` in channel ``c`` lies strictly between
+    ``lo`` and ``hi`` (one pixel's test, as :func:`_good_box` computes for a box)."""
+    for dy in range(-1, 2):
+        for dx in range(-1, 2):
+            v = src[y + dy, x + dx, c]
+            if v <= lo or v >= hi:
+                return False
+    return True
+
+
+@_njit
 def _tile_sums(
     grid, other, use_g, use_o, has_mask, lut_g, lut_o, mat, lo, hi, tiles, tile
 ):  # pragma: no cover - numba
@@ -89,7 +124,14 @@ def _tile_sums(
     four bilinear taps) lie strictly between ``lo`` and ``hi``: the pixels within 1.5 px of the
     point in both frames.
     With ``has_mask``, the grid pixel and the nearest pixel in ``other`` must also be usable
-    (``use_g``/``use_o`` non-zero)."""
+    (``use_g``/``use_o`` non-zero).
+
+    The neighbourhood tests of a tile are made for the whole tile at once (:func:`_good_box`):
+    in the grid over the tile, in ``other`` over the box its mapped corners span (a
+    linear-fractional map takes its extremes over a rectangle at the corners), grown by a
+    pixel; a point whose nearest pixel falls outside that box (rounding), or a box larger than
+    twice the tile each way (a strong perspective), is tested alone. The same pixels enter, in
+    the same order."""
     h, w, nc = grid.shape
     ho, wo = other.shape[0], other.shape[1]
     nt = tiles.shape[0]
@@ -101,14 +143,66 @@ def _tile_sums(
             for j in range(3):
                 if mat[c, i, j] != mat[0, i, j]:
                     same = False
+    bmax = 2 * tile + 4
+    vg = np.empty((bmax + 2) * nc, np.bool_)
+    gmap = np.empty((tile, tile * nc), np.bool_)
+    omap = np.empty((bmax, bmax * nc), np.bool_)
+    gflat = grid.reshape(h, w * nc)
+    # integer levels (they index the LUTs): v <= lo exactly when v <= floor(lo), v >= hi
+    # exactly when v >= ceil(hi); a NaN bound rejects nothing, as in _in_range3
+    big = 1 << 30
+    ilo = np.int32(-big if lo != lo else max(min(np.floor(lo), big), -big))
+    ihi = np.int32(big if hi != hi else max(min(np.ceil(hi), big), -big))
+    oflat = other.reshape(ho, wo * nc)
     xs = 0.0
     ys = 0.0
     inside = False
     for t in range(nt):
         y0 = tiles[t, 0]
         x0 = tiles[t, 1]
-        for y in range(max(y0, 1), min(y0 + tile, h - 1)):
-            for x in range(max(x0, 1), min(x0 + tile, w - 1)):
+        ylo = max(y0, 1)
+        yhi = min(y0 + tile, h - 1)
+        xlo = max(x0, 1)
+        xhi = min(x0 + tile, w - 1)
+        if ylo >= yhi or xlo >= xhi:
+            continue
+        _good_box(gflat, nc, ylo, yhi, xlo, xhi, ilo, ihi, vg, gmap)
+        # the box of other's nearest pixels: the mapped corners' extremes, grown by one
+        fx0 = np.inf
+        fx1 = -np.inf
+        fy0 = np.inf
+        fy1 = -np.inf
+        boxed = True
+        for c in range(nc if not same else 1):
+            for cy in range(2):
+                for cx in range(2):
+                    x = xlo if cx == 0 else xhi - 1
+                    y = ylo if cy == 0 else yhi - 1
+                    zw = mat[c, 2, 0] * x + mat[c, 2, 1] * y + mat[c, 2, 2]
+                    if not zw > 0.0:
+                        boxed = False
+                        continue
+                    px = (mat[c, 0, 0] * x + mat[c, 0, 1] * y + mat[c, 0, 2]) / zw
+                    py = (mat[c, 1, 0] * x + mat[c, 1, 1] * y + mat[c, 1, 2]) / zw
+                    fx0 = min(fx0, px)
+                    fx1 = max(fx1, px)
+                    fy0 = min(fy0, py)
+                    fy1 = max(fy1, py)
+        bx0 = 0
+        bx1 = -1
+        by0 = 0
+        by1 = -1
+        if boxed and fx1 - fx0 < bmax and fy1 - fy0 < bmax:
+            bx0 = max(int(np.floor(fx0)) - 1, 1)
+            bx1 = min(int(np.floor(fx1)) + 2, wo - 2)
+            by0 = max(int(np.floor(fy0)) - 1, 1)
+            by1 = min(int(np.floor(fy1)) + 2, ho - 2)
+            if bx1 - bx0 + 1 > bmax or by1 - by0 + 1 > bmax:
+                bx1 = bx0 - 1
+            if bx0 <= bx1 and by0 <= by1:
+                _good_box(oflat, nc, by0, by1 + 1, bx0, bx1 + 1, ilo, ihi, vg, omap)
+        for y in range(ylo, yhi):
+            for x in range(xlo, xhi):
                 for c in range(nc):
                     if c == 0 or not same:
                         inside = False
@@ -129,20 +223,12 @@ def _tile_sums(
                     ry = iy + 1 if fy >= 0.5 else iy
                     if has_mask and (use_g[y, x] == 0 or use_o[ry, rx] == 0):
                         continue
-                    good = True
-                    for dy in range(-1, 2):
-                        for dx in range(-1, 2):
-                            v = grid[y + dy, x + dx, c]
-                            if v <= lo or v >= hi:
-                                good = False
-                    if not good:
+                    if not gmap[y - ylo, nc * (x - xlo) + c]:
                         continue
-                    for dy in range(-1, 2):
-                        for dx in range(-1, 2):
-                            v = other[ry + dy, rx + dx, c]
-                            if v <= lo or v >= hi:
-                                good = False
-                    if not good:
+                    if bx0 <= rx <= bx1 and by0 <= ry <= by1:
+                        if not omap[ry - by0, nc * (rx - bx0) + c]:
+                            continue
+                    elif not _in_range3(other, ry, rx, c, lo, hi):
                         continue
                     t00 = other[iy, ix, c]
                     t01 = other[iy, ix + 1, c]

@@ -324,3 +324,86 @@ def test_a_pair_related_by_a_homography_is_measured_through_it() -> None:
     r23 = exposure_ratio_registered(d, b, ml, near)
     r33 = exposure_ratio_registered(d, b, ml, np.vstack([near, [0.0, 0.0, 1.0]]))
     assert r23.ratio == r33.ratio
+
+
+def _tile_sums_reference(grid, other, use_g, use_o, has_mask, lut, mat, lo, hi, tiles, tile):
+    """The tile sums' definition, pixel by pixel in Python: a pixel enters when its 3x3
+    neighbourhood in the grid and that of its nearest pixel in ``other`` lie strictly between
+    ``lo`` and ``hi`` (and both are usable under ``has_mask``)."""
+    h, w, nc = grid.shape
+    ho, wo = other.shape[:2]
+    out = np.zeros((len(tiles), nc, 3))
+
+    def in_range(a, y, x, c):
+        v = a[y - 1 : y + 2, x - 1 : x + 2, c]
+        return not bool(np.any((v <= lo) | (v >= hi)))
+
+    for t, (y0, x0) in enumerate(tiles):
+        for y in range(max(y0, 1), min(y0 + tile, h - 1)):
+            for x in range(max(x0, 1), min(x0 + tile, w - 1)):
+                for c in range(nc):
+                    m = mat[c]
+                    zw = m[2, 0] * x + m[2, 1] * y + m[2, 2]
+                    if not zw > 0.0:
+                        continue
+                    xs = (m[0, 0] * x + m[0, 1] * y + m[0, 2]) / zw
+                    ys = (m[1, 0] * x + m[1, 1] * y + m[1, 2]) / zw
+                    if not (xs >= 1.0 and ys >= 1.0 and int(xs) < wo - 2 and int(ys) < ho - 2):
+                        continue
+                    ix, iy = int(xs), int(ys)
+                    fx, fy = xs - ix, ys - iy
+                    rx = ix + 1 if fx >= 0.5 else ix
+                    ry = iy + 1 if fy >= 0.5 else iy
+                    if has_mask and (use_g[y, x] == 0 or use_o[ry, rx] == 0):
+                        continue
+                    if not (in_range(grid, y, x, c) and in_range(other, ry, rx, c)):
+                        continue
+                    t00, t01 = lut[c, other[iy, ix, c]], lut[c, other[iy, ix + 1, c]]
+                    t10, t11 = lut[c, other[iy + 1, ix, c]], lut[c, other[iy + 1, ix + 1, c]]
+                    top = t00 + (t01 - t00) * fx
+                    bottom = t10 + (t11 - t10) * fx
+                    out[t, c, 0] += lut[c, grid[y, x, c]]
+                    out[t, c, 1] += top + (bottom - top) * fy
+                    out[t, c, 2] += 1.0
+    return out
+
+
+@pytest.mark.parametrize(
+    "case", ["identity", "affine", "perspective", "strong-perspective", "per-channel", "masked"]
+)
+def test_tile_sums_take_the_pixels_of_their_definition(case: str) -> None:
+    """The compiled tile sums (neighbourhood tests made a tile at a time) take exactly the
+    pixels of the definition and sum them in its order: equal to the bit, for thresholds on and
+    between integer levels, maps that move the nearest pixels off the box of the mapped corners
+    (a strong perspective: tested pixel by pixel) and per-channel maps (a mosaic's planes)."""
+    from hdrcore.exposure.registered import _tile_sums
+
+    rng = np.random.default_rng(5)
+    h, w, nc, tile = 70, 90, 3, 16
+    grid = rng.integers(0, 256, (h, w, nc)).astype(np.uint8)
+    other = rng.integers(0, 256, (h, w, nc)).astype(np.uint8)
+    # smooth regions, so that whole neighbourhoods pass
+    grid[10:60, 10:80] = rng.integers(100, 140, (50, 70, nc)).astype(np.uint8)
+    other[5:65, 5:85] = rng.integers(95, 165, (60, 80, nc)).astype(np.uint8)
+    lut = np.stack([np.linspace(0.0, 1.0 + 0.1 * c, 256) ** 2.2 for c in range(nc)])
+    mats = {
+        "identity": np.eye(3),
+        "affine": np.array([[1.01, 0.02, 1.7], [-0.015, 0.99, -2.4], [0.0, 0.0, 1.0]]),
+        "perspective": np.array([[1.0, 0.01, 0.6], [0.0, 1.02, 0.3], [4e-4, -3e-4, 1.0]]),
+        "strong-perspective": np.array([[2.5, 0.05, -54.0], [0.1, 2.5, -52.0], [1e-3, 5e-4, 1.0]]),
+    }
+    mat = np.repeat(mats.get(case, mats["affine"])[None], nc, axis=0)
+    if case == "per-channel":
+        mat[1, 0, 2] += 0.5
+        mat[2, 1, 2] -= 0.5
+    has_mask = case == "masked"
+    use_g = (rng.random((h, w)) > 0.2).astype(np.uint8) if has_mask else np.ones((1, 1), np.uint8)
+    use_o = (rng.random((h, w)) > 0.2).astype(np.uint8) if has_mask else np.ones((1, 1), np.uint8)
+    tiles = np.array([(y, x) for y in range(0, h, tile) for x in range(0, w, tile)], np.int64)
+    for lo, hi in ((90.0, 170.0), (99.5, 139.5), (-1.0, 300.0), (120.0, 118.0)):
+        args = (grid, other, use_g, use_o, has_mask)
+        got = _tile_sums(*args, lut, lut, mat, lo, hi, tiles, tile)
+        want = _tile_sums_reference(*args, lut, mat, lo, hi, tiles, tile)
+        assert np.array_equal(got, want), (case, lo, hi)
+        if lo < hi and case != "masked":
+            assert want[:, :, 2].sum() > 0
