@@ -93,21 +93,21 @@ def _one_type(arrays: Sequence[np.ndarray]) -> tuple[np.ndarray, ...]:
 
 
 def level_tables(p: Plan, m: SampleModel) -> np.ndarray:
-    """float32 ``(N, C L, 8)``: ``E_k, w, w var(E_k), w E_k, w E_k**2`` (and three zeros: one
-    aligned 32-byte line a level, so a sample's five values are one cache line even when a
-    16-bit table does not fit the cache) of every level ``0..max_level`` (``L`` levels) of
-    every frame, channel ``ch``'s level ``v`` at row ``ch L + v`` (the kernel's
-    :func:`~hdrcore.merge._fused._accumulate_levels_table`). The float32 operations are the
-    kernel's own (:func:`~hdrcore.merge._fused._accumulate_run`), in its order, so an entry is
-    bit for bit what the kernel computes for a sample of that level (the noise floor applied;
-    clipping and masks, which depend on the pixel, not), ``exp`` of the Gaussian weight
-    numpy's (the kernel's vectorised ``exp`` may differ in the last place)."""
+    """float32 ``(N, C L, 4)``: ``E_k, w, w var(E_k)`` (and a zero: one aligned 16-byte line a
+    level) of every level ``0..max_level`` (``L`` levels) of every frame, channel ``ch``'s
+    level ``v`` at row ``ch L + v`` (the kernel's
+    :func:`~hdrcore.merge._fused._accumulate_levels_table`, which makes ``w E_k`` and
+    ``w E_k**2`` from the first two). The float32 operations are the kernel's own
+    (:func:`~hdrcore.merge._fused._accumulate_run`), in its order, so an entry is bit for bit
+    what the kernel computes for a sample of that level (the noise floor applied; clipping and
+    masks, which depend on the pixel, not), ``exp`` of the Gaussian weight numpy's (the
+    kernel's vectorised ``exp`` may differ in the last place)."""
     n, c = len(p.frames), p.shape[2]
     length = int(p.max_level or 0) + 1
     levels = np.arange(length, dtype=p.frames[0].dtype)
     level = np.multiply(levels, m.inv_max, dtype=np.float32)
     weight = WEIGHTS[p.weighting]
-    tab = np.zeros((n, c * length, 8), np.float32)
+    tab = np.zeros((n, c * length, 4), np.float32)
     for ch in range(c):
         if p.lut is None or p.lut_var is None:
             x = level
@@ -129,10 +129,6 @@ def level_tables(p: Plan, m: SampleModel) -> np.ndarray:
             var = var_x * wk
             var *= np.float32(1.0 / (t * t))
             tab[k, row, 2] = var
-            wk *= e
-            tab[k, row, 3] = wk
-            wk *= e
-            tab[k, row, 4] = wk
     return tab
 
 
@@ -189,7 +185,7 @@ def run_fused(
     if use_tab:
         tabs = level_tables(p, m)
     else:
-        tabs = np.zeros((len(frames), c, 8), np.float32)
+        tabs = np.zeros((len(frames), c, 4), np.float32)
     inv_t2 = np.array([1.0 / (t * t) for t in p.times], np.float32)
     t2 = np.array([float(t) ** 2 for t in p.times], np.float32)
     weighting = WEIGHTS[p.weighting]
