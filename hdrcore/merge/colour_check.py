@@ -2069,12 +2069,10 @@ def check_colour(
     levels: a saturation step keeps them)."""
     from .white_balance import correct_merge
 
-    if report not in (True, False, "now", "later"):
-        raise ParameterError(
-            f"unknown colour report {report!r}", expected="True, False, 'now', 'later'"
-        )
+    if report not in (True, False, "later"):
+        raise ParameterError(f"unknown colour report {report!r}", expected="True, False, 'later'")
     later = report == "later"
-    measure = report is True or report == "now"
+    measure = report is True
     kw: dict[str, Any] = dict(
         max_level=max_level, reference=reference, to_reference=to_reference, masks=masks
     )
