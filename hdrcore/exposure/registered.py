@@ -81,9 +81,9 @@ METHOD = "registered pixels"
 @_njit
 def _good_box(flat, nc, r0, r1, c0, c1, lo, hi, vg, out):  # pragma: no cover - numba
     """``out[y - r0, nc (x - c0) + c]``: whether the 3x3 neighbourhood of ``(y, x)`` in
-    channel ``c`` lies strictly between the integers ``lo`` and ``hi`` (int32), for ``r0 <= y
-    < r1``, ``c0 <= x < c1`` (every neighbour inside the frame; ``flat``: the frame as ``(H, W
-    nc)``). Each column is tested once over three rows (``vg``), then three columns are
+    channel ``c`` lies strictly between ``lo`` and ``hi`` (as :func:`_in_range3` tests it), for
+    ``r0 <= y < r1``, ``c0 <= x < c1`` (every neighbour inside the frame; ``flat``: the frame as
+    ``(H, W nc)``). Each column is tested once over three rows (``vg``), then three columns are
     combined: straight loops, 2 tests a sample instead of 9."""
     m = nc * (c1 - c0 + 2)
     b = nc * (c0 - 1)
@@ -92,10 +92,10 @@ def _good_box(flat, nc, r0, r1, c0, c1, lo, hi, vg, out):  # pragma: no cover - 
         rb = flat[y, b : b + m]
         rc = flat[y + 1, b : b + m]
         for e in range(m):
-            a = np.int32(ra[e])
-            u = np.int32(rb[e])
-            d = np.int32(rc[e])
-            vg[e] = ((a > lo) & (a < hi)) & ((u > lo) & (u < hi)) & ((d > lo) & (d < hi))
+            a = ra[e]
+            u = rb[e]
+            d = rc[e]
+            vg[e] = not ((a <= lo) | (a >= hi) | (u <= lo) | (u >= hi) | (d <= lo) | (d >= hi))
         oy = out[y - r0]
         for e in range(m - 2 * nc):
             oy[e] = vg[e] & vg[e + nc] & vg[e + 2 * nc]
@@ -148,11 +148,6 @@ def _tile_sums(
     gmap = np.empty((tile, tile * nc), np.bool_)
     omap = np.empty((bmax, bmax * nc), np.bool_)
     gflat = grid.reshape(h, w * nc)
-    # integer levels (they index the LUTs): v <= lo exactly when v <= floor(lo), v >= hi
-    # exactly when v >= ceil(hi); a NaN bound rejects nothing, as in _in_range3
-    big = 1 << 30
-    ilo = np.int32(-big if lo != lo else max(min(np.floor(lo), big), -big))
-    ihi = np.int32(big if hi != hi else max(min(np.ceil(hi), big), -big))
     oflat = other.reshape(ho, wo * nc)
     # the identity (a pair compared in place): the point is the pixel itself, its bilinear
     # sample the other frame's own value (a + (b - a) * 0 is a for finite LUT values)
@@ -177,8 +172,8 @@ def _tile_sums(
             xhi = min(x0 + tile, w - 1, wo - 2)
             if ylo >= yhi or xlo >= xhi:
                 continue
-            _good_box(gflat, nc, ylo, yhi, xlo, xhi, ilo, ihi, vg, gmap)
-            _good_box(oflat, nc, ylo, yhi, xlo, xhi, ilo, ihi, vg, omap)
+            _good_box(gflat, nc, ylo, yhi, xlo, xhi, lo, hi, vg, gmap)
+            _good_box(oflat, nc, ylo, yhi, xlo, xhi, lo, hi, vg, omap)
             for y in range(ylo, yhi):
                 gy = gmap[y - ylo]
                 oy = omap[y - ylo]
@@ -204,7 +199,7 @@ def _tile_sums(
         xhi = min(x0 + tile, w - 1)
         if ylo >= yhi or xlo >= xhi:
             continue
-        _good_box(gflat, nc, ylo, yhi, xlo, xhi, ilo, ihi, vg, gmap)
+        _good_box(gflat, nc, ylo, yhi, xlo, xhi, lo, hi, vg, gmap)
         # the box of other's nearest pixels: the mapped corners' extremes, grown by one
         fx0 = np.inf
         fx1 = -np.inf
@@ -238,7 +233,7 @@ def _tile_sums(
             if bx1 - bx0 + 1 > bmax or by1 - by0 + 1 > bmax:
                 bx1 = bx0 - 1
             if bx0 <= bx1 and by0 <= by1:
-                _good_box(oflat, nc, by0, by1 + 1, bx0, bx1 + 1, ilo, ihi, vg, omap)
+                _good_box(oflat, nc, by0, by1 + 1, bx0, bx1 + 1, lo, hi, vg, omap)
         for y in range(ylo, yhi):
             for x in range(xlo, xhi):
                 for c in range(nc):
