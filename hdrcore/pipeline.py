@@ -833,6 +833,10 @@ class Pipeline:
             except Exception:  # a UI callback must never break a run
                 log.exception("progress callback failed")
 
+    def _relay_progress(self, stage: str, fraction: float, message: str) -> None:
+        if self.progress is not None:
+            self.progress(stage, fraction, message)
+
     def clear_cache(self) -> None:
         with self._lock:
             if self.reuse_buffers and "merge" in self._cache.entries:
@@ -1013,7 +1017,9 @@ class Pipeline:
         if sub is None:
             sub = Pipeline(
                 _sub_bracket(b, keep),
-                progress=self.progress,
+                # this pipeline's callback at each call: a caller sets another one per run
+                # (the inspector's checks whether its job is still the latest)
+                progress=self._relay_progress,
                 reuse_buffers=self.reuse_buffers,
                 pixel_size=self.pixel_size,
                 weight_maps=self.weight_maps,

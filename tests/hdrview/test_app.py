@@ -150,6 +150,30 @@ def test_controls_update_state_and_page(app: InspectorApp) -> None:
     assert app.draw_count > draws
 
 
+def test_controls_follow_a_bracket_with_a_black_frame(
+    app: InspectorApp, bracket_root: Path
+) -> None:
+    """A bracket with an unusable frame is run without it (a pipeline of the other frames):
+    every later change reaches the result too, not only the first run (that inner pipeline
+    once kept the first job's progress callback, which cancelled each later job)."""
+    import numpy as np
+
+    from hdrcore.io import write_png
+
+    paths = write_png_bracket(bracket_root / "black", times=(1.0, 4.0, 16.0, 64.0))
+    write_png(paths[0], np.zeros((128, 192, 3), np.uint8), force=True)
+    app.request_path("black")
+    assert app.wait_idle(120)
+    result = app.session.result
+    assert result is not None and [u.index for u in result.unused_frames] == [0]
+    for t in (0.2, 0.3):
+        app.set_control("threshold", t)
+        assert app.wait_idle(120)
+        assert not _errors(app)
+        assert app._drawn_result is not None and app._drawn_result.params.threshold == t
+        assert f"t = {t:g}" in app.status.content
+
+
 def test_export_without_result_notifies(app: InspectorApp) -> None:
     app._guarded(app.export_png, None)
     assert "nothing to export" in _errors(app)[-1] or "not available" in _errors(app)[-1]
@@ -193,6 +217,35 @@ def test_create_app_binds_localhost_on_a_free_port_and_warms_up(tmp_path: Path) 
     finally:
         app.stop()
         app.server.stop()
+
+
+def test_the_first_page_finds_its_icons_read(
+    bracket_root: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """What the start-up thread prepares covers every icon a page shows: once it has run,
+    building a page reads nothing from viser's zip of icons (each read parses the zip's whole
+    directory)."""
+    import types
+
+    import viser
+    import viser._icons
+
+    from hdrview.view import prepare_first_page
+
+    viser._icons.svg_from_icon.cache_clear()
+    prepare_first_page()
+
+    def no_zip(*args: object, **kwargs: object) -> None:
+        raise AssertionError(f"viser's icons read while building a page: {args}")
+
+    monkeypatch.setattr(viser._icons, "zipfile", types.SimpleNamespace(ZipFile=no_zip))
+    server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+    inspector = InspectorApp(server, root=bracket_root, demo_dir=None)
+    try:
+        inspector.headless_view()
+    finally:
+        inspector.stop()
+        server.stop()
 
 
 def test_main_refuses_missing_root(capsys: pytest.CaptureFixture[str]) -> None:
