@@ -94,6 +94,9 @@ class InspectorApp:
         self._lock = threading.Lock()
         self._pages = 0
         self._warm: tuple[tuple, threading.Thread, list] | None = None
+        # Pages whose controls are being built: the start-up run waits for them (see warm_up).
+        self._building = 0
+        self._built = threading.Condition()
         self._stopped = False
         self.ready_seconds: float | None = None
         server.on_client_connect(self._on_connect)
@@ -127,7 +130,14 @@ class InspectorApp:
         return None
 
     def _on_connect(self, client: viser.ClientHandle) -> None:
-        view = ClientView(self, client.gui, client)
+        with self._built:
+            self._building += 1
+        try:
+            view = ClientView(self, client.gui, client)
+        finally:
+            with self._built:
+                self._building -= 1
+                self._built.notify_all()
         with self._lock:
             self.views[client.client_id] = view
         if self.batch:
@@ -167,6 +177,19 @@ class InspectorApp:
 
     # -- the warm start ---------------------------------------------------------------------
 
+    def _after_pages_built(self, *_: object, limit: float = 2.0) -> None:
+        """Wait (``limit`` seconds at most) while a page's controls are being built. The
+        start-up run calls it before it starts and between its stages (as its progress
+        callback): building a page is 0.05 s of Python alone but took 0.4-0.9 s beside the
+        run's stages (the GIL), and the page shows nothing until it is done."""
+        deadline = time.perf_counter() + limit
+        with self._built:
+            while self._building and not self._stopped:
+                left = deadline - time.perf_counter()
+                if left <= 0:
+                    break
+                self._built.wait(left)
+
     def warm_up(self, *, announce: bool = False) -> None:
         """Decode the default bracket and run the pipeline once in the background; the first
         page that opens it takes this session over (its result is then drawn at once)."""
@@ -199,7 +222,8 @@ class InspectorApp:
                 _ = self.defaults
                 from .session import Controls
 
-                session.run(Controls())
+                self._after_pages_built()
+                session.run(Controls(), progress=self._after_pages_built)
                 self.first_run = False
                 box.append(session)
             except Exception:  # noqa: BLE001 -- the page reports it when it loads
@@ -216,10 +240,11 @@ class InspectorApp:
         self._warm = (key, thread, box)
         thread.start()
         # The page's controls list the library's registries (hdrview.view._registry_names:
-        # hdrcore.pipeline and its modules, 0.6-1.3 s of imports). Imported beside the decode,
+        # hdrcore.pipeline and its modules, 0.6-1.3 s of imports), and its plots and buttons
+        # wait for plotly's classes and viser's icons the first time. Made beside the decode,
         # while the browser loads the page's script, the first page no longer builds its
-        # controls behind them (its frame table drawn ~1 s sooner, see bench_hdrview).
-        threading.Thread(target=_import_registries, name="hdrview-imports", daemon=True).start()
+        # controls behind them (see bench_hdrview's first page).
+        threading.Thread(target=_prepare_first_page, name="hdrview-imports", daemon=True).start()
 
     def warm_pending(self, files: Sequence[str], times: str | None) -> bool:
         """Whether the start-up run of these inputs is still going."""
@@ -253,13 +278,13 @@ class InspectorApp:
         _LIVE.discard(self)
 
 
-def _import_registries() -> None:
-    from .view import _registry_names
+def _prepare_first_page() -> None:
+    from .view import prepare_first_page
 
     try:
-        _registry_names()
+        prepare_first_page()
     except Exception:  # noqa: BLE001 -- the page reports a broken install when it opens
-        log.debug("importing the registries failed", exc_info=True)
+        log.debug("preparing the first page failed", exc_info=True)
 
 
 def _default_params() -> PipelineParams:

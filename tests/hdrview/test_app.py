@@ -248,6 +248,38 @@ def test_the_first_page_finds_its_icons_read(
         server.stop()
 
 
+def test_the_start_up_run_waits_while_a_page_is_built(app: InspectorApp) -> None:
+    """The start-up run's stage boundaries wait while a page's controls are built (and go on
+    when it is built, or after the limit)."""
+    import threading
+    import time
+
+    inspector = app.app
+    done = threading.Event()
+    with inspector._built:
+        inspector._building += 1
+    waiter = threading.Thread(
+        target=lambda: (inspector._after_pages_built("merge", 0.5, ""), done.set())
+    )
+    waiter.start()
+    assert not done.wait(0.3)  # a page is being built: the run waits
+    with inspector._built:
+        inspector._building -= 1
+        inspector._built.notify_all()
+    assert done.wait(5)  # built: it goes on at once
+    waiter.join()
+    with inspector._built:
+        inspector._building += 1
+    t0 = time.perf_counter()
+    inspector._after_pages_built(limit=0.2)  # a page that never finishes holds it 0.2 s
+    assert 0.15 < time.perf_counter() - t0 < 5
+    with inspector._built:
+        inspector._building -= 1
+    t0 = time.perf_counter()
+    inspector._after_pages_built()
+    assert time.perf_counter() - t0 < 0.1  # nothing being built: no wait
+
+
 def test_main_refuses_missing_root(capsys: pytest.CaptureFixture[str]) -> None:
     from hdrview.app import main
 
