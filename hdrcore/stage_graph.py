@@ -143,7 +143,10 @@ class Stage:
     only if ``fn`` asks for them. ``by_value``: downstream keys use a content token of the value
     instead of this stage's key (for small values: a downstream stage re-runs only when the
     value changed). ``internal``: a step between the reported stages (no progress, no timing,
-    not in ``stages_run``).
+    not in ``stages_run``). ``keep``: how many values of different keys the cache keeps (the
+    current one and the last ``keep - 1`` it replaced): going back to a key computed lately
+    (a control moved and moved back, a reset) takes the value again instead of computing it;
+    for stages whose values are small and slow to make.
     """
 
     name: str
@@ -154,6 +157,7 @@ class Stage:
     by_value: bool = False
     internal: bool = False
     doc: str = ""
+    keep: int = 1
 
     def fields(self, context: Any) -> tuple[str, ...]:
         return tuple(self.params(context) if callable(self.params) else self.params)
@@ -278,6 +282,8 @@ class StageCache:
         self.graph = graph
         self.context = context
         self.entries: dict[str, Entry] = {}
+        # per stage, the entries the current one replaced, newest first (Stage.keep - 1)
+        self.recent: dict[str, list[Entry]] = {}
         self.on_start = on_start
         self.on_done = on_done
 
@@ -290,10 +296,36 @@ class StageCache:
         return _Run(self, params, [] if ran is None else ran, {} if timings is None else timings)
 
     def pop(self, name: str) -> Entry | None:
+        self.recent.pop(name, None)
         return self.entries.pop(name, None)
 
     def clear(self) -> None:
         self.entries.clear()
+        self.recent.clear()
+
+    def recall(self, name: str, key: Any) -> Entry | None:
+        """Stage ``name``'s kept entry of ``key``, made current again (the current one kept in
+        its place), or ``None``."""
+        older = self.recent.get(name)
+        if not older:
+            return None
+        for i, e in enumerate(older):
+            if e.key == key:
+                del older[i]
+                self._replace(name, e)
+                return e
+        return None
+
+    def _replace(self, name: str, entry: Entry) -> None:
+        """``entry`` becomes ``name``'s current one; the one it replaces is kept as recent
+        (up to the stage's ``keep``)."""
+        keep = self.graph.stages[name].keep
+        old = self.entries.get(name)
+        self.entries[name] = entry
+        if keep > 1 and old is not None and old.key != entry.key:
+            older = self.recent.setdefault(name, [])
+            older.insert(0, old)
+            del older[keep - 1 :]
 
 
 class _Run:
@@ -344,6 +376,8 @@ class _Run:
         st = cache.graph.stages[name]
         key = self.key(name)
         entry = cache.entries.get(name)
+        if entry is None or entry.key != key:
+            entry = cache.recall(name, key)
         if entry is not None and entry.key == key:
             if not st.internal:
                 self.timings[name] = 0.0
@@ -364,7 +398,7 @@ class _Run:
         if self._child:
             self._child[-1] += total if not st.internal else nested
         tok = ("value", token(value)) if st.by_value or value is None else ("key", key)
-        cache.entries[name] = Entry(key, value, dt, tok)
+        cache._replace(name, Entry(key, value, dt, tok))
         self._values[name], self._tokens[name] = value, tok
         if not st.internal:
             self.timings[name] = dt

@@ -61,7 +61,21 @@ UNTIL = ("ratios", "registration", "overlap_ratios", "preview", "preview")
 
 #: Steps that re-used at least one cached stage, over all the machines of this module: a cache
 #: that never hits would pass the comparison for nothing.
-REUSED = {"steps": 0, "reused": 0, "errors": 0}
+REUSED = {"steps": 0, "reused": 0, "errors": 0, "recalled": 0}
+
+
+@pytest.fixture(autouse=True)
+def _count_recalls(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Counts the values a stage took again from its recent ones (``Stage.keep``), so a test
+    can check the comparison covered them."""
+    recall = stage_graph.StageCache.recall
+
+    def counted(self, name, key):
+        entry = recall(self, name, key)
+        REUSED["recalled"] += entry is not None
+        return entry
+
+    monkeypatch.setattr(stage_graph.StageCache, "recall", counted)
 
 
 def _outcome(pipe: Pipeline, params: PipelineParams, until: str):
@@ -172,22 +186,46 @@ def _every(bracket: Bracket, step: int) -> Bracket:
 
 
 def test_cached_runs_equal_fresh_runs_simulated(tiny_handheld: Bracket) -> None:
-    REUSED.update(steps=0, reused=0, errors=0)
+    REUSED.update(steps=0, reused=0, errors=0, recalled=0)
     _run_machine(tiny_handheld, examples=6, steps=20)
     assert REUSED["steps"] >= 10 and REUSED["reused"] >= 3, REUSED
 
 
 def test_cached_runs_equal_fresh_runs_without_times(tiny_without_times: Bracket) -> None:
-    REUSED.update(steps=0, reused=0, errors=0)
+    REUSED.update(steps=0, reused=0, errors=0, recalled=0)
     _run_machine(tiny_without_times, examples=4, steps=20)
     assert REUSED["steps"] >= 8 and REUSED["reused"] >= 3, REUSED
 
 
 def test_cached_runs_equal_fresh_runs_real() -> None:
     bracket = _every(load_bracket([shared_dir("frobisher-colour-hdri")]), 6)  # 107 x 71
-    REUSED.update(steps=0, reused=0, errors=0)
+    REUSED.update(steps=0, reused=0, errors=0, recalled=0)
     _run_machine(bracket, examples=6, steps=20)
     assert REUSED["steps"] >= 10 and REUSED["reused"] >= 3, REUSED
+
+
+def test_values_taken_again_equal_fresh_runs(tiny_handheld: Bracket) -> None:
+    """Controls moved and moved back (and a reset): the stages that keep their recent values
+    (``Stage.keep``: response, ratios, registration, ...) take them again, and every result
+    still equals a fresh pipeline's."""
+    pipe = Pipeline(tiny_handheld)
+    base = PipelineParams()
+    steps = [
+        base,
+        replace(base, align="similarity"),
+        base,
+        replace(base, threshold=0.2),
+        replace(base, threshold=0.2, response="srgb"),
+        replace(base, threshold=0.2),
+        base,
+        replace(base, align="similarity"),
+    ]
+    REUSED.update(recalled=0)
+    for params in steps:
+        cached = pipe.run(params)
+        diff = differences(cached, Pipeline(tiny_handheld).run(params))
+        assert not diff, (params, cached.stages_run, diff)
+    assert REUSED["recalled"] >= 6, REUSED  # registration and more, at each step back
 
 
 def test_the_comparison_sees_a_stale_cache(tiny_handheld: Bracket, monkeypatch) -> None:

@@ -71,6 +71,41 @@ def test_keys_come_from_the_declaration() -> None:
     assert ran == ["first", "second"]
 
 
+def test_a_stage_keeps_its_recent_values() -> None:
+    """``keep``: going back to one of a stage's last ``keep`` keys takes its value again (its
+    downstream keyed as before); older keys, and stages keeping one value, compute again."""
+    calls: list[str] = []
+
+    def first(ctx, p, up):
+        calls.append(f"first{p.a}")
+        return p.a * 10
+
+    def second(ctx, p, up):
+        calls.append(f"second{up.first // 10}{p.b}")
+        return up.first + p.b
+
+    graph = StageGraph(
+        [Stage("first", first, ("a",), keep=3), Stage("second", second, ("b",), ("first",))],
+        [f.name for f in dataclasses.fields(_Params)],
+    )
+    cache = StageCache(graph, {})
+    for a in (1, 2, 3):
+        assert cache.run(_Params(a=a)).get("second") == 10 * a + 2
+    calls.clear()
+    ran: list[str] = []
+    assert cache.run(_Params(a=1), ran).get("second") == 12  # a=1 is one of the last three
+    assert ran == ["second"] and calls == ["second12"]
+    assert cache.run(_Params(a=3), ran).get("second") == 32
+    assert calls == ["second12", "second32"]  # a=3 was kept in turn when a=1 came back
+    assert cache.run(_Params(a=4)).get("second") == 42
+    calls.clear()
+    assert cache.run(_Params(a=2)).get("second") == 22  # kept: 4 (current), 3, 1
+    assert calls == ["first2", "second22"]
+    assert [e.key[1] for e in cache.recent["first"]] == [(("a", token(4)),), (("a", token(3)),)]
+    cache.clear()
+    assert not cache.recent and not cache.entries
+
+
 def test_an_undeclared_read_raises() -> None:
     cache = StageCache(_toy_graph(read_c=True), {"calls": []})
     with pytest.raises(UndeclaredDependency, match="'second' read the parameter 'c'"):
