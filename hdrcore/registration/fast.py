@@ -244,16 +244,11 @@ def _search(
                 return best_m, best_g
             m, gain = trial, _gain_step(prev_g, step[n_par:])
             continue
-        stalled = step is not None and prev_cost - c < 1e-6 * prev_cost
-        if stalled and mu <= 1.0:
+        if step is not None and prev_cost - c < 1e-6 * prev_cost:
             return m, gain  # no further decrease: converged to the noise floor of the cost
         if count < (n_par + n_gain) * 4:
             return m, gain
-        if stalled:
-            # A lengthened step that stalled has crossed the valley to a point of about the
-            # same cost, short of its floor: go on from there with plain steps.
-            mu = 1.0
-        elif step is not None:
+        if step is not None:
             mu = _step_scale(mu, prev_cost, slope, c)
         step = mu * _solve(hess, grad)
         # the cost's derivative along the step at its start: d(sum)/d(delta) = 2 J'Wn
@@ -263,7 +258,7 @@ def _search(
         prev_m, prev_g, prev_cost = m, gain, c
         moved = corner_move(new_m, m, shape_l)
         m, gain = new_m, _gain_step(gain, step[n_par:])
-        if moved < tolerance:
+        if moved < tolerance * mu:
             # the Gauss-Newton step itself is tiny (the factor only lengthens it): keep it
             return m, gain
     return best_m, best_g
