@@ -248,6 +248,52 @@ def test_the_first_page_finds_its_icons_read(
         server.stop()
 
 
+@pytest.mark.parametrize("with_default", [True, False])
+def test_the_start_up_thread_prepares_the_first_page_before_decoding(
+    bracket_root: Path, monkeypatch: pytest.MonkeyPatch, with_default: bool
+) -> None:
+    """The start-up thread makes what the first page's build waits for first, then decodes the
+    default bracket (beside each other both ended later and the page was built behind them);
+    without a default bracket it still prepares the page."""
+    import threading
+
+    import viser
+
+    import hdrview.app as app_module
+    from hdrview.session import Session
+
+    events: list[str] = []
+    prepared = threading.Event()
+
+    def prepare() -> None:
+        events.append("prepare")
+        prepared.set()
+
+    original_load = Session.load
+
+    def load(self, *args: object, **kwargs: object) -> None:
+        events.append("decode")
+        original_load(self, *args, **kwargs)
+
+    monkeypatch.setattr(app_module, "_prepare_first_page", prepare)
+    monkeypatch.setattr(Session, "load", load)
+    server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+    demo = bracket_root / "bracket" if with_default else None
+    inspector = InspectorApp(server, root=bracket_root, demo_dir=demo)
+    try:
+        inspector.warm_up()
+        assert prepared.wait(30)
+        if with_default:
+            assert inspector._warm is not None
+            inspector._warm[1].join(120)
+            assert events[:2] == ["prepare", "decode"]
+        else:
+            assert events == ["prepare"]
+    finally:
+        inspector.stop()
+        server.stop()
+
+
 def test_the_start_up_run_waits_while_a_page_is_built(app: InspectorApp) -> None:
     """The start-up run's stage boundaries wait while a page's controls are built (and go on
     when it is built, or after the limit)."""
