@@ -761,6 +761,17 @@ def _warp_setup(
             sy += (fld[gi, gj, 1] * (1 - gu) + fld[gi, gj + 1, 1] * gu) * (1 - gv) + (
                 fld[gi + 1, gj, 1] * (1 - gu) + fld[gi + 1, gj + 1, 1] * gu
             ) * gv
+        fea[i] = coverage_feather(sx, sy, xf, yf, o, wlim, hlim, feather) if feather > 0.0 else 1.0
+        # a point inside the frame whose support is not: sampled at the nearest position
+        # whose support fits (merge/spec.py border_clamp)
+        if (
+            (sx >= -0.5)
+            & (sx <= wlim + ntap - o - 0.5)
+            & (sy >= -0.5)
+            & (sy <= hlim + ntap - o - 0.5)
+        ):
+            sx = min(max(sx, np.float64(o)), np.float64(wlim))
+            sy = min(max(sy, np.float64(o)), np.float64(hlim))
         fx0 = np.floor(sx)
         fy0 = np.floor(sy)
         if ntap == 4:
@@ -782,7 +793,6 @@ def _warp_setup(
             wyp[0, i] = np.float32(1.0 - fy)
             wyp[1, i] = np.float32(fy)
         ins[i] = (fx0 >= o) & (fx0 <= wlim) & (fy0 >= o) & (fy0 <= hlim)
-        fea[i] = coverage_feather(sx, sy, xf, yf, o, wlim, hlim, feather) if feather > 0.0 else 1.0
         ixs[i] = np.int32(min(max(fx0 - o, 0.0), wlim - o))
         iys[i] = np.int32(min(max(fy0 - o, 0.0), hlim - o))
     same[0] = False

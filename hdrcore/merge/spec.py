@@ -47,6 +47,22 @@ def _positions(plan: Plan, k: int, t: np.ndarray) -> tuple[np.ndarray, ...]:
     return xx, yy, sx, sy
 
 
+def border_clamp(
+    sx: np.ndarray, sy: np.ndarray, w: int, h: int, ntap: int, first: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(sx, sy)`` with each point inside the frame (``-0.5 .. w - 0.5``, ``-0.5 .. h - 0.5``:
+    within its pixels) moved to the nearest position whose ``ntap x ntap`` support lies in the
+    frame (top-left tap ``first .. w - ntap + first``); points outside as they are. Without it
+    a frame moved by a tenth of a pixel gave nothing in its outermost one or two columns and
+    rows, which then fell to the reference frame alone (where it is clipped, to its lower
+    bound: a dark border line on the real tripod frobisher)."""
+    wlim, hlim = float(w - ntap + first), float(h - ntap + first)
+    ok = (sx >= -0.5) & (sx <= w - 0.5) & (sy >= -0.5) & (sy <= h - 0.5)
+    cx = np.where(ok, np.minimum(np.maximum(sx, float(first)), wlim), sx)
+    cy = np.where(ok, np.minimum(np.maximum(sy, float(first)), hlim), sy)
+    return cx, cy
+
+
 def _sample(plan: Plan, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Frame ``k`` on the output grid: ``(values (H, W, C) float64, clipped (H, W), inside)``."""
     frame = plan.frames[k].astype(np.float64)
@@ -57,6 +73,9 @@ def _sample(plan: Plan, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         return frame, np.asarray((frame >= sat).any(axis=2)), np.ones((h, w), bool)
     xx, yy, sx, sy = _positions(plan, k, t)
     ntap, first = (4, 1) if plan.resample == "cubic" else (2, 0)
+    # A point inside the frame whose support is not (its outermost pixels) is sampled at the
+    # nearest position whose support fits (BORDER_CLAMP).
+    sx, sy = border_clamp(sx, sy, w, h, ntap, first)
     x0, y0 = np.floor(sx), np.floor(sy)
     inside = (x0 >= first) & (x0 <= w - ntap + first) & (y0 >= first) & (y0 <= h - ntap + first)
     fx, fy = np.where(inside, sx - x0, 0.0), np.where(inside, sy - y0, 0.0)
