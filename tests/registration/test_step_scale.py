@@ -65,8 +65,8 @@ def test_the_learnt_step_needs_fewer_full_resolution_steps(monkeypatch, model: s
     0.77 % higher (a level ends when the plain step is below the tolerance, which under-states
     the distance left by the learnt factor; ending on the step taken instead reaches the plain
     search's cost and motion to 0.005 px, but moves the real tripod frobisher's default motion
-    from 0.085 to 0.117 px, over the 0.1 px the merge applies, whose resampling then leaves its
-    left border column to one frame: not kept, see the README's registration section); its
+    from 0.085 to 0.117 px, over the 0.1 px the merge applies, so its frames would be resampled
+    by noise: not kept yet, see the README's registration section); its
     homography ends in another shallow minimum of a cost that is flat along a perspective
     direction, 0.2 % higher and 0.24 px away at a corner (a 100 times tighter tolerance keeps
     it there). Hence 1 % on the cost and 0.15 px at the corners."""
