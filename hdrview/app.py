@@ -198,8 +198,8 @@ class InspectorApp:
         (:func:`_prepare_first_page`: the library's registries, 0.6-1.3 s of imports, plotly's
         figure classes and viser's icons), while the browser evaluates the page's script: made
         beside the decode, both ended later (the GIL) and the page was built behind them.
-        Measured (``bench_hdrview.py``'s first page, 5 alternating starts each, 2026-12-07):
-        page ready median 3.17 -> 2.85 s, result drawn 4.24 -> 4.11 s."""
+        Measured (``bench_hdrview.py``'s first page, 6 alternating starts each, 2026-12-07):
+        page ready median 3.17 -> 2.83 s, result drawn 4.13 -> 3.97 s."""
         default = self.default_paths()
         inputs = None
         if default is not None:

@@ -150,9 +150,10 @@ def prepare_first_page() -> None:
     """Make what building a page waits for the first time: the dropdowns' registries
     (:func:`_registry_names`: ``hdrcore.pipeline`` and its modules, 0.4-0.7 s of imports),
     plotly's figure classes (imported on first use, 0.15-0.2 s) and the buttons' icons
-    (:data:`BUTTON_ICONS`, 0.2-0.5 s). The inspector calls it on a thread at start, while the
-    browser loads the page's script; without it the first page's controls were built in
-    0.4-1.3 s instead of 0.05 s, after the browser had connected."""
+    (:data:`BUTTON_ICONS`, 0.2-0.5 s). The inspector's start-up thread calls it first, while
+    the browser evaluates the page's script (:meth:`hdrview.app.InspectorApp.warm_up`);
+    without it the first page's controls were built in 0.4-1.3 s instead of 0.05 s, after the
+    browser had connected."""
     _registry_names()
     go.Figure().to_json()  # what each panel's empty plot does
     try:

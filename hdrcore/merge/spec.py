@@ -74,7 +74,7 @@ def _sample(plan: Plan, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     xx, yy, sx, sy = _positions(plan, k, t)
     ntap, first = (4, 1) if plan.resample == "cubic" else (2, 0)
     # A point inside the frame whose support is not (its outermost pixels) is sampled at the
-    # nearest position whose support fits (BORDER_CLAMP).
+    # nearest position whose support fits (:func:`border_clamp`).
     sx, sy = border_clamp(sx, sy, w, h, ntap, first)
     x0, y0 = np.floor(sx), np.floor(sy)
     inside = (x0 >= first) & (x0 <= w - ntap + first) & (y0 >= first) & (y0 <= h - ntap + first)

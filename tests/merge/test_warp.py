@@ -99,15 +99,16 @@ def test_identity_transforms_take_the_direct_path():
     np.testing.assert_array_equal(ref.shares, same.shares)
 
 
-def test_points_outside_the_frame_are_no_data_and_its_border_is_kept():
+def _border_merge(transforms):
+    """The 12-bit bracket merged through ``transforms`` (kernel checked against the spec)."""
     sb = bracket(bits=12, response="linear", noise_sigma=1.0, seed=7)
+    res, _ = kernel_vs_spec(sb.frames, sb.exposure_times, max_level=4095, transforms=transforms)
+    return sb, res
+
+
+def test_points_outside_the_frame_are_no_data_and_its_border_is_kept():
     h, w = SHAPE
-    res, _ = kernel_vs_spec(
-        sb.frames,
-        sb.exposure_times,
-        max_level=4095,
-        transforms=[shift(5.5, 0.0), None, None],
-    )
+    sb, res = _border_merge([shift(5.5, 0.0), None, None])
     # frame 0 is read at x + 5.5, inside the frame (x + 5.5 <= w - 0.5) for x <= w - 6: the
     # columns beyond have no data from it
     share0 = res.shares[0].astype(np.float32)
@@ -128,14 +129,8 @@ def test_a_frame_moved_by_a_tenth_of_a_pixel_keeps_its_border():
     """A tripod frame whose registration found 0.1 px: its outermost columns and rows come
     from it too, not from the reference alone (which, clipped there, gave only its lower bound:
     a dark border line on the real frobisher bracket)."""
-    sb = bracket(bits=12, response="linear", noise_sigma=1.0, seed=7)
     h, w = SHAPE
-    res, _ = kernel_vs_spec(
-        sb.frames,
-        sb.exposure_times,
-        max_level=4095,
-        transforms=[shift(0.1, -0.1), None, shift(-0.1, 0.1)],
-    )
+    _, res = _border_merge([shift(0.1, -0.1), None, shift(-0.1, 0.1)])
     for k in (0, 2):
         share = res.shares[k].astype(np.float32)
         for strip in (share[0], share[h - 1], share[:, 0], share[:, w - 1]):
