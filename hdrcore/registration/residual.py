@@ -267,53 +267,56 @@ class ResidualMotion:
 
 # ------------------------------------------------------------------------------ compiled kernels
 @_njit
-def _reduce_float_rows(img, f, sat, out, r0, r1):  # pragma: no cover - compiled
-    """Rows ``r0:r1`` of the ``f x f`` block means of a float image (NaN propagates); a block
-    with a value at or above ``sat`` is ``2 * sat`` (saturated, see :func:`_reduce`)."""
+def _reduce_float_rows(img, f, out, top, r0, r1):  # pragma: no cover - compiled
+    """Rows ``r0:r1`` of the ``f x f`` block means of a float image (NaN propagates) and of
+    each block's largest value (NaN skipped; -inf when every value is NaN): the saturation
+    test of :func:`_mark` reads the latter, so a block is summed once for every ``sat``."""
     ww = out.shape[1]
     acc = np.empty(ww, np.float64)
-    clipped = np.empty(ww, np.bool_)
     inv = 1.0 / (f * f)
     for y in range(r0, r1):
         acc[:] = 0.0
-        clipped[:] = False
+        top[y, :] = -np.inf
         for i in range(f):
             row = y * f + i
             for x in range(ww):
                 s = 0.0
+                m = top[y, x]
                 for j in range(f):
                     v = img[row, x * f + j]
                     s += v
-                    if v >= sat:
-                        clipped[x] = True
+                    if v > m:
+                        m = v
                 acc[x] += s
+                top[y, x] = m
         for x in range(ww):
-            out[y, x] = 2.0 * sat if clipped[x] and acc[x] == acc[x] else acc[x] * inv
+            out[y, x] = acc[x] * inv
 
 
 @_njit
-def _reduce_lut_rows(img, lut, f, sat, out, r0, r1):  # pragma: no cover - compiled
-    """Rows ``r0:r1`` of the ``f x f`` block means of ``lut[img]`` (integer levels, any strides);
-    a block with a value at or above ``sat`` is ``2 * sat`` (saturated, see :func:`_reduce`)."""
+def _reduce_lut_rows(img, lut, f, out, top, r0, r1):  # pragma: no cover - compiled
+    """Rows ``r0:r1`` of the ``f x f`` block means of ``lut[img]`` (integer levels, any strides)
+    and of each block's largest ``lut`` value (see :func:`_reduce_float_rows`)."""
     ww = out.shape[1]
     acc = np.empty(ww, np.float64)
-    clipped = np.empty(ww, np.bool_)
     inv = 1.0 / (f * f)
     for y in range(r0, r1):
         acc[:] = 0.0
-        clipped[:] = False
+        top[y, :] = -np.inf
         for i in range(f):
             row = y * f + i
             for x in range(ww):
                 s = 0.0
+                m = top[y, x]
                 for j in range(f):
                     v = lut[img[row, x * f + j]]
                     s += v
-                    if v >= sat:
-                        clipped[x] = True
+                    if v > m:
+                        m = v
                 acc[x] += s
+                top[y, x] = m
         for x in range(ww):
-            out[y, x] = 2.0 * sat if clipped[x] else acc[x] * inv
+            out[y, x] = acc[x] * inv
 
 
 @_njit
@@ -356,22 +359,41 @@ def _reduce(
     the block-mean edge sits off the true one by a fraction of the block, and a tile on that
     edge read a false shift (1.8 px at the centre of the simulated 24 MP window bracket,
     whose registration is exact to 0.004 px: the pair was called misaligned and registered
-    again with the homography)."""
+    again with the homography). ``_mark(_block_stats(...), sat)``: the block sums do not
+    depend on ``sat`` (a saturation step takes them from the memo)."""
     a = np.asarray(img)
     if f == 1 and lut is None:
         return a.astype(np.float32, copy=False)
-    out = np.empty((a.shape[0] // f, a.shape[1] // f), np.float32)
-    s = float(sat)
+    return _mark(_block_stats(a, f, lut, workers), sat)
+
+
+def _block_stats(
+    img: np.ndarray, f: int, lut: np.ndarray | None, workers: int | None
+) -> tuple[np.ndarray, np.ndarray]:
+    """``f x f`` block means of ``img`` (or ``lut[img]``; float32) and each block's largest
+    value (float64, NaN skipped)."""
+    a = np.asarray(img)
+    shape = (a.shape[0] // f, a.shape[1] // f)
+    out = np.empty(shape, np.float32)
+    top = np.empty(shape, np.float64)
     if lut is not None:
         run_row_spans(
-            out.shape[0], workers, lambda r0, r1: _reduce_lut_rows(a, lut, f, s, out, r0, r1)
+            out.shape[0], workers, lambda r0, r1: _reduce_lut_rows(a, lut, f, out, top, r0, r1)
         )
     else:
         src = a if a.dtype in (np.float32, np.float64) else a.astype(np.float32)
         run_row_spans(
-            out.shape[0], workers, lambda r0, r1: _reduce_float_rows(src, f, s, out, r0, r1)
+            out.shape[0], workers, lambda r0, r1: _reduce_float_rows(src, f, out, top, r0, r1)
         )
-    return out
+    return out, top
+
+
+def _mark(stats: tuple[np.ndarray, np.ndarray], sat: float) -> np.ndarray:
+    """:func:`_block_stats`' means with every block whose largest value is at or above ``sat``
+    set to ``2 * sat`` (a block whose mean is NaN stays NaN)."""
+    mean, top = stats
+    clipped = (top >= np.float64(sat)) & (mean == mean)
+    return np.where(clipped, np.float32(2.0 * float(sat)), mean)
 
 
 def _warp(
@@ -1103,14 +1125,18 @@ def residual_motion(
     lut_k = table_key(lut) if memo is not None else None
 
     def reduced(src: np.ndarray, sat: float) -> np.ndarray:
-        key = ("reduce", array_key(src), f, lut_k, float(sat))
+        if f == 1 and lut is None:
+            return _reduce(src, f, lut, nw, sat)
+        # the block sums and maxima do not depend on sat: a saturation step, and a frame that
+        # is the dark one of a pair and the bright one of the next, sum its blocks once
+        key = ("blocks", array_key(src), f, lut_k)
         hit = None if memo is None else memo.get(key)
         if hit is not None:
-            return hit[1]
-        out = _reduce(src, f, lut, nw, sat)
+            return _mark(hit[1], sat)
+        stats = _block_stats(src, f, lut, nw)
         if memo is not None:
-            memo[key] = (src, out)
-        return out
+            memo[key] = (src, stats)
+        return _mark(stats, sat)
 
     al = reduced(a, float(saturation) / max(float(ratio), 1.0))
     bl = reduced(b, float(saturation))
