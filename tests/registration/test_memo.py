@@ -59,7 +59,10 @@ def test_a_run_again_is_the_same_and_makes_only_what_changed(bracket, monkeypatc
     def run(threshold: float, floor: int, with_memo: bool, sat: float = 0.97):
         views = [f[..., 1] for f in sb.frames]  # new views each run: keyed by where pixels lie
         args = dict(
-            threshold=threshold, noise_floor=float(lut[floor]), saturation=float(lut[-1]) * sat, **kw
+            threshold=threshold,
+            noise_floor=float(lut[floor]),
+            saturation=float(lut[-1]) * sat,
+            **kw,
         )
         if not with_memo:
             return register_bracket(views, sb.ratios, **args)
