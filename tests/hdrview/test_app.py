@@ -416,3 +416,60 @@ def test_a_newer_request_goes_before_the_checks(app: InspectorApp, monkeypatch) 
     assert moved and finished == [230.0]
     res = app.session.result
     assert res is not None and res.params.saturation == 230.0 and not res.checks_pending
+
+
+def test_new_overlays_are_drawn_beside_the_merge(app: InspectorApp, monkeypatch) -> None:
+    """A step that registers again: its overlays are drawn on a thread of their own while the
+    full run goes on (the merge's compiled passes leave the GIL), and always before the result
+    is drawn; a failing drawing there reaches the page as the job's error."""
+    import threading
+    import time
+
+    from hdrview.session import Session
+
+    assert app.request_path("bracket")
+    assert app.wait_idle(60)
+    events: list[tuple[str, str, float]] = []
+    original_draw = type(app)._draw
+    original_run = Session.run
+
+    def draw(view, result, stages=None):
+        name = "result" if stages is None else "+".join(stages)
+        events.append((f"draw {name} start", threading.current_thread().name, time.perf_counter()))
+        if stages == ("registration",):
+            time.sleep(0.3)  # a slow drawing: the full run must not wait for it
+            if fail:
+                raise RuntimeError("overlay drawing failed")
+        original_draw(view, result, stages)
+        events.append((f"draw {name} end", threading.current_thread().name, time.perf_counter()))
+
+    def run(self, params, **kw):
+        full = kw.get("until") is None
+        if full:
+            events.append(("full run start", threading.current_thread().name, time.perf_counter()))
+        out = original_run(self, params, **kw)
+        if full:
+            events.append(("full run end", threading.current_thread().name, time.perf_counter()))
+        return out
+
+    monkeypatch.setattr(type(app), "_draw", draw)
+    monkeypatch.setattr(Session, "run", run)
+    fail = False
+    app.set_control("threshold", 0.2)  # the registration's own parameter: registered again
+    assert app.wait_idle(60)
+    at = {what: (thread, t) for what, thread, t in events}
+    assert "draw registration start" in at and "draw result start" in at
+    drawer, worker = at["draw registration start"][0], at["full run start"][0]
+    assert drawer == "hdrview-draw-aside" and worker != drawer
+    # the full run started before the overlays were drawn, and the result came after them
+    assert at["full run start"][1] < at["draw registration end"][1]
+    assert at["draw registration end"][1] <= at["draw result start"][1]
+    assert not [n for n in app.notifications if n[0] == "error"]
+
+    events.clear()
+    fail = True
+    app.set_control("threshold", 0.3)
+    assert app.wait_idle(60)
+    errors = [n for n in app.notifications if n[0] == "error"]
+    assert errors and "overlay drawing failed" in " ".join(errors[-1][1:])
+    assert not any(what == "draw result start" for what, _, _ in events)
