@@ -1679,6 +1679,58 @@ def _frame_band_rows(
     )
 
 
+def _grid_sums_numpy(
+    lins: tuple[np.ndarray, ...], weights: tuple[np.ndarray, ...], gains: np.ndarray, qm: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`anchor_colour` step 2's sums over the frames on the grid: ``num_t`` the weighted
+    chromaticities of the frames (each frame's colours ``lins[k]`` divided by its ``gains[k]``),
+    ``num_m`` the merge's ``qm`` with the same weights, ``den`` the weights (the spec of
+    :func:`_grid_sums`)."""
+    m = qm.shape[0]
+    num_t = np.zeros((m, 3))
+    num_m = np.zeros((m, 3))
+    den = np.zeros(m)
+    for k in range(len(lins)):
+        lin = lins[k] / gains[k]
+        wk = weights[k]
+        s = _sum3(lin)
+        q = lin / np.where(s > 0, s, 1.0)[:, None]
+        num_t += wk[:, None] * q
+        num_m += wk[:, None] * qm
+        den += wk
+    return num_t, num_m, den
+
+
+@_njit
+def _grid_sums(lins, weights, gains, qm):  # pragma: no cover - compiled
+    """:func:`_grid_sums_numpy` in one pass over the cells, the same operations in the same
+    order (the same sums to the bit): 24 MP sRGB bench bracket (240,000 cells, 3 frames)
+    55 -> 5 ms, on the merge's path to the picture."""
+    m = qm.shape[0]
+    num_t = np.zeros((m, 3))
+    num_m = np.zeros((m, 3))
+    den = np.zeros(m)
+    for k in range(len(lins)):
+        lin = lins[k]
+        wts = weights[k]
+        g0, g1, g2 = gains[k, 0], gains[k, 1], gains[k, 2]
+        for i in range(m):
+            a0 = lin[i, 0] / g0
+            a1 = lin[i, 1] / g1
+            a2 = lin[i, 2] / g2
+            s = a0 + a1 + a2
+            d = s if s > 0 else 1.0
+            wk = wts[i]
+            num_t[i, 0] += wk * (a0 / d)
+            num_t[i, 1] += wk * (a1 / d)
+            num_t[i, 2] += wk * (a2 / d)
+            num_m[i, 0] += wk * qm[i, 0]
+            num_m[i, 1] += wk * qm[i, 1]
+            num_m[i, 2] += wk * qm[i, 2]
+            den[i] += wk
+    return num_t, num_m, den
+
+
 def anchor_colour(
     radiance: np.ndarray,
     frames: Sequence[np.ndarray],
@@ -1841,23 +1893,13 @@ def anchor_colour(
             if np.all(np.isfinite(med)) and np.all(med > 0):
                 frame_gains[k] = med / med[1]
 
-    ref_weight = None
-    num_t = np.zeros((ys.size, 3))
-    num_m = np.zeros((ys.size, 3))
-    den = np.zeros(ys.size)
-    shares_out = []
-    for k in range(len(frames)):
-        lin = lins[k] / frame_gains[k]
-        wk = weights[k]
-        if k == reference:
-            wk = wk * REFERENCE_BOOST
-            ref_weight = wk
-        s = _sum3(lin)
-        q = lin / np.where(s > 0, s, 1.0)[:, None]
-        num_t += wk[:, None] * q
-        num_m += wk[:, None] * qm
-        den += wk
-        shares_out.append(float(wk.sum()))
+    if reference is not None:
+        weights[reference] = weights[reference] * REFERENCE_BOOST
+    ref_weight = None if reference is None else weights[reference]
+    shares_out = [float(wk.sum()) for wk in weights]
+    num_t, num_m, den = (_grid_sums if AVAILABLE else _grid_sums_numpy)(
+        tuple(lins), tuple(weights), np.asarray(frame_gains, np.float64), qm
+    )
 
     def blur(a: np.ndarray) -> np.ndarray:
         return ndimage.gaussian_filter(a.reshape(shape), ANCHOR_BLUR, mode="nearest").ravel()

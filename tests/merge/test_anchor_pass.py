@@ -86,3 +86,20 @@ def test_one_pass_equals_every_step_on_every_pixel(
     # the pixels whose steps 1-2 were skipped differ by the rounding of their luminance only
     np.testing.assert_allclose(fast, spec, rtol=2e-5, atol=1e-7)
     assert not np.array_equal(fast, np.asarray(res.radiance))
+
+
+def test_grid_sums_compiled_equal_the_numpy_spec():
+    """Step 2's sums over the grid (compiled, one pass over the cells) are the numpy spec's to
+    the bit: frames with colourless cells (sum 0), zero weights and per-frame gains."""
+    rng = np.random.default_rng(3)
+    m, n = 5000, 3
+    lins = tuple(rng.uniform(0.0, 1.0, (m, 3)) for _ in range(n))
+    lins[1][:50] = 0.0  # no colour: divided by 1
+    weights = tuple(np.where(rng.random(m) < 0.3, 0.0, rng.random(m)) for _ in range(n))
+    gains = rng.uniform(0.8, 1.25, (n, 3))
+    qm = rng.dirichlet((1.0, 1.0, 1.0), m)
+    got = cc._grid_sums(lins, weights, gains, qm)
+    want = cc._grid_sums_numpy(lins, weights, gains, qm)
+    for g, w in zip(got, want, strict=True):
+        np.testing.assert_array_equal(g, w)
+    assert np.any(got[2] == 0) and np.any(got[2] > 0) and np.any(got[0][:50] > 0)
