@@ -158,7 +158,8 @@ def test_exports_and_bundle(viewer, stage_result, sim_bracket) -> None:
     with zipfile.ZipFile(io.BytesIO(viewer.bundle_bytes())) as zf:
         png = Image.open(io.BytesIO(zf.read("btf-equations.png")))
         assert png.size == (960, 600)
-        assert len(set(png.convert("RGB").getdata())) > 3  # something was drawn
+        rgb = np.asarray(png.convert("RGB")).reshape(-1, 3)
+        assert len(np.unique(rgb, axis=0)) > 3  # something was drawn
 
 
 def test_waiting_notes_without_a_result(viewer, sim_bracket) -> None:
