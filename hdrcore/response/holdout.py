@@ -32,6 +32,7 @@ __all__ = [
     "COLOUR_LEVELS",
     "FOLD_GRID",
     "colour_consistency",
+    "colour_pairs",
     "fold_masks",
     "heldout_residual",
     "pair_residuals",
@@ -135,25 +136,43 @@ def sample_levels(
     return out
 
 
+def colour_pairs(
+    levels: Sequence[np.ndarray], max_level: int, well: tuple[float, float] = COLOUR_LEVELS
+) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The consecutive frames' levels (clipped to ``0..max_level``) at the pixels whose
+    channels are all inside ``well`` of the range in both, per pair with at least 50 of them:
+    what :func:`colour_consistency` reads for every curve it scores (made once for them all:
+    the real Pixel 7's response selection scores seven curves)."""
+    m = int(max_level)
+    lo, hi = well[0] * m, well[1] * m
+    out = []
+    for a, b in zip(levels[:-1], levels[1:], strict=True):
+        ok = np.all((a > lo) & (a < hi) & (b > lo) & (b < hi), axis=-1)
+        if ok.sum() < 50:
+            continue
+        out.append((np.clip(a[ok], 0, m), np.clip(b[ok], 0, m)))
+    return out
+
+
 def colour_consistency(
-    g: np.ndarray, levels: Sequence[np.ndarray], well: tuple[float, float] = COLOUR_LEVELS
+    g: np.ndarray,
+    levels: Sequence[np.ndarray],
+    well: tuple[float, float] = COLOUR_LEVELS,
+    pairs: list[tuple[np.ndarray, np.ndarray]] | None = None,
 ) -> float:
     """How well curve ``g`` gives a pixel one colour in consecutive frames: the median over
     the pairs of the median rg-chromaticity distance between the two linearised frames, over
     pixels whose channels are all inside ``well`` of the range in both (NaN: too few, or not
     three channels). A right response leaves only noise; a wrong shape or channels that
-    disagree tint a pixel differently at different exposures."""
+    disagree tint a pixel differently at different exposures. ``pairs``: :func:`colour_pairs`
+    of the same ``levels``, ``well`` and ``g``'s range, when made already."""
     g = np.atleast_2d(np.asarray(g, dtype=np.float64))
     if g.shape[0] != 3 or len(levels) < 2 or levels[0].shape[-1] != 3:
         return float("nan")
-    m = g.shape[1] - 1
-    lo, hi = well[0] * m, well[1] * m
+    if pairs is None:
+        pairs = colour_pairs(levels, g.shape[1] - 1, well)
     meds = []
-    for a, b in zip(levels[:-1], levels[1:], strict=True):
-        ok = np.all((a > lo) & (a < hi) & (b > lo) & (b < hi), axis=-1)
-        if ok.sum() < 50:
-            continue
-        za, zb = np.clip(a[ok], 0, m), np.clip(b[ok], 0, m)
+    for za, zb in pairs:
         la = np.stack([g[c][za[:, c]] for c in range(3)], axis=-1)
         lb = np.stack([g[c][zb[:, c]] for c in range(3)], axis=-1)
         sa = la.sum(axis=-1, keepdims=True)

@@ -41,7 +41,13 @@ from ..errors import EstimationError, ParameterError
 from ..histogram import histograms
 from .curve import ResponseCurve
 from .degeneracy import Degeneracy, degeneracy
-from .holdout import colour_consistency, fold_masks, pair_residuals, sample_levels
+from .holdout import (
+    colour_consistency,
+    colour_pairs,
+    fold_masks,
+    pair_residuals,
+    sample_levels,
+)
 from .joint import (
     DEFAULT_SMOOTHING,
     JOINT_MODELS,
@@ -326,8 +332,16 @@ def select_response(
                 )
             except ParameterError:
                 pooled[fam] = None
-    colour = {m: colour_consistency(f.g, sampled) for m, f in full_fits.items()}
-    colour.update({fam: colour_consistency(c.g, sampled) for fam, c in family_curves.items()})
+    made: dict[int, list] = {}  # the pixels compared, per curve length: made once
+
+    def consistency(g: np.ndarray) -> float:
+        m = np.atleast_2d(np.asarray(g)).shape[1] - 1
+        if m not in made:
+            made[m] = colour_pairs(sampled, m)
+        return colour_consistency(g, sampled, pairs=made[m])
+
+    colour = {m: consistency(f.g) for m, f in full_fits.items()}
+    colour.update({fam: consistency(c.g) for fam, c in family_curves.items()})
     colour["srgb"] = colour_consistency(srgb.g, sampled)
 
     # the channel model: the simplest unless a richer one explains held-back pairs better by
