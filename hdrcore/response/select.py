@@ -342,7 +342,7 @@ def select_response(
 
     colour = {m: consistency(f.g) for m, f in full_fits.items()}
     colour.update({fam: consistency(c.g) for fam, c in family_curves.items()})
-    colour["srgb"] = colour_consistency(srgb.g, sampled)
+    colour["srgb"] = consistency(srgb.g)
 
     # the channel model: the simplest unless a richer one explains held-back pairs better by
     # SEPARATE_GAIN without giving pixels less consistent colours
