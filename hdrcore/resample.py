@@ -77,7 +77,7 @@ def downsample_area(image: np.ndarray, factor: int, workers: int | None = None) 
         raise ParameterError(
             "image smaller than the downsampling factor", found=f"{h}x{w} for factor {f}"
         )
-    if AVAILABLE and img.dtype in (np.float32, np.float64):
+    if AVAILABLE and img.dtype in (np.float32, np.float64, np.uint8, np.uint16):
         src = img if img.ndim == 3 else img[..., None]
         out = np.empty((hh, ww, src.shape[2]), np.float32)
         run_row_spans(hh, workers, lambda r0, r1: _area_rows(src, f, out, r0, r1))

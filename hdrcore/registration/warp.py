@@ -41,7 +41,8 @@ __all__ = ["WarpResult", "warp", "warp_to_reference", "valid_mask"]
 
 @dataclass(frozen=True, eq=False)
 class WarpResult:
-    """A warped image (float32, ``fill`` outside) and its validity mask (True inside)."""
+    """A warped image (float32, ``fill`` outside, or the frame's edge extended) and its validity
+    mask (True inside)."""
 
     image: np.ndarray = field(repr=False)
     mask: np.ndarray = field(repr=False)
@@ -205,7 +206,7 @@ def warp(
     matrix: np.ndarray,
     output_shape: tuple[int, int] | None = None,
     *,
-    fill: float = np.nan,
+    fill: float | None = np.nan,
     margin: float = 0.0,
 ) -> WarpResult:
     """Resample ``image`` (``(H, W)`` or ``(H, W, C)``) at ``matrix @ (x, y, 1)`` per output pixel.
@@ -215,7 +216,10 @@ def warp(
     (``method`` ``"integer"`` / ``"shear"``); every other matrix direct Keys cubic convolution
     (``"cubic"``, compiled: :func:`~hdrcore.registration._kernels.warp_rows`). Pixels whose
     source lies outside the frame (by
-    ``margin``) get ``fill`` and ``mask`` False.
+    ``margin``) get ``fill`` and ``mask`` False; ``fill=None`` leaves them what the resampling
+    gives there, the frame's edge extended (the taps are clamped to the frame: an edge pixel
+    repeated outward along the source's rows and columns; NaN only where the perspective
+    divide fails).
     """
     img = np.asarray(image)
     if img.ndim not in (2, 3):
@@ -255,7 +259,8 @@ def warp(
         i2 = _y_pass(i1, np.arange(x2.size), sy - y1_0, h)
         out = _x_pass(i2, np.arange(h), sx - x2_0, w)
     lo, hi = _row_intervals(m, (h, w), (h0, w0), margin)
-    for y in np.flatnonzero((lo > 0) | (hi < w - 1)):  # fill outside the valid interval
+    for y in np.flatnonzero((lo > 0) | (hi < w - 1)) if fill is not None else ():
+        # fill outside the valid interval
         if lo[y] > hi[y]:
             out[y] = fill
         else:

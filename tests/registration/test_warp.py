@@ -130,3 +130,39 @@ def test_direct_warp_kernel_matches_its_spec():
     assert np.isnan(ref).any() and np.isfinite(ref).mean() > 0.5
     np.testing.assert_array_equal(np.isnan(got), np.isnan(ref))
     np.testing.assert_allclose(got, ref, rtol=0, atol=2e-6, equal_nan=True)
+
+
+@pytest.mark.parametrize(
+    "matrix",
+    [
+        np.array([[1.0, 0.0, 4.0], [0.0, 1.0, -3.0]]),  # a shift: the shear passes
+        rigid_matrix(2.5, -1.5, 2.0, (40, 60)),  # a rotation: the shear passes
+        np.array([[1.02, 0.01, 3.0], [-0.01, 0.99, -2.0], [1e-5, 2e-5, 1.0]]),  # compiled cubic
+    ],
+)
+def test_fill_none_extends_the_frame_edge_and_keeps_the_pixels_inside(matrix) -> None:
+    # The exposure fusion's warp (hdrcore.merge.fusion): outside the frame's reach its edge
+    # extended, continuous with the inside, never a constant; inside the same pixels and mask.
+    yy, xx = np.mgrid[0:40, 0:60].astype(np.float32)
+    img = np.stack([0.2 + 0.01 * xx, 0.3 + 0.01 * yy, 0.5 + 0.002 * (xx + yy)], axis=-1)
+    filled = warp(img, matrix, fill=np.nan)
+    extended = warp(img, matrix, fill=None)
+    inside = filled.mask
+    assert not inside.all() and inside.any()
+    np.testing.assert_array_equal(extended.mask, inside)
+    np.testing.assert_array_equal(extended.image[inside], filled.image[inside])
+    assert np.isfinite(extended.image).all()
+    # continuous across the edge of the frame's reach: neighbours differ by about one step of
+    # the ramp (0.01 a pixel along x or y), as inside; a constant fill would jump
+    for axis in (0, 1):
+        step = np.abs(np.diff(extended.image, axis=axis)).max()
+        assert step < 0.02
+
+
+def test_fill_none_repeats_the_edge_pixels_under_a_whole_pixel_shift() -> None:
+    img = np.random.default_rng(3).random((30, 50, 3)).astype(np.float32)
+    res = warp(img, np.array([[1.0, 0.0, 4.0], [0.0, 1.0, -3.0]]), fill=None)  # src = out + (4, -3)
+    ys = np.clip(np.arange(30) - 3, 0, 29)
+    xs = np.clip(np.arange(50) + 4, 0, 49)
+    np.testing.assert_array_equal(res.image, img[ys][:, xs])
+    assert not res.mask[:3].any() and not res.mask[:, -4:].any() and res.mask[3:, :-4].all()
