@@ -1877,7 +1877,7 @@ def _merge_frames(
         masks=masks,
         saturation_level=_level(p.saturation),
         noise_floor=_level(p.noise_floor),
-        weighting="noise-aware" if lut is None else "hat",
+        weighting="noise-aware" if lut is None else "hat-noise-aware",
         noise=noise,
         transforms=transforms,
         fields=None

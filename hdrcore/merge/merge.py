@@ -227,8 +227,10 @@ def merge(
         A sample at or below it gets zero weight in its channel; same units as
         ``saturation_level``. Default 0.
     weighting
-        A name in :data:`hdrcore.merge.weights.WEIGHTS`; default ``"hat"`` with a response LUT
-        (non-linear data), else ``"noise-aware"`` (linear data).
+        A name in :data:`hdrcore.merge.weights.WEIGHTS`; default ``"hat-noise-aware"`` with a
+        response LUT (non-linear data; ``"hat"`` before 2026-12-07, see
+        :func:`~hdrcore.merge.weights.weight_hat_noise_aware`), else ``"noise-aware"`` (linear
+        data).
     noise
         :class:`NoiseModel` for the noise-aware weight and the ghost test.
     ghost_threshold, model_error

@@ -305,7 +305,7 @@ def make_plan(
         )
 
     if weighting is None:
-        weighting = "hat" if lut is not None else "noise-aware"
+        weighting = "hat-noise-aware" if lut is not None else "noise-aware"
     weighting = validate_method(weighting, WEIGHTS, "weighting")
     noise = noise or NoiseModel()
     if not isinstance(noise, NoiseModel):

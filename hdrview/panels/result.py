@@ -5,6 +5,7 @@ Everything drawn comes from the pipeline's preview and :class:`hdrcore.merge.Mer
 
 from __future__ import annotations
 
+import html
 import tempfile
 import threading
 from pathlib import Path
@@ -46,6 +47,32 @@ _MASK_LAYERS = {  # layer -> (MergeResult attribute, colour, what it shows)
         "deghosted: filled from one frame (the best exposed in its ghost region)",
     ),
 }
+WEIGHTING_WORDS = {  # a merge weighting in a photographer's words, the paper's on hover
+    "hat": ("each frame counted by how well exposed the pixel is", "Debevec & Malik's hat"),
+    "gaussian": (
+        "each frame counted by how near mid-grey the pixel is",
+        "Robertson et al.'s Gaussian weight",
+    ),
+    "noise-aware": (
+        "each frame counted by its noise (longer exposures count more)",
+        "inverse-variance weight dt^2 / var, Granados et al. 2010",
+    ),
+    "hat-noise-aware": (
+        "each frame counted by its noise and by how well exposed the pixel is",
+        "Debevec & Malik's hat times the inverse variance dt^2 / var",
+    ),
+    "uniform": ("every frame counted alike", "uniform weight"),
+}
+
+
+def weighting_words(name: str) -> str:
+    """The merge's weighting in words (a sentence's start), the paper's term and the name in a
+    tooltip; an unknown weighting by its name."""
+    words, paper = WEIGHTING_WORDS.get(name, (f"weighting {name}", f"weighting {name}"))
+    title = html.escape(f"{paper} ({name})", quote=True)
+    return f'<abbr title="{title}">{html.escape(words[:1].upper() + words[1:])}</abbr>'
+
+
 FRAME_COLOURS = (
     (31, 119, 180),
     (255, 127, 14),
@@ -204,7 +231,8 @@ class ResultPanel:
             )
             deghosted = merged.deghosted_fraction
             lines.append(
-                f"Merge **{merged.status}**: {merged.message}. Weighting {merged.weighting}; "
+                f"Merge **{merged.status}**: {merged.message}. "
+                f"{weighting_words(merged.weighting)}; "
                 f"clipped {merged.clipped_fraction:.2%}, under the noise floor "
                 f"{merged.underexposed_fraction:.2%}{ghosts}"
                 + (f" Deghosted {deghosted:.2%}." if deghosted is not None else "")

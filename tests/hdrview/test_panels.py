@@ -295,3 +295,21 @@ def test_registration_overlays_are_not_drawn_again_for_a_kept_registration(app) 
     assert app.wait_idle(120)
     assert app.session.result.registration is not after.registration
     assert len(drawn) > count
+
+
+def test_the_merge_weighting_is_said_in_words_with_its_term_on_hover() -> None:
+    import html
+
+    from hdrcore.merge.weights import WEIGHTS
+    from hdrview.panels.result import WEIGHTING_WORDS, weighting_words
+
+    assert set(WEIGHTS) <= set(WEIGHTING_WORDS)  # every weighting of the library has words
+    for name in WEIGHTS:
+        shown = weighting_words(name)
+        words, paper = WEIGHTING_WORDS[name]
+        assert shown.startswith('<abbr title="') and shown.endswith("</abbr>")
+        title = shown[len('<abbr title="') : shown.index('">')]
+        assert html.unescape(title) == f"{paper} ({name})"  # quotes and apostrophes escaped
+        assert '"' not in title and "'" not in title
+        assert html.unescape(shown[shown.index('">') + 2 : -len("</abbr>")]).lower() == words
+    assert "hat-noise-aware" in weighting_words("hat-noise-aware")

@@ -26,9 +26,16 @@ def test_noise_aware_weight_grows_with_exposure_time():
 
 
 def test_registry_and_dispatcher():
-    assert set(WEIGHTS) == {"hat", "gaussian", "noise-aware", "uniform"}
+    assert set(WEIGHTS) == {"hat", "gaussian", "noise-aware", "uniform", "hat-noise-aware"}
     z = np.array([0.5], np.float32)
     assert weights(z, z, 1.0, z, "Gaussian")[0] == pytest.approx(1.0)
+    # the triangle times dt^2 / var: level 0.25 -> 0.5; dt = 2, var = 0.5 -> x 8
+    q = np.array([0.25], np.float32)
+    v = np.array([0.5], np.float32)
+    assert weights(q, q, 2.0, v, "hat-noise-aware")[0] == pytest.approx(4.0)
+    assert weights(q, q, 2.0, v, "hat-noise-aware")[0] == pytest.approx(
+        weights(q, q, 2.0, v, "hat")[0] * weights(q, q, 2.0, v, "noise-aware")[0]
+    )
     with pytest.raises(ParameterError, match="unknown weighting method 'box'"):
         weights(z, z, 1.0, z, "box")
     with pytest.raises(ParameterError, match="exposure time must be positive"):

@@ -87,3 +87,28 @@ def test_numba_cache_dir_still_wins(tmp_path: Path) -> None:
         assert locator == "UserProvidedCacheLocator", name
         assert Path(path).is_relative_to(chosen), (name, path)
     assert not (tmp_path / "xdg" / "hdrcore").exists()
+
+
+def test_a_kernels_cache_stamp_covers_every_module_of_the_package(tmp_path, monkeypatch) -> None:
+    # numba's own stamp is the function's file alone; a kernel that inlines a helper of another
+    # module (the merge kernel, the weightings of hdrcore.merge.weights) kept its stale machine
+    # code when only that module changed. The stamp holds a digest of every module.
+    from hdrcore import _numba
+    from hdrcore.merge import _fused
+
+    locator = _fused.merge_rows._cache._impl.locator
+    assert type(locator).__name__ == "UserCacheLocator"
+    stamp = locator.get_source_stamp()
+    assert stamp[1] == _numba.package_digest()
+    pkg = tmp_path / "pkg"
+    (pkg / "sub").mkdir(parents=True)
+    (pkg / "a.py").write_text("x = 1\n")
+    (pkg / "sub" / "b.py").write_text("def w(v):\n    return v\n")
+    monkeypatch.setattr(_numba, "PACKAGE", pkg)
+    digests = []
+    for text in ("def w(v):\n    return v\n", "def w(v):\n    return 2 * v\n"):
+        (pkg / "sub" / "b.py").write_text(text)
+        _numba.package_digest.cache_clear()
+        digests.append(_numba.package_digest())
+    _numba.package_digest.cache_clear()
+    assert digests[0] != digests[1]  # another module's change: another stamp
