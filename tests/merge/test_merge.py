@@ -29,7 +29,7 @@ def test_tripod_12bit_linear_median_error_below_one_percent(workers):
 def test_tripod_12bit_gamma_with_lut_median_error_below_one_percent():
     sb = bracket(bits=12, response="gamma", noise_sigma=1.0, seed=2)
     res = merge(sb.frames, sb.exposure_times, response=inverse_gamma_lut(sb.max_level))
-    assert res.weighting == "hat"
+    assert res.weighting == "hat-noise-aware"
     err = relative_error(res.radiance, sb)
     assert float(np.median(err[well_exposed(sb)])) <= 0.01
 

@@ -242,7 +242,10 @@ def test_anchoring_gives_every_frame_its_own_colour_where_it_is_best_exposed(
     ref_only = frame_colours(frames, old, **kw)
     np.testing.assert_allclose(rad @ LUMA.astype(np.float32), y_before, rtol=1e-4, atol=1e-7)
     assert done.own_colour_fraction > 0.5
-    assert max(f.best_error for f in plain) > 0.01
+    # the merge alone misses a frame's colour where it is the best exposed (0.007 with the
+    # default weighting, the triangle times dt^2 / var; 0.011 with the triangle alone, which
+    # mixed more of the other frames in), the anchored map meets every frame
+    assert max(f.best_error for f in plain) > 0.005
     assert max(f.best_error for f in own) < 0.002
     assert ref_only[1].well_error < 1e-4  # the reference met exactly ...
     assert max(f.best_error for f in ref_only) > 0.005  # ... the frames around it missed
