@@ -195,11 +195,14 @@ class InspectorApp:
         page that opens it takes this session over (its result is then drawn at once).
 
         First of all, on the same thread, what the first page's build waits for
-        (:func:`_prepare_first_page`: the library's registries, 0.6-1.3 s of imports, plotly's
-        figure classes and viser's icons), while the browser evaluates the page's script: made
-        beside the decode, both ended later (the GIL) and the page was built behind them.
-        Measured (``bench_hdrview.py``'s first page, 6 alternating starts each, 2026-12-07):
-        page ready median 3.17 -> 2.83 s, result drawn 4.13 -> 3.97 s."""
+        (:func:`hdrview.view.prepare_page_controls`: the library's registries, 0.6-1.3 s of
+        imports), while the browser evaluates the page's script; then the frames; then what the
+        page shows after them (:func:`hdrview.view.prepare_page_extras`: plotly's figure
+        classes and viser's icons, 0.25 s, which the page's build no longer waits for); then
+        the pipeline's run. Made beside the decode, both ended later (the GIL) and the page was
+        built behind them. Measured (``bench_hdrview.py``'s first page, 6 alternating starts
+        each, 2026-12-07): page ready median 3.17 -> 2.83 s, result drawn 4.13 -> 3.97 s; the
+        extras after the frames: see the README."""
         default = self.default_paths()
         inputs = None
         if default is not None:
@@ -221,14 +224,16 @@ class InspectorApp:
         t0 = time.perf_counter()
 
         def run() -> None:
-            _prepare_first_page()
+            _prepare_first_page("controls")
             session = Session(workers=self.workers)
             try:
                 # Then the frames (the page draws them from the shared cache as soon as they
-                # are decoded), then the pipeline's run.
+                # are decoded), what the page shows after them (plotly, the buttons' icons),
+                # then the pipeline's run.
                 session.load(
                     list(inputs.files), source=label, times=inputs.times, loader=self.brackets.get
                 )
+                _prepare_first_page("extras")
                 if not pipeline_available():  # imports it, off the thread that serves pages
                     return
                 _ = self.defaults
@@ -284,13 +289,23 @@ class InspectorApp:
         _LIVE.discard(self)
 
 
-def _prepare_first_page() -> None:
-    from .view import prepare_first_page
+def _prepare_first_page(part: str = "all") -> None:
+    """:func:`hdrview.view.prepare_first_page` (``"all"``), or its ``"controls"`` or
+    ``"extras"`` part."""
+    from . import view
 
+    make = {
+        "all": view.prepare_first_page,
+        "controls": view.prepare_page_controls,
+        "extras": view.prepare_page_extras,
+    }[part]
     try:
-        prepare_first_page()
+        make()
     except Exception:  # noqa: BLE001 -- the page reports a broken install when it opens
         log.debug("preparing the first page failed", exc_info=True)
+    finally:
+        if part != "controls":
+            view.ICONS_READ.set()  # a failure leaves no page waiting for them
 
 
 def _default_params() -> PipelineParams:

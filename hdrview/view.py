@@ -52,6 +52,7 @@ from .panels import masks as masks_panel
 from .panels import registration as registration_panel
 from .panels import response as response_panel
 from .panels import result as result_panel
+from .panels._draw import EMPTY_PLOT
 from .panels.frames import FramesPanel
 from .session import Controls, Session, pipeline_available
 from .uploads import UploadStore, install_upload_limits
@@ -146,22 +147,42 @@ BUTTON_ICONS: tuple[viser.IconName, ...] = (
 )
 
 
+ICONS_READ = threading.Event()
+"""Set once :func:`prepare_page_extras` has read :data:`BUTTON_ICONS`: a page built before
+that gets its buttons' icons when its first job ends (:meth:`ClientView._apply_icons`)."""
+
+
 def prepare_first_page() -> None:
-    """Make what building a page waits for the first time: the dropdowns' registries
-    (:func:`_registry_names`: ``hdrcore.pipeline`` and its modules, 0.4-0.7 s of imports),
-    plotly's figure classes (imported on first use, 0.15-0.2 s) and the buttons' icons
-    (:data:`BUTTON_ICONS`, 0.2-0.5 s). The inspector's start-up thread calls it first, while
-    the browser evaluates the page's script (:meth:`hdrview.app.InspectorApp.warm_up`);
-    without it the first page's controls were built in 0.4-1.3 s instead of 0.05 s, after the
-    browser had connected."""
+    """Make what building a page waits for the first time: :func:`prepare_page_controls`,
+    then :func:`prepare_page_extras`."""
+    prepare_page_controls()
+    prepare_page_extras()
+
+
+def prepare_page_controls() -> None:
+    """The dropdowns' registries (:func:`_registry_names`: ``hdrcore.pipeline`` and its
+    modules, 0.4-0.7 s of imports), which building a page needs. The inspector's start-up
+    thread makes them first, while the browser evaluates the page's script
+    (:meth:`hdrview.app.InspectorApp.warm_up`); without them the first page's controls were
+    built in 0.4-1.3 s instead of 0.05 s, after the browser had connected."""
     _registry_names()
-    go.Figure().to_json()  # what each panel's empty plot does
+
+
+def prepare_page_extras() -> None:
+    """What a page shows after its frames: plotly's figure classes (0.1 s; the panels' plots
+    start empty without them, :data:`~hdrview.panels._draw.EMPTY_PLOT`) and the buttons'
+    icons (:data:`BUTTON_ICONS`, 0.15 s). The start-up thread makes them after the decode: a
+    page built before has its buttons without icons until its first job ends. Measured
+    (``bench_hdrview.py``'s first page, 2026-12-07): see the README."""
+    go.Figure().to_json()
     try:
         from viser._icons import svg_from_icon  # private: a later viser may move it
+
+        for icon in BUTTON_ICONS:
+            svg_from_icon(icon)
     except ImportError:
-        return
-    for icon in BUTTON_ICONS:
-        svg_from_icon(icon)
+        pass
+    ICONS_READ.set()
 
 
 @cache
@@ -284,6 +305,7 @@ class ClientView:
         self._plotly_sent = False
         self._plotly_due: float | None = None  # when the frames' page may take the script
         gui._setup_plotly_js = True  # viser's once-per-page flag
+        self._pending_icons: list[tuple[Any, viser.IconName]] = []
         self._build_gui()
         install_upload_limits(
             gui, app.server, self.upload_button, self.uploads.refuse_transfer, self._upload_refused
@@ -292,6 +314,22 @@ class ClientView:
             self._hide_webgl_toast()
 
     # -- GUI construction ------------------------------------------------------------------
+
+    def _iconed(self, add: Callable[..., T], label: str, icon: viser.IconName, **kw: Any) -> T:
+        """A button made by ``add`` with ``icon``, or without it until the icons are read (a
+        page built before :func:`prepare_page_extras` is done: :meth:`_apply_icons`)."""
+        ready = ICONS_READ.is_set() or self.client is None
+        handle = add(label, icon=icon if ready else None, **kw)
+        if not ready:
+            self._pending_icons.append((handle, icon))
+        return handle
+
+    def _apply_icons(self) -> None:
+        """The icons of buttons made before they were read."""
+        with self._lock:
+            pending, self._pending_icons = self._pending_icons, []
+        for handle, icon in pending:
+            handle.icon = icon
 
     def _build_gui(self) -> None:
         gui = self.gui
@@ -304,19 +342,21 @@ class ClientView:
             self.path_text = gui.add_text(
                 "Path", "", hint=f"files or a folder under {self.app.root}; separate files with ;"
             )
-            self.load_button = gui.add_button("Load", icon=viser.Icon.FOLDER_OPEN)
-            self.upload_button = gui.add_upload_button(
+            self.load_button = self._iconed(gui.add_button, "Load", viser.Icon.FOLDER_OPEN)
+            self.upload_button = self._iconed(
+                gui.add_upload_button,
                 "Upload frame or .zip",
-                icon=viser.Icon.UPLOAD,
+                viser.Icon.UPLOAD,
                 hint="one image per upload (two or more make a bracket) or a .zip of a bracket; "
                 + self.uploads.limits.describe(),
             )
-            self.new_set_button = gui.add_button(
+            self.new_set_button = self._iconed(
+                gui.add_button,
                 "New upload set",
-                icon=viser.Icon.TRASH,
+                viser.Icon.TRASH,
                 hint="the next uploaded frame starts a new bracket",
             )
-            self.demo_button = gui.add_button("Demo bracket", icon=viser.Icon.PHOTO)
+            self.demo_button = self._iconed(gui.add_button, "Demo bracket", viser.Icon.PHOTO)
             self.status = gui.add_markdown("No bracket loaded.")
             self.progress = gui.add_progress_bar(0.0, visible=False, animated=True)
             self.progress_md = gui.add_markdown("", visible=False)
@@ -394,7 +434,9 @@ class ClientView:
                 hint="JPEG/PNG/TIFF: divide out a frame's white balance where it differs from "
                 "the reference frame's by more than 3 % (measured and reported either way)",
             )
-            self.reset_button = gui.add_button("Reset to defaults", icon=viser.Icon.REFRESH)
+            self.reset_button = self._iconed(
+                gui.add_button, "Reset to defaults", viser.Icon.REFRESH
+            )
 
         with gui.add_folder("View"):
             self.pair_dropdown = gui.add_dropdown("Pair", ("—",))
@@ -417,10 +459,12 @@ class ClientView:
                 hint="export only the largest rectangle every frame covers (hand-held "
                 "brackets: the border strips have fewer exposures)",
             )
-            self.export_exr_button = gui.add_button("HDR (.exr)", icon=viser.Icon.DOWNLOAD)
-            self.export_png_button = gui.add_button("Preview (.png)", icon=viser.Icon.DOWNLOAD)
-            self.export_bundle_button = gui.add_button(
-                "Diagnostics bundle (.zip)", icon=viser.Icon.DOWNLOAD
+            self.export_exr_button = self._iconed(gui.add_button, "HDR (.exr)", viser.Icon.DOWNLOAD)
+            self.export_png_button = self._iconed(
+                gui.add_button, "Preview (.png)", viser.Icon.DOWNLOAD
+            )
+            self.export_bundle_button = self._iconed(
+                gui.add_button, "Diagnostics bundle (.zip)", viser.Icon.DOWNLOAD
             )
 
         self.panel = gui.add_panel()
@@ -517,7 +561,7 @@ class ClientView:
             self.gui._setup_plotly_js = False
             # viser's own path: the first add_plotly of a page sends the script (the element
             # is an empty, hidden plot at the end of the page)
-            self.gui.add_plotly(go.Figure(), visible=False)
+            self.gui.add_plotly(EMPTY_PLOT, visible=False)
             self._plotly_sent = True
 
     def _frames_drawn(self, delay: float = PLOTLY_DELAY) -> None:
@@ -741,7 +785,16 @@ class ClientView:
     # -- the job -----------------------------------------------------------------------------
 
     def _submit(self, label: str) -> int:
-        return self.worker.submit(self._reconcile, on_error=self._report_error, label=label)
+        return self.worker.submit(self._job, on_error=self._report_error, label=label)
+
+    def _job(self, ctx: JobContext) -> None:
+        """:meth:`_reconcile`, then the icons of buttons built before they were read (a page
+        that connected early: :meth:`_iconed`)."""
+        try:
+            self._reconcile(ctx)
+        finally:
+            if self._pending_icons:
+                self._apply_icons()
 
     def _on_progress(self, fraction: float, text: str) -> None:
         _assign(self.progress, round(100.0 * fraction, 1))
@@ -777,6 +830,8 @@ class ClientView:
                     self.frames_panel.show(early)
                     self._drawn_bracket = early
                     self._frames_drawn()
+                    if self._pending_icons and ICONS_READ.is_set():
+                        self._apply_icons()  # read meanwhile: at once, after the frames
                     self.status.content = f"**{label}**: {len(early)} frames; processing..."
                 warm = self.app.take_warm(files, times)  # decoded and run at start
                 if warm is not None:

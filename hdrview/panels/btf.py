@@ -15,7 +15,7 @@ import viser
 
 from hdrcore.io import Bracket
 
-from ._draw import fmt
+from ._draw import EMPTY_PLOT, fmt
 
 if TYPE_CHECKING:  # the library's stages are imported on first use, not with the page
     from hdrcore.exposure import ExposureRatioResult
@@ -191,7 +191,7 @@ class BtfPanel:
     def __init__(self, gui: viser.GuiApi) -> None:
         self._gui = gui
         self.summary = gui.add_markdown("No bracket loaded.")
-        empty = go.Figure()
+        empty = EMPTY_PLOT
         # viser's aspect is height / width: plots wider than tall, so a tab fits one screen.
         self.scatter = gui.add_plotly(empty, aspect=0.62, visible=False)
         self.transfer = gui.add_plotly(empty, aspect=0.55, visible=False)

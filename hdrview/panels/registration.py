@@ -16,7 +16,7 @@ import viser
 from hdrcore.errors import InputError
 from hdrcore.io import Bracket, Frame, encode_png
 
-from ._draw import enlarge, fmt, scalar_to_rgb, unit_to_display
+from ._draw import EMPTY_PLOT, enlarge, fmt, scalar_to_rgb, unit_to_display
 
 if TYPE_CHECKING:  # the library's stages are imported on first use, not with the page
     from hdrcore.pipeline import PipelineResult
@@ -298,7 +298,7 @@ class RegistrationPanel:
         self._blink_thread: threading.Thread | None = None
         for handle in (self.show_dropdown, self.zoom, self.centre_x, self.centre_y, self.arrows):
             handle.on_update(lambda _e: self._redraw())
-        self.costs = gui.add_plotly(go.Figure(), aspect=0.45, visible=False)  # height / width
+        self.costs = gui.add_plotly(EMPTY_PLOT, aspect=0.45, visible=False)  # height / width
         self._images: dict[str, np.ndarray] = {}
         self._figure: go.Figure | None = None
 

@@ -15,7 +15,7 @@ import viser
 
 from hdrcore.io import Bracket
 
-from ._draw import fmt, md_table
+from ._draw import EMPTY_PLOT, fmt, md_table
 from .white_balance import WhiteBalancePanel
 
 if TYPE_CHECKING:  # the library's stages are imported on first use, not with the page
@@ -160,7 +160,7 @@ class ResponsePanel:
 
     def __init__(self, gui: viser.GuiApi) -> None:
         self.summary = gui.add_markdown("No bracket loaded.")
-        empty = go.Figure()
+        empty = EMPTY_PLOT
         self.curves = gui.add_plotly(empty, aspect=0.55, visible=False)  # height / width
         self.residuals = gui.add_plotly(empty, aspect=0.45, visible=False)
         self.table = gui.add_markdown("")

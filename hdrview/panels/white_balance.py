@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 import plotly.graph_objects as go
 import viser
 
-from ._draw import md_table
+from ._draw import EMPTY_PLOT, md_table
 
 if TYPE_CHECKING:
     from hdrcore.io import Bracket
@@ -253,7 +253,7 @@ class WhiteBalancePanel:
     """Plot, table and verdicts of the frames' white balance (hidden for RAW input)."""
 
     def __init__(self, gui: viser.GuiApi) -> None:
-        self.plot = gui.add_plotly(go.Figure(), aspect=0.5, visible=False)  # height / width
+        self.plot = gui.add_plotly(EMPTY_PLOT, aspect=0.5, visible=False)  # height / width
         self.text = gui.add_markdown("")
         self.figure: go.Figure | None = None
 

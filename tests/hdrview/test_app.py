@@ -252,9 +252,10 @@ def test_the_first_page_finds_its_icons_read(
 def test_the_start_up_thread_prepares_the_first_page_before_decoding(
     bracket_root: Path, monkeypatch: pytest.MonkeyPatch, with_default: bool
 ) -> None:
-    """The start-up thread makes what the first page's build waits for first, then decodes the
-    default bracket (beside each other both ended later and the page was built behind them);
-    without a default bracket it still prepares the page."""
+    """The start-up thread makes what the first page's build waits for first (the controls'
+    registries), then decodes the default bracket (beside each other both ended later and the
+    page was built behind them), then what the page shows after its frames (plotly, the
+    buttons' icons); without a default bracket it still prepares the whole page."""
     import threading
 
     import viser
@@ -265,9 +266,10 @@ def test_the_start_up_thread_prepares_the_first_page_before_decoding(
     events: list[str] = []
     prepared = threading.Event()
 
-    def prepare() -> None:
-        events.append("prepare")
-        prepared.set()
+    def prepare(part: str = "all") -> None:
+        events.append(f"prepare {part}")
+        if part != "controls":
+            prepared.set()
 
     original_load = Session.load
 
@@ -286,9 +288,9 @@ def test_the_start_up_thread_prepares_the_first_page_before_decoding(
         if with_default:
             assert inspector._warm is not None
             inspector._warm[1].join(120)
-            assert events[:2] == ["prepare", "decode"]
+            assert events[:3] == ["prepare controls", "decode", "prepare extras"]
         else:
-            assert events == ["prepare"]
+            assert events == ["prepare all"]
     finally:
         inspector.stop()
         server.stop()
@@ -473,3 +475,37 @@ def test_new_overlays_are_drawn_beside_the_merge(app: InspectorApp, monkeypatch)
     errors = [n for n in app.notifications if n[0] == "error"]
     assert errors and "overlay drawing failed" in " ".join(errors[-1][1:])
     assert not any(what == "draw result start" for what, _, _ in events)
+
+
+def test_buttons_built_before_the_icons_are_read_get_them_when_the_job_ends(monkeypatch) -> None:
+    """A page that connects while the start-up thread still reads viser's icons is built at
+    once, its buttons without icons; they get their icons when its first job ends."""
+    import threading
+    from types import SimpleNamespace
+
+    import viser
+
+    from hdrview import view as view_module
+
+    ready = threading.Event()
+    monkeypatch.setattr(view_module, "ICONS_READ", ready)
+    page = SimpleNamespace(client=object(), _pending_icons=[], _lock=threading.Lock())
+    made: list[SimpleNamespace] = []
+
+    def add(label: str, icon=None, **kw) -> SimpleNamespace:
+        made.append(SimpleNamespace(label=label, icon=icon, kw=kw))
+        return made[-1]
+
+    ClientView = view_module.ClientView
+    b = ClientView._iconed(page, add, "Load", viser.Icon.FOLDER_OPEN, hint="h")
+    assert b.icon is None and b.kw == {"hint": "h"}
+    assert page._pending_icons == [(b, viser.Icon.FOLDER_OPEN)]
+    ClientView._apply_icons(page)
+    assert b.icon == viser.Icon.FOLDER_OPEN and page._pending_icons == []
+    ready.set()  # read: made with the icon at once
+    c = ClientView._iconed(page, add, "Demo", viser.Icon.PHOTO)
+    assert c.icon == viser.Icon.PHOTO and page._pending_icons == []
+    headless = SimpleNamespace(client=None, _pending_icons=[], _lock=threading.Lock())
+    ready.clear()  # a view without a page never waits
+    d = ClientView._iconed(headless, add, "Reset", viser.Icon.REFRESH)
+    assert d.icon == viser.Icon.REFRESH
