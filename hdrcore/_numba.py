@@ -55,7 +55,7 @@ except ImportError:  # pragma: no cover - exercised only without numba
 @functools.cache
 def package_digest() -> str:
     """A digest of every ``.py`` file of the package (paths and contents), made once per
-    process (about 5 ms): part of each compiled kernel's cache stamp, so a change to any
+    process (9 ms on this machine): part of each compiled kernel's cache stamp, so a change to any
     module (an inlined helper of another file) compiles the kernels again."""
     h = hashlib.blake2b(digest_size=16)
     for path in sorted(PACKAGE.rglob("*.py")):

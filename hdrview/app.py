@@ -303,9 +303,6 @@ def _prepare_first_page(part: str = "all") -> None:
         make()
     except Exception:  # noqa: BLE001 -- the page reports a broken install when it opens
         log.debug("preparing the first page failed", exc_info=True)
-    finally:
-        if part != "controls":
-            view.ICONS_READ.set()  # a failure leaves no page waiting for them
 
 
 def _default_params() -> PipelineParams:

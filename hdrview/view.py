@@ -174,15 +174,16 @@ def prepare_page_extras() -> None:
     icons (:data:`BUTTON_ICONS`, 0.15 s). The start-up thread makes them after the decode: a
     page built before has its buttons without icons until its first job ends. Measured
     (``bench_hdrview.py``'s first page, 2026-12-07): see the README."""
-    go.Figure().to_json()
     try:
+        go.Figure().to_json()
         from viser._icons import svg_from_icon  # private: a later viser may move it
 
         for icon in BUTTON_ICONS:
             svg_from_icon(icon)
     except ImportError:
         pass
-    ICONS_READ.set()
+    finally:  # also after a failure: no page waits for them
+        ICONS_READ.set()
 
 
 @cache

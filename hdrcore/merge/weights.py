@@ -147,17 +147,14 @@ def weight_hat_noise_aware(level, linear, exposure_time_sq, variance):  # noqa: 
 
     The triangle alone weighs a sample by its level only, so a frame 128 times shorter counts
     as much as a long one at the same level: one level above the noise floor in a 1/512 s frame
-    (mostly film base or noise, times 512) outweighed the long frames at 0.7 % of the pixels of
-    Debevec's memorial bracket, bright specks 10-100 times their neighbours (isolated specks:
-    259 with the triangle, 14 with this weight). The inverse variance (``var(x)`` through the
+    (mostly film base or noise, times 512) outweighed the long frames of Debevec's memorial
+    bracket, bright specks 10-100 times their neighbours (isolated specks: 259 with the
+    triangle, 14 with this weight). The inverse variance (``var(x)`` through the
     response's slope, :class:`NoiseModel`) gives each frame what its noise is worth; the
     triangle keeps the weight falling smoothly to the clipping level, where the inverse
     variance alone would switch frames between neighbouring pixels (a JPEG response is a few
     per cent off: the frobisher chart's bright patches broke up into blocks)."""
-    w = level * np.float32(2.0)
-    w = w - np.float32(1.0)
-    w = np.float32(1.0) - abs(w)
-    return w * (exposure_time_sq / variance)
+    return _hat(level, linear, exposure_time_sq, variance) * (exposure_time_sq / variance)
 
 
 _BUILT_IN = (
