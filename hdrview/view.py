@@ -214,6 +214,14 @@ def _unmark(text: str) -> str:
     return text.split(DEFAULT_MARK)[0]
 
 
+def _decimals(x: float) -> int:
+    """Decimal places ``x`` needs to be shown exactly, up to 6 (12 -> 0, 247.35 -> 2)."""
+    digits = 0
+    while digits < 6 and float(x) != round(float(x), digits):
+        digits += 1
+    return digits
+
+
 def _assign(handle: _GuiInputHandle[T], value: T) -> None:
     """``handle.value = value`` (viser defines the setter apart from its getter, which mypy
     reads as a read-only property)."""
@@ -997,7 +1005,11 @@ class ClientView:
                 if used > handle.max:  # a noisy bracket's floor (memorial: 21.1 of 8 bits)
                     handle.max = float(math.ceil(2 * used))
                 if moved is None and handle.min <= used:
-                    _assign(handle, round(float(used), 2))
+                    shown = round(float(used), 2)
+                    # the box beside the slider shows as many decimals as its precision
+                    # (viser derives it from the step at creation: 247.35 read "247")
+                    handle.precision = max(_decimals(handle.step), _decimals(shown))
+                    _assign(handle, shown)
         finally:
             self._syncing = False
 

@@ -11,7 +11,7 @@ import pytest
 from hdrview.view import DEFAULT_MARK, ClientView
 
 from .conftest import ARTIFACTS
-from .test_inspector import TIMEOUT, labelled, open_tab, wait_until
+from .test_inspector import TIMEOUT, labelled, open_tab, text_field, wait_until
 
 pytestmark = pytest.mark.e2e
 
@@ -37,13 +37,22 @@ def test_sliders_start_at_the_values_the_pipeline_used(page, view: ClientView) -
     r = view.session.result
     page.wait_for_timeout(500)
     # The slider keeps whole levels (its step); the box next to it and the status line say the
-    # exact value, marked as the default.
+    # value to 0.01 level, marked as the default.
     wait_until(
         lambda: abs(slider_value(page, "Saturation Z") - r.saturation) <= 1.0,
         10,
         "Saturation Z to show the pipeline's Z",
     )
     assert abs(slider_value(page, "Noise floor") - r.noise_floor) <= 1.0
+    # the number box beside each slider reads the value itself, not the slider's step
+    # (the demo's 12-bit Z 3723.83 once read "3724", the memorial's 247.35 "247")
+    for label, used in (("Saturation Z", r.saturation), ("Noise floor", r.noise_floor)):
+        box = text_field(page, label).and_(page.locator("input:not([type=hidden])"))
+        wait_until(
+            lambda box=box, used=used: float(box.input_value()) == round(float(used), 2),
+            10,
+            f"the {label} box to read {round(float(used), 2)}",
+        )
     assert slider_value(page, "Threshold t") == pytest.approx(r.params.threshold)
     assert slider_value(page, "Exposure (EV)") == pytest.approx(r.params.tonemap_exposure)
     page.get_by_text(re.compile(rf"Z = {r.saturation:.6g} \(default\)")).first.wait_for(
