@@ -130,6 +130,14 @@ def scalar_to_rgb(
     return out
 
 
+def pct(value: float | None, digits: int = 1) -> str:
+    """A fraction as a percentage (``—`` when missing or not finite: a pair never registered
+    has no overlap, which read "nan%")."""
+    if value is None or not np.isfinite(float(value)):
+        return "—"
+    return f"{float(value):.{digits}%}"
+
+
 def fmt(value: object, digits: int = 4) -> str:
     """Short text for a table cell (``—`` for missing)."""
     if value is None:

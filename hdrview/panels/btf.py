@@ -15,7 +15,7 @@ import viser
 
 from hdrcore.io import Bracket
 
-from ._draw import EMPTY_PLOT, fmt
+from ._draw import EMPTY_PLOT, fmt, pct
 
 if TYPE_CHECKING:  # the library's stages are imported on first use, not with the page
     from hdrcore.exposure import ExposureRatioResult
@@ -179,7 +179,7 @@ def pair_summary(
         f"EXIF ratio {fmt(exif_ratio, 6)}, mismatch {fmt(mismatch, 3)} stops",
         f"Per channel: {channels}"
         + (" — **channels disagree**" if pair.channels_disagree else "")
-        + f"; overlap {pair.overlap:.1%}; Z = {pair.saturation:g}, "
+        + f"; overlap {pct(pair.overlap)}; Z = {pair.saturation:g}, "
         f"noise floor = {pair.noise_floor:g}",
     ]
     return "\n\n".join(lines)

@@ -16,7 +16,7 @@ import viser
 from hdrcore.errors import InputError
 from hdrcore.io import Bracket, Frame, encode_png
 
-from ._draw import EMPTY_PLOT, enlarge, fmt, scalar_to_rgb, unit_to_display
+from ._draw import EMPTY_PLOT, enlarge, fmt, pct, scalar_to_rgb, unit_to_display
 
 if TYPE_CHECKING:  # the library's stages are imported on first use, not with the page
     from hdrcore.pipeline import PipelineResult
@@ -255,8 +255,8 @@ def motion_summary(pair: PairRegistration) -> str:
         f"**{pair.status}**: {fmt(pair.message)}\n\n"
         f"dx = {fmt(pair.dx, 4)} px, dy = {fmt(pair.dy, 4)} px, angle = "
         f"{fmt(pair.angle_deg, 4)}°; eq. 6 cost {fmt(pair.cost_before, 4)} → "
-        f"{fmt(pair.cost_after, 4)}; ratio used {fmt(pair.ratio, 6)}; overlap {pair.overlap:.1%},"
-        f" well exposed {pair.valid_fraction:.1%}; {pair.iterations} iterations; eq. 5 peak NCC "
+        f"{fmt(pair.cost_after, 4)}; ratio used {fmt(pair.ratio, 6)}; overlap {pct(pair.overlap)},"
+        f" well exposed {pct(pair.valid_fraction)}; {pair.iterations} iterations; eq. 5 peak NCC "
         f"{fmt(pair.peak_ncc, 3)}, PSR {fmt(pair.peak_psr, 3)}; {1000 * pair.seconds:.0f} ms"
     )
 

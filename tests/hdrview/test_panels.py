@@ -313,3 +313,18 @@ def test_the_merge_weighting_is_said_in_words_with_its_term_on_hover() -> None:
         assert '"' not in title and "'" not in title
         assert html.unescape(shown[shown.index('">') + 2 : -len("</abbr>")]).lower() == words
     assert "hat-noise-aware" in weighting_words("hat-noise-aware")
+
+
+def test_a_pair_never_registered_reads_a_dash_not_nan(stage_result) -> None:
+    """A saturated pair (too few well-exposed pixels) has no overlap: the summary says "—"
+    where it once said "overlap nan%"."""
+    from hdrview.panels._draw import pct
+    from hdrview.panels.registration import motion_summary
+
+    pair = dataclasses.replace(
+        stage_result.registration.pairs[0], overlap=float("nan"), status="saturated"
+    )
+    text = motion_summary(pair)
+    assert "nan" not in text.lower()
+    assert "overlap —," in text
+    assert pct(0.0123) == "1.2%" and pct(None) == "—" and pct(float("inf")) == "—"
