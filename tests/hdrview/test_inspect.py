@@ -50,6 +50,14 @@ def test_the_panel_switches_to_the_loupe(app) -> None:
 def test_portrait_fits_the_window() -> None:
     portrait = np.zeros((3000, 2000, 3), np.uint8)
     out = fit_to_box(portrait)
-    assert out.shape[0] <= BOX[1] and out.shape[1] >= out.shape[0] * 2000 // 3000
+    # the box's whole height (not a whole-pixel stride's 500 of 620), the aspect kept
+    assert out.shape[0] == BOX[1] and out.shape[1] >= out.shape[0] * 2000 // 3000
+    # resampled, not strided: a one-pixel checkerboard reads mid-grey, not one of its colours
+    checker = np.zeros((1240, 800, 3), np.uint8)
+    checker[::2, ::2] = checker[1::2, 1::2] = 255
+    small = fit_to_box(checker)
+    x0 = (small.shape[1] - 400) // 2
+    inner = small[10:-10, x0 + 10 : x0 + 390].astype(float)
+    assert abs(inner.mean() - 127.5) < 10 and inner.std() < 20
     landscape = np.zeros((400, 600, 3), np.uint8)
     assert fit_to_box(landscape) is landscape
