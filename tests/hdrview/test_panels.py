@@ -328,3 +328,19 @@ def test_a_pair_never_registered_reads_a_dash_not_nan(stage_result) -> None:
     assert "nan" not in text.lower()
     assert "overlap —," in text
     assert pct(0.0123) == "1.2%" and pct(None) == "—" and pct(float("inf")) == "—"
+
+
+def test_the_cost_plot_draws_one_line_per_image_size(stage_result) -> None:
+    """Each pyramid level has its own cost scale: one trace per level, named by its size, so a
+    finer level starting higher does not read as the search getting worse."""
+    from hdrview.panels.registration import cost_figure
+
+    pair = dataclasses.replace(
+        stage_result.registration.pairs[0],
+        cost_history=(4.7e-4, 3.4e-4, 3.3e-4, 5.7e-4, 5.5e-4, 2.5e-3, 2.4e-3),
+        level_history=(2, 2, 2, 1, 1, 0, 0),
+    )
+    fig = cost_figure(pair)
+    assert [t.name for t in fig.data] == ["1/4 size", "1/2 size", "full size"]
+    assert [list(t.x) for t in fig.data] == [[0, 1, 2], [3, 4], [5, 6]]
+    assert list(fig.data[2].y) == [2.5e-3, 2.4e-3]
