@@ -224,8 +224,8 @@ class BtfPanel:
             reg_ratio = rp.ratio
             text += (
                 f"\n\n**After registration** ({rp.method}): ratio **{fmt(rp.ratio, 6)}** "
-                f"± {fmt(rp.std_error, 2)}; status **{rp.status}**: {fmt(rp.message)}. "
-                "The merge uses this estimate."
+                f"± {fmt(rp.std_error, 2)} ({rp.n_inliers}/{rp.n_equations} inlier equations); "
+                f"status **{rp.status}**: {fmt(rp.message)}. The merge uses this estimate."
             )
         self.summary.content = text
         scatter = equations_figure(pair, exif, reg_ratio)

@@ -34,14 +34,19 @@ def pairs_table(
     exposure: BracketExposureResult,
     registration: BracketRegistration | None,
     bracket: Bracket | None = None,
+    histogram: BracketExposureResult | None = None,
 ) -> str:
+    """One row per pair. ``histogram``: the whole-frame estimate when the merge's ratios were
+    measured again on the registered pixels: the inlier column then gives both counts, the
+    BTF and Masks tabs' (histograms) and the merge's (registered pixels)."""
+    again = histogram is not None and histogram is not exposure
     header = [
         "pair",
         "ratio",
         "95 % interval",
         "EXIF ratio",
         "mismatch (stops)",
-        "inlier equations",
+        "inlier equations" + (" (histograms → registered pixels)" if again else ""),
         "ratio status",
         "cost before → after",
         "dx, dy, angle",
@@ -67,7 +72,12 @@ def pairs_table(
                 _interval_text(p),
                 fmt(exif, 6),
                 fmt(mism, 3),
-                f"{p.n_inliers}/{p.n_equations}",
+                (
+                    f"{histogram.pairs[k].n_inliers}/{histogram.pairs[k].n_equations} → "
+                    if again and histogram is not None and k < len(histogram.pairs)
+                    else ""
+                )
+                + f"{p.n_inliers}/{p.n_equations}",
                 p.status,
                 cost,
                 motion,
@@ -187,7 +197,9 @@ class DiagnosticsPanel:
             self.table.content = ""
             return
         self.verdicts.content = verdicts_markdown(result)
-        self.table.content = pairs_table(result.exposures, result.registration, result.bracket)
+        self.table.content = pairs_table(
+            result.exposures, result.registration, result.bracket, result.exposures_histogram
+        )
         self.frames.content = frames_table(result)
 
 

@@ -26,21 +26,51 @@ __all__ = ["MasksPanel", "PALETTE", "pixel_classes"]
 
 # colour of each class of hdrcore.exposure.result.LEVEL_CLASSES, by code
 PALETTE = ((110, 110, 110), (46, 160, 67), (255, 127, 14), (31, 119, 180), (214, 39, 40))
-# Priority when a pixel's channels are in different classes (the table's codes in order)
+# Severity of each class (the table's codes in order): breaks a tie between channels
 _PRIORITY = np.array([1, 0, 2, 3, 4])  # inlier < not used < outlier < under < saturated
-_BY_PRIORITY = np.argsort(_PRIORITY)
 
 
 def pixel_classes(levels: np.ndarray, table: np.ndarray) -> np.ndarray:
-    """Class per pixel of ``(h, w, C)`` levels: the highest-priority class of its channels."""
+    """Class per pixel of ``(h, w, C)`` levels: saturated when any channel is (the merge drops
+    the pixel's frame there), else the class most of its channels are in, a tie going to the
+    more severe class. (The most severe channel alone painted the Xperia's first pair all
+    outlier, 0.0 % inliers, beside 730 of 1285 equations kept: its blue channel's levels are
+    mostly 3V outliers, red and green mostly inliers.)"""
+    from hdrcore.exposure.result import SATURATED
+
     n = table.shape[1]
     lv = np.minimum(levels, n - 1)
-    # the channels' highest priority, channel by channel (numpy's max over a last axis of three
-    # is several times slower)
-    top = _PRIORITY[table[0][lv[..., 0]]]
-    for c in range(1, lv.shape[2]):
-        top = np.maximum(top, _PRIORITY[table[min(c, table.shape[0] - 1)][lv[..., c]]])
-    return _BY_PRIORITY[top].astype(np.int8)
+    nch = lv.shape[2]
+    per = [table[min(c, table.shape[0] - 1)][lv[..., c]] for c in range(nch)]
+    n_cls = len(_PRIORITY)
+    # score: votes x (classes + 1) + severity, so the most votes win and severity breaks ties
+    best = np.full(lv.shape[:2], -1, np.int32)
+    out = np.zeros(lv.shape[:2], np.int8)
+    for cls in range(n_cls):
+        votes = sum((ch == cls).astype(np.int32) for ch in per)
+        score = np.where(votes > 0, votes * (n_cls + 1) + int(_PRIORITY[cls]), -1)
+        better = score > best
+        best = np.where(better, score, best)
+        out[better] = cls
+    clipped = np.zeros(lv.shape[:2], bool)
+    for ch in per:
+        clipped |= ch == SATURATED
+    out[clipped] = SATURATED
+    return out
+
+
+def equation_counts(pair: Any, channels: int) -> str:
+    """The pair's equations kept by the 3V rule, in all and per channel (the BTF tab's and
+    the Diagnostics tab's count of the same estimate)."""
+    inl = np.asarray(pair.inlier_mask, bool)
+    ch = np.asarray(pair.equations.channel).astype(np.int64)
+    names = ("R", "G", "B") if channels == 3 else tuple(f"channel {c}" for c in range(channels))
+    per = ", ".join(
+        f"{names[c]} {int(np.count_nonzero(inl[ch == c]))}/{int(np.count_nonzero(ch == c))}"
+        for c in range(channels)
+        if np.any(ch == c)
+    )
+    return f"{pair.n_inliers} of {pair.n_equations} equations kept by the 3V rule ({per})"
 
 
 class MasksPanel:
@@ -108,12 +138,14 @@ class MasksPanel:
         legend = " · ".join(
             f"<span style='color:rgb{PALETTE[c]}'>■</span> {name}" for c, name in enumerate(CLASSES)
         )
-        table = ["| frame | " + " | ".join(CLASSES) + " |", "|---" * (len(CLASSES) + 1) + "|"]
+        table = ["| frame | " + " | ".join(CLASSES) + " |", "|---" + "|:---:" * len(CLASSES) + "|"]
         for which, frame, counts in rows:
             table.append(f"| {which} {frame} | " + " | ".join(f"{v:.1%}" for v in counts) + " |")
         self.summary.content = (
             f"**Pair {pair.dark}→{pair.bright}**: Z = {pair.saturation:g}, noise floor = "
-            f"{pair.noise_floor:g}. A pixel takes the most severe class of its channels.\n\n"
+            f"{pair.noise_floor:g}; the histogram estimate (the BTF tab's): "
+            f"{equation_counts(pair, len(pair.channel_ratios) or 1)}. A pixel shows the class "
+            "most of its channels are in (saturated if any is).\n\n"
             + legend
             + "\n\n"
             + "\n".join(table)

@@ -72,10 +72,31 @@ def test_level_classes_follow_the_equations(stage_result) -> None:
     assert (table[eq.channel[sel], np.floor(eq.level[sel]).astype(int)] == OUTLIER).all()
 
 
-def test_pixel_classes_take_the_most_severe_channel() -> None:
-    table = np.array([[INLIER, OUTLIER, SATURATED]] * 3, np.int8)
-    levels = np.array([[[0, 0, 0], [0, 1, 0], [0, 1, 2]]], np.uint16)
-    assert pixel_classes(levels, table).tolist() == [[INLIER, OUTLIER, SATURATED]]
+def test_pixel_classes_take_most_channels_and_saturated_if_any() -> None:
+    table = np.array([[INLIER, OUTLIER, SATURATED, UNDER]] * 3, np.int8)
+    levels = np.array(
+        [[[0, 0, 0], [0, 1, 0], [0, 1, 1], [0, 1, 2], [0, 1, 3], [3, 3, 0]]], np.uint16
+    )
+    # all inlier; 2 of 3 inlier; 2 of 3 outlier; one saturated channel; a three-way tie goes
+    # to the most severe (under); 2 of 3 under
+    assert pixel_classes(levels, table).tolist() == [
+        [INLIER, INLIER, OUTLIER, SATURATED, UNDER, UNDER]
+    ]
+    grey = np.array([[[1], [3]]], np.uint16)
+    assert pixel_classes(grey, table[:1]).tolist() == [[OUTLIER, UNDER]]
+
+
+def test_masks_say_the_equation_counts_of_the_btf_tab(viewer, stage_result, sim_bracket) -> None:
+    from hdrview.panels.masks import MasksPanel, equation_counts
+
+    panel = MasksPanel(viewer.gui)
+    panel.show(sim_bracket, stage_result, {"pair": 0})
+    pair = stage_result.exposures_histogram.pairs[0]
+    text = equation_counts(pair, 3)
+    assert text.startswith(f"{pair.n_inliers} of {pair.n_equations} equations")
+    per = [int(x.split("/")[0].split()[-1]) for x in text[text.index("(") + 1 : -1].split(",")]
+    assert sum(per) == pair.n_inliers
+    assert text in panel.summary.content
 
 
 @pytest.mark.parametrize("layer", ["tonemapped", "provenance", "clipping", "ghosts", "deghosted"])
@@ -344,3 +365,19 @@ def test_the_cost_plot_draws_one_line_per_image_size(stage_result) -> None:
     assert [t.name for t in fig.data] == ["1/4 size", "1/2 size", "full size"]
     assert [list(t.x) for t in fig.data] == [[0, 1, 2], [3, 4], [5, 6]]
     assert list(fig.data[2].y) == [2.5e-3, 2.4e-3]
+
+
+def test_the_pairs_table_gives_both_inlier_counts_when_ratios_were_measured_again(
+    stage_result,
+) -> None:
+    from hdrview.panels.diagnostics import pairs_table
+
+    r = stage_result
+    hist, used = r.exposures_histogram, r.exposures
+    assert used is not hist  # the simulated hand-held bracket's ratios measured again
+    table = pairs_table(used, r.registration, r.bracket, hist)
+    assert "inlier equations (histograms → registered pixels)" in table
+    for h, u in zip(hist.pairs, used.pairs, strict=True):
+        assert f"{h.n_inliers}/{h.n_equations} → {u.n_inliers}/{u.n_equations}" in table
+    plain = pairs_table(hist, r.registration, r.bracket, hist)
+    assert "→ registered" not in plain
