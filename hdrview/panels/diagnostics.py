@@ -146,6 +146,12 @@ def summary_line(result: PipelineResult) -> str:
     )
     source = result.times_source
     if source:
+        from hdrcore.diagnose import exif_pairs
+
+        n_pairs = len(result.bracket) - 1
+        if source.startswith("estimated") and n_pairs > 0 and len(exif_pairs(source)) >= n_pairs:
+            # "estimated; EXIF for pairs 0-1, ..., 4-5" said estimated when nothing was
+            source = "EXIF for every pair (none could be measured reliably from the images)"
         head += f" (exposure times: {fmt(source)})"
     parts = []
     for sev in SEVERITIES:

@@ -381,3 +381,15 @@ def test_the_pairs_table_gives_both_inlier_counts_when_ratios_were_measured_agai
         assert f"{h.n_inliers}/{h.n_equations} → {u.n_inliers}/{u.n_equations}" in table
     plain = pairs_table(hist, r.registration, r.bracket, hist)
     assert "→ registered" not in plain
+
+
+def test_the_summary_says_exif_when_every_pair_used_it(stage_result) -> None:
+    from hdrview.panels.diagnostics import summary_line
+
+    r = stage_result
+    n = len(r.bracket) - 1
+    every = "estimated; EXIF for pairs " + ", ".join(f"{k}-{k + 1}" for k in range(n))
+    line = summary_line(dataclasses.replace(r, times_source=every))
+    assert "exposure times: EXIF for every pair" in line and "estimated" not in line
+    some = dataclasses.replace(r, times_source="estimated; EXIF for pairs 0-1")
+    assert "exposure times: estimated; EXIF for pairs 0-1" in summary_line(some)
