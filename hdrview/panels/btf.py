@@ -185,6 +185,20 @@ def pair_summary(
     return "\n\n".join(lines)
 
 
+def _used_by_merge(result: PipelineResult, k: int, exif: float | None) -> str:
+    """Which ratio of pair ``k`` the merge used: the measured one, or the EXIF ratio where the
+    pipeline fell back to it (an unreliable estimate far from the metadata)."""
+    from hdrcore.diagnose import exif_pairs
+
+    source = result.times_source or ""
+    if source == "exif" or f"{k}-{k + 1}" in exif_pairs(source):
+        return (
+            f"The merge uses the EXIF ratio ({fmt(exif, 6)}) for this pair: the estimates "
+            "are not reliable enough."
+        )
+    return "The merge uses this estimate."
+
+
 class BtfPanel:
     """Summary text, the equations scatter and the transfer functions of the chosen pair."""
 
@@ -225,8 +239,10 @@ class BtfPanel:
             text += (
                 f"\n\n**After registration** ({rp.method}): ratio **{fmt(rp.ratio, 6)}** "
                 f"± {fmt(rp.std_error, 2)} ({rp.n_inliers}/{rp.n_equations} inlier equations); "
-                f"status **{rp.status}**: {fmt(rp.message)}. The merge uses this estimate."
+                f"status **{rp.status}**: {fmt(rp.message)}. " + _used_by_merge(result, k, exif)
             )
+        else:
+            text += "\n\n" + _used_by_merge(result, k, exif)
         self.summary.content = text
         scatter = equations_figure(pair, exif, reg_ratio)
         transfer = transfer_figure(pair)

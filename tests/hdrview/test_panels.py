@@ -393,3 +393,19 @@ def test_the_summary_says_exif_when_every_pair_used_it(stage_result) -> None:
     assert "exposure times: EXIF for every pair" in line and "estimated" not in line
     some = dataclasses.replace(r, times_source="estimated; EXIF for pairs 0-1")
     assert "exposure times: estimated; EXIF for pairs 0-1" in summary_line(some)
+
+
+def test_the_btf_tab_says_which_ratio_the_merge_used(viewer, stage_result, sim_bracket) -> None:
+    """Where the pipeline fell back to the EXIF ratio (an unreliable estimate), the BTF tab
+    says so instead of "the merge uses this estimate" (the Pixel 7's five pairs)."""
+    from hdrview.panels.btf import BtfPanel
+
+    panel = BtfPanel(viewer.gui)
+    panel.show(sim_bracket, stage_result, {"pair": 1})
+    assert "The merge uses this estimate." in panel.summary.content
+    fell = dataclasses.replace(stage_result, times_source="estimated; EXIF for pairs 1-2")
+    panel.show(sim_bracket, fell, {"pair": 1})
+    assert "The merge uses the EXIF ratio" in panel.summary.content
+    assert "The merge uses this estimate." not in panel.summary.content
+    panel.show(sim_bracket, fell, {"pair": 0})
+    assert "The merge uses this estimate." in panel.summary.content
