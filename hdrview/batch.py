@@ -16,6 +16,8 @@ from typing import Any
 
 from hdrcore.batch import BracketRecord, read_index, worst_first
 
+from .panels._draw import esc
+
 __all__ = ["load_batch", "batch_listing", "entry_label", "add_batch_panel"]
 
 
@@ -46,7 +48,7 @@ def batch_listing(records: Sequence[BracketRecord]) -> str:
 
 def _details(r: BracketRecord) -> str:
     q = r.quality or {}
-    parts = [f"**{r.name}**: {r.status}, score {_score(r)}, {len(r.files)} frames"]
+    parts = [f"**{esc(r.name)}**: {r.status}, score {_score(r)}, {len(r.files)} frames"]
     if q.get("score") is not None and len(q) > 1:
         parts.append(
             " · ".join(
@@ -56,9 +58,9 @@ def _details(r: BracketRecord) -> str:
             )
         )
     if r.reason:
-        parts.append(r.reason)
+        parts.append(esc(r.reason))
     for v in r.verdicts[:4]:
-        parts.append(f"{v.get('severity')}: {v.get('message')}")
+        parts.append(f"{v.get('severity')}: {esc(str(v.get('message')))}")
     return "\n\n".join(parts)
 
 

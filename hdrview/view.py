@@ -52,7 +52,7 @@ from .panels import masks as masks_panel
 from .panels import registration as registration_panel
 from .panels import response as response_panel
 from .panels import result as result_panel
-from .panels._draw import EMPTY_PLOT
+from .panels._draw import EMPTY_PLOT, esc
 from .panels.frames import FramesPanel
 from .session import Controls, Session, pipeline_available
 from .uploads import UploadStore, install_upload_limits
@@ -814,7 +814,7 @@ class ClientView:
                 if (self.app.first_run and fraction < 0.9)
                 else ""
             )
-            self.progress_md.content = f"_{text}{note}_"
+            self.progress_md.content = f"_{esc(text)}{note}_"
 
     def _on_busy(self, busy: bool) -> None:
         self.progress.visible = busy
@@ -841,7 +841,7 @@ class ClientView:
                     self._frames_drawn()
                     if self._pending_icons and ICONS_READ.is_set():
                         self._apply_icons()  # read meanwhile: at once, after the frames
-                    self.status.content = f"**{label}**: {len(early)} frames; processing..."
+                    self.status.content = f"**{esc(label)}**: {len(early)} frames; processing..."
                 warm = self.app.take_warm(files, times)  # decoded and run at start
                 if warm is not None:
                     self.session = warm
@@ -1122,7 +1122,7 @@ class ClientView:
         if b is None:
             return "No bracket loaded."
         lines = [
-            f"**{self.session.source}**: {len(b)} frames, {b.shape[1]}×{b.shape[0]}, "
+            f"**{esc(str(self.session.source))}**: {len(b)} frames, {b.shape[1]}×{b.shape[0]}, "
             f"{b.bit_depth}-bit, max level {b.max_level}",
         ]
         if result is None:
@@ -1142,7 +1142,7 @@ class ClientView:
             f"t = {_num(p.threshold)}{mark('threshold')}, alignment = {p.align}"
             f"{mark('align')}, local refinement = {p.local}"
             f"{mark('local')}, response = {response}{mark('response')}, "
-            f"times = {result.times_source}, operator = {p.tonemap}{mark('tonemap')}, "
+            f"times = {esc(result.times_source)}, operator = {p.tonemap}{mark('tonemap')}, "
             f"exposure = {_num(p.tonemap_exposure)} EV"
         )
         timings = result.timings

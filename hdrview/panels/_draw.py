@@ -149,7 +149,15 @@ def fmt(value: object, digits: int = 4) -> str:
         if not np.isfinite(v):
             return "—"
         return f"{v:.{digits}g}"
-    return str(value).replace("|", "\\|").replace("\n", " ")
+    return esc(str(value)).replace("|", "\\|").replace("\n", " ")
+
+
+def esc(text: str) -> str:
+    """Text for the page's markdown, which renders raw HTML unsanitised (viser's
+    ``rehypeRawDom``): ``&``, ``<`` and ``>`` as entities, which markdown shows as the
+    characters. File and folder names reach the page this way; a name holding
+    ``<img src=...>`` put 13 images on the page before."""
+    return text.replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;")
 
 
 def md_table(header: Sequence[str], rows: Sequence[Sequence[object]]) -> str:

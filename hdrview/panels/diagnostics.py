@@ -162,8 +162,53 @@ def summary_line(result: PipelineResult) -> str:
     return head + ("; " + ", ".join(parts) if parts else "; no problems found") + "."
 
 
+#: Verdicts about pairs that a long bracket repeats pair after pair: from ``GROUP_AT`` of one
+#: code on they are one line, the pairs named, each pair's own words folded under it (the
+#: memorial's nine "exposure ratio unreliable" warnings were nine screen lines each).
+GROUP_TITLES = {
+    "ratio-uncertain": "The exposure ratio is unreliable (uncertain)",
+    "ratio-unstable": "The exposure ratio is unreliable (unstable)",
+    "channels-disagree": "The colour channels disagree on the exposure ratio",
+    "registration-weak": "Residual motion is left after alignment",
+    "registration-identity": "The pair could not be registered and keeps the identity",
+    "motion-biased-ratio": "Hand-held motion biased the whole-frame ratio (measured again)",
+    "ratio-estimates-differ": "The whole-frame and registered-pixel ratios differ",
+    "exif-mismatch": "EXIF and the images disagree on the exposure ratio",
+    "no-overlap": "No brightness overlap: the exposure ratio cannot be measured",
+    "registration-failed": "Registration failed: merged without alignment",
+}
+GROUP_AT = 3
+
+
+def _group_title(code: str) -> str | None:
+    """The folded line's words for a pair verdict's code (``ratio-<status>`` for any status the
+    ratio estimators give), ``None`` for verdicts that are not grouped."""
+    if code in GROUP_TITLES:
+        return GROUP_TITLES[code]
+    if code.startswith("ratio-") and code != "ratio-estimates-differ":
+        return f"The exposure ratio is unreliable ({code[len('ratio-') :]})"
+    return None
+
+
+def _verdict_line(v: Any) -> str:
+    msg = fmt(v.message)
+    return f"- <span title='{v.code}'>{msg}</span>" if v.code else f"- {msg}"
+
+
+def _grouped_line(code: str, group: list[Any]) -> str:
+    """One line for ``group`` (verdicts of one code about pairs), each pair's message in a
+    fold (HTML ``details``: the page renders markdown's HTML)."""
+    pairs = ", ".join("-".join(str(f) for f in v.frames) for v in group)
+    items = "".join(f"<li>{fmt(v.message)}</li>" for v in group)  # (fmt escapes)
+    return (
+        f"- <details><summary><span title='{code}'>{_group_title(code)}</span> for "
+        f"{len(group)} pairs ({pairs})</summary><ul>{items}</ul></details>"
+    )
+
+
 def verdicts_markdown(result: PipelineResult) -> str:
-    """The summary line, then the verdicts grouped by severity, worst first (codes on hover)."""
+    """The summary line, then the verdicts grouped by severity, worst first (codes on hover);
+    a code repeated for :data:`GROUP_AT` or more pairs is one folded line."""
     verdicts = result.verdicts
     lines = [summary_line(result)]
     if not verdicts:
@@ -174,9 +219,18 @@ def verdicts_markdown(result: PipelineResult) -> str:
         if not group:
             continue
         lines.append(f"\n**{title}** ({what})\n")
+        by_code: dict[str, list[Any]] = {}
         for v in group:
-            msg = fmt(v.message)
-            lines.append(f"- <span title='{v.code}'>{msg}</span>" if v.code else f"- {msg}")
+            by_code.setdefault(v.code, []).append(v)
+        done: set[str] = set()
+        for v in group:
+            same = by_code[v.code]
+            if _group_title(v.code) and len(same) >= GROUP_AT and all(x.frames for x in same):
+                if v.code not in done:
+                    lines.append(_grouped_line(v.code, same))
+                    done.add(v.code)
+                continue
+            lines.append(_verdict_line(v))
     return "\n".join(lines)
 
 

@@ -409,3 +409,34 @@ def test_the_btf_tab_says_which_ratio_the_merge_used(viewer, stage_result, sim_b
     assert "The merge uses this estimate." not in panel.summary.content
     panel.show(sim_bracket, fell, {"pair": 0})
     assert "The merge uses this estimate." in panel.summary.content
+
+
+def test_a_verdict_repeated_for_many_pairs_is_one_folded_line(stage_result) -> None:
+    from hdrcore.diagnose import Verdict
+    from hdrview.panels.diagnostics import GROUP_AT, verdicts_markdown
+
+    many = tuple(
+        Verdict("ratio-uncertain", "warning", f"The ratio of pair {k} <is> off", (k, k + 1))
+        for k in range(GROUP_AT)
+    )
+    few = (Verdict("channels-disagree", "warning", "channels of pair 7", (7, 8)),)
+    other = (Verdict("darkest-clipped", "warning", "clipped", ()),)
+    text = verdicts_markdown(dataclasses.replace(stage_result, verdicts=many + few + other))
+    folded = [line for line in text.splitlines() if "<details>" in line]
+    assert len(folded) == 1
+    line = folded[0]
+    assert f"for {GROUP_AT} pairs (0-1, 1-2, 2-3)" in line
+    assert line.count("<li>") == GROUP_AT and "&lt;is&gt;" in line  # each message, escaped
+    assert "- <span title='channels-disagree'>channels of pair 7</span>" in text
+    assert "clipped" in text
+    # below GROUP_AT, one line per verdict as before
+    text = verdicts_markdown(dataclasses.replace(stage_result, verdicts=many[:1]))
+    assert "<details>" not in text and "The ratio of pair 0" in text
+
+
+def test_every_pair_status_has_a_folded_title() -> None:
+    from hdrview.panels.diagnostics import _group_title
+
+    assert _group_title("ratio-no-signal") == "The exposure ratio is unreliable (no-signal)"
+    assert _group_title("no-overlap") and _group_title("registration-failed")
+    assert _group_title("darkest-clipped") is None and _group_title("times-fallback") is None

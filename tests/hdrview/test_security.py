@@ -123,3 +123,36 @@ def test_zip_extraction_is_flat_and_skips_non_images(tmp_path: Path) -> None:
 def test_broken_zip_is_an_input_error(tmp_path: Path) -> None:
     with pytest.raises(InputError, match="not a valid zip"):
         extract_zip_images(b"PK\x03\x04garbage", tmp_path)
+
+
+def _markdown_texts(obj, seen=None, depth=0) -> list[str]:
+    """Every markdown handle's content reachable from the view and its panels."""
+    seen = set() if seen is None else seen
+    out: list[str] = []
+    if id(obj) in seen or depth > 3:
+        return out
+    seen.add(id(obj))
+    if type(obj).__name__ == "GuiMarkdownHandle":
+        out.append(obj.content)
+    if type(obj).__module__.startswith("hdrview"):
+        for v in vars(obj).values():
+            for x in v if isinstance(v, (list, tuple)) else (v,):
+                out.extend(_markdown_texts(x, seen, depth + 1))
+    return out
+
+
+def test_file_names_reach_the_page_as_text_not_html(app, bracket_root: Path) -> None:
+    """The page renders markdown's raw HTML unsanitised: a folder of frames whose names hold
+    markup (frames on disk under the root keep their names; uploads are renamed) put 13
+    ``<img>`` elements on the page before names were escaped."""
+    hostile = "<img src=x>"
+    folder = bracket_root / "bracket"
+    for p in sorted(folder.glob("frame*.png")):
+        p.rename(folder / f"{hostile}{p.name}")
+    (folder / "exposure_times.txt").unlink()  # (its "name seconds" lines split on spaces)
+    assert app.request_path("bracket")
+    assert app.wait_idle(120)
+    assert app.session.result is not None
+    texts = _markdown_texts(app)
+    assert any("&lt;img src=x&gt;frame0.png" in t for t in texts)  # shown, as text
+    assert not any("<img" in t for t in texts)
