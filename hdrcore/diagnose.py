@@ -101,6 +101,11 @@ _CAPTURE: dict[str, tuple[Severity, str]] = {
         "error",
         "The frames come from different cameras: they cannot be one bracket.",
     ),
+    "capture-span": (
+        "warning",
+        "The frames were taken far apart in time: a bracket is shot within seconds or minutes, "
+        "so some files may belong to other shots (the merge mixes them).",
+    ),
     "no-exposure-times": (
         "info",
         "No exposure times in the files: the ratios come from the "

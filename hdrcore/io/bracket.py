@@ -625,6 +625,9 @@ def _capture_warnings(frames: list[Frame]) -> list[BracketWarning]:
                 tuple(range(n)),
             )
         )
+    span = _capture_span(frames)
+    if span is not None:
+        warns.append(span)
     # Duplicate exposures: the same recorded exposure (time x ISO x aperture, APEX-snapped).
     exposures = recorded_exposures([f.meta for f in frames])
     for k in range(n):
@@ -644,6 +647,43 @@ def _capture_warnings(frames: list[Frame]) -> list[BracketWarning]:
                 )
                 break
     return warns
+
+
+#: Frames whose recorded capture times span more than this (seconds) are said not to look like
+#: one bracket: a camera's bracket takes seconds, a bracket of long exposures minutes (nine
+#: 30 s frames: under 5 minutes). The two real CRW files of ``../shared/data``, from two
+#: cameras 287 days apart, merged with warnings about their apertures and times only.
+CAPTURE_SPAN_S = 3600.0
+
+
+def _capture_span(frames: list[Frame]) -> BracketWarning | None:
+    """``capture-span``: the frames' recorded capture times span more than
+    :data:`CAPTURE_SPAN_S` (frames of other shots in the folder)."""
+    known = [(k, f.meta.capture_time) for k, f in enumerate(frames) if f.meta.capture_time]
+    if len(known) < 2:
+        return None
+    try:
+        first = min(known, key=lambda kv: kv[1])
+        last = max(known, key=lambda kv: kv[1])
+        seconds = (last[1] - first[1]).total_seconds()
+    except TypeError:  # naive and aware times mixed: no comparison
+        return None
+    if seconds <= CAPTURE_SPAN_S:
+        return None
+    if seconds >= 2 * 86400:
+        gap = f"{seconds / 86400:.0f} days"
+    elif seconds >= 7200:
+        gap = f"{seconds / 3600:.0f} hours"
+    else:
+        gap = f"{seconds / 60:.0f} minutes"
+    f0, f1 = frames[first[0]], frames[last[0]]
+    return BracketWarning(
+        "capture-span",
+        f"the frames were taken {gap} apart ({f0.name} {first[1]:%Y-%m-%d %H:%M:%S}, "
+        f"{f1.name} {last[1]:%Y-%m-%d %H:%M:%S}): a bracket is shot within seconds or "
+        "minutes; check that every file belongs to this one",
+        tuple(k for k, _ in known),
+    )
 
 
 def _describe(frame: Frame, *, iso: bool = True, aperture: bool = True) -> str:

@@ -217,3 +217,44 @@ def test_canon_crw_levels(crw_dir: Path, name: str) -> None:
     assert g.mean() == pytest.approx(f.levels[..., 1].mean(), rel=0.02)
     assert f.meta.iso == 50
     assert f.meta.exposure_time is not None and f.meta.exposure_time_source == "libraw"
+
+
+def test_frames_taken_far_apart_are_said_not_to_look_like_one_bracket() -> None:
+    from datetime import datetime, timedelta
+    from types import SimpleNamespace
+
+    from hdrcore.io.bracket import CAPTURE_SPAN_S, _capture_span
+
+    t0 = datetime(2024, 4, 1, 18, 50, 43)
+
+    def frames(*offsets):
+        return [
+            SimpleNamespace(name=f"f{k}.jpg", meta=SimpleNamespace(capture_time=t0 + dt))
+            for k, dt in enumerate(offsets)
+        ]
+
+    # a bracket of long exposures: minutes, no warning
+    assert _capture_span(frames(timedelta(0), timedelta(minutes=5))) is None
+    assert _capture_span(frames(timedelta(0))) is None
+    w = _capture_span(frames(timedelta(days=287), timedelta(0), timedelta(seconds=2)))
+    assert w is not None and w.code == "capture-span" and "287 days apart" in w.message
+    assert "f1.jpg 2024-04-01 18:50:43" in w.message and w.frames == (0, 1, 2)
+    w = _capture_span(frames(timedelta(0), timedelta(seconds=CAPTURE_SPAN_S + 60)))
+    assert w is not None and "61 minutes" in w.message
+
+
+def test_the_real_crw_files_are_not_one_bracket(crw_dir) -> None:
+    from hdrcore.io import load_bracket
+
+    codes = [w.code for w in load_bracket([crw_dir]).warnings]
+    assert "capture-span" in codes
+
+
+def test_the_real_brackets_have_no_capture_span_warning() -> None:
+    from hdrcore.io import load_bracket
+
+    from ..conftest import shared_dir
+
+    for name in ("frobisher-colour-hdri", "handheld-pixel7-lab", "handheld-xperia-library"):
+        codes = [w.code for w in load_bracket([shared_dir(name)]).warnings]
+        assert "capture-span" not in codes, name
