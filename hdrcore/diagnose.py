@@ -527,12 +527,12 @@ def diagnose(result: PipelineResult) -> list[Verdict]:
                         )
                     )
                     continue
-                moved = f" ({shift:.1f} px at the corners)" if math.isfinite(shift) else ""
+                how_far = f" ({shift:.1f} px at the corners)" if math.isfinite(shift) else ""
                 out.append(
                     Verdict(
                         "motion-biased-ratio",
                         "info",
-                        f"Hand-held motion{moved} biased the whole-frame ratio of frames {k} and "
+                        f"Hand-held motion{how_far} biased the whole-frame ratio of frames {k} and "
                         f"{k + 1} by {100 * (a / c - 1):+.1f} %; it was measured again after "
                         f"registration ({ex.method}: {c:.4g}).",
                         (k, k + 1),
