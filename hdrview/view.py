@@ -1142,7 +1142,8 @@ class ClientView:
             f"t = {_num(p.threshold)}{mark('threshold')}, alignment = {p.align}"
             f"{mark('align')}, local refinement = {p.local}"
             f"{mark('local')}, response = {response}{mark('response')}, "
-            f"times = {esc(result.times_source)}, operator = {p.tonemap}{mark('tonemap')}, "
+            f"times = {esc(diagnostics_panel.times_words(result))}, "
+            f"operator = {p.tonemap}{mark('tonemap')}, "
             f"exposure = {_num(p.tonemap_exposure)} EV"
         )
         timings = result.timings

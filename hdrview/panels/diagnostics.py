@@ -26,6 +26,7 @@ __all__ = [
     "frames_table",
     "pairs_table",
     "summary_line",
+    "times_words",
     "verdicts_markdown",
 ]
 
@@ -137,6 +138,19 @@ _SEVERITY: dict[Severity, tuple[str, str, str]] = {  # title, what it means, one
 }
 
 
+def times_words(result: PipelineResult) -> str:
+    """Where the merge's exposure times came from, as the summary and the status line say it:
+    the pipeline's ``times_source``, except that "estimated; EXIF for pairs 0-1, ..., 4-5"
+    (every pair fell back) reads as EXIF for every pair (the Pixel 7 said "estimated")."""
+    from hdrcore.diagnose import exif_pairs
+
+    source = result.times_source or ""
+    n_pairs = len(result.bracket) - 1
+    if source.startswith("estimated") and n_pairs > 0 and len(exif_pairs(source)) >= n_pairs:
+        return "EXIF for every pair (none could be measured reliably from the images)"
+    return source
+
+
 def summary_line(result: PipelineResult) -> str:
     """One sentence: what was merged and how many problems, warnings and notes there are."""
     counts = {sev: sum(1 for v in result.verdicts if v.severity == sev) for sev in SEVERITIES}
@@ -144,14 +158,8 @@ def summary_line(result: PipelineResult) -> str:
     head = (
         f"**Merged {n_used} of {n_all} frames**" if result.merge is not None else "**Not merged**"
     )
-    source = result.times_source
+    source = times_words(result)
     if source:
-        from hdrcore.diagnose import exif_pairs
-
-        n_pairs = len(result.bracket) - 1
-        if source.startswith("estimated") and n_pairs > 0 and len(exif_pairs(source)) >= n_pairs:
-            # "estimated; EXIF for pairs 0-1, ..., 4-5" said estimated when nothing was
-            source = "EXIF for every pair (none could be measured reliably from the images)"
         head += f" (exposure times: {fmt(source)})"
     parts = []
     for sev in SEVERITIES:

@@ -395,6 +395,18 @@ def test_the_summary_says_exif_when_every_pair_used_it(stage_result) -> None:
     assert "exposure times: estimated; EXIF for pairs 0-1" in summary_line(some)
 
 
+def test_the_status_line_says_the_times_as_the_summary_does(viewer, stage_result) -> None:
+    from hdrview.panels.diagnostics import times_words
+
+    n = len(stage_result.bracket) - 1
+    every = "estimated; EXIF for pairs " + ", ".join(f"{k}-{k + 1}" for k in range(n))
+    r = dataclasses.replace(stage_result, times_source=every)
+    assert times_words(r).startswith("EXIF for every pair")
+    viewer.session.bracket = r.bracket
+    status = viewer.status_markdown(r)
+    assert "times = EXIF for every pair" in status and "times = estimated" not in status
+
+
 def test_the_btf_tab_says_which_ratio_the_merge_used(viewer, stage_result, sim_bracket) -> None:
     """Where the pipeline fell back to the EXIF ratio (an unreliable estimate), the BTF tab
     says so instead of "the merge uses this estimate" (the Pixel 7's five pairs)."""
