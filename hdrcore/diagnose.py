@@ -134,18 +134,11 @@ _CAPTURE: dict[str, tuple[Severity, str]] = {
 def _corner_shift_px(rp: Any) -> float:
     """How far a registered pair's motion moves the frame's corners at most, pixels (NaN for a
     pair that was not registered or has no size)."""
+    from .geometry import corner_error
+
     if rp is None or not getattr(rp, "usable", False) or rp.shape is None:
         return float("nan")
-    h, w = rp.shape[:2]
-    hm = np.asarray(rp.homography, np.float64)
-    pts = np.array(
-        [[0.0, 0.0, 1.0], [w - 1.0, 0.0, 1.0], [0.0, h - 1.0, 1.0], [w - 1.0, h - 1.0, 1.0]]
-    )
-    q = pts @ hm.T
-    if not np.all(q[:, 2] > 0):
-        return float("nan")
-    xy = q[:, :2] / q[:, 2:]
-    return float(np.max(np.hypot(*(xy - pts[:, :2]).T)))
+    return float(corner_error(rp.homography, np.eye(3), rp.shape[:2]).max())
 
 
 def _names(result: PipelineResult, frames: tuple[int, ...]) -> str:

@@ -6,6 +6,7 @@ maps them to 8-bit colours for display, and formats numbers.
 
 from __future__ import annotations
 
+import html
 from collections.abc import Sequence
 
 import numpy as np
@@ -157,7 +158,7 @@ def esc(text: str) -> str:
     ``rehypeRawDom``): ``&``, ``<`` and ``>`` as entities, which markdown shows as the
     characters. File and folder names reach the page this way; a name holding
     ``<img src=...>`` put 13 images on the page before."""
-    return text.replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;")
+    return html.escape(text, quote=False)
 
 
 def md_table(header: Sequence[str], rows: Sequence[Sequence[object]]) -> str:

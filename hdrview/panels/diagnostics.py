@@ -41,6 +41,7 @@ def pairs_table(
     measured again on the registered pixels: the inlier column then gives both counts, the
     BTF and Masks tabs' (histograms) and the merge's (registered pixels)."""
     again = histogram is not None and histogram is not exposure
+    before = histogram.pairs if again and histogram is not None else ()
     header = [
         "pair",
         "ratio",
@@ -73,11 +74,7 @@ def pairs_table(
                 _interval_text(p),
                 fmt(exif, 6),
                 fmt(mism, 3),
-                (
-                    f"{histogram.pairs[k].n_inliers}/{histogram.pairs[k].n_equations} → "
-                    if again and histogram is not None and k < len(histogram.pairs)
-                    else ""
-                )
+                (f"{before[k].n_inliers}/{before[k].n_equations} → " if k < len(before) else "")
                 + f"{p.n_inliers}/{p.n_equations}",
                 p.status,
                 cost,
