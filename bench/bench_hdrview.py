@@ -19,7 +19,8 @@ With ``hdrcore.pipeline`` installed the changes go through the app exactly as a 
 are timed directly (re-fit from cached histograms + drawing), and the table says so.
 
 * ``--steps pixel7,xperia`` (or ``all``): one-level saturation and noise-floor steps on the real
-  brackets through the app, whether each kept the registration, its draft and full result;
+  brackets through the app, whether each kept the registration, its draft, its interim picture
+  (a step that registers again: the full merge on the last motion first) and full result;
 
 * a large bracket's draft preview (:mod:`hdrcore.draft`) drawn before the full re-merge, and
   which registration each step's draft used (the last full run's, scaled, or its own of the
@@ -495,7 +496,7 @@ def bench_steps(names: list[str]) -> None:
     )
     print(
         f"{'bracket':<10} {'control':<12} {'value':>6} {'registration':>13} "
-        f"{'draft':>6} {'full':>6}"
+        f"{'draft':>6} {'interim':>7} {'full':>6}"
     )
     for name in names:
         folder, _, _ = REAL[name]
@@ -521,6 +522,7 @@ def bench_steps(names: list[str]) -> None:
             for control, value in steps:
                 before = app.session.result
                 app.last_draft_seconds = app.last_shown_seconds = None
+                app.last_interim_seconds = None
                 app.set_control(control, value)
                 app.wait_idle(900)
                 after = app.session.result
@@ -533,6 +535,7 @@ def bench_steps(names: list[str]) -> None:
                 print(
                     f"{name:<10} {control:<12} {value:>6g} {'kept' if same else 'registered':>13} "
                     f"{app.last_draft_seconds or float('nan'):>6.2f} "
+                    f"{app.last_interim_seconds or float('nan'):>7.2f} "
                     f"{app.last_shown_seconds or float('nan'):>6.2f}"
                 )
             print(

@@ -247,6 +247,13 @@ class PipelineParams:
         balances are measured and reported either way).
     noise_sigma : the additive noise (levels) the default ratio estimator's noise matching
         assumes (``None``: the noise measured from the frames, ``noise``).
+    hold_registration : a previous result's ``registration_inputs`` (its snapped saturation
+        level and noise floor, its starting ratios): the registration reads these instead of
+        this run's, so it is that result's motion (from the cache) while the merge and
+        everything after it use this run's parameters. The inspector's interim picture while a
+        slider step registers the frames again (the motion moves by hundredths of a pixel for
+        such a step, :meth:`hdrview.session.Session.draft_motion`); ``None`` (the default, and
+        what the command line uses): this run's own.
     workers : threads for the compiled kernels, scipy's convention: ``None`` the project's
         default (up to two), ``n`` that many, ``-1`` every core, ``-2`` all but one. No stage
         reads it and no cache key holds it: a kernel's result does not depend on how many
@@ -276,6 +283,7 @@ class PipelineParams:
     colour_anchor: bool = True
     white_balance: bool = True
     noise_sigma: float | None = None
+    hold_registration: tuple[tuple[float, float], tuple[float, ...]] | None = None
     workers: int | None = None
 
     def replace(self, **changes: Any) -> PipelineParams:
@@ -353,6 +361,11 @@ class PipelineResult:
     #: a non-linear merge's frame measures (white balance, local tone mapping test: what the
     #: colour stage read of the frames alone), for a draft of the same motion and response
     frame_measures: FrameMeasures | None = field(default=None, repr=False, compare=False)
+    #: what the registration reads snapped: its saturation level and noise floor, its starting
+    #: ratios (:data:`SNAPPED_INPUTS`); another run registers these frames again only when they
+    #: differ (or another field it reads does), and ``PipelineParams(hold_registration=...)``
+    #: takes them
+    registration_inputs: tuple[tuple[float, float], tuple[float, ...]] | None = None
 
     @property
     def checks_pending(self) -> bool:
@@ -695,7 +708,25 @@ class Pipeline:
         validate_method(p.tonemap, TONEMAP_OPERATORS, "tonemap")
         if align not in ("none", "auto"):
             validate_method(align, MODELS, "motion model")
-        return replace(p, saturation=sat, noise_floor=nf, align=align, reference=ref)
+        return replace(
+            p,
+            saturation=sat,
+            noise_floor=nf,
+            align=align,
+            reference=ref,
+            hold_registration=_held_inputs(p.hold_registration, len(b)),
+        )
+
+    def registration_cached(self, params: PipelineParams) -> bool:
+        """Whether a run with ``params`` (checked ones: a result's ``params``) finds its
+        registration in the cache (``False`` also when it would register a sub-bracket: a
+        frame without signal left out). A caller that shows something sooner when the frames
+        are to be registered again asks this first (the inspector's interim picture)."""
+        with self._lock:
+            run = self._cache.run(params)
+            if not all(sig.usable for sig in self._signals(params, run)):
+                return False
+            return self._cache.has("registration", run.key("registration"))
 
     def noise(self) -> BracketNoise:
         """The noise measured from the frames and the noise floor derived from it
@@ -1032,7 +1063,8 @@ class Pipeline:
         if reference is not None:
             # The kept frame nearest to the one asked for (the darker one on a tie).
             ref = min(range(len(keep)), key=lambda i: (abs(keep[i] - int(reference)), keep[i]))
-        res = sub.run(replace(p, reference=ref), until=until, checks=checks)
+        # (a held registration is of the whole bracket's pairs: the subset registers its own)
+        res = sub.run(replace(p, reference=ref, hold_registration=None), until=until, checks=checks)
         if res.unused_frames:
             # The subset left more frames out (a ratio gap without EXIF): back to our indices.
             more = {keep[u.index]: replace(u, index=keep[u.index]) for u in res.unused_frames}
@@ -1098,6 +1130,10 @@ class Pipeline:
         frame_measures: FrameMeasures | None = None
         preview, factor = None, 1
         times, times_source = run.get("times_histogram")
+        reg_inputs = (
+            tuple(run.get("registration_levels")),
+            tuple(run.get("registration_ratios")),
+        )
         if want("registration"):
             registration = run.get("registration")
         if want("overlap_ratios"):
@@ -1150,6 +1186,7 @@ class Pipeline:
             marker_colour=self._marker_used,
             colour_pending=colour_pending,
             frame_measures=frame_measures,
+            registration_inputs=reg_inputs,
         )
         res = replace(res, verdicts=tuple(diagnose(res)))
         if upto == STAGES[-1] or self.last_result is None:
@@ -2213,6 +2250,8 @@ def _stage_times_histogram(ctx: _Context, p: Any, up: Inputs) -> tuple[tuple[flo
 
 
 def _stage_registration_ratios(ctx: _Context, p: Any, up: Inputs) -> tuple[float, ...]:
+    if p.hold_registration is not None:
+        return p.hold_registration[1]
     if p.times == "exif":
         times = up.times_histogram[0]
         return tuple(times[k + 1] / times[k] for k in range(len(times) - 1))
@@ -2238,11 +2277,39 @@ def snap_ratio(ratio: float, grid: float = RATIO_GRID_STOPS) -> float:
     return float(2.0 ** (round(math.log2(ratio) / grid) * grid))
 
 
+def _held_inputs(held: Any, n_frames: int) -> tuple[tuple[float, float], tuple[float, ...]] | None:
+    """``PipelineParams.hold_registration`` checked: two levels and a ratio per pair of the
+    bracket's ``n_frames`` (as floats, so a key does not depend on how they were given)."""
+    if held is None:
+        return None
+    try:
+        levels, ratios = held
+        levels = (float(levels[0]), float(levels[1]))
+        ratios = tuple(float(r) for r in ratios)
+        if len(held[0]) != 2:
+            raise ValueError
+    except (TypeError, ValueError, IndexError):
+        raise ParameterError(
+            "hold_registration must be a result's registration_inputs",
+            expected="((saturation, noise floor), (a ratio per pair))",
+            found=repr(held)[:80],
+        ) from None
+    if len(ratios) != n_frames - 1:
+        raise ParameterError(
+            "hold_registration holds another bracket's ratios",
+            expected=f"{n_frames - 1} ratios",
+            found=str(len(ratios)),
+        )
+    return levels, ratios
+
+
 def _stage_registration_levels(ctx: _Context, p: Any, up: Inputs) -> tuple[float, float]:
     """The saturation level and noise floor the registration reads: the requested ones
     snapped to the bracket's quantile ladder (:mod:`hdrcore.registration.thresholds`), so a
     slider step that moves the registration's masks by fewer than 0.5 % of the samples keeps
-    the registration's key."""
+    the registration's key; a held registration's (``hold_registration``)."""
+    if p.hold_registration is not None:
+        return p.hold_registration[0]
     return snap_levels(up.histograms.counts[:, 1], _level(p.saturation), _level(p.noise_floor))
 
 
@@ -2454,7 +2521,7 @@ GRAPH = StageGraph(
         Stage(
             "registration_ratios",
             _stage_registration_ratios,
-            ("times",),
+            ("times", "hold_registration"),
             ("ratios", "times_histogram"),
             by_value=True,
             internal=True,
@@ -2462,7 +2529,7 @@ GRAPH = StageGraph(
         Stage(
             "registration_levels",
             _stage_registration_levels,
-            _SAT_NF,
+            (*_SAT_NF, "hold_registration"),
             ("histograms",),
             by_value=True,
             internal=True,

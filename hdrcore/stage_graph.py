@@ -303,6 +303,13 @@ class StageCache:
         self.entries.clear()
         self.recent.clear()
 
+    def has(self, name: str, key: Any) -> bool:
+        """Whether stage ``name``'s value of ``key`` is held (current or kept)."""
+        entry = self.entries.get(name)
+        if entry is not None and entry.key == key:
+            return True
+        return any(e.key == key for e in self.recent.get(name, ()))
+
     def recall(self, name: str, key: Any) -> Entry | None:
         """Stage ``name``'s kept entry of ``key``, made current again (the current one kept in
         its place), or ``None``."""

@@ -214,6 +214,41 @@ class Session:
             return None
         return last
 
+    def interim_params(self, quick: PipelineResult) -> PipelineParams | None:
+        """The parameters of ``quick`` (a run until the ratios) with the last full run's
+        registration held (``PipelineParams.hold_registration``), when the step registers the
+        frames again only because what the registration reads snapped moved (a saturation or
+        noise-floor step across a rung of the bracket's ladder, :data:`SNAPPED_INPUTS`) and
+        that run's motion is the one a draft would take (:meth:`draft_motion`); else
+        ``None``. The full-resolution merge of these parameters is the new picture within a
+        re-merge's time, instead of after the registration (8-11 s on the real phone
+        brackets); the motion it holds moves by hundredths of a pixel for such a step."""
+        last = self._last_full_run()
+        if (
+            self.pipeline is None
+            or last is None
+            or last.registration_inputs is None
+            or quick.registration_inputs is None
+            or quick.registration_inputs == last.registration_inputs
+            or self.draft_motion(quick) is None
+        ):
+            return None
+        if self.pipeline.registration_cached(quick.params):
+            return None  # registered already (a value tried before): nothing to wait for
+        held = quick.params.replace(hold_registration=last.registration_inputs)
+        # (another field the registration reads changed too, a reset: it would register)
+        return held if self.pipeline.registration_cached(held) else None
+
+    def run_interim(
+        self, params: PipelineParams, progress: ProgressCallback | None = None
+    ) -> PipelineResult:
+        """The full run of :meth:`interim_params`'s parameters, checks left for later (the
+        picture only; neither the session's result nor its parameters change)."""
+        assert self.pipeline is not None  # interim_params found a full run
+        if progress is not None:
+            self.pipeline.progress = progress
+        return self.pipeline.run(params, checks="later")
+
     def draft_motion(self, quick: PipelineResult) -> BracketRegistration | None:
         """The last full run's registration, for a draft with the parameters of ``quick``, when
         it is that run's motion of the whole loaded bracket and the parameters that choose the

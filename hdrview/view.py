@@ -287,6 +287,8 @@ class ClientView:
         self.draft_max_side: int | None = None  # the draft's longer side (None: hdrcore's)
         self.last_draft_seconds: float | None = None  # job start -> draft preview drawn
         self.last_draft_cpu: float | None = None
+        # job start -> the interim picture drawn (full resolution, the last motion held)
+        self.last_interim_seconds: float | None = None
         # job start -> the full-resolution result drawn (before its ghost test)
         self.last_shown_seconds: float | None = None
         self.last_shown_cpu: float | None = None
@@ -909,6 +911,16 @@ class ClientView:
                     self.result_panel.show_draft(draft)
                     self.last_draft_seconds = time.perf_counter() - t0
                     self.last_draft_cpu = time.process_time() - c0
+            ctx.check()
+            held = self.session.interim_params(quick)
+            if held is not None:
+                # The frames are to be registered again (a step across a rung of the
+                # registration's level ladder): the full-resolution merge of the new levels
+                # on the last motion first, labelled, then the registration and its result.
+                interim = self.session.run_interim(held, progress=progress)
+                ctx.check()
+                self.result_panel.show_interim(interim)
+                self.last_interim_seconds = time.perf_counter() - t0
             ctx.check()
             registered = self.session.run(self.controls, progress=progress, until="registration")
             ctx.check()

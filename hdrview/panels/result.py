@@ -328,6 +328,24 @@ class ResultPanel:
             )
             self._images = {}
 
+    def show_interim(self, interim: PipelineResult) -> None:
+        """The full-resolution preview of a run that held the last registration
+        (:meth:`hdrview.session.Session.interim_params`) while the frames are registered again
+        for the new levels; the next :meth:`show` replaces it."""
+        if interim.preview is None:
+            return
+        preview = interim.preview.image
+        with self._lock:
+            self.image.image = fit_to_box(enlarge(_fit_width(np.asarray(preview))))
+            self.image.label = "tonemapped (last motion)"
+            self.image.visible = True
+            self.summary.content = (
+                "_Merged at full resolution with the new levels on the last registration; the "
+                "frames are being registered again for them (such a step moves the motion by "
+                "hundredths of a pixel) and the result follows._"
+            )
+            self._images = {}
+
     def bundle_files(self) -> list[tuple[str, bytes]]:
         return [(f"result-{name}.png", encode_png(img)) for name, img in self._images.items()]
 

@@ -110,3 +110,44 @@ def test_one_level_steps_of_an_8_bit_bracket_keep_the_registration(tmp_path) -> 
     p = kept[-1]
     fresh = Pipeline(load_bracket(files), p).run(p, until="registration")
     assert differences(pl.run(p, until="registration").registration, fresh.registration) == []
+
+
+def test_a_held_registration_is_the_last_runs_motion(sixteen_bit) -> None:
+    """``hold_registration``: a step out of the run merges on the last registration (from the
+    cache: nothing registers) with the new levels; the real run registers afterwards."""
+    pl = Pipeline(sixteen_bit(), PipelineParams(response="linear"))
+    first = pl.run()
+    assert first.registration_inputs is not None
+    far = first.params.replace(saturation=0.9 * first.saturation)
+    quick = pl.run(far, until="ratios")
+    assert quick.registration_inputs != first.registration_inputs
+    assert not pl.registration_cached(quick.params)
+    held = quick.params.replace(hold_registration=first.registration_inputs)
+    assert pl.registration_cached(held)
+    interim = pl.run(held, checks="later")
+    assert "registration" not in interim.stages_run and "merge" in interim.stages_run
+    assert interim.registration is first.registration
+    assert interim.saturation == quick.saturation
+    assert interim.registration_inputs == first.registration_inputs
+    # its merge is the one a pipeline given that motion makes with the new levels
+    fixed = Pipeline(sixteen_bit(), far, registration=first.registration).run(far)
+    assert np.array_equal(interim.radiance, fixed.radiance)
+    assert not np.array_equal(interim.radiance, first.radiance)
+    # the real step registers again and equals a fresh run of its parameters
+    final = pl.run(far)
+    assert "registration" in final.stages_run
+    assert final.registration_inputs == quick.registration_inputs
+    assert differences(final, Pipeline(sixteen_bit(), far).run(far)) == []
+    assert pl.registration_cached(final.params) and pl.registration_cached(held)
+
+
+@pytest.mark.parametrize(
+    "held",
+    [((240.0,), (4.0, 4.0)), ((240.0, 10.0), (4.0,)), "levels", ((240.0, 10.0), None)],
+)
+def test_a_held_registration_of_another_shape_is_refused(sixteen_bit, held) -> None:
+    from hdrcore.errors import ParameterError
+
+    pl = Pipeline(sixteen_bit(), PipelineParams(response="linear"))
+    with pytest.raises(ParameterError, match="hold_registration"):
+        pl.run(PipelineParams(response="linear", hold_registration=held), until="ratios")
