@@ -1185,6 +1185,8 @@ def _anchor_pass(
     rs2 = np.empty(w, np.float32)
     rws = np.empty(w, np.float32)
     ra = np.empty(w, np.float32)
+    xib = np.empty(w, np.int64)  # a warped frame's nearest pixels along the row
+    yib = np.empty(w, np.int64)
     full = 0  # pixels some frame gave their colour fully (band weight 1)
     for y in range(r0, r1):
         gy = (y - step // 2) / step
@@ -1215,13 +1217,17 @@ def _anchor_pass(
                     # without branches (:func:`_band_row`)
                     _band_row(frame, y, k, tabg, bt, ew, max_level, rs0, rs1, rs2, rws, ra)
                     continue
+                if hk:
+                    # the nearest pixels of the row first, in a loop of their own (SIMD:
+                    # the divisions were most of a warped frame's cost)
+                    for x in range(w):
+                        den = hm[2, 0] * x + h21y + hm[2, 2]
+                        xib[x] = int(round((hm[0, 0] * x + h01y + hm[0, 2]) / den))
+                        yib[x] = int(round((hm[1, 0] * x + h11y + hm[1, 2]) / den))
                 for x in range(w):
                     if hk:
-                        den = hm[2, 0] * x + h21y + hm[2, 2]
-                        u = (hm[0, 0] * x + h01y + hm[0, 2]) / den
-                        v = (hm[1, 0] * x + h11y + hm[1, 2]) / den
-                        xi = int(round(u))
-                        yi = int(round(v))
+                        xi = xib[x]
+                        yi = yib[x]
                         if xi < 0 or xi >= fw or yi < 0 or yi >= fh:
                             continue
                     else:
