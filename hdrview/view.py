@@ -917,10 +917,19 @@ class ClientView:
                 # The frames are to be registered again (a step across a rung of the
                 # registration's level ladder): the full-resolution merge of the new levels
                 # on the last motion first, labelled, then the registration and its result.
-                interim = self.session.run_interim(held, progress=progress)
+                from hdrcore.pipeline import Cancelled
+
+                try:
+                    interim = self.session.run_interim(held, progress=progress)
+                except Cancelled:
+                    raise
+                except Exception:  # the interim never stands in the full run's way
+                    log.warning("the interim picture failed; the full run goes on", exc_info=True)
+                    interim = None
                 ctx.check()
-                self.result_panel.show_interim(interim)
-                self.last_interim_seconds = time.perf_counter() - t0
+                if interim is not None:
+                    self.result_panel.show_interim(interim)
+                    self.last_interim_seconds = time.perf_counter() - t0
             ctx.check()
             registered = self.session.run(self.controls, progress=progress, until="registration")
             ctx.check()

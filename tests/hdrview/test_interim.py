@@ -100,3 +100,27 @@ def test_a_step_that_registers_again_shows_the_interim_first(view: ClientView, m
     view.set_control("saturation", kept)
     assert view.wait_idle(120)
     assert len(shown) == 1 and not _errors(view)
+
+
+def test_a_failed_interim_leaves_the_full_run_alone(view: ClientView, monkeypatch, caplog):
+    assert view.request_path("bracket")
+    assert view.wait_idle(120)
+    steps = _steps(view)
+    assert steps is not None
+    start, kept, moved = steps
+    view.set_control("saturation", kept)
+    assert view.wait_idle(120)
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("interim broke")
+
+    monkeypatch.setattr(view.session, "run_interim", broken)
+    view.last_interim_seconds = None
+    with caplog.at_level("WARNING", logger="hdrview.view"):
+        view.set_control("saturation", moved)
+        assert view.wait_idle(120)
+    assert not _errors(view)
+    assert view.last_interim_seconds is None
+    assert view.session.result.saturation == moved
+    assert view.result_panel.image.label == "tonemapped"
+    assert any("interim picture failed" in r.getMessage() for r in caplog.records)
