@@ -165,3 +165,32 @@ def test_overwrite_input_copies_what_it_cannot_overwrite(tmp_path: Path) -> None
     as64 = kept.astype(np.float64)
     write_exr(tmp_path / "d.exr", as64, overwrite_input=True)
     np.testing.assert_array_equal(as64, kept.astype(np.float64))
+
+
+def test_the_compiled_half_cast_is_numpys_to_the_bit() -> None:
+    """:func:`hdrcore.io.exr._half_block` against numpy's cast: every float32 exponent from
+    below the smallest subnormal half to 65504, each with its 2**13 low significand patterns
+    around the half's rounding bit (every tie, even and odd), random significands, and the
+    values the writer cleans (NaN, infinities, negatives, -0.0, past HALF_MAX)."""
+    rng = np.random.default_rng(5)
+    top = int(np.float32(65504.0).view(np.uint32))
+    exps = np.arange(0, (top >> 23) + 1, dtype=np.uint32) << 23
+    low = np.arange(1 << 14, dtype=np.uint32)  # bits 0-13: the rounding bit and below
+    high = rng.integers(0, 1 << 9, (len(exps), 4), dtype=np.uint32) << 14
+    bits = (exps[:, None, None] | high[:, :, None] | low[None, None, :]).ravel()
+    bits = np.concatenate([bits, rng.integers(0, top + 1, 1 << 20, dtype=np.uint32)])
+    bits = bits[bits <= top]
+    values = bits.view(np.float32)
+    out = np.empty(values.size, np.uint16)
+    assert exr_module._half_block(values, out) == 0
+    np.testing.assert_array_equal(out, values.astype(np.float16).view(np.uint16))
+    special = np.array(
+        [np.nan, -np.inf, np.inf, -1.0, -0.0, 0.0, 1e9, 65519.0, 65520.0, 70000.0, 5.96e-8],
+        np.float32,
+    )
+    out = np.empty(special.size, np.uint16)
+    clipped = exr_module._half_block(special, out)
+    assert clipped == 4  # 1e9, 65519 (rounds past 65504), 65520, 70000; not +inf
+    np.testing.assert_array_equal(
+        out, _reference_values(special[None, None], True).ravel().view(np.uint16)
+    )
