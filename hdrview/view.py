@@ -89,6 +89,14 @@ PLOTLY_GAP = 0.3
 """Seconds between a first page's status line (with the result) and plotly.js: messages that
 arrive together are handled before the browser draws, so the script would hold up the line."""
 WEBGL_TOAST = "webgl-software-rendering"  # viser's own notification id (BrowserWarning.tsx)
+INTERIM_WORTH_SECONDS = 1.0
+"""The interim picture (the new levels merged on the last registration) is drawn before a
+re-registration only when the bracket's last registration took at least this long: it delays
+the result by a re-merge. Measured with the rule off (`bench/bench_hdrview.py --steps all`):
+the tripod frobisher registers in 0.2 s and its re-registered steps' result came 0.46-0.53 s
+after the change instead of 0.36-0.43 s, the interim at 0.19 s; the real phone brackets
+register in 8-11 s (the interim at 1.8-3.5 s)."""
+
 DRAFT_WORTH_SECONDS = 2.0
 """A draft is drawn before the full re-merge only when the last full re-merge of the bracket
 (its stages after the registration, to the result drawn) took at least this long. A draft
@@ -289,6 +297,8 @@ class ClientView:
         self.last_draft_cpu: float | None = None
         # job start -> the interim picture drawn (full resolution, the last motion held)
         self.last_interim_seconds: float | None = None
+        # the bracket's last registration stage, seconds (INTERIM_WORTH_SECONDS)
+        self.registration_stage_seconds: float | None = None
         # job start -> the full-resolution result drawn (before its ghost test)
         self.last_shown_seconds: float | None = None
         self.last_shown_cpu: float | None = None
@@ -860,6 +870,7 @@ class ClientView:
                 raise
             self._loaded = wanted
             self.last_merge_seconds = None  # another bracket: its re-merge not timed yet
+            self.registration_stage_seconds = None
             self._sync_widgets_to_bracket()
             self.notify("Loaded", f"{label}: {len(self.session.bracket or ())} frames")
         ctx.check()
@@ -912,7 +923,11 @@ class ClientView:
                     self.last_draft_seconds = time.perf_counter() - t0
                     self.last_draft_cpu = time.process_time() - c0
             ctx.check()
-            held = self.session.interim_params(quick)
+            held = (
+                self.session.interim_params(quick)
+                if (self.registration_stage_seconds or 0.0) >= INTERIM_WORTH_SECONDS
+                else None
+            )
             if held is not None:
                 # The frames are to be registered again (a step across a rung of the
                 # registration's level ladder): the full-resolution merge of the new levels
@@ -932,6 +947,8 @@ class ClientView:
                     self.last_interim_seconds = time.perf_counter() - t0
             ctx.check()
             registered = self.session.run(self.controls, progress=progress, until="registration")
+            if "registration" in registered.stages_run:
+                self.registration_stage_seconds = registered.timings.get("registration")
             ctx.check()
             drawn = self._drawn_result
             t_registered = time.perf_counter()

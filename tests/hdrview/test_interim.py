@@ -9,6 +9,7 @@ from pathlib import Path
 import pytest
 import viser
 
+from hdrview import view as view_module
 from hdrview.app import InspectorApp
 from hdrview.view import ClientView
 
@@ -53,6 +54,7 @@ def _steps(view: ClientView) -> tuple[float, float, float] | None:
 
 
 def test_a_step_that_registers_again_shows_the_interim_first(view: ClientView, monkeypatch):
+    monkeypatch.setattr(view_module, "INTERIM_WORTH_SECONDS", 0.0)  # however quick it registers
     shown: list[tuple[str, str, object]] = []
     panel = view.result_panel
     original = panel.show_interim
@@ -103,6 +105,7 @@ def test_a_step_that_registers_again_shows_the_interim_first(view: ClientView, m
 
 
 def test_a_failed_interim_leaves_the_full_run_alone(view: ClientView, monkeypatch, caplog):
+    monkeypatch.setattr(view_module, "INTERIM_WORTH_SECONDS", 0.0)
     assert view.request_path("bracket")
     assert view.wait_idle(120)
     steps = _steps(view)
@@ -124,3 +127,43 @@ def test_a_failed_interim_leaves_the_full_run_alone(view: ClientView, monkeypatc
     assert view.session.result.saturation == moved
     assert view.result_panel.image.label == "tonemapped"
     assert any("interim picture failed" in r.getMessage() for r in caplog.records)
+
+
+def test_no_interim_when_the_bracket_registers_quickly(view: ClientView, monkeypatch) -> None:
+    """The interim delays the result by a re-merge: drawn only when the last registration took
+    INTERIM_WORTH_SECONDS or longer."""
+    drawn: list[object] = []
+    monkeypatch.setattr(view.result_panel, "show_interim", drawn.append)
+    assert view.request_path("bracket")
+    assert view.wait_idle(120)
+    took = view.registration_stage_seconds
+    assert took is not None and 0.0 < took < view_module.INTERIM_WORTH_SECONDS
+    steps = _steps(view)
+    assert steps is not None
+    start, kept, moved = steps
+    view.set_control("saturation", kept)
+    assert view.wait_idle(120)
+    view.set_control("saturation", moved)
+    assert view.wait_idle(120)
+    assert not drawn and view.last_interim_seconds is None
+    assert view.session.result.saturation == moved and not _errors(view)
+    # a bracket that registers slowly: the next step that registers again draws it (a level
+    # further down whose registration inputs are new: none cached)
+    first = view.session.result
+    seen = {first.registration_inputs}
+    for z in (kept, start):
+        p = first.params.replace(saturation=z)
+        seen.add(view.session.pipeline.run(p, until="ratios").registration_inputs)
+    further = None
+    for d in range(1, 40):
+        z = moved - d
+        p = first.params.replace(saturation=z)
+        if view.session.pipeline.run(p, until="ratios").registration_inputs not in seen:
+            further = z
+            break
+    assert further is not None
+    monkeypatch.setattr(view_module, "INTERIM_WORTH_SECONDS", took / 2)
+    view.registration_stage_seconds = took
+    view.set_control("saturation", further)
+    assert view.wait_idle(120)
+    assert len(drawn) == 1 and view.last_interim_seconds is not None
