@@ -115,6 +115,32 @@ def test_draft_bracket_takes_frames_binned_once() -> None:
     assert cache.binnings == 4
 
 
+def test_a_response_that_barely_moved_bins_nothing_again() -> None:
+    """A hand-held bracket's response is recovered again after each registration (the real
+    Xperia's moved by 2.6e-5 of its top): within DRAFT_LUT_TOLERANCE the binned frames serve;
+    a curve further off bins anew."""
+    from hdrcore.draft import DRAFT_LUT_TOLERANCE
+
+    b = _bracket((64, 96))
+    g = np.tile(np.linspace(0.0, 1.0, 256) ** 2.2, (3, 1))
+    cache = DraftCache()
+    first = cache.binned(b, 4, exclude_colour=None, lut=g)
+    nudged = g + 0.5 * DRAFT_LUT_TOLERANCE * np.sin(np.arange(256))[None]
+    assert cache.binned(b, 4, exclude_colour=None, lut=nudged) is first
+    assert cache.binnings == 1
+    far = g + 4 * DRAFT_LUT_TOLERANCE * (np.arange(256) == 128)[None]
+    assert cache.binned(b, 4, exclude_colour=None, lut=far) is not first
+    assert cache.binnings == 2
+    assert cache.binned(b, 4, exclude_colour=None, lut=None) is not first  # linear: anew
+    assert cache.binnings == 3
+    # what the nudged curve bins to differs from the first curve's by at most 2 fine levels
+    # (1/8 of a frame's level: 16 fine levels a level; the dark end, where g is flattest)
+    exact = bin_bracket(b, 4, lut=nudged)
+    for x, y in zip(first, exact, strict=True):
+        assert x.top == y.top == 16 * 255
+        assert int(np.max(np.abs(x.levels.astype(int) - y.levels.astype(int)))) <= 2
+
+
 def test_numpy_engine_is_a_deprecated_alias() -> None:
     rng = np.random.default_rng(2)
     lv = rng.integers(0, 256, (32, 40, 3)).astype(np.uint8)
