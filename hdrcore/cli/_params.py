@@ -74,6 +74,8 @@ NOT_ON_COMMAND_LINE: dict[str, str] = {
     "working_space": "library only for now: the command line writes sRGB radiance maps",
     "registration_previews": "the inspector's overlays; the command line always switches "
     "them off (the overlays are drawn for every pair, which only the inspector shows)",
+    "hold_registration": "the inspector's interim picture: a previous run's registration "
+    "inputs in the same process (a command runs once; it has no previous run to hold)",
 }
 
 #: old flag -> (field, value translation) for each command that had it; kept for one release
