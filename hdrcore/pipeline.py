@@ -717,6 +717,13 @@ class Pipeline:
             hold_registration=_held_inputs(p.hold_registration, len(b)),
         )
 
+    def stage_seconds(self, stage: str) -> float | None:
+        """What computing ``stage``'s current cached value took (seconds, its own time), or
+        ``None`` when it holds none: the cost a run that computes it again should expect."""
+        with self._lock:
+            entry = self._cache.entries.get(stage)
+            return None if entry is None else float(entry.seconds)
+
     def registration_cached(self, params: PipelineParams) -> bool:
         """Whether a run with ``params`` (checked ones: a result's ``params``) finds its
         registration in the cache (``False`` also when it would register a sub-bracket: a
