@@ -9,7 +9,9 @@ is recorded in ``hdrviewClippedHalf``.
 Compression is lossless: PIZ by default (the wavelet coder made for grainy photographic images:
 on a 24-megapixel merge it wrote 2x faster than ZIP and 4 % smaller), or ZIP, ZSTD or none. The
 conversion to half floats runs over row blocks on two threads into one plane per channel (no
-interleaved copy of the image) and OpenEXR compresses on two. A ``-0.0`` is written as ``0``.
+interleaved copy of the image), or with ``overwrite_input`` in the image's own memory by one
+compiled pass; OpenEXR is given two threads (its Python binding compresses on one all the
+same: README). A ``-0.0`` is written as ``0``.
 """
 
 from __future__ import annotations
@@ -134,7 +136,7 @@ def _storage_in_place(arr: np.ndarray, half: bool) -> tuple[dict[str, np.ndarray
     block's half values land on bytes of rows already read (row ``r`` ends at byte ``6 W (r +
     1)`` of the half array, before the end of the float row, ``12 W (r + 1)``). Half floats
     are made by a compiled pass (:func:`_half_block`: the same bits as numpy's cast, which
-    runs in software; a 24 MP merge 0.9 -> see the README)."""
+    runs in software; 24 MP of lognormal radiance 0.29 -> 0.11 s, the same bytes)."""
     h, w = arr.shape[:2]
     if not half:
         tmp = np.empty((min(_ROWS, h), w, 3), np.float32)
