@@ -269,6 +269,21 @@ class _Aside:
             log.warning("a drawing beside the pipeline failed", exc_info=error)
 
 
+def _provisional(what: str, run: Callable[[], PipelineResult]) -> PipelineResult | None:
+    """``run()``, a picture shown before the full run's (a draft, the interim); a failure is
+    logged and gives ``None``: it never stands in the full run's way (a newer request's
+    ``Cancelled`` goes through)."""
+    from hdrcore.pipeline import Cancelled
+
+    try:
+        return run()
+    except Cancelled:
+        raise
+    except Exception:
+        log.warning("the %s failed; the full run goes on", what, exc_info=True)
+        return None
+
+
 class ClientView:
     """All state of one page; methods are safe to call from any thread."""
 
@@ -906,17 +921,12 @@ class ClientView:
             ):
                 # A large bracket: the preview of a binned copy (hdrcore.draft) first, so the
                 # page follows a slider in a fraction of the full re-merge's time.
-                from hdrcore.pipeline import Cancelled
-
-                try:
-                    draft = self.session.run_draft(
+                draft = _provisional(
+                    "draft preview",
+                    lambda: self.session.run_draft(
                         quick, progress=progress, max_side=self.draft_max_side
-                    )
-                except Cancelled:
-                    raise
-                except Exception:  # the draft never stands in the full run's way
-                    log.warning("the draft preview failed; the full run goes on", exc_info=True)
-                    draft = None
+                    ),
+                )
                 ctx.check()
                 if draft is not None:
                     self.result_panel.show_draft(draft)
@@ -937,15 +947,10 @@ class ClientView:
                 # The frames are to be registered again (a step across a rung of the
                 # registration's level ladder): the full-resolution merge of the new levels
                 # on the last motion first, labelled, then the registration and its result.
-                from hdrcore.pipeline import Cancelled
-
-                try:
-                    interim = self.session.run_interim(held, progress=progress)
-                except Cancelled:
-                    raise
-                except Exception:  # the interim never stands in the full run's way
-                    log.warning("the interim picture failed; the full run goes on", exc_info=True)
-                    interim = None
+                interim = _provisional(
+                    "interim picture",
+                    lambda: self.session.run_interim(held, progress=progress),
+                )
                 ctx.check()
                 if interim is not None:
                     self.result_panel.show_interim(interim)

@@ -707,6 +707,16 @@ def _field_node(xf, fgeo, gw):
     return min(int(fx), gw - 2)
 
 
+@_inline
+def _support_at(sx, sy, xhi, yhi, fo, wlim, hlim):
+    """A mapped point and its support's floor: a point inside the frame whose support is not
+    is sampled at the nearest position whose support fits (merge/spec.py border_clamp)."""
+    fit = (sx >= -0.5) & (sx <= xhi) & (sy >= -0.5) & (sy <= yhi)
+    sx = min(max(sx, fo), wlim) if fit else sx
+    sy = min(max(sy, fo), hlim) if fit else sy
+    return sx, sy, np.floor(sx), np.floor(sy)
+
+
 @_njit
 def _warp_setup(
     m00,
@@ -803,20 +813,12 @@ def _warp_setup(
             )
     else:
         fea[:nbk] = 1.0
-    # a point inside the frame whose support is not: sampled at the nearest position whose
-    # support fits (merge/spec.py border_clamp)
     xhi = wlim + ntap - o - 0.5
     yhi = hlim + ntap - o - 0.5
     fo = np.float64(o)
     if ntap == 4:
         for i in range(nbk):
-            sx = sxb[i]
-            sy = syb[i]
-            fit = (sx >= -0.5) & (sx <= xhi) & (sy >= -0.5) & (sy <= yhi)
-            sx = min(max(sx, fo), wlim) if fit else sx
-            sy = min(max(sy, fo), hlim) if fit else sy
-            fx0 = np.floor(sx)
-            fy0 = np.floor(sy)
+            sx, sy, fx0, fy0 = _support_at(sxb[i], syb[i], xhi, yhi, fo, wlim, hlim)
             wa, wb, wc, wd = _keys(sx - fx0)
             wxp[0, i] = wa
             wxp[1, i] = wb
@@ -831,13 +833,7 @@ def _warp_setup(
             syb[i] = fy0
     else:
         for i in range(nbk):
-            sx = sxb[i]
-            sy = syb[i]
-            fit = (sx >= -0.5) & (sx <= xhi) & (sy >= -0.5) & (sy <= yhi)
-            sx = min(max(sx, fo), wlim) if fit else sx
-            sy = min(max(sy, fo), hlim) if fit else sy
-            fx0 = np.floor(sx)
-            fy0 = np.floor(sy)
+            sx, sy, fx0, fy0 = _support_at(sxb[i], syb[i], xhi, yhi, fo, wlim, hlim)
             fx = sx - fx0
             fy = sy - fy0
             wxp[0, i] = np.float32(1.0 - fx)

@@ -314,36 +314,36 @@ class ResultPanel:
     def show_draft(self, draft: PipelineResult) -> None:
         """The preview of a draft (:func:`hdrcore.draft.run_draft`, the bracket binned) while
         the full-resolution merge runs; the next :meth:`show` replaces it."""
-        if draft.preview is None:
-            return
-        preview = draft.preview.image
-        with self._lock:
-            self.image.image = fit_to_box(enlarge(_fit_width(np.asarray(preview))))
-            self.image.label = "tonemapped (draft)"
-            self.image.visible = True
-            f = draft.preview_factor
-            self.summary.content = (
-                f"_Draft: the bracket binned {f}x{f}, merged with the same parameters; the "
-                "full-resolution merge follows._"
-            )
-            self._images = {}
+        f = draft.preview_factor
+        self._show_provisional(
+            draft,
+            "tonemapped (draft)",
+            f"_Draft: the bracket binned {f}x{f}, merged with the same parameters; the "
+            "full-resolution merge follows._",
+        )
 
     def show_interim(self, interim: PipelineResult) -> None:
         """The full-resolution preview of a run that held the last registration
         (:meth:`hdrview.session.Session.interim_params`) while the frames are registered again
         for the new levels; the next :meth:`show` replaces it."""
-        if interim.preview is None:
+        self._show_provisional(
+            interim,
+            "tonemapped (last motion)",
+            "_Merged at full resolution with the new levels on the last registration; the "
+            "frames are being registered again for them (such a step moves the motion by "
+            "hundredths of a pixel) and the result follows._",
+        )
+
+    def _show_provisional(self, result: PipelineResult, label: str, summary: str) -> None:
+        """A picture shown until the next :meth:`show` (no layers, nothing to export)."""
+        if result.preview is None:
             return
-        preview = interim.preview.image
+        preview = result.preview.image
         with self._lock:
             self.image.image = fit_to_box(enlarge(_fit_width(np.asarray(preview))))
-            self.image.label = "tonemapped (last motion)"
+            self.image.label = label
             self.image.visible = True
-            self.summary.content = (
-                "_Merged at full resolution with the new levels on the last registration; the "
-                "frames are being registered again for them (such a step moves the motion by "
-                "hundredths of a pixel) and the result follows._"
-            )
+            self.summary.content = summary
             self._images = {}
 
     def bundle_files(self) -> list[tuple[str, bytes]]:

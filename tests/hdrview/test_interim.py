@@ -3,30 +3,27 @@ new levels on the last motion (labelled), then the registration's own result."""
 
 from __future__ import annotations
 
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-import viser
 
 from hdrview import view as view_module
-from hdrview.app import InspectorApp
 from hdrview.view import ClientView
 
 from ._brackets import write_png_bracket
 
 
 @pytest.fixture
-def view(tmp_path: Path) -> Iterator[ClientView]:
+def bracket_root(tmp_path: Path) -> Path:
+    """The conftest's root with a smaller bracket (its ladder has both kinds of step)."""
     root = tmp_path / "root"
     write_png_bracket(root / "bracket", shape=(120, 180))
-    server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
-    inspector = InspectorApp(server, root=root, demo_dir=None)
-    try:
-        yield inspector.headless_view()
-    finally:
-        inspector.stop()
-        server.stop()
+    return root
+
+
+@pytest.fixture
+def view(app: ClientView) -> ClientView:
+    return app
 
 
 def _errors(view: ClientView) -> list[str]:
