@@ -34,6 +34,8 @@ __all__ = [
     "keys4",
     "dkeys4",
     "keys_at",
+    "keys_row_weights",
+    "keys_row_at",
     "rigid_matrix",
     "similarity_matrix",
     "compose",
@@ -339,6 +341,54 @@ def keys_at(src, sx, sy):  # pragma: no cover - compiled
     iy = int(np.floor(sy))
     wx0, wx1, wx2, wx3 = keys4(sx - ix)
     wy0, wy1, wy2, wy3 = keys4(sy - iy)
+    return _keys_taps(src, ix, iy, wx0, wx1, wx2, wx3, wy0, wy1, wy2, wy3)
+
+
+@_inline
+def keys_row_weights(sx, sy, n, ix, iy, wx, wy):  # pragma: no cover - compiled
+    """For the positions ``sx[:n], sy[:n]``: ``ix, iy`` their floors and ``wx, wy`` ``(>= n,
+    4)`` their Keys weights, as :func:`keys_at` takes them (meaningless for a position that is
+    not finite: read only those inside the frame). A straight loop of its
+    own (it vectorises), for a row of reads by :func:`keys_row_at`: the same values as
+    ``keys_at`` to the bit, in about half its time a pixel when each read makes its own."""
+    for k in range(n):
+        fx = np.floor(sx[k])
+        fy = np.floor(sy[k])
+        ix[k] = int(fx)
+        iy[k] = int(fy)
+        a0, a1, a2, a3 = keys4(sx[k] - fx)
+        b0, b1, b2, b3 = keys4(sy[k] - fy)
+        wx[k, 0] = a0
+        wx[k, 1] = a1
+        wx[k, 2] = a2
+        wx[k, 3] = a3
+        wy[k, 0] = b0
+        wy[k, 1] = b1
+        wy[k, 2] = b2
+        wy[k, 3] = b3
+
+
+@_inline
+def keys_row_at(src, k, ix, iy, wx, wy):  # pragma: no cover - compiled
+    """:func:`keys_at` of the ``k``-th position of a row set up by :func:`keys_row_weights`."""
+    return _keys_taps(
+        src,
+        ix[k],
+        iy[k],
+        wx[k, 0],
+        wx[k, 1],
+        wx[k, 2],
+        wx[k, 3],
+        wy[k, 0],
+        wy[k, 1],
+        wy[k, 2],
+        wy[k, 3],
+    )
+
+
+@_inline
+def _keys_taps(src, ix, iy, wx0, wx1, wx2, wx3, wy0, wy1, wy2, wy3):  # pragma: no cover
+    h, w = src.shape
     x0 = min(max(ix - 1, 0), w - 1)
     x1 = min(max(ix, 0), w - 1)
     x2 = min(max(ix + 1, 0), w - 1)
