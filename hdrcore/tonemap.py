@@ -25,17 +25,16 @@ doi:10.1145/566654.566575
 
 from __future__ import annotations
 
-import os
 import time
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from functools import lru_cache
 from typing import Any
 
 import numba
 import numpy as np
 
+from ._colour_cache import cache_file, cached_arrays
 from ._threads import run_row_spans
 from .errors import ParameterError, validate_method
 
@@ -56,62 +55,50 @@ _DELTA = 1e-6  # Reinhard's delta in eq. 1, avoids log(0) on black pixels
 
 
 def _cache_file() -> str | None:
-    """Where colour-science's constants for the preview are kept between processes: the user's
-    cache folder, one file per colour-science version (``None`` if unknown)."""
-    try:
-        from importlib.metadata import version
-
-        ver = version("colour-science")
-    except Exception:
-        return None
-    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return os.path.join(base, "hdrcore", f"srgb-colour-science-{ver}-{_LUT_SIZE}.npz")
+    """Where colour-science's constants for the preview are kept between processes
+    (:mod:`hdrcore._colour_cache`: the user's cache folder, one file per colour-science
+    version; ``None`` if unknown)."""
+    return cache_file(_CONSTANTS)
 
 
-def _compute_constants() -> tuple[np.ndarray, np.ndarray]:
+_CONSTANTS = f"preview-srgb-{_LUT_SIZE}"
+
+
+def _compute_constants() -> dict[str, np.ndarray]:
     import colour  # imported lazily: importing colour-science is slow
 
     m = np.asarray(colour.RGB_COLOURSPACES["sRGB"].matrix_RGB_to_XYZ, dtype=np.float64)
     x = np.linspace(0.0, 1.0, _LUT_SIZE)
     v = np.asarray(colour.cctf_encoding(x, function="sRGB"), dtype=np.float64)
-    return m[1].astype(np.float32), np.clip(np.rint(v * 255.0), 0, 255).astype(np.uint8)
+    return {
+        "luminance": m[1].astype(np.float32),
+        "srgb": np.clip(np.rint(v * 255.0), 0, 255).astype(np.uint8),
+    }
 
 
-@lru_cache(maxsize=1)
+def _constants_valid(a: dict[str, np.ndarray]) -> bool:
+    y, lut = a.get("luminance"), a.get("srgb")
+    return (
+        y is not None
+        and lut is not None
+        and y.shape == (3,)
+        and y.dtype == np.float32
+        and lut.shape == (_LUT_SIZE,)
+        and lut.dtype == np.uint8
+    )
+
+
 def _colour_constants() -> tuple[np.ndarray, np.ndarray]:
     """``(luminance weights, sRGB 16-bit -> 8-bit table)`` from colour-science.
 
     Both are computed by colour-science (the Y row of its sRGB RGB -> XYZ matrix, and its sRGB
     ``cctf_encoding`` sampled at 65536 points) and kept in the user's cache folder, keyed by the
-    colour-science version: importing colour-science is slow, and a command that only writes
-    a preview would pay for it on every run. A missing, stale or unreadable cache is
-    computed again; a cache that cannot be written is not an error.
+    colour-science version (:func:`hdrcore._colour_cache.cached_arrays`): importing
+    colour-science is slow, and a command that only writes a preview would pay for it on every
+    run.
     """
-    path = _cache_file()
-    if path is not None:
-        try:
-            with np.load(path) as z:
-                y, lut = z["luminance"], z["srgb"]
-            if (
-                y.shape == (3,)
-                and y.dtype == np.float32
-                and lut.shape == (_LUT_SIZE,)
-                and lut.dtype == np.uint8
-            ):
-                return y, lut
-        except (OSError, KeyError, ValueError):
-            pass
-    y, lut = _compute_constants()
-    if path is not None:
-        from .errors import HdrError
-        from .io.atomic import atomic_write
-
-        try:
-            os.makedirs(os.path.dirname(path), exist_ok=True)
-            atomic_write(path, lambda tmp: np.savez(tmp, luminance=y, srgb=lut), force=True)
-        except (OSError, HdrError):
-            pass
-    return y, lut
+    a = cached_arrays(_CONSTANTS, _compute_constants, _constants_valid)
+    return a["luminance"], a["srgb"]
 
 
 def _luminance_weights() -> np.ndarray:

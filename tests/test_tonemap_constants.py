@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from hdrcore import tonemap
+from hdrcore import _colour_cache, tonemap
 
 
 def test_constants_come_from_colour_science_and_are_cached(tmp_path, monkeypatch) -> None:
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
-    tonemap._colour_constants.cache_clear()
+    _colour_cache.clear_memory()
     y, lut = tonemap._colour_constants()
     # The truth, written out here (IEC 61966-2-1): the Y row of sRGB's RGB -> XYZ matrix and
     # the sRGB encoding, sampled at 65536 points and rounded to 8 bits.
@@ -24,24 +24,24 @@ def test_constants_come_from_colour_science_and_are_cached(tmp_path, monkeypatch
     path = tonemap._cache_file()
     assert path is not None and path.startswith(str(tmp_path))
     # A later process reads the file: here, a stand-in table proves it is the one used.
-    tonemap._colour_constants.cache_clear()
+    _colour_cache.clear_memory()
     marked = want_lut.copy()
     marked[1] = 7
     np.savez(path, luminance=want_y, srgb=marked)
     assert tonemap._colour_constants()[1][1] == 7
     # A damaged file is computed again.
-    tonemap._colour_constants.cache_clear()
+    _colour_cache.clear_memory()
     with open(path, "wb") as f:
         f.write(b"not a numpy file")
     np.testing.assert_array_equal(tonemap._colour_constants()[1], want_lut)
-    tonemap._colour_constants.cache_clear()
+    _colour_cache.clear_memory()
 
 
 def test_unwritable_cache_is_not_an_error(tmp_path, monkeypatch) -> None:
     blocker = tmp_path / "file"
     blocker.write_text("x")
     monkeypatch.setenv("XDG_CACHE_HOME", str(blocker))  # a file where a folder should be
-    tonemap._colour_constants.cache_clear()
+    _colour_cache.clear_memory()
     y, lut = tonemap._colour_constants()
     assert lut.shape == (65536,) and lut[-1] == 255
-    tonemap._colour_constants.cache_clear()
+    _colour_cache.clear_memory()

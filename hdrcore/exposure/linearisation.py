@@ -18,9 +18,10 @@ def linear_lut(max_level: int) -> np.ndarray:
 
 
 def srgb_lut(max_level: int) -> np.ndarray:
-    """The sRGB inverse transfer function sampled at every level, ``(max_level + 1,)`` float64."""
-    import colour  # imported lazily: colour-science is slow to import
+    """The sRGB inverse transfer function sampled at every level, ``(max_level + 1,)`` float64
+    (colour-science's, kept in the user's cache folder: :func:`hdrcore._colour_cache.srgb_eotf`;
+    ``cctf_decoding(..., function="sRGB")`` gives the same values)."""
+    from .._colour_cache import srgb_eotf
 
-    v = np.arange(max_level + 1, dtype=np.float64) / max_level
-    g = np.asarray(colour.cctf_decoding(v, function="sRGB"), np.float64)
+    g = srgb_eotf(max_level)
     return g / g[-1]

@@ -134,11 +134,12 @@ def linear_response(max_level: int = 255, n_channels: int = 3) -> ResponseCurve:
 
 
 def srgb_response(max_level: int = 255, n_channels: int = 3) -> ResponseCurve:
-    """sRGB decoding (IEC 61966-2-1 EOTF, ``colour.models.eotf_sRGB``) at every level."""
-    import colour
+    """sRGB decoding (IEC 61966-2-1 EOTF, ``colour.models.eotf_sRGB``) at every level (kept in
+    the user's cache folder: :func:`hdrcore._colour_cache.srgb_eotf`)."""
+    from .._colour_cache import srgb_eotf
 
     m, c = _check_special(max_level, n_channels)
-    v = np.asarray(colour.models.eotf_sRGB(np.arange(m + 1) / m), dtype=np.float64)
+    v = srgb_eotf(m)
     g = normalise_curve(np.tile(v, (c, 1)))
     return ResponseCurve(g=g, method="srgb", message="sRGB decoding (colour-science eotf_sRGB)")
 
