@@ -50,7 +50,9 @@ def cached_arrays(
 ) -> dict[str, np.ndarray]:
     """The arrays ``compute()`` makes (it imports colour-science), read from the table's cache
     file when that holds arrays ``valid`` accepts, else computed and written there (atomically;
-    a failed write is ignored). Kept in memory per process and cache file (read-only arrays)."""
+    a failed write is ignored). Kept in memory per process and cache file: shared, not to be
+    written to (left writeable: a read-only array is another type to numba's kernels, one more
+    compilation)."""
     path = cache_file(stem)
     key = (stem, path)
     with _LOCK:
@@ -78,8 +80,6 @@ def cached_arrays(
                 atomic_write(path, lambda tmp: np.savez(tmp, **data), force=True)  # type: ignore[arg-type]
             except (OSError, HdrError):
                 pass
-    for a in arrays.values():
-        a.flags.writeable = False
     with _LOCK:
         _MEMORY[key] = arrays
     return arrays
@@ -94,7 +94,8 @@ def clear_memory() -> None:
 def srgb_eotf(max_level: int) -> np.ndarray:
     """colour-science's sRGB decoding (IEC 61966-2-1 EOTF, ``colour.models.eotf_sRGB``, the
     same values as ``colour.cctf_decoding(..., function="sRGB")``) at the levels ``0 ..
-    max_level`` divided by ``max_level``: float64 ``(max_level + 1,)``, read-only."""
+    max_level`` divided by ``max_level``: float64 ``(max_level + 1,)``, shared (not to be
+    written to)."""
     m = int(max_level)
 
     def compute() -> dict[str, np.ndarray]:
