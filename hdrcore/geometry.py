@@ -347,17 +347,21 @@ def keys_at(src, sx, sy):  # pragma: no cover - compiled
 @_inline
 def keys_row_weights(sx, sy, n, ix, iy, wx, wy):  # pragma: no cover - compiled
     """For the positions ``sx[:n], sy[:n]``: ``ix, iy`` their floors and ``wx, wy`` ``(>= n,
-    4)`` their Keys weights, as :func:`keys_at` takes them (meaningless for a position that is
-    not finite: read only those inside the frame). A straight loop of its
-    own (it vectorises), for a row of reads by :func:`keys_row_at`: the same values as
-    ``keys_at`` to the bit, in about half its time a pixel when each read makes its own."""
+    4)`` their Keys weights, as :func:`keys_at` takes them (a position that is not finite or
+    beyond 1e15 gets those of 0: such a position is outside any frame, never read). A straight
+    loop of its own (it vectorises), for a row of reads by :func:`keys_row_at`: the same values
+    as ``keys_at`` to the bit, in about half its time a pixel when each read makes its own."""
     for k in range(n):
-        fx = np.floor(sx[k])
-        fy = np.floor(sy[k])
+        px = sx[k]
+        py = sy[k]
+        px = px if abs(px) < 1e15 else 0.0  # NaN fails the test too: no int() of NaN
+        py = py if abs(py) < 1e15 else 0.0
+        fx = np.floor(px)
+        fy = np.floor(py)
         ix[k] = int(fx)
         iy[k] = int(fy)
-        a0, a1, a2, a3 = keys4(sx[k] - fx)
-        b0, b1, b2, b3 = keys4(sy[k] - fy)
+        a0, a1, a2, a3 = keys4(px - fx)
+        b0, b1, b2, b3 = keys4(py - fy)
         wx[k, 0] = a0
         wx[k, 1] = a1
         wx[k, 2] = a2
