@@ -10,8 +10,9 @@ Compression is lossless: PIZ by default (the wavelet coder made for grainy photo
 on a 24-megapixel merge it wrote 2x faster than ZIP and 4 % smaller), or ZIP, ZSTD or none. The
 conversion to half floats runs over row blocks on two threads into one plane per channel (no
 interleaved copy of the image), or with ``overwrite_input`` in the image's own memory by one
-compiled pass; OpenEXR is given two threads (its Python binding compresses on one all the
-same: README). A ``-0.0`` is written as ``0``.
+compiled pass; OpenEXR compresses on two threads (OpenEXR 3.5.3: PIZ of 24 MP of noise 1.05-1.11
+s on one thread, 0.63-0.71 s on two; a real 9 MP merge 0.30-0.37 -> 0.18-0.20 s). A ``-0.0`` is
+written as ``0``.
 """
 
 from __future__ import annotations
