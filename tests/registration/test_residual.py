@@ -328,6 +328,19 @@ def test_each_residual_kernel_matches_its_spec():
     np.testing.assert_allclose(
         residual._tiles(clean, oy, ox, d, win, 2), spec.tiles(clean, oy, ox, d, win, 2), atol=1e-5
     )
+    # whole-pixel offsets (the kernel copies those tiles' pixels), some past the edges
+    d_int = np.round(d)
+    d_int[:3] = 0.0
+    np.testing.assert_allclose(
+        residual._tiles(clean, oy, ox, d_int, win, 2),
+        spec.tiles(clean, oy, ox, d_int, win, 2),
+        atol=1e-5,
+    )
+    # ... the same values as the interpolation there (Keys' weights -0, 1, 0, -0), to the bit
+    eps = np.array([[np.ldexp(1.0, -40), 0.0]])
+    whole = residual._tiles(clean, oy[:1], ox[:1], np.zeros((1, 2)), win, 1)
+    near = residual._tiles(clean, oy[:1], ox[:1], eps, win, 1)  # the interpolating path
+    np.testing.assert_allclose(whole, near, atol=1e-6)
     np.testing.assert_allclose(residual._nan_to_mean(img), spec.nan_to_mean(img), rtol=1e-6)
     assert np.isfinite(residual._nan_to_mean(img)).all()
 
