@@ -34,6 +34,7 @@ __all__ = [
     "keys4",
     "dkeys4",
     "keys_at",
+    "keys_row_scratch",
     "keys_row_weights",
     "keys_row_at",
     "rigid_matrix",
@@ -342,6 +343,18 @@ def keys_at(src, sx, sy):  # pragma: no cover - compiled
     wx0, wx1, wx2, wx3 = keys4(sx - ix)
     wy0, wy1, wy2, wy3 = keys4(sy - iy)
     return _keys_taps(src, ix, iy, wx0, wx1, wx2, wx3, wy0, wy1, wy2, wy3)
+
+
+@_inline
+def keys_row_scratch(n):  # pragma: no cover - compiled
+    """The arrays :func:`keys_row_weights` fills for a row of ``n`` positions: ``(ix, iy, wx,
+    wy)``."""
+    return (
+        np.empty(n, np.int64),
+        np.empty(n, np.int64),
+        np.empty((n, 4)),
+        np.empty((n, 4)),
+    )
 
 
 @_inline

@@ -40,7 +40,7 @@ import numpy as np
 # helpers are inlined: a call passing arrays would touch their reference counts per pixel
 from .._numba import inline as _inline
 from .._numba import njit as _njit
-from ..geometry import dkeys4, keys4, keys_row_weights
+from ..geometry import dkeys4, keys4, keys_row_scratch, keys_row_weights
 
 __all__ = [
     "bin_clip",
@@ -410,10 +410,7 @@ def warp_rows(src, m, r0, r1, out):
     sx = np.empty(w)
     sy = np.empty(w)
     ok = np.empty(w, np.bool_)
-    kx = np.empty(w, np.int64)
-    ky = np.empty(w, np.int64)
-    wxs = np.empty((w, 4))
-    wys = np.empty((w, 4))
+    kx, ky, wxs, wys = keys_row_scratch(w)
     acc = np.empty(nc)
     m00, m01, m02 = m[0, 0], m[0, 1], m[0, 2]
     m10, m11, m12 = m[1, 0], m[1, 1], m[1, 2]

@@ -54,7 +54,7 @@ from scipy.sparse.linalg import spsolve
 from .._numba import njit as _njit
 from .._threads import run_row_spans, thread_map
 from ..errors import ParameterError
-from ..geometry import keys_row_at, keys_row_weights
+from ..geometry import keys_row_at, keys_row_scratch, keys_row_weights
 from ..status import ResidualStatus
 from .field import DisplacementField, map_points
 
@@ -326,10 +326,7 @@ def _warp_rows(src, m, nodes, tile, f, inside, cubic, clipped, out, r0, r1):  # 
     # keys_at per pixel to the bit, in about half the time
     lxs = np.empty(ww)
     lys = np.empty(ww)
-    kx = np.empty(ww, np.int64)
-    ky = np.empty(ww, np.int64)
-    wx = np.empty((ww, 4))
-    wy = np.empty((ww, 4))
+    kx, ky, wx, wy = keys_row_scratch(ww)
     for y in range(r0, r1):
         yf = y * f + off
         fy = min(max(yf / tile, 0.0), gh - 1.0)

@@ -58,7 +58,7 @@ from scipy.special import fdtri
 from .._numba import njit as _njit
 from .._threads import run_row_spans, worker_count
 from ..errors import ParameterError
-from ..geometry import keys4, keys_row_at, keys_row_weights
+from ..geometry import keys4, keys_row_at, keys_row_scratch, keys_row_weights
 from ..status import RESIDUAL_STATUSES as _RESIDUAL_STATUSES
 from ..status import ResidualStatus
 from ._memo import array_key, table_key
@@ -329,10 +329,7 @@ def _warp_rows(src, m, out, r0, r1):  # pragma: no cover - compiled
     ww = out.shape[1]
     sx = np.empty(ww)
     sy = np.empty(ww)
-    ix = np.empty(ww, np.int64)
-    iy = np.empty(ww, np.int64)
-    wx = np.empty((ww, 4))
-    wy = np.empty((ww, 4))
+    ix, iy, wx, wy = keys_row_scratch(ww)
     for y in range(r0, r1):
         for x in range(ww):
             zw = m[2, 0] * x + m[2, 1] * y + m[2, 2]
@@ -824,42 +821,40 @@ def _extract_tiles(img, oy, ox, dy, dx, win, out, i0, i1):  # pragma: no cover -
         fx = dx[i] - fx0
         y0 = oy[i] + int(fy0) - 1
         x0 = ox[i] + int(fx0) - 1
+        mean = 0.0
         if fy == 0.0 and fx == 0.0:
-            mean = 0.0
             for r in range(t):
                 yb = min(max(y0 + r + 1, 0), h - 1)
                 for c in range(t):
                     v = np.float64(img[yb, min(max(x0 + c + 1, 0), w - 1)])
                     out[i, r, c] = v
                     mean += v * win[r, c]
-            mean /= wsum
+        else:
+            wy0, wy1, wy2, wy3 = keys4(fy)
+            wx0, wx1, wx2, wx3 = keys4(fx)
+            for r in range(t):
+                ya = min(max(y0 + r, 0), h - 1)
+                yb = min(max(y0 + r + 1, 0), h - 1)
+                yc = min(max(y0 + r + 2, 0), h - 1)
+                yd = min(max(y0 + r + 3, 0), h - 1)
+                for c in range(t + 3):
+                    xx = min(max(x0 + c, 0), w - 1)
+                    tmp[r, c] = (
+                        wy0 * img[ya, xx]
+                        + wy1 * img[yb, xx]
+                        + wy2 * img[yc, xx]
+                        + wy3 * img[yd, xx]
+                    )
             for r in range(t):
                 for c in range(t):
-                    out[i, r, c] = (out[i, r, c] - mean) * win[r, c]
-            continue
-        wy0, wy1, wy2, wy3 = keys4(fy)
-        wx0, wx1, wx2, wx3 = keys4(fx)
-        for r in range(t):
-            ya = min(max(y0 + r, 0), h - 1)
-            yb = min(max(y0 + r + 1, 0), h - 1)
-            yc = min(max(y0 + r + 2, 0), h - 1)
-            yd = min(max(y0 + r + 3, 0), h - 1)
-            for c in range(t + 3):
-                xx = min(max(x0 + c, 0), w - 1)
-                tmp[r, c] = (
-                    wy0 * img[ya, xx] + wy1 * img[yb, xx] + wy2 * img[yc, xx] + wy3 * img[yd, xx]
-                )
-        mean = 0.0
-        for r in range(t):
-            for c in range(t):
-                v = (
-                    wx0 * tmp[r, c]
-                    + wx1 * tmp[r, c + 1]
-                    + wx2 * tmp[r, c + 2]
-                    + wx3 * tmp[r, c + 3]
-                )
-                out[i, r, c] = v
-                mean += v * win[r, c]
+                    v = (
+                        wx0 * tmp[r, c]
+                        + wx1 * tmp[r, c + 1]
+                        + wx2 * tmp[r, c + 2]
+                        + wx3 * tmp[r, c + 3]
+                    )
+                    out[i, r, c] = v
+                    mean += v * win[r, c]
         mean /= wsum
         for r in range(t):
             for c in range(t):

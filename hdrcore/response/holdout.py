@@ -55,7 +55,7 @@ def fold_masks(
             iy = np.minimum(np.arange(h) * grid // max(h, 1), grid - 1)
             ix = np.minimum(np.arange(w) * grid // max(w, 1), grid - 1)
             # one row per row of regions, then each image row its region row's (a copy
-            # of rows, not an integer sum and remainder per pixel: 0.28 -> 0.01 s at 9 MP)
+            # of rows, not an integer sum and remainder per pixel: 0.28 -> 0.002 s at 9 MP)
             rows = ((np.arange(grid)[:, None] + ix[None, :]) % n_folds) == k
             return rows[iy]
 
