@@ -15,6 +15,7 @@ from __future__ import annotations
 import os
 import threading
 from collections.abc import Callable
+from functools import lru_cache
 
 import numpy as np
 
@@ -24,7 +25,10 @@ _LOCK = threading.Lock()
 _MEMORY: dict[tuple[str, str | None], dict[str, np.ndarray]] = {}
 
 
+@lru_cache(maxsize=1)
 def _version() -> str | None:
+    """colour-science's version (looked up once a process: a metadata search takes ~1 ms, and
+    the preview asks for its tables on every call)."""
     try:
         from importlib.metadata import version
 
