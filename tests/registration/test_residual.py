@@ -336,7 +336,8 @@ def test_each_residual_kernel_matches_its_spec():
         spec.tiles(clean, oy, ox, d_int, win, 2),
         atol=1e-5,
     )
-    # ... the same values as the interpolation there (Keys' weights -0, 1, 0, -0), to the bit
+    # ... and what the interpolating path gives a hair (2**-40 px) away: the copy reads the
+    # right pixels (a copy shifted by a pixel would be off by far more than the tolerance)
     eps = np.array([[np.ldexp(1.0, -40), 0.0]])
     whole = residual._tiles(clean, oy[:1], ox[:1], np.zeros((1, 2)), win, 1)
     near = residual._tiles(clean, oy[:1], ox[:1], eps, win, 1)  # the interpolating path
