@@ -54,6 +54,41 @@ def test_quantile_levels_flat_run_takes_middle() -> None:
     assert quantile_levels(cdf, np.array([0.5]))[0] == pytest.approx(1.5)
 
 
+def _quantiles_searched(cdf: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """The binary-search form of quantile_levels (the order of ``q`` made irrelevant: it is
+    answered shuffled and put back)."""
+    perm = np.random.default_rng(0).permutation(q.size)
+    out = np.empty(q.size)
+    out[perm] = quantile_levels(cdf, q[perm])
+    return out
+
+
+@pytest.mark.parametrize("levels", [256, 4096, 65536])
+def test_quantile_levels_rising_queries_match_binary_search_to_the_bit(levels: int) -> None:
+    """Rising queries take one merged pass (btf._quantiles_rising): the same values as the
+    binary searches, on histograms with empty runs, leading and trailing zeros, queries on the
+    knots exactly, below the first and at the last."""
+    rng = np.random.default_rng(levels)
+    for trial in range(6):
+        h = rng.poisson(rng.uniform(0.2, 30.0), levels).astype(np.int64)
+        h[rng.random(levels) < 0.3] = 0  # empty runs
+        h[: rng.integers(0, levels // 8)] = 0
+        h[levels - rng.integers(1, levels // 8) :] = 0
+        h[rng.integers(0, levels)] += 1
+        cdf = np.cumsum(h) / h.sum()
+        picked = cdf[rng.integers(0, levels, levels)]
+        q = np.sort(np.concatenate([rng.random(3 * levels), picked, [0.0, 1.0, 1.5, -0.2]]))
+        if trial % 2:
+            q = cdf.copy()  # a BTF's own queries: every knot
+        got = quantile_levels(cdf, q)
+        want = _quantiles_searched(cdf, q)
+        assert got.tobytes() == want.tobytes()
+    # a query below 64 values, or falling, keeps the binary searches (same values either way)
+    cdf = np.array([0.0, 0.25, 0.25, 0.75, 1.0])
+    q = np.linspace(1.0, 0.0, 100)
+    np.testing.assert_array_equal(quantile_levels(cdf, q), quantile_levels(cdf, q[::-1])[::-1])
+
+
 def test_bad_input() -> None:
     with pytest.raises(EstimationError, match="dark histogram is empty"):
         brightness_transfer_function(np.zeros(256, int), np.ones(256, int))

@@ -119,8 +119,8 @@ def _spec(field: str, *, choices: Iterable[str] | None = None) -> dict[str, Any]
             metavar="N",
             help="noise floor in levels (default: 3 x the read noise measured "
             "from the frames (RAW: optical-black pixels or the darkest "
-            "flat regions), at least 2 levels; JPEG/PNG/TIFF: at least 2%% "
-            "of the largest level; raised above a black pedestal of the "
+            "flat regions), at least 2 levels; 8-bit JPEG/PNG/TIFF: at least "
+            "2%% of the largest level; raised above a black pedestal of the "
             "darkest frame)",
         ),
         "threshold": dict(

@@ -70,3 +70,31 @@ def test_cache_key_is_the_histograms_contents(pair):
     refined._blur_cache.clear()
     c = exposure_ratio_refined(hd, other, saturation=0.95 * m, noise_sigma=2.0)
     assert _fields(b) == _fields(c) and b.ratio != a.ratio
+
+
+@pytest.mark.parametrize("sigma", [0.7, 12.0, 16.5, 110.0, 590.0])
+def test_blur_histogram_long_kernels_through_the_fft(sigma: float) -> None:
+    """A 16-bit frame's noise blur (hundreds of levels: the real Pixel 7 bracket as 16-bit
+    TIFFs) goes through the FFT: the direct Gaussian's values to 1e-12 of the largest bin, mass
+    kept, no negative bin; short kernels keep the direct filter (the same values as before)."""
+    from scipy.ndimage import gaussian_filter1d
+
+    from hdrcore.exposure.refined import FFT_BLUR_RADIUS, blur_histogram
+
+    rng = np.random.default_rng(int(sigma * 10))
+    h = rng.poisson(40.0, (3, 65536)).astype(np.int64)
+    h[:, :900] = 0
+    h[:, -2500:] = 0
+    h[:, 30000:30100] = 0
+    got = blur_histogram(h, sigma)
+    pad = int(np.ceil(4 * sigma)) + 1
+    z = np.pad(h.astype(np.float64), [(0, 0), (pad, pad)])
+    b = gaussian_filter1d(z, sigma, axis=-1, mode="constant", truncate=4.0)
+    want = b[:, pad:-pad].copy()
+    want[:, 0] += b[:, :pad].sum(axis=-1)
+    want[:, -1] += b[:, -pad:].sum(axis=-1)
+    assert got.shape == h.shape and got.min() >= 0.0
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-12 * want.max())
+    np.testing.assert_allclose(got.sum(axis=-1), h.sum(axis=-1), rtol=1e-12)
+    if int(4 * sigma + 0.5) <= FFT_BLUR_RADIUS:
+        assert got.tobytes() == want.tobytes()
