@@ -315,8 +315,9 @@ def _merge(task: BracketTask) -> tuple[BracketRecord, dict[str, Any] | None, lis
         worst = {v.get("severity") for v in report.get("verdicts", [])}
         status = "error" if code == 1 else "warning" if "warning" in worst else "ok"
         if code == 1:
-            errs = [
-                v["message"] for v in report.get("verdicts", []) if v.get("severity") == "error"
+            verdicts = report.get("verdicts", [])
+            errs = [v["message"] for v in verdicts if v.get("severity") == "error"] + [
+                v["message"] for v in verdicts if v.get("code") in merge_cli.STAGE_FAILED
             ]
             reason = errs[0] if errs else "a stage failed"
     except HdrError as exc:

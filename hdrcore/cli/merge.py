@@ -38,6 +38,12 @@ __all__ = ["MERGE_FIELDS", "add_parser", "run"]
 #: the pipeline's parameters ``hdrcore merge`` offers (every one the command line has)
 MERGE_FIELDS = tuple(FLAGS)
 
+#: Verdicts that say a stage failed although the merge was written (exit status 1, the
+#: report's ``status`` ``"stage-failed"``): a pair that could not be registered on a bracket
+#: whose other pairs moved (a static bracket's unregistrable pair keeps the identity rightly,
+#: ``registration-identity``, and is no failure).
+STAGE_FAILED = frozenset({"registration-failed"})
+
 
 #: The ghost test runs beside the outputs' writing when its block sums take at most this
 #: (3 x 24 MP: 77 MiB, run beside); larger ones run before it, so their memory does not add to
@@ -261,6 +267,9 @@ def run(args: argparse.Namespace) -> int:
         else:
             progress.close()
     report = result.to_report()
+    failed = [v for v in result.verdicts if v.code in STAGE_FAILED]
+    if report["status"] == "ok" and failed:
+        report["status"] = "stage-failed"
     report["timings"]["decode"] = decode_seconds
     report["timings"]["write"] = written["write_seconds"]
     if written["crop"] is not None:
@@ -283,6 +292,14 @@ def run(args: argparse.Namespace) -> int:
     errors = [v for v in result.verdicts if v.severity == "error"]
     if errors:
         print(f"hdrcore: merge finished with errors: {errors[0].message}", file=sys.stderr)
+        return 1
+    if failed:
+        print(
+            f"hdrcore: merged, but a stage failed ({len(failed)} verdict"
+            f"{'' if len(failed) == 1 else 's'} {failed[0].code}): the report's status is "
+            "stage-failed",
+            file=sys.stderr,
+        )
         return 1
     return 0
 

@@ -510,7 +510,7 @@ def _unify_orientation(frames: list[Frame]) -> tuple[list[Frame], BracketWarning
 
 
 def _check_consistent(frames: list[Frame]) -> None:
-    """Same size, same kind (RAW or not) and same bit depth: the frame that differs from the
+    """Same kind (RAW or not), same size and same bit depth: the frame that differs from the
     others (from most of them; with a tie, from the first in file order) is the one named."""
 
     def odd_one(key: Callable[[Frame], object]) -> tuple[Frame, list[Frame]] | None:
@@ -519,6 +519,16 @@ def _check_consistent(frames: list[Frame]) -> None:
         odd = next((f for f in frames if key(f) != common), None)
         return None if odd is None else (odd, alike)
 
+    # the kind first: a RAW file among JPEGs differs in size too, and its kind says why
+    found = odd_one(lambda f: f.is_linear)
+    if found:
+        f, alike = found
+        raise BracketError(
+            "cannot mix RAW and non-linear (JPEG/PNG/TIFF) frames in one bracket",
+            path=f.path,
+            expected=f"{alike[0].meta.format} like {_names(alike)}",
+            found=f.meta.format,
+        )
     found = odd_one(lambda f: f.shape)
     if found:
         f, alike = found
@@ -529,21 +539,14 @@ def _check_consistent(frames: list[Frame]) -> None:
                 f" once turned by its orientation tag {_orientation_tag(f)} "
                 f"({_ORIENTATION_WORDS[_orientation_tag(f)]})"
             )
+        if not turned and tuple(f.shape[:2]) == tuple(ref.shape[:2])[::-1]:
+            turned = " (the same size turned by 90 degrees: a frame rotated in an editor?)"
         others = "the first frame" if len(frames) == 2 else "the other frames"
         raise BracketError(
             f"frame size differs from {others}{turned}",
             path=f.path,
             expected=f"{ref.shape[1]}x{ref.shape[0]} like {_names(alike)}",
             found=f"{f.shape[1]}x{f.shape[0]}",
-        )
-    found = odd_one(lambda f: f.is_linear)
-    if found:
-        f, alike = found
-        raise BracketError(
-            "cannot mix RAW and non-linear (JPEG/PNG/TIFF) frames in one bracket",
-            path=f.path,
-            expected=f"{alike[0].meta.format} like {_names(alike)}",
-            found=f.meta.format,
         )
     if not frames[0].is_linear:
         found = odd_one(lambda f: f.max_level)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -365,3 +366,34 @@ def test_the_merge_keeps_no_weight_maps_and_every_output_is_as_it_was(
     assert lean[1] == kept[1]
     assert lean[2] == kept[2]
     assert lean[2]["merge"]["provenance"]["mean_share"][0] > 0
+
+
+def test_a_pair_that_cannot_be_registered_exits_1(tmp_path: Path, capsys) -> None:
+    """The help's contract: "1 merged, but a stage failed (e.g. a pair could not be
+    registered)". A hand-held bracket (frame 1 moved) whose last frame is its own pixels
+    shuffled (the same histograms: the ratios are measured; nothing to register) is merged,
+    exits 1 and says so; the report's status is stage-failed."""
+    sim = simulate_bracket(
+        scene="window",
+        shape=(240, 360),
+        exposure_times=(1 / 64, 1 / 16, 1 / 4),
+        bits=8,
+        response="gamma",
+        noise_sigma=1.0,
+        motion=[(0.0, 0.0, 0.0), (4.0, -3.0, 0.0), (0.0, 0.0, 0.0)],
+        seed=7,
+    )
+    last = sim.frames[2].reshape(-1, 3).copy()
+    np.random.default_rng(1).shuffle(last)
+    frames = [*sim.frames[:2], last.reshape(sim.frames[2].shape)]
+    write_bracket(tmp_path / "in", replace(sim, frames=frames), fmt="png")
+    exr, rep = tmp_path / "o.exr", tmp_path / "r.json"
+    rc = main(["merge", str(tmp_path / "in"), "-o", str(exr), "--report", str(rep), "--quiet"])
+    err = capsys.readouterr().err
+    assert rc == 1, err
+    assert "merged, but a stage failed" in err and "registration-failed" in err
+    report = json.loads(rep.read_text())
+    assert report["status"] == "stage-failed"
+    assert [p["status"] for p in report["registration"]["pairs"]][1] != "ok"
+    assert any(v["code"] == "registration-failed" for v in report["verdicts"])
+    assert exr.exists()

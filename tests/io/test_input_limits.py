@@ -297,6 +297,31 @@ def test_size_error_names_the_odd_frame(tmp_path: Path) -> None:
         load_bracket([odd, b, c])
 
 
+def test_size_error_of_a_frame_turned_by_90_degrees_says_so(tmp_path: Path) -> None:
+    a = write_jpeg(tmp_path / "a.png", gradient(24, 32), fmt="PNG")
+    b = write_jpeg(tmp_path / "b.png", gradient(24, 32) // 2, fmt="PNG")
+    c = write_jpeg(tmp_path / "c.png", gradient(32, 24), fmt="PNG")
+    with pytest.raises(
+        Exception,
+        match=r"c\.png: frame size differs from the other frames \(the same size turned by 90 "
+        r"degrees: a frame rotated in an editor\?\) \(expected 32x24 like a\.png, b\.png, "
+        r"found 24x32\)",
+    ):
+        load_bracket([a, b, c])
+
+
+def test_a_raw_frame_among_pngs_is_named_for_its_kind_before_its_size(tmp_path: Path) -> None:
+    """A RAW file among JPEG/PNG frames differs in size as well: the error says it is RAW."""
+    a = write_jpeg(tmp_path / "a.png", gradient(24, 32), fmt="PNG")
+    b = write_jpeg(tmp_path / "b.png", gradient(24, 32) // 2, fmt="PNG")
+    raw = _dng(tmp_path / "c.dng")
+    with pytest.raises(
+        Exception,
+        match=r"c\.dng: cannot mix RAW and non-linear \(JPEG/PNG/TIFF\) frames in one bracket",
+    ):
+        load_bracket([a, b, raw])
+
+
 def test_size_error_after_orientation_says_so(tmp_path: Path) -> None:
     """Stored sizes differ (no common orientation), and the tag turns one frame across."""
     a = write_jpeg(tmp_path / "a.png", gradient(24, 32), fmt="PNG")
