@@ -343,6 +343,40 @@ def exif_pairs(times_source: str) -> set[str]:
     return {part.strip() for part in tail.split(",") if part.strip()}
 
 
+def _excluded_colour(result: PipelineResult, names: list[str]) -> list[Verdict]:
+    """A warning when the excluded colour matches no pixel of some frames (or of all): their
+    marks are then merged as picture. JPEG cannot keep an exact colour (its compression moved
+    the memorial scans' pure blue (0, 0, 255) to about (1, 1, 245) inside the marks and by up
+    to 170 levels at their thin edges: none matched in the darkest frames as JPEG)."""
+    counts = result.excluded_pixels
+    colour = result.params.exclude_colour
+    if counts is None or colour is None or all(n > 0 for n in counts):
+        return []
+    b = result.bracket
+    empty = [k for k, n in enumerate(counts) if n == 0]
+    shown = tuple(int(c) for c in colour)
+    jpeg = any(str(b.frames[k].meta.format).lower() in ("jpeg", "jpg") for k in empty)
+    why = (
+        " JPEG compression cannot keep an exact colour: convert the marks to a colour the "
+        "frames hold (or mask them before compressing), or give lossless frames."
+        if jpeg
+        else ""
+    )
+    if len(empty) == len(counts):
+        text = (
+            f"The excluded colour {shown} matches no pixel of any frame: nothing was left out.{why}"
+        )
+    else:
+        listed = ", ".join(f"{k} ({names[k]})" for k in empty)
+        text = (
+            f"The excluded colour {shown} matches no pixel of frame"
+            f"{'' if len(empty) == 1 else 's'} {listed} while the others have "
+            f"{max(counts)} at most: whatever marks those frames have are merged and "
+            f"registered as picture.{why}"
+        )
+    return [Verdict("excluded-colour-unmatched", "warning", text, tuple(empty))]
+
+
 def diagnose(result: PipelineResult) -> list[Verdict]:
     """Verdicts for one pipeline run, most severe first."""
     out: list[Verdict] = []
@@ -364,6 +398,8 @@ def diagnose(result: PipelineResult) -> list[Verdict]:
                 (),
             )
         )
+
+    out.extend(_excluded_colour(result, names))
 
     for w in b.warnings:
         if w.code in _CAPTURE:

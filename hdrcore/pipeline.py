@@ -353,6 +353,10 @@ class PipelineResult:
     #: left out of the estimation as ``exclude_colour`` would (``None``: none found, or the
     #: caller chose ``exclude_colour``)
     marker_colour: tuple[int, int, int] | None = None
+    #: per frame, how many pixels have the excluded colour (``None`` without ``exclude_colour``):
+    #: a frame where it matches nothing keeps its marks as picture (JPEG cannot hold an exact
+    #: colour), which the diagnosis says
+    excluded_pixels: tuple[int, ...] | None = None
     #: a run with ``checks="later"``: the call that measures the colour checks (``colour`` has
     #: no ``before`` and ``after`` until :meth:`Pipeline.finish_checks`)
     colour_pending: Callable[[], dict[str, Any]] | None = field(
@@ -1141,6 +1145,10 @@ class Pipeline:
             tuple(run.get("registration_levels")),
             tuple(run.get("registration_ratios")),
         )
+        excluded = run.get("exclusions")
+        excluded_pixels = (
+            None if excluded is None else tuple(int(np.count_nonzero(m)) for m in excluded[0])
+        )
         if want("registration"):
             registration = run.get("registration")
         if want("overlap_ratios"):
@@ -1191,6 +1199,7 @@ class Pipeline:
             noise=self.noise(),
             frame_signals=signals,
             marker_colour=self._marker_used,
+            excluded_pixels=excluded_pixels,
             colour_pending=colour_pending,
             frame_measures=frame_measures,
             registration_inputs=reg_inputs,

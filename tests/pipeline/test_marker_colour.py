@@ -3,6 +3,8 @@ border areas (0, 0, 255)) is found and left out by default, as --exclude-colour 
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -48,3 +50,28 @@ def test_a_painted_colour_is_found_and_left_out(brackets) -> None:
     again = pipe.run(res.params.replace(tonemap_exposure=0.5))
     assert again.marker_colour == (0, 0, 255)
     assert any(v.code == "marker-colour-excluded" for v in again.verdicts)
+
+
+def test_an_excluded_colour_that_some_frames_lack_is_a_warning(brackets) -> None:
+    """``exclude_colour`` matching no pixel of a frame (a JPEG moved its marks' colour) leaves
+    that frame's marks in the picture: a warning names the frames; matching nowhere says nothing
+    was left out; matching everywhere says nothing."""
+    plain, marked = brackets
+    res = Pipeline(marked).run(PipelineParams(align="none", exclude_colour=(0, 0, 255)))
+    assert res.excluded_pixels is not None and all(n > 0 for n in res.excluded_pixels)
+    assert not any(v.code == "excluded-colour-unmatched" for v in res.verdicts)
+    nowhere = Pipeline(plain).run(PipelineParams(align="none", exclude_colour=(1, 2, 3)))
+    assert nowhere.excluded_pixels == (0, 0, 0)
+    (v,) = [v for v in nowhere.verdicts if v.code == "excluded-colour-unmatched"]
+    assert v.severity == "warning" and "matches no pixel of any frame" in v.message
+    # the middle frame's marks moved off the colour (as JPEG moves them)
+    frames = list(marked.frames)
+    lv = frames[1].levels.copy()
+    lv[(lv[..., 0] == 0) & (lv[..., 1] == 0) & (lv[..., 2] == 255)] = (1, 1, 245)
+    frames[1] = replace(frames[1], levels=lv)
+    moved = replace(marked, frames=tuple(frames))
+    some = Pipeline(moved).run(PipelineParams(align="none", exclude_colour=(0, 0, 255)))
+    assert some.excluded_pixels is not None and some.excluded_pixels[1] == 0
+    (v,) = [v for v in some.verdicts if v.code == "excluded-colour-unmatched"]
+    assert v.frames == (1,) and "frame 1 (" in v.message
+    assert Pipeline(plain).run(PipelineParams(align="none")).excluded_pixels is None
