@@ -194,6 +194,21 @@ def _response_and_colour(result: PipelineResult) -> list[Verdict]:
     out: list[Verdict] = []
     resp = result.response
     sel = None if resp is None else resp.selection
+    b = result.bracket
+    if not b.is_linear and "no-exposure-times" in b.warning_codes():
+        out.append(
+            Verdict(
+                "ratios-response-ambiguous",
+                "warning",
+                "No exposure times: the ratios of JPEG/PNG/TIFF frames come from their "
+                "histograms through the response, and the two trade off (a response raised to "
+                "a power explains the same frames with every ratio raised to that power): "
+                "the ratios' intervals assume the response is right, and the radiance map's "
+                "contrast is only as right as both. Measured on the real frobisher bracket "
+                "without its EXIF: ratios 13.1 and 13.2 where the times say 8 (8.05 with them). "
+                "Give the times (--times) if you know them.",
+            )
+        )
     if sel is not None and sel.fallback:
         out.append(
             Verdict(

@@ -51,3 +51,38 @@ def test_a_pair_that_barely_moved_is_not_said_to_have_moved(memorial_dir) -> Non
             assert shifts[k] > MOTION_BIAS_PX
         else:
             assert code == "ratio-estimates-differ" and shifts[k] <= MOTION_BIAS_PX
+
+
+def test_non_linear_frames_without_times_warn_of_the_ratio_response_trade_off(
+    tmp_path,
+) -> None:
+    """Without exposure times a JPEG/PNG bracket's ratios and response trade off (the real
+    frobisher without EXIF: 13.1 and 13.2 for 8): a warning says so; with a times file it is
+    not given."""
+    from PIL import Image
+
+    from hdrcore.io import load_bracket
+    from hdrcore.pipeline import Pipeline, PipelineParams
+    from hdrcore.synthetic import simulate_bracket, write_bracket
+
+    sim = simulate_bracket(
+        scene="window",
+        shape=(96, 144),
+        exposure_times=(1 / 64, 1 / 16, 1 / 4),
+        bits=8,
+        response="gamma",
+        seed=3,
+    )
+    write_bracket(tmp_path, sim, fmt="png")
+    files = sorted(tmp_path.glob("*.png"))
+    for f in files:  # the simulator writes the times into the PNGs: saved again without them
+        Image.open(f).copy().save(f, exif=b"")
+    params = PipelineParams(align="none")
+    bare = load_bracket(files)
+    assert "no-exposure-times" in bare.warning_codes()
+    res = Pipeline(bare).run(params, until="ratios")
+    (v,) = [v for v in res.verdicts if v.code == "ratios-response-ambiguous"]
+    assert v.severity == "warning" and "--times" in v.message
+    times = {f.name: t for f, t in zip(files, (1 / 64, 1 / 16, 1 / 4), strict=True)}
+    timed = Pipeline(load_bracket(files, exposure_times=times)).run(params, until="ratios")
+    assert not any(v.code == "ratios-response-ambiguous" for v in timed.verdicts)
