@@ -197,7 +197,7 @@ def _ifd0(
         TiffTag(700, 1, _xmp_packet({**provenance, "scale": scale})),
         TiffTag(50706, 1, bytes((1, 4, 0, 0))),
         TiffTag(50707, 1, bytes((1, 4, 0, 0))),
-        TiffTag(50708, 2, f"{make} {model}"),
+        TiffTag(50708, 2, model if model.lower().startswith(make.lower()) else f"{make} {model}"),
         TiffTag(50714, 4, (0,)),
         TiffTag(50717, 4, (1,)),
         TiffTag(50730, 10, (_srational(meta.baseline_exposure),)),

@@ -14,7 +14,7 @@ from fractions import Fraction
 from pathlib import Path
 from typing import Any
 
-__all__ = ["ExifData", "read_exif", "parse_exif_tags"]
+__all__ = ["ExifData", "read_exif", "parse_exif_tags", "read_ciff_make_model"]
 
 log = logging.getLogger(__name__)
 
@@ -148,3 +148,58 @@ def read_exif(path: str | Path) -> ExifData:
         log.debug("no EXIF in %s: %s", path, exc)
         return ExifData()
     return parse_exif_tags(tags or {})
+
+
+#: CIFF (Canon's CRW): the record holding "Make\0Model\0" (ASCII type 0x0800, code 0x0a).
+_CIFF_MAKE_MODEL = 0x080A
+
+
+def read_ciff_make_model(path: str | Path) -> tuple[str | None, str | None]:
+    """Make and model of a Canon CRW (CIFF) file, which ExifRead does not read (it holds no TIFF
+    EXIF): the heap records' ``0x080a`` entry, found by walking the heaps (bounded: at most 8
+    levels, entries within their heap); ``(None, None)`` for any other file or a damaged one.
+    Format: Canon's CIFF 1.0r4 (a 26-byte header ``II``/``MM``, length, ``HEAPCCDR``; each heap's
+    last four bytes point at its table of 10-byte entries ``tag, size, offset``)."""
+    import struct
+
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(14)
+            if len(head) < 14 or head[6:14] != b"HEAPCCDR" or head[:2] not in (b"II", b"MM"):
+                return None, None
+            data = head + fh.read()
+    except OSError:
+        return None, None
+    if len(data) < 26:
+        return None, None
+    e = "<" if data[:2] == b"II" else ">"
+
+    def walk(start: int, end: int, depth: int) -> tuple[str | None, str | None] | None:
+        if depth > 8 or end - start < 4 or end > len(data):
+            return None
+        (table,) = struct.unpack_from(e + "I", data, end - 4)
+        at = start + table
+        if at + 2 > end:
+            return None
+        (count,) = struct.unpack_from(e + "H", data, at)
+        for k in range(min(count, (end - at - 2) // 10)):
+            tag, size, offset = struct.unpack_from(e + "HII", data, at + 2 + 10 * k)
+            if tag & 0xC000:  # data inside the entry: no make or model there
+                continue
+            lo, hi = start + offset, start + offset + size
+            if hi > end or lo < start:
+                continue
+            if tag & 0x3FFF == _CIFF_MAKE_MODEL:
+                parts = data[lo:hi].split(b"\0")
+                words = [p.decode("latin-1").strip() for p in parts[:2]]
+                make = words[0] if words and words[0] else None
+                model = words[1] if len(words) > 1 and words[1] else None
+                return make, model
+            if tag & 0x3800 in (0x2800, 0x3000):  # a sub-heap
+                found = walk(lo, hi, depth + 1)
+                if found is not None:
+                    return found
+        return None
+
+    (header,) = struct.unpack_from(e + "I", data, 2)
+    return walk(header, len(data), 0) or (None, None)

@@ -96,6 +96,10 @@ class FrameMetadata:
 
     @property
     def camera(self) -> str | None:
+        """Make and model in one name; a model that names its make already (Canon's "Canon
+        PowerShot G2") is the name alone."""
+        if self.make and self.model and self.model.lower().startswith(self.make.lower()):
+            return self.model
         parts = [p for p in (self.make, self.model) if p]
         return " ".join(parts) if parts else None
 

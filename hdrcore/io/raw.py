@@ -57,7 +57,7 @@ import numpy as np
 
 from ..errors import ImageReadError, ParameterError
 from ._capture import c_stderr
-from .exif import read_exif
+from .exif import read_ciff_make_model, read_exif
 from .frame import Frame, FrameMetadata, RawCFA, apply_orientation
 
 __all__ = [
@@ -517,6 +517,9 @@ def read_raw(
     bit_depth = int(np.ceil(np.log2(white + 1)))
 
     exif = read_exif(p)
+    make, model = exif.make, exif.model
+    if make is None and model is None:  # a Canon CRW: CIFF records, no TIFF EXIF
+        make, model = read_ciff_make_model(p)
     exposure = exif.exposure_time
     source = "exif" if exposure is not None else None
     if exposure is None and other is not None and other.shutter_speed > 0:
@@ -552,8 +555,8 @@ def read_raw(
         f_number=fnum,
         iso=iso,
         exposure_bias=exif.exposure_bias,
-        make=exif.make,
-        model=exif.model,
+        make=make,
+        model=model,
         capture_time=capture,
         orientation=_FLIP_TO_ORIENTATION.get(flip, exif.orientation),
         black_level=black_rgb,

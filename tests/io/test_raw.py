@@ -270,3 +270,49 @@ def test_canon_crw_read_noise(crw_dir: Path, name: str, low: float, high: float)
     # LibRaw's black level (32) agrees with the optical black within 0.2 level.
     assert abs(m.optical_black_offset) < 0.2
     assert m.whitebalance_source == "as-shot"
+
+
+def _ciff(make_model: bytes, order: str = "<") -> bytes:
+    """A minimal Canon CIFF file: the header, a root heap holding one sub-heap (0x300a, as
+    Canon's image properties) that holds the make/model record (0x080a)."""
+    sub = make_model + b"\0" * (len(make_model) % 2)
+    table = len(sub)
+    sub += struct.pack(order + "H", 1) + struct.pack(order + "HII", 0x080A, len(make_model), 0)
+    sub += struct.pack(order + "I", table)
+    root = sub
+    table = len(root)
+    root += struct.pack(order + "H", 1) + struct.pack(order + "HII", 0x300A, len(sub), 0)
+    root += struct.pack(order + "I", table)
+    head = (b"II" if order == "<" else b"MM") + struct.pack(order + "I", 26) + b"HEAPCCDR"
+    head += struct.pack(order + "I", 0x00010002) + b"\0" * 8
+    return head + root
+
+
+def test_crw_make_and_model_from_ciff_records(tmp_path: Path) -> None:
+    """Canon's CRW files hold CIFF records, no TIFF EXIF: make and model are read from the
+    0x080a record, in either byte order; a damaged file or another format gives None."""
+    from hdrcore.io.exif import read_ciff_make_model
+
+    for order in "<>":
+        p = tmp_path / f"x{order == '<'}.crw"
+        p.write_bytes(_ciff(b"Canon\0Canon PowerShot Test\0", order))
+        assert read_ciff_make_model(p) == ("Canon", "Canon PowerShot Test")
+    broken = tmp_path / "broken.crw"
+    broken.write_bytes(_ciff(b"Canon\0Canon PowerShot Test\0")[:-3])
+    assert read_ciff_make_model(broken) == (None, None)
+    (tmp_path / "n.jpg").write_bytes(b"\xff\xd8\xff\xe0" + b"\0" * 40)
+    assert read_ciff_make_model(tmp_path / "n.jpg") == (None, None)
+
+
+def test_real_crw_files_name_their_cameras(crw_dir) -> None:
+    """The real CRW files (exiftool reads Canon PowerShot S40 and G2): their frames carry make
+    and model, so a bracket of the two is found to mix cameras."""
+    from hdrcore.io.exif import read_ciff_make_model
+
+    s40, g2 = crw_dir / "S40_CRW_0101.CRW", crw_dir / "G2_CRW_0304.CRW"
+    assert read_ciff_make_model(s40) == ("Canon", "Canon PowerShot S40")
+    frame = load_frame(s40)
+    assert (frame.meta.make, frame.meta.model) == ("Canon", "Canon PowerShot S40")
+    assert frame.meta.camera == "Canon PowerShot S40"
+    b = load_bracket([s40, g2])
+    assert "mixed-cameras" in b.warning_codes()
