@@ -222,6 +222,17 @@ def _unmark(text: str) -> str:
     return text.split(DEFAULT_MARK)[0]
 
 
+#: Characters the number box beside a slider shows (viser's layout at 1600 px).
+BOX_CHARACTERS = 7
+
+
+def _box_decimals(x: float) -> int:
+    """Decimals of a level shown beside its slider: two, fewer when the integer part leaves no
+    room in :data:`BOX_CHARACTERS` (63568.95 -> one)."""
+    whole = len(str(int(abs(x))))
+    return max(0, min(2, BOX_CHARACTERS - whole - 1))
+
+
 def _decimals(x: float) -> int:
     """Decimal places ``x`` needs to be shown exactly, up to 6 (12 -> 0, 247.35 -> 2)."""
     digits = 0
@@ -1053,7 +1064,9 @@ class ClientView:
                 if used > handle.max:  # a noisy bracket's floor (memorial: 21.1 of 8 bits)
                     handle.max = float(math.ceil(2 * used))
                 if moved is None and handle.min <= used:
-                    shown = round(float(used), 2)
+                    # to 0.01 level, as far as the box's seven characters go (a 16-bit
+                    # frame's Z of 63568.95 read "63568.9" cut off; now 63568.9)
+                    shown = round(float(used), _box_decimals(float(used)))
                     # the box beside the slider shows as many decimals as its precision
                     # (viser derives it from the step at creation: 247.35 read "247")
                     handle.precision = max(_decimals(handle.step), _decimals(shown))

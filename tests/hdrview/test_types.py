@@ -80,3 +80,13 @@ def test_sliders_show_the_levels_the_pipeline_used(app: ClientView) -> None:
         assert marks is not None and [(m.value, m.label) for m in marks] == [(used, "default")]
     assert app.saturation_slider.value == 247.35  # an integer slider showed 247
     assert result.noise_floor > 16 and app.noise_slider.value == round(result.noise_floor, 2)
+
+
+def test_slider_boxes_keep_their_values_within_seven_characters() -> None:
+    """The box beside a slider shows seven characters: two decimals while they fit (247.35,
+    3723.83), one for a 16-bit frame's Z (63568.95 showed "63568.9" cut off), none beyond."""
+    from hdrview.view import BOX_CHARACTERS, _box_decimals
+
+    for used, decimals in ((247.35, 2), (3723.83, 2), (63568.95, 1), (464.56, 2), (123456.7, 0)):
+        assert _box_decimals(used) == decimals
+        assert len(f"{round(used, decimals):.{decimals}f}") <= BOX_CHARACTERS
