@@ -679,7 +679,7 @@ class Pipeline:
             raise ParameterError(
                 "noise floor out of range",
                 expected=f"0 <= N < Z = {sat:g}",
-                found=str(p.noise_floor),
+                found=f"{nf:.6g}",  # (a default floor of 5.1 levels read 5.1000000000000005)
             )
         if not (np.isfinite(p.threshold) and p.threshold >= 0):
             raise ParameterError("threshold t must be >= 0", found=str(p.threshold))

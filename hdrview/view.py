@@ -31,6 +31,7 @@ import sys
 import threading
 import time
 import traceback
+import warnings
 import zipfile
 from collections.abc import Callable, Sequence
 from functools import cache
@@ -222,13 +223,14 @@ def _unmark(text: str) -> str:
     return text.split(DEFAULT_MARK)[0]
 
 
-#: Characters the number box beside a slider shows (viser's layout at 1600 px).
-BOX_CHARACTERS = 7
+#: Characters the number box beside a slider shows whole (viser's box is 3 rem wide: "464.56"
+#: fits, the demo's 12-bit Z "3723.83" and a 16-bit frame's "63568.9" were cut off).
+BOX_CHARACTERS = 6
 
 
 def _box_decimals(x: float) -> int:
     """Decimals of a level shown beside its slider: two, fewer when the integer part leaves no
-    room in :data:`BOX_CHARACTERS` (63568.95 -> one)."""
+    room in :data:`BOX_CHARACTERS` (3723.83 -> one, 63568.95 -> none)."""
     whole = len(str(int(abs(x))))
     return max(0, min(2, BOX_CHARACTERS - whole - 1))
 
@@ -307,6 +309,9 @@ class ClientView:
         self.session = Session(workers=app.workers)
         self.controls = Controls()
         self.notifications: list[tuple[str, str, str]] = []  # (level, title, body), newest last
+        # the error toast on the page (errors stay until closed): a new error replaces it, so
+        # failed attempts do not pile up red toasts beside the panel
+        self._error_toast: Any = None
         self.draw_count = 0
         self.last_job_seconds: float | None = None
         self.last_ratios_seconds: float | None = None  # job start -> BTF plot and masks drawn
@@ -666,12 +671,22 @@ class ClientView:
         if target is None:
             return
         try:
-            target.add_notification(
+            if level == "error" and self._error_toast is not None:
+                old, self._error_toast = self._error_toast, None
+                try:
+                    with warnings.catch_warnings():  # (viser warns when it was closed already)
+                        warnings.simplefilter("ignore")
+                        old.remove()
+                except Exception:  # noqa: BLE001 -- the page went away
+                    log.debug("removing the last error toast failed", exc_info=True)
+            toast = target.add_notification(
                 title,
                 body,
                 color=color,
                 auto_close_seconds=None if level == "error" else 8.0,
             )
+            if level == "error":
+                self._error_toast = toast
         except Exception:  # a page that went away
             log.debug("notification to a closed client failed", exc_info=True)
 
@@ -1064,8 +1079,8 @@ class ClientView:
                 if used > handle.max:  # a noisy bracket's floor (memorial: 21.1 of 8 bits)
                     handle.max = float(math.ceil(2 * used))
                 if moved is None and handle.min <= used:
-                    # to 0.01 level, as far as the box's seven characters go (a 16-bit
-                    # frame's Z of 63568.95 read "63568.9" cut off; now 63568.9)
+                    # to 0.01 level, as far as the box's six characters go (the status line
+                    # says the value exactly): 247.35, 3723.8, 63569
                     shown = round(float(used), _box_decimals(float(used)))
                     # the box beside the slider shows as many decimals as its precision
                     # (viser derives it from the step at creation: 247.35 read "247")

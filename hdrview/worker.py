@@ -60,6 +60,11 @@ class JobContext:
                 log.exception("progress callback failed")
 
 
+#: Seconds a failed job waits for a newer request before its error is shown (see
+#: :meth:`LatestWorker._loop`): a key press arrives within it while a value is typed.
+ERROR_GRACE = 0.6
+
+
 class LatestWorker:
     """A single daemon thread running the most recent request."""
 
@@ -154,6 +159,15 @@ class LatestWorker:
             except Superseded:
                 self.dropped += 1
             except BaseException as exc:  # noqa: BLE001 -- reported to the user, never fatal
+                if not ctx.superseded and req.on_error is not None:
+                    # A value typed into a slider's box arrives a keystroke at a time ("200"
+                    # as 2, 20, 200): a failure is reported only when no newer request comes
+                    # within ERROR_GRACE s (the "2" said "noise floor out of range" while the
+                    # "200" was on its way). A newer request ends the wait at once.
+                    with self._cond:
+                        self._cond.wait_for(
+                            lambda: self._pending is not None or self._stopped, ERROR_GRACE
+                        )
                 if ctx.superseded:
                     self.dropped += 1
                 elif req.on_error is not None:

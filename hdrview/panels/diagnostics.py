@@ -143,8 +143,16 @@ def times_words(result: PipelineResult) -> str:
 
     source = result.times_source or ""
     n_pairs = len(result.bracket) - 1
-    if source.startswith("estimated") and n_pairs > 0 and len(exif_pairs(source)) >= n_pairs:
-        return "EXIF for every pair (none could be measured reliably from the images)"
+    used = exif_pairs(source)
+    if source.startswith("estimated") and n_pairs > 0 and len(used) >= n_pairs:
+        source = "EXIF for every pair (none could be measured reliably from the images)"
+    elif len(used) == 1:
+        source = source.replace("EXIF for pairs ", "EXIF for pair ")
+    # the recorded times are EXIF's unless a times file gave them (the memorial's scans)
+    kinds = {f.meta.exposure_time_source for f in result.bracket.frames}
+    if "times-file" in kinds:
+        word = "the times file" if kinds == {"times-file"} else "the recorded times"
+        source = source.replace("EXIF", word)
     return source
 
 

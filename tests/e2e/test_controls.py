@@ -8,7 +8,7 @@ import re
 
 import pytest
 
-from hdrview.view import DEFAULT_MARK, ClientView
+from hdrview.view import BOX_CHARACTERS, DEFAULT_MARK, ClientView, _box_decimals
 
 from .conftest import ARTIFACTS
 from .test_inspector import TIMEOUT, labelled, open_tab, text_field, wait_until
@@ -44,15 +44,18 @@ def test_sliders_start_at_the_values_the_pipeline_used(page, view: ClientView) -
         "Saturation Z to show the pipeline's Z",
     )
     assert abs(slider_value(page, "Noise floor") - r.noise_floor) <= 1.0
-    # the number box beside each slider reads the value itself, not the slider's step
-    # (the demo's 12-bit Z 3723.83 once read "3724", the memorial's 247.35 "247")
+    # the number box beside each slider reads the value itself, not the slider's step (the
+    # demo's 12-bit Z 3723.83 once read "3724", the memorial's 247.35 "247"), to 0.01 level as
+    # far as its six visible characters go (3723.83 was cut off: it reads 3723.8)
     for label, used in (("Saturation Z", r.saturation), ("Noise floor", r.noise_floor)):
         box = text_field(page, label).and_(page.locator("input:not([type=hidden])"))
+        shown = round(float(used), _box_decimals(float(used)))
         wait_until(
-            lambda box=box, used=used: float(box.input_value()) == round(float(used), 2),
+            lambda box=box, shown=shown: float(box.input_value()) == shown,
             10,
-            f"the {label} box to read {round(float(used), 2)}",
+            f"the {label} box to read {shown}",
         )
+        assert len(box.input_value()) <= BOX_CHARACTERS
     assert slider_value(page, "Threshold t") == pytest.approx(r.params.threshold)
     assert slider_value(page, "Exposure (EV)") == pytest.approx(r.params.tonemap_exposure)
     page.get_by_text(re.compile(rf"Z = {r.saturation:.6g} \(default\)")).first.wait_for(

@@ -509,3 +509,31 @@ def test_buttons_built_before_the_icons_are_read_get_them_when_the_job_ends(monk
     ready.clear()  # a view without a page never waits
     d = ClientView._iconed(headless, add, "Reset", viser.Icon.REFRESH)
     assert d.icon == viser.Icon.REFRESH
+
+
+def test_a_new_error_toast_replaces_the_last_one(app) -> None:
+    """Errors stay on the page until closed: five failed loads showed five red toasts beside
+    the panel. A new error removes the page's previous error toast (info toasts close
+    themselves); every notification is still kept in ``notifications``."""
+
+    class Toast:
+        def __init__(self, shown: list) -> None:
+            self.shown = shown
+            shown.append(self)
+
+        def remove(self) -> None:
+            self.shown.remove(self)
+
+    class Page:
+        def __init__(self) -> None:
+            self.shown: list[Toast] = []
+
+        def add_notification(self, title, body, **kw) -> Toast:
+            return Toast(self.shown)
+
+    page = Page()
+    for k in range(5):
+        app.notify("Cannot load", f"path {k} missing", client=page, level="error")
+    app.notify("Loaded", "frobisher: 3 frames", client=page)
+    assert len(page.shown) == 2  # the last error and the info toast
+    assert sum(1 for lv, _, _ in app.notifications if lv == "error") >= 5

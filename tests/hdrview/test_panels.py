@@ -392,7 +392,28 @@ def test_the_summary_says_exif_when_every_pair_used_it(stage_result) -> None:
     line = summary_line(dataclasses.replace(r, times_source=every))
     assert "exposure times: EXIF for every pair" in line and "estimated" not in line
     some = dataclasses.replace(r, times_source="estimated; EXIF for pairs 0-1")
-    assert "exposure times: estimated; EXIF for pairs 0-1" in summary_line(some)
+    assert "exposure times: estimated; EXIF for pair 0-1" in summary_line(some)
+    if n > 2:
+        two = dataclasses.replace(r, times_source="estimated; EXIF for pairs 0-1, 1-2")
+        assert "exposure times: estimated; EXIF for pairs 0-1, 1-2" in summary_line(two)
+
+
+def test_times_from_a_times_file_are_not_called_exif(stage_result) -> None:
+    """The memorial's scans get their times from a file: the words say so, not "EXIF"."""
+    from hdrview.panels.diagnostics import times_words
+
+    r = stage_result
+    frames = tuple(
+        dataclasses.replace(f, meta=dataclasses.replace(f.meta, exposure_time_source="times-file"))
+        for f in r.bracket.frames
+    )
+    filed = dataclasses.replace(
+        r,
+        bracket=dataclasses.replace(r.bracket, frames=frames),
+        times_source="estimated; EXIF for pairs 0-1",
+    )
+    assert times_words(filed) == "estimated; the times file for pair 0-1"
+    assert "EXIF" not in times_words(dataclasses.replace(filed, times_source="exif"))
 
 
 def test_the_status_line_says_the_times_as_the_summary_does(viewer, stage_result) -> None:

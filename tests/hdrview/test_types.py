@@ -82,11 +82,11 @@ def test_sliders_show_the_levels_the_pipeline_used(app: ClientView) -> None:
     assert result.noise_floor > 16 and app.noise_slider.value == round(result.noise_floor, 2)
 
 
-def test_slider_boxes_keep_their_values_within_seven_characters() -> None:
-    """The box beside a slider shows seven characters: two decimals while they fit (247.35,
-    3723.83), one for a 16-bit frame's Z (63568.95 showed "63568.9" cut off), none beyond."""
+def test_slider_boxes_keep_their_values_within_six_characters() -> None:
+    """The box beside a slider shows six characters whole ("464.56"): two decimals while they
+    fit (247.35), one for a 12-bit Z (3723.83 showed "3723.8" cut off), none for 16 bits."""
     from hdrview.view import BOX_CHARACTERS, _box_decimals
 
-    for used, decimals in ((247.35, 2), (3723.83, 2), (63568.95, 1), (464.56, 2), (123456.7, 0)):
+    for used, decimals in ((247.35, 2), (3723.83, 1), (63568.95, 0), (464.56, 2), (12.5, 2)):
         assert _box_decimals(used) == decimals
         assert len(f"{round(used, decimals):.{decimals}f}") <= BOX_CHARACTERS

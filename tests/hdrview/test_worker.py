@@ -93,3 +93,31 @@ def test_submit_after_stop_raises() -> None:
     w.stop()
     with pytest.raises(RuntimeError, match="stopped"):
         w.submit(lambda ctx: None)
+
+
+def test_an_error_followed_soon_by_a_newer_request_is_not_shown(worker: LatestWorker) -> None:
+    """A value typed into a slider's box arrives a keystroke at a time: the "2" of "200" fails
+    (a noise floor above Z = 2) while "200" is on its way. An error is reported only when no
+    newer request comes within ERROR_GRACE; the newer request runs at once."""
+    from hdrview.worker import ERROR_GRACE
+
+    errors: list[BaseException] = []
+    done: list[int] = []
+    failed = threading.Event()
+
+    def bad(ctx):
+        failed.set()
+        raise ValueError("the 2 of 200")
+
+    worker.submit(bad, on_error=errors.append)
+    assert failed.wait(5)
+    time.sleep(0.05)
+    t0 = time.monotonic()
+    worker.submit(lambda ctx: 200, on_done=done.append, on_error=errors.append)
+    assert worker.wait_idle(5)
+    assert errors == [] and done == [200]
+    assert time.monotonic() - t0 < ERROR_GRACE  # the wait ended when the request came
+    # alone, the error is shown (after the grace)
+    worker.submit(bad, on_error=errors.append)
+    assert worker.wait_idle(5)
+    assert len(errors) == 1 and "the 2 of 200" in str(errors[0])
