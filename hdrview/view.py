@@ -1205,6 +1205,16 @@ class ClientView:
             if not pipeline_available():
                 lines.append("_The processing pipeline (hdrcore.pipeline) is not installed._")
             return "\n\n".join(lines)
+        if result.unused_frames:
+            # a frame left out (black, saturated) is said where the bracket is named, not only
+            # on the Diagnostics tab
+            left = ", ".join(
+                f"frame {u.index} ({esc(b.frames[u.index].name)}) {u.status}"
+                if u.index < len(b)
+                else f"frame {u.index} {u.status}"
+                for u in result.unused_frames
+            )
+            lines[0] += f"; **{len(result.bracket)} used** ({left}: not used)"
         p = result.params
         c = self.controls
 

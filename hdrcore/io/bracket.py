@@ -35,6 +35,7 @@ from ._capture import reading
 from ._paths import input_file, path_problem, resolved
 from .apex import bracket_sequence, snap_exposure_time, snap_f_number
 from .frame import Frame, FrameMetadata, apply_orientation, undo_orientation
+from .header import frame_pixels
 from .ldr import read_ldr, sniff_format
 from .raw import is_raw_path, read_raw
 from .times import read_exposure_times, times_from_mapping
@@ -793,6 +794,7 @@ def load_bracket(
     if len(files) < 2:
         for file in files:  # a path that is missing or unreadable is what is wrong with it
             input_file(file, "file or folder" if not os.path.lexists(file) else "file")
+            frame_pixels(file)  # and a file that is no image (its header read, nothing decoded)
         where = files[0] if files else None
         raise BracketError(
             "a bracket needs at least two frames", path=where, found=f"{len(files)} frame(s)"

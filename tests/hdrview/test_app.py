@@ -166,6 +166,9 @@ def test_controls_follow_a_bracket_with_a_black_frame(
     assert app.wait_idle(120)
     result = app.session.result
     assert result is not None and [u.index for u in result.unused_frames] == [0]
+    # the status line says so where it names the bracket (it said "4 frames" only)
+    assert "4 frames" in app.status.content and "**3 used** (frame 0 (" in app.status.content
+    assert "black: not used)" in app.status.content
     for t in (0.2, 0.3):
         app.set_control("threshold", t)
         assert app.wait_idle(120)

@@ -121,6 +121,11 @@ def test_single_frame_is_an_error(tmp_path: Path) -> None:
     (p,) = _frames(tmp_path, [Fraction(1, 10)])
     with pytest.raises(BracketError, match=r"f0\.jpg: a bracket needs at least two frames"):
         load_bracket([p])
+    # a single file that is no image says so (it said "needs at least two frames")
+    notes = tmp_path / "notes.txt"
+    notes.write_text("a list of shots")
+    with pytest.raises(InputError, match=r"notes\.txt: not a recognised image"):
+        load_bracket([notes])
 
 
 def test_different_sizes_is_an_error(tmp_path: Path) -> None:
