@@ -567,7 +567,19 @@ class ClientView:
             def cb(event: viser.GuiEvent) -> None:
                 if self._syncing:
                     return
-                self.set_control(name, cast(handle.value), client=event.client)
+                value = cast(handle.value)
+                lo, hi = getattr(handle, "min", None), getattr(handle, "max", None)
+                if lo is not None and hi is not None and not lo <= value <= hi:
+                    # a value typed into the box beyond the slider's range (-3, 999 for an
+                    # 8-bit Z): the box keeps it only until it loses focus, then shows the
+                    # end of the range, which is what runs (it ran -3 with an error first)
+                    value = cast(min(max(value, lo), hi))
+                    self._syncing = True
+                    try:
+                        _assign(handle, value)
+                    finally:
+                        self._syncing = False
+                self.set_control(name, value, client=event.client)
 
             handle.on_update(cb)
 

@@ -540,3 +540,18 @@ def test_a_new_error_toast_replaces_the_last_one(app) -> None:
     app.notify("Loaded", "frobisher: 3 frames", client=page)
     assert len(page.shown) == 2  # the last error and the info toast
     assert sum(1 for lv, _, _ in app.notifications if lv == "error") >= 5
+
+
+def test_a_value_typed_beyond_a_slider_runs_at_the_end_of_its_range(app: InspectorApp) -> None:
+    """-3 typed into the noise floor's box ran -3 (an error toast) and then 0, the box's own
+    clamp: the end of the slider's range is what runs, and the box shows it."""
+    assert app.request_path("bracket")
+    assert app.wait_idle(120)
+    app.noise_slider.value = -3.0  # as the page sends a typed value
+    assert app.wait_idle(120)
+    assert app.controls.noise_floor == app.noise_slider.min == app.noise_slider.value
+    top = app.saturation_slider.max
+    app.saturation_slider.value = top + 744.0
+    assert app.wait_idle(120)
+    assert app.controls.saturation == top == app.saturation_slider.value
+    assert not _errors(app)
