@@ -130,6 +130,29 @@ def fit_to_box(image: np.ndarray, box: tuple[int, int] = BOX) -> np.ndarray:
     return out
 
 
+def layer_loupe(
+    merged: Any, layer: str, crop: np.ndarray, rect: tuple[int, int, int, int]
+) -> np.ndarray:
+    """A layer over a :func:`loupe` crop of the rectangle ``rect`` (``x0, y0, x1, y1`` in image
+    pixels): a mask layer painted on the dimmed crop, the provenance as its frame colours; the
+    full-resolution values, each pixel repeated as the crop repeats it."""
+    x0, y0, x1, y1 = rect
+    k = max(1, crop.shape[0] // max(1, y1 - y0))
+    if layer == "provenance":
+        from hdrcore.merge import dominant_frame  # lazy: colour is slow to import
+
+        dom = dominant_frame(merged.shares[:, y0:y1, x0:x1])
+        img = labels_to_rgb(dom, FRAME_COLOURS, width=10**9)
+    else:
+        attr, colour, _ = _MASK_LAYERS[layer]
+        mask = np.asarray(getattr(merged, attr)[y0:y1, x0:x1], bool)
+        backdrop = _dim(crop[::k, ::k])
+        img = _paint(backdrop, mask, colour)
+    if k > 1:
+        img = np.repeat(np.repeat(img, k, axis=0), k, axis=1)
+    return np.ascontiguousarray(img[: crop.shape[0], : crop.shape[1]])
+
+
 def loupe(
     result: PipelineResult, zoom: float, cx: float, cy: float, box: tuple[int, int] = BOX
 ) -> tuple[np.ndarray, tuple[int, int, int, int]]:
@@ -290,23 +313,26 @@ class ResultPanel:
         zoom = self.zoom.value
         self.centre_x.visible = self.centre_y.visible = zoom != "fit"
         radiance = result.radiance
-        if zoom != "fit" and layer == "tonemapped" and radiance is not None:
+        zoomable = layer == "tonemapped" or (merged is not None and layer in images)
+        if zoom != "fit" and zoomable and radiance is not None:
             factor = float(zoom.split()[0]) / 100.0
             crop, (x0, y0, x1, y1) = loupe(
                 result, factor, self.centre_x.value / 100.0, self.centre_y.value / 100.0
             )
+            if layer != "tonemapped" and merged is not None:
+                # the layer at full resolution over the loupe (it zoomed the tonemapped layer
+                # whatever layer was chosen, and said so in small print)
+                crop = layer_loupe(merged, layer, crop, (x0, y0, x1, y1))
             images["loupe"] = crop
             self.image.image = crop
             self.image.label = (
-                f"{zoom} of the full-resolution result: pixels {x0}-{x1} x "
+                f"{layer}, {zoom} of the full-resolution result: pixels {x0}-{x1} x "
                 f"{y0}-{y1} of {radiance.shape[1]}x{radiance.shape[0]}"
             )
             self.image.visible = True
         elif shown is not None:
             self.image.image = fit_to_box(enlarge(shown))
-            self.image.label = f"{layer}" + (
-                "" if zoom == "fit" else " (the loupe shows the tonemapped layer)"
-            )
+            self.image.label = f"{layer}"
             self.image.visible = True
         self.summary.content = "\n\n".join(lines) if lines else "Tonemapped preview."
         self._images = images

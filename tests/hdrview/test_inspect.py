@@ -3,6 +3,8 @@ preview's rendering, and portrait frames that fit the window."""
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 
 from hdrcore.tonemap import tonemap
@@ -61,3 +63,33 @@ def test_portrait_fits_the_window() -> None:
     assert abs(inner.mean() - 127.5) < 10 and inner.std() < 20
     landscape = np.zeros((400, 600, 3), np.uint8)
     assert fit_to_box(landscape) is landscape
+
+
+def test_the_loupe_zooms_the_layer_shown(app) -> None:
+    """Zoom on the clipping or provenance layer showed the fitted layer and said the loupe
+    showed the tonemapped layer: the loupe now draws the layer itself at full resolution."""
+    from hdrview.panels.result import _MASK_LAYERS, FRAME_COLOURS
+
+    assert app.request_path("bracket")
+    assert app.wait_idle(120)
+    panel = app.result_panel
+    merged = app.session.result.merge
+    panel.zoom.value = "200 %"
+    for layer in ("clipping", "provenance"):
+        app.layer_dropdown.value = layer
+        assert app.wait_idle(60)
+        panel._redraw()
+        assert panel.image.label.startswith(f"{layer}, 200 % of the full-resolution result")
+        crop = panel._images["loupe"]
+        found = re.search(r"pixels (\d+)-\d+ x (\d+)-\d+", panel.image.label)
+        assert found is not None
+        x0, y0 = int(found[1]), int(found[2])
+        sub = crop[::2, ::2]
+        h, w = sub.shape[:2]
+        if layer == "clipping":
+            mask = np.asarray(merged.clipped[y0 : y0 + h, x0 : x0 + w], bool)
+            painted = np.all(sub == np.array(_MASK_LAYERS["clipping"][1], np.uint8), axis=2)
+            assert np.array_equal(painted & mask, mask)
+        else:
+            colours = {tuple(c) for c in sub.reshape(-1, 3)}
+            assert colours <= {tuple(c) for c in FRAME_COLOURS}
