@@ -926,6 +926,12 @@ class ClientView:
             self.registration_stage_seconds = None
             self._sync_widgets_to_bracket()
             self.notify("Loaded", f"{label}: {len(self.session.bracket or ())} frames")
+            if self._drawn_result is None or self._drawn_result.bracket is not self.session.bracket:
+                # the status line names the new bracket at once (it named the previous one,
+                # "Everything came from the cache", until the new result was drawn)
+                self.status.content = (
+                    f"**{esc(label)}**: {len(self.session.bracket or ())} frames; processing..."
+                )
         ctx.check()
         result: PipelineResult | None = None
         if self.session.bracket is not None and pipeline_available():
@@ -1231,9 +1237,19 @@ class ClientView:
         c = self.controls
 
         def mark(control: str) -> str:
-            return "" if getattr(c, control) is not None else " (default)"
+            # the default chosen again from its dropdown is still the default
+            value = getattr(c, control)
+            default = getattr(self.app.defaults, control, None)
+            return " (default)" if value is None or value == default else ""
 
-        response = result.response.method if result.response is not None else str(p.response)
+        # what was asked for and, when "auto" chose, what it chose ("auto: joint-histogram"),
+        # as the dropdown says "auto"
+        method = result.response.method if result.response is not None else None
+        response = (
+            str(p.response)
+            if method is None or method == str(p.response)
+            else f"{p.response}: {method}"
+        )
         lines.append(
             f"Z = {_num(result.saturation)}{mark('saturation')}, "
             f"noise floor = {_num(result.noise_floor)}{mark('noise_floor')}, "

@@ -555,3 +555,18 @@ def test_a_value_typed_beyond_a_slider_runs_at_the_end_of_its_range(app: Inspect
     assert app.wait_idle(120)
     assert app.controls.saturation == top == app.saturation_slider.value
     assert not _errors(app)
+
+
+def test_the_status_line_marks_a_default_chosen_again_and_names_auto_s_choice(
+    app: InspectorApp,
+) -> None:
+    """Choosing "auto" again in the operator's dropdown dropped "(default)" from the status
+    line; the response reads "auto: <the method it chose>" as its dropdown reads "auto"."""
+    assert app.request_path("bracket")
+    assert app.wait_idle(120)
+    app.set_control("tonemap", "auto")
+    assert app.wait_idle(120)
+    status = app.status.content
+    assert "operator = auto (default)" in status
+    method = app.session.result.response.method
+    assert f"response = auto: {method} (default)" in status
