@@ -473,3 +473,19 @@ def test_every_pair_status_has_a_folded_title() -> None:
     assert _group_title("ratio-no-signal") == "The exposure ratio is unreliable (no-signal)"
     assert _group_title("no-overlap") and _group_title("registration-failed")
     assert _group_title("darkest-clipped") is None and _group_title("times-fallback") is None
+
+
+def test_btf_outliers_are_drawn_beneath_the_inliers(stage_result) -> None:
+    """On a phone's locally tone-mapped pair most equations are 3V outliers: their crosses,
+    drawn last and large, hid the inliers the fit used. They are drawn first, lighter."""
+    import numpy as np
+
+    from hdrview.panels.btf import equations_figure
+
+    pair = stage_result.exposures_histogram.pairs[0]
+    inl = np.asarray(pair.inlier_mask, bool)
+    inl[::3] = False  # some outliers, whatever the fit found
+    fig = equations_figure(dataclasses.replace(pair, inlier_mask=inl), None)
+    names = [t.name for t in fig.data]
+    assert names[0] == "outliers (3V)" and any(n.startswith("inliers") for n in names[1:])
+    assert fig.data[0].marker.opacity < 1
