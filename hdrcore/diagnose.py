@@ -10,6 +10,7 @@ the merge's clipping and ghost maps); nothing is recomputed here.
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -195,7 +196,9 @@ def _response_and_colour(result: PipelineResult) -> list[Verdict]:
     resp = result.response
     sel = None if resp is None else resp.selection
     b = result.bracket
-    if not b.is_linear and "no-exposure-times" in b.warning_codes():
+    spec = result.params.response
+    calibrated = not isinstance(spec, str) or os.path.isfile(spec)  # a curve given: no trade
+    if not b.is_linear and not calibrated and "no-exposure-times" in b.warning_codes():
         out.append(
             Verdict(
                 "ratios-response-ambiguous",

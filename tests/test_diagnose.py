@@ -83,6 +83,9 @@ def test_non_linear_frames_without_times_warn_of_the_ratio_response_trade_off(
     res = Pipeline(bare).run(params, until="ratios")
     (v,) = [v for v in res.verdicts if v.code == "ratios-response-ambiguous"]
     assert v.severity == "warning" and "--times" in v.message
+    # a response given (a calibrated curve) leaves nothing to trade
+    given = Pipeline(bare).run(params.replace(response=res.response), until="ratios")
+    assert not any(v.code == "ratios-response-ambiguous" for v in given.verdicts)
     times = {f.name: t for f, t in zip(files, (1 / 64, 1 / 16, 1 / 4), strict=True)}
     timed = Pipeline(load_bracket(files, exposure_times=times)).run(params, until="ratios")
     assert not any(v.code == "ratios-response-ambiguous" for v in timed.verdicts)
